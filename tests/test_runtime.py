@@ -1,0 +1,45 @@
+"""The package's runtime plumbing: LAMMPS loads without environment variables, results are
+written atomically, and the validation registry finds its cases."""
+import json
+
+import pytest
+
+from potentials.lammps_runtime import LammpsUnavailable, lammps_module, new_lammps
+from upscale.io import write_json
+
+
+def test_lammps_imports_without_environment():
+    mod = lammps_module()
+    lmp = new_lammps()
+    try:
+        assert lmp.version() > 20200000
+        for pkg in ("MANYBODY", "PERI"):
+            assert lmp.has_package(pkg), pkg
+    finally:
+        lmp.close()
+    assert mod is lammps_module()
+
+
+def test_atomic_json_keeps_old_file_on_failure(tmp_path):
+    p = tmp_path / "r.json"
+    write_json(p, {"a": 1})
+
+    class Bad:
+        pass
+
+    with pytest.raises(TypeError):
+        write_json(p, {"a": Bad()})
+    assert json.loads(p.read_text()) == {"a": 1}
+    assert [q.name for q in tmp_path.iterdir()] == ["r.json"]
+
+
+def test_validation_cases_register():
+    from validation.registry import discover
+
+    cases = discover()
+    for name, c in cases.items():
+        assert c.summary and "\n" not in c.summary, name
+
+
+def test_lammps_error_type_is_runtime_error():
+    assert issubclass(LammpsUnavailable, RuntimeError)
