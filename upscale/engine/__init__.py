@@ -1,0 +1,103 @@
+"""The particle engine every model shares.
+
+CONTRACT (stable; changes are additive only)
+============================================
+
+Units: whatever a scene uses, consistently; continuum scenes are SI (m, kg, s, Pa, J).
+Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bond,
+``_c`` Cartesian component. Positions always have 3 components (2D: z = 0, 1D: y = z = 0).
+
+``upscale.engine.system``
+    ``ParticleSystem(x0 (N,3), volume (N,)|scalar, density=(N,)|scalar, material=None,
+    *, dim=3, thickness=None, plane="stress", spacing=None)``. Attributes ``x0, volume,
+    density, material (int32), dim, thickness, plane, n, mass, spacing``.
+    2D: ``volume`` = area x ``thickness`` (m^3). Bad input (NaN position, non-positive
+    volume/density, wrong shape) -> one-line ``ValueError`` naming the value.
+    ``system.select(where=pred, box=(lo, hi), name=...) -> bool (N,)`` raises if the
+    region selects nothing. Builders: ``cubic_lattice(nx, ny, nz, h, density=...)``,
+    ``square_lattice(nx, ny, h, thickness=..., plane=...)``, ``line_lattice(nx, h)``.
+
+``upscale.engine.families``
+    ``build_family(system, horizon, *, partial_volume=None|"lammps"|"linear",
+    spacing=None, exclude=None) -> Family`` (cKDTree). ``Family`` has CSR arrays holding
+    *both* directions of each bond: ``offsets (N+1,) int64``, ``neighbors (nb,) int64``,
+    ``xi (nb,3)`` = ``x0[j] - x0[i]``, ``length (nb,)``, ``volume_factor (nb,)`` (beta,
+    1 unless corrected), ``horizon``, ``spacing``; derived ``n, nb, counts, owner (nb,)``
+    (i of each bond), ``reverse (nb,)`` (index of j->i), ``pairs()``,
+    ``remove_bonds(mask) -> Family`` (pre-cracks that LAMMPS-style never exist).
+    Horizon not larger than the spacing -> ``ValueError``.
+    Bond state is ``intact (nb,) bool``; ``damage(family, intact, weights="count"|"volume",
+    volume=None) -> mu (N,)``, mu = 1 - R/T (seed 004 eq. 5.16).
+    ``bonds_crossing_segment(x0, a, b)`` -> an ``exclude`` callable for straight cracks.
+    Higher families (triplets, quadruplets) are built from the pair CSR by
+    ``upscale.engine.multibody`` (helper D) when a model's ``needs`` asks for them.
+
+``upscale.engine.state``
+    ``State(x0, y, v, intact, t=0, step=0, extra={})``; ``State.reference(x0, nb)``;
+    ``state.u`` (= y - x0, settable). ``y`` (current positions) is the primary variable.
+    ``extra`` holds model history arrays that checkpoints save.
+
+``upscale.models.base`` (the model side of the contract)
+    ``Needs(pairs=True, triplets=False, quadruplets=False, failure=False, energy=False,
+    tangent=False)``. ``Model`` with class attributes ``name``, ``needs``,
+    ``force_kind`` ("density": force density b in N/m^3, particle force is b*V and
+    acceleration b/rho; or "particle": force per particle, acceleration F/(rho*V)).
+    Methods: ``prepare(system, family, *, triplets=None, quadruplets=None)``,
+    ``init_state(state)``, ``add_force(state, out)`` (adds into out (N,3)),
+    ``break_bonds(state) -> int`` (mutates ``state.intact``),
+    ``step_force(state, out, failure=True) -> int`` (force, then failure from the same
+    positions: the LAMMPS order), ``force(state)``, ``energy_density(state) -> (N,)`` J/m^3,
+    ``energy(state) -> float`` J, ``particle_force(state) -> (N,3)`` N,
+    ``residual(state) -> (3N,)`` (= F_int flattened), ``tangent(state) -> scipy.sparse``
+    (K = -dF_int/dy), ``stiffness_bound() -> (N,)|None`` (Gershgorin row bound of
+    d(force)/dy, used for the stable step), ``stable_dt()``, ``describe() -> dict``.
+    Registry: ``upscale.models.register(name, cls)``, ``get(name)``, ``create(name,
+    **params)``, ``names()``; unknown name -> ``ValueError`` listing valid names.
+
+``upscale.engine.conditions``
+    ``Region(name, mask)`` / ``region(system, name, where=None, box=None)``; conditions
+    ``Fixed(region)``, ``Displacement(region, value, components=(0,1,2))``,
+    ``Velocity(region, value, components)``, ``Force(region, value)`` (N per particle),
+    ``BodyForce(region, value)`` (N/m^3); ``value`` is a 3-vector, an (n_region, 3)
+    array, or a callable ``f(t) -> either``, so any condition may depend on time.
+
+``upscale.engine.integrators``
+    ``VelocityVerlet(dt=None, safety=0.8, force=False)`` (dt None: safety x estimate; a
+    dt above the estimate is refused unless ``force=True``);
+    ``AdaptiveDynamicRelaxation(dt=1.0, tol=..., max_steps=...)`` (Underwood/Kilic-Madenci
+    ADR for quasi-static loading); ``stable_time_step(system, models) -> float``.
+    Newton-Raphson lives in ``upscale.engine.newton`` (helper D) on the models'
+    ``residual`` / ``tangent`` hooks.
+
+``upscale.engine.simulation``
+    ``Simulation(system, family, models, conditions=(), integrator=None, state=None)``:
+    ``sim.state``, ``sim.forces() -> (N,3)`` particle forces (N), ``sim.energy()``,
+    ``sim.kinetic_energy()``, ``sim.damage()``, ``sim.run(steps, output=None,
+    checkpoint=None, progress=False, callback=None)``, ``sim.relax(...)``.
+    The engine does only what the models' ``needs`` and the outputs ask for.
+
+``upscale.engine.output`` / ``upscale.engine.checkpoint``
+    ``Output(outdir, every, formats=("extxyz", "vtk", "json"))``: extxyz via ase.io with
+    ``displacement`` and ``damage`` arrays, VTK via meshio, JSON summary.
+    ``save_checkpoint(path, state, meta)`` / ``load_checkpoint(path)``: npz written
+    atomically; a killed run resumes from it.
+"""
+from __future__ import annotations
+
+from upscale.engine.families import Family, bonds_crossing_segment, build_family, damage
+from upscale.engine.state import State
+from upscale.engine.system import ParticleSystem, cubic_lattice, line_lattice, square_lattice
+
+__all__ = [
+    "ParticleSystem", "cubic_lattice", "square_lattice", "line_lattice",
+    "Family", "build_family", "damage", "bonds_crossing_segment", "State",
+    "Simulation",
+]
+
+
+def __getattr__(name):  # lazy: the simulation pulls in integrators, output, numba kernels
+    if name == "Simulation":
+        from upscale.engine.simulation import Simulation
+
+        return Simulation
+    raise AttributeError(f"module 'upscale.engine' has no attribute {name!r}")

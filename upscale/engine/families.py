@@ -1,0 +1,263 @@
+"""Neighbour families within a horizon, as CSR arrays, and the bond state on them.
+
+A :class:`Family` holds *both* directions of every bond: particle ``i``'s bonds are
+``offsets[i]:offsets[i+1]`` and the bond i->j appears once in i's row and once (as j->i) in
+j's row. Parallel kernels therefore loop over particles and each particle sums only its own
+row: no two threads write the same particle.
+
+Partial-volume factors (``volume_factor``, beta, per bond) correct the volume a neighbour
+near the horizon edge contributes. Options of :func:`build_family`:
+
+``None``
+    beta = 1, bonds with ``|xi| <= horizon``.
+``"lammps"``
+    LAMMPS PERI (pair peri/*, fix PERI_NEIGH): bonds with ``|xi|^2 <= horizon^2``, and
+    beta = ``(horizon + h/2 - |xi|) / h`` when ``| |xi| - horizon | <= h/2``, else 1, where
+    ``h`` is the lattice constant (``lc``). A linear taper over one spacing centred on the
+    horizon, of which LAMMPS keeps the inner half.
+``"linear"``
+    The same taper, but bonds up to ``|xi| < horizon + h/2`` are kept so the full taper is
+    used (beta in (0, 1]).
+
+Bond state: ``intact (nb,) bool``; damage ``mu = 1 - R/T`` per particle (seed 004
+eq. 5.16: R remaining, T initial bonds), see :func:`damage`.
+"""
+from __future__ import annotations
+
+import dataclasses
+from functools import cached_property
+
+import numpy as np
+
+from upscale.engine.system import ParticleSystem
+
+__all__ = ["Family", "build_family", "damage", "bonds_crossing_segment"]
+
+PARTIAL_VOLUME = (None, "lammps", "linear")
+
+
+@dataclasses.dataclass(eq=False)
+class Family:
+    """Pair family (neighbour list) in CSR form, both directions of every bond stored.
+
+    Attributes
+    ----------
+    offsets : int64 (N+1,)
+        Row pointers: particle i's bonds are ``offsets[i]:offsets[i+1]``.
+    neighbors : int64 (nb,)
+        Neighbour index j of each directed bond i->j.
+    xi : float64 (nb, 3)
+        Reference bond vector ``x0[j] - x0[i]``.
+    length : float64 (nb,)
+        Reference bond length ``|xi|``.
+    volume_factor : float64 (nb,)
+        Partial-volume factor beta (1 unless a correction was asked for).
+    horizon : float
+        Horizon delta used to build the family.
+    spacing : float
+        Particle spacing h used for the check and the partial-volume factor.
+    partial_volume : str or None
+        Which partial-volume rule produced ``volume_factor``.
+    """
+
+    offsets: np.ndarray
+    neighbors: np.ndarray
+    xi: np.ndarray
+    length: np.ndarray
+    volume_factor: np.ndarray
+    horizon: float
+    spacing: float
+    partial_volume: str | None = None
+
+    @property
+    def n(self) -> int:
+        """Number of particles."""
+        return self.offsets.shape[0] - 1
+
+    @property
+    def nb(self) -> int:
+        """Number of directed bonds (twice the number of pairs)."""
+        return self.neighbors.shape[0]
+
+    @cached_property
+    def counts(self) -> np.ndarray:
+        """Bonds per particle (N,)."""
+        return np.diff(self.offsets)
+
+    @cached_property
+    def owner(self) -> np.ndarray:
+        """Particle i of each directed bond i->j (nb,)."""
+        return np.repeat(np.arange(self.n, dtype=np.int64), self.counts)
+
+    @cached_property
+    def reverse(self) -> np.ndarray:
+        """Index of the reverse bond j->i for each bond i->j (nb,)."""
+        i, j = self.owner, self.neighbors
+        key_fwd = i * self.n + j
+        key_rev = j * self.n + i
+        order = np.argsort(key_fwd, kind="stable")
+        pos = np.searchsorted(key_fwd[order], key_rev)
+        rev = order[pos]
+        if not np.array_equal(key_fwd[rev], key_rev):
+            raise ValueError("family is not symmetric: some bond has no reverse")
+        return rev
+
+    def all_intact(self) -> np.ndarray:
+        """A fresh bond state with every bond intact (nb,) bool."""
+        return np.ones(self.nb, dtype=bool)
+
+    def remove_bonds(self, mask) -> "Family":
+        """A new family without the bonds where ``mask`` (nb,) is True.
+
+        Removal is symmetric (a bond and its reverse go together). Removed bonds do not count
+        in the total T of the damage index nor in any weighted volume a model computes in
+        ``prepare``: this is how LAMMPS sees a pre-crack made by not creating bonds. To model
+        a pre-crack as bonds *broken* at t = 0 instead, set ``intact[mask] = False``.
+        """
+        m = np.asarray(mask, dtype=bool)
+        if m.shape != (self.nb,):
+            raise ValueError(f"bond mask must have shape ({self.nb},), got {m.shape}")
+        m = m | m[self.reverse]
+        keep = ~m
+        counts = np.bincount(self.owner[keep], minlength=self.n).astype(np.int64)
+        offsets = np.zeros(self.n + 1, dtype=np.int64)
+        np.cumsum(counts, out=offsets[1:])
+        return Family(offsets, np.ascontiguousarray(self.neighbors[keep]),
+                      np.ascontiguousarray(self.xi[keep]), np.ascontiguousarray(self.length[keep]),
+                      np.ascontiguousarray(self.volume_factor[keep]), self.horizon, self.spacing,
+                      self.partial_volume)
+
+    def pairs(self) -> np.ndarray:
+        """Unique pairs (i < j) as an (nb/2, 2) int64 array."""
+        i, j = self.owner, self.neighbors
+        sel = i < j
+        return np.stack([i[sel], j[sel]], axis=1)
+
+    def __repr__(self) -> str:
+        return (f"Family(n={self.n}, nb={self.nb}, horizon={self.horizon:.6g}, "
+                f"bonds/particle={self.nb / max(self.n, 1):.2f}, "
+                f"partial_volume={self.partial_volume!r})")
+
+
+def _lammps_beta(length: np.ndarray, horizon: float, h: float) -> np.ndarray:
+    """LAMMPS's linear edge taper, written exactly as pair_peri_*.cpp evaluates it."""
+    half = 0.5 * h
+    beta = np.ones_like(length)
+    edge = np.abs(length - horizon) <= half
+    beta[edge] = (-1.0 / (2 * half)) * length[edge] + (1.0 + ((horizon - half) / (2 * half)))
+    return beta
+
+
+def build_family(system: ParticleSystem, horizon: float, *, partial_volume: str | None = None,
+                 spacing: float | None = None, exclude=None) -> Family:
+    """Build the pair family of ``system`` within ``horizon`` (cKDTree).
+
+    Parameters
+    ----------
+    system : ParticleSystem
+    horizon : float
+        delta; must exceed the particle spacing.
+    partial_volume : None, "lammps" or "linear"
+        Edge correction (see module docstring).
+    spacing : float, optional
+        Spacing h for the check and the taper (default ``system.spacing``).
+    exclude : callable, optional
+        ``exclude(i, j, xi) -> bool (nb,)`` for candidate directed bonds; True drops the
+        bond (both directions). E.g. a pre-crack: :func:`bonds_crossing_segment`.
+
+    Raises
+    ------
+    ValueError
+        horizon not finite/positive or not larger than the spacing; unknown partial-volume
+        option.
+    """
+    from scipy.spatial import cKDTree
+
+    if partial_volume not in PARTIAL_VOLUME:
+        raise ValueError(f"unknown partial_volume {partial_volume!r}; valid: "
+                         f"{', '.join(repr(p) for p in PARTIAL_VOLUME)}")
+    delta = float(horizon)
+    h = float(spacing) if spacing is not None else system.spacing
+    if not (np.isfinite(delta) and delta > 0):
+        raise ValueError(f"horizon must be positive, got {horizon!r}")
+    if not delta > h:
+        raise ValueError(f"horizon {delta:.6g} is not larger than the particle spacing {h:.6g}")
+    x = system.x0
+    n = system.n
+    rmax = delta + 0.5 * h if partial_volume == "linear" else delta
+    tree = cKDTree(x)
+    pairs = tree.query_pairs(rmax * (1.0 + 1e-9) + 1e-300, output_type="ndarray").astype(np.int64)
+    i = np.concatenate([pairs[:, 0], pairs[:, 1]])
+    j = np.concatenate([pairs[:, 1], pairs[:, 0]])
+    # reference vectors and lengths evaluated as LAMMPS does (dx*dx + dy*dy + dz*dz)
+    d = x[j] - x[i]
+    rsq = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
+    if partial_volume == "linear":
+        keep = np.sqrt(rsq) < rmax
+    else:
+        keep = rsq <= delta * delta
+    if exclude is not None:
+        ex = np.asarray(exclude(i, j, d), dtype=bool)
+        if ex.shape != i.shape:
+            raise ValueError(f"exclude returned shape {ex.shape}, expected {i.shape}")
+        keep &= ~ex
+    i, j, d, rsq = i[keep], j[keep], d[keep], rsq[keep]
+    order = np.lexsort((j, i))
+    i, j, d, rsq = i[order], j[order], d[order], rsq[order]
+    counts = np.bincount(i, minlength=n).astype(np.int64)
+    offsets = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(counts, out=offsets[1:])
+    length = np.sqrt(rsq)
+    if partial_volume is None:
+        beta = np.ones_like(length)
+    else:
+        beta = _lammps_beta(length, delta, h)
+    fam = Family(offsets, np.ascontiguousarray(j), np.ascontiguousarray(d),
+                 np.ascontiguousarray(length), np.ascontiguousarray(beta), delta, h,
+                 partial_volume)
+    if exclude is not None:  # make the exclusion symmetric whatever the callable did
+        fam = fam.remove_bonds(np.zeros(fam.nb, dtype=bool))
+    return fam
+
+
+def damage(family: Family, intact: np.ndarray, *, weights: str = "count",
+           volume: np.ndarray | None = None) -> np.ndarray:
+    """Damage index per particle, ``mu = 1 - R/T`` (seed 004 eq. 5.16).
+
+    ``weights="count"`` counts bonds (R remaining, T in the family); ``"volume"`` weighs
+    each bond by the neighbour volume ``volume[j]`` (LAMMPS ``compute damage/atom``).
+    Particles without bonds get 0.
+    """
+    from upscale.engine.kernels import damage_kernel
+
+    if weights not in ("count", "volume"):
+        raise ValueError(f"unknown damage weights {weights!r}; valid: 'count', 'volume'")
+    w = np.ones(family.n) if weights == "count" else np.asarray(volume, dtype=np.float64)
+    return damage_kernel(family.offsets, family.neighbors, np.asarray(intact, dtype=np.bool_), w)
+
+
+def bonds_crossing_segment(x0: np.ndarray, a, b):
+    """An ``exclude`` callable dropping bonds whose segment crosses the segment a-b.
+
+    The test is done in the x-y plane (a through-thickness crack in 3D, a line crack in 2D).
+    Use as ``build_family(system, delta, exclude=bonds_crossing_segment(system.x0, a, b))``
+    or on an existing family: ``fam.remove_bonds(bonds_crossing_segment(x0, a, b)(
+    fam.owner, fam.neighbors, fam.xi))``.
+    """
+    a = np.asarray(a, dtype=np.float64)[:2]
+    b = np.asarray(b, dtype=np.float64)[:2]
+
+    def cross(u, v):
+        return u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+
+    def exclude(i, j, xi):
+        p = x0[i, :2]
+        r = xi[:, :2]
+        s = b - a
+        denom = cross(r, s)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = cross(a - p, s) / denom
+            u = cross(a - p, r) / denom
+        return (denom != 0) & (t >= 0) & (t <= 1) & (u >= 0) & (u <= 1)
+
+    return exclude
