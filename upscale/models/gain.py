@@ -1,0 +1,420 @@
+"""The stochastic-projection gain matrix G (seed 004, eqs. 5.9 and 6.1-6.6).
+
+For a central particle c with neighbours n inside the influence radius (horizon) delta,
+weights w_n = kappa(|x_n - x_c|) v_n (kappa: smoothing function, v_n: particle volume),
+
+    beta_n  = x_n - x_c                 reference relative position
+    alpha_n = u_n - u_c                 relative displacement          (eq. 6.10)
+    Theta   = sum_n w_n alpha_n beta_n^T                               (eq. 6.3)
+    Lambda  = (1/W) (sum_n w_n alpha_n)(sum_n w_n beta_n)^T            (eq. 6.4)
+    Upsilon = [sum_n w_n beta_n beta_n^T - (1/W)(sum w beta)(sum w beta)^T]^-1   (eq. 6.5)
+    G       = (Theta - Lambda) Upsilon                                 (eq. 6.1)
+
+with W = sum_n w_n. This is the sample form of eq. 5.9,
+G = (pi((y-x) h^T) - pi(y-x) pi(h)^T) Var(h)^-1: a weighted covariance of displacement and
+position differences times the inverse weighted variance of the positions.
+
+Two deliberate choices, both reducing to the printed equations on a symmetric (interior)
+neighbourhood where sum_n w_n beta_n = 0:
+
+* Lambda and the centring of Upsilon use W = sum kappa v (eq. 6.4 prints sum v) and Upsilon
+  is the *centred* variance (eq. 6.5 prints the raw second moment; eq. 5.9 has Var(h)).
+  With these G equals the displacement gradient H *exactly* for every affine field
+  u = H x + c, at every particle, interior or not (appendix B.1 states it in the local limit).
+* The stabilised displacement of eq. 6.6, u_bar_c = sum_n s_cn u_n with partition-of-unity
+  weights s_cn = kappa_cn v_n / sum kappa v over the family including c, is optional
+  (``stabilised=True``). When on, the same smoothing is applied to the reference positions
+  (beta uses x_bar) so affine exactness is kept; the stencil of G then reaches neighbours
+  of neighbours.
+
+G is linear in the displacements: G_c = sum_e u_{j(e)} (x) a_e over the entries e of row c,
+with coefficient vectors a_e (precomputed once, CSR per particle). Its derivative with
+respect to u_j is therefore the fixed set {a_e}, and for any energy E = sum_c W_c(F_c) the
+force is f_j = - sum_{e: j(e)=j} P_{c(e)} a_e with P_c = dW_c/dF_c (chain rule).
+Since sum_e a_e = 0 in each row, the same coefficients applied to *positions* give the
+deformation map F_c = F0_c + G_c, and rigid translations never enter.
+
+Surfaces (a tube wall, a plate's mid-surface): points on a curved 2D manifold make the 3x3
+Upsilon singular (flat patch) or ill-conditioned in the normal direction (curved patch).
+With ``surface=True`` each particle gets a tangent frame T_c = [t1 t2] (3x2): the normal is
+the eigenvector of the smallest eigenvalue of the weighted covariance of its family
+(local PCA), oriented away from ``axis`` when given (tubes) and t2 is the projection of the
+axis direction (the tube axis; any fixed direction otherwise), t1 = t2 x n. The reference
+differences are replaced by their tangent coordinates s_n = T_c^T beta_n (2-vectors), so
+Upsilon is 2x2 and G is the 3x2 *surface gain*: it maps reference tangent vectors to
+deformed 3D vectors. For an affine field, G = H F0 exactly (F0 = fit of the reference
+chords, equal to T on a symmetric neighbourhood); on a cylinder with a symmetric (theta, z)
+grid, uniform radial/axial stretch is recovered exactly and a twist to O((h/R)^2).
+
+Array suffix convention: ``_n`` per particle, ``_e`` per CSR entry, ``_c`` Cartesian.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numba
+import numpy as np
+from scipy.spatial import cKDTree
+
+__all__ = ["kappa", "GainOperator", "build_gain"]
+
+
+def kappa(r, horizon, kind: str = "quartic"):
+    """Smoothing (influence) function kappa(r) of the gain matrix, kappa(0) = 1.
+
+    Parameters
+    ----------
+    r : array_like
+        Reference distances (same unit as ``horizon``).
+    horizon : float
+        Influence radius delta; kappa = 0 for r >= delta.
+    kind : {"quartic", "constant", "gaussian"}
+        ``quartic``: (1 - (r/delta)^2)^2; ``constant``: 1 (the seed's phi of eq. 5.14);
+        ``gaussian``: exp(-4 (r/delta)^2) truncated at delta.
+    """
+    q = np.asarray(r, dtype=float) / horizon
+    inside = q < 1.0
+    if kind == "quartic":
+        k = (1.0 - q * q) ** 2
+    elif kind == "constant":
+        k = np.ones_like(q)
+    elif kind == "gaussian":
+        k = np.exp(-4.0 * q * q)
+    else:
+        raise ValueError(f"unknown smoothing function kind={kind!r}; valid: quartic, constant, gaussian")
+    return np.where(inside, k, 0.0)
+
+
+@numba.njit(cache=True)
+def _deformation_kernel(y_nc, offsets, neighbors, shift_ec, coef_ek, F0_nck, out):
+    """out[c] = F0[c] + sum_e (y[j_e] + shift_e) (x) a_e (shift: periodic image vector)."""
+    n = offsets.shape[0] - 1
+    k = coef_ek.shape[1]
+    for c in range(n):
+        for i in range(3):
+            for a in range(k):
+                out[c, i, a] = 0.0
+        for e in range(offsets[c], offsets[c + 1]):
+            j = neighbors[e]
+            for i in range(3):
+                d = y_nc[j, i] + shift_ec[e, i]
+                for a in range(k):
+                    out[c, i, a] += d * coef_ek[e, a]
+    return out
+
+
+@numba.njit(cache=True)
+def _force_kernel(P_nck, offsets, neighbors, coef_ek, out):
+    """out[j] = -sum_{e: j_e = j} P[c_e] a_e (serial: entries of different rows share j)."""
+    n = offsets.shape[0] - 1
+    k = coef_ek.shape[1]
+    for i in range(out.shape[0]):
+        for d in range(3):
+            out[i, d] = 0.0
+    for c in range(n):
+        for e in range(offsets[c], offsets[c + 1]):
+            j = neighbors[e]
+            for i in range(3):
+                s = 0.0
+                for a in range(k):
+                    s += P_nck[c, i, a] * coef_ek[e, a]
+                out[j, i] -= s
+    return out
+
+
+@dataclasses.dataclass
+class GainOperator:
+    """Precomputed linear map u -> G (seed 004 eq. 6.1) for every particle.
+
+    Attributes
+    ----------
+    offsets : (N+1,) int64
+        CSR row pointers (row c holds the entries of particle c's G).
+    neighbors : (nnz,) int64
+        Particle j of each entry.
+    image : (nnz, 3) int64
+        Periodic image of j as seen from c (integer multiples of the cell lengths).
+    coef : (nnz, k) float64
+        Coefficient vectors a_e, unit 1/length; k = 3 (volume) or 2 (surface).
+    F0 : (N, 3, k) float64
+        Reference map: identity (k = 3) or the fitted reference chords ~ T (k = 2).
+    frame : (N, 3, k) float64
+        Identity (k = 3) or the tangent frame T_c = [t1 t2] (k = 2, surface).
+    normal : (N, 3) float64 or None
+        Unit normal of each particle (surface only).
+    n_family : (N,) int64
+        Number of neighbours within the horizon (the particle itself excluded).
+    cell : (3,) float64
+        Reference cell lengths (only used along periodic directions).
+    pbc : (3,) bool
+    horizon : float
+    """
+
+    offsets: np.ndarray
+    neighbors: np.ndarray
+    image: np.ndarray
+    coef: np.ndarray
+    F0: np.ndarray
+    frame: np.ndarray
+    normal: np.ndarray | None
+    n_family: np.ndarray
+    cell: np.ndarray
+    pbc: np.ndarray
+    horizon: float
+
+    @property
+    def n(self) -> int:
+        return self.offsets.shape[0] - 1
+
+    @property
+    def k(self) -> int:
+        return self.coef.shape[1]
+
+    def _shift(self, cell):
+        cell = self.cell if cell is None else np.asarray(cell, dtype=float)
+        return self.image * cell[None, :]
+
+    def gain(self, u, cell=None):
+        """G of every particle for displacements ``u`` (N, 3) [length] -> (N, 3, k).
+
+        ``cell`` is the deformed cell (periodic directions); the image displacement
+        n (cell - cell0) enters the relative displacement of periodic neighbours.
+        """
+        u = np.ascontiguousarray(u, dtype=float)
+        shift = self._shift(cell) - self._shift(None)
+        out = np.empty((self.n, 3, self.k))
+        zero = np.zeros_like(self.F0)
+        return _deformation_kernel(u, self.offsets, self.neighbors, shift, self.coef, zero, out)
+
+    def deformation(self, y, cell=None, out=None):
+        """F_c = F0_c + G_c from deformed positions ``y`` (N, 3) and deformed ``cell``.
+
+        Uses sum_e a_e = 0 per row: sum_e (y_j + n_e L) (x) a_e = sum_e (u_j + n_e dL) (x) a_e + F0.
+        """
+        y = np.ascontiguousarray(y, dtype=float)
+        if out is None:
+            out = np.empty((self.n, 3, self.k))
+        zero = np.zeros_like(self.F0)
+        return _deformation_kernel(y, self.offsets, self.neighbors, self._shift(cell), self.coef, zero, out)
+
+    def forces(self, P, out=None):
+        """Forces -dE/dy (N, 3) for E = sum_c W_c(F_c), given P_c = dW_c/dF_c (N, 3, k)."""
+        P = np.ascontiguousarray(P, dtype=float)
+        if out is None:
+            out = np.empty((self.n, 3))
+        return _force_kernel(P, self.offsets, self.neighbors, self.coef, out)
+
+    def cell_derivative(self, P):
+        """dE/dL_d (3,) for E = sum_c W_c(F_c): derivative w.r.t. the cell lengths."""
+        P = np.asarray(P, dtype=float)
+        c_of_e = np.repeat(np.arange(self.n), np.diff(self.offsets))
+        Pa = np.einsum("eik,ek->ei", P[c_of_e], self.coef)  # (nnz, 3)
+        return np.einsum("ei,ei->i", Pa, self.image.astype(float))
+
+
+def _family(x, horizon, cell, pbc):
+    """Neighbour pairs within the horizon with periodic images: (i, j, image (m,3) int)."""
+    x = np.asarray(x, dtype=float)
+    n = len(x)
+    reps = []
+    for d in range(3):
+        if pbc[d]:
+            nrep = int(np.ceil(horizon / cell[d]))
+            reps.append(np.arange(-nrep, nrep + 1))
+        else:
+            reps.append(np.array([0]))
+    images = np.array(np.meshgrid(*reps, indexing="ij")).reshape(3, -1).T
+    tree = cKDTree(x)
+    ii, jj, im = [], [], []
+    for img in images:
+        shifted = x + img * cell
+        pairs = tree.query_ball_point(shifted, r=horizon * (1 - 1e-12), return_sorted=False)
+        for j, lst in enumerate(pairs):  # x_i near x_j + img
+            for i in lst:
+                if i == j and not img.any():
+                    continue
+                ii.append(i)
+                jj.append(j)
+                im.append(img)
+    ii = np.array(ii, dtype=np.int64)
+    jj = np.array(jj, dtype=np.int64)
+    im = np.array(im, dtype=np.int64).reshape(-1, 3)
+    order = np.lexsort((jj, ii))
+    return ii[order], jj[order], im[order], n
+
+
+def build_gain(x, horizon, volume=None, *, surface: bool = False, axis=None, axis_point=None,
+               cell=None, pbc=(False, False, False), kind: str = "quartic",
+               stabilised: bool = False, rcond: float = 1e-10) -> GainOperator:
+    """Precompute the gain operator of every particle (seed 004 eqs. 6.1-6.6).
+
+    Parameters
+    ----------
+    x : (N, 3) float
+        Reference positions [length].
+    horizon : float
+        Influence radius delta [length], > 0.
+    volume : (N,) float, optional
+        Particle volumes v_n (areas for a surface); 1 when omitted.
+    surface : bool
+        Build the 3x2 surface gain on tangent frames (see module docstring).
+    axis, axis_point : (3,) float, optional
+        Surface only: direction used for t2 (tube axis) and a point on that axis; the
+        normal is oriented away from the axis line.
+    cell : (3,) float, optional
+        Lengths of an orthorhombic periodic cell (origin at 0); needed where ``pbc``.
+    pbc : (3,) bool
+    kind : str
+        Smoothing function, see :func:`kappa`.
+    stabilised : bool
+        Use the stabilised displacement of eq. 6.6 (see module docstring).
+    rcond : float
+        A particle whose Upsilon^-1 has smallest/largest eigenvalue below ``rcond`` is
+        rejected as having too few (or degenerate) neighbours.
+
+    Raises
+    ------
+    ValueError
+        One line naming the first particle whose neighbours within the horizon give a
+        singular Upsilon, and the number of neighbours it has.
+    """
+    x = np.ascontiguousarray(x, dtype=float)
+    if x.ndim != 2 or x.shape[1] != 3 or not np.all(np.isfinite(x)):
+        raise ValueError(f"positions must be a finite (N, 3) array, got shape {x.shape}")
+    if not (horizon > 0 and np.isfinite(horizon)):
+        raise ValueError(f"influence radius must be a positive number, got {horizon!r}")
+    n = len(x)
+    v = np.ones(n) if volume is None else np.asarray(volume, dtype=float)
+    if v.shape != (n,) or np.any(v <= 0):
+        raise ValueError("volume must be (N,) and positive")
+    pbc = np.asarray(pbc, dtype=bool)
+    cellv = np.zeros(3) if cell is None else np.asarray(cell, dtype=float)
+    if np.any(pbc & ~(cellv > 0)):
+        raise ValueError(f"periodic directions need positive cell lengths, got cell={cellv.tolist()}")
+    ii, jj, im, _ = _family(x, horizon, cellv, pbc)
+    beta = x[jj] + im * cellv - x[ii]
+    w = kappa(np.linalg.norm(beta, axis=1), horizon, kind) * v[jj]
+    fam_off = np.zeros(n + 1, dtype=np.int64)
+    np.add.at(fam_off, ii + 1, 1)
+    fam_off = np.cumsum(fam_off)
+    n_family = np.diff(fam_off)
+
+    if stabilised:
+        # smoothing rows s_cn over the family including c itself (kappa(0) = 1)
+        s_i = np.concatenate([np.arange(n), ii])
+        s_j = np.concatenate([np.arange(n), jj])
+        s_im = np.concatenate([np.zeros((n, 3), np.int64), im])
+        s_w = np.concatenate([v, w])
+        order = np.lexsort((s_j, s_i))
+        s_i, s_j, s_im, s_w = s_i[order], s_j[order], s_im[order], s_w[order]
+        tot = np.zeros(n)
+        np.add.at(tot, s_i, s_w)
+        s_w = s_w / tot[s_i]
+        s_off = np.zeros(n + 1, dtype=np.int64)
+        np.add.at(s_off, s_i + 1, 1)
+        s_off = np.cumsum(s_off)
+        xbar = np.zeros((n, 3))
+        np.add.at(xbar, s_i, s_w[:, None] * (x[s_j] + s_im * cellv))
+        beta_fit = xbar[jj] + im * cellv - xbar[ii]
+    else:
+        beta_fit = beta
+
+    k = 2 if surface else 3
+    frame = np.zeros((n, 3, k))
+    normal = None
+    if surface:
+        normal = np.zeros((n, 3))
+        ax = np.array([0.0, 0.0, 1.0]) if axis is None else np.asarray(axis, float)
+        ax = ax / np.linalg.norm(ax)
+        ap = np.zeros(3) if axis_point is None else np.asarray(axis_point, float)
+    coef = np.zeros((len(ii), k))
+    F0 = np.zeros((n, 3, k))
+    for c in range(n):
+        sl = slice(fam_off[c], fam_off[c + 1])
+        b, wc = beta_fit[sl], w[sl]
+        W = wc.sum()
+        if len(wc) < k + 1 or W <= 0:
+            raise ValueError(
+                f"particle {c} has {len(wc)} neighbours with nonzero weight within influence radius "
+                f"{horizon:g}; G needs at least {k + 1} non-{'collinear' if k == 2 else 'coplanar'} ones "
+                "(increase the influence radius)")
+        if surface:
+            bb = beta[sl]  # local PCA of the (unsmoothed) family: smallest axis = normal
+            mean = (wc[:, None] * bb).sum(0) / W
+            d = bb - mean
+            cov = (wc[:, None, None] * d[:, :, None] * d[:, None, :]).sum(0)
+            evals, evecs = np.linalg.eigh(cov)
+            nrm = evecs[:, 0]
+            if axis is not None:
+                radial = x[c] - ap - np.dot(x[c] - ap, ax) * ax
+                if np.dot(nrm, radial) < 0:
+                    nrm = -nrm
+            elif nrm[np.argmax(np.abs(nrm))] < 0:
+                nrm = -nrm
+            t2 = ax - np.dot(ax, nrm) * nrm
+            if np.linalg.norm(t2) < 1e-8:  # axis along the normal: pick any tangent
+                t2 = np.cross(nrm, [1.0, 0.0, 0.0])
+                if np.linalg.norm(t2) < 1e-8:
+                    t2 = np.cross(nrm, [0.0, 1.0, 0.0])
+            t2 /= np.linalg.norm(t2)
+            t1 = np.cross(t2, nrm)
+            T = np.column_stack([t1, t2])
+            normal[c] = nrm
+            frame[c] = T
+            s = b @ T
+        else:
+            frame[c] = np.eye(3)
+            s = b
+        sbar = (wc[:, None] * s).sum(0) / W
+        ds = s - sbar
+        M = (wc[:, None, None] * ds[:, :, None] * ds[:, None, :]).sum(0)  # Upsilon^-1
+        ev = np.linalg.eigvalsh(M)
+        if ev[0] <= rcond * max(ev[-1], 1e-300):
+            raise ValueError(
+                f"particle {c}: its {len(wc)} neighbours within influence radius {horizon:g} give a "
+                f"singular Upsilon (need {k + 1} non-{'collinear' if k == 2 else 'coplanar'} ones); "
+                "increase the influence radius")
+        Ups = np.linalg.inv(M)
+        a = wc[:, None] * (ds @ Ups)  # a_n = w_n Upsilon (s_n - s_bar)
+        coef[sl] = a
+
+    if stabilised:
+        # compose: G_c = sum_n a_cn (x) u_bar_n, u_bar_n = sum_j s_nj u_j (images add up)
+        rows_i, rows_j, rows_im, rows_a = [], [], [], []
+        for c in range(n):
+            sl = slice(fam_off[c], fam_off[c + 1])
+            nn, imn, an = jj[sl], im[sl], coef[sl]
+            cnt = s_off[nn + 1] - s_off[nn]
+            idx = np.concatenate([np.arange(s_off[q], s_off[q + 1]) for q in nn])
+            rep = np.repeat(np.arange(len(nn)), cnt)
+            rows_i.append(np.full(len(idx), c, np.int64))
+            rows_j.append(s_j[idx])
+            rows_im.append(imn[rep] + s_im[idx])
+            rows_a.append(an[rep] * s_w[idx][:, None])
+            # the smoothing of the centre, u_bar_c, is cancelled by the centring: no term
+        ii = np.concatenate(rows_i)
+        jj = np.concatenate(rows_j)
+        im = np.concatenate(rows_im)
+        coef = np.concatenate(rows_a)
+        # merge duplicate (j, image) entries of a row
+        key = np.column_stack([ii, jj, im])
+        uniq, inv = np.unique(key, axis=0, return_inverse=True)
+        inv = inv.ravel()
+        merged = np.zeros((len(uniq), k))
+        np.add.at(merged, inv, coef)
+        ii, jj, im, coef = uniq[:, 0], uniq[:, 1], uniq[:, 2:5], merged
+        fam_off2 = np.zeros(n + 1, dtype=np.int64)
+        np.add.at(fam_off2, ii + 1, 1)
+        offsets = np.cumsum(fam_off2)
+    else:
+        offsets = fam_off
+    op = GainOperator(offsets=np.ascontiguousarray(offsets, np.int64),
+                      neighbors=np.ascontiguousarray(jj, np.int64),
+                      image=np.ascontiguousarray(im, np.int64),
+                      coef=np.ascontiguousarray(coef, float), F0=F0, frame=frame, normal=normal,
+                      n_family=n_family, cell=cellv, pbc=pbc, horizon=float(horizon))
+    if not surface:
+        op.F0 = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
+    else:
+        op.F0 = op.deformation(x)  # the fitted reference chords (== T on symmetric families)
+    return op
