@@ -1,0 +1,254 @@
+"""Static Newton-Raphson solver on the models' ``residual`` / ``tangent`` hooks.
+
+Solves the discrete balance of linear momentum (seed 000, "Discretised balance of linear
+momentum" and eq. (A)):
+
+    R(y) = F_int(y) + lambda F_ext = 0   on the free degrees of freedom,
+    K_k du_k = R_k,   K = -dF_int/dy   (the model's consistent tangent, scipy.sparse),
+    y_{k+1} = y_k + alpha_k du_k,
+
+with load stepping in ``lambda`` (prescribed displacements and external forces scale with
+it), a backtracking line search on ``|R|`` (globalisation: ``alpha`` halves until the
+residual norm decreases by the Armijo fraction ``1e-4 alpha``) and step cutting (a load step
+that does not converge is bisected, up to ``max_cuts`` times). The sparse system is solved
+by a direct LU factorisation (``scipy.sparse.linalg.splu``).
+
+Every load step records its residual-norm history, so the convergence order can be read
+from the result (:func:`convergence_order`): a consistent tangent gives quadratic
+convergence (the number of correct digits doubles per iteration).
+
+Units: forces in N per particle, displacements in m (whatever the model uses consistently).
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+__all__ = ["NewtonStep", "NewtonResult", "solve", "convergence_order", "NewtonError"]
+
+
+class NewtonError(RuntimeError):
+    """The Newton solve failed (singular tangent or no convergence after all step cuts)."""
+
+
+@dataclasses.dataclass
+class NewtonStep:
+    """One converged (or failed) load step: load factor, residual norms ``|R_free|`` (N)
+    before each iteration, line-search factors, and the convergence flag."""
+
+    load_factor: float
+    residual_norms: list
+    alphas: list
+    converged: bool
+    scale: float
+
+    @property
+    def iterations(self) -> int:
+        return len(self.alphas)
+
+    def as_dict(self) -> dict:
+        return {"load_factor": self.load_factor, "iterations": self.iterations,
+                "residual_norms_N": [float(r) for r in self.residual_norms],
+                "alphas": [float(a) for a in self.alphas], "converged": self.converged,
+                "force_scale_N": self.scale,
+                "order": convergence_order(self.residual_norms)}
+
+
+@dataclasses.dataclass
+class NewtonResult:
+    """Result of :func:`solve`: the converged load steps, wall time (s), counts of residual
+    and tangent evaluations, the reaction forces (N, 3) (N) on constrained dofs and the
+    attempts that failed and were cut (``failed``)."""
+
+    steps: list
+    wall_time_s: float
+    n_residual: int
+    n_tangent: int
+    reaction: np.ndarray
+    failed: list = dataclasses.field(default_factory=list)
+
+    @property
+    def converged(self) -> bool:
+        return bool(self.steps) and all(s.converged for s in self.steps)
+
+    def report(self) -> str:
+        lines = ["step  load   iters  |R| history (N)"]
+        for i, s in enumerate(self.steps):
+            hist = " ".join(f"{r:.2e}" for r in s.residual_norms)
+            lines.append(f"{i:4d}  {s.load_factor:5.3f}  {s.iterations:5d}  {hist}"
+                         + ("" if s.converged else "  (not converged)"))
+        return "\n".join(lines)
+
+    def as_dict(self) -> dict:
+        return {"converged": self.converged, "wall_time_s": self.wall_time_s,
+                "n_residual": self.n_residual, "n_tangent": self.n_tangent,
+                "step_cuts": len(self.failed), "steps": [s.as_dict() for s in self.steps]}
+
+
+def convergence_order(norms, floor: float = 1e-9) -> float | None:
+    """Estimated order ``p`` from the last three residual norms above the round-off floor
+    (``floor`` times the first norm): ``log(r3/r2) / log(r2/r1)`` (2 for quadratic
+    convergence); None if fewer than three such norms."""
+    r = [float(x) for x in norms if x > floor * float(norms[0])] if len(norms) else []
+    if len(r) < 3:
+        return None
+    r1, r2, r3 = r[-3:]
+    if r2 >= r1 or r3 >= r2:
+        return None
+    return float(np.log(r3 / r2) / np.log(r2 / r1))
+
+
+def _as_mask(n, fixed, dim):
+    m = np.zeros((n, 3), dtype=bool)
+    if fixed is not None:
+        f = np.asarray(fixed, dtype=bool)
+        if f.shape == (n,):
+            m[f] = True
+        elif f.shape == (n, 3):
+            m |= f
+        else:
+            raise ValueError(f"fixed must have shape ({n},) or ({n}, 3), got {f.shape}")
+    m[:, dim:] = True           # 2D: z; 1D: y, z
+    return m
+
+
+def solve(model, state, *, fixed=None, u_prescribed=None, f_ext=None, steps: int = 1,
+          tol: float = 1e-10, max_iter: int = 25, line_search: bool = True,
+          max_cuts: int = 6, progress: bool = False) -> NewtonResult:
+    """Quasi-static Newton-Raphson solve; mutates ``state.y`` to the equilibrium at load 1.
+
+    Parameters
+    ----------
+    model : Model
+        Prepared model with ``residual(state) -> F_int (3N,)`` and
+        ``tangent(state) -> scipy.sparse (3N, 3N)``, ``K = -dF_int/dy``.
+    state : State
+        Start state (usually the reference); ``state.y`` is updated in place.
+    fixed : bool (N,) or (N, 3), optional
+        Constrained dofs (a (N,) mask constrains all components). In 2D the z dofs are
+        always constrained.
+    u_prescribed : (N, 3) float, optional
+        Displacement of the constrained dofs at load factor 1 (m); default 0.
+    f_ext : (N, 3) float, optional
+        External force per particle at load factor 1 (N).
+    steps : int
+        Number of equal load steps.
+    tol : float
+        Convergence when ``|R_free| <= tol * max(|F_ext|, |F_int|)`` (2-norms, N).
+    max_iter : int
+        Iterations per load step before the step is cut.
+    line_search : bool
+        Backtracking on ``|R|`` (else full Newton steps).
+    max_cuts : int
+        How often a failing load step may be bisected.
+
+    Raises
+    ------
+    ValueError
+        bad shapes, ``steps < 1``.
+    NewtonError
+        singular tangent on the free dofs, or no convergence after ``max_cuts`` bisections.
+    """
+    t0 = time.perf_counter()
+    system = model.system
+    n = system.n
+    if steps < 1:
+        raise ValueError(f"steps must be >= 1, got {steps!r}")
+    mask = _as_mask(n, fixed, system.dim)
+    ubar = np.zeros((n, 3)) if u_prescribed is None else np.asarray(u_prescribed, dtype=np.float64)
+    fbar = np.zeros((n, 3)) if f_ext is None else np.asarray(f_ext, dtype=np.float64)
+    for name, a in (("u_prescribed", ubar), ("f_ext", fbar)):
+        if a.shape != (n, 3):
+            raise ValueError(f"{name} must have shape ({n}, 3), got {a.shape}")
+    free = np.flatnonzero(~mask.ravel())
+    if free.size == 0:
+        raise ValueError("every degree of freedom is constrained: nothing to solve")
+    x0 = system.x0
+    y_start = state.y.copy()
+    u_fixed0 = (y_start - x0)[mask]
+    counters = {"res": 0, "tan": 0}
+
+    def residual(lam):
+        counters["res"] += 1
+        F = model.residual(state)
+        return F + lam * fbar.ravel(), F
+
+    records: list[NewtonStep] = []
+    failed: list[NewtonStep] = []
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=steps, desc="Newton load steps", unit="step")
+
+    def attempt(lam_from, lam_to):
+        """Newton iterations at load lam_to starting from the current state."""
+        state.y[mask] = x0[mask] + u_fixed0 + lam_to * ubar[mask]
+        R, F = residual(lam_to)
+        scale = max(np.linalg.norm(lam_to * fbar), np.linalg.norm(F), 1e-300)
+        norms, alphas = [], []
+        for _ in range(max_iter + 1):
+            r = float(np.linalg.norm(R[free]))
+            norms.append(r)
+            if r <= tol * scale:
+                return NewtonStep(lam_to, norms, alphas, True, float(scale))
+            if len(alphas) == max_iter:
+                break
+            counters["tan"] += 1
+            K = model.tangent(state)
+            Kff = sp.csc_matrix(K.tocsr()[free][:, free])
+            try:
+                du = spla.splu(Kff).solve(R[free])
+            except RuntimeError as exc:     # exactly singular
+                raise NewtonError(f"singular tangent at load factor {lam_to:.4g} ({exc}); "
+                                  "check the boundary conditions remove all rigid-body modes") from exc
+            if not np.all(np.isfinite(du)):
+                raise NewtonError(f"non-finite Newton update at load factor {lam_to:.4g}; "
+                                  "the tangent is singular on the free dofs")
+            yflat = state.y.reshape(-1)
+            ybase = yflat[free].copy()
+            alpha = 1.0
+            while True:
+                yflat[free] = ybase + alpha * du
+                R_new, F_new = residual(lam_to)
+                r_new = float(np.linalg.norm(R_new[free]))
+                if (not line_search or r_new <= (1.0 - 1e-4 * alpha) * r
+                        or r_new <= tol * scale or alpha < 1.0 / 64):
+                    break
+                alpha *= 0.5
+            alphas.append(alpha)
+            R, F = R_new, F_new
+            scale = max(np.linalg.norm(lam_to * fbar), np.linalg.norm(F), 1e-300)
+        return NewtonStep(lam_to, norms, alphas, False, float(scale))
+
+    lam = 0.0
+    dlam = 1.0 / steps
+    cuts = 0
+    while lam < 1.0 - 1e-12:
+        target = min(1.0, lam + dlam)
+        y_saved = state.y.copy()
+        rec = attempt(lam, target)
+        if rec.converged:
+            records.append(rec)
+            if bar is not None:
+                bar.update(1)
+            lam = target
+            continue
+        failed.append(rec)
+        state.y[...] = y_saved
+        cuts += 1
+        if cuts > max_cuts:
+            raise NewtonError(f"no convergence at load factor {target:.4g} after {max_cuts} step "
+                              f"cuts (last |R| = {rec.residual_norms[-1]:.3e} N); "
+                              "use more load steps or check the model's tangent")
+        dlam *= 0.5
+    if bar is not None:
+        bar.close()
+    F = model.residual(state).reshape(n, 3)
+    reaction = np.where(mask, -(F + fbar), 0.0)
+    return NewtonResult(records, time.perf_counter() - t0, counters["res"],
+                        counters["tan"], reaction, failed)
