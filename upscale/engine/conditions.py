@@ -1,0 +1,144 @@
+"""Boundary and loading conditions on named regions, each possibly time-dependent.
+
+A :class:`Region` is a named set of particles selected by a predicate on the reference
+positions or by a box (``system.select``); a region selecting nothing is an error.
+A condition's ``value`` is a 3-vector, an array (n_region, 3), or a callable ``f(t)``
+returning either. ``components`` restricts a kinematic condition to some axes.
+
+Kinematic conditions (:class:`Fixed`, :class:`Displacement`, :class:`Velocity`) constrain
+degrees of freedom: the integrators overwrite them and give them zero acceleration.
+Load conditions (:class:`Force` in N per particle, :class:`BodyForce` in N/m^3) add to the
+particle forces.
+"""
+from __future__ import annotations
+
+import dataclasses
+from typing import Callable
+
+import numpy as np
+
+__all__ = ["Region", "region", "Condition", "Fixed", "Displacement", "Velocity", "Force",
+           "BodyForce", "constrained_dofs"]
+
+
+@dataclasses.dataclass(eq=False)
+class Region:
+    """A named set of particles: ``mask`` (N,) bool and ``index`` (k,) int64."""
+
+    name: str
+    mask: np.ndarray
+
+    def __post_init__(self):
+        self.mask = np.asarray(self.mask, dtype=bool)
+        if not self.mask.any():
+            raise ValueError(f"region {self.name!r} selects no particle")
+        self.index = np.flatnonzero(self.mask)
+
+    @property
+    def size(self) -> int:
+        return int(self.index.size)
+
+
+def region(system, name: str, where: Callable | None = None, box=None) -> Region:
+    """Select a :class:`Region` of ``system`` by predicate ``where(x0)`` and/or ``box=(lo, hi)``."""
+    return Region(name, system.select(where, box=box, name=name))
+
+
+def _components(components) -> np.ndarray:
+    c = np.atleast_1d(np.asarray(components, dtype=np.int64))
+    if c.size == 0 or c.min() < 0 or c.max() > 2:
+        raise ValueError(f"components must be a subset of (0, 1, 2), got {components!r}")
+    return c
+
+
+class Condition:
+    """Base class: ``kinematic`` conditions constrain dofs, others add forces."""
+
+    kinematic = False
+
+    def __init__(self, region: Region, value=0.0, components=(0, 1, 2)):
+        if not isinstance(region, Region):
+            raise TypeError(f"condition needs a Region, got {type(region).__name__}")
+        self.region = region
+        self.value = value
+        self.components = _components(components)
+
+    def evaluate(self, t: float) -> np.ndarray:
+        """The value at time t as an (n_region, 3) array."""
+        v = self.value(t) if callable(self.value) else self.value
+        v = np.asarray(v, dtype=np.float64)
+        if v.ndim == 0:
+            v = np.full(3, float(v))
+        out = np.broadcast_to(v, (self.region.size, 3))
+        if not np.isfinite(out).all():
+            raise ValueError(f"condition on region {self.region.name!r} gave a non-finite value at t={t:g}")
+        return out
+
+    def describe(self) -> dict:
+        return {"type": type(self).__name__, "region": self.region.name, "particles": self.region.size,
+                "components": self.components.tolist(),
+                "value": "f(t)" if callable(self.value) else np.asarray(self.value).tolist()}
+
+
+class Displacement(Condition):
+    """Prescribed displacement ``u = value(t)`` on the given components."""
+
+    kinematic = True
+
+    def apply(self, state, t: float, dt: float | None = None) -> None:
+        """Mutates ``state.y`` (and ``state.v`` = du/dt by finite difference if ``dt``)."""
+        idx, c = self.region.index, self.components
+        u = self.evaluate(t)
+        yc = state.x0[idx][:, c] + u[:, c]
+        if dt:
+            uprev = self.evaluate(t - dt)
+            state.v[np.ix_(idx, c)] = (u[:, c] - uprev[:, c]) / dt
+        state.y[np.ix_(idx, c)] = yc
+
+
+class Fixed(Displacement):
+    """Zero displacement and velocity on the given components."""
+
+    def __init__(self, region: Region, components=(0, 1, 2)):
+        super().__init__(region, 0.0, components)
+
+
+class Velocity(Condition):
+    """Prescribed velocity ``v = value(t)`` on the given components (positions follow)."""
+
+    kinematic = True
+
+    def apply_velocity(self, state, t: float) -> None:
+        """Mutates ``state.v``."""
+        idx, c = self.region.index, self.components
+        state.v[np.ix_(idx, c)] = self.evaluate(t)[:, c]
+
+
+class Force(Condition):
+    """External force per particle (N) on every particle of the region."""
+
+    def add(self, F: np.ndarray, system, t: float) -> None:
+        np.add.at(F, self.region.index, self.evaluate(t) * _mask(self.components))
+
+
+class BodyForce(Condition):
+    """External body force density (N/m^3); the particle force is value * V_i."""
+
+    def add(self, F: np.ndarray, system, t: float) -> None:
+        idx = self.region.index
+        np.add.at(F, idx, self.evaluate(t) * _mask(self.components) * system.volume[idx, None])
+
+
+def _mask(components) -> np.ndarray:
+    m = np.zeros(3)
+    m[components] = 1.0
+    return m
+
+
+def constrained_dofs(n: int, conditions) -> np.ndarray:
+    """(N, 3) bool: the degrees of freedom a kinematic condition prescribes."""
+    m = np.zeros((n, 3), dtype=bool)
+    for cnd in conditions:
+        if cnd.kinematic:
+            m[np.ix_(cnd.region.index, cnd.components)] = True
+    return m

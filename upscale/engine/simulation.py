@@ -1,0 +1,283 @@
+"""The :class:`Simulation`: a system, a pair family, models, conditions and an integrator.
+
+It owns the loops the models do not: force assembly, conditions, time stepping,
+blow-up detection, output, checkpoints and the progress bar. It does only what the models'
+``needs`` and the outputs ask for: no bond checks unless a model has a failure criterion,
+no strain energy unless an output asks, no triplets unless a model needs them.
+"""
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+import numpy as np
+
+from upscale.engine.checkpoint import Checkpoint, load_checkpoint
+from upscale.engine.conditions import BodyForce, Displacement, Force, Velocity, constrained_dofs
+from upscale.engine.families import damage
+from upscale.engine.integrators import BlowUp, VelocityVerlet
+from upscale.engine.state import State
+
+__all__ = ["Simulation"]
+
+
+class Simulation:
+    """Tie a body, its family, models, conditions and an integrator together.
+
+    Parameters
+    ----------
+    system : ParticleSystem
+    family : Family or None
+        Pair family shared by the models (None if no model needs pairs).
+    models : Model or sequence of Model
+        Each is ``prepare``-d here. Their force contributions add up.
+    conditions : sequence of Condition
+    integrator : VelocityVerlet, optional
+        Default ``VelocityVerlet()`` (0.8 of the stable estimate).
+    state : State, optional
+        Initial state (default: the reference state at rest).
+    damage_weights : {"count", "volume"}
+        How :meth:`damage` weighs bonds (seed 004 counts them; LAMMPS weighs by volume).
+    """
+
+    def __init__(self, system, family=None, models=(), conditions=(), integrator=None,
+                 state: State | None = None, *, damage_weights: str = "count"):
+        from upscale.models.base import Model
+
+        if isinstance(models, Model):
+            models = [models]
+        self.system = system
+        self.family = family
+        self.models = list(models)
+        if not self.models:
+            raise ValueError("a simulation needs at least one model")
+        self.conditions = list(conditions)
+        self.integrator = integrator if integrator is not None else VelocityVerlet()
+        self.damage_weights = damage_weights
+        needs = [m.needs for m in self.models]
+        if any(n.pairs for n in needs) and family is None:
+            raise ValueError("a model needs the pair family: pass family=build_family(system, horizon)")
+        triplets = quadruplets = None
+        if any(n.triplets for n in needs) or any(n.quadruplets for n in needs):
+            from upscale.engine import multibody
+
+            if any(n.triplets for n in needs):
+                triplets = multibody.build_triplets(system, family)
+            if any(n.quadruplets for n in needs):
+                quadruplets = multibody.build_quadruplets(system, family)
+        self.triplets, self.quadruplets = triplets, quadruplets
+        for m in self.models:
+            m.prepare(system, family, triplets=triplets, quadruplets=quadruplets)
+        self.failure = any(n.failure for n in needs)
+        nb = family.nb if family is not None else 0
+        self.state = state if state is not None else State.reference(system.x0, nb)
+        for m in self.models:
+            m.init_state(self.state)
+        self.constrained = constrained_dofs(system.n, self.conditions)
+        self.inv_mass = (1.0 / system.mass)[:, None]
+        self._vol = system.volume[:, None]
+        self._disp = [c for c in self.conditions if isinstance(c, Displacement)]
+        self._vel = [c for c in self.conditions if isinstance(c, Velocity)]
+        self._loads = [c for c in self.conditions if isinstance(c, (Force, BodyForce))]
+        self._density_models = [m for m in self.models if m.force_kind == "density"]
+        self._particle_models = [m for m in self.models if m.force_kind != "density"]
+        self._b = np.zeros((system.n, 3))
+        self.F = np.zeros((system.n, 3))
+        self.F_ext = np.zeros((system.n, 3))
+        self._prepared = False
+        self.broken_total = 0
+
+    # ------------------------------------------------------------------ forces
+    def internal_forces(self, failure: bool = False) -> np.ndarray:
+        """Sum of the models' forces per particle (N, 3) on the current state (a new
+        array); with ``failure`` the models' criteria update ``state.intact``."""
+        st = self.state
+        fail = failure and self.failure
+        b = np.zeros_like(st.y)
+        for m in self._density_models:
+            self.broken_total += m.step_force(st, b, failure=fail)
+        F = b * self._vol
+        for m in self._particle_models:
+            self.broken_total += m.step_force(st, F, failure=fail)
+        return F
+
+    def update_forces(self) -> int:
+        """Recompute ``self.F`` (internal + external, constrained dofs zeroed in the
+        acceleration sense) on the current state, with bond failure. Returns bonds broken."""
+        st = self.state
+        before = self.broken_total
+        b = self._b
+        b[...] = 0.0
+        for m in self._density_models:
+            self.broken_total += m.step_force(st, b, failure=self.failure)
+        F = self.F
+        np.multiply(b, self._vol, out=F)
+        for m in self._particle_models:
+            self.broken_total += m.step_force(st, F, failure=self.failure)
+        if self._loads:
+            self.F_ext[...] = 0.0
+            for c in self._loads:
+                c.add(self.F_ext, self.system, st.t)
+            F += self.F_ext
+        self.reactions = F * self.constrained
+        F[self.constrained] = 0.0
+        return self.broken_total - before
+
+    def forces(self) -> np.ndarray:
+        """Internal + external particle forces (N, 3) on the current state, no failure."""
+        F = self.internal_forces(failure=False)
+        ext = np.zeros_like(F)
+        for c in self._loads:
+            c.add(ext, self.system, self.state.t)
+        return F + ext
+
+    # ------------------------------------------------------------------ conditions
+    def apply_displacement(self, t: float, dt: float | None) -> None:
+        for c in self._disp:
+            c.apply(self.state, t, dt)
+
+    def apply_velocity(self, t: float) -> None:
+        for c in self._vel:
+            c.apply_velocity(self.state, t)
+
+    # ------------------------------------------------------------------ diagnostics
+    def kinetic_energy(self) -> float:
+        v = self.state.v
+        return 0.5 * float(np.dot(self.system.mass, np.einsum("ij,ij->i", v, v)))
+
+    def energy(self) -> float:
+        """Total stored (strain) energy of all models (J)."""
+        return float(sum(m.energy(self.state) for m in self.models))
+
+    def damage(self) -> np.ndarray:
+        """Damage index mu (N,) (0 without a family)."""
+        if self.family is None:
+            return np.zeros(self.system.n)
+        return damage(self.family, self.state.intact, weights=self.damage_weights,
+                      volume=self.system.volume)
+
+    def describe(self) -> dict:
+        s = self.system
+        d = {"particles": s.n, "dim": s.dim, "spacing_m": s.spacing, "thickness_m": s.thickness,
+             "plane": s.plane if s.dim == 2 else None,
+             "models": [m.describe() for m in self.models],
+             "conditions": [c.describe() for c in self.conditions]}
+        if self.family is not None:
+            d.update(bonds=self.family.nb, horizon_m=self.family.horizon,
+                     partial_volume=self.family.partial_volume)
+        integ = self.integrator
+        d["integrator"] = {"name": integ.name, "dt_s": getattr(integ, "dt", None),
+                           "stable_estimate_s": getattr(integ, "estimate", None)}
+        return d
+
+    # ------------------------------------------------------------------ running
+    def prepare(self) -> None:
+        """Check the step, apply the conditions and compute the initial forces."""
+        if self._prepared:
+            return
+        self.integrator.prepare(self)
+        if self.state.step == 0:
+            self.apply_velocity(self.state.t)
+            self.apply_displacement(self.state.t, None)
+        self.update_forces()
+        self._prepared = True
+
+    def resume(self, path) -> bool:
+        """Load the checkpoint at ``path`` if it exists (returns True if it did)."""
+        p = Path(path)
+        if not p.is_file():
+            return False
+        st, _ = load_checkpoint(p, self.system.x0, nb=self.family.nb if self.family else 0)
+        self.state = st
+        self._prepared = False
+        return True
+
+    def _healthy(self, ke: float, ke_hist: list, spacing: float, dt: float) -> str | None:
+        st = self.state
+        if not (np.isfinite(ke) and np.isfinite(st.y).all()):
+            bad = np.flatnonzero(~np.isfinite(st.y).all(axis=1))
+            where = f" (particle {int(bad[0])})" if bad.size else ""
+            return f"non-finite positions or kinetic energy{where}"
+        vmax = float(np.sqrt(np.einsum("ij,ij->i", st.v, st.v).max()))
+        if vmax * dt > spacing:
+            i = int(np.argmax(np.einsum("ij,ij->i", st.v, st.v)))
+            return (f"particle {i} moves {vmax * dt / spacing:.3g} spacings in one step "
+                    f"(|v| = {vmax:.4g})")
+        if len(ke_hist) >= 20 and all(b > 1.5 * a > 0 for a, b in zip(ke_hist[-20:-1], ke_hist[-19:])):
+            return (f"kinetic energy grew by more than 1.5x per step for 20 steps "
+                    f"(now {ke:.4g} J)")
+        return None
+
+    def run(self, steps: int, *, output=None, checkpoint: Checkpoint | None = None,
+            progress: bool = False, callback=None, meta: dict | None = None) -> dict:
+        """Advance ``steps`` steps (from the current state).
+
+        ``output`` writes every ``output.every`` steps (and at the start and end);
+        ``checkpoint`` every ``checkpoint.every`` steps, only from healthy states. A
+        blow-up (non-finite state, a particle crossing a spacing in one step, or runaway
+        kinetic energy) raises :class:`BlowUp` naming the step, the time step against the
+        estimate and the last good checkpoint left on disk. ``callback(sim)`` runs after
+        every step; returning True stops the run.
+        """
+        from tqdm.auto import tqdm
+
+        if int(steps) < 0:
+            raise ValueError(f"steps must be >= 0, got {steps!r}")
+        self.prepare()
+        dt = self.integrator.dt
+        st = self.state
+        spacing = self.system.spacing
+        if output is not None:
+            output.start(self)
+            if st.step == 0 or not output.rows:
+                output.write(self)
+        ke_hist: list[float] = []
+        t0 = time.perf_counter()
+        target = st.step + int(steps)
+        bar = tqdm(total=int(steps), disable=not progress, unit="step", mininterval=0.5,
+                   desc=f"{'+'.join(m.name for m in self.models)}")
+        broken0 = int(st.intact.size - np.count_nonzero(st.intact))
+        try:
+            while st.step < target:
+                self.integrator.step(self)
+                bar.update(1)
+                ke = self.kinetic_energy()
+                ke_hist.append(ke)
+                if len(ke_hist) > 40:
+                    del ke_hist[:-40]
+                why = self._healthy(ke, ke_hist, spacing, dt)
+                if why is not None:
+                    est = getattr(self.integrator, "estimate", None)
+                    ck = (f"last good checkpoint: {checkpoint.path} (step {checkpoint.last_step})"
+                          if checkpoint is not None and checkpoint.last_step is not None
+                          else "no checkpoint was written")
+                    est_s = f"{est:.4g} s" if est else "unknown"
+                    raise BlowUp(f"run blew up at step {st.step} (t = {st.t:.6g} s): {why}; "
+                                 f"time step {dt:.4g} s vs stable estimate {est_s}"
+                                 f"{' (forced past it)' if est and dt > est else ''}; {ck}")
+                if checkpoint is not None and st.step % checkpoint.every == 0:
+                    growing = len(ke_hist) >= 5 and all(
+                        b > 1.5 * a > 0 for a, b in zip(ke_hist[-5:-1], ke_hist[-4:]))
+                    if not growing:
+                        checkpoint.write(st, {**(meta or {}), "dt_s": dt})
+                if output is not None and st.step % output.every == 0:
+                    output.write(self)
+                if callback is not None and callback(self):
+                    break
+        finally:
+            bar.close()
+        wall = time.perf_counter() - t0
+        if output is not None and (not output.rows or output.rows[-1]["step"] != st.step):
+            output.write(self)
+        if checkpoint is not None and checkpoint.last_step != st.step:
+            checkpoint.write(st, {**(meta or {}), "dt_s": dt})
+        broken = int(st.intact.size - np.count_nonzero(st.intact))
+        return {"steps": int(st.step), "time_s": float(st.t), "dt_s": dt, "wall_s": wall,
+                "broken_bonds": broken, "broken_this_run": broken - broken0}
+
+    def relax(self, adr=None, progress: bool = False) -> dict:
+        """Quasi-static equilibrium by adaptive dynamic relaxation (see integrators)."""
+        from upscale.engine.integrators import AdaptiveDynamicRelaxation
+
+        adr = adr or AdaptiveDynamicRelaxation()
+        return adr.run(self, progress=progress)

@@ -1,0 +1,356 @@
+"""Bond-based peridynamics: the prototype microelastic brittle (PMB) model.
+
+Silling, J. Mech. Phys. Solids 48 (2000) 175; Silling & Askari, Comput. Struct. 83 (2005)
+1526. Pairwise force density on particle i (N/m^3)::
+
+    b_i = sum_j c s_ij V_j beta_ij (y_j - y_i)/|y_j - y_i|,   s = (|y_j - y_i| - |xi|)/|xi|
+
+with the micromodulus c calibrated by matching the strain energy density of an isotropic
+stretch in the bulk (beta = 1, constant influence function):
+
+==========================  ======================================  =====================
+dimension                   c                                       implied Poisson ratio
+==========================  ======================================  =====================
+3D                          18 K / (pi delta^4),  K = E/(3(1-2nu))  1/4
+2D plane stress (thick. t)  6 E / ((1-nu) pi t delta^3)             1/3
+2D plane strain             6 E / ((1+nu)(1-2nu) pi t delta^3)      1/4
+1D (area A)                 2 E / (A delta^2)                       -
+==========================  ======================================  =====================
+
+(for the implied nu these are the classical 12E/(pi delta^4), 9E/(pi t delta^3) and
+48E/(5 pi t delta^3)). Another ``nu`` keeps the dilatational modulus and is recorded as
+such: bond-based PD cannot represent it.
+
+Critical stretch from the fracture energy G_c (energy to break every bond crossing a unit
+area): 3D ``G_c = pi c s0^2 delta^5 / 10``; 2D ``G_c = c s0^2 t delta^4 / 4``;
+1D ``G_c = c s0^2 A delta^3 / 6`` (Silling & Askari 2005; Ha & Bobaru 2010).
+A bond breaks when s > s0; it breaks after its force of that evaluation is counted
+(the LAMMPS order).
+
+Surface correction (``surface_correction=True``): per-particle factors
+``g_i = W_bulk / W_i`` from an isotropic stretch, bond factor ``(g_i + g_j)/2``
+(the energy method of Madenci & Oterkus 2014, isotropic test).
+
+LAMMPS conventions: ``PMB(c=..., s0=...)`` on a family built with
+``partial_volume="lammps"`` is pair_style peri/pmb with ``alpha = 0``;
+:class:`LammpsContact` is its short-range repulsive contact force.
+"""
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from upscale.models import register
+from upscale.models.base import Model, Needs
+
+__all__ = ["PMB", "LammpsContact", "pmb_micromodulus", "pmb_critical_stretch"]
+
+_NEAR_ZERO = 2.2204e-16  # LAMMPS PairPeri::NEAR_ZERO: |dr| below it is taken as 0
+
+
+# ---------------------------------------------------------------------------- kernels
+@nb.njit(parallel=True, cache=True)
+def pmb_force_kernel(offsets, neighbors, length_b, w_b, y_nc, intact_b, c, s0, fail, out_nc):
+    """Adds PMB force densities to ``out_nc``; if ``fail``, mutates ``intact_b`` (bonds with
+    s > s0 break after their force is counted). ``w_b = V_j * beta_ij * g_ij``.
+    Returns the number of directed bonds broken."""
+    n = offsets.shape[0] - 1
+    broke = np.zeros(n, dtype=np.int64)
+    for i in nb.prange(n):
+        yi0 = y_nc[i, 0]
+        yi1 = y_nc[i, 1]
+        yi2 = y_nc[i, 2]
+        f0 = 0.0
+        f1 = 0.0
+        f2 = 0.0
+        k = 0
+        for b in range(offsets[i], offsets[i + 1]):
+            if not intact_b[b]:
+                continue
+            j = neighbors[b]
+            d0 = yi0 - y_nc[j, 0]
+            d1 = yi1 - y_nc[j, 1]
+            d2 = yi2 - y_nc[j, 2]
+            r = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            dr = r - length_b[b]
+            if abs(dr) < _NEAR_ZERO:
+                dr = 0.0
+            s = dr / length_b[b]
+            fb = -(c * w_b[b] * s) / r
+            f0 += d0 * fb
+            f1 += d1 * fb
+            f2 += d2 * fb
+            if fail and s > s0:
+                intact_b[b] = False
+                k += 1
+        out_nc[i, 0] += f0
+        out_nc[i, 1] += f1
+        out_nc[i, 2] += f2
+        broke[i] = k
+    return broke.sum()
+
+
+@nb.njit(parallel=True, cache=True)
+def pmb_energy_kernel(offsets, neighbors, length_b, w_b, y_nc, intact_b, c):
+    """W_i = 1/4 sum_j c s^2 |xi| w_b (J/m^3), half of each bond's energy to each end."""
+    n = offsets.shape[0] - 1
+    W = np.zeros(n)
+    for i in nb.prange(n):
+        acc = 0.0
+        for b in range(offsets[i], offsets[i + 1]):
+            if not intact_b[b]:
+                continue
+            j = neighbors[b]
+            d0 = y_nc[i, 0] - y_nc[j, 0]
+            d1 = y_nc[i, 1] - y_nc[j, 1]
+            d2 = y_nc[i, 2] - y_nc[j, 2]
+            r = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            s = (r - length_b[b]) / length_b[b]
+            acc += s * s * length_b[b] * w_b[b]
+        W[i] = 0.25 * c * acc
+    return W
+
+
+@nb.njit(parallel=True, cache=True)
+def contact_kernel(offsets, neighbors, length_b, vol_n, y_nc, k15_over_delta, lc, out_nc):
+    """LAMMPS peri short-range contact: for family pairs closer than
+    d = min(0.9 |xi|, 1.35 lc), adds -k (r - d) V_j / r * (y_i - y_j)... (repulsive).
+    Returns the number of active (directed) contacts."""
+    n = offsets.shape[0] - 1
+    active = np.zeros(n, dtype=np.int64)
+    for i in nb.prange(n):
+        f0 = 0.0
+        f1 = 0.0
+        f2 = 0.0
+        a = 0
+        for b in range(offsets[i], offsets[i + 1]):
+            j = neighbors[b]
+            d0 = y_nc[i, 0] - y_nc[j, 0]
+            d1 = y_nc[i, 1] - y_nc[j, 1]
+            d2 = y_nc[i, 2] - y_nc[j, 2]
+            r = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            dij = min(0.9 * length_b[b], 1.35 * lc)
+            if r < dij:
+                rk = (k15_over_delta * vol_n[j]) * (r - dij)
+                fp = -(rk / r) if r > 0.0 else 0.0
+                f0 += d0 * fp
+                f1 += d1 * fp
+                f2 += d2 * fp
+                a += 1
+        out_nc[i, 0] += f0
+        out_nc[i, 1] += f1
+        out_nc[i, 2] += f2
+        active[i] = a
+    return active.sum()
+
+
+# ---------------------------------------------------------------------------- calibration
+def pmb_micromodulus(E: float, nu: float | None, horizon: float, dim: int, *,
+                     thickness: float | None = None, plane: str = "stress",
+                     area: float = 1.0) -> float:
+    """Micromodulus c (N/m^6) matching the bulk energy of an isotropic stretch."""
+    d = float(horizon)
+    if dim == 3:
+        nu = 0.25 if nu is None else nu
+        K = E / (3.0 * (1.0 - 2.0 * nu))
+        return 18.0 * K / (np.pi * d ** 4)
+    if dim == 2:
+        t = 1.0 if thickness is None else float(thickness)
+        if plane == "stress":
+            nu = 1.0 / 3.0 if nu is None else nu
+            return 6.0 * E / ((1.0 - nu) * np.pi * t * d ** 3)
+        nu = 0.25 if nu is None else nu
+        return 6.0 * E / ((1.0 + nu) * (1.0 - 2.0 * nu) * np.pi * t * d ** 3)
+    if dim == 1:
+        return 2.0 * E / (area * d ** 2)
+    raise ValueError(f"dim must be 1, 2 or 3, got {dim!r}")
+
+
+def pmb_critical_stretch(Gc: float, c: float, horizon: float, dim: int, *,
+                         thickness: float | None = None, area: float = 1.0) -> float:
+    """Critical stretch s0 such that breaking all bonds across a unit area costs G_c."""
+    d = float(horizon)
+    if dim == 3:
+        return float(np.sqrt(10.0 * Gc / (np.pi * c * d ** 5)))
+    if dim == 2:
+        t = 1.0 if thickness is None else float(thickness)
+        return float(np.sqrt(4.0 * Gc / (c * t * d ** 4)))
+    return float(np.sqrt(6.0 * Gc / (c * area * d ** 3)))
+
+
+def _natural_nu(dim, plane):
+    return {3: 0.25, 1: None}.get(dim, 1.0 / 3.0 if plane == "stress" else 0.25)
+
+
+def _check_positive(**kw):
+    for k, v in kw.items():
+        if v is not None and not (np.isfinite(v) and v > 0):
+            raise ValueError(f"{k} must be positive, got {v!r}")
+
+
+class PMB(Model):
+    """Prototype microelastic brittle bond-based model (see module docstring).
+
+    Parameters
+    ----------
+    E : float, optional
+        Young's modulus (Pa). Either ``E`` or ``c``.
+    nu : float, optional
+        Poisson ratio; default the value bond-based PD implies (1/4 in 3D and plane
+        strain, 1/3 in plane stress). Another value keeps the dilatational modulus.
+    c : float, optional
+        Micromodulus (N/m^6) given directly (LAMMPS ``pair_coeff`` c).
+    s0 : float, optional
+        Critical stretch. Or give ``Gc`` (J/m^2). Neither: no failure (the engine then
+        never checks bonds).
+    surface_correction : bool
+        Energy-method surface correction (isotropic stretch test).
+    """
+
+    name = "pmb"
+    force_kind = "density"
+
+    def __init__(self, E: float | None = None, nu: float | None = None, *, c: float | None = None,
+                 s0: float | None = None, Gc: float | None = None,
+                 surface_correction: bool = False):
+        if (E is None) == (c is None):
+            raise ValueError("PMB needs exactly one of E (Young's modulus) or c (micromodulus)")
+        _check_positive(E=E, c=c, s0=s0, Gc=Gc)
+        if nu is not None and not (-1.0 < nu < 0.5):
+            raise ValueError(f"Poisson ratio must be in (-1, 0.5), got {nu!r}")
+        if s0 is not None and Gc is not None:
+            raise ValueError("give the critical stretch s0 or the fracture energy Gc, not both")
+        self.E, self.nu, self.c_given, self.s0_given, self.Gc = E, nu, c, s0, Gc
+        self.surface_correction = bool(surface_correction)
+        self.needs = Needs(pairs=True, failure=(s0 is not None or Gc is not None), energy=True)
+        self.c = c
+        self.s0 = s0 if s0 is not None else np.inf
+
+    # ------------------------------------------------------------------ set-up
+    def prepare(self, system, family, **kw) -> None:
+        super().prepare(system, family, **kw)
+        area = float(np.mean(system.volume) / system.spacing) if system.dim == 1 else 1.0
+        self._area = area
+        if self.c_given is None:
+            self.c = pmb_micromodulus(self.E, self.nu, family.horizon, system.dim,
+                                      thickness=system.thickness, plane=system.plane, area=area)
+        if self.Gc is not None:
+            self.s0 = pmb_critical_stretch(self.Gc, self.c, family.horizon, system.dim,
+                                           thickness=system.thickness, area=area)
+        w = system.volume[family.neighbors] * family.volume_factor
+        self.w_b = np.ascontiguousarray(w)
+        if self.surface_correction:
+            self.w_b = np.ascontiguousarray(w * self._surface_factors())
+
+    def _surface_factors(self) -> np.ndarray:
+        """Bond factors (g_i + g_j)/2 with g_i = W_bulk / W_i under an isotropic stretch."""
+        sysm, fam = self.system, self.family
+        s = 1e-3
+        y = sysm.x0 * (1.0 + s)
+        W = pmb_energy_kernel(fam.offsets, fam.neighbors, fam.length, self.w_b, y,
+                              np.ones(fam.nb, dtype=np.bool_), self.c)
+        d = fam.horizon
+        if sysm.dim == 3:
+            Wb = np.pi * self.c * d ** 4 * s * s / 4.0
+        elif sysm.dim == 2:
+            Wb = np.pi * self.c * sysm.thickness * d ** 3 * s * s / 6.0
+        else:
+            Wb = self.c * self._area * d ** 2 * s * s / 2.0
+        g = np.where(W > 0, Wb / np.where(W > 0, W, 1.0), 1.0)
+        return 0.5 * (g[fam.owner] + g[fam.neighbors])
+
+    # ------------------------------------------------------------------ forces
+    def add_force(self, state, out):
+        f = self.family
+        pmb_force_kernel(f.offsets, f.neighbors, f.length, self.w_b, state.y, state.intact,
+                         self.c, self.s0, False, out)
+
+    def step_force(self, state, out, *, failure=True):
+        f = self.family
+        fail = bool(failure and self.needs.failure)
+        return int(pmb_force_kernel(f.offsets, f.neighbors, f.length, self.w_b, state.y,
+                                    state.intact, self.c, self.s0, fail, out))
+
+    def break_bonds(self, state):
+        from upscale.engine.kernels import break_by_stretch
+
+        if not self.needs.failure:
+            return 0
+        f = self.family
+        s0 = np.full(f.n, self.s0)
+        return int(break_by_stretch(f.offsets, f.neighbors, f.length, state.y, state.intact, s0))
+
+    def energy_density(self, state):
+        f = self.family
+        return pmb_energy_kernel(f.offsets, f.neighbors, f.length, self.w_b, state.y,
+                                 state.intact, self.c)
+
+    def stiffness_bound(self):
+        """Silling-Askari: R_i = 2 sum_j c beta V_j / |xi| (N/m^4)."""
+        f = self.family
+        return 2.0 * np.bincount(f.owner, weights=self.c * self.w_b / f.length, minlength=f.n)
+
+    def describe(self):
+        d = {"model": self.name, "c_N_per_m6": self.c, "s0": None if np.isinf(self.s0) else self.s0,
+             "surface_correction": self.surface_correction}
+        if self.E is not None:
+            d["E_Pa"] = self.E
+            d["nu"] = self.nu if self.nu is not None else (
+                _natural_nu(self.system.dim, self.system.plane) if self.system else None)
+        if self.Gc is not None:
+            d["Gc_J_per_m2"] = self.Gc
+        return d
+
+
+class LammpsContact(Model):
+    """The short-range repulsive contact force of LAMMPS pair peri/pmb and peri/lps.
+
+    For a pair closer than ``d_ij = min(0.9 |xi_ij|, 1.35 lc)`` LAMMPS adds the force
+    density ``-k (r - d_ij) V_j`` along the pair (repulsive), with
+    ``k = 15 c / delta`` (peri/pmb) or ``k = 15 * 18 K / (pi delta^4) / delta``
+    (peri/lps). LAMMPS applies it over its ordinary neighbour list (any particles within
+    the cut-off in the *current* configuration); here it runs over the pair family
+    (broken bonds included), which is the same set as long as no two particles that
+    started farther apart than the horizon come within 1.35 lc. ``last_active`` counts
+    the active directed contacts of the last evaluation.
+    """
+
+    name = "lammps-contact"
+    needs = Needs(pairs=True)
+
+    def __init__(self, k: float, lc: float, *, family=None):
+        _check_positive(k=k, lc=lc)
+        self.k = float(k)
+        self.lc = float(lc)
+        self.contact_family = family
+        self.last_active = 0
+        self.max_active = 0
+
+    @classmethod
+    def for_pmb(cls, c: float, horizon: float, lc: float, **kw) -> "LammpsContact":
+        return cls(15.0 * c / horizon, lc, **kw)
+
+    @classmethod
+    def for_lps(cls, K: float, horizon: float, lc: float, **kw) -> "LammpsContact":
+        return cls((15.0 * 18.0 * K) / (np.pi * horizon ** 4) / horizon, lc, **kw)
+
+    def prepare(self, system, family, **kw) -> None:
+        """``family`` given at construction (e.g. the family before a pre-crack was
+        removed, as LAMMPS's neighbour list still holds those pairs) takes precedence."""
+        super().prepare(system, self.contact_family if self.contact_family is not None else family, **kw)
+
+    def stiffness_bound(self):
+        """No contact is active in the reference state: zero."""
+        return np.zeros(self.system.n)
+
+    def add_force(self, state, out):
+        f = self.family
+        self.last_active = int(contact_kernel(f.offsets, f.neighbors, f.length, self.system.volume,
+                                              state.y, self.k, self.lc, out))
+        self.max_active = max(self.max_active, self.last_active)
+
+    def describe(self):
+        return {"model": self.name, "k": self.k, "lc": self.lc}
+
+
+register("pmb", PMB)

@@ -1,0 +1,281 @@
+"""Ordinary state-based peridynamics: the linear peridynamic solid (LPS).
+
+Silling, Epton, Weckner, Xu & Askari, J. Elasticity 88 (2007) 151 (3D); the 2D form
+follows Le, Silling & Gerstle (2014) with the dilatation of the in-plane trace.
+In d dimensions (d = 2, 3), with influence function omega, reference bond length
+``L = |xi|``, extension ``e = |y_j - y_i| - L`` and weight ``w = V_j beta_ij``::
+
+    m_i     = sum_j omega L^2 w                       (weighted volume, fixed at prepare)
+    theta_i = (d / m_i) sum_{j intact} omega L e w     (dilatation)
+    t_ij    = (d k' theta_i / m_i) omega L + (alpha / m_i) omega e^d,  e^d = e - theta_i L / d
+    b_i     = sum_j (t_ij + t_ji) w (y_j - y_i)/|y_j - y_i|
+
+3D: k' = K, alpha = 15 G; 2D plane stress k' = E / (2 (1 - nu)), plane strain
+k' = E / (2 (1 + nu)(1 - 2 nu)), alpha = 8 G. Collecting terms,
+``t_ij + t_ji = A omega L (theta_i/m_i + theta_j/m_j) + alpha omega e (1/m_i + 1/m_j)``
+with ``A = d k' - alpha/d`` (3D: 3K - 5G, exactly LAMMPS pair peri/lps).
+Strain energy density ``W_i = k' theta_i^2 / 2 + (alpha / (2 m_i)) sum_j omega (e^d)^2 w``.
+
+The influence function is ``omega = 1/|xi|`` ("inverse", LAMMPS) or ``1`` ("constant").
+Critical stretch from G_c (Madenci & Oterkus 2014, their eqs. for the OSB model):
+3D ``s0 = sqrt(G_c / ((3G + (3/4)^4 (K - 5G/3)) delta))``,
+2D ``s0 = sqrt(G_c / ((6G/pi + 16/(9 pi^2) (k' - 2G)) delta))``.
+m_i is computed from each particle's real family, which is LPS's own surface correction
+for the dilatation. ``surface_correction=True`` additionally scales the deviatoric bond
+stiffness by ``(g_i + g_j)/2``, ``g = W_bulk / W_i`` under simple shear (energy method);
+near a surface the corrected forces are then not exactly the gradient of an energy.
+"""
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from upscale.models import register
+from upscale.models.base import Model, Needs
+from upscale.models.bond_based import _check_positive
+
+__all__ = ["LPS"]
+
+_NEAR_ZERO = 2.2204e-16
+
+
+@nb.njit(parallel=True, cache=True)
+def lps_dilatation_kernel(offsets, neighbors, length_b, w_b, omega_b, y_nc, intact_b, dm_n, theta_n):
+    """theta_i = (d/m_i) sum omega L e w over intact bonds; ``dm_n = d / m_i``."""
+    n = offsets.shape[0] - 1
+    for i in nb.prange(n):
+        acc = 0.0
+        for b in range(offsets[i], offsets[i + 1]):
+            if not intact_b[b]:
+                continue
+            j = neighbors[b]
+            d0 = y_nc[i, 0] - y_nc[j, 0]
+            d1 = y_nc[i, 1] - y_nc[j, 1]
+            d2 = y_nc[i, 2] - y_nc[j, 2]
+            r = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            dr = r - length_b[b]
+            if abs(dr) < _NEAR_ZERO:
+                dr = 0.0
+            acc += omega_b[b] * length_b[b] * dr * w_b[b]
+        theta_n[i] = dm_n[i] * acc
+
+
+@nb.njit(parallel=True, cache=True)
+def lps_force_kernel(offsets, neighbors, length_b, wa_b, wd_b, omega_b, y_nc, intact_b, theta_n,
+                     inv_m_n, s0, fail, out_nc):
+    """Adds LPS force densities; if ``fail`` breaks bonds with s > s0 after their force.
+    ``wa_b = A w``, ``wd_b = alpha w g`` (g: surface-correction factor, 1 by default)."""
+    n = offsets.shape[0] - 1
+    broke = np.zeros(n, dtype=np.int64)
+    for i in nb.prange(n):
+        yi0 = y_nc[i, 0]
+        yi1 = y_nc[i, 1]
+        yi2 = y_nc[i, 2]
+        ti = theta_n[i] * inv_m_n[i]
+        imi = inv_m_n[i]
+        f0 = 0.0
+        f1 = 0.0
+        f2 = 0.0
+        k = 0
+        for b in range(offsets[i], offsets[i + 1]):
+            if not intact_b[b]:
+                continue
+            j = neighbors[b]
+            d0 = yi0 - y_nc[j, 0]
+            d1 = yi1 - y_nc[j, 1]
+            d2 = yi2 - y_nc[j, 2]
+            r = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            L = length_b[b]
+            dr = r - L
+            if abs(dr) < _NEAR_ZERO:
+                dr = 0.0
+            om = omega_b[b]
+            rk = wa_b[b] * om * (ti + theta_n[j] * inv_m_n[j]) * L
+            rk += wd_b[b] * om * (imi + inv_m_n[j]) * dr
+            fb = -rk / r
+            f0 += d0 * fb
+            f1 += d1 * fb
+            f2 += d2 * fb
+            if fail and dr / L > s0:
+                intact_b[b] = False
+                k += 1
+        out_nc[i, 0] += f0
+        out_nc[i, 1] += f1
+        out_nc[i, 2] += f2
+        broke[i] = k
+    return broke.sum()
+
+
+@nb.njit(parallel=True, cache=True)
+def lps_energy_kernel(offsets, neighbors, length_b, wd_b, omega_b, y_nc, intact_b, theta_n,
+                      inv_m_n, kprime, d):
+    n = offsets.shape[0] - 1
+    W = np.zeros(n)
+    for i in nb.prange(n):
+        acc = 0.0
+        for b in range(offsets[i], offsets[i + 1]):
+            if not intact_b[b]:
+                continue
+            j = neighbors[b]
+            d0 = y_nc[i, 0] - y_nc[j, 0]
+            d1 = y_nc[i, 1] - y_nc[j, 1]
+            d2 = y_nc[i, 2] - y_nc[j, 2]
+            r = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            ed = (r - length_b[b]) - theta_n[i] * length_b[b] / d
+            acc += omega_b[b] * ed * ed * wd_b[b]
+        W[i] = 0.5 * kprime * theta_n[i] * theta_n[i] + 0.5 * inv_m_n[i] * acc
+    return W
+
+
+class LPS(Model):
+    """Linear peridynamic solid (ordinary state-based), 2D and 3D. See module docstring.
+
+    Parameters
+    ----------
+    E, nu : float
+        Young's modulus (Pa) and Poisson ratio; or give ``K`` and ``G`` (3D moduli,
+        LAMMPS ``pair_coeff`` values).
+    s0 / Gc : float, optional
+        Critical stretch or fracture energy (J/m^2); neither: no failure.
+    influence : {"inverse", "constant"}
+        omega = 1/|xi| (LAMMPS) or 1.
+    """
+
+    name = "lps"
+    force_kind = "density"
+
+    def __init__(self, E: float | None = None, nu: float | None = None, *, K: float | None = None,
+                 G: float | None = None, s0: float | None = None, Gc: float | None = None,
+                 influence: str = "inverse", surface_correction: bool = False):
+        if (E is None or nu is None) and (K is None or G is None):
+            raise ValueError("LPS needs E and nu, or K and G")
+        if E is not None and K is not None:
+            raise ValueError("give E and nu, or K and G, not both")
+        _check_positive(E=E, K=K, G=G, s0=s0, Gc=Gc)
+        if nu is not None and not (-1.0 < nu < 0.5):
+            raise ValueError(f"Poisson ratio must be in (-1, 0.5), got {nu!r}")
+        if influence not in ("inverse", "constant"):
+            raise ValueError(f"unknown influence function {influence!r}; valid: 'inverse', 'constant'")
+        if s0 is not None and Gc is not None:
+            raise ValueError("give the critical stretch s0 or the fracture energy Gc, not both")
+        if E is not None:
+            K = E / (3.0 * (1.0 - 2.0 * nu))
+            G = E / (2.0 * (1.0 + nu))
+        else:
+            E = 9.0 * K * G / (3.0 * K + G)
+            nu = (3.0 * K - 2.0 * G) / (2.0 * (3.0 * K + G))
+        self.E, self.nu, self.K, self.G = float(E), float(nu), float(K), float(G)
+        self.influence = influence
+        self.s0_given, self.Gc = s0, Gc
+        self.s0 = s0 if s0 is not None else np.inf
+        self.surface_correction = bool(surface_correction)
+        self.needs = Needs(pairs=True, failure=(s0 is not None or Gc is not None), energy=True)
+
+    def prepare(self, system, family, **kw) -> None:
+        super().prepare(system, family, **kw)
+        d = system.dim
+        if d not in (2, 3):
+            raise ValueError(f"LPS is implemented in 2D and 3D, not dim={d}")
+        E, nu, G = self.E, self.nu, self.G
+        if d == 3:
+            self.kprime, self.alpha = self.K, 15.0 * G
+        else:
+            self.kprime = E / (2 * (1 - nu)) if system.plane == "stress" else \
+                E / (2 * (1 + nu) * (1 - 2 * nu))
+            self.alpha = 8.0 * G
+        self.dimf = float(d)
+        self.A = d * self.kprime - self.alpha / d
+        L = family.length
+        self.omega_b = np.ascontiguousarray(1.0 / L if self.influence == "inverse" else np.ones_like(L))
+        self.w_b = np.ascontiguousarray(system.volume[family.neighbors] * family.volume_factor)
+        m = np.bincount(family.owner, weights=self.omega_b * L * L * self.w_b, minlength=family.n)
+        self.m = m
+        with np.errstate(divide="ignore"):
+            self.inv_m = np.where(m > 0, 1.0 / np.where(m > 0, m, 1.0), 0.0)
+        self.dm = self.dimf * self.inv_m
+        self.wa_b = np.ascontiguousarray(self.A * self.w_b)
+        self.wd_b = np.ascontiguousarray(self.alpha * self.w_b)
+        self._theta = np.zeros(family.n)
+        if self.Gc is not None:
+            dl = family.horizon
+            if d == 3:
+                self.s0 = float(np.sqrt(self.Gc / ((3 * G + (0.75 ** 4) * (self.K - 5 * G / 3)) * dl)))
+            else:
+                self.s0 = float(np.sqrt(self.Gc / ((6 * G / np.pi + 16 / (9 * np.pi ** 2) *
+                                                    (self.kprime - 2 * G)) * dl)))
+        if self.surface_correction:
+            self.wd_b = np.ascontiguousarray(self.wd_b * self._deviatoric_correction())
+
+    def _deviatoric_correction(self) -> np.ndarray:
+        """Bond factors (g_i + g_j)/2 with g_i = W_bulk / W_i under simple shear."""
+        sysm, fam = self.system, self.family
+        gam = 1e-3
+        y = sysm.x0.copy()
+        y[:, 0] += gam * sysm.x0[:, 1]
+        intact = np.ones(fam.nb, dtype=np.bool_)
+        theta = np.zeros(fam.n)
+        lps_dilatation_kernel(fam.offsets, fam.neighbors, fam.length, self.w_b, self.omega_b, y,
+                              intact, self.dm, theta)
+        W = lps_energy_kernel(fam.offsets, fam.neighbors, fam.length, self.wd_b, self.omega_b, y,
+                              intact, theta, self.inv_m, self.kprime, self.dimf)
+        Wb = 0.5 * self.G * gam * gam
+        g = np.where(W > 0, Wb / np.where(W > 0, W, 1.0), 1.0)
+        return 0.5 * (g[fam.owner] + g[fam.neighbors])
+
+    # ------------------------------------------------------------------ forces
+    def dilatation(self, state) -> np.ndarray:
+        """theta (N,) on the current state (a new array)."""
+        f = self.family
+        theta = np.empty(f.n)
+        lps_dilatation_kernel(f.offsets, f.neighbors, f.length, self.w_b, self.omega_b, state.y,
+                              state.intact, self.dm, theta)
+        return theta
+
+    def _force(self, state, out, fail):
+        f = self.family
+        lps_dilatation_kernel(f.offsets, f.neighbors, f.length, self.w_b, self.omega_b, state.y,
+                              state.intact, self.dm, self._theta)
+        return int(lps_force_kernel(f.offsets, f.neighbors, f.length, self.wa_b, self.wd_b, self.omega_b,
+                                    state.y, state.intact, self._theta, self.inv_m, self.s0,
+                                    fail, out))
+
+    def add_force(self, state, out):
+        self._force(state, out, False)
+
+    def step_force(self, state, out, *, failure=True):
+        return self._force(state, out, bool(failure and self.needs.failure))
+
+    def break_bonds(self, state):
+        from upscale.engine.kernels import break_by_stretch
+
+        if not self.needs.failure:
+            return 0
+        f = self.family
+        return int(break_by_stretch(f.offsets, f.neighbors, f.length, state.y, state.intact,
+                                    np.full(f.n, self.s0)))
+
+    def energy_density(self, state):
+        f = self.family
+        theta = self.dilatation(state)
+        return lps_energy_kernel(f.offsets, f.neighbors, f.length, self.wd_b, self.omega_b, state.y,
+                                 state.intact, theta, self.inv_m, self.kprime, self.dimf)
+
+    def stiffness_bound(self):
+        """Gershgorin row bound of the linearised LPS force density (N/m^4)."""
+        f = self.family
+        i, j = f.owner, f.neighbors
+        om, L, w = self.omega_b, f.length, self.w_b
+        Rdev = 2.0 * np.bincount(i, weights=self.wd_b * om * (self.inv_m[i] + self.inv_m[j]),
+                                              minlength=f.n)
+        T = self.dm * np.bincount(i, weights=om * L * w, minlength=f.n)  # sum |d theta_i / d y| / 2
+        q = 2.0 * T * self.inv_m
+        Rdil = abs(self.A) * np.bincount(i, weights=w * om * L * (q[i] + q[j]), minlength=f.n)
+        return Rdev + Rdil
+
+    def describe(self):
+        return {"model": self.name, "E_Pa": self.E, "nu": self.nu, "K_Pa": self.K, "G_Pa": self.G,
+                "influence": self.influence, "s0": None if np.isinf(self.s0) else self.s0,
+                **({"Gc_J_per_m2": self.Gc} if self.Gc is not None else {})}
+
+
+register("lps", LPS)
