@@ -28,7 +28,7 @@ import numpy as np
 
 from potentials.brenner_kernels import (N_PARAMS, P_A0, P_BETA, P_C0, P_D, P_D0, P_DELTA,
                                         P_R1, P_R2, P_RE, P_S, brenner_energy_forces,
-                                        reverse_bonds)
+                                        reverse_bonds, threads_for)
 from potentials.calculator import PotentialCalculator
 
 __all__ = ["Brenner", "brenner_parameters", "brenner_data", "conjugation_table",
@@ -167,12 +167,14 @@ class Brenner(PotentialCalculator):
                              f"contain {', '.join(bad)}")
 
     def compute(self, atoms, nl):
-        if getattr(self, "_rev_for", None) is not nl.j_b:
-            self._rev = reverse_bonds(nl.first_n, nl.j_b, nl.shift_bc)
-            self._rev_for = nl.j_b
-        x = np.ascontiguousarray(atoms.positions, dtype=float)
-        cell = np.ascontiguousarray(atoms.cell.array, dtype=float)
-        F_v, F_dx, F_dy = self._table
-        return brenner_energy_forces(
-            x, cell, nl.first_n, nl.j_b, nl.shift_bc, self._rev, self._pvec, F_v, F_dx, F_dy,
-            bool(self.parameters["step_cutoff"]), bool(self.parameters["conjugation"]))
+        with threads_for(len(atoms)):
+            if getattr(self, "_rev_for", None) is not nl.j_b:
+                self._rev = reverse_bonds(nl.first_n, nl.j_b, nl.shift_bc)
+                self._rev_for = nl.j_b
+            x = np.ascontiguousarray(atoms.positions, dtype=float)
+            cell = np.ascontiguousarray(atoms.cell.array, dtype=float)
+            F_v, F_dx, F_dy = self._table
+            return brenner_energy_forces(
+                x, cell, nl.first_n, nl.j_b, nl.shift_bc, self._rev, self._pvec, F_v, F_dx,
+                F_dy, bool(self.parameters["step_cutoff"]),
+                bool(self.parameters["conjugation"]))
