@@ -118,7 +118,8 @@ def _as_mask(n, fixed, dim):
 
 def solve(model, state, *, fixed=None, u_prescribed=None, f_ext=None, steps: int = 1,
           tol: float = 1e-10, max_iter: int = 25, line_search: bool = True,
-          max_cuts: int = 6, progress: bool = False) -> NewtonResult:
+          max_cuts: int = 6, progress: bool = False,
+          permc_spec: str = "MMD_AT_PLUS_A") -> NewtonResult:
     """Quasi-static Newton-Raphson solve; mutates ``state.y`` to the equilibrium at load 1.
 
     Parameters
@@ -145,6 +146,9 @@ def solve(model, state, *, fixed=None, u_prescribed=None, f_ext=None, steps: int
         Backtracking on ``|R|`` (else full Newton steps).
     max_cuts : int
         How often a failing load step may be bisected.
+    permc_spec : str
+        Column ordering of ``splu``; the default (minimum degree on ``A^T + A``) suits the
+        symmetric tangents of energy-based models (4x faster than COLAMD on a 3D CPD bar).
 
     Raises
     ------
@@ -202,7 +206,7 @@ def solve(model, state, *, fixed=None, u_prescribed=None, f_ext=None, steps: int
             K = model.tangent(state)
             Kff = sp.csc_matrix(K.tocsr()[free][:, free])
             try:
-                du = spla.splu(Kff).solve(R[free])
+                du = spla.splu(Kff, permc_spec=permc_spec).solve(R[free])
             except RuntimeError as exc:     # exactly singular
                 raise NewtonError(f"singular tangent at load factor {lam_to:.4g} ({exc}); "
                                   "check the boundary conditions remove all rigid-body modes") from exc

@@ -753,6 +753,7 @@ class CPD(Model):
                  C3: float | None = None, mode: str = "auto", plane: str = "stress",
                  s1c: float | None = None, s2c: float | None = None, s3c: float | None = None,
                  quadrature: str = "volume", calibration: str = "discrete",
+                 surface_correction: bool = False,
                  tol: float = multibody.DEFAULT_TOL, max_sets: int = multibody.DEFAULT_MAX_SETS):
         if quadrature not in QUADRATURES:
             raise ValueError(f"quadrature must be one of {QUADRATURES}, got {quadrature!r}")
@@ -760,6 +761,7 @@ class CPD(Model):
         if calibration not in ("discrete", "continuum"):
             raise ValueError(f"calibration must be 'discrete' or 'continuum', got {calibration!r}")
         self.calibration = calibration
+        self.surface_correction = bool(surface_correction)
         self.coefficients = None
         if dim not in (2, 3):
             raise ValueError(f"CPD is defined in 2D and 3D, got dim={dim!r}")
@@ -899,12 +901,46 @@ class CPD(Model):
         self.w = (np.ascontiguousarray(w1), np.ascontiguousarray(w2), np.ascontiguousarray(w3))
         self.counts = {"pairs": N1, "triplets": n2, "quadruplets": n3}
         self.coefficients = modulus_coefficients(self.horizon, self.dim, self.thickness)
+        self.correction = None
+        if self.surface_correction:
+            self._apply_surface_correction()
         if self.E is not None and self.calibration == "discrete":
             self.coefficients = self.discrete_coefficients()
             self.C = calibrate(self.E, self.nu, self.horizon, self.dim, plane=self.plane,
                                thickness=self.thickness, mode=self.mode,
                                coefficients=self.coefficients)
         self._pattern = None
+
+    def _apply_surface_correction(self) -> None:
+        """Scale every centre's weights, per interaction type, by ``S_bulk / S_i`` where
+        ``S_i`` is the energy density of centre ``i`` summed over the uniaxial strains
+        ``e_a (x) e_a`` (a < dim) and ``S_bulk`` that of the interior particle -- the
+        energy-method surface correction of PD (Madenci & Oterkus), per centre so the
+        forces stay the gradient of an energy (symmetric tangent)."""
+        from upscale.engine.state import State
+
+        c0 = self.interior_particle()
+        st = State.reference(self.system.x0, self.family.nb)
+        ints = self._intact(st)
+        amp = 1e-6
+        self.correction = []
+        w = list(self.w)
+        for t in (1, 2, 3):
+            if not np.any(w[t - 1]):
+                self.correction.append(None)
+                continue
+            C = [0.0, 0.0, 0.0]; C[t - 1] = 1.0
+            S = np.zeros(self.system.n)
+            for a in range(self.dim):
+                e = np.zeros((3, 3)); e[a, a] = amp
+                y = self.system.x0 + self.system.x0 @ e.T
+                S += energy_forces(y, self._fam(), self.triplets, self.quadruplets, self.w, C,
+                                   ints, types=(t,))[0] / self.system.volume
+            with np.errstate(divide="ignore", invalid="ignore"):
+                fac = np.where(S > 0, S[c0] / S, 1.0)
+            w[t - 1] = np.ascontiguousarray(w[t - 1] * fac)
+            self.correction.append(fac)
+        self.w = tuple(w)
 
     def interior_particle(self) -> int:
         """The particle with the most complete neighbourhood among the owners of sets
