@@ -26,6 +26,7 @@ from pathlib import Path
 
 import numba
 import numpy as np
+from ase.data import atomic_numbers, chemical_symbols
 
 from potentials import tersoff_kernels as tk
 from potentials.calculator import PotentialCalculator
@@ -262,6 +263,7 @@ class Tersoff(PotentialCalculator):
         self._P = parameters.table
         self._e2p = np.ascontiguousarray(parameters.e2p, dtype=np.int64)
         self._symbol_to_type = {s: t for t, s in enumerate(parameters.elements)}
+        self._types = self._numbers = None
 
     @classmethod
     def from_lammps(cls, name_or_path, elements=None, step_cutoff: bool = False, **kwargs):
@@ -277,18 +279,26 @@ class Tersoff(PotentialCalculator):
 
     def types(self, atoms) -> np.ndarray:
         """Element index of each atom (raises for an element the calculator lacks)."""
-        symbols = atoms.get_chemical_symbols()
-        try:
-            return np.array([self._symbol_to_type[s] for s in symbols], dtype=np.int64)
-        except KeyError:
-            bad = sorted(set(symbols) - set(self._symbol_to_type))
+        numbers = atoms.numbers
+        if self._types is not None and np.array_equal(numbers, self._numbers):
+            return self._types
+        table = np.full(max(119, int(numbers.max(initial=0)) + 1), -1, np.int64)
+        for s, t in self._symbol_to_type.items():
+            if s in atomic_numbers:
+                table[atomic_numbers[s]] = t
+        types = table[numbers]
+        if np.any(types < 0):
+            bad = sorted({chemical_symbols[z] for z in numbers[types < 0]})
             raise ValueError(
                 f"the atoms contain {', '.join(bad)}, which this Tersoff potential "
                 f"({Path(self.tersoff.source).name}: {', '.join(self.tersoff.elements)}) "
-                "does not have") from None
+                "does not have")
+        self._numbers = numbers.copy()
+        self._types = types
+        return types
 
     def check_atoms(self, atoms) -> None:
-        self._types = self.types(atoms)
+        self.types(atoms)
 
     def compute(self, atoms, nl):
         nt = self.nthreads or numba.get_num_threads()

@@ -164,3 +164,244 @@ def ours_evaluate(atoms, calc) -> dict:
     a.calc = calc
     return {"energy": a.get_potential_energy(), "energies": a.get_potential_energies(),
             "forces": a.get_forces(), "virial": calc.get_virial(a)}
+
+
+# -- case: tersoff-vs-lammps ----------------------------------------------------------------
+def _exactness_rows(quick: bool):
+    from potentials.lammps_runtime import lammps_potential_path
+    from potentials.tersoff import Tersoff, write_step_cutoff_file
+
+    rows = []
+    tmp = Path(tempfile.mkdtemp(prefix="tersoff-step-"))
+    for fname in ("BNC.tersoff", "SiC.tersoff"):
+        src = lammps_potential_path(fname)
+        step_file = write_step_cutoff_file(src, tmp / f"{fname}.step")
+        for cutoff in ("smooth", "step"):
+            lines = lammps_tersoff_lines(src if cutoff == "smooth" else step_file, ["C"])
+            for name, atoms in tersoff_structures(quick).items():
+                calc = Tersoff.from_lammps(fname, elements=["C"],
+                                           step_cutoff=(cutoff == "step"))
+                ours = ours_evaluate(atoms, calc)
+                ref = lammps_evaluate(atoms, lines)
+                err = compare(ours, ref)
+                ok = (err["energy_rel_err"] < 1e-10 and err["force_max_abs_err_eV_per_A"] < 1e-8
+                      and err["virial_rel_err"] < 1e-8)
+                rows.append({"file": fname, "cutoff": cutoff, "structure": name,
+                             "atoms": len(atoms), "E_eV_per_atom": ours["energy"] / len(atoms),
+                             **err, "pass": ok})
+                print(f"{fname} {cutoff:6s} {name:28s} energy {err['energy_rel_err']:.2e} "
+                      f"force {err['force_max_abs_err_eV_per_A']:.2e} "
+                      f"virial {err['virial_rel_err']:.2e} {'ok' if ok else 'FAIL'}", flush=True)
+    return rows
+
+
+@case("tersoff-vs-lammps",
+      "Tersoff (BNC/SiC carbon, smooth and step cutoff) vs LAMMPS pair_style tersoff: "
+      "energy, forces, virial on the issue's four structures")
+def run_tersoff_vs_lammps(args) -> dict:
+    from potentials.lammps_runtime import lammps_version
+
+    print(f"LAMMPS {lammps_version()}; tolerances: energy 1e-10 relative, forces 1e-8 eV/A, "
+          "virial 1e-8 relative")
+    rows = _exactness_rows(args.quick)
+    print()
+    print(table(rows, ["file", "cutoff", "structure", "atoms", "E_eV_per_atom",
+                       "energy_rel_err", "force_max_abs_err_eV_per_A", "virial_rel_err",
+                       "energies_max_abs_err_eV", "pass"], floatfmt=".3g"))
+    from upscale.io import write_json
+
+    write_json(args.outdir / "rows.json", rows)
+    return {
+        "energy_rel_err": max(r["energy_rel_err"] for r in rows),
+        "force_max_abs_err_eV_per_A": max(r["force_max_abs_err_eV_per_A"] for r in rows),
+        "virial_rel_err": max(r["virial_rel_err"] for r in rows),
+        "energies_max_abs_err_eV": max(r["energies_max_abs_err_eV"] for r in rows),
+        "n_comparisons": len(rows),
+        "pass": all(r["pass"] for r in rows),
+    }
+
+
+# -- case: bench-tersoff --------------------------------------------------------------------
+def bench_structure(kind: str, n_target: int):
+    """Diamond (cubic cells) or AB graphite with about ``n_target`` atoms, rattled 0.02 A."""
+    from ase.build import bulk, graphene
+
+    if kind == "diamond":
+        m = max(1, round((n_target / 8) ** (1 / 3)))
+        a = bulk("C", "diamond", a=3.5668, cubic=True).repeat((m, m, m))
+    elif kind == "graphite":
+        sheet = graphene(size=(1, 1, 1), a=2.46, vacuum=None)
+        cell = sheet.cell.array.copy()
+        cell[2] = [0, 0, 6.7]
+        layer2 = sheet.copy()
+        layer2.positions += [0, 0, 3.35]
+        layer2.positions += (cell[0] + cell[1]) / 3.0
+        g = sheet + layer2
+        g.set_cell(cell)
+        g.pbc = True
+        m = max(1, round((n_target / 4 / 2) ** 0.5))  # layers = 2*mz, mz = 2
+        a = g.repeat((m, m, 2))
+    else:
+        raise ValueError(f"unknown benchmark structure {kind!r}; valid: diamond, graphite")
+    a.rattle(0.02, seed=1)
+    return a
+
+
+class _OursTimer:
+    """Our Tersoff on ``atoms``: the neighbour list is built once; :meth:`time` returns
+    seconds per atom-step of the bare kernel and of the ASE calculator path."""
+
+    def __init__(self, atoms, nthreads: int):
+        import numba
+
+        from potentials.tersoff import Tersoff
+
+        self.nthreads = nthreads
+        numba.set_num_threads(nthreads)
+        self.calc = Tersoff.from_lammps("BNC.tersoff", elements=["C"], nthreads=nthreads)
+        self.atoms = atoms.copy()
+        self.atoms.calc = self.calc
+        self.atoms.get_forces()  # compile, build the neighbour list
+        nl = self.calc.neighbour_list
+        c = self.calc
+        self.args = (np.ascontiguousarray(self.atoms.positions), self.atoms.cell.array.copy(),
+                     nl.first_n, nl.j_b, nl.shift_bc, c._types, c._e2p, c._P, float(c.cutoff),
+                     nthreads)
+
+    def time(self, nsteps: int) -> tuple[float, float]:
+        import numba
+
+        from potentials import tersoff_kernels as tk
+
+        numba.set_num_threads(self.nthreads)
+        n = len(self.atoms)
+        t0 = time.perf_counter()
+        for _ in range(nsteps):
+            tk.tersoff(*self.args)
+        t_kernel = (time.perf_counter() - t0) / nsteps / n
+        t0 = time.perf_counter()
+        for s in range(nsteps):  # a tiny move per step, as in MD: ASE recomputes, no rebuild
+            self.atoms.positions[0, 0] += 1e-9 if s % 2 == 0 else -1e-9
+            self.atoms.get_forces()
+        t_calc = (time.perf_counter() - t0) / nsteps / n
+        assert self.calc.neighbour_list.nbuilds == 1
+        return t_kernel, t_calc
+
+    @property
+    def energy(self) -> float:
+        return self.atoms.get_potential_energy()
+
+
+class _LammpsTimer:
+    """LAMMPS ``pair_style tersoff`` (or ``tersoff/omp``) on the same atoms, one MPI rank.
+    After a ``run 0`` the atoms do not move (no integrator), so the list is never rebuilt
+    and ``run N pre no post no`` times N force evaluations."""
+
+    def __init__(self, atoms, omp_threads: int = 0):
+        from potentials.lammps_runtime import lammps_potential_path, new_lammps
+
+        self.n = n = len(atoms)
+        q, box, x = to_lammps_frame(atoms)
+        self.lmp = lmp = new_lammps()
+        pre = [f"package omp {omp_threads}"] if omp_threads else []
+        for c in pre + ["units metal", "atom_style atomic", "atom_modify map array sort 0 0.0",
+                        "boundary p p p",
+                        f"region box prism 0 {box['xhi']!r} 0 {box['yhi']!r} 0 "
+                        f"{box['zhi']!r} {box['xy']!r} {box['xz']!r} {box['yz']!r} units box",
+                        "create_box 1 box"]:
+            lmp.command(c)
+        lmp.create_atoms(n, list(range(1, n + 1)), [1] * n, x.ravel().tolist())
+        style = "tersoff/omp" if omp_threads else "tersoff"
+        for c in ["mass 1 12.011", f"pair_style {style}",
+                  f"pair_coeff * * {lammps_potential_path('BNC.tersoff')} C",
+                  "neighbor 0.3 bin", "neigh_modify delay 0 every 1 check yes",
+                  "thermo_style custom step pe", "thermo 0", "run 0"]:
+            lmp.command(c)
+        self.energy = lmp.get_thermo("pe")
+
+    def time(self, nsteps: int) -> float:
+        t0 = time.perf_counter()
+        self.lmp.command(f"run {nsteps} pre no post no")
+        return (time.perf_counter() - t0) / nsteps / self.n
+
+    def close(self):
+        self.lmp.close()
+
+
+def _race(atoms, nsteps: int, repeats: int, nthreads: int) -> dict:
+    """Alternate ours and LAMMPS ``repeats`` times (so both see the same machine load) and
+    keep each side's best."""
+    ours = _OursTimer(atoms, nthreads)
+    lmp = _LammpsTimer(atoms, omp_threads=0 if nthreads == 1 else nthreads)
+    try:
+        tk = tc = tl = np.inf
+        for _ in range(repeats):
+            k, c = ours.time(nsteps)
+            tk, tc = min(tk, k), min(tc, c)
+            tl = min(tl, lmp.time(nsteps))
+        e_diff = abs(ours.energy - lmp.energy) / abs(lmp.energy)
+    finally:
+        lmp.close()
+    return {"kernel": tk, "calculator": tc, "lammps": tl, "energy_rel_diff": e_diff}
+
+
+def _bench_args(p):
+    p.add_argument("--steps", type=int, default=None, help="force evaluations per timing")
+    p.add_argument("--repeats", type=int, default=5, help="timings per side (alternating), best is kept")
+
+
+@case("bench-tersoff",
+      "time per atom-step of Tersoff energy+forces, project vs LAMMPS pair_style tersoff, "
+      "one core (and two), ~8,000 and ~100,000 atoms", _bench_args)
+def run_bench_tersoff(args) -> dict:
+    import numba
+
+    from potentials.lammps_runtime import lammps_version
+
+    sizes = [1000, 8000] if args.quick else [8000, 100000]
+    kinds = ["diamond"] if args.quick else ["diamond", "graphite"]
+    rows = []
+    ncores = numba.config.NUMBA_NUM_THREADS
+    print(f"LAMMPS {lammps_version()}; BNC.tersoff carbon; neighbour-list build excluded on "
+          "both sides (built once, skin 0.3 A, atoms do not leave it)")
+    for kind in kinds:
+        for n_target in sizes:
+            atoms = bench_structure(kind, n_target)
+            n = len(atoms)
+            nsteps = args.steps or max(5, int((2e5 if args.quick else 1e6) / n))
+            r1 = _race(atoms, nsteps, args.repeats, 1)
+            row = {"structure": kind, "atoms": n, "steps": nsteps,
+                   "ours_1t_us": 1e6 * r1["calculator"], "ours_kernel_1t_us": 1e6 * r1["kernel"],
+                   "lammps_1t_us": 1e6 * r1["lammps"]}
+            row["ratio_1t"] = row["ours_1t_us"] / row["lammps_1t_us"]
+            row["energy_rel_diff"] = r1["energy_rel_diff"]
+            if ncores >= 2:
+                r2 = _race(atoms, nsteps, args.repeats, 2)
+                row["ours_2t_us"] = 1e6 * r2["calculator"]
+                row["lammps_omp2_us"] = 1e6 * r2["lammps"]
+                row["ratio_2t"] = row["ours_2t_us"] / row["lammps_omp2_us"]
+            numba.set_num_threads(ncores)
+            row["nominal"] = n_target
+            rows.append(row)
+            print(table([row], floatfmt=".3g"), flush=True)
+    print()
+    print("times in microseconds per atom-step; ours_* through the ASE calculator (a tiny move "
+          "per step, list check, overlap check, result copies), ours_kernel_* the bare kernel; "
+          "lammps_omp2 is pair_style tersoff/omp with 2 OpenMP threads")
+    print(table(rows, floatfmt=".3g"))
+    from upscale.io import write_json
+
+    write_json(args.outdir / "rows.json", rows)
+    out = {}
+    for r in rows:
+        if r["structure"] != "diamond":
+            continue
+        tag = r["nominal"]
+        out[f"time_ratio_vs_lammps_{tag}"] = round(r["ratio_1t"], 4)
+        if "ratio_2t" in r:
+            out[f"time_ratio_2threads_vs_lammps_omp2_{tag}"] = round(r["ratio_2t"], 4)
+        out[f"us_per_atom_step_{tag}"] = round(r["ours_1t_us"], 4)
+        out[f"lammps_us_per_atom_step_{tag}"] = round(r["lammps_1t_us"], 4)
+    out["max_time_ratio_vs_lammps"] = round(max(r["ratio_1t"] for r in rows), 4)
+    out["pass"] = bool(out["max_time_ratio_vs_lammps"] <= 1.5)
+    return out
