@@ -148,6 +148,10 @@ class GainOperator:
         Reference cell lengths (only used along periodic directions).
     pbc : (3,) bool
     horizon : float
+    alive : (N,) bool
+        False for particles dropped with ``on_singular="drop"`` (G undefined, row empty).
+    pair_i, pair_j, pair_image : (npairs,) int64, (npairs,) int64, (npairs, 3) int64
+        The full family (before any ``intact`` mask): the links between particles.
     """
 
     offsets: np.ndarray
@@ -161,6 +165,10 @@ class GainOperator:
     cell: np.ndarray
     pbc: np.ndarray
     horizon: float
+    alive: np.ndarray | None = None
+    pair_i: np.ndarray | None = None
+    pair_j: np.ndarray | None = None
+    pair_image: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -245,7 +253,8 @@ def _family(x, horizon, cell, pbc):
 
 def build_gain(x, horizon, volume=None, *, surface: bool = False, axis=None, axis_point=None,
                cell=None, pbc=(False, False, False), kind: str = "quartic",
-               stabilised: bool = False, rcond: float = 1e-10) -> GainOperator:
+               stabilised: bool = False, rcond: float = 1e-10, intact=None,
+               on_singular: str = "raise") -> GainOperator:
     """Precompute the gain operator of every particle (seed 004 eqs. 6.1-6.6).
 
     Parameters
@@ -271,6 +280,12 @@ def build_gain(x, horizon, volume=None, *, surface: bool = False, axis=None, axi
     rcond : float
         A particle whose Upsilon^-1 has smallest/largest eigenvalue below ``rcond`` is
         rejected as having too few (or degenerate) neighbours.
+    intact : (npairs,) bool, optional
+        Mask over the family pairs (``op.pair_i``, ``op.pair_j``, ``op.pair_image`` of an
+        operator built with the same arguments): broken links are left out of G.
+    on_singular : {"raise", "drop"}
+        What to do with a particle whose G is singular: raise (default; bad input), or
+        drop it (``op.alive[c] = False``, empty row; used after links break).
 
     Raises
     ------
@@ -291,9 +306,18 @@ def build_gain(x, horizon, volume=None, *, surface: bool = False, axis=None, axi
     cellv = np.zeros(3) if cell is None else np.asarray(cell, dtype=float)
     if np.any(pbc & ~(cellv > 0)):
         raise ValueError(f"periodic directions need positive cell lengths, got cell={cellv.tolist()}")
+    if on_singular not in ("raise", "drop"):
+        raise ValueError(f"on_singular={on_singular!r}; valid: 'raise', 'drop'")
     ii, jj, im, _ = _family(x, horizon, cellv, pbc)
+    pairs = (ii.copy(), jj.copy(), im.copy())
+    if intact is not None:
+        intact = np.asarray(intact, dtype=bool)
+        if intact.shape != ii.shape:
+            raise ValueError(f"intact mask has shape {intact.shape}, the family has {len(ii)} pairs")
+        ii, jj, im = ii[intact], jj[intact], im[intact]
     beta = x[jj] + im * cellv - x[ii]
     w = kappa(np.linalg.norm(beta, axis=1), horizon, kind) * v[jj]
+    alive = np.ones(n, dtype=bool)
     fam_off = np.zeros(n + 1, dtype=np.int64)
     np.add.at(fam_off, ii + 1, 1)
     fam_off = np.cumsum(fam_off)
@@ -333,6 +357,9 @@ def build_gain(x, horizon, volume=None, *, surface: bool = False, axis=None, axi
         sl = slice(fam_off[c], fam_off[c + 1])
         b, wc = beta_fit[sl], w[sl]
         W = wc.sum()
+        if (len(wc) < k + 1 or W <= 0) and on_singular == "drop":
+            alive[c] = False
+            continue
         if len(wc) < k + 1 or W <= 0:
             raise ValueError(
                 f"particle {c} has {len(wc)} neighbours with nonzero weight within influence radius "
@@ -369,15 +396,19 @@ def build_gain(x, horizon, volume=None, *, surface: bool = False, axis=None, axi
         ds = s - sbar
         M = (wc[:, None, None] * ds[:, :, None] * ds[:, None, :]).sum(0)  # Upsilon^-1
         ev = np.linalg.eigvalsh(M)
+        if ev[0] <= rcond * max(ev[-1], 1e-300) and on_singular == "drop":
+            alive[c] = False
+            continue
         if ev[0] <= rcond * max(ev[-1], 1e-300):
             raise ValueError(
                 f"particle {c}: its {len(wc)} neighbours within influence radius {horizon:g} give a "
                 f"singular Upsilon (need {k + 1} non-{'collinear' if k == 2 else 'coplanar'} ones); "
                 "increase the influence radius")
-        Ups = np.linalg.inv(M)
+        Ups = np.linalg.inv(M)  # eq. 6.5 (centred)
         a = wc[:, None] * (ds @ Ups)  # a_n = w_n Upsilon (s_n - s_bar)
         coef[sl] = a
 
+    coef[~alive[ii]] = 0.0
     if stabilised:
         # compose: G_c = sum_n a_cn (x) u_bar_n, u_bar_n = sum_j s_nj u_j (images add up)
         rows_i, rows_j, rows_im, rows_a = [], [], [], []
@@ -412,9 +443,11 @@ def build_gain(x, horizon, volume=None, *, surface: bool = False, axis=None, axi
                       neighbors=np.ascontiguousarray(jj, np.int64),
                       image=np.ascontiguousarray(im, np.int64),
                       coef=np.ascontiguousarray(coef, float), F0=F0, frame=frame, normal=normal,
-                      n_family=n_family, cell=cellv, pbc=pbc, horizon=float(horizon))
+                      n_family=n_family, cell=cellv, pbc=pbc, horizon=float(horizon),
+                      alive=alive, pair_i=pairs[0], pair_j=pairs[1], pair_image=pairs[2])
     if not surface:
         op.F0 = np.broadcast_to(np.eye(3), (n, 3, 3)).copy()
     else:
         op.F0 = op.deformation(x)  # the fitted reference chords (== T on symmetric families)
+        op.F0[~alive] = frame[~alive]
     return op

@@ -1,0 +1,497 @@
+"""Upscaled (DCBR) nanotube: coarse particles carrying the Tersoff lattice through G.
+
+Seed 004, sec. 5.3.1, eqs. 5.13-5.16. Coarse particles sit on the tube wall in a regular
+(theta, z) arrangement whose spacing is ``coarsening`` times the graphene lattice constant
+a = sqrt(3) a_cc; each carries ``N_c = N_atoms / N_particles`` atoms and the tube's own
+lattice. Its energy is N_c times the Tersoff energy per atom of that lattice with the bonds
+mapped by its gain (eq. 5.13), bond-order angular terms included, the shift between the two
+sublattices relaxed; the total is the discrete eq. 5.15 with V_I = N_c.
+
+**How the bonds are mapped (curvature).** The 3x2 surface gain F_c of particle c (module
+:mod:`upscale.models.gain`) maps reference tangent vectors (e_theta, e_z) to deformed 3D
+vectors; its frame-invariant content is the surface metric C = S F^T F S (S = (F0^T F0)^-1/2,
+identity on the regular grid). Mapping flat graphene bonds with F (eq. 5.13 literally,
+r = F delta) ignores the wall curvature: for a (10,10) tube the chord of a bond differs from
+its arc by ~0.1 % and the bond angles by ~1 degree, and the Tersoff angular term sees that
+(the flat-cell energy misses the curvature energy). We therefore map the *tube's own atoms*:
+a closed tube admits exactly the uniform maps
+
+    s' = lam_t s + gam z,  z' = lam_z z,  radius' = lam_t R0      (s = R0 theta, arc)
+
+(M = [[lam_t, gam], [0, lam_z]] upper triangular: the chiral vector must close on itself),
+and M^T M = C fixes (lam_t, gam, lam_z) uniquely (Cholesky). The mapped bonds are chords of
+the deformed cylinder; in the flat limit R0 -> inf this is r = F delta again. The two-atom
+basis gets a shift (d_rho, d_s, d_z) of sublattice B; e(C) = min over the shift. Then for a
+uniformly strained periodic tube the coarse energy per atom equals the atomistic one (the
+uniformly strained tube *is* this two-atom helical cell), which is what the issue's 1 %
+energy test checks against LAMMPS.
+
+**Forces.** dW/dF = 2 N_c F S (de/dC) S by the chain rule through (lam_t, gam, lam_z), then
+through G (linear in positions) to particle forces (:meth:`GainOperator.forces`). The
+sublattice shifts are extra per-particle unknowns minimised together with the positions
+(quasi-static scenes), so de/d shift = 0 at every solution (envelope theorem).
+
+**Failure rule** (no fitted parameter). A link (c, n) of G's family breaks when, in the
+mapped lattice of c or of n, the C-C bond most aligned with the link's reference direction
+is longer than the outer cutoff R + D of the potential file (2.1 Å for C-C in BNC.tersoff),
+i.e. when the molecular bond it stands for has no energy left. Broken links leave G's
+family (Upsilon is rebuilt); a particle left with fewer than 3 non-collinear links drops
+out. Damage index mu = 1 - R/T per particle (eq. 5.16).
+
+Units: eV, Å; stress in GPa with the wall area 2 pi R t, t = 3.4 Å.
+"""
+from __future__ import annotations
+
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+from scipy.optimize import minimize
+
+from upscale.models import dcbr_kernels as K
+from upscale.models.gain import GainOperator, build_gain
+
+__all__ = ["tersoff_params", "TubeLattice", "DCBRTube", "EV_PER_A3_IN_GPA", "WALL_THICKNESS"]
+
+EV_PER_A3_IN_GPA = 160.21766208
+WALL_THICKNESS = 3.4
+STEP_D = 1e-5  # Å, the half width of the step cutoff (same rule as the LAMMPS reference runners)
+
+
+def _tersoff_file(potential: str) -> Path:
+    name = potential.split(":", 1)[1] if potential.lower().startswith("tersoff:") else potential
+    p = Path(name).expanduser()
+    if p.is_file():
+        return p
+    from potentials.lammps_runtime import lammps_potential_path  # noqa: PLC0415
+
+    try:
+        return lammps_potential_path(name)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"tersoff potential file {name!r} not found (a path or a file "
+                                "shipped with LAMMPS, e.g. 'BNC.tersoff')") from None
+
+
+def tersoff_params(potential: str = "tersoff:BNC.tersoff", cutoff: str = "step",
+                   element: str = "C") -> np.ndarray:
+    """Parameters of the ``element element element`` entry of a LAMMPS tersoff file.
+
+    Returns the 14 numbers m, gamma, lambda3, c, d, costheta0 (h), n, beta, lambda2, B, R, D,
+    lambda1, A. With ``cutoff="step"`` the switching region is shrunk to a step at the outer
+    cutoff: R' = R + D - 1e-5, D' = 1e-5 Å (the rule of the LAMMPS reference runners).
+    Uses helper A1's reader (:mod:`potentials.tersoff`) when present.
+    """
+    if cutoff not in ("step", "standard"):
+        raise ValueError(f"cutoff={cutoff!r}; valid: 'step' or 'standard'")
+    path = _tersoff_file(potential)
+    words: list[str] = []
+    entry = None
+    for line in path.read_text().splitlines():
+        words += line.split("#", 1)[0].split()
+        while len(words) >= 17:
+            w, words = words[:17], words[17:]
+            if w[0] == w[1] == w[2] == element:
+                entry = np.array([float(v) for v in w[3:]])
+    if entry is None:
+        raise ValueError(f"{path.name}: no '{element} {element} {element}' entry")
+    if cutoff == "step":
+        R, D = entry[10], entry[11]
+        entry[10], entry[11] = R + D - STEP_D, STEP_D
+    return entry
+
+
+@dataclasses.dataclass
+class TubeLattice:
+    """A patch of the ideal (n, m) tube around a bonded pair A0-B0, in cylinder coordinates.
+
+    Attributes
+    ----------
+    s, z : (P,) float
+        Reference arc coordinate R0 (theta - theta_A0) and axial z - z_A0, Å.
+    sub : (P,) float
+        Sublattice flag, 0 (A) or 1 (B).
+    R0 : float
+        Radius of the ideal rolled tube, Å.
+    iA, iB : int
+        Indices of A0 and B0 in the patch.
+    candA, candB : (k,) int64
+        Patch atoms within ``r_patch`` of A0 / B0 (Tersoff neighbour candidates).
+    bondsA : (3,) int64
+        The three bonded neighbours of A0.
+    """
+
+    s: np.ndarray
+    z: np.ndarray
+    sub: np.ndarray
+    R0: float
+    iA: int
+    iB: int
+    candA: np.ndarray
+    candB: np.ndarray
+    bondsA: np.ndarray
+    n: int
+    m: int
+    bond: float
+
+    @classmethod
+    def build(cls, n: int, m: int, bond: float = 1.42, r_patch: float = 3.2) -> "TubeLattice":
+        from upscale.build import chirality, swcnt  # noqa: PLC0415
+
+        ch = chirality(n, m, bond)
+        length = max(3 * ch.cell_length, 4 * r_patch + 2.0)
+        atoms = swcnt(n, m, length=length, bond=bond, vacuum=5.0)
+        cx, cy = atoms.info["axis_xy"]
+        Lz = atoms.cell[2, 2]
+        x = atoms.get_positions() - [cx, cy, 0.0]
+        rho = np.hypot(x[:, 0], x[:, 1])
+        R0 = float(rho.mean())
+        if np.abs(rho - R0).max() > 1e-6:
+            raise RuntimeError("swcnt atoms are not on one cylinder")
+        th = np.arctan2(x[:, 1], x[:, 0])
+        iA0 = int(np.argmin(np.abs(x[:, 2] - Lz / 2) + np.abs(th)))
+
+        def rel(i0):
+            dth = (th - th[i0] + np.pi) % (2 * np.pi) - np.pi
+            dz = x[:, 2] - x[i0, 2]
+            dz -= Lz * np.round(dz / Lz)
+            return dth, dz
+
+        def chord(i0):
+            dth, dz = rel(i0)
+            return np.sqrt((2 * R0 * np.sin(dth / 2)) ** 2 + dz ** 2)
+
+        dA = chord(iA0)
+        nb = np.nonzero((dA > 0.1) & (dA < 1.1 * bond))[0]
+        if len(nb) != 3:
+            raise RuntimeError(f"atom A0 has {len(nb)} bonded neighbours, expected 3")
+        iB0 = int(nb[np.argmax(np.abs(rel(iA0)[1][nb]))])  # the most axial bond
+        dB = chord(iB0)
+        in_patch = np.nonzero((dA < r_patch) | (dB < r_patch))[0]
+        # sublattice by 2-colouring the bond graph restricted to the patch (it is connected)
+        dth, dz = rel(iA0)
+        s = R0 * dth[in_patch]
+        zz = dz[in_patch]
+        P = len(in_patch)
+        pairs = np.zeros((P, P), dtype=bool)
+        for a in range(P):
+            da = np.sqrt((2 * R0 * np.sin((dth[in_patch] - dth[in_patch][a]) / 2)) ** 2
+                         + (zz - zz[a]) ** 2)
+            pairs[a] = (da > 0.1) & (da < 1.1 * bond)
+        sub = -np.ones(P)
+        iA = int(np.nonzero(in_patch == iA0)[0][0])
+        iB = int(np.nonzero(in_patch == iB0)[0][0])
+        sub[iA] = 0
+        front = [iA]
+        while front:
+            nxt = []
+            for a in front:
+                for b in np.nonzero(pairs[a])[0]:
+                    if sub[b] < 0:
+                        sub[b] = 1 - sub[a]
+                        nxt.append(b)
+            front = nxt
+        if np.any(sub < 0):
+            raise RuntimeError("tube patch is not connected; enlarge r_patch")
+        candA = np.nonzero((dA[in_patch] < r_patch) & (np.arange(P) != iA))[0]
+        candB = np.nonzero((dB[in_patch] < r_patch) & (np.arange(P) != iB))[0]
+        bondsA = np.nonzero(pairs[iA])[0]
+        return cls(s=np.ascontiguousarray(s), z=np.ascontiguousarray(zz), sub=sub, R0=R0,
+                   iA=iA, iB=iB, candA=candA.astype(np.int64), candB=candB.astype(np.int64),
+                   bondsA=bondsA.astype(np.int64), n=int(n), m=int(m), bond=float(bond))
+
+    def energy(self, q, p):
+        """Energy per atom (eV) and its gradient (6,) for lattice parameters q (6,)."""
+        P = len(self.s)
+        g = np.empty(6)
+        e = K.cell_energy_grad(np.asarray(q, float), self.s, self.z, self.sub, self.R0, self.iA,
+                               self.iB, self.candA, self.candB, p, np.empty((P, 3)),
+                               np.empty((P, 3)), g)
+        return e, g
+
+    def relaxed(self, lam_t, gam, lam_z, p, shift0=(0.0, 0.0, 0.0), relax_shift=True):
+        """min over the sublattice shift of e(lam_t, gam, lam_z, shift): (e, shift (3,))."""
+        fixed = np.array([lam_t, gam, lam_z], float)
+        if not relax_shift:
+            return self.energy(np.r_[fixed, 0, 0, 0], p)[0], np.zeros(3)
+
+        def fun(d):
+            e, g = self.energy(np.r_[fixed, d], p)
+            return e, g[3:]
+
+        res = minimize(fun, np.asarray(shift0, float), jac=True, method="BFGS",
+                       options={"gtol": 1e-11, "maxiter": 200})
+        return float(res.fun), res.x
+
+
+class DCBRTube:
+    """Coarse (DCBR) model of a periodic single-wall (n, m) tube along z.
+
+    Parameters
+    ----------
+    n, m : int
+        Chiral indices.
+    length : float
+        Wanted length, Å; rounded like :func:`upscale.build.swcnt` to whole unit cells so the
+        coarse and atomistic tubes have the same length and number of atoms.
+    coarsening : float
+        Particle spacing / lattice constant a = sqrt(3) a_cc (>= 1).
+    horizon_factor : float
+        Influence radius / largest particle spacing (default 1.5: the 3x3 stencil).
+    potential, cutoff : str
+        Tersoff file and ``"step"`` or ``"standard"`` cutoff (see :func:`tersoff_params`).
+    bond : float
+        a_cc of the rolled-up reference tube, Å (as in :func:`upscale.build.swcnt`).
+    relax_shift : bool
+        Relax the sublattice shift (False: the B sublattice follows the map rigidly).
+    """
+
+    def __init__(self, n: int, m: int, length: float, coarsening: float = 2.0,
+                 horizon_factor: float = 1.5, potential: str = "tersoff:BNC.tersoff",
+                 cutoff: str = "step", bond: float = 1.42, kind: str = "quartic",
+                 relax_shift: bool = True):
+        from upscale.build import _ncells, chirality  # noqa: PLC0415
+
+        if not (coarsening >= 1.0 and np.isfinite(coarsening)):
+            raise ValueError(f"coarsening factor {coarsening!r} is below 1; valid: a number >= 1 "
+                             "(1 = one particle per lattice constant)")
+        if not horizon_factor > 1.0:
+            raise ValueError(f"horizon_factor={horizon_factor!r}; valid: > 1")
+        self.p = tersoff_params(potential, cutoff)
+        self.p_standard = tersoff_params(potential, "standard")
+        self.potential, self.cutoff = potential, cutoff
+        self.lattice = TubeLattice.build(n, m, bond)
+        ch = chirality(n, m, bond)
+        nc = _ncells(ch, length)
+        self.L = nc * ch.cell_length
+        self.n_atoms = nc * ch.atoms_per_cell
+        R0 = self.lattice.R0
+        a = math.sqrt(3.0) * bond
+        self.n_theta = max(3, int(round(2 * math.pi * R0 / (coarsening * a))))
+        self.n_z = max(3, int(round(self.L / (coarsening * a))))
+        th = 2 * math.pi * (np.arange(self.n_theta) + 0.5) / self.n_theta
+        zz = self.L * (np.arange(self.n_z) + 0.5) / self.n_z
+        T, Z = np.meshgrid(th, zz, indexing="ij")
+        self.theta = T.ravel()
+        self.x0 = np.column_stack([R0 * np.cos(self.theta), R0 * np.sin(self.theta), Z.ravel()])
+        self.N = len(self.x0)
+        self.natoms_n = np.full(self.N, self.n_atoms / self.N)
+        ds, dz = 2 * math.pi * R0 / self.n_theta, self.L / self.n_z
+        self.spacing = (ds, dz)
+        self.horizon = horizon_factor * max(ds, dz)
+        self.kind = kind
+        self.coarsening = float(coarsening)
+        self.relax_shift = relax_shift
+        self.area0 = ds * dz
+        self._build_gain(None)
+        self.e0 = self.lattice.energy(np.array([1.0, 0, 1.0, 0, 0, 0]), self.p)[0]
+        self.delta = np.zeros((self.N, 3))
+        self.broken_steps: list = []
+
+    # ------------------------------------------------------------------ gain and links
+    def _build_gain(self, intact):
+        self.gain: GainOperator = build_gain(
+            self.x0, self.horizon, np.full(self.N, 1.0), surface=True, axis=[0, 0, 1],
+            cell=[0, 0, self.L], pbc=(False, False, True), kind=self.kind, intact=intact,
+            on_singular="raise" if intact is None else "drop")
+        g = self.gain
+        A0 = np.einsum("nia,nib->nab", g.F0, g.F0)
+        A0[~g.alive] = np.eye(2)
+        w, V = np.linalg.eigh(A0)
+        self.S = np.ascontiguousarray(np.einsum("nab,nb,ncb->nac", V, w ** -0.5, V))
+        if intact is None:
+            self.intact = np.ones(len(g.pair_i), dtype=bool)
+            self.n_links0 = np.bincount(g.pair_i, minlength=self.N)
+            # the lattice bond each link stands for: best aligned in reference tangent coords
+            lat = self.lattice
+            bdir = np.column_stack([lat.s[lat.bondsA], lat.z[lat.bondsA]])
+            bdir /= np.linalg.norm(bdir, axis=1)[:, None]
+            beta = self.x0[g.pair_j] + g.pair_image * g.cell - self.x0[g.pair_i]
+            t = np.einsum("eia,ei->ea", g.frame[g.pair_i], beta)
+            t /= np.linalg.norm(t, axis=1)[:, None]
+            self.link_bond = np.argmax(np.abs(t @ bdir.T), axis=1)
+        self.alive = g.alive.copy()
+
+    @property
+    def damage(self) -> np.ndarray:
+        """mu = 1 - R/T per particle (seed 004 eq. 5.16)."""
+        R = np.bincount(self.gain.pair_i[self.intact], minlength=self.N)
+        return 1.0 - R / self.n_links0
+
+    # ------------------------------------------------------------------ energy
+    def energy_and_gradient(self, y, delta, Lz):
+        """Total energy E - N e0 (eV) and dE/dy (N,3), dE/d delta (N,3), dE/dLz (eV/Å)."""
+        g = self.gain
+        cell = np.array([0.0, 0.0, Lz])
+        F = g.deformation(y, cell)
+        P = np.empty_like(F)
+        gd = np.empty((self.N, 3))
+        self._e_n = np.empty(self.N)
+        self._q_n = np.zeros((self.N, 6))
+        lat = self.lattice
+        E = K.coarse_energy(F, self.S, np.ascontiguousarray(delta), self.natoms_n, self.alive,
+                            lat.s, lat.z, lat.sub, lat.R0, lat.iA, lat.iB, lat.candA, lat.candB,
+                            self.p, self.e0, P, gd, self._e_n, self._q_n)
+        if not self.relax_shift:
+            gd[:] = 0.0
+        fy = g.forces(P)
+        dL = g.cell_derivative(P)[2]
+        return E, -fy, gd, dL
+
+    def _pack(self, y, delta, Lz=None):
+        parts = [y.ravel(), delta.ravel()]
+        if Lz is not None:
+            parts.append([Lz])
+        return np.concatenate(parts)
+
+    def minimise(self, y, delta, Lz, relax_box=False, gtol=1e-6, maxiter=5000):
+        """Minimise the energy over positions and shifts (and Lz if ``relax_box``) by L-BFGS.
+
+        Returns (y, delta, Lz, E, info). ``gtol``: max |gradient component| in eV/Å.
+        """
+        N = self.N
+        x0 = self._pack(y, delta, Lz if relax_box else None)
+        # relative scaling of the box length so its step matches the particle steps
+        Lscale = self.L / 10.0
+
+        def fun(xv):
+            yy = xv[:3 * N].reshape(N, 3)
+            dd = xv[3 * N:6 * N].reshape(N, 3)
+            L = xv[6 * N] * Lscale if relax_box else Lz
+            if relax_box:  # positions scale with the box along z (affine in z)
+                yy = yy.copy()
+                yy[:, 2] *= L / self.L
+            E, gy, gd, gL = self.energy_and_gradient(yy, dd, L)
+            if relax_box:
+                gL_tot = gL + np.dot(gy[:, 2], xv[:3 * N].reshape(N, 3)[:, 2]) / self.L
+                gy = gy.copy()
+                gy[:, 2] *= L / self.L
+                return E, np.concatenate([gy.ravel(), gd.ravel(), [gL_tot * Lscale]])
+            return E, np.concatenate([gy.ravel(), gd.ravel()])
+
+        if relax_box:
+            ys = y.copy()
+            ys[:, 2] *= self.L / Lz
+            x0 = self._pack(ys, delta, Lz / Lscale)
+        res = minimize(fun, x0, jac=True, method="L-BFGS-B",
+                       options={"maxiter": maxiter, "maxcor": 30, "gtol": gtol, "ftol": 1e-15,
+                                "maxfun": 4 * maxiter})
+        xv = res.x
+        y = xv[:3 * N].reshape(N, 3).copy()
+        delta = xv[3 * N:6 * N].reshape(N, 3).copy()
+        if relax_box:
+            Lz = xv[6 * N] * Lscale
+            y[:, 2] *= Lz / self.L
+        E, gy, gd, gL = self.energy_and_gradient(y, delta, Lz)
+        info = {"nit": int(res.nit), "nfev": int(res.nfev), "success": bool(res.success),
+                "max_force_eV_A": float(np.abs(gy).max()), "message": str(res.message)}
+        return y, delta, Lz, E, info, gL
+
+    # ------------------------------------------------------------------ links and failure
+    def update_links(self):
+        """Break links per the failure rule (module docstring); return the number broken."""
+        q = self._q_n
+        lat = self.lattice
+        L = K.mapped_bond_lengths(np.ascontiguousarray(q), lat.s, lat.z, lat.sub, lat.R0,
+                                  lat.iA, lat.bondsA)
+        rcut = self.p_standard[10] + self.p_standard[11]  # outer cutoff R + D
+        g = self.gain
+        over = np.zeros(len(g.pair_i), dtype=bool)
+        li = L[g.pair_i, self.link_bond]
+        lj = L[g.pair_j, self.link_bond]
+        alive_i = self.alive[g.pair_i]
+        alive_j = self.alive[g.pair_j]
+        over = ((li > rcut) & alive_i) | ((lj > rcut) & alive_j)
+        newly = over & self.intact
+        nb = int(newly.sum())
+        if nb:
+            self.intact &= ~over
+            self._build_gain(self.intact)
+        return nb
+
+    def radius(self, y, delta):
+        """Mean wall radius (Å): particles sit on sublattice A, B is d_rho further out."""
+        rho = np.hypot(y[:, 0], y[:, 1])
+        return float(np.mean(rho + 0.5 * delta[:, 0]))
+
+
+def quasi_static_tension(model: DCBRTube, strain_step: float = 0.005, max_strain: float = 0.40,
+                         gtol: float = 1e-6, after_failure: int = 2, fit_max_strain: float = 0.02,
+                         progress=None) -> dict:
+    """Quasi-static axial tension of the periodic coarse tube (the LAMMPS runners' protocol).
+
+    Zero-stress relaxation over positions, sublattice shifts and the cell length gives L0 and
+    R (mean wall radius). Then eps_k = k * strain_step: the cell is set to L0 (1 + eps_k), the
+    particles are mapped affinely along z, the energy is minimised at fixed cell (L-BFGS on
+    positions and shifts, max |gradient| < ``gtol`` eV/Å), links are broken by the failure
+    rule and the minimisation repeated until no link breaks. Stress sigma = (dE/dLz) /
+    (2 pi R t), t = 3.4 Å. Stops ``after_failure`` steps after the first drop of more than 5 %
+    below the running maximum, or at ``max_strain``.
+
+    Returns
+    -------
+    dict
+        ``curve`` (strain, stress_GPa, energy_eV, Lz_A, damage_max, broken_links), the metrics
+        of :func:`upscale.analysis.stress.curve_metrics`, ``L0_A``, ``radius_relaxed_A``,
+        ``dof``, ``particles``, ``atoms``, ``wall_s`` and the final ``damage`` (N,).
+    """
+    import time  # noqa: PLC0415
+
+    from upscale.analysis.stress import curve_metrics  # noqa: PLC0415
+
+    if not (0 < strain_step < max_strain <= 2.0):
+        raise ValueError(f"strain_step={strain_step}, max_strain={max_strain}; valid: "
+                         "0 < strain_step < max_strain <= 2")
+    t0 = time.perf_counter()
+    y, d, L0, E, info, _ = model.minimise(model.x0, model.delta, model.L, relax_box=True, gtol=gtol)
+    R = model.radius(y, d)
+    area = 2 * math.pi * R * WALL_THICKNESS
+    strains, stresses, energies, lzs, dmax, nbroken = [], [], [], [], [], []
+    k, failed_at = 0, None
+    Lprev = L0
+    while True:
+        eps = k * strain_step
+        if eps > max_strain + 1e-12:
+            break
+        Lz = L0 * (1.0 + eps)
+        y = y.copy()
+        y[:, 2] *= Lz / Lprev
+        Lprev = Lz
+        nb_step = 0
+        for _ in range(50):
+            y, d, _, E, info, gL = model.minimise(y, d, Lz, gtol=gtol)
+            nb = model.update_links()
+            nb_step += nb
+            if nb == 0:
+                break
+            if not model.alive.any():
+                break
+        E, gy, gd, gL = model.energy_and_gradient(y, d, Lz)
+        s = gL / area * EV_PER_A3_IN_GPA
+        strains.append(eps)
+        stresses.append(float(s))
+        energies.append(float(E))
+        lzs.append(float(Lz))
+        dmax.append(float(model.damage.max()))
+        nbroken.append(int((~model.intact).sum()))
+        if progress is not None:
+            progress(eps, s)
+        if failed_at is None and s < 0.95 * max(stresses) and max(stresses) > 0:
+            failed_at = k
+        if failed_at is not None and k - failed_at >= after_failure:
+            break
+        k += 1
+    res = {"model": "dcbr", "protocol": "quasi-static", "chirality": [model.lattice.n, model.lattice.m],
+           "coarsening": model.coarsening, "particles": model.N, "dof": 3 * model.N,
+           "internal_dof": 3 * model.N if model.relax_shift else 0, "atoms": model.n_atoms,
+           "L0_A": float(L0), "radius_relaxed_A": R, "area_A2": area,
+           "area": "2 pi R t, R = mean wall radius after zero-stress relaxation, t = 3.4 A",
+           "potential": model.potential, "cutoff": model.cutoff, "horizon_A": model.horizon,
+           "spacing_A": list(model.spacing), "strain_step": strain_step,
+           "curve": {"strain": strains, "stress_GPa": stresses, "energy_eV": energies,
+                     "Lz_A": lzs, "damage_max": dmax, "broken_links": nbroken}}
+    res.update(curve_metrics(strains, stresses, fit_max_strain=fit_max_strain))
+    res["damage"] = model.damage
+    res["positions"] = y
+    res["wall_s"] = time.perf_counter() - t0
+    return res

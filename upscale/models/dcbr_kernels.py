@@ -1,0 +1,331 @@
+"""numba kernels of the DCBR tube model: Tersoff site energies of a mapped lattice patch.
+
+Tersoff in the LAMMPS form (``pair_style tersoff``; J. Tersoff, PRB 37, 6991 (1988)):
+
+    E_i   = 1/2 sum_j f_C(r_ij) [f_R(r_ij) + b_ij f_A(r_ij)]
+    f_R   = A exp(-lambda1 r),  f_A = -B exp(-lambda2 r)
+    b_ij  = (1 + beta^n zeta_ij^n)^(-1/(2n))
+    zeta  = sum_{k != i,j} f_C(r_ik) g(theta_ijk) exp[(lambda3 (r_ij - r_ik))^m]
+    g     = gamma (1 + c^2/d^2 - c^2 / (d^2 + (h - cos theta)^2))
+    f_C   = 1 (r < R-D), 1/2 - 1/2 sin(pi/2 (r-R)/D) (|r-R| <= D), 0 (r > R+D)
+
+Parameter vector ``p`` (float64, 14): m, gamma, lambda3, c, d, h, n, beta, lambda2, B, R, D,
+lambda1, A (the order of a LAMMPS ``.tersoff`` entry after the three element names).
+
+The cylindrical map (see :mod:`upscale.models.dcbr`) places a patch of the tube's own
+atoms, given by reference arc coordinate s = R0 theta, axial z and sublattice flag (0 = A,
+1 = B), at
+
+    rho' = lam_t R0 + sub d_rho,  s' = lam_t s + gam z + sub d_s,  z' = lam_z z + sub d_z,
+    theta' = s' / (lam_t R0),     x = (rho' cos theta', rho' sin theta', z').
+
+Array suffix convention: ``_p`` per patch atom, ``_n`` per coarse particle.
+"""
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+NPARAM = 6  # lam_t, gam, lam_z, d_rho, d_s, d_z
+
+
+@numba.njit(cache=True, inline="always")
+def _fc(r, R, D):
+    if r < R - D:
+        return 1.0, 0.0
+    if r > R + D:
+        return 0.0, 0.0
+    a = 0.5 * math.pi * (r - R) / D
+    return 0.5 - 0.5 * math.sin(a), -0.25 * math.pi / D * math.cos(a)
+
+
+@numba.njit(cache=True)
+def site_energy_grad(pos, i, cand, p, grad):
+    """Site energy E_i of atom ``i`` (eV); adds dE_i/dpos to ``grad`` (P, 3).
+
+    ``cand``: indices of candidate neighbours of i (within some radius > R + D).
+    """
+    m_, gam, lam3, c, d, h, nn, beta, lam2, B, R, D, lam1, A = (
+        p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], p[8], p[9], p[10], p[11], p[12], p[13])
+    c2 = c * c
+    d2 = d * d
+    E = 0.0
+    # keep only candidates inside the outer cutoff (usually the three bonded neighbours)
+    near = np.empty(cand.shape[0], dtype=np.int64)
+    nc = 0
+    for a in range(cand.shape[0]):
+        j = cand[a]
+        dx = pos[j, 0] - pos[i, 0]
+        dy = pos[j, 1] - pos[i, 1]
+        dz = pos[j, 2] - pos[i, 2]
+        if dx * dx + dy * dy + dz * dz < (R + D) * (R + D):
+            near[nc] = j
+            nc += 1
+    cand = near[:nc]
+    for a in range(nc):
+        j = cand[a]
+        rij0 = pos[j, 0] - pos[i, 0]
+        rij1 = pos[j, 1] - pos[i, 1]
+        rij2 = pos[j, 2] - pos[i, 2]
+        r = math.sqrt(rij0 * rij0 + rij1 * rij1 + rij2 * rij2)
+        if r >= R + D:
+            continue
+        fc, dfc = _fc(r, R, D)
+        # zeta
+        zeta = 0.0
+        for b in range(nc):
+            k = cand[b]
+            if k == j:
+                continue
+            rik0 = pos[k, 0] - pos[i, 0]
+            rik1 = pos[k, 1] - pos[i, 1]
+            rik2 = pos[k, 2] - pos[i, 2]
+            rk = math.sqrt(rik0 * rik0 + rik1 * rik1 + rik2 * rik2)
+            if rk >= R + D:
+                continue
+            fck, _ = _fc(rk, R, D)
+            cs = (rij0 * rik0 + rij1 * rik1 + rij2 * rik2) / (r * rk)
+            hc = h - cs
+            g = gam * (1.0 + c2 / d2 - c2 / (d2 + hc * hc))
+            if m_ == 3.0:
+                arg = (lam3 * (r - rk)) ** 3
+            else:
+                arg = lam3 * (r - rk)
+            zeta += fck * g * math.exp(arg)
+        fR = A * math.exp(-lam1 * r)
+        dfR = -lam1 * fR
+        fA = -B * math.exp(-lam2 * r)
+        dfA = -lam2 * fA
+        if zeta > 0.0:
+            tmp = (beta * zeta) ** nn
+            bij = (1.0 + tmp) ** (-0.5 / nn)
+            dbdz = -0.5 * bij / (1.0 + tmp) * tmp / zeta
+        else:
+            bij = 1.0
+            dbdz = 0.0
+        E += 0.5 * fc * (fR + bij * fA)
+        dVdr = 0.5 * (dfc * (fR + bij * fA) + fc * (dfR + bij * dfA))
+        grad[j, 0] += dVdr * rij0 / r
+        grad[j, 1] += dVdr * rij1 / r
+        grad[j, 2] += dVdr * rij2 / r
+        grad[i, 0] -= dVdr * rij0 / r
+        grad[i, 1] -= dVdr * rij1 / r
+        grad[i, 2] -= dVdr * rij2 / r
+        dVdz = 0.5 * fc * fA * dbdz
+        if dVdz == 0.0:
+            continue
+        for b in range(nc):
+            k = cand[b]
+            if k == j:
+                continue
+            rik0 = pos[k, 0] - pos[i, 0]
+            rik1 = pos[k, 1] - pos[i, 1]
+            rik2 = pos[k, 2] - pos[i, 2]
+            rk = math.sqrt(rik0 * rik0 + rik1 * rik1 + rik2 * rik2)
+            if rk >= R + D:
+                continue
+            fck, dfck = _fc(rk, R, D)
+            cs = (rij0 * rik0 + rij1 * rik1 + rij2 * rik2) / (r * rk)
+            hc = h - cs
+            den = d2 + hc * hc
+            g = gam * (1.0 + c2 / d2 - c2 / den)
+            dg = -2.0 * gam * c2 * hc / (den * den)
+            if m_ == 3.0:
+                arg = (lam3 * (r - rk)) ** 3
+                dex = 3.0 * lam3 ** 3 * (r - rk) ** 2
+            else:
+                arg = lam3 * (r - rk)
+                dex = lam3
+            ex = math.exp(arg)
+            # d(cos)/d r_ij and d(cos)/d r_ik (vectors)
+            inv = 1.0 / (r * rk)
+            dcj0 = rik0 * inv - cs * rij0 / (r * r)
+            dcj1 = rik1 * inv - cs * rij1 / (r * r)
+            dcj2 = rik2 * inv - cs * rij2 / (r * r)
+            dck0 = rij0 * inv - cs * rik0 / (rk * rk)
+            dck1 = rij1 * inv - cs * rik1 / (rk * rk)
+            dck2 = rij2 * inv - cs * rik2 / (rk * rk)
+            # term t = fck g ex(r - rk)
+            aj = fck * g * ex * dex / r        # coefficient of r_ij vec from d ex / d r
+            ak = (dfck * g * ex - fck * g * ex * dex) / rk
+            bcos = fck * dg * ex
+            gj0 = dVdz * (bcos * dcj0 + aj * rij0)
+            gj1 = dVdz * (bcos * dcj1 + aj * rij1)
+            gj2 = dVdz * (bcos * dcj2 + aj * rij2)
+            gk0 = dVdz * (bcos * dck0 + ak * rik0)
+            gk1 = dVdz * (bcos * dck1 + ak * rik1)
+            gk2 = dVdz * (bcos * dck2 + ak * rik2)
+            grad[j, 0] += gj0
+            grad[j, 1] += gj1
+            grad[j, 2] += gj2
+            grad[k, 0] += gk0
+            grad[k, 1] += gk1
+            grad[k, 2] += gk2
+            grad[i, 0] -= gj0 + gk0
+            grad[i, 1] -= gj1 + gk1
+            grad[i, 2] -= gj2 + gk2
+    return E
+
+
+@numba.njit(cache=True)
+def cell_energy_grad(q, s_p, z_p, sub_p, R0, iA, iB, candA, candB, p, pos, gpos, out_g):
+    """Energy per atom e = (E_A + E_B)/2 of the mapped patch and de/dq (6,) into ``out_g``.
+
+    q = (lam_t, gam, lam_z, d_rho, d_s, d_z); ``pos``/``gpos`` are (P, 3) work arrays.
+    """
+    lt, gm, lz, drho, ds, dz = q[0], q[1], q[2], q[3], q[4], q[5]
+    rho0 = lt * R0
+    P = s_p.shape[0]
+    for a in range(P):
+        rho = rho0 + sub_p[a] * drho
+        sp = lt * s_p[a] + gm * z_p[a] + sub_p[a] * ds
+        th = sp / rho0
+        pos[a, 0] = rho * math.cos(th)
+        pos[a, 1] = rho * math.sin(th)
+        pos[a, 2] = lz * z_p[a] + sub_p[a] * dz
+        gpos[a, 0] = 0.0
+        gpos[a, 1] = 0.0
+        gpos[a, 2] = 0.0
+    e = 0.5 * (site_energy_grad(pos, iA, candA, p, gpos) + site_energy_grad(pos, iB, candB, p, gpos))
+    for k in range(NPARAM):
+        out_g[k] = 0.0
+    for a in range(P):
+        rho = rho0 + sub_p[a] * drho
+        sp = lt * s_p[a] + gm * z_p[a] + sub_p[a] * ds
+        th = sp / rho0
+        ct = math.cos(th)
+        st = math.sin(th)
+        gx = 0.5 * gpos[a, 0]
+        gy = 0.5 * gpos[a, 1]
+        gz = 0.5 * gpos[a, 2]
+        g_rho = gx * ct + gy * st            # dE/d rho
+        g_th = rho * (-gx * st + gy * ct)    # dE/d theta
+        # theta = s'/(lt R0): d/d lt = s_p/(lt R0) - s'/(lt^2 R0)
+        out_g[0] += g_rho * R0 + g_th * (s_p[a] / rho0 - sp / (lt * rho0))
+        out_g[1] += g_th * z_p[a] / rho0
+        out_g[2] += gz * z_p[a]
+        out_g[3] += g_rho * sub_p[a]
+        out_g[4] += g_th * sub_p[a] / rho0
+        out_g[5] += gz * sub_p[a]
+    return e
+
+
+@numba.njit(cache=True)
+def _chol_params(C):
+    """(lam_t, gam, lam_z) of the upper-triangular M with M^T M = C (2x2, theta first)."""
+    lt = math.sqrt(C[0, 0])
+    gm = C[0, 1] / lt
+    lz = math.sqrt(C[1, 1] - gm * gm)
+    return lt, gm, lz
+
+
+@numba.njit(cache=True)
+def coarse_energy(F_nck, S_nab, delta_n, natoms_n, alive_n, s_p, z_p, sub_p, R0, iA, iB,
+                  candA, candB, p, e0, P_out, gdelta_out, e_out, q_out):
+    """Energy sum_c N_c (e(C_c, delta_c) - e0) of the coarse tube and its derivatives.
+
+    F_nck (N,3,2): surface maps; S_nab (N,2,2): A0^-1/2 of the reference map (C = S F^T F S);
+    delta_n (N,3): sublattice shifts; fills P_out = dW/dF (N,3,2), gdelta_out = dW/d delta,
+    e_out (per-atom energy, eV), q_out (N,6) the lattice parameters. Returns the total (eV).
+    """
+    N = F_nck.shape[0]
+    P = s_p.shape[0]
+    Etot = 0.0
+    pos = np.empty((P, 3))
+    gpos = np.empty((P, 3))
+    g = np.empty(NPARAM)
+    q = np.empty(NPARAM)
+    FtF = np.empty((2, 2))
+    C = np.empty((2, 2))
+    SDS = np.empty((2, 2))
+    for c in range(N):
+        for i in range(3):
+            P_out[c, i, 0] = 0.0
+            P_out[c, i, 1] = 0.0
+            gdelta_out[c, i] = 0.0
+        if not alive_n[c]:
+            e_out[c] = e0
+            for k in range(NPARAM):
+                q_out[c, k] = 0.0
+            q_out[c, 0] = 1.0
+            q_out[c, 2] = 1.0
+            continue
+        for a in range(2):
+            for b in range(2):
+                acc = 0.0
+                for i in range(3):
+                    acc += F_nck[c, i, a] * F_nck[c, i, b]
+                FtF[a, b] = acc
+        for a in range(2):  # C = S FtF S
+            for b in range(2):
+                acc = 0.0
+                for u in range(2):
+                    for v in range(2):
+                        acc += S_nab[c, a, u] * FtF[u, v] * S_nab[c, v, b]
+                C[a, b] = acc
+        lt, gm, lz = _chol_params(C)
+        q[0] = lt
+        q[1] = gm
+        q[2] = lz
+        q[3] = delta_n[c, 0]
+        q[4] = delta_n[c, 1]
+        q[5] = delta_n[c, 2]
+        e = cell_energy_grad(q, s_p, z_p, sub_p, R0, iA, iB, candA, candB, p, pos, gpos, g)
+        Nc = natoms_n[c]
+        Etot += Nc * (e - e0)
+        e_out[c] = e
+        for k in range(NPARAM):
+            q_out[c, k] = q[k]
+        gdelta_out[c, 0] = Nc * g[3]
+        gdelta_out[c, 1] = Nc * g[4]
+        gdelta_out[c, 2] = Nc * g[5]
+        # de/dC (symmetric D) from de/d(lt, gm, lz): lt = sqrt(C11), gm = C12/lt,
+        # lz = sqrt(C22 - C12^2/C11)
+        C11 = C[0, 0]
+        C12 = C[0, 1]
+        d11 = g[0] / (2 * lt) - g[1] * C12 / (2 * lt * C11) + g[2] * (C12 * C12 / (C11 * C11)) / (2 * lz)
+        d12 = g[1] / lt - g[2] * C12 / (C11 * lz)
+        d22 = g[2] / (2 * lz)
+        D00, D01, D11 = d11, 0.5 * d12, d22
+        for a in range(2):  # SDS = S D S
+            for b in range(2):
+                acc = 0.0
+                for u in range(2):
+                    for v in range(2):
+                        Duv = D00 if (u == 0 and v == 0) else (D11 if (u == 1 and v == 1) else D01)
+                        acc += S_nab[c, a, u] * Duv * S_nab[c, v, b]
+                SDS[a, b] = acc
+        for i in range(3):
+            for a in range(2):
+                acc = 0.0
+                for b in range(2):
+                    acc += F_nck[c, i, b] * SDS[b, a]
+                P_out[c, i, a] = 2.0 * Nc * acc
+    return Etot
+
+
+@numba.njit(cache=True)
+def mapped_bond_lengths(q_n, s_p, z_p, sub_p, R0, iA, bondsA):
+    """Lengths (N, nb) of the bonds A0-bondsA[b] of each particle's mapped lattice (Å)."""
+    N = q_n.shape[0]
+    nb = bondsA.shape[0]
+    out = np.empty((N, nb))
+    for c in range(N):
+        lt, gm, lz, drho, ds, dz = q_n[c, 0], q_n[c, 1], q_n[c, 2], q_n[c, 3], q_n[c, 4], q_n[c, 5]
+        rho0 = lt * R0
+        xa = np.empty(3)
+        for t in range(nb + 1):
+            a = iA if t == 0 else bondsA[t - 1]
+            rho = rho0 + sub_p[a] * drho
+            sp = lt * s_p[a] + gm * z_p[a] + sub_p[a] * ds
+            th = sp / rho0
+            x0 = rho * math.cos(th)
+            x1 = rho * math.sin(th)
+            x2 = lz * z_p[a] + sub_p[a] * dz
+            if t == 0:
+                xa[0], xa[1], xa[2] = x0, x1, x2
+            else:
+                out[c, t - 1] = math.sqrt((x0 - xa[0]) ** 2 + (x1 - xa[1]) ** 2 + (x2 - xa[2]) ** 2)
+    return out
