@@ -105,7 +105,8 @@ class PotentialCalculator(Calculator):
         volume = full_rank_volume(atoms.cell)
         if "stress" in properties and volume == 0.0:
             raise PropertyNotImplementedError(
-                f"stress needs a cell of full rank; this cell {atoms.cell.lengths().round(6).tolist()} "
+                "stress needs a cell of full rank; this cell (lengths "
+                f"{atoms.cell.lengths().round(6).tolist()} Angstrom) "
                 "has zero volume (use results['virial'], or give the cell vacuum)")
         self.check_atoms(atoms)
         positions = np.ascontiguousarray(atoms.positions, dtype=float)

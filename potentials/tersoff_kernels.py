@@ -14,6 +14,11 @@ c1 = (2n 1e-16)^(-1/n), c2 = (2n 1e-8)^(-1/n), c3 = 1/c2, c4 = 1/c1), the expone
 lambda3 term is clipped at |argument| > 69.0776, and a neighbour is inside the cutoff when
 r^2 < (R + D)^2. A step cutoff (``D = 0``) is f_C = 1 for r < R, else 0.
 
+Two-body terms are evaluated per directed bond, half each way. LAMMPS evaluates the
+repulsive term once per pair with the "i j j" entry of whichever atom comes first by its
+ID-parity rule; the two agree whenever "i j j" and "j i i" share A, lambda1, R and D (true
+in the files shipped with LAMMPS), otherwise this is the average of the two.
+
 Per-atom energies follow LAMMPS's ``compute pe/atom`` split: the energy of each directed
 bond i -> j, (f_C f_R + b_ij f_C f_A) / 2, goes half to i and half to j.
 

@@ -152,8 +152,10 @@ def _bond_order_branches(atoms, calc):
         z = 0.0
         for k in ks:
             cs = D[b] @ D[k] / (r[b] * r[k])
-            fc = 1.0 if r[k] < p["R"] - p["D"] else 0.5 * (1 - np.sin(np.pi / 2 * (r[k] - p["R"]) / p["D"]))
-            g = 1 + p["c"] ** 2 / p["d"] ** 2 - p["c"] ** 2 / (p["d"] ** 2 + (p["costheta0"] - cs) ** 2)
+            fc = (1.0 if r[k] < p["R"] - p["D"]
+                  else 0.5 * (1 - np.sin(np.pi / 2 * (r[k] - p["R"]) / p["D"])))
+            csq, dsq = p["c"] ** 2, p["d"] ** 2
+            g = 1 + csq / dsq - csq / (dsq + (p["costheta0"] - cs) ** 2)
             z += fc * g * np.exp((p["lambda3"] * (r[b] - r[k])) ** 3)
         t = beta * z
         out.add("c1" if t > c1 else "c2" if t > c2 else "zero" if t < 1 / c1 else
@@ -345,7 +347,8 @@ def test_threads_give_same_result():
 
 # -- bad input -------------------------------------------------------------------------------
 def test_malformed_file_names_file_and_line(tmp_path):
-    good = "C C C 3.0 1.0 0.0 38049 4.3484 -.57058 .72751\n 1.5724e-7 2.2119 346.7 1.95 0.15 3.4879 1393.6\n"
+    good = ("C C C 3.0 1.0 0.0 38049 4.3484 -.57058 .72751\n"
+            " 1.5724e-7 2.2119 346.7 1.95 0.15 3.4879 1393.6\n")
     f = tmp_path / "bad.tersoff"
     f.write_text("# header\n\n" + good.replace("346.7", "346,7"))
     with pytest.raises(TersoffFileError, match=r"bad.tersoff:3: cannot read '346,7'"):

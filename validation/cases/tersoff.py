@@ -347,7 +347,8 @@ def _race(atoms, nsteps: int, repeats: int, nthreads: int) -> dict:
 
 def _bench_args(p):
     p.add_argument("--steps", type=int, default=None, help="force evaluations per timing")
-    p.add_argument("--repeats", type=int, default=5, help="timings per side (alternating), best is kept")
+    p.add_argument("--repeats", type=int, default=5,
+                   help="timings per side (alternating), the best is kept")
 
 
 @case("bench-tersoff",
