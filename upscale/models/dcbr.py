@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from pathlib import Path
 
 import numpy as np
 from scipy.optimize import minimize
@@ -56,21 +55,6 @@ __all__ = ["tersoff_params", "TubeLattice", "DCBRTube", "EV_PER_A3_IN_GPA", "WAL
 
 EV_PER_A3_IN_GPA = 160.21766208
 WALL_THICKNESS = 3.4
-STEP_D = 1e-5  # Å, the half width of the step cutoff (same rule as the LAMMPS reference runners)
-
-
-def _tersoff_file(potential: str) -> Path:
-    name = potential.split(":", 1)[1] if potential.lower().startswith("tersoff:") else potential
-    p = Path(name).expanduser()
-    if p.is_file():
-        return p
-    from potentials.lammps_runtime import lammps_potential_path  # noqa: PLC0415
-
-    try:
-        return lammps_potential_path(name)
-    except FileNotFoundError:
-        raise FileNotFoundError(f"tersoff potential file {name!r} not found (a path or a file "
-                                "shipped with LAMMPS, e.g. 'BNC.tersoff')") from None
 
 
 def tersoff_params(potential: str = "tersoff:BNC.tersoff", cutoff: str = "step",
@@ -78,27 +62,21 @@ def tersoff_params(potential: str = "tersoff:BNC.tersoff", cutoff: str = "step",
     """Parameters of the ``element element element`` entry of a LAMMPS tersoff file.
 
     Returns the 14 numbers m, gamma, lambda3, c, d, costheta0 (h), n, beta, lambda2, B, R, D,
-    lambda1, A. With ``cutoff="step"`` the switching region is shrunk to a step at the outer
-    cutoff: R' = R + D - 1e-5, D' = 1e-5 Å (the rule of the LAMMPS reference runners).
-    Uses helper A1's reader (:mod:`potentials.tersoff`) when present.
+    lambda1, A, read by helper A1's :func:`potentials.tersoff.read_tersoff_file`. With
+    ``cutoff="step"`` they are those of the file LAMMPS is given
+    (:func:`potentials.tersoff.write_step_cutoff_file`): R' = R + D - 1e-5, D' = 1e-5 Å.
     """
+    from potentials.tersoff import NAMES, STEP_CUTOFF_D, read_tersoff_file  # noqa: PLC0415
+
     if cutoff not in ("step", "standard"):
         raise ValueError(f"cutoff={cutoff!r}; valid: 'step' or 'standard'")
-    path = _tersoff_file(potential)
-    words: list[str] = []
-    entry = None
-    for line in path.read_text().splitlines():
-        words += line.split("#", 1)[0].split()
-        while len(words) >= 17:
-            w, words = words[:17], words[17:]
-            if w[0] == w[1] == w[2] == element:
-                entry = np.array([float(v) for v in w[3:]])
-    if entry is None:
-        raise ValueError(f"{path.name}: no '{element} {element} {element}' entry")
+    name = potential.split(":", 1)[1] if potential.lower().startswith("tersoff:") else potential
+    entry = read_tersoff_file(name, [element]).entry(element, element, element)
+    v = np.array([entry[k] for k in NAMES], dtype=float)
     if cutoff == "step":
-        R, D = entry[10], entry[11]
-        entry[10], entry[11] = R + D - STEP_D, STEP_D
-    return entry
+        outer = v[10] + v[11]
+        v[10], v[11] = outer - STEP_CUTOFF_D, STEP_CUTOFF_D
+    return v
 
 
 @dataclasses.dataclass
