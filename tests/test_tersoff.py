@@ -163,6 +163,20 @@ def _bond_order_branches(atoms, calc):
     return out
 
 
+@pytest.mark.lammps
+def test_general_triclinic_cell_vs_lammps():
+    """A primitive fcc diamond cell (no vector along x): LAMMPS sees it rotated; energy,
+    forces and virial are compared back in the frame of the atoms."""
+    a = bulk("C", "diamond", a=3.6).repeat((3, 4, 3))
+    a.rattle(0.07, seed=6)
+    a.set_cell(a.cell.array @ [[1.0, 0.02, 0.0], [0.0, 1.0, 0.01], [0.03, 0.0, 1.0]],
+               scale_atoms=True)
+    ours = ours_evaluate(a, Tersoff.from_lammps("BNC.tersoff", elements=["C"]))
+    ref = lammps_evaluate(a, lammps_tersoff_lines(lammps_potential_path("BNC.tersoff"), ["C"]))
+    _check_exact(ours, ref)
+    assert abs(ours["virial"][0, 1]) > 1e-3  # shear: off-diagonal terms are compared
+
+
 SYNTHETIC = """\
 # made-up numbers for C and Si, every triplet different: checks the (i j k) / (i j j) look-up
 # entries may continue over lines, with comments anywhere
