@@ -31,6 +31,10 @@ import scipy.sparse.linalg as spla
 __all__ = ["NewtonStep", "NewtonResult", "solve", "convergence_order", "NewtonError"]
 
 
+ROUNDOFF = 1e-8   # a step whose |R| fell below this fraction of its first |R| and cannot
+                  # decrease further has converged to round-off
+
+
 class NewtonError(RuntimeError):
     """The Newton solve failed (singular tangent or no convergence after all step cuts)."""
 
@@ -89,17 +93,21 @@ class NewtonResult:
                 "step_cuts": len(self.failed), "steps": [s.as_dict() for s in self.steps]}
 
 
-def convergence_order(norms, floor: float = 1e-9) -> float | None:
-    """Estimated order ``p`` from the last three residual norms above the round-off floor
-    (``floor`` times the first norm): ``log(r3/r2) / log(r2/r1)`` (2 for quadratic
-    convergence); None if fewer than three such norms."""
-    r = [float(x) for x in norms if x > floor * float(norms[0])] if len(norms) else []
-    if len(r) < 3:
+def convergence_order(norms, asymptotic: float = 1e-2, floor: float = 1e-9) -> float | None:
+    """Convergence order from a residual history: with ``e_k = r_k / r_0``, the order of the
+    last pair in the asymptotic range (``e_k <= asymptotic``, ``e_{k+1} >= floor``, i.e.
+    above round-off) is ``p = log(e_{k+1}) / log(e_k)`` (2 for quadratic convergence, 1 for
+    linear with rate ``e_k``). None when no pair qualifies (e.g. a linear problem that
+    converges in one step to round-off)."""
+    r = [float(x) for x in norms]
+    if len(r) < 2 or r[0] <= 0:
         return None
-    r1, r2, r3 = r[-3:]
-    if r2 >= r1 or r3 >= r2:
-        return None
-    return float(np.log(r3 / r2) / np.log(r2 / r1))
+    e = [x / r[0] for x in r]
+    p = None
+    for k in range(1, len(e) - 1):
+        if 0 < e[k] <= asymptotic and e[k + 1] >= floor and e[k + 1] < e[k]:
+            p = float(np.log(e[k + 1]) / np.log(e[k]))
+    return p
 
 
 def _as_mask(n, fixed, dim):
@@ -139,7 +147,9 @@ def solve(model, state, *, fixed=None, u_prescribed=None, f_ext=None, steps: int
     steps : int
         Number of equal load steps.
     tol : float
-        Convergence when ``|R_free| <= tol * max(|F_ext|, |F_int|)`` (2-norms, N).
+        Convergence when ``|R_free| <= tol * max(|F_ext|, |F_int|, |R_0|)`` (2-norms, N;
+        ``R_0`` the first residual of the load step), or when ``|R_free|`` has dropped below
+        ``ROUNDOFF * |R_0|`` and a Newton step no longer halves it (round-off floor).
     max_iter : int
         Iterations per load step before the step is cut.
     line_search : bool
@@ -195,11 +205,14 @@ def solve(model, state, *, fixed=None, u_prescribed=None, f_ext=None, steps: int
         R, F = residual(lam_to)
         scale = max(np.linalg.norm(lam_to * fbar), np.linalg.norm(F), 1e-300)
         norms, alphas = [], []
+        r0 = None
         for _ in range(max_iter + 1):
             r = float(np.linalg.norm(R[free]))
             norms.append(r)
-            if r <= tol * scale:
-                return NewtonStep(lam_to, norms, alphas, True, float(scale))
+            if r0 is None:
+                r0 = r
+            if r <= tol * max(scale, r0):
+                return NewtonStep(lam_to, norms, alphas, True, float(max(scale, r0)))
             if len(alphas) == max_iter:
                 break
             counters["tan"] += 1
@@ -221,9 +234,17 @@ def solve(model, state, *, fixed=None, u_prescribed=None, f_ext=None, steps: int
                 R_new, F_new = residual(lam_to)
                 r_new = float(np.linalg.norm(R_new[free]))
                 if (not line_search or r_new <= (1.0 - 1e-4 * alpha) * r
-                        or r_new <= tol * scale or alpha < 1.0 / 64):
+                        or r_new <= tol * max(scale, r0) or alpha < 1.0 / 64):
                     break
                 alpha *= 0.5
+            if r <= ROUNDOFF * r0 and r_new > 0.5 * r:
+                # no real decrease any more: the residual sits at its round-off floor
+                if r_new >= r:
+                    yflat[free] = ybase
+                else:
+                    alphas.append(alpha)
+                    norms.append(r_new)
+                return NewtonStep(lam_to, norms, alphas, True, float(max(scale, r0)))
             alphas.append(alpha)
             R, F = R_new, F_new
             scale = max(np.linalg.norm(lam_to * fbar), np.linalg.norm(F), 1e-300)

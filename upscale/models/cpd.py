@@ -729,8 +729,9 @@ class CPD(Model):
         Constants in J/m^7, J/m^11, J/m^15 (non-negative; C3 = 0 in 2D).
     mode : {"auto", "C1C2", "C1C3", "C2C3"}
         3D calibration choice (module docstring).
-    plane : {"stress", "strain"}
-        2D idealisation for the calibration (the system's ``plane`` wins in ``prepare``).
+    plane : {"stress", "strain"}, optional
+        2D idealisation for the calibration; default: the system's ``plane`` (a different
+        explicit value is an error in ``prepare``).
     s1c, s2c, s3c : float, optional
         Critical stretches of bonds, areas and volumes (failure only if ``s1c`` is given;
         defaults ``2 s1c`` and ``3 s1c``).
@@ -750,7 +751,7 @@ class CPD(Model):
 
     def __init__(self, *, horizon: float, dim: int = 3, E: float | None = None,
                  nu: float | None = None, C1: float | None = None, C2: float | None = None,
-                 C3: float | None = None, mode: str = "auto", plane: str = "stress",
+                 C3: float | None = None, mode: str = "auto", plane: str | None = None,
                  s1c: float | None = None, s2c: float | None = None, s3c: float | None = None,
                  quadrature: str = "volume", calibration: str = "discrete",
                  surface_correction: bool = False,
@@ -767,7 +768,7 @@ class CPD(Model):
             raise ValueError(f"CPD is defined in 2D and 3D, got dim={dim!r}")
         if not (horizon is not None and np.isfinite(horizon) and horizon > 0):
             raise ValueError(f"horizon must be positive, got {horizon!r}")
-        if plane not in ("stress", "strain"):
+        if plane not in (None, "stress", "strain"):
             raise ValueError(f"plane must be 'stress' or 'strain', got {plane!r}")
         self.horizon = float(horizon)
         self.dim = int(dim)
@@ -782,8 +783,19 @@ class CPD(Model):
             if E is None or nu is None:
                 raise ValueError("calibration needs both E and nu")
             self.E, self.nu = float(E), float(nu)
-            self.C = calibrate(self.E, self.nu, self.horizon, self.dim, plane=plane,
-                               thickness=1.0, mode=mode)
+            if dim == 2 and plane is None:   # plane comes from the system in prepare
+                p_try = "stress" if self.nu >= 1.0 / 3.0 else "strain"
+                if self.nu >= 0.5 and self.nu < 1.0:
+                    p_try = "stress"
+                try:
+                    self.C = calibrate(self.E, self.nu, self.horizon, 2, plane=p_try, mode=mode)
+                except ValueError:
+                    raise ValueError(f"nu={nu!r} outside the range CPD reaches with non-negative "
+                                     "constants in 2D: [0.25, 0.5) plane strain, "
+                                     "[0.333333, 1) plane stress") from None
+            else:
+                self.C = calibrate(self.E, self.nu, self.horizon, self.dim,
+                                   plane=plane or "stress", thickness=1.0, mode=mode)
         else:
             if not any(given):
                 raise ValueError("give E and nu, or at least one of C1, C2, C3")
@@ -837,8 +849,12 @@ class CPD(Model):
             raise ValueError(f"family horizon {family.horizon!r} != model horizon {self.horizon!r}")
         super().prepare(system, family)
         self.thickness = float(getattr(system, "thickness", 1.0) or 1.0) if self.dim == 2 else 1.0
+        if self.dim == 2:
+            sp_ = getattr(system, "plane", None) or "stress"
+            if self.plane is not None and self.plane != sp_:
+                raise ValueError(f"model plane {self.plane!r} but system plane {sp_!r}")
+            self.plane = sp_
         if self.E is not None:
-            self.plane = getattr(system, "plane", self.plane) if self.dim == 2 else self.plane
             self.C = calibrate(self.E, self.nu, self.horizon, self.dim, plane=self.plane,
                                thickness=self.thickness, mode=self.mode)
         x0 = system.x0
