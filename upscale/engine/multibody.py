@@ -39,7 +39,7 @@ import numba
 import numpy as np
 
 __all__ = ["TripletFamily", "QuadrupletFamily", "build_triplets", "build_quadruplets",
-           "count_triplets", "count_quadruplets", "block_pattern"]
+           "count_triplets", "count_quadruplets", "block_pattern", "member_pattern"]
 
 DEFAULT_TOL = 1e-6
 DEFAULT_MAX_SETS = 30_000_000
@@ -387,3 +387,20 @@ def block_pattern(x0, radius: float, *, dim: int = 3):
     indptr = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(np.bincount(rows, minlength=n), out=indptr[1:])
     return indptr, np.ascontiguousarray(cols, dtype=np.int64)
+
+
+def member_pattern(family, centres, n: int | None = None):
+    """Exact block-CSR pattern (``indptr``, ``indices``) of the interactions owned by
+    ``centres``: every pair of members of ``{i} + H_i`` for each centre ``i``, plus the
+    diagonal. Use it when only a few centres own interactions (the geometric
+    :func:`block_pattern` would cover the whole body)."""
+    n = family.n if n is None else int(n)
+    keys = [np.arange(n, dtype=np.int64) * (n + 1)]
+    for c in np.asarray(centres, dtype=np.int64):
+        mem = np.concatenate([[c], family.neighbors[family.offsets[c]:family.offsets[c + 1]]])
+        keys.append((mem[:, None] * n + mem[None, :]).ravel())
+    k = np.unique(np.concatenate(keys))
+    rows, cols = k // n, k % n
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(np.bincount(rows, minlength=n), out=indptr[1:])
+    return indptr, np.ascontiguousarray(cols)

@@ -364,15 +364,19 @@ def _quad_energy_force(y, offsets, neighbors, q_b, q_off, sj, sk, sl, V_q, w_n, 
 
 # ---------------------------------------------------------------- tangent (block CSR)
 @numba.njit(cache=True)
-def _local_table(c, offsets, neighbors, indptr, indices, loc):
+def _local_table(c, offsets, neighbors, indptr, indices, loc, star=False):
     """loc[r * M + s] = block index of (member r, member s) in the block-CSR pattern, where
-    member 0 is the centre and member p + 1 is slot p of its row (M = slots + 1)."""
+    member 0 is the centre and member p + 1 is slot p of its row (M = slots + 1). With
+    ``star`` only the entries a pair interaction touches (centre row and column, diagonal)
+    are filled."""
     base = offsets[c]
     M = offsets[c + 1] - base + 1
     for r in range(M):
         gr = c if r == 0 else neighbors[base + r - 1]
         lo0, hi0 = indptr[gr], indptr[gr + 1]
         for s in range(M):
+            if star and r != 0 and s != 0 and s != r:
+                continue
             gs = c if s == 0 else neighbors[base + s - 1]
             lo, hi = lo0, hi0
             while lo < hi:
@@ -435,7 +439,7 @@ def _pair_tangent(y, offsets, neighbors, length, q_b, w_n, C1, intact_b, indptr,
         M = offsets[c + 1] - offsets[c] + 1
         if loc.shape[0] < M * M:
             loc = np.empty(M * M, np.int64)
-        _local_table(c, offsets, neighbors, indptr, indices, loc)
+        _local_table(c, offsets, neighbors, indptr, indices, loc, True)
         for p in range(offsets[c], offsets[c + 1]):
             if not intact_b[p]:
                 continue
@@ -1028,7 +1032,11 @@ class CPD(Model):
 
     @property
     def pattern(self):
-        """Block-CSR sparsity pattern of the tangent (indptr, indices)."""
+        """Block-CSR sparsity pattern of the tangent (indptr, indices): all pairs within
+        the reach of the interactions (twice the longest bond with multi-neighbour sets),
+        or the exact member pattern when only some ``centres`` own interactions."""
+        if self._pattern is None and self.centres is not None:
+            self._pattern = multibody.member_pattern(self.family, self.centres)
         if self._pattern is None:
             reach = float(self.family.length.max()) * (1.0 + 1e-9)
             if self.needs.triplets or self.needs.quadruplets:
@@ -1072,12 +1080,13 @@ class CPD(Model):
         """``F_int`` flattened (3N,) (N)."""
         return self.particle_force(state).ravel()
 
-    def tangent(self, state, *, types=(1, 2, 3)):
-        """Consistent stiffness ``K = -dF_int/dy = d^2W/dy^2`` as scipy.sparse CSR (3N, 3N)
-        (N/m); in 2D the out-of-plane rows and columns are zero."""
+    def tangent(self, state, *, types=(1, 2, 3), fmt: str = "csr"):
+        """Consistent stiffness ``K = -dF_int/dy = d^2W/dy^2`` as scipy.sparse (3N, 3N)
+        (N/m), CSR (``fmt="bsr"``: the 3x3 block matrix the kernels fill, no conversion);
+        in 2D the out-of-plane rows and columns are zero."""
         K = tangent_bsr(state.y, self._fam(), self.triplets, self.quadruplets, self.w, self.C,
                         self._intact(state), self.pattern, self.dim, types=types)
-        return K.tocsr()
+        return K if fmt == "bsr" else K.tocsr()
 
     # ------------------------------------------------------------------ failure
     def break_bonds(self, state) -> int:
