@@ -120,16 +120,18 @@ class VelocityVerlet:
 
     def step(self, sim) -> int:
         """Advance ``sim.state`` by one step; returns the number of bonds broken."""
+        from upscale.engine.kernels import drift, kick
+
         st, dt = sim.state, self.dt
-        inv_m = sim.inv_mass
-        st.v += (0.5 * dt) * sim.F * inv_m
+        inv_m = sim.inv_mass_n
+        kick(st.v, sim.F, inv_m, 0.5 * dt)
         sim.apply_velocity(st.t + 0.5 * dt)
-        st.y += dt * st.v
+        drift(st.y, st.v, dt)
         st.t += dt
         st.step += 1
         sim.apply_displacement(st.t, dt)
         broken = sim.update_forces()
-        st.v += (0.5 * dt) * sim.F * inv_m
+        kick(st.v, sim.F, inv_m, 0.5 * dt)
         sim.apply_velocity(st.t)
         return broken
 
@@ -184,8 +186,7 @@ class AdaptiveDynamicRelaxation:
             v_half = ((2.0 - c * dt) * v_half + 2.0 * dt * F / lam) / (2.0 + c * dt)
             u_prev = st.y.copy()
             F_prev = F
-            scale = max(float(np.linalg.norm(sim.F * sim.constrained)), float(np.linalg.norm(sim.F_ext)),
-                        1e-300)
+            scale = max(float(np.linalg.norm(sim.reactions)), float(np.linalg.norm(sim.F_ext)), 1e-300)
             res = float(np.linalg.norm(F)) / scale
             if res < self.tol:
                 break

@@ -79,3 +79,41 @@ def break_by_stretch(offsets, neighbors, length_b, y_nc, intact_b, s0_n):
                 c += 1
         cnt[i] = c
     return cnt.sum()
+
+
+@nb.njit(cache=True)
+def kick(v_nc, F_nc, inv_m_n, h):
+    """Mutates ``v_nc``: v += h F / m."""
+    for i in range(v_nc.shape[0]):
+        s = h * inv_m_n[i]
+        v_nc[i, 0] += s * F_nc[i, 0]
+        v_nc[i, 1] += s * F_nc[i, 1]
+        v_nc[i, 2] += s * F_nc[i, 2]
+
+
+@nb.njit(cache=True)
+def drift(y_nc, v_nc, dt):
+    """Mutates ``y_nc``: y += dt v."""
+    for i in range(y_nc.shape[0]):
+        y_nc[i, 0] += dt * v_nc[i, 0]
+        y_nc[i, 1] += dt * v_nc[i, 1]
+        y_nc[i, 2] += dt * v_nc[i, 2]
+
+
+@nb.njit(cache=True)
+def health(y_nc, v_nc, m_n):
+    """(kinetic energy, index of the fastest particle, its speed^2, all finite)."""
+    ke = 0.0
+    vmax2 = 0.0
+    imax = 0
+    finite = True
+    for i in range(y_nc.shape[0]):
+        v2 = v_nc[i, 0] * v_nc[i, 0] + v_nc[i, 1] * v_nc[i, 1] + v_nc[i, 2] * v_nc[i, 2]
+        ke += m_n[i] * v2
+        if v2 > vmax2:
+            vmax2 = v2
+            imax = i
+        if not (np.isfinite(v2) and np.isfinite(y_nc[i, 0]) and np.isfinite(y_nc[i, 1])
+                and np.isfinite(y_nc[i, 2])):
+            finite = False
+    return 0.5 * ke, imax, vmax2, finite

@@ -62,9 +62,9 @@ class Simulation:
             from upscale.engine import multibody
 
             if any(n.triplets for n in needs):
-                triplets = multibody.build_triplets(system, family)
+                triplets = multibody.build_triplets(system.x0, family)
             if any(n.quadruplets for n in needs):
-                quadruplets = multibody.build_quadruplets(system, family)
+                quadruplets = multibody.build_quadruplets(system.x0, family)
         self.triplets, self.quadruplets = triplets, quadruplets
         for m in self.models:
             m.prepare(system, family, triplets=triplets, quadruplets=quadruplets)
@@ -75,6 +75,9 @@ class Simulation:
             m.init_state(self.state)
         self.constrained = constrained_dofs(system.n, self.conditions)
         self.inv_mass = (1.0 / system.mass)[:, None]
+        self.inv_mass_n = np.ascontiguousarray(1.0 / system.mass)
+        self._mass_n = np.ascontiguousarray(system.mass)
+        self._any_constrained = bool(self.constrained.any())
         self._vol = system.volume[:, None]
         self._disp = [c for c in self.conditions if isinstance(c, Displacement)]
         self._vel = [c for c in self.conditions if isinstance(c, Velocity)]
@@ -84,6 +87,7 @@ class Simulation:
         self._b = np.zeros((system.n, 3))
         self.F = np.zeros((system.n, 3))
         self.F_ext = np.zeros((system.n, 3))
+        self.reactions = np.zeros((system.n, 3))  # forces on the prescribed dofs
         self._prepared = False
         self.broken_total = 0
 
@@ -119,8 +123,9 @@ class Simulation:
             for c in self._loads:
                 c.add(self.F_ext, self.system, st.t)
             F += self.F_ext
-        self.reactions = F * self.constrained
-        F[self.constrained] = 0.0
+        if self._any_constrained:
+            np.multiply(F, self.constrained, out=self.reactions)
+            F[self.constrained] = 0.0
         return self.broken_total - before
 
     def forces(self) -> np.ndarray:
@@ -142,8 +147,9 @@ class Simulation:
 
     # ------------------------------------------------------------------ diagnostics
     def kinetic_energy(self) -> float:
-        v = self.state.v
-        return 0.5 * float(np.dot(self.system.mass, np.einsum("ij,ij->i", v, v)))
+        from upscale.engine.kernels import health
+
+        return float(health(self.state.y, self.state.v, self._mass_n)[0])
 
     def energy(self) -> float:
         """Total stored (strain) energy of all models (J)."""
@@ -192,16 +198,16 @@ class Simulation:
         self._prepared = False
         return True
 
-    def _healthy(self, ke: float, ke_hist: list, spacing: float, dt: float) -> str | None:
+    def _healthy(self, health, ke_hist: list, spacing: float, dt: float) -> str | None:
         st = self.state
-        if not (np.isfinite(ke) and np.isfinite(st.y).all()):
-            bad = np.flatnonzero(~np.isfinite(st.y).all(axis=1))
-            where = f" (particle {int(bad[0])})" if bad.size else ""
-            return f"non-finite positions or kinetic energy{where}"
-        vmax = float(np.sqrt(np.einsum("ij,ij->i", st.v, st.v).max()))
+        ke, imax, vmax2, finite = health
+        if not (finite and np.isfinite(ke)):
+            bad = np.flatnonzero(~(np.isfinite(st.y).all(axis=1) & np.isfinite(st.v).all(axis=1)))
+            where = f" (particle {int(bad[0])} first)" if bad.size else ""
+            return f"non-finite positions, velocities or kinetic energy{where}"
+        vmax = float(np.sqrt(vmax2))
         if vmax * dt > spacing:
-            i = int(np.argmax(np.einsum("ij,ij->i", st.v, st.v)))
-            return (f"particle {i} moves {vmax * dt / spacing:.3g} spacings in one step "
+            return (f"particle {int(imax)} moves {vmax * dt / spacing:.3g} spacings in one step "
                     f"(|v| = {vmax:.4g})")
         if len(ke_hist) >= 20 and all(b > 1.5 * a > 0 for a, b in zip(ke_hist[-20:-1], ke_hist[-19:])):
             return (f"kinetic energy grew by more than 1.5x per step for 20 steps "
@@ -220,6 +226,8 @@ class Simulation:
         every step; returning True stops the run.
         """
         from tqdm.auto import tqdm
+
+        from upscale.engine.kernels import health as _health
 
         if int(steps) < 0:
             raise ValueError(f"steps must be >= 0, got {steps!r}")
@@ -241,11 +249,12 @@ class Simulation:
             while st.step < target:
                 self.integrator.step(self)
                 bar.update(1)
-                ke = self.kinetic_energy()
+                hl = _health(st.y, st.v, self._mass_n)
+                ke = hl[0]
                 ke_hist.append(ke)
                 if len(ke_hist) > 40:
                     del ke_hist[:-40]
-                why = self._healthy(ke, ke_hist, spacing, dt)
+                why = self._healthy(hl, ke_hist, spacing, dt)
                 if why is not None:
                     est = getattr(self.integrator, "estimate", None)
                     ck = (f"last good checkpoint: {checkpoint.path} (step {checkpoint.last_step})"

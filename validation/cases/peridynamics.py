@@ -1,0 +1,439 @@
+"""Peridynamics on the engine against references nobody here wrote.
+
+``pmb-vs-lammps`` / ``lps-vs-lammps``
+    The engine in LAMMPS's conventions against LAMMPS ``pair_style peri/pmb`` /
+    ``peri/lps`` (``atom_style peri``, ``lattice sc``, ``fix nve``): forces on a randomly
+    perturbed cubic lattice, then 200 Verlet steps of a pre-cracked block with bond
+    breaking (critical stretch, alpha = 0). See :mod:`upscale.engine.lammps_peri` for every
+    convention and how it is matched.
+``bench-pmb``
+    PMB bond-force throughput (directed bonds per second) of the engine against LAMMPS
+    peri/pmb on the same ~30,000-particle block (horizon 3 spacings), in one run, one core;
+    and the engine's 2-thread speed-up.
+``pd-elasticity``
+    Bulk energy density of homogeneous deformations against linear elasticity (PMB, LPS;
+    3D, 2D plane stress/strain; several horizons and partial-volume rules), and the
+    Poisson contraction of an LPS bar (nu = 0.3) from a static solve (ADR).
+``pd-stability``
+    Stable-step estimate against the sharp linearised limit, NVE energy drift over
+    10,000 steps at 0.8 of the estimate, refusal of a step above it, blow-up detection of
+    a forced run with its last good checkpoint, checkpoint/restart equality.
+"""
+from __future__ import annotations
+
+import os
+import re
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from validation.registry import case, table
+
+# ---------------------------------------------------------------------------- helpers
+
+
+def _threads(n):
+    from upscale.engine.kernels import set_threads
+
+    return set_threads(n)
+
+
+def _load() -> float:
+    try:
+        return float(os.getloadavg()[0])
+    except OSError:
+        return float("nan")
+
+
+# ---------------------------------------------------------------------------- LAMMPS
+
+
+def _lammps_case(style: str, args) -> dict:
+    from upscale.engine.lammps_peri import compare
+
+    _threads(1)
+    counts = (10, 10, 4) if args.quick else (16, 16, 6)
+    r = compare(style, counts=counts, steps=200)
+    rows = [
+        {"quantity": "force, max |f_engine - f_lammps| / max |f_lammps|", "value": r["force_rel_err"],
+         "target": "<= 1e-10"},
+        {"quantity": "displacement after 200 steps, max abs err / max |u|", "value": r["disp_rel_err_200_steps"],
+         "target": "<= 1e-8"},
+        {"quantity": "broken bonds (engine)", "value": r["broken_bonds_engine"], "target": "> 0"},
+        {"quantity": "volume-weighted damage, max |diff|", "value": r["damage_max_abs_diff"],
+         "target": "< 1e-12 (sets identical)"},
+        {"quantity": "contacts active (max over steps)", "value": r["contacts_active_max"], "target": "reported"},
+        {"quantity": "effect of LAMMPS edge factor on forces", "value": r["force_rel_diff_without_lammps_edge_factor"],
+         "target": "reported"},
+    ]
+    print(f"{style}: {r['particles']} particles, {r['bonds']} bonds (force test); pre-cracked block "
+          f"{r['block_particles']} particles, {r['block_bonds']} bonds, "
+          f"{r['precrack_bonds_removed']} removed by the pre-crack")
+    print(table(rows, ["quantity", "value", "target"]))
+    ok = (r["force_rel_err"] <= 1e-10 and r["disp_rel_err_200_steps"] <= 1e-8
+          and r["broken_bonds_identical"])
+    return {**r, "pass": bool(ok)}
+
+
+@case("pmb-vs-lammps", "PMB in LAMMPS conventions vs LAMMPS peri/pmb: forces, 200 steps of a pre-cracked block, broken bonds")
+def pmb_vs_lammps(args):
+    return _lammps_case("pmb", args)
+
+
+@case("lps-vs-lammps", "LPS in LAMMPS conventions vs LAMMPS peri/lps: forces, 200 steps of a pre-cracked block, broken bonds")
+def lps_vs_lammps(args):
+    return _lammps_case("lps", args)
+
+
+# ---------------------------------------------------------------------------- benchmark
+
+
+def _lammps_pair_time(n_cells: int, steps: int) -> tuple[float, float, int]:
+    """(pair seconds per step, loop seconds per step, directed bonds) of peri/pmb."""
+    from upscale.engine.lammps_peri import LAMMPS_EXAMPLE as P, LammpsPeri
+
+    with tempfile.TemporaryDirectory() as d:
+        log = os.path.join(d, "log.lammps")
+        lp = LammpsPeri("pmb", (n_cells,) * 3, P["lc"], P["horizon"], P["density"],
+                        {"c": P["c"], "s00": P["s00"]}, log=log)
+        try:
+            lp.create_bonds()
+            lp.lmp.command(f"run {int(steps)}")
+        finally:
+            lp.close()
+        txt = Path(log).read_text()
+    bonds = int(re.findall(r"total # of bonds = (\d+)", txt)[0])
+    loop = float(re.findall(r"Loop time of ([0-9.eE+-]+) on \d+ procs for (\d+) steps", txt)[-1][0])
+    pair = float(re.findall(r"^Pair\s*\|\s*([0-9.eE+-]+)", txt, re.M)[-1])
+    return pair / steps, loop / steps, bonds
+
+
+def _engine_force_time(model, state, reps: int) -> float:
+    out = np.zeros_like(state.y)
+    model.step_force(state, out)  # compile / warm
+    t0 = time.perf_counter()
+    for _ in range(reps):
+        model.step_force(state, out)
+    return (time.perf_counter() - t0) / reps
+
+
+def _bench_args(p):
+    p.add_argument("--cells", type=int, default=None, help="lattice cells per side (default 30, quick 20)")
+
+
+@case("bench-pmb", "PMB bond-force throughput vs LAMMPS peri/pmb on a ~30k-particle block, one core; 2-thread speed-up",
+      add_arguments=_bench_args)
+def bench_pmb(args):
+    from upscale.engine import ParticleSystem, Simulation, build_family
+    from upscale.engine.integrators import VelocityVerlet
+    from upscale.engine.lammps_peri import LAMMPS_EXAMPLE as P, LammpsPeri
+    from upscale.engine.state import State
+    from upscale.models.bond_based import PMB
+
+    n = args.cells or (20 if args.quick else 30)
+    steps = 10 if args.quick else 20
+    reps = 10 if args.quick else 20
+    lp = LammpsPeri("pmb", (n,) * 3, P["lc"], P["horizon"], P["density"], {"c": P["c"], "s00": P["s00"]})
+    x = lp.positions()
+    lp.close()
+    sysm = ParticleSystem(x, P["lc"] ** 3, P["density"], spacing=P["lc"])
+    fam = build_family(sysm, P["horizon"], partial_volume="lammps")
+    model = PMB(c=P["c"], s0=P["s00"])
+    model.prepare(sysm, fam)
+    state = State.reference(sysm.x0, fam.nb)
+    load0 = _load()
+    # interleave: engine 1 thread, LAMMPS, engine 1 thread, engine 2 threads
+    _threads(1)
+    t1a = _engine_force_time(model, state, reps)
+    pair, loop, bonds = _lammps_pair_time(n, steps)
+    t1b = _engine_force_time(model, state, reps)
+    t1 = min(t1a, t1b)
+    avail = _threads(2)
+    t2 = _engine_force_time(model, state, reps) if avail >= 2 else float("nan")
+    _threads(1)
+    sim = Simulation(sysm, fam, PMB(c=P["c"], s0=P["s00"]), integrator=VelocityVerlet(dt=P["dt"], force=True))
+    sim.run(2)
+    t0 = time.perf_counter()
+    sim.run(steps)
+    step1 = (time.perf_counter() - t0) / steps
+    load1 = _load()
+    rows = [
+        {"code": "LAMMPS peri/pmb (Pair)", "threads": 1, "s_per_eval": pair, "Mbonds_per_s": bonds / pair / 1e6},
+        {"code": "LAMMPS (whole step)", "threads": 1, "s_per_eval": loop, "Mbonds_per_s": bonds / loop / 1e6},
+        {"code": "engine PMB force+failure", "threads": 1, "s_per_eval": t1, "Mbonds_per_s": fam.nb / t1 / 1e6},
+        {"code": "engine (whole VV step)", "threads": 1, "s_per_eval": step1, "Mbonds_per_s": fam.nb / step1 / 1e6},
+        {"code": "engine PMB force+failure", "threads": 2, "s_per_eval": t2, "Mbonds_per_s": fam.nb / t2 / 1e6},
+    ]
+    print(f"block {n + 1}^3 = {sysm.n} particles, horizon {P['horizon'] / P['lc']:.4f} spacings, "
+          f"{fam.nb} directed bonds (LAMMPS: {bonds}); load average {load0:.2f} -> {load1:.2f} on "
+          f"{os.cpu_count()} cores")
+    print(table(rows, ["code", "threads", "s_per_eval", "Mbonds_per_s"], floatfmt=".4g"))
+    ratio = (fam.nb / t1) / (bonds / pair)
+    return {"particles": int(sysm.n), "bonds": int(fam.nb), "bonds_lammps": bonds,
+            "bonds_match": bool(bonds == fam.nb),
+            "lammps_pair_s_per_step": pair, "lammps_loop_s_per_step": loop,
+            "engine_force_s_1thread": t1, "engine_force_s_2threads": t2, "engine_vv_step_s_1thread": step1,
+            "engine_bonds_per_s_1thread": fam.nb / t1, "lammps_bonds_per_s_1core": bonds / pair,
+            "throughput_ratio_vs_lammps_1core": ratio,
+            "throughput_ratio_whole_step_1core": (fam.nb / step1) / (bonds / loop),
+            "speedup_2threads": t1 / t2 if np.isfinite(t2) else None,
+            "load_average_start": load0, "load_average_end": load1, "cpu_count": os.cpu_count(),
+            "pass": bool(ratio >= 3.0)}
+
+
+# ---------------------------------------------------------------------------- elasticity
+
+
+def continuum_energy_density(eps, E, nu, dim, plane="stress") -> float:
+    """W = lambda/2 tr(eps)^2 + mu eps:eps (2D: plane stress/strain in-plane strain)."""
+    lam = E * nu / ((1 + nu) * (1 - 2 * nu))
+    mu = E / (2 * (1 + nu))
+    e = np.asarray(eps, dtype=float)
+    if dim == 2:
+        e = e[:2, :2]
+        if plane == "stress":
+            lam = 2 * lam * mu / (lam + 2 * mu)
+    return float(0.5 * lam * np.trace(e) ** 2 + mu * np.sum(e * e))
+
+
+DEFORMATIONS = {
+    "isotropic stretch": lambda d: np.diag([1.0, 1.0, 1.0 if d == 3 else 0.0]) * 1e-3,
+    "uniaxial stretch": lambda d: np.diag([1e-3, 0.0, 0.0]),
+    "simple shear": lambda d: np.array([[0, 1e-3, 0], [0, 0, 0], [0, 0, 0.0]]),
+}
+
+
+def bulk_energy_error(model_name: str, dim: int, *, m: float = 3.015, partial_volume=None,
+                      plane: str = "stress", calibration: str = "continuum", nu: float | None = None,
+                      deformation: str = "uniaxial stretch") -> float:
+    """Relative error of the bulk energy density of a homogeneous deformation."""
+    from upscale.engine import build_family, cubic_lattice, square_lattice
+    from upscale.engine.state import State
+    from upscale.models.bond_based import PMB
+    from upscale.models.state_based import LPS
+
+    E, h = 70e9, 1e-3
+    half = int(np.ceil(m)) + 2
+    k = 2 * half + 1
+    if dim == 3:
+        sysm = cubic_lattice(k, k, k, h, centered=True)
+    else:
+        sysm = square_lattice(k, k, h, centered=True, plane=plane, thickness=h)
+    fam = build_family(sysm, m * h, partial_volume=partial_volume)
+    if model_name == "pmb":
+        model = PMB(E=E, nu=nu, calibration=calibration)
+        nu_eff = nu if nu is not None else (0.25 if (dim == 3 or plane == "strain") else 1 / 3)
+    else:
+        nu_eff = 0.3 if nu is None else nu
+        model = LPS(E=E, nu=nu_eff)
+    model.prepare(sysm, fam)
+    st = State.reference(sysm.x0, fam.nb)
+    eps = DEFORMATIONS[deformation](dim)
+    st.y[...] = sysm.x0 + sysm.x0 @ eps.T
+    W = model.energy_density(st)
+    centre = int(np.argmin(np.linalg.norm(sysm.x0, axis=1)))
+    return float(W[centre] / continuum_energy_density(eps, E, nu_eff, dim, plane) - 1.0)
+
+
+def poisson_bar(dim: int = 2, *, cells=(61, 21, 1), m: float = 3.015, partial_volume="linear",
+                nu: float = 0.3, plane: str = "stress", tol: float = 1e-7) -> dict:
+    """LPS bar stretched along x by prescribed axial displacement of its end layers (free
+    laterally), solved to equilibrium by ADR; nu_eff = -eps_yy / eps_xx in the middle third.
+
+    Symmetry planes (y = y_c, z = z_c) carry u_y = 0 / u_z = 0 to remove rigid motions
+    without constraining the contraction."""
+    from upscale.engine import Simulation, build_family, cubic_lattice, square_lattice
+    from upscale.engine.conditions import Displacement, region
+    from upscale.engine.integrators import AdaptiveDynamicRelaxation
+    from upscale.models.state_based import LPS
+
+    h = 1e-3
+    nx, ny, nz = cells
+    sysm = cubic_lattice(nx, ny, nz, h) if dim == 3 else square_lattice(nx, ny, h, plane=plane)
+    fam = build_family(sysm, m * h, partial_volume=partial_volume)
+    x = sysm.x0
+    L = x[:, 0].max()
+    strain = 1e-4
+    yc, zc = x[:, 1].mean(), x[:, 2].mean()
+    conds = [
+        Displacement(region(sysm, "left grip", box=((None,) * 3, (2.5 * h, None, None))), 0.0, components=(0,)),
+        Displacement(region(sysm, "right grip", box=((L - 2.5 * h, None, None), (None,) * 3)),
+                     (strain * L, 0, 0), components=(0,)),
+        Displacement(region(sysm, "y symmetry plane", where=lambda p: np.isclose(p[:, 1], yc)), 0.0,
+                     components=(1,)),
+    ]
+    if dim == 3:
+        conds.append(Displacement(region(sysm, "z symmetry plane", where=lambda p: np.isclose(p[:, 2], zc)),
+                                  0.0, components=(2,)))
+    else:
+        conds.append(Displacement(region(sysm, "plane", where=lambda p: np.ones(len(p), bool)), 0.0,
+                                  components=(2,)))
+    sim = Simulation(sysm, fam, LPS(E=70e9, nu=nu), conds)
+    t0 = time.perf_counter()
+    res = sim.relax(AdaptiveDynamicRelaxation(tol=tol, max_steps=50_000))
+    u = sim.state.u
+    mid = (x[:, 0] > L / 3) & (x[:, 0] < 2 * L / 3)
+    exx = np.polyfit(x[mid, 0], u[mid, 0], 1)[0]
+    eyy = np.polyfit(x[mid, 1], u[mid, 1], 1)[0]
+    nu_eff = -eyy / exx
+    expected = nu / (1 - nu) if (dim == 2 and plane == "strain") else nu
+    return {"dim": dim, "cells": list(cells), "particles": sysm.n, "horizon_over_h": m,
+            "partial_volume": partial_volume, "plane": plane if dim == 2 else None,
+            "adr_iterations": res["iterations"], "adr_converged": res["converged"],
+            "nu_expected": expected, "nu_measured": float(nu_eff),
+            "nu_rel_err": float(nu_eff / expected - 1), "wall_s": time.perf_counter() - t0}
+
+
+@case("pd-elasticity", "PMB/LPS bulk energy density vs linear elasticity (2D, 3D) and the LPS Poisson contraction of a bar")
+def pd_elasticity(args):
+    _threads(None)
+    rows = []
+    horizons = (3.015,) if args.quick else (3.015, 4.015)
+    for model in ("pmb", "lps"):
+        for dim, plane in ((3, "stress"), (2, "stress"), (2, "strain")):
+            for m in horizons:
+                for pv in (None, "linear"):
+                    calib = "lattice" if model == "pmb" else "continuum"
+                    row = {"model": model, "dim": dim, "plane": plane if dim == 2 else "-",
+                           "delta/h": m, "partial_volume": str(pv), "calibration": calib}
+                    for d in DEFORMATIONS:
+                        row[d] = bulk_energy_error(model, dim, m=m, partial_volume=pv, plane=plane,
+                                                   calibration=calib, deformation=d)
+                    if model == "pmb":
+                        row["isotropic, continuum calib."] = bulk_energy_error(
+                            model, dim, m=m, partial_volume=pv, plane=plane, deformation="isotropic stretch")
+                    rows.append(row)
+    print("relative error of the bulk energy density (engine / continuum - 1):")
+    print(table(rows, ["model", "dim", "plane", "delta/h", "partial_volume", "calibration",
+                       *DEFORMATIONS, "isotropic, continuum calib."], floatfmt=".4f"))
+    bars = [poisson_bar(2, cells=(61, 21, 1)), poisson_bar(2, cells=(61, 21, 1), plane="strain")]
+    if not args.quick:
+        bars.append(poisson_bar(3, cells=(41, 15, 15)))
+        bars.append(poisson_bar(3, cells=(41, 15, 15), partial_volume=None))
+    print("LPS bar, nu = 0.3 (plane strain: in-plane ratio nu/(1-nu)):")
+    print(table(bars, ["dim", "cells", "particles", "partial_volume", "plane", "adr_iterations",
+                       "nu_expected", "nu_measured", "nu_rel_err"], floatfmt=".4f"))
+    iso = [abs(r["isotropic stretch"]) for r in rows]
+    best = [r for r in rows if r["partial_volume"] == "linear" and r["delta/h"] == max(horizons)]
+    stretch_err = max(max(abs(r["isotropic stretch"]), abs(r["uniaxial stretch"])) for r in best)
+    main_bars = [b for b in bars if b["partial_volume"] == "linear"]
+    poisson_err = max(abs(b["nu_rel_err"]) for b in main_bars)
+    return {"energy_isotropic_max_rel_err": max(iso),
+            "energy_stretch_max_rel_err_linear_pv": stretch_err,
+            "energy_stretch_max_rel_err_linear_pv_horizon": max(horizons),
+            "energy_table": rows, "poisson_bars": bars,
+            "poisson_max_rel_err": poisson_err,
+            "pass": bool(max(iso) <= 0.01 and stretch_err <= 0.01 and poisson_err <= 0.05)}
+
+
+# ---------------------------------------------------------------------------- stability
+
+
+def nve_drift(model_name: str = "pmb", dim: int = 2, steps: int = 10_000, safety: float = 0.8,
+              cells: int | None = None, every: int = 10) -> dict:
+    """Total-energy drift of an NVE run started from a smooth velocity field.
+
+    drift = |<H>_last 5% - <H>_first 5%| / <H> (H sampled every ``every`` steps); the
+    bounded oscillation of the velocity-Verlet energy is reported as ``fluctuation``."""
+    from upscale.engine import Simulation, build_family, cubic_lattice, square_lattice
+    from upscale.engine.integrators import VelocityVerlet, linearised_critical_dt
+    from upscale.models import create
+
+    h = 1e-3
+    if dim == 3:
+        k = cells or 8
+        sysm = cubic_lattice(k, k, k, h, density=2000.0)
+    else:
+        k = cells or 20
+        sysm = square_lattice(k, k, h, density=2000.0)
+    fam = build_family(sysm, 3.015 * h)
+    kw = {"E": 70e9} if model_name == "pmb" else {"E": 70e9, "nu": 0.3}
+    sim = Simulation(sysm, fam, create(model_name, **kw), integrator=VelocityVerlet(safety=safety))
+    x = sysm.x0
+    span = np.where(np.ptp(x, axis=0) > 0, np.ptp(x, axis=0), 1.0)
+    sim.state.v[:, 0] = np.sin(np.pi * x[:, 0] / span[0]) * np.cos(np.pi * x[:, 1] / span[1])
+    sim.state.v[:, 1] = 0.5 * np.cos(np.pi * x[:, 0] / span[0])
+    sim.prepare()
+    H = []
+
+    def sample(s):
+        if s.state.step % every == 0:
+            H.append(s.kinetic_energy() + s.energy())
+
+    t0 = time.perf_counter()
+    sim.run(steps, callback=sample)
+    H = np.asarray(H)
+    w = max(1, len(H) // 20)
+    return {"model": model_name, "dim": dim, "particles": sysm.n, "steps": steps,
+            "dt_s": sim.integrator.dt, "stable_estimate_s": sim.integrator.estimate,
+            "sharp_critical_dt_s": linearised_critical_dt(sim),
+            "drift": float(abs(H[-w:].mean() - H[:w].mean()) / H.mean()),
+            "fluctuation": float(np.ptp(H) / H.mean()), "wall_s": time.perf_counter() - t0}
+
+
+def forced_blowup(outdir, factor: float = 4.0, model_name: str = "pmb") -> dict:
+    """Run at ``factor`` x the stable estimate with force=True; checkpoint every 20 steps.
+
+    Returns the diagnosis and what is on disk."""
+    from upscale.engine import Simulation, build_family, square_lattice
+    from upscale.engine.checkpoint import Checkpoint, load_checkpoint
+    from upscale.engine.integrators import BlowUp, VelocityVerlet, stable_time_step
+    from upscale.models import create
+
+    h = 1e-3
+    sysm = square_lattice(16, 16, h, density=2000.0)
+    fam = build_family(sysm, 3.015 * h)
+    model = create(model_name, **({"E": 70e9} if model_name == "pmb" else {"E": 70e9, "nu": 0.3}))
+    model.prepare(sysm, fam)
+    est = stable_time_step(sysm, [model])
+    sim = Simulation(sysm, fam, model, integrator=VelocityVerlet(dt=factor * est, force=True))
+    rng = np.random.default_rng(1)
+    sim.state.v[:, :2] = rng.normal(scale=1e-3, size=(sysm.n, 2))
+    ck = Checkpoint(Path(outdir) / "blowup_checkpoint.npz", every=20)
+    msg = None
+    try:
+        sim.run(5000, checkpoint=ck)
+    except BlowUp as exc:
+        msg = str(exc)
+    out = {"factor_over_estimate": factor, "detected": msg is not None, "diagnosis": msg,
+           "blowup_step": int(sim.state.step)}
+    if ck.path.is_file():
+        st, meta = load_checkpoint(ck.path, sysm.x0, nb=fam.nb)
+        out.update(checkpoint_step=st.step, checkpoint_finite=bool(np.isfinite(st.y).all() and np.isfinite(st.v).all()),
+                   checkpoint_max_speed=float(np.abs(st.v).max()))
+    return out
+
+
+@case("pd-stability", "Stable step vs sharp limit, NVE drift over 10,000 steps at 0.8 of it, refusal, blow-up detection, restart")
+def pd_stability(args):
+    from upscale.engine import Simulation, build_family, square_lattice
+    from upscale.engine.integrators import VelocityVerlet
+    from upscale.models import create
+
+    _threads(1)
+    runs = [nve_drift("pmb", 2), nve_drift("lps", 2)]
+    if not args.quick:
+        runs += [nve_drift("pmb", 3), nve_drift("lps", 3)]
+    print("NVE, 10,000 velocity-Verlet steps at 0.8 x the stable estimate:")
+    print(table(runs, ["model", "dim", "particles", "dt_s", "stable_estimate_s", "sharp_critical_dt_s",
+                       "drift", "fluctuation", "wall_s"], floatfmt=".4g"))
+    # refusal
+    sysm = square_lattice(10, 10, 1e-3, density=2000.0)
+    fam = build_family(sysm, 3.015e-3)
+    sim = Simulation(sysm, fam, create("pmb", E=70e9), integrator=VelocityVerlet(dt=1.0))
+    try:
+        sim.run(1)
+        refusal = None
+    except ValueError as exc:
+        refusal = str(exc)
+    print(f"dt = 1 s: {refusal}")
+    blow = forced_blowup(args.outdir)
+    print(f"forced run at {blow['factor_over_estimate']} x estimate: {blow['diagnosis']}")
+    print(f"checkpoint on disk: step {blow.get('checkpoint_step')}, finite {blow.get('checkpoint_finite')}")
+    drift = max(r["drift"] for r in runs)
+    ok = (drift < 1e-4 and refusal is not None and "stable estimate" in refusal and blow["detected"]
+          and blow.get("checkpoint_finite", False))
+    return {"nve_runs": runs, "nve_max_drift": drift, "refusal_message": refusal, "blowup": blow,
+            "pass": bool(ok)}
