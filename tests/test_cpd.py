@@ -41,8 +41,14 @@ def _fd_tangent_err(s, model, amp=0.05):
     return np.abs(Kd - Kfd[dofs]).max() / np.abs(Kd).max(), np.abs(Kd - Kd.T).max() / np.abs(Kd).max()
 
 
-@pytest.mark.parametrize("case", ["2d-C1", "2d-C2", "3d-C1", "3d-C2", "3d-C3"])
+@pytest.mark.parametrize("case", ["2d-C1", "2d-C2", "3d-C1", "3d-C2", "3d-C3", "3d-all-uniform"])
 def test_tangent_matches_central_differences(case):
+    if case == "3d-all-uniform":     # the seed's quadrature V_k = V_H^k / N_k, all three types
+        s = cubic_lattice(3, 3, 3, 1e-3)
+        err, asym = _fd_tangent_err(s, CPD(horizon=1.5e-3, dim=3, C1=1e15, C2=1e27, C3=1e40,
+                                           quadrature="uniform"))
+        assert err < 1e-6 and asym < 1e-12
+        return
     dim, which = case.split("-")
     C = {"C1": dict(C1=1e15), "C2": dict(C2=1e27), "C3": dict(C3=1e40)}[which]
     if dim == "2d":
@@ -160,6 +166,28 @@ def test_units_energy_density_independent_of_length_unit():
         out.append(m.energy_density(st))
     assert np.allclose(out[1], out[0] / k ** 3, rtol=1e-9)
     assert out[0][62] > 0
+
+
+def test_member_pattern_covers_the_centre_sets():
+    from upscale.engine import multibody
+
+    s = cubic_lattice(5, 5, 5, 1e-3)
+    fam = build_family(s, 1.5e-3)
+    m = CPD(horizon=1.5e-3, dim=3, C1=1e15, C2=1e27)
+    m.prepare(s, fam, centres=[62])
+    st = State.reference(s.x0, fam.nb)
+    st.y = s.x0 * 1.01
+    K_sub = m.tangent(st).toarray()
+    m_full = CPD(horizon=1.5e-3, dim=3, C1=1e15, C2=1e27)
+    m_full.prepare(s, fam)
+    m_full.w = tuple(np.where(np.arange(s.n) == 62, w, 0.0) for w in m_full.w)
+    with pytest.raises(ValueError, match="another CPD model"):
+        m_full.tangent(st)                    # st carries the subset model's set states
+    st2 = State.reference(s.x0, fam.nb)
+    st2.y = st.y.copy()
+    K_full = m_full.tangent(st2).toarray()
+    assert np.allclose(K_sub, K_full, rtol=0, atol=1e-12 * np.abs(K_full).max())
+    assert multibody.member_pattern(fam, [62])[1].size < multibody.block_pattern(s.x0, 3.1e-3)[1].size
 
 
 def test_skip_work_when_constants_zero():

@@ -29,21 +29,33 @@ three-neighbour interaction in 2D (every neighbour triple is coplanar).
 
 Discretisation and counting convention
 --------------------------------------
-Quadrature as in seed 000 ("Discretization of the integrals"): ``V_1 = V_H/N_1``,
-``V_2 = V_H^2/N_2``, ``V_3 = V_H^3/N_3`` with ``N_k`` the numbers of *ordered* admissible
-neighbour sets of the point, ``V_H^i = beta^i V_ball`` (seed 002) with the completeness
-``beta^i = min(1, sum_j V_j beta_ij / V_ball)`` (``beta_ij`` the family's partial-volume
-factor) and ``V_ball = 4/3 pi delta^3`` (3D) or ``pi delta^2 h`` (2D). Because every
-``psi_k`` is symmetric in its neighbours, a sum over ordered sets equals ``2!`` (pairs of
-neighbours) or ``3!`` (triples) times the sum over *unordered* sets; the code stores
-unordered sets (``slot_j < slot_k [< slot_l]``, :mod:`upscale.engine.multibody`) and uses
-the equivalent weights per centre ``i`` and unordered set:
+Two quadratures of the neighbourhood integrals (``quadrature=``):
 
-* one-neighbour  ``w_1^i = 1/2 V^i V_H^i / N_1^i``
-* two-neighbour  ``w_2^i = 1/3 V^i (V_H^i)^2 / n_2^i``   (``n_2 = N_2/2`` unordered pairs)
-* three-neighbour ``w_3^i = 1/4 V^i (V_H^i)^3 / n_3^i``  (``n_3 = N_3/6`` unordered triples)
+``"uniform"`` -- seed 000 ("Discretization of the integrals"): every admissible set gets the
+    same effective volume, ``V_1 = V_H/N_1``, ``V_2 = V_H^2/N_2``, ``V_3 = V_H^3/N_3`` with
+    ``N_k`` the numbers of *ordered* admissible neighbour sets of the point,
+    ``V_H^i = beta^i V_ball`` (seed 002), completeness
+    ``beta^i = min(1, sum_j V_j beta_ij / V_ball)`` (``beta_ij`` the family's partial-volume
+    factor), ``V_ball = 4/3 pi delta^3`` (3D) or ``pi delta^2 h`` (2D). Note the powers:
+    ``V_k`` carries ``V_H^k`` (m^3k), which is what makes ``psi`` come out in J/m^3.
+``"volume"`` (default) -- product quadrature with the neighbours' own volumes
+    ``omega_j = V_j beta_ij``: ``dV' dV'' -> omega_j omega_k`` etc. (units m^3k as above).
+    Collinear / coplanar sets need no renormalisation here: their integrands vanish
+    (``A = 0`` or ``V = 0``), so dropping them is exact. With the engine's ``"linear"``
+    partial volumes it is the accurate choice (see ``cpd-calibration``).
 
-so that the stored energy of particle ``i`` is ``W_i = sum_k w_k^i sum_sets psi_k``
+Because every ``psi_k`` is symmetric in its neighbours, a sum over ordered sets equals
+``2!`` (pairs of neighbours) or ``3!`` (triples) times the sum over *unordered* sets; the
+code stores unordered sets (``slot_j < slot_k [< slot_l]``, :mod:`upscale.engine.multibody`)
+and uses the equivalent weights per centre ``i`` and unordered set:
+
+* one-neighbour  ``w_1^i = 1/2 V^i V_H^i / N_1^i``   (volume: ``1/2 V^i omega_j``)
+* two-neighbour  ``w_2^i = 1/3 V^i (V_H^i)^2 / n_2^i``   (``n_2 = N_2/2`` unordered pairs;
+  volume: ``2/3 V^i omega_j omega_k``)
+* three-neighbour ``w_3^i = 1/4 V^i (V_H^i)^3 / n_3^i``  (``n_3 = N_3/6`` unordered triples;
+  volume: ``3/2 V^i omega_j omega_k omega_l``)
+
+so that the stored energy of particle ``i`` is ``W_i = sum_k sum_sets w psi_k``
 (J) and its energy density ``W_i / V^i`` is the discrete ``psi(x_i)``. A set is owned by
 its centre: the geometric triangle ``{i, j, k}`` appears again (with the weight of that
 centre) if it is also in the family of ``j`` or ``k``; this is exactly the
@@ -99,6 +111,17 @@ Reachable Poisson ratio with non-negative constants: every term has ``lambda_k >
 free choice, fixed by ``mode``: ``"C1C2"`` (cheapest beyond bonds: ``C3 = 0``),
 ``"C1C3"`` (``C2 = 0``), ``"C2C3"`` (``C1 = 0``), ``"auto"`` (``C1C2`` up to 3/7, then
 ``C2C3``).
+
+The continuum coefficients above are the ``delta/dx -> infinity`` limit. On a lattice the
+neighbourhood sums differ from the integrals by several per cent at ``delta/dx = 2-4``
+(lattice anisotropy and the radial distribution of the points). ``calibration="discrete"``
+(default) therefore solves the same two equations with the coefficients ``l_k, m_k``
+*measured* on the model's own most interior particle (isotropic least-squares fit of its
+energy density over small strains, :meth:`CPD.discrete_coefficients`); ``"continuum"`` uses
+the formulas. ``surface_correction=True`` additionally scales each centre's weights by the
+ratio of bulk to local energy density under uniaxial strains (PD energy-method surface
+correction; per centre, so forces stay energy gradients). Measured effects are in the
+validation cases ``cpd-calibration`` and ``cpd-newton``.
 
 Damage
 ------
@@ -1051,6 +1074,15 @@ class CPD(Model):
     def _intact(self, state):
         if "cpd_intact_t" not in state.extra:
             self.init_state(state)
+        nt = 0 if self.triplets is None else self.triplets.size
+        nq = 0 if self.quadruplets is None else self.quadruplets.size
+        if state.extra["cpd_intact_t"].shape != (nt,) or state.extra["cpd_intact_q"].shape != (nq,):
+            raise ValueError(f"state holds the set states of another CPD model "
+                             f"({state.extra['cpd_intact_t'].size} triplets, "
+                             f"{state.extra['cpd_intact_q'].size} quadruplets; this model has "
+                             f"{nt}, {nq}): use one state per model or call init_state")
+        if state.intact.shape != (self.family.nb,):
+            raise ValueError(f"state.intact has {state.intact.size} bonds, the family {self.family.nb}")
         return (np.ascontiguousarray(state.intact, dtype=np.bool_), state.extra["cpd_intact_t"],
                 state.extra["cpd_intact_q"])
 
