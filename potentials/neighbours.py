@@ -80,39 +80,16 @@ def complete_cell(cell, pbc) -> np.ndarray:
 
 
 @njit(cache=True)
-def _make_ghosts(s_nc, pbc, margin_c, nimg_c):
-    """Images of wrapped fractional coordinates within ``margin_c`` of the unit cell.
-
-    Returns source atom index and integer image of every ghost point.
-    """
-    n = s_nc.shape[0]
-    # count
-    count = 0
-    for a in range(-nimg_c[0], nimg_c[0] + 1):
-        for b in range(-nimg_c[1], nimg_c[1] + 1):
-            for c in range(-nimg_c[2], nimg_c[2] + 1):
-                if a == 0 and b == 0 and c == 0:
-                    continue
-                for i in range(n):
-                    t0 = s_nc[i, 0] + a
-                    t1 = s_nc[i, 1] + b
-                    t2 = s_nc[i, 2] + c
-                    if pbc[0] and (t0 < -margin_c[0] or t0 >= 1.0 + margin_c[0]):
-                        continue
-                    if pbc[1] and (t1 < -margin_c[1] or t1 >= 1.0 + margin_c[1]):
-                        continue
-                    if pbc[2] and (t2 < -margin_c[2] or t2 >= 1.0 + margin_c[2]):
-                        continue
-                    count += 1
-    src = np.empty(count, np.int64)
-    img = np.empty((count, 3), np.int64)
+def _ghost_pass(s_nc, pbc, margin_c, nimg_c, write, src, img):
+    """Count (``write`` False) or store the images of wrapped fractional coordinates that
+    lie within ``margin_c`` of the unit cell along periodic directions."""
     g = 0
     for a in range(-nimg_c[0], nimg_c[0] + 1):
         for b in range(-nimg_c[1], nimg_c[1] + 1):
             for c in range(-nimg_c[2], nimg_c[2] + 1):
                 if a == 0 and b == 0 and c == 0:
                     continue
-                for i in range(n):
+                for i in range(s_nc.shape[0]):
                     t0 = s_nc[i, 0] + a
                     t1 = s_nc[i, 1] + b
                     t2 = s_nc[i, 2] + c
@@ -122,11 +99,24 @@ def _make_ghosts(s_nc, pbc, margin_c, nimg_c):
                         continue
                     if pbc[2] and (t2 < -margin_c[2] or t2 >= 1.0 + margin_c[2]):
                         continue
-                    src[g] = i
-                    img[g, 0] = a
-                    img[g, 1] = b
-                    img[g, 2] = c
+                    if write:
+                        src[g] = i
+                        img[g, 0] = a
+                        img[g, 1] = b
+                        img[g, 2] = c
                     g += 1
+    return g
+
+
+@njit(cache=True)
+def _make_ghosts(s_nc, pbc, margin_c, nimg_c):
+    """Source atom and integer image of every ghost point."""
+    src = np.empty(0, np.int64)
+    img = np.empty((0, 3), np.int64)
+    count = _ghost_pass(s_nc, pbc, margin_c, nimg_c, False, src, img)
+    src = np.empty(count, np.int64)
+    img = np.empty((count, 3), np.int64)
+    _ghost_pass(s_nc, pbc, margin_c, nimg_c, True, src, img)
     return src, img
 
 
@@ -155,72 +145,61 @@ def _bin_points(x_pc, lo_c, inv_bin_c, nbin_c):
     return start, order
 
 
-@njit(parallel=True, cache=True)
-def _search(x_pc, n_real, src_p, img_pc, wrap_nc, lo_c, inv_bin_c, nbin_c, start, order,
-            rc2, half):
-    """Two-pass CSR construction of all pairs within sqrt(rc2); rows are real atoms."""
-    count_n = np.zeros(n_real, np.int64)
-    for i in prange(n_real):
-        c = 0
-        xi0 = x_pc[i, 0]
-        xi1 = x_pc[i, 1]
-        xi2 = x_pc[i, 2]
-        b0 = min(max(int((xi0 - lo_c[0]) * inv_bin_c[0]), 0), nbin_c[0] - 1)
-        b1 = min(max(int((xi1 - lo_c[1]) * inv_bin_c[1]), 0), nbin_c[1] - 1)
-        b2 = min(max(int((xi2 - lo_c[2]) * inv_bin_c[2]), 0), nbin_c[2] - 1)
-        for a0 in range(max(b0 - 1, 0), min(b0 + 2, nbin_c[0])):
-            for a1 in range(max(b1 - 1, 0), min(b1 + 2, nbin_c[1])):
-                for a2 in range(max(b2 - 1, 0), min(b2 + 2, nbin_c[2])):
-                    b = (a0 * nbin_c[1] + a1) * nbin_c[2] + a2
-                    for q in range(start[b], start[b + 1]):
-                        p = order[q]
-                        if p == i:
-                            continue
-                        d0 = x_pc[p, 0] - xi0
-                        d1 = x_pc[p, 1] - xi1
-                        d2 = x_pc[p, 2] - xi2
-                        if d0 * d0 + d1 * d1 + d2 * d2 >= rc2:
-                            continue
-                        if half and not _keep_half(i, src_p[p], img_pc, p):
-                            continue
-                        c += 1
-        count_n[i] = c
-    first_n = np.zeros(n_real + 1, np.int64)
-    for i in range(n_real):
-        first_n[i + 1] = first_n[i] + count_n[i]
-    m = first_n[n_real]
-    j_b = np.empty(m, np.int32)
-    shift_bc = np.empty((m, 3), np.int32)
-    for i in prange(n_real):
-        c = first_n[i]
-        xi0 = x_pc[i, 0]
-        xi1 = x_pc[i, 1]
-        xi2 = x_pc[i, 2]
-        b0 = min(max(int((xi0 - lo_c[0]) * inv_bin_c[0]), 0), nbin_c[0] - 1)
-        b1 = min(max(int((xi1 - lo_c[1]) * inv_bin_c[1]), 0), nbin_c[1] - 1)
-        b2 = min(max(int((xi2 - lo_c[2]) * inv_bin_c[2]), 0), nbin_c[2] - 1)
-        for a0 in range(max(b0 - 1, 0), min(b0 + 2, nbin_c[0])):
-            for a1 in range(max(b1 - 1, 0), min(b1 + 2, nbin_c[1])):
-                for a2 in range(max(b2 - 1, 0), min(b2 + 2, nbin_c[2])):
-                    b = (a0 * nbin_c[1] + a1) * nbin_c[2] + a2
-                    for q in range(start[b], start[b + 1]):
-                        p = order[q]
-                        if p == i:
-                            continue
-                        d0 = x_pc[p, 0] - xi0
-                        d1 = x_pc[p, 1] - xi1
-                        d2 = x_pc[p, 2] - xi2
-                        if d0 * d0 + d1 * d1 + d2 * d2 >= rc2:
-                            continue
-                        j = src_p[p]
-                        if half and not _keep_half(i, j, img_pc, p):
-                            continue
+@njit(cache=True, inline="always")
+def _row(i, x_pc, src_p, img_pc, wrap_nc, lo_c, inv_bin_c, nbin_c, start, order, rc2, half,
+         write, c, j_b, shift_bc):
+    """Visit the points within sqrt(rc2) of atom i; with ``write`` store them from CSR
+    position ``c`` on. Returns the position after the last one."""
+    xi0 = x_pc[i, 0]
+    xi1 = x_pc[i, 1]
+    xi2 = x_pc[i, 2]
+    b0 = min(max(int((xi0 - lo_c[0]) * inv_bin_c[0]), 0), nbin_c[0] - 1)
+    b1 = min(max(int((xi1 - lo_c[1]) * inv_bin_c[1]), 0), nbin_c[1] - 1)
+    b2 = min(max(int((xi2 - lo_c[2]) * inv_bin_c[2]), 0), nbin_c[2] - 1)
+    for a0 in range(max(b0 - 1, 0), min(b0 + 2, nbin_c[0])):
+        for a1 in range(max(b1 - 1, 0), min(b1 + 2, nbin_c[1])):
+            for a2 in range(max(b2 - 1, 0), min(b2 + 2, nbin_c[2])):
+                b = (a0 * nbin_c[1] + a1) * nbin_c[2] + a2
+                for q in range(start[b], start[b + 1]):
+                    p = order[q]
+                    if p == i:
+                        continue
+                    d0 = x_pc[p, 0] - xi0
+                    d1 = x_pc[p, 1] - xi1
+                    d2 = x_pc[p, 2] - xi2
+                    if d0 * d0 + d1 * d1 + d2 * d2 >= rc2:
+                        continue
+                    j = src_p[p]
+                    if half and not _keep_half(i, j, img_pc, p):
+                        continue
+                    if write:
                         j_b[c] = j
                         # image relative to the unwrapped input positions
                         shift_bc[c, 0] = img_pc[p, 0] - wrap_nc[j, 0] + wrap_nc[i, 0]
                         shift_bc[c, 1] = img_pc[p, 1] - wrap_nc[j, 1] + wrap_nc[i, 1]
                         shift_bc[c, 2] = img_pc[p, 2] - wrap_nc[j, 2] + wrap_nc[i, 2]
-                        c += 1
+                    c += 1
+    return c
+
+
+@njit(parallel=True, cache=True)
+def _search(x_pc, n_real, src_p, img_pc, wrap_nc, lo_c, inv_bin_c, nbin_c, start, order,
+            rc2, half):
+    """Two-pass CSR construction of all pairs within sqrt(rc2); rows are real atoms."""
+    j_b = np.empty(0, np.int32)
+    shift_bc = np.empty((0, 3), np.int32)
+    count_n = np.zeros(n_real, np.int64)
+    for i in prange(n_real):
+        count_n[i] = _row(i, x_pc, src_p, img_pc, wrap_nc, lo_c, inv_bin_c, nbin_c, start,
+                          order, rc2, half, False, 0, j_b, shift_bc)
+    first_n = np.zeros(n_real + 1, np.int64)
+    for i in range(n_real):
+        first_n[i + 1] = first_n[i] + count_n[i]
+    j_b = np.empty(first_n[n_real], np.int32)
+    shift_bc = np.empty((first_n[n_real], 3), np.int32)
+    for i in prange(n_real):
+        _row(i, x_pc, src_p, img_pc, wrap_nc, lo_c, inv_bin_c, nbin_c, start, order, rc2,
+             half, True, first_n[i], j_b, shift_bc)
     return first_n, j_b, shift_bc
 
 
