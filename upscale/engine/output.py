@@ -1,8 +1,13 @@
 """Output every N steps: extxyz (ase.io), VTK (meshio) and a JSON summary.
 
 * ``traj.extxyz``: one frame per output step, written through :func:`ase.io.write`, with
-  per-particle arrays ``displacement`` (3), ``velocity`` (3), ``damage`` and ``volume``,
-  and ``time``/``step`` in the frame info: ASE and OVITO read it.
+  per-particle arrays ``displacement`` (3), ``velocity`` (3, m/s), ``damage`` and
+  ``volume``, and ``time``/``step`` in the frame info: ASE and OVITO read it. ASE writes
+  real columns with a fixed ``%16.8f``, which would round SI lengths of a millimetre-sized
+  body to 1e-8 m; positions, displacements and volumes are therefore written in a length
+  unit ``length_unit_m`` (a power of ten putting the spacing in [1000, 10000): 1e-8 of a
+  unit is then 1e-11 of a spacing; recorded in every frame's info), e.g. 1e-7 m for a
+  0.1 mm spacing.
 * ``vtk/frame_NNNNNN.vtu``: points with the same point data, through meshio (ParaView).
 * ``summary.json``: the run's description and one row per output step (time, kinetic
   energy, strain energy if asked, broken bonds, max damage), rewritten atomically.
@@ -34,7 +39,7 @@ class Output:
     """
 
     def __init__(self, outdir, every: int = 100, formats=FORMATS, energy: bool = False,
-                 symbol: str = "X"):
+                 symbol: str = "X", length_unit: float | None = None):
         if int(every) < 1:
             raise ValueError(f"output interval must be >= 1 step, got {every!r}")
         bad = [f for f in formats if f not in FORMATS]
@@ -45,6 +50,7 @@ class Output:
         self.formats = tuple(formats)
         self.energy = bool(energy)
         self.symbol = symbol
+        self.length_unit = length_unit
         self.rows: list[dict] = []
         self.meta: dict = {}
         self._started = False
@@ -58,6 +64,9 @@ class Output:
         if "extxyz" in self.formats and sim.state.step == 0 and traj.exists():
             traj.unlink()  # a fresh run starts a fresh trajectory
         self.meta = sim.describe()
+        if self.length_unit is None:
+            self.length_unit = float(10.0 ** (np.floor(np.log10(sim.system.spacing)) - 3))
+        self.meta["extxyz_length_unit_m"] = self.length_unit
         self._started = True
 
     def write(self, sim) -> dict:
@@ -86,11 +95,13 @@ class Output:
         import ase.io
 
         st = sim.state
-        atoms = ase.Atoms(symbols=[self.symbol] * st.y.shape[0], positions=st.y, pbc=False)
-        atoms.new_array("displacement", u)
+        k = 1.0 / self.length_unit
+        atoms = ase.Atoms(symbols=[self.symbol] * st.y.shape[0], positions=st.y * k, pbc=False)
+        atoms.new_array("displacement", u * k)
         atoms.new_array("velocity", st.v.copy())
         atoms.new_array("damage", mu)
-        atoms.new_array("volume", sim.system.volume)
+        atoms.new_array("volume", sim.system.volume * k ** 3)
+        atoms.info["length_unit_m"] = self.length_unit
         atoms.info["time"] = float(st.t)
         atoms.info["step"] = int(st.step)
         ase.io.write(self.outdir / "traj.extxyz", atoms, format="extxyz", append=True)

@@ -239,6 +239,8 @@ class Simulation:
             output.start(self)
             if st.step == 0 or not output.rows:
                 output.write(self)
+        if checkpoint is not None and checkpoint.last_step is None:
+            checkpoint.write(st, {**(meta or {}), "dt_s": dt})  # a good state to fall back on
         ke_hist: list[float] = []
         t0 = time.perf_counter()
         target = st.step + int(steps)
