@@ -137,3 +137,47 @@ def test_bad_input():
         DCBRTube(10, 10, 30.0, coarsening=0.5)
     with pytest.raises(ValueError, match="cutoff"):
         tersoff_params(cutoff="smooth")
+
+
+def test_lattice_stability_hessian_matches_project_tersoff_forces():
+    """Columns of the piece Hessian vs central differences of helper A1's Tersoff forces."""
+    from ase import Atoms
+
+    from potentials.tersoff import Tersoff
+    from upscale.models.dcbr import LatticeStability
+    from upscale.models import dcbr_kernels as K
+
+    ls = LatticeStability(10, 10)
+    q = np.array([0.97, 0.0, 1.12, 0.002, 0.01, -0.004])
+    x = ls.positions(q)
+    Lz = q[2] * ls.Lz
+    H = K.piece_hessian(x, Lz, ls.owner, ls.img, ls.cand_off, ls.cand_idx, ls.p, 1e-4)
+    at = Atoms("C" * len(x), positions=x + [30, 30, 0], cell=[60, 60, Lz], pbc=(False, False, True))
+    at.calc = Tersoff.from_lammps("BNC.tersoff", elements=["C"], step_cutoff=True)
+    for col in (0, 7, 3 * len(x) - 1):
+        h = 1e-4
+        p0 = at.get_positions()
+        pp, pm = p0.copy(), p0.copy()
+        pp.flat[col] += h
+        pm.flat[col] -= h
+        at.set_positions(pp)
+        fp = at.get_forces()
+        at.set_positions(pm)
+        fm = at.get_forces()
+        at.set_positions(p0)
+        assert np.abs(-(fp - fm).ravel() / (2 * h) - H[col]).max() < 1e-5
+
+
+def test_lattice_stability_of_strained_armchair_tube():
+    """Stable at small strain; unstable beyond the LAMMPS failure strain of the (10,10) tube
+    (0.255 with 0.5 % steps): the state of the relaxed coarse tube at 26 % strain."""
+    t = DCBRTube(10, 10, 10.0, coarsening=2)
+    y, d, L0, *_ = t.minimise(t.x0, t.delta, t.L, relax_box=True)
+    states = {}
+    for eps in (0.05, 0.26):
+        y2 = y.copy()
+        y2[:, 2] *= 1 + eps
+        t.minimise(y2, d, L0 * (1 + eps))
+        states[eps] = t._q_n[0].copy()
+    assert t.stability.stable(states[0.05])
+    assert not t.stability.stable(states[0.26])

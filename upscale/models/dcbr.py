@@ -31,12 +31,23 @@ through G (linear in positions) to particle forces (:meth:`GainOperator.forces`)
 sublattice shifts are extra per-particle unknowns minimised together with the positions
 (quasi-static scenes), so de/d shift = 0 at every solution (envelope theorem).
 
-**Failure rule** (no fitted parameter). A link (c, n) of G's family breaks when, in the
-mapped lattice of c or of n, the C-C bond most aligned with the link's reference direction
-is longer than the outer cutoff R + D of the potential file (2.1 Å for C-C in BNC.tersoff),
-i.e. when the molecular bond it stands for has no energy left. Broken links leave G's
-family (Upsilon is rebuilt); a particle left with fewer than 3 non-collinear links drops
-out. Damage index mu = 1 - R/T per particle (eq. 5.16).
+**Failure rules** (no fitted parameter; both are properties of the molecular potential).
+
+1. Lattice stability (the rule that decides the strength of a perfect tube): after each
+   load step the most loaded particle's lattice, mapped uniformly onto the smallest
+   periodic piece of the real tube at least twice the cutoff long, is tested for a negative
+   eigenvalue of its atomistic Hessian (:class:`LatticeStability`; the phonon instability by
+   which a perfect lattice fails). An unstable particle fails: it loses all its links. The
+   uniform coarse branch alone keeps rising past the atomistic failure (its stress peak is
+   at ~31 % strain for (10,10) with the step cutoff, LAMMPS fails at 25.5 %): the Hessian
+   of the 80-atom (10,10) piece turns negative between 24.0 and 24.5 %.
+2. Bond cutoff: a link (c, n) of G's family breaks when, in the mapped lattice of c or of
+   n, the C-C bond most aligned with the link's reference direction is longer than the
+   outer cutoff R + D of the potential file (2.1 Å for C-C in BNC.tersoff), i.e. the bond
+   it stands for has no energy left.
+
+Broken links leave G's family (Upsilon is rebuilt); a particle left with fewer than 3
+non-collinear links drops out. Damage index mu = 1 - R/T per particle (eq. 5.16).
 
 Units: eV, Å; stress in GPa with the wall area 2 pi R t, t = 3.4 Å.
 """
@@ -202,6 +213,99 @@ class TubeLattice:
         return float(res.fun), res.x
 
 
+class LatticeStability:
+    """Is the tube lattice, uniformly mapped by q, stable against atomic displacements?
+
+    The smallest periodic piece of the ideal (n, m) tube whose length is at least twice the
+    potential's outer cutoff (no atom meets its own image twice) is mapped by the
+    cylindrical map of q = (lam_t, gam, lam_z, d_rho, d_s, d_z) (gam is set to 0: a twist is
+    not periodic); its Hessian at fixed cell (central differences of the Tersoff forces of
+    helper A1's kernel, step 1e-4 Å) is projected off the four zero modes (three
+    translations, rotation about the axis). The lattice is unstable when the smallest
+    eigenvalue is negative (below -1e-3 eV/Å^2, far above the finite-difference noise).
+    This is the phonon (lattice) instability by which a perfect lattice fails under load,
+    tested on the modes commensurate with that piece; no parameter is fitted.
+    """
+
+    def __init__(self, n, m, potential="tersoff:BNC.tersoff", cutoff="step", bond=1.42):
+        from ase.build import nanotube  # noqa: PLC0415
+
+        from upscale.build import chirality  # noqa: PLC0415
+
+        self.p = tersoff_params(potential, cutoff)
+        self.cut = float(self.p[10] + self.p[11])
+        ch = chirality(n, m, bond)
+        ncell = max(1, int(math.ceil(2 * self.cut / ch.cell_length)))
+        t = nanotube(n, m, length=ncell, bond=bond)
+        x = t.get_positions()
+        self.Lz = ncell * ch.cell_length
+        self.R0 = float(np.hypot(x[:, 0], x[:, 1]).mean())
+        self.theta = np.arctan2(x[:, 1], x[:, 0])
+        self.z = x[:, 2]
+        # sublattice: 2-colour the bond graph
+        d = x[:, None, :] - x[None, :, :]
+        d[..., 2] -= self.Lz * np.round(d[..., 2] / self.Lz)
+        nb = (np.linalg.norm(d, axis=2) > 0.1) & (np.linalg.norm(d, axis=2) < 1.1 * bond)
+        sub = -np.ones(len(x))
+        sub[0], front = 0, [0]
+        while front:
+            nxt = []
+            for a in front:
+                for b in np.nonzero(nb[a])[0]:
+                    if sub[b] < 0:
+                        sub[b] = 1 - sub[a]
+                        nxt.append(b)
+            front = nxt
+        self.sub = sub
+        self.natoms = len(x)
+        self.ncell = ncell
+        # image copies at z -/+ Lz and Tersoff candidates within 1.6 x cutoff (reference)
+        nat = len(x)
+        self.owner = np.concatenate([np.arange(nat)] * 3).astype(np.int64)
+        self.img = np.concatenate([np.zeros(nat), -np.ones(nat), np.ones(nat)])
+        xe = x[self.owner] + np.outer(self.img, [0.0, 0.0, self.Lz])
+        dd = np.linalg.norm(x[:, None, :] - xe[None, :, :], axis=2)
+        off, idx = [0], []
+        for i in range(nat):
+            js = np.nonzero((dd[i] < 1.6 * self.cut) & (np.arange(len(xe)) != i))[0]
+            idx.extend(js)
+            off.append(len(idx))
+        self.cand_off = np.array(off, np.int64)
+        self.cand_idx = np.array(idx, np.int64)
+        self._cache: dict = {}
+
+    def positions(self, q):
+        lt, _gm, lz, drho, ds, dz = q
+        rho = lt * self.R0 + self.sub * drho
+        th = self.theta + self.sub * ds / (lt * self.R0)
+        return np.column_stack([rho * np.cos(th), rho * np.sin(th), lz * self.z + self.sub * dz])
+
+    def min_eigenvalue(self, q, h=1e-4) -> float:
+        """Smallest eigenvalue (eV/Å^2) of the projected Hessian of the mapped piece."""
+        key = tuple(np.round(np.asarray(q, float), 7))
+        if key in self._cache:
+            return self._cache[key]
+        x = self.positions(q)
+        n = len(x)
+        H = K.piece_hessian(x, q[2] * self.Lz, self.owner, self.img, self.cand_off,
+                            self.cand_idx, self.p, h)
+        U = np.zeros((3 * n, 4))  # zero modes: translations, rotation about the axis
+        for c in range(3):
+            U[c::3, c] = 1.0
+        U[0::3, 3] = -x[:, 1]
+        U[1::3, 3] = x[:, 0]
+        U, _ = np.linalg.qr(U)
+        Pj = np.eye(3 * n) - U @ U.T
+        w = np.linalg.eigvalsh(Pj @ H @ Pj)
+        w = np.delete(w, np.argsort(np.abs(w))[:4])  # the four projected zero modes
+        val = float(w.min())
+        self._cache[key] = val
+        return val
+
+    def stable(self, q) -> bool:
+        return self.min_eigenvalue(q) > -1e-3
+
+
 class DCBRTube:
     """Coarse (DCBR) model of a periodic single-wall (n, m) tube along z.
 
@@ -222,12 +326,15 @@ class DCBRTube:
         a_cc of the rolled-up reference tube, Å (as in :func:`upscale.build.swcnt`).
     relax_shift : bool
         Relax the sublattice shift (False: the B sublattice follows the map rigidly).
+    stability : bool
+        Apply the lattice-stability failure rule (:class:`LatticeStability`) after each
+        load step (:meth:`check_stability`).
     """
 
     def __init__(self, n: int, m: int, length: float, coarsening: float = 2.0,
                  horizon_factor: float = 1.5, potential: str = "tersoff:BNC.tersoff",
                  cutoff: str = "step", bond: float = 1.42, kind: str = "quartic",
-                 relax_shift: bool = True):
+                 relax_shift: bool = True, stability: bool = True):
         from upscale.build import _ncells, chirality  # noqa: PLC0415
 
         if not (coarsening >= 1.0 and np.isfinite(coarsening)):
@@ -264,7 +371,7 @@ class DCBRTube:
         self._build_gain(None)
         self.e0 = self.lattice.energy(np.array([1.0, 0, 1.0, 0, 0, 0]), self.p)[0]
         self.delta = np.zeros((self.N, 3))
-        self.broken_steps: list = []
+        self.stability = LatticeStability(n, m, potential, cutoff, bond) if stability else None
 
     # ------------------------------------------------------------------ gain and links
     def _build_gain(self, intact):
@@ -387,6 +494,34 @@ class DCBRTube:
             self._build_gain(self.intact)
         return nb
 
+    def check_stability(self):
+        """Lattice-stability rule: fail the most loaded particle(s) whose lattice is unstable.
+
+        Particles are visited in order of decreasing energy per atom (of the last
+        :meth:`energy_and_gradient`); the first whose mapped lattice is stable ends the
+        visit (less loaded ones are taken as stable). A failed particle loses all its links,
+        and so do the particles in the same lattice state (to 1e-7). Returns the number of
+        particles failed.
+        """
+        if self.stability is None:
+            return 0
+        order = np.argsort(-self._e_n)
+        failed = np.zeros(self.N, dtype=bool)
+        for c in order:
+            if not self.alive[c] or failed[c]:
+                continue
+            q = self._q_n[c]
+            if self.stability.stable(q):
+                break
+            same = np.all(np.abs(self._q_n - q) < 1e-7, axis=1) & self.alive
+            failed |= same
+        if failed.any():
+            g = self.gain
+            self.intact &= ~(failed[g.pair_i] | failed[g.pair_j])
+            self._build_gain(self.intact)
+            self.alive &= ~failed
+        return int(failed.sum())
+
     def radius(self, y, delta):
         """Mean wall radius (Å): particles sit on sublattice A, B is d_rho further out."""
         rho = np.hypot(y[:, 0], y[:, 1])
@@ -439,6 +574,8 @@ def quasi_static_tension(model: DCBRTube, strain_step: float = 0.005, max_strain
         for _ in range(50):
             y, d, _, E, info, gL = model.minimise(y, d, Lz, gtol=gtol)
             nb = model.update_links()
+            if nb == 0:
+                nb = model.check_stability()
             nb_step += nb
             if nb == 0:
                 break

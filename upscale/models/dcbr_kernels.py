@@ -329,3 +329,108 @@ def mapped_bond_lengths(q_n, s_p, z_p, sub_p, R0, iA, bondsA):
             else:
                 out[c, t - 1] = math.sqrt((x0 - xa[0]) ** 2 + (x1 - xa[1]) ** 2 + (x2 - xa[2]) ** 2)
     return out
+
+
+@numba.njit(cache=True)
+def mapped_bonds(q_n, s_p, z_p, sub_p, R0, iA, candA, bondsA, p):
+    """Lengths r (N, nb) in Å and bond orders b (N, nb) of the bonds A0-bondsA[b] of each
+    particle's mapped lattice (the LAMMPS-form b_ij of the module docstring)."""
+    m_, gam, lam3, c, d, h, nn, beta = p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7]
+    R, D = p[10], p[11]
+    N = q_n.shape[0]
+    nb = bondsA.shape[0]
+    P = s_p.shape[0]
+    r_out = np.empty((N, nb))
+    b_out = np.empty((N, nb))
+    pos = np.empty((P, 3))
+    for cpart in range(N):
+        lt, gm, lz, drho, ds, dz = (q_n[cpart, 0], q_n[cpart, 1], q_n[cpart, 2], q_n[cpart, 3],
+                                    q_n[cpart, 4], q_n[cpart, 5])
+        rho0 = lt * R0
+        for a in range(P):
+            rho = rho0 + sub_p[a] * drho
+            sp = lt * s_p[a] + gm * z_p[a] + sub_p[a] * ds
+            th = sp / rho0
+            pos[a, 0] = rho * math.cos(th)
+            pos[a, 1] = rho * math.sin(th)
+            pos[a, 2] = lz * z_p[a] + sub_p[a] * dz
+        for t in range(nb):
+            j = bondsA[t]
+            rij = pos[j] - pos[iA]
+            r = math.sqrt(rij[0] ** 2 + rij[1] ** 2 + rij[2] ** 2)
+            zeta = 0.0
+            for bb in range(candA.shape[0]):
+                k = candA[bb]
+                if k == j:
+                    continue
+                rik = pos[k] - pos[iA]
+                rk = math.sqrt(rik[0] ** 2 + rik[1] ** 2 + rik[2] ** 2)
+                if rk >= R + D:
+                    continue
+                fck, _ = _fc(rk, R, D)
+                cs = (rij[0] * rik[0] + rij[1] * rik[1] + rij[2] * rik[2]) / (r * rk)
+                g = gam * (1.0 + c * c / (d * d) - c * c / (d * d + (h - cs) ** 2))
+                arg = (lam3 * (r - rk)) ** 3 if m_ == 3.0 else lam3 * (r - rk)
+                zeta += fck * g * math.exp(arg)
+            r_out[cpart, t] = r
+            b_out[cpart, t] = (1.0 + (beta * zeta) ** nn) ** (-0.5 / nn) if zeta > 0 else 1.0
+    return r_out, b_out
+
+
+@numba.njit(cache=True)
+def _piece_grad(x, Lz, owner, img, cand_off, cand_idx, p, ext, gext, g):
+    """dE/dx (n, 3) of a z-periodic piece: real atoms x (n, 3), image copies ext[e] =
+    x[owner[e]] + img[e] * Lz e_z; site energies of the real atoms (ext[0:n] = x)."""
+    n = x.shape[0]
+    for e in range(ext.shape[0]):
+        o = owner[e]
+        ext[e, 0] = x[o, 0]
+        ext[e, 1] = x[o, 1]
+        ext[e, 2] = x[o, 2] + img[e] * Lz
+        gext[e, 0] = 0.0
+        gext[e, 1] = 0.0
+        gext[e, 2] = 0.0
+    E = 0.0
+    for i in range(n):
+        E += site_energy_grad(ext, i, cand_idx[cand_off[i]:cand_off[i + 1]], p, gext)
+    for i in range(n):
+        g[i, 0] = 0.0
+        g[i, 1] = 0.0
+        g[i, 2] = 0.0
+    for e in range(ext.shape[0]):
+        o = owner[e]
+        g[o, 0] += gext[e, 0]
+        g[o, 1] += gext[e, 1]
+        g[o, 2] += gext[e, 2]
+    return E
+
+
+@numba.njit(cache=True)
+def piece_hessian(x, Lz, owner, img, cand_off, cand_idx, p, h):
+    """Hessian (3n, 3n) of the periodic piece's energy by central differences of the
+    analytic gradient (step h, Å), symmetrised."""
+    n = x.shape[0]
+    ne = owner.shape[0]
+    ext = np.empty((ne, 3))
+    gext = np.empty((ne, 3))
+    gp = np.empty((n, 3))
+    gm = np.empty((n, 3))
+    H = np.empty((3 * n, 3 * n))
+    xx = x.copy()
+    for i in range(n):
+        for c in range(3):
+            xx[i, c] = x[i, c] + h
+            _piece_grad(xx, Lz, owner, img, cand_off, cand_idx, p, ext, gext, gp)
+            xx[i, c] = x[i, c] - h
+            _piece_grad(xx, Lz, owner, img, cand_off, cand_idx, p, ext, gext, gm)
+            xx[i, c] = x[i, c]
+            row = 3 * i + c
+            for j in range(n):
+                for d in range(3):
+                    H[row, 3 * j + d] = (gp[j, d] - gm[j, d]) / (2 * h)
+    for a in range(3 * n):
+        for b in range(a + 1, 3 * n):
+            s = 0.5 * (H[a, b] + H[b, a])
+            H[a, b] = s
+            H[b, a] = s
+    return H
