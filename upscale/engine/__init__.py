@@ -70,17 +70,30 @@ Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bon
     ``residual`` / ``tangent`` hooks.
 
 ``upscale.engine.simulation``
-    ``Simulation(system, family, models, conditions=(), integrator=None, state=None)``:
-    ``sim.state``, ``sim.forces() -> (N,3)`` particle forces (N), ``sim.energy()``,
-    ``sim.kinetic_energy()``, ``sim.damage()``, ``sim.run(steps, output=None,
-    checkpoint=None, progress=False, callback=None)``, ``sim.relax(...)``.
+    ``Simulation(system, family, models, conditions=(), integrator=None, state=None,
+    damage_weights="count")``: ``sim.state``, ``sim.forces() -> (N,3)`` particle forces
+    (N), ``sim.internal_forces(failure=False)``, ``sim.update_forces()`` (sets ``sim.F``,
+    ``sim.reactions``), ``sim.energy()``, ``sim.kinetic_energy()``, ``sim.damage()``,
+    ``sim.constrained (N,3) bool``, ``sim.run(steps, output=None, checkpoint=None,
+    progress=False, callback=None, meta=None)`` (``steps`` more steps; raises
+    ``integrators.BlowUp`` with a diagnosis), ``sim.resume(path)``, ``sim.relax(adr)``.
     The engine does only what the models' ``needs`` and the outputs ask for.
 
 ``upscale.engine.output`` / ``upscale.engine.checkpoint``
-    ``Output(outdir, every, formats=("extxyz", "vtk", "json"))``: extxyz via ase.io with
-    ``displacement`` and ``damage`` arrays, VTK via meshio, JSON summary.
-    ``save_checkpoint(path, state, meta)`` / ``load_checkpoint(path)``: npz written
-    atomically; a killed run resumes from it.
+    ``Output(outdir, every, formats=("extxyz", "vtk", "json"), energy=False)``: extxyz via
+    ase.io with ``displacement``, ``velocity``, ``damage``, ``volume`` arrays (lengths in
+    the unit ``length_unit_m`` of the frame info, because ASE writes ``%16.8f``), VTK via
+    meshio, JSON summary. ``save_checkpoint(path, state, meta)`` /
+    ``load_checkpoint(path, x0=None, nb=None) -> (state, meta)``, ``Checkpoint(path,
+    every)``: npz written atomically; a killed run resumes from it.
+
+``upscale.engine.kernels``
+    generic numba kernels (damage, stretch, breaking, VV kick/drift) and
+    ``set_threads(n)``.
+
+``upscale.engine.lammps_peri``
+    LAMMPS PERI (peri/pmb, peri/lps) as a reference: every convention and how the engine
+    matches it; ``compare(style, ...)`` runs both.
 """
 from __future__ import annotations
 
