@@ -96,7 +96,7 @@ class NewtonResult:
 def convergence_order(norms, asymptotic: float = 1e-2, floor: float = 1e-9) -> float | None:
     """Convergence order from a residual history: with ``e_k = r_k / r_0``, the order of the
     last pair in the asymptotic range (``e_k <= asymptotic``, ``e_{k+1} >= floor``, i.e.
-    above round-off) is ``p = log(e_{k+1}) / log(e_k)`` (2 for quadratic convergence, 1 for
+    above round-off, and a real decrease ``e_{k+1} <= e_k / 2``) is ``p = log(e_{k+1}) / log(e_k)`` (2 for quadratic convergence, 1 for
     linear with rate ``e_k``). None when no pair qualifies (e.g. a linear problem that
     converges in one step to round-off)."""
     r = [float(x) for x in norms]
@@ -105,7 +105,7 @@ def convergence_order(norms, asymptotic: float = 1e-2, floor: float = 1e-9) -> f
     e = [x / r[0] for x in r]
     p = None
     for k in range(1, len(e) - 1):
-        if 0 < e[k] <= asymptotic and e[k + 1] >= floor and e[k + 1] < e[k]:
+        if 0 < e[k] <= asymptotic and e[k + 1] >= floor and e[k + 1] <= 0.5 * e[k]:
             p = float(np.log(e[k + 1]) / np.log(e[k]))
     return p
 

@@ -229,7 +229,8 @@ def calibrate(E: float, nu: float, horizon: float, dim: int = 3, *, plane: str =
     _check_nu(nu, dim, plane, mode)
     lam, mu = lame(E, nu, dim, plane)
     k = modulus_coefficients(horizon, dim, thickness) if coefficients is None else coefficients
-    excess = max(lam - mu, 0.0)
+    # (with discrete coefficients a constant that would come out slightly negative at the
+    # very ends of the range is clipped to zero)
     if dim == 2:
         C1 = mu / k["m1"]
         return C1, max(lam - k["l1"] * C1, 0.0) / k["l2"], 0.0
