@@ -1,0 +1,80 @@
+"""``upscale tension``: quasi-static tension of a periodic single-wall tube with the coarse
+DCBR model (:mod:`upscale.models.dcbr`), optionally beside its LAMMPS reference.
+
+    upscale tension --chirality 10,10 --length 100 --coarsening 2 [--compare lammps]
+
+Writes ``tension_N_M_K.json`` (curve, modulus, strength, strain at peak, damage, wall time,
+versions) and, with ``--compare lammps``, the overlay plot with the damage map, and prints the
+comparison table. The LAMMPS side is helper C's runner (:mod:`validation.lammps.tension`,
+same potential file, same tube, same protocol), taken from ``data/reference/`` when stored.
+"""
+from __future__ import annotations
+
+import sys
+import time
+from pathlib import Path
+
+__all__ = ["register", "run"]
+
+
+def register(subparsers):
+    p = subparsers.add_parser("tension", help="quasi-static tension of a tube with the DCBR model",
+                              description=__doc__)
+    p.add_argument("--chirality", default="10,10", help="N,M (default 10,10)")
+    p.add_argument("--length", type=float, default=100.0, help="tube length, Å (default 100)")
+    p.add_argument("--coarsening", type=float, default=2.0,
+                   help="particle spacing / lattice constant, >= 1 (default 2)")
+    p.add_argument("--strain-step", type=float, default=0.005)
+    p.add_argument("--max-strain", type=float, default=0.40)
+    p.add_argument("--potential", default="tersoff:BNC.tersoff")
+    p.add_argument("--compare", choices=["lammps"], default=None,
+                   help="run (or load) the LAMMPS reference and print the comparison")
+    p.add_argument("--outdir", type=Path, default=Path("out/tension"))
+    p.set_defaults(func=run)
+
+
+def _chirality(text):
+    try:
+        n, m = (int(v) for v in str(text).split(","))
+    except ValueError:
+        raise ValueError(f"--chirality {text!r}; valid: two integers 'N,M', e.g. 10,10") from None
+    return n, m
+
+
+def run(args) -> int:
+    from upscale.io import versions, write_json
+    from upscale.models.dcbr import DCBRTube, quasi_static_tension
+
+    n, m = _chirality(args.chirality)
+    out = Path(args.outdir)
+    tag = f"{n}_{m}_K{args.coarsening:g}"
+    if args.compare == "lammps":
+        try:
+            from validation.cases.dcbr import run_tension_comparison
+        except ImportError:  # the validation package lives beside upscale in the repository
+            sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
+            from validation.cases.dcbr import run_tension_comparison
+        from validation.registry import table
+
+        res = run_tension_comparison(n, m, args.length, args.coarsening, args.strain_step,
+                                     outdir=out)
+        curve = res.pop("_curve")
+        cols = ["chirality", "coarsening", "atoms", "particles", "dof", "modulus_TPa",
+                "modulus_lammps_TPa", "strength_GPa", "strength_lammps_GPa", "strain_at_peak",
+                "strain_at_peak_lammps", "wall_s", "lammps_wall_s", "speedup"]
+        print(table([res], cols, floatfmt=".5g"))
+        write_json(out / f"tension_{tag}.json", {"result": res, "curve": curve,
+                                                 "versions": versions()})
+        print(f"wrote {out / f'tension_{tag}.json'} and {out / f'dcbr_tension_{n}_{m}_K{args.coarsening:g}.png'}")
+        return 0
+    t0 = time.perf_counter()
+    model = DCBRTube(n, m, args.length, coarsening=args.coarsening, potential=args.potential)
+    res = quasi_static_tension(model, strain_step=args.strain_step, max_strain=args.max_strain,
+                               progress=lambda e, s: print(f"strain {e:.4f}  stress {s:9.3f} GPa",
+                                                           flush=True))
+    res["wall_s"] = time.perf_counter() - t0
+    write_json(out / f"tension_{tag}.json", {"result": res, "versions": versions()})
+    print(f"({n},{m}) coarsening {args.coarsening:g}: {model.N} particles for {model.n_atoms} atoms; "
+          f"E = {res['youngs_modulus_TPa']:.4f} TPa, strength {res['strength_GPa']:.2f} GPa at "
+          f"strain {res['strain_at_peak']:.3f}; {res['wall_s']:.1f} s; wrote {out / f'tension_{tag}.json'}")
+    return 0
