@@ -95,17 +95,20 @@ class NewtonResult:
 
 def convergence_order(norms, asymptotic: float = 1e-2, floor: float = 1e-9) -> float | None:
     """Convergence order from a residual history: with ``e_k = r_k / r_0``, the order of the
-    last pair in the asymptotic range (``e_k <= asymptotic``, ``e_{k+1} >= floor``, i.e.
-    above round-off, and a real decrease ``e_{k+1} <= e_k / 2``) is ``p = log(e_{k+1}) / log(e_k)`` (2 for quadratic convergence, 1 for
-    linear with rate ``e_k``). None when no pair qualifies (e.g. a linear problem that
-    converges in one step to round-off)."""
+    last pair in the asymptotic range is ``p = log(e_{k+1}) / log(e_k)`` (2 for quadratic
+    convergence, 1 for linear convergence at rate ``e_k``). A pair qualifies when
+    ``e_k <= asymptotic``, ``e_{k+1} <= e_k / 2`` (a real decrease) and ``r_{k+1}`` is above
+    the round-off floor: ``>= floor * r_0`` and ``>= 1000 x`` the last (converged) norm.
+    None when no pair qualifies (e.g. a nearly linear problem that drops to round-off in one
+    or two iterations)."""
     r = [float(x) for x in norms]
-    if len(r) < 2 or r[0] <= 0:
+    if len(r) < 3 or r[0] <= 0:
         return None
     e = [x / r[0] for x in r]
+    lo = max(floor, 1e3 * e[-1])
     p = None
     for k in range(1, len(e) - 1):
-        if 0 < e[k] <= asymptotic and e[k + 1] >= floor and e[k + 1] <= 0.5 * e[k]:
+        if 0 < e[k] <= asymptotic and e[k + 1] >= lo and e[k + 1] <= 0.5 * e[k]:
             p = float(np.log(e[k + 1]) / np.log(e[k]))
     return p
 

@@ -390,7 +390,6 @@ def _best(fn, repeat):
       "per interaction type for delta/dx = 2, 3, 4 in 2D and 3D; skipped work when C2 = C3 = 0",
       add_arguments=_bench_args)
 def run_bench(args):
-    from upscale.engine import multibody
     from upscale.engine.families import build_family
     from upscale.engine.state import State
     from upscale.models.cpd import CPD
