@@ -196,7 +196,7 @@ def _run(args) -> int:
     from upscale.io import write_json
 
     kw = dict(dim=args.dim, E=args.E, nu=args.nu, dx=args.dx, ratio=args.ratio, mode=args.mode)
-    if args.scene == "bar":
+    if args.cpd_scene == "bar":
         r = bar_tension(**kw)
     else:
         r = cantilever(**kw)
@@ -215,7 +215,7 @@ def register(subparsers) -> None:
     """Adds the ``cpd`` sub-command (bar in tension or cantilever, 2D/3D, Newton solve)."""
     p = subparsers.add_parser("cpd", help="CPD static bar/cantilever with Newton-Raphson",
                               description=__doc__.split("\n\n")[0])
-    p.add_argument("--scene", choices=("bar", "cantilever"), default="bar")
+    p.add_argument("--scene", dest="cpd_scene", choices=("bar", "cantilever"), default="bar")
     p.add_argument("--dim", type=int, choices=(2, 3), default=2)
     p.add_argument("--E", type=float, default=1e9, help="Young's modulus (Pa)")
     p.add_argument("--nu", type=float, default=0.4, help="Poisson's ratio")
