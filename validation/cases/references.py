@@ -1,0 +1,426 @@
+"""LAMMPS tension references of tubes and bundles, their analysis and plots (issue #4).
+
+Cases
+-----
+``reference-tension``  one LAMMPS tension run (quasi-static or dynamic), analysed.
+``references``         regenerates every kept reference in ``data/reference/`` and its plots.
+``tersoff-chain``      the project's Tersoff calculator + an ASE optimiser against the LAMMPS
+                       quasi-static curve of the same short (10,10) tube.
+
+The kept reference set (``REFERENCE_SET``), all with ``BNC.tersoff`` and the step cutoff:
+
+* quasi-static, periodic tubes of ~100 Å (rounded to whole unit cells): (10,10), (17,0),
+  (12,6), pristine and with the 4-atom vacancy, strain steps of 0.5 %;
+* dynamic, open tubes of ~150 Å with 50 Å grips (free length ~50 Å), 1 Å/ps per grip,
+  10 K: the same six tubes;
+* dynamic, 7-tube (10,10) bundle of ~150 Å (walls 3.4 Å apart, LJ between tubes), vacancy in
+  the central tube.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from validation.registry import case, table
+
+REPO = Path(__file__).resolve().parents[2]
+REF_DIR = REPO / "data" / "reference"
+PLOT_DIR = REF_DIR / "plots"
+
+QS_LENGTH = 100.0
+DYN_LENGTH = 150.0
+TUBES = [(10, 10), (17, 0), (12, 6)]
+
+
+def _spec(protocol, n, m, vac, length, ntubes=1):
+    tag = f"{'qs' if protocol == 'quasi-static' else 'dyn'}_{n}-{m}_{'vac4' if vac else 'pristine'}"
+    if ntubes > 1:
+        tag += f"_bundle{ntubes}"
+    return {"name": tag, "protocol": protocol, "chirality": (n, m), "vacancy": vac,
+            "length": length, "ntubes": ntubes}
+
+
+REFERENCE_SET = (
+    [_spec("quasi-static", n, m, v, QS_LENGTH) for (n, m) in TUBES for v in (False, True)]
+    + [_spec("dynamic", n, m, v, DYN_LENGTH) for (n, m) in TUBES for v in (False, True)]
+    + [_spec("dynamic", 10, 10, True, DYN_LENGTH, ntubes=7)]
+)
+
+
+def _parse_chirality(text):
+    try:
+        n, m = (int(v) for v in str(text).split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"--chirality {text!r}; valid: two integers N,M (e.g. 10,10)") from None
+    from upscale.build import chirality  # noqa: PLC0415
+
+    try:
+        chirality(n, m)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+    return n, m
+
+
+def build_structure(spec):
+    """The ase.Atoms of a reference spec (tube or bundle, vacancy as the seed places it)."""
+    from upscale.build import bundle, swcnt, vacancy  # noqa: PLC0415
+
+    n, m = spec["chirality"]
+    if spec.get("ntubes", 1) > 1:
+        atoms = bundle(n, m, spec["length"], ntubes=spec["ntubes"])
+    else:
+        atoms = swcnt(n, m, spec["length"])
+    if spec.get("vacancy"):
+        atoms = vacancy(atoms, n=4)
+    return atoms
+
+
+def run_spec(spec, potential="tersoff:BNC.tersoff", cutoff="step", dump_dir=None,
+             progress=True, **kw):
+    """Run one spec with LAMMPS, analyse its dump; returns the result dict."""
+    from tqdm import tqdm  # noqa: PLC0415
+
+    from validation.lammps.tension import (default_dump_dir, dynamic_tension,  # noqa: PLC0415
+                                           quasi_static_tension)
+
+    atoms = build_structure(spec)
+    dump_dir = Path(dump_dir) if dump_dir else default_dump_dir()
+    dump = dump_dir / f"{spec['name']}.dump"
+    bar = tqdm(desc=spec["name"], unit="step", disable=not progress, leave=False)
+
+    def prog(eps, s):
+        bar.update(1)
+        bar.set_postfix_str(f"strain {100 * eps:.1f}%  stress {s:.1f} GPa")
+
+    try:
+        if spec["protocol"] == "quasi-static":
+            res = quasi_static_tension(atoms, potential, cutoff=cutoff, dump=dump, progress=prog,
+                                       **kw)
+        else:
+            res = dynamic_tension(atoms, potential, cutoff=cutoff, dump=dump, progress=prog, **kw)
+    finally:
+        bar.close()
+    res["name"] = spec["name"]
+    res["spec"] = {k: (list(v) if isinstance(v, tuple) else v) for k, v in spec.items()}
+    res["script"] = ("python -m validation reference-tension --chirality "
+                     f"{spec['chirality'][0]},{spec['chirality'][1]} --length {spec['length']:g}"
+                     + (" --vacancy" if spec.get("vacancy") else "")
+                     + (" --dynamic" if spec["protocol"] == "dynamic" else "")
+                     + (f" --bundle {spec['ntubes']}" if spec.get("ntubes", 1) > 1 else ""))
+    return res
+
+
+def analyse(res, atoms_info=None, plot_path=None):
+    """Damage analysis of a run's dump; adds ``res["damage"]`` (and a damage map PNG)."""
+    from upscale.analysis.damage import crack_line, dump_damage, unroll  # noqa: PLC0415
+    from upscale.analysis.plots import plot_damage_map  # noqa: PLC0415
+
+    dump = res.get("dump")
+    if not dump or not Path(dump).is_file():
+        return res
+    periodic = res["protocol"] == "quasi-static"
+    dd = dump_damage(dump, bond_cutoff=2.0, break_cutoff=2.1, periodic_z=periodic)
+    n_atoms = dd.x_first_nc.shape[0]
+    ntubes = res["structure"]["ntubes"]
+    per_tube = n_atoms // ntubes
+    sel = np.arange(per_tube)  # tube 1 (atoms are in tube order; ids 1..N)
+    # reference network on tube 1 to find the vacancy neighbours (under-coordinated atoms)
+    from upscale.analysis.damage import bond_network  # noqa: PLC0415
+
+    box = None
+    x0 = dd.x_first_nc[sel]
+    if periodic:
+        u = None
+    pairs = bond_network(x0, 2.0, box=[1e6, 1e6, _lz_first(dump)] if periodic else None)
+    coord = np.bincount(pairs.ravel(), minlength=len(sel))
+    out = {"bond_cutoff_A": 2.0, "break_cutoff_A": 2.1, "n_bonds": dd.n_bonds,
+           "frames": dd.frames, "analysed_tube": 1}
+    # frame -> strain mapping (quasi-static: one frame per strain; dynamic: frame k at
+    # k * dump_every steps)
+    strain_of_frame = _frame_strains(res, dd.frames)
+    xc = x0[:, :2].mean(axis=0)
+
+    def sz(x, idx):
+        c = x[sel][:, :2].mean(axis=0)
+        s, z = unroll(x[sel], c, radius=res["stress_convention"]["radius_A"])
+        return s[idx], z[idx]
+
+    vac_idx = np.nonzero(coord < 3)[0]
+    if dd.first_damage_frame is not None:
+        k = dd.first_damage_frame
+        out["first_damage_frame"] = k
+        out["first_damage_strain"] = strain_of_frame[k] if strain_of_frame is not None else None
+    mu_last = dd.mu_fn[-1][sel]
+    dmg = np.nonzero(mu_last > 0)[0]
+    s_last, z_last = unroll(dd.x_last_nc[sel], dd.x_last_nc[sel][:, :2].mean(axis=0),
+                            radius=res["stress_convention"]["radius_A"])
+    vac_sz = None
+    if len(vac_idx):
+        vs, vz = s_last[vac_idx], z_last[vac_idx]
+        vac_sz = (float(vs.mean()), float(vz.mean()))
+        out["vacancy_sz_final_A"] = list(vac_sz)
+    if dd.first_damage_frame is not None:
+        # where the first broken bonds are, relative to the vacancy, in the first damaged frame
+        u = _frame_positions(dump, dd.first_damage_frame)[sel]
+        s1, z1 = unroll(u, u[:, :2].mean(axis=0), radius=res["stress_convention"]["radius_A"])
+        first = np.nonzero(dd.mu_fn[dd.first_damage_frame][sel] > 0)[0]
+        if len(first):
+            cs, cz = float(s1[first].mean()), float(z1[first].mean())
+            out["crack_start_sz_A"] = [cs, cz]
+            if len(vac_idx):
+                vs1, vz1 = float(s1[vac_idx].mean()), float(z1[vac_idx].mean())
+                out["crack_start_distance_to_vacancy_A"] = float(np.hypot(cs - vs1, cz - vz1))
+            else:
+                out["crack_start_distance_to_vacancy_A"] = None
+    line = None
+    if len(dmg) >= 2:
+        line = crack_line(s_last[dmg], z_last[dmg], weights=mu_last[dmg])
+        out["crack_line_final"] = line
+        out["crack_angle_to_axis_deg"] = line["angle_to_axis_deg"]
+    if plot_path is not None:
+        chi = res["structure"]["chirality"]
+        title = (f"{res['protocol']} ({chi[0]},{chi[1]})"
+                 f"{' vacancy' if res['structure']['vacancy'] else ' pristine'}"
+                 f"{' bundle, central tube' if ntubes > 1 else ''}: last frame")
+        plot_damage_map(s_last, z_last, mu_last, plot_path, title=title, vacancy_sz=vac_sz,
+                        line=line)
+        out["damage_map_png"] = str(Path(plot_path).relative_to(REPO)) \
+            if str(plot_path).startswith(str(REPO)) else str(plot_path)
+    res["damage"] = out
+    return res
+
+
+def _lz_first(dump):
+    from upscale.analysis.damage import read_dump  # noqa: PLC0415
+
+    u = read_dump(dump)
+    return float(u.trajectory[0].dimensions[2])
+
+
+def _frame_positions(dump, k):
+    from upscale.analysis.damage import read_dump  # noqa: PLC0415
+
+    u = read_dump(dump)
+    u.trajectory[k]
+    return u.atoms.positions.astype(float)
+
+
+def _frame_strains(res, frames):
+    c = res["curve"]
+    if res["protocol"] == "quasi-static":
+        st = c["strain"]
+        return [float(v) for v in st[:frames]]
+    pd = res["protocol_detail"]
+    rate = pd["strain_rate_per_ps"]
+    dt = pd["timestep_ps"] * pd["dump_every_steps"]
+    return [float(rate * k * dt) for k in range(frames)]
+
+
+def _summary_row(res):
+    d = res.get("damage", {})
+    return {"name": res["name"], "strength_GPa": res["strength_GPa"],
+            "strain_at_peak": res["strain_at_peak"],
+            "failure_strain": res["failure_strain"] if res["failure_strain"] is not None else "-",
+            "E_TPa": res["youngs_modulus_TPa"],
+            "crack_deg": d.get("crack_angle_to_axis_deg", "-"),
+            "start_to_vac_A": d.get("crack_start_distance_to_vacancy_A", "-"),
+            "wall_s": res["wall_s"]}
+
+
+def _key_figures(res):
+    out = {k: res[k] for k in ("strength_GPa", "strain_at_peak", "failure_strain",
+                               "youngs_modulus_TPa", "wall_s", "failed", "rise_after_plateau")}
+    out["zero_strain_stress_GPa"] = res.get("zero_strain_stress_GPa",
+                                            res["relaxation"]["stress_GPa"])
+    d = res.get("damage", {})
+    for k in ("crack_angle_to_axis_deg", "crack_start_distance_to_vacancy_A",
+              "first_damage_strain"):
+        if k in d:
+            out[k] = d[k]
+    return out
+
+
+def _add_common(p):
+    p.add_argument("--potential", default="tersoff:BNC.tersoff",
+                   help="tersoff:FILE, a .tersoff path, rebo or airebo (default %(default)s)")
+    p.add_argument("--cutoff", choices=("step", "standard"), default="step",
+                   help="step (strength tests, default) or the potential's standard switching")
+    p.add_argument("--dump-dir", type=Path, default=None,
+                   help="where LAMMPS dumps go (default ~/.cache/upscale/dumps)")
+
+
+def _args_tension(p):
+    p.add_argument("--chirality", type=_parse_chirality, default=(10, 10), help="N,M")
+    p.add_argument("--vacancy", action="store_true", help="4-atom vacancy at the seed's point")
+    p.add_argument("--dynamic", action="store_true", help="grips at constant speed (else "
+                   "quasi-static periodic)")
+    p.add_argument("--length", type=float, default=None,
+                   help=f"tube length, Å (default {QS_LENGTH:g} quasi-static, {DYN_LENGTH:g} "
+                   "dynamic; rounded to whole unit cells)")
+    p.add_argument("--bundle", type=int, default=1, metavar="NTUBES",
+                   help="number of tubes (7 = hexagonal bundle); default 1")
+    p.add_argument("--strain-step", type=float, default=0.005)
+    p.add_argument("--grip", type=float, default=50.0, help="grip length, Å")
+    p.add_argument("--speed", type=float, default=1.0, help="speed of each grip, Å/ps")
+    p.add_argument("--temperature", type=float, default=10.0, help="K (dynamic)")
+    p.add_argument("--save-reference", action="store_true",
+                   help="also write the JSON (and damage map) into data/reference/")
+    _add_common(p)
+
+
+@case("reference-tension", "one LAMMPS tension reference (tube or bundle; quasi-static or "
+      "dynamic), with damage analysis", add_arguments=_args_tension)
+def run_reference_tension(args):
+    from upscale.io import write_json  # noqa: PLC0415
+
+    n, m = args.chirality
+    dynamic = args.dynamic
+    length = args.length or (DYN_LENGTH if dynamic else QS_LENGTH)
+    kw = {}
+    if args.quick:
+        length = args.length or (60.0 if dynamic else 30.0)
+    if dynamic:
+        kw.update(grip=args.grip if not args.quick else min(args.grip, 15.0), speed=args.speed,
+                  temperature=args.temperature)
+    else:
+        kw.update(strain_step=args.strain_step if not args.quick else 0.02)
+    spec = _spec("dynamic" if dynamic else "quasi-static", n, m, args.vacancy, length,
+                 ntubes=args.bundle)
+    res = run_spec(spec, args.potential, args.cutoff, args.dump_dir, **kw)
+    outdir = REF_DIR if args.save_reference else args.outdir
+    plot = (PLOT_DIR if args.save_reference else args.outdir) / f"damage_{spec['name']}.png"
+    res = analyse(res, plot_path=plot)
+    write_json(Path(outdir) / f"{spec['name']}.json", res)
+    print(table([_summary_row(res)]))
+    out = _key_figures(res)
+    out["pass"] = bool(abs(out["zero_strain_stress_GPa"]) < 0.05 and res["strength_GPa"] > 0)
+    return out
+
+
+def _args_refs(p):
+    p.add_argument("--only", default=None, help="comma-separated names (e.g. qs_10-10_vac4)")
+    p.add_argument("--skip-existing", action="store_true",
+                   help="keep JSONs already in data/reference/ (only redo plots)")
+    p.add_argument("--plots-only", action="store_true", help="no LAMMPS runs, replot only")
+    _add_common(p)
+
+
+def write_readme(results):
+    from upscale.io import atomic_write_text  # noqa: PLC0415
+
+    rows = [_summary_row(r) for r in results]
+    lines = [
+        "# LAMMPS tension references (issue #4)",
+        "",
+        "Generated by `python -m validation references` (validation/cases/references.py,",
+        "runners in validation/lammps/). Do not edit by hand: rerun the command.",
+        "",
+        "* Source: LAMMPS through its Python module (`potentials.lammps_runtime`); version, ",
+        "  potential file name and sha256, protocol and date are inside every JSON.",
+        "* Potential: `BNC.tersoff` (Lindsay & Broido C-C parameters) with the step cutoff",
+        "  (switching region narrowed to D = 1e-5 Å at the outer cutoff R + D = 2.1 Å, written",
+        "  by `potentials.tersoff.write_step_cutoff_file`).",
+        "* Stress: wall-thickness convention, area ntubes * 2 pi R t, t = 3.4 Å, R the mean",
+        "  radius of the relaxed tube; quasi-static stress = -pzz V / (2 pi R t L); dynamic",
+        "  stress = mean grip reaction force / area.",
+        "* Every test starts from the structure relaxed to zero axial stress (atoms and axial",
+        "  cell length, `fix box/relax z 0`); strain is measured from that length.",
+        "* Quasi-static: periodic tubes of ~100 Å (whole unit cells), 0.5 % strain steps, CG",
+        "  minimisation at fixed cell after each step.",
+        "* Dynamic: open tubes of ~150 Å, 50 Å end grips moved apart at 1 Å/ps each, 1 fs",
+        "  time step, Nose-Hoover 10 K on the free part (temperature from vx, vy), strain =",
+        "  grip separation change / initial free length. Bundle: 7 (10,10) tubes, walls 3.4 Å",
+        "  apart, Tersoff within tubes + LJ (epsilon 2.84 meV, sigma 3.4 Å, cut 10.2 Å;",
+        "  Girifalco, Hodak & Lee PRB 62, 13104 (2000)) between tubes, vacancy in the centre.",
+        "* Young's modulus: least-squares slope over 0-2 % strain. Strength: maximum stress",
+        "  before the first drop of more than 5 %. Damage index mu = 1 - R/T (seed 004",
+        "  eq. 5.16): bonds < 2.0 Å in the first frame, broken beyond 2.1 Å. Crack angle:",
+        "  principal axis of the damaged atoms of tube 1 on the unrolled surface (R theta, z)",
+        "  in the last frame, 90 deg = perpendicular to the axis.",
+        "* Trajectories (LAMMPS dumps) are kept outside the repository",
+        "  (~/.cache/upscale/dumps/).",
+        "",
+        "## Results",
+        "",
+        "```",
+        table(rows),
+        "```",
+        "",
+        "Plots: `plots/stress_strain_*.png` (overlays), `plots/damage_*.png` (damage maps).",
+        "",
+    ]
+    atomic_write_text(REF_DIR / "README.md", "\n".join(lines))
+
+
+def make_overlays(results):
+    from upscale.analysis.plots import plot_stress_strain  # noqa: PLC0415
+
+    paths = []
+    for proto, tag in (("quasi-static", "qs"), ("dynamic", "dyn")):
+        sel = [dict(r, label=r["name"]) for r in results
+               if r["protocol"] == proto and r["structure"]["ntubes"] == 1]
+        if sel:
+            p = PLOT_DIR / f"stress_strain_{tag}.png"
+            plot_stress_strain(sel, p, title=f"LAMMPS BNC.tersoff (step cutoff), {proto}")
+            paths.append(p)
+    b = [dict(r, label=r["name"]) for r in results
+         if r["structure"]["chirality"] == [10, 10] and r["protocol"] == "dynamic"]
+    if any(r["structure"]["ntubes"] > 1 for r in b):
+        p = PLOT_DIR / "stress_strain_bundle.png"
+        plot_stress_strain(b, p, title="(10,10): 7-tube bundle vs single tube, dynamic")
+        paths.append(p)
+    return paths
+
+
+@case("references", "regenerate every kept LAMMPS tension reference in data/reference/ "
+      "with damage maps and stress-strain overlays", add_arguments=_args_refs)
+def run_references(args):
+    from tqdm import tqdm  # noqa: PLC0415
+
+    from upscale.io import write_json  # noqa: PLC0415
+
+    specs = REFERENCE_SET
+    if args.quick:  # a reduced set: one short quasi-static tube, into the outdir
+        res = run_spec(_spec("quasi-static", 10, 10, True, 30.0), args.potential, args.cutoff,
+                       args.dump_dir, strain_step=0.02)
+        res = analyse(res, plot_path=Path(args.outdir) / "damage_quick.png")
+        write_json(Path(args.outdir) / "quick.json", res)
+        print(table([_summary_row(res)]))
+        return {"n_runs": 1, "pass": bool(res["strength_GPa"] > 0)}
+    if args.only:
+        names = set(args.only.split(","))
+        unknown = names - {s["name"] for s in specs}
+        if unknown:
+            raise SystemExit(f"--only: unknown {sorted(unknown)}; valid: "
+                             f"{', '.join(s['name'] for s in specs)}")
+        specs = [s for s in specs if s["name"] in names]
+    results = []
+    for spec in tqdm(specs, desc="references", unit="run"):
+        path = REF_DIR / f"{spec['name']}.json"
+        if (args.skip_existing or args.plots_only) and path.is_file():
+            res = json.loads(path.read_text())
+            if args.plots_only:
+                res = analyse(res, plot_path=PLOT_DIR / f"damage_{spec['name']}.png")
+                write_json(path, res)
+            results.append(res)
+            continue
+        if args.plots_only:
+            continue
+        res = run_spec(spec, args.potential, args.cutoff, args.dump_dir)
+        res = analyse(res, plot_path=PLOT_DIR / f"damage_{spec['name']}.png")
+        write_json(path, res)
+        results.append(res)
+    # overlays and README over everything kept (not only this invocation's runs)
+    kept = [json.loads((REF_DIR / f"{s['name']}.json").read_text()) for s in REFERENCE_SET
+            if (REF_DIR / f"{s['name']}.json").is_file()]
+    make_overlays(kept)
+    write_readme(kept)
+    print(table([_summary_row(r) for r in kept]))
+    return {"n_runs": len(results), "n_kept": len(kept),
+            "total_wall_s": float(sum(r["wall_s"] for r in kept)),
+            "pass": len(kept) == len(REFERENCE_SET)}

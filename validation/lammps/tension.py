@@ -1,0 +1,508 @@
+"""LAMMPS tension tests of tubes and bundles (quasi-static and dynamic), through its Python module.
+
+Protocols (units ``metal``: Å, eV, ps, bar; stress in GPa with the wall-thickness convention
+of :mod:`upscale.analysis.stress`):
+
+Zero-stress relaxation (every test starts from it)
+    The periodic structure (cell along z, vacuum around) is minimised with
+    ``fix box/relax z 0.0`` (conjugate gradients, atoms and the axial cell length), twice (the
+    box/relax reference changes), then once more at fixed box. The relaxed axial length is
+    L0 and all strains are measured from it. R for the area is the mean distance of the atoms
+    of tube 1 from its axis after this relaxation.
+
+Quasi-static tension (periodic tube or bundle)
+    Axial strain eps_k = k * step (default 0.5%): the cell is set to ``L0 (1 + eps_k)`` with
+    the atoms mapped affinely (``change_box ... remap``), then the energy is minimised at fixed
+    cell (CG, ``etol 0``, ``ftol`` 1e-8 eV/Å by default; if the largest force component is
+    still above 1e-4 eV/Å, FIRE with at most 0.02 Å per iteration, then CG again, up to 5
+    times: the step cutoff makes the energy jump by ~2.4 eV when a C–C bond crosses 2.1 Å,
+    which stops CG line searches with a bond held at the step; the residual force of every
+    step is kept in the curve). The stress is
+    ``-p_zz V / (ntubes 2 pi R t L)``. The run stops two steps after failure (first drop of
+    more than 5 % below the running maximum) or at ``max_strain``.
+
+Dynamic tension (non-periodic tube or bundle, seed 004 sec. 5.3.1)
+    After the periodic relaxation the axial periodicity is removed (the tube is cut at the
+    cell boundary) and the open tube is minimised once. End grips of ``grip`` Å (default
+    50 Å) move rigidly apart at ``speed`` Å/ps each (default 1 Å/ps, i.e. 2 Å/ps relative),
+    their atoms integrated with ``fix nve`` under ``fix setforce 0 0 0``. The free part starts
+    with a linear axial velocity ramp between the grip speeds (no start-up shock) and random
+    thermal velocities at ``temperature`` (default 10 K), and runs under a Nose–Hoover
+    thermostat (``fix nvt``, damping 0.1 ps) whose temperature is measured from the x and y
+    velocity components only (``compute temp/partial 1 1 0``), so the axial stretching flow is
+    neither counted as heat nor damped. Time step 1 fs. Strain is the grip separation change
+    over the initial free length ``L0 - 2 grip``; stress is the mean of the reaction forces on
+    the two grips (the total force on each before ``setforce`` zeroes it, averaged over the
+    last 100 steps of each 100-step sample) over ``ntubes 2 pi R t``. The run stops when the
+    stress has fallen below 20 % of its maximum after failure, or at ``max_strain``.
+
+Each run returns a result dict (:func:`quasi_static_tension`, :func:`dynamic_tension`) with
+the curve, Young's modulus (fit over 0-2 % strain), strength, strain at peak, failure strain,
+LAMMPS version, potential file and checksum, protocol, date and wall time; a LAMMPS dump
+(``id type x y z``) goes to ``dump_dir`` (default ``~/.cache/upscale/dumps``, outside the
+repository).
+"""
+from __future__ import annotations
+
+import math
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+from ase import Atoms
+
+from upscale.analysis.stress import (WALL_THICKNESS, curve_metrics, stress_from_force,
+                                     stress_from_pressure)
+from validation.lammps.potential import Potential, resolve_potential
+
+__all__ = ["relax_zero_stress", "quasi_static_tension", "dynamic_tension", "default_dump_dir",
+           "CARBON_MASS"]
+
+CARBON_MASS = 12.011  # amu
+
+
+def default_dump_dir() -> Path:
+    base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "upscale" / "dumps"
+    return base
+
+
+def _check_atoms(atoms):
+    if not isinstance(atoms, Atoms) or len(atoms) == 0:
+        raise ValueError(f"atoms={type(atoms).__name__}; valid: a non-empty ase.Atoms")
+    if not atoms.pbc[2]:
+        raise ValueError("atoms.pbc[2] is False; valid: a structure periodic along z (the tube "
+                         "axis), e.g. from upscale.build.swcnt")
+    cell = atoms.cell.array
+    if abs(np.linalg.det(cell)) < 1e-9 or np.abs(cell - np.diag(np.diag(cell))).max() > 1e-9:
+        raise ValueError("atoms.cell must be orthorhombic with full rank (vacuum around the "
+                         "tube); build it with upscale.build.swcnt/bundle")
+
+
+def _types(atoms) -> np.ndarray:
+    if "mol-id" in atoms.arrays:
+        mol = np.asarray(atoms.arrays["mol-id"], dtype=int)
+        uniq = np.unique(mol)
+        return np.searchsorted(uniq, mol) + 1
+    return np.ones(len(atoms), dtype=int)
+
+
+def _mean_radius(atoms, types) -> float:
+    xc, yc = atoms.info.get("axis_xy", atoms.cell.lengths()[:2] / 2)
+    sel = types == 1
+    if "tube_centres" in atoms.info:
+        xc, yc = atoms.info["tube_centres"][0]
+    p = atoms.positions[sel]
+    # centre of the relaxed tube: mean of its atoms in x, y (it may drift slightly)
+    c = p[:, :2].mean(axis=0) if "tube_centres" not in atoms.info else np.array([xc, yc])
+    return float(np.hypot(p[:, 0] - c[0], p[:, 1] - c[1]).mean())
+
+
+def _setup(atoms, pot: Potential, boundary: str, box=None, nprocs_screen=False, log=None):
+    """A LAMMPS instance holding ``atoms`` (ids 1..N in ASE order), types per tube."""
+    from potentials.lammps_runtime import new_lammps  # noqa: PLC0415
+
+    types = _types(atoms)
+    ntypes = int(types.max())
+    lmp = new_lammps(log=log)
+    L = atoms.cell.lengths() if box is None else np.asarray(box)
+    lmp.commands_list([
+        "units metal", "atom_style atomic", "atom_modify map array sort 0 0",
+        f"boundary {boundary}",
+        f"region box block 0 {float(L[0])!r} 0 {float(L[1])!r} 0 {float(L[2])!r} units box",
+        f"create_box {ntypes} box",
+        f"mass * {CARBON_MASS}",
+    ])
+    pos = atoms.get_positions().copy()
+    if atoms.pbc[2] and "p" in boundary.split()[2]:
+        pos[:, 2] = np.mod(pos[:, 2], L[2])
+        pos[pos[:, 2] >= L[2], 2] -= L[2]
+    n = len(atoms)
+    lmp.create_atoms(n, list(range(1, n + 1)), [int(t) for t in types],
+                     pos.ravel().tolist())
+    created = int(lmp.get_natoms())
+    if created != n:
+        lmp.close()
+        raise RuntimeError(f"LAMMPS created {created} of {n} atoms (outside the box?)")
+    lmp.commands_list(pot.commands(ntypes, lj_between_types=ntypes > 1))
+    lmp.commands_list(["neighbor 1.0 bin", "neigh_modify delay 0 every 1 check yes",
+                       "thermo_style custom step pe pxx pyy pzz lx ly lz vol fmax fnorm",
+                       "thermo_modify norm no", "min_style cg"])
+    return lmp, types
+
+
+def _positions(lmp, n) -> np.ndarray:
+    x = lmp.gather_atoms("x", 1, 3)
+    return np.ctypeslib.as_array(x).reshape(n, 3).copy()
+
+
+def _thermo(lmp) -> dict:
+    return dict(lmp.last_thermo())
+
+
+def _minimize(lmp, ftol, maxiter=20000):
+    lmp.command(f"minimize 0.0 {ftol} {maxiter} {10 * maxiter}")
+
+
+def _minimize_robust(lmp, ftol, fmax_tol=1e-4, cycles=5, maxiter=20000) -> dict:
+    """CG, and while the largest force component stays above ``fmax_tol`` eV/Å, FIRE then CG.
+
+    With the step cutoff the energy jumps by ~2.4 eV when a C–C bond crosses 2.1 Å, so the
+    CG line search stops ("linesearch alpha is zero") with a stretched bond held at the step
+    and a residual force of order 1 eV/Å. FIRE (damped dynamics, force-based, every atom
+    moving at most ``dmax`` = 0.02 Å per iteration) carries such bonds over the step, as MD
+    does; CG then converges the new state. Returns the final ``fmax`` and the FIRE cycles.
+    """
+    lmp.commands_list(["min_style cg", "min_modify dmax 0.1"])
+    _minimize(lmp, ftol, maxiter)
+    th = _thermo(lmp)
+    k = 0
+    while th["Fmax"] > fmax_tol and k < cycles:
+        lmp.commands_list(["min_style fire", "min_modify dmax 0.02"])
+        _minimize(lmp, 1e-3, maxiter)
+        lmp.commands_list(["min_style cg", "min_modify dmax 0.1"])
+        _minimize(lmp, ftol, maxiter)
+        th = _thermo(lmp)
+        k += 1
+    return {"fmax_eV_per_A": float(th["Fmax"]), "fire_cycles": k}
+
+
+def _prescale(atoms, pot, ftol):
+    """Start long tubes near their relaxed shape (``box/relax`` alone needs ~1e4 CG steps).
+
+    A short pristine tube of the same chirality (>= 10 Å, whole cells) is relaxed first; the
+    structure is then scaled by its axial ratio L0/L along z and by its radial ratio
+    R_relaxed/R about each tube's centre line. Only a starting guess: the full relaxation
+    follows. Structures without ``info["chirality"]`` are returned unchanged.
+    """
+    info = atoms.info
+    if "chirality" not in info or "unit_cell_length" not in info or info.get("_prescaled"):
+        return atoms
+    from upscale.build import swcnt  # noqa: PLC0415
+
+    n, m = info["chirality"]
+    T = info["unit_cell_length"]
+    k = max(2, math.ceil(10.0 / T))
+    if k >= info.get("ncells", 0):
+        return atoms
+    probe = swcnt(n, m, k * T, bond=info.get("bond", 1.42))
+    probe.info["_prescaled"] = True
+    _, pinfo = relax_zero_stress(probe, ftol=ftol, _pot=pot)
+    rz = pinfo["L0_A"] / probe.cell[2, 2]
+    rr = pinfo["radius_relaxed_A"] / probe.info["radius"]
+    out = atoms.copy()
+    x = out.get_positions()
+    centres = np.asarray(info.get("tube_centres", [info["axis_xy"]]), dtype=float)
+    types = _types(out)
+    for t in range(1, int(types.max()) + 1):
+        sel = types == t
+        c = centres[t - 1] if len(centres) >= t else centres[0]
+        x[sel, :2] = c + (x[sel, :2] - c) * rr
+    x[:, 2] *= rz
+    cell = out.cell.lengths()
+    out.set_cell(np.diag([cell[0], cell[1], cell[2] * rz]))
+    out.set_positions(x)
+    out.info["_prescaled"] = True
+    return out
+
+
+def relax_zero_stress(atoms: Atoms, potential="tersoff:BNC.tersoff", cutoff="step",
+                      ftol: float = 1e-6, _pot: Potential | None = None):
+    """Relax atoms and the axial cell length to zero axial stress (see module docstring).
+
+    Returns
+    -------
+    relaxed : ase.Atoms
+        Copy of ``atoms`` with relaxed positions and cell ``(Lx, Ly, L0)``.
+    info : dict
+        ``L0_A``, ``radius_relaxed_A``, ``pzz_bar`` and ``stress_GPa`` after relaxation,
+        ``energy_eV``.
+    """
+    _check_atoms(atoms)
+    pot = _pot or resolve_potential(potential, cutoff)
+    atoms = _prescale(atoms, pot, ftol)
+    lmp, types = _setup(atoms, pot, "s s p")
+    try:
+        lmp.command("fix br all box/relax z 0.0 vmax 0.001")
+        _minimize(lmp, ftol)
+        _minimize(lmp, ftol)
+        lmp.command("unfix br")
+        _minimize(lmp, ftol)
+        th = _thermo(lmp)
+        x = _positions(lmp, len(atoms))
+    finally:
+        lmp.close()
+    out = atoms.copy()
+    cell = atoms.cell.lengths()  # x, y: the builder's vacuum box (LAMMPS shrink-wraps them)
+    out.set_cell(np.diag([cell[0], cell[1], th["Lz"]]))
+    out.set_positions(x)
+    R = _mean_radius(out, types)
+    ntubes = int(types.max())
+    s = float(stress_from_pressure(th["Pzz"], th["Volume"], th["Lz"], R, WALL_THICKNESS, ntubes))
+    return out, {"L0_A": float(th["Lz"]), "radius_relaxed_A": R, "pzz_bar": float(th["Pzz"]),
+                 "stress_GPa": s, "energy_eV": float(th["PotEng"])}
+
+
+def _common(atoms, pot, protocol, relax_info, types) -> dict:
+    from potentials.lammps_runtime import lammps_version  # noqa: PLC0415
+    from upscale.io import versions  # noqa: PLC0415
+
+    info = atoms.info
+    return {
+        "kind": "lammps-tension", "protocol": protocol,
+        "structure": {
+            "chirality": list(info.get("chirality", ())) or None,
+            "n_atoms": len(atoms), "ntubes": int(types.max()),
+            "length_built_A": info.get("length"), "ncells": info.get("ncells"),
+            "radius_ideal_A": info.get("radius"),
+            "vacancy": info.get("vacancy"),
+            "bundle_spacing": info.get("spacing"), "bundle_wall_gap_A": info.get("wall_gap"),
+        },
+        "relaxation": relax_info,
+        "stress_convention": {
+            "wall_thickness_A": WALL_THICKNESS,
+            "area": "ntubes * 2 pi R t, R = mean radius of tube 1 after zero-stress relaxation",
+            "radius_A": relax_info["radius_relaxed_A"]},
+        "potential": pot.provenance(),
+        "lammps_version": lammps_version(),
+        "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "versions": versions(),
+    }
+
+
+def quasi_static_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="step",
+                         strain_step: float = 0.005, max_strain: float = 0.40,
+                         ftol: float = 1e-8, fmax_tol: float = 1e-4,
+                         relax_ftol: float = 1e-6, fit_max_strain: float = 0.02,
+                         dump: str | Path | None = None, after_failure: int = 1,
+                         progress=None) -> dict:
+    """Quasi-static axial tension of a periodic tube or bundle (module docstring).
+
+    Parameters
+    ----------
+    atoms : ase.Atoms
+        Periodic along z, orthorhombic full-rank cell (from :mod:`upscale.build`).
+    potential : str
+        Spec for :func:`validation.lammps.potential.resolve_potential`.
+    cutoff : {"step", "standard"}
+    strain_step, max_strain : float
+        Strain increment and the largest strain applied (dimensionless).
+    ftol : float
+        LAMMPS minimize force tolerance (2-norm of the global force vector), eV/Å.
+    dump : path, optional
+        LAMMPS dump file (``id type x y z``), one frame per strain (the first is eps = 0).
+    progress : callable, optional
+        Called as ``progress(strain, stress_GPa)`` after each step.
+
+    Returns
+    -------
+    dict
+        Result record; ``curve`` holds ``strain``, ``stress_GPa``, ``energy_eV``, ``Lz_A``.
+    """
+    _check_atoms(atoms)
+    if not (0 < strain_step < max_strain <= 2.0):
+        raise ValueError(f"strain_step={strain_step}, max_strain={max_strain}; valid: "
+                         "0 < strain_step < max_strain <= 2")
+    t0 = time.perf_counter()
+    pot = resolve_potential(potential, cutoff)
+    relaxed, rinfo = relax_zero_stress(atoms, potential, cutoff, relax_ftol, _pot=pot)
+    L0, R = float(rinfo["L0_A"]), float(rinfo["radius_relaxed_A"])
+    lmp, types = _setup(relaxed, pot, "s s p")
+    ntubes = int(types.max())
+    strains, stresses, energies, lzs, fmaxes, fires = [], [], [], [], [], []
+    if dump is not None:
+        dump = Path(dump)
+        dump.parent.mkdir(parents=True, exist_ok=True)
+        if dump.exists():
+            dump.unlink()
+    try:
+        zlo = float(lmp.extract_box()[0][2])
+        k, failed_at = 0, None
+        while True:
+            eps = k * strain_step
+            if eps > max_strain + 1e-12:
+                break
+            lmp.command(f"change_box all z final {zlo!r} {zlo + L0 * (1.0 + eps)!r} "
+                        "remap units box")
+            mres = _minimize_robust(lmp, ftol, fmax_tol)
+            fmaxes.append(mres["fmax_eV_per_A"])
+            fires.append(mres["fire_cycles"])
+            th = _thermo(lmp)
+            s = float(stress_from_pressure(th["Pzz"], th["Volume"], th["Lz"], R,
+                                           WALL_THICKNESS, ntubes))
+            strains.append(eps)
+            stresses.append(s)
+            energies.append(th["PotEng"])
+            lzs.append(th["Lz"])
+            if dump is not None:
+                lmp.command(f"write_dump all custom {dump} id type x y z "
+                            "modify sort id append yes")
+            if progress is not None:
+                progress(eps, s)
+            if failed_at is None and s < 0.95 * max(stresses) and max(stresses) > 0:
+                failed_at = k
+            if failed_at is not None and k - failed_at >= after_failure:
+                break
+            k += 1
+    finally:
+        lmp.close()
+    res = _common(atoms, pot, "quasi-static", rinfo, types)
+    res["protocol_detail"] = {
+        "boundary": "s s p (periodic along the axis z)",
+        "relaxation": "fix box/relax z 0.0 vmax 0.001 + minimize (cg) x2, then fixed-box "
+                      f"minimize, ftol {relax_ftol} eV/A",
+        "strain_step": strain_step, "max_strain": max_strain,
+        "minimize": f"min_style cg, etol 0, ftol {ftol} eV/A, maxiter 20000; while fmax > "
+                    f"{fmax_tol} eV/A: fire (dmax 0.02 A, ftol 1e-3) then cg, at most 5 "
+                    "cycles (the step cutoff stops CG line searches at the step)",
+        "stress": "-pzz V / (ntubes 2 pi R t Lz)",
+        "after_failure_steps": after_failure}
+    res["curve"] = {"strain": strains, "stress_GPa": stresses, "energy_eV": energies,
+                    "Lz_A": lzs, "fmax_eV_per_A": fmaxes, "fire_cycles": fires}
+    res["max_residual_force_eV_per_A"] = max(fmaxes)
+    res["zero_strain_stress_GPa"] = stresses[0]
+    res.update(curve_metrics(strains, stresses, fit_max_strain=fit_max_strain))
+    res["dump"] = str(dump) if dump is not None else None
+    res["wall_s"] = time.perf_counter() - t0
+    return res
+
+
+def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="step",
+                    grip: float = 50.0, speed: float = 1.0, temperature: float = 10.0,
+                    timestep: float = 0.001, tdamp: float = 0.1, max_strain: float = 0.40,
+                    sample_every: int = 100, dump_every: int = 200,
+                    fit_max_strain: float = 0.02, dump: str | Path | None = None,
+                    seed: int = 4928459, ftol: float = 1e-6, progress=None,
+                    max_steps: int = 200000) -> dict:
+    """Dynamic tension with end grips pulled apart at constant speed (module docstring).
+
+    Parameters
+    ----------
+    grip : float
+        Axial length of each end grip, Å (``2 grip`` must leave a free part >= 10 Å).
+    speed : float
+        Speed of each grip, Å/ps (they separate at ``2 speed``).
+    temperature : float
+        Thermostat temperature of the free part, K.
+    timestep, tdamp : float
+        Time step and Nose–Hoover damping time, ps.
+    sample_every, dump_every : int
+        Steps between stress samples (each the average over its interval, sampled every 10
+        steps) and between dump frames.
+    """
+    _check_atoms(atoms)
+    for name, v in (("grip", grip), ("speed", speed), ("timestep", timestep),
+                    ("tdamp", tdamp), ("max_strain", max_strain)):
+        if not (np.isfinite(v) and v > 0):
+            raise ValueError(f"{name}={v!r}; valid: a positive number")
+    if not temperature >= 0:
+        raise ValueError(f"temperature={temperature!r} K; valid: >= 0")
+    if sample_every % 10:
+        raise ValueError(f"sample_every={sample_every}; valid: a multiple of 10")
+    t0 = time.perf_counter()
+    pot = resolve_potential(potential, cutoff)
+    relaxed, rinfo = relax_zero_stress(atoms, potential, cutoff, ftol, _pot=pot)
+    L0, R = rinfo["L0_A"], rinfo["radius_relaxed_A"]
+    free0 = L0 - 2.0 * grip
+    if free0 < 10.0:
+        raise ValueError(f"grip={grip} Å leaves a free length {free0:.2f} Å of a {L0:.2f} Å "
+                         "tube; valid: 2 grip <= L0 - 10 Å (use a longer tube)")
+    n = len(relaxed)
+    x = relaxed.get_positions()
+    x[:, 2] = np.mod(x[:, 2], L0)
+    x[x[:, 2] >= L0, 2] -= L0
+    relaxed.set_positions(x)
+    box = relaxed.cell.lengths().copy()
+    lmp, types = _setup(relaxed, pot, "s s s", box=box)
+    ntubes = int(types.max())
+    if dump is not None:
+        dump = Path(dump)
+        dump.parent.mkdir(parents=True, exist_ok=True)
+        if dump.exists():
+            dump.unlink()
+    strains, stresses, times = [], [], []
+    try:
+        # open tube: relax the cut ends once (all atoms free), then grips from the new ends
+        _minimize(lmp, ftol)
+        x = _positions(lmp, n)
+        zmin, zmax = float(x[:, 2].min()), float(x[:, 2].max())
+        zb, zt = zmin + float(grip), zmax - float(grip)
+        sep0 = zt - zb
+        v = float(speed)
+        lmp.commands_list([
+            f"region rbot block INF INF INF INF INF {zb!r} units box",
+            f"region rtop block INF INF INF INF {zt!r} INF units box",
+            "group bot region rbot", "group top region rtop",
+            "group grips union bot top", "group free subtract all grips",
+            "reset_timestep 0",
+            f"timestep {timestep}",
+            "compute tpart free temp/partial 1 1 0",
+            f"velocity free create {max(temperature, 1e-6)!r} {seed} dist gaussian mom yes "
+            "rot no temp tpart",
+            f"velocity free ramp vz {-v!r} {v!r} z {zb!r} {zt!r} sum yes units box",
+            f"velocity bot set 0 0 {-v!r} units box",
+            f"velocity top set 0 0 {v!r} units box",
+            "fix sfb bot setforce 0.0 0.0 0.0", "fix sft top setforce 0.0 0.0 0.0",
+            "fix grips grips nve",
+            f"fix nvt free nvt temp {max(temperature, 1e-6)!r} {max(temperature, 1e-6)!r} "
+            f"{tdamp!r}",
+            "fix_modify nvt temp tpart",
+            f"fix avg all ave/time 10 {sample_every // 10} {sample_every} f_sfb[3] f_sft[3]",
+            "thermo_style custom step pe ke c_tpart",
+            f"thermo {sample_every}",
+        ])
+        if dump is not None:
+            lmp.commands_list([f"dump d all custom {dump_every} {dump} id type x y z",
+                               "dump_modify d sort id"])
+        from potentials.lammps_runtime import lammps_module  # noqa: PLC0415
+
+        consts = lammps_module()
+        LMP_STYLE_GLOBAL = consts.LMP_STYLE_GLOBAL
+        LMP_TYPE_VECTOR = consts.LMP_TYPE_VECTOR
+        step = 0
+        if dump is not None:
+            lmp.command("run 0 post no")  # frame 0: the state at zero strain
+        smax = -np.inf
+        failed = False
+        while True:
+            lmp.command(f"run {sample_every} pre no post no")
+            step += sample_every
+            fb = lmp.extract_fix("avg", LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR, 0)
+            ft = lmp.extract_fix("avg", LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR, 1)
+            F = 0.5 * (fb - ft)  # tension: bottom grip pulled +z by the tube, top grip -z
+            # the sample averages the interval; assign it to the interval's mid-time
+            tmid = (step - 0.5 * sample_every) * timestep
+            eps = 2.0 * v * tmid / sep0
+            s = float(stress_from_force(F, R, WALL_THICKNESS, ntubes))
+            strains.append(eps)
+            stresses.append(s)
+            times.append(tmid)
+            smax = max(smax, s)
+            if progress is not None:
+                progress(eps, s)
+            if s < 0.95 * smax:
+                failed = True
+            if (failed and s < 0.2 * smax) or eps > max_strain or step >= max_steps:
+                break
+    finally:
+        lmp.close()
+    res = _common(atoms, pot, "dynamic", rinfo, types)
+    res["protocol_detail"] = {
+        "boundary": "s s s (open tube, cut at the periodic boundary after relaxation)",
+        "grip_A": grip, "speed_A_per_ps_each_grip": speed, "timestep_ps": timestep,
+        "thermostat": f"Nose-Hoover NVT on the free part, {temperature} K, damping {tdamp} ps, "
+                      "temperature from vx, vy only (compute temp/partial 1 1 0); grips: fix "
+                      "nve + setforce 0 (rigid, constant velocity)",
+        "initial_velocity": "linear axial ramp between the grip speeds + Gaussian thermal "
+                            f"velocities (seed {seed})",
+        "temperature_K": temperature, "gauge_length_A": sep0,
+        "strain": "(grip separation - initial) / initial free length",
+        "strain_rate_per_ps": 2 * v / sep0,
+        "stress": "mean reaction force of the two grips / (ntubes 2 pi R t), each sample "
+                  f"averaged over {sample_every} steps (every 10 steps)",
+        "dump_every_steps": dump_every}
+    res["curve"] = {"strain": strains, "stress_GPa": stresses, "time_ps": times}
+    res.update(curve_metrics(strains, stresses, fit_max_strain=fit_max_strain))
+    res["dump"] = str(dump) if dump is not None else None
+    res["wall_s"] = time.perf_counter() - t0
+    return res
