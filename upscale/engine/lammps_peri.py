@@ -13,7 +13,9 @@ fix_peri_neigh.cpp, compute_damage_atom.cpp) and how the engine matches them:
   ``|r0 - delta| <= lc/2`` (lc = lattice constant). Engine: ``partial_volume="lammps"``.
 * peri/pmb: ``f_i += -(c V_j beta s / r) (x_i - x_j)``, ``s = (r - r0)/r0`` with
   ``|r - r0| < 2.2204e-16`` taken as 0. Engine: :class:`~upscale.models.bond_based.PMB`
-  with ``c=``.
+  with ``c=``, evaluated as ``c V_j beta (1/r0 - 1/r)`` (one division less; no NEAR_ZERO
+  test, which only matters for |dr| < 2.2e-16 m, i.e. never at these scales): the two
+  agree to round-off (~1e-15 relative).
 * peri/lps: influence ``omega = 1/|xi|`` (from ``x0``); weighted volume ``m`` computed once
   from all bonds (never updated when bonds break); ``theta_i = 3/m_i sum omega r0 dr V_j
   beta`` over intact bonds; force ``(3K - 5G)(theta_i/m_i + theta_j/m_j) omega r0 +
@@ -24,6 +26,7 @@ fix_peri_neigh.cpp, compute_damage_atom.cpp) and how the engine matches them:
   DBL_MAX, so nothing breaks in the very first force evaluation of the first run.
   Engine: ``step_force`` breaks after the force, from the same positions; the first
   evaluation (at the reference state, where no stretch exceeds s00) breaks nothing either.
+  ``alpha != 0`` (s0 depending on the previous step's smallest stretch) is not implemented.
 * short-range contact: pairs closer than ``min(0.9 r0, 1.35 lc)`` repel with
   ``15 c V_j (r - d)/delta`` (pmb) or ``15 (18 K / (pi delta^4)) V_j (r - d)/delta`` (lps)
   over LAMMPS's ordinary neighbour list. Engine: :class:`LammpsContact` over a family.
