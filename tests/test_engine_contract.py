@@ -103,3 +103,37 @@ def test_registry_register_and_create():
     assert models.get("TMP-test") is Tmp
     assert "tmp-test" in models.names()
     assert isinstance(models.create("tmp-test"), Tmp)
+
+
+def test_numerical_tangent_is_symmetric_stiffness():
+    from upscale.models.bond_based import PMB
+
+    sys = square_lattice(5, 5, 1e-3)
+    fam = build_family(sys, 2.01e-3)
+    m = PMB(E=1e9)
+    m.prepare(sys, fam)
+    st = State.reference(sys.x0, fam.nb)
+    K = m.tangent(st).toarray()
+    assert np.abs(K - K.T).max() < 1e-6 * np.abs(K).max()
+    du = np.random.default_rng(0).normal(scale=1e-9, size=st.y.shape)
+    du[:, 2] = 0
+    F0 = m.residual(st)
+    st.y += du
+    dF = m.residual(st) - F0
+    np.testing.assert_allclose(-K @ du.ravel(), dF, rtol=1e-4, atol=1e-6 * np.abs(dF).max())
+
+
+def test_lps_surface_correction_option():
+    from upscale.models.state_based import LPS
+
+    sys = square_lattice(12, 12, 1e-3)
+    fam = build_family(sys, 3.015e-3)
+    st = State.reference(sys.x0, fam.nb)
+    st.y[:, 0] += 1e-3 * sys.x0[:, 1]  # simple shear
+    W = {}
+    for sc in (False, True):
+        m = LPS(E=1e9, nu=0.3, surface_correction=sc)
+        m.prepare(sys, fam)
+        W[sc] = m.energy_density(st)
+    Wb = 0.5 * (1e9 / 2.6) * 1e-6
+    assert abs(W[True][0] / Wb - 1) < abs(W[False][0] / Wb - 1)
