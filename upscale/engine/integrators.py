@@ -166,7 +166,6 @@ class AdaptiveDynamicRelaxation:
         sim.update_forces()
         F = sim.F * free
         v_half = 0.5 * dt * F / lam
-        u_prev = st.y.copy()
         F_prev = F.copy()
         res = np.inf
         it = 0
@@ -184,7 +183,6 @@ class AdaptiveDynamicRelaxation:
             c = 2.0 * np.sqrt(num / den) if den > 0 and num > 0 else 0.0
             c = min(c, 1.9 / dt)
             v_half = ((2.0 - c * dt) * v_half + 2.0 * dt * F / lam) / (2.0 + c * dt)
-            u_prev = st.y.copy()
             F_prev = F
             scale = max(float(np.linalg.norm(sim.reactions)), float(np.linalg.norm(sim.F_ext)), 1e-300)
             res = float(np.linalg.norm(F)) / scale
