@@ -263,3 +263,14 @@ def test_explicit_dynamics_on_engine_velocity_verlet():
         p = (s.mass[:, None] * sim.state.v).sum(axis=0)
         assert np.abs(p).max() < 1e-12 * np.abs(s.mass[:, None] * sim.state.v).sum()
     assert 2.5 < spread[0] / spread[1] < 5.5
+
+
+def test_continuum_calibration_matches_literature_C1C3():
+    """Ekiz, Steinmann & Javili (2022), Mech. Mater. 104417: C1 = 30 mu/(pi delta^4),
+    C2 = 0, C3 = 32 (lambda - mu)/(pi^4 delta^12) -- our independent derivation, mode C1C3."""
+    E, nu, d = 70e9, 0.33, 2.5e-3
+    lam, mu = E * nu / ((1 + nu) * (1 - 2 * nu)), E / (2 * (1 + nu))
+    C = cpd.calibrate(E, nu, d, 3, mode="C1C3")
+    assert C[0] == pytest.approx(30 * mu / (np.pi * d ** 4), rel=1e-12)
+    assert C[1] == 0.0
+    assert C[2] == pytest.approx(32 * (lam - mu) / (np.pi ** 4 * d ** 12), rel=1e-12)
