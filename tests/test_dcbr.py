@@ -151,7 +151,8 @@ def test_lattice_stability_hessian_matches_project_tersoff_forces():
     q = np.array([0.97, 0.0, 1.12, 0.002, 0.01, -0.004])
     x = ls.positions(q)
     Lz = q[2] * ls.Lz
-    H = K.piece_hessian(x, Lz, ls.owner, ls.img, ls.cand_off, ls.cand_idx, ls.p, 1e-4)
+    H = K.piece_hessian(x, Lz, ls.owner, ls.img, ls.cand_off, ls.cand_idx, ls.p, 1e-4,
+                        ls.dep_off, ls.dep_idx)
     at = Atoms("C" * len(x), positions=x + [30, 30, 0], cell=[60, 60, Lz], pbc=(False, False, True))
     at.calc = Tersoff.from_lammps("BNC.tersoff", elements=["C"], step_cutoff=True)
     for col in (0, 7, 3 * len(x) - 1):

@@ -272,6 +272,12 @@ class LatticeStability:
             off.append(len(idx))
         self.cand_off = np.array(off, np.int64)
         self.cand_idx = np.array(idx, np.int64)
+        deps = [{i} for i in range(nat)]  # sites whose energy depends on atom i
+        for j in range(nat):
+            for e in self.cand_idx[self.cand_off[j]:self.cand_off[j + 1]]:
+                deps[self.owner[e]].add(j)
+        self.dep_off = np.cumsum([0] + [len(d) for d in deps]).astype(np.int64)
+        self.dep_idx = np.array([j for d in deps for j in sorted(d)], np.int64)
         self._cache: dict = {}
 
     def positions(self, q):
@@ -288,7 +294,7 @@ class LatticeStability:
         x = self.positions(q)
         n = len(x)
         H = K.piece_hessian(x, q[2] * self.Lz, self.owner, self.img, self.cand_off,
-                            self.cand_idx, self.p, h)
+                            self.cand_idx, self.p, h, self.dep_off, self.dep_idx)
         U = np.zeros((3 * n, 4))  # zero modes: translations, rotation about the axis
         for c in range(3):
             U[c::3, c] = 1.0

@@ -406,9 +406,36 @@ def _piece_grad(x, Lz, owner, img, cand_off, cand_idx, p, ext, gext, g):
 
 
 @numba.njit(cache=True)
-def piece_hessian(x, Lz, owner, img, cand_off, cand_idx, p, h):
+def _sites_grad(x, Lz, owner, img, cand_off, cand_idx, p, sites, ext, gext, g):
+    """Gradient (n, 3) of the sum of the site energies of ``sites`` only."""
+    for e in range(ext.shape[0]):
+        o = owner[e]
+        ext[e, 0] = x[o, 0]
+        ext[e, 1] = x[o, 1]
+        ext[e, 2] = x[o, 2] + img[e] * Lz
+        gext[e, 0] = 0.0
+        gext[e, 1] = 0.0
+        gext[e, 2] = 0.0
+    for a in range(sites.shape[0]):
+        i = sites[a]
+        site_energy_grad(ext, i, cand_idx[cand_off[i]:cand_off[i + 1]], p, gext)
+    for i in range(g.shape[0]):
+        g[i, 0] = 0.0
+        g[i, 1] = 0.0
+        g[i, 2] = 0.0
+    for e in range(ext.shape[0]):
+        o = owner[e]
+        g[o, 0] += gext[e, 0]
+        g[o, 1] += gext[e, 1]
+        g[o, 2] += gext[e, 2]
+
+
+@numba.njit(cache=True)
+def piece_hessian(x, Lz, owner, img, cand_off, cand_idx, p, h, dep_off, dep_idx):
     """Hessian (3n, 3n) of the periodic piece's energy by central differences of the
-    analytic gradient (step h, Å), symmetrised."""
+    analytic gradient (step h, Å), symmetrised. Perturbing atom i changes only the site
+    energies dep_idx[dep_off[i]:dep_off[i+1]] (i itself and the sites that list i or one of
+    its images as a candidate), so only those are differenced."""
     n = x.shape[0]
     ne = owner.shape[0]
     ext = np.empty((ne, 3))
@@ -418,11 +445,12 @@ def piece_hessian(x, Lz, owner, img, cand_off, cand_idx, p, h):
     H = np.empty((3 * n, 3 * n))
     xx = x.copy()
     for i in range(n):
+        sites = dep_idx[dep_off[i]:dep_off[i + 1]]
         for c in range(3):
             xx[i, c] = x[i, c] + h
-            _piece_grad(xx, Lz, owner, img, cand_off, cand_idx, p, ext, gext, gp)
+            _sites_grad(xx, Lz, owner, img, cand_off, cand_idx, p, sites, ext, gext, gp)
             xx[i, c] = x[i, c] - h
-            _piece_grad(xx, Lz, owner, img, cand_off, cand_idx, p, ext, gext, gm)
+            _sites_grad(xx, Lz, owner, img, cand_off, cand_idx, p, sites, ext, gext, gm)
             xx[i, c] = x[i, c]
             row = 3 * i + c
             for j in range(n):
