@@ -424,3 +424,122 @@ def run_references(args):
     return {"n_runs": len(results), "n_kept": len(kept),
             "total_wall_s": float(sum(r["wall_s"] for r in kept)),
             "pass": len(kept) == len(REFERENCE_SET)}
+
+
+# --------------------------------------------------------------------------------------
+# tersoff-chain: the project's Tersoff calculator + ASE optimiser vs the LAMMPS curve
+# --------------------------------------------------------------------------------------
+def _args_chain(p):
+    p.add_argument("--length", type=float, default=10.0,
+                   help="(10,10) tube length, Å (rounded to whole cells; default %(default)s)")
+    p.add_argument("--strain-step", type=float, default=0.01)
+    p.add_argument("--fmax", type=float, default=1e-5,
+                   help="ASE optimiser force tolerance, eV/Å (default %(default)s)")
+
+
+def ase_quasi_static(atoms, calc, strains, fmax=1e-5, progress=None):
+    """Quasi-static tension with an ASE calculator, the same protocol as LAMMPS's runner.
+
+    Zero-stress relaxation of atoms and the axial cell length (``FrechetCellFilter`` with
+    only the zz strain free, LBFGS to ``fmax``), then for each strain the cell is set to
+    ``L0 (1 + eps)`` with the atoms scaled affinely and the positions are relaxed (LBFGS,
+    ``fmax``). Stress: ``sigma_zz V / (2 pi R t L)`` with R the mean radius after the
+    zero-stress relaxation (ASE's stress is the positive-in-tension ``(1/V) dE/d eps``).
+
+    Returns
+    -------
+    dict with ``L0_A``, ``radius_A``, ``strain``, ``stress_GPa``, ``steps``.
+    """
+    from ase.filters import FrechetCellFilter  # noqa: PLC0415
+    from ase.optimize import LBFGS  # noqa: PLC0415
+
+    from upscale.analysis.stress import EV_PER_A3_IN_GPA, wall_area  # noqa: PLC0415
+
+    a = atoms.copy()
+    a.calc = calc
+    mask = [False, False, True, False, False, False]
+    opt = LBFGS(FrechetCellFilter(a, mask=mask), logfile=None)
+    opt.run(fmax=fmax, steps=20000)
+    for _ in range(3):  # box and atoms again from the new reference
+        opt = LBFGS(FrechetCellFilter(a, mask=mask), logfile=None)
+        if opt.run(fmax=fmax, steps=20000) and opt.nsteps == 0:
+            break
+    L0 = float(a.cell[2, 2])
+    xc = a.positions[:, :2].mean(axis=0)
+    R = float(np.hypot(*(a.positions[:, :2] - xc).T).mean())
+    A = wall_area(R)
+    out = {"L0_A": L0, "radius_A": R, "strain": [], "stress_GPa": [], "steps": []}
+    cell0 = a.cell.array.copy()
+    for eps in strains:
+        c = cell0.copy()
+        c[2, 2] = L0 * (1.0 + eps)
+        a.set_cell(c, scale_atoms=True)
+        opt = LBFGS(a, logfile=None)
+        opt.run(fmax=fmax, steps=20000)
+        sig = a.get_stress(voigt=True)[2]  # eV/Å^3, tension positive
+        V = a.get_volume()
+        s = sig * V / (A * a.cell[2, 2]) * EV_PER_A3_IN_GPA
+        out["strain"].append(float(eps))
+        out["stress_GPa"].append(float(s))
+        out["steps"].append(int(opt.nsteps))
+        if progress is not None:
+            progress(eps, s)
+    return out
+
+
+@case("tersoff-chain", "project Tersoff calculator + ASE optimiser vs LAMMPS quasi-static "
+      "curve of a (10,10) tube (stress within 0.1% up to the peak)", add_arguments=_args_chain)
+def run_tersoff_chain(args):
+    from tqdm import tqdm  # noqa: PLC0415
+
+    from potentials.tersoff import Tersoff  # noqa: PLC0415
+    from upscale.analysis.plots import plot_stress_strain  # noqa: PLC0415
+    from upscale.build import swcnt  # noqa: PLC0415
+    from validation.lammps.tension import quasi_static_tension  # noqa: PLC0415
+
+    step = args.strain_step if not args.quick else 0.02
+    tube = swcnt(10, 10, args.length)
+    t0 = time.perf_counter()
+    bar = tqdm(desc="LAMMPS", unit="step", leave=False)
+    lmp = quasi_static_tension(tube, "tersoff:BNC.tersoff", cutoff="step", strain_step=step,
+                               max_strain=0.40, ftol=1e-10, relax_ftol=1e-10, fmax_tol=1e-6,
+                               after_failure=1,
+                               progress=lambda e, s: (bar.update(1),
+                                                      bar.set_postfix_str(f"{s:.1f} GPa")))
+    bar.close()
+    t_lmp = time.perf_counter() - t0
+    e_l = np.array(lmp["curve"]["strain"])
+    s_l = np.array(lmp["curve"]["stress_GPa"])
+    ipk = int(np.argmax(s_l))
+    strains = e_l[: ipk + 1]
+    calc = Tersoff.from_lammps("BNC.tersoff", step_cutoff=True)
+    bar = tqdm(total=len(strains), desc="ASE", unit="step", leave=False)
+    t0 = time.perf_counter()
+    ase_res = ase_quasi_static(tube, calc, strains, fmax=args.fmax,
+                               progress=lambda e, s: bar.update(1))
+    bar.close()
+    t_ase = time.perf_counter() - t0
+    s_a = np.array(ase_res["stress_GPa"])
+    ref = s_l[: ipk + 1]
+    nz = strains > 0
+    rel = np.abs(s_a[nz] - ref[nz]) / np.abs(ref[nz])
+    rows = [{"strain": float(e), "lammps_GPa": float(r), "ase_GPa": float(a),
+             "rel_err": float(abs(a - r) / abs(r)) if e > 0 else float("nan")}
+            for e, r, a in zip(strains, ref, s_a)]
+    print(table(rows))
+    plot_stress_strain([("LAMMPS tersoff (step cutoff)", e_l, s_l),
+                        ("project Tersoff + ASE LBFGS", strains, s_a)],
+                       Path(args.outdir) / "tersoff_chain.png",
+                       title=f"(10,10), L = {tube.cell[2, 2]:.2f} Å periodic, BNC.tersoff")
+    out = {"max_stress_rel_err": float(rel.max()), "n_strains_compared": int(nz.sum()),
+           "peak_strain": float(strains[-1]), "lammps_strength_GPa": float(ref[-1]),
+           "ase_stress_at_peak_GPa": float(s_a[-1]),
+           "L0_lammps_A": lmp["relaxation"]["L0_A"], "L0_ase_A": ase_res["L0_A"],
+           "L0_rel_diff": abs(ase_res["L0_A"] - lmp["relaxation"]["L0_A"])
+           / lmp["relaxation"]["L0_A"],
+           "radius_lammps_A": lmp["relaxation"]["radius_relaxed_A"],
+           "radius_ase_A": ase_res["radius_A"],
+           "n_atoms": len(tube), "lammps_wall_s": t_lmp, "ase_wall_s": t_ase,
+           "potential_sha256": lmp["potential"]["file_sha256"]}
+    out["pass"] = bool(out["max_stress_rel_err"] < 1e-3)
+    return out

@@ -14,8 +14,8 @@ Quasi-static tension (periodic tube or bundle)
     Axial strain eps_k = k * step (default 0.5%): the cell is set to ``L0 (1 + eps_k)`` with
     the atoms mapped affinely (``change_box ... remap``), then the energy is minimised at fixed
     cell (CG, ``etol 0``, ``ftol`` 1e-8 eV/Å by default; if the largest force component is
-    still above 1e-4 eV/Å, FIRE with at most 0.02 Å per iteration, then CG again, up to 5
-    times: the step cutoff makes the energy jump by ~2.4 eV when a C–C bond crosses 2.1 Å,
+    still above 1e-4 eV/Å, FIRE with at most 0.02 Å per iteration (at most 5000 iterations),
+    then CG again, up to 3 times: the step cutoff makes the energy jump by ~2.4 eV when a C–C bond crosses 2.1 Å,
     which stops CG line searches with a bond held at the step; the residual force of every
     step is kept in the curve). The stress is
     ``-p_zz V / (ntubes 2 pi R t L)``. The run stops two steps after failure (first drop of
@@ -144,7 +144,8 @@ def _minimize(lmp, ftol, maxiter=20000):
     lmp.command(f"minimize 0.0 {ftol} {maxiter} {10 * maxiter}")
 
 
-def _minimize_robust(lmp, ftol, fmax_tol=1e-4, cycles=5, maxiter=20000) -> dict:
+def _minimize_robust(lmp, ftol, fmax_tol=1e-4, cycles=3, maxiter=20000,
+                     fire_maxiter=5000) -> dict:
     """CG, and while the largest force component stays above ``fmax_tol`` eV/Å, FIRE then CG.
 
     With the step cutoff the energy jumps by ~2.4 eV when a C–C bond crosses 2.1 Å, so the
@@ -159,7 +160,7 @@ def _minimize_robust(lmp, ftol, fmax_tol=1e-4, cycles=5, maxiter=20000) -> dict:
     k = 0
     while th["Fmax"] > fmax_tol and k < cycles:
         lmp.commands_list(["min_style fire", "min_modify dmax 0.02"])
-        _minimize(lmp, 1e-3, maxiter)
+        _minimize(lmp, 1e-3, fire_maxiter)
         lmp.commands_list(["min_style cg", "min_modify dmax 0.1"])
         _minimize(lmp, ftol, maxiter)
         th = _thermo(lmp)
@@ -317,14 +318,20 @@ def quasi_static_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
             dump.unlink()
     try:
         zlo = float(lmp.extract_box()[0][2])
-        k, failed_at = 0, None
+        k, failed_at, aborted = 0, None, None
         while True:
             eps = k * strain_step
             if eps > max_strain + 1e-12:
                 break
             lmp.command(f"change_box all z final {zlo!r} {zlo + L0 * (1.0 + eps)!r} "
                         "remap units box")
-            mres = _minimize_robust(lmp, ftol, fmax_tol)
+            try:
+                mres = _minimize_robust(lmp, ftol, fmax_tol)
+            except Exception as exc:  # LAMMPS error inside a failing step (e.g. lost atoms)
+                if failed_at is None and not stresses:
+                    raise
+                aborted = {"strain": eps, "error": str(exc).splitlines()[0]}
+                break
             fmaxes.append(mres["fmax_eV_per_A"])
             fires.append(mres["fire_cycles"])
             th = _thermo(lmp)
@@ -353,15 +360,19 @@ def quasi_static_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
                       f"minimize, ftol {relax_ftol} eV/A",
         "strain_step": strain_step, "max_strain": max_strain,
         "minimize": f"min_style cg, etol 0, ftol {ftol} eV/A, maxiter 20000; while fmax > "
-                    f"{fmax_tol} eV/A: fire (dmax 0.02 A, ftol 1e-3) then cg, at most 5 "
+                    f"{fmax_tol} eV/A: fire (dmax 0.02 A, ftol 1e-3, <= 5000 iterations) then cg, at most 3 "
                     "cycles (the step cutoff stops CG line searches at the step)",
         "stress": "-pzz V / (ntubes 2 pi R t Lz)",
         "after_failure_steps": after_failure}
     res["curve"] = {"strain": strains, "stress_GPa": stresses, "energy_eV": energies,
                     "Lz_A": lzs, "fmax_eV_per_A": fmaxes, "fire_cycles": fires}
     res["max_residual_force_eV_per_A"] = max(fmaxes)
+    res["aborted"] = aborted  # a LAMMPS error in a step after the peak ends the curve there
     res["zero_strain_stress_GPa"] = stresses[0]
     res.update(curve_metrics(strains, stresses, fit_max_strain=fit_max_strain))
+    if aborted is not None and not res["failed"]:
+        res.update(failed=True, failure_strain=aborted["strain"],
+                   failure_note="LAMMPS stopped with an error inside this strain step")
     res["dump"] = str(dump) if dump is not None else None
     res["wall_s"] = time.perf_counter() - t0
     return res
@@ -460,8 +471,8 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
         LMP_STYLE_GLOBAL = consts.LMP_STYLE_GLOBAL
         LMP_TYPE_VECTOR = consts.LMP_TYPE_VECTOR
         step = 0
-        if dump is not None:
-            lmp.command("run 0 post no")  # frame 0: the state at zero strain
+        # setup run (later runs skip setup with "pre no"); also dump frame 0 at zero strain
+        lmp.command("run 0 post no")
         smax = -np.inf
         failed = False
         while True:

@@ -1,0 +1,138 @@
+"""LAMMPS tension runners: tiny runs, consistency of the result record, bad input."""
+import json
+import math
+
+import numpy as np
+import pytest
+
+from potentials import lammps_runtime
+from upscale.build import swcnt
+from upscale.io import write_json
+
+pytestmark = pytest.mark.lammps
+
+
+@pytest.fixture(scope="module")
+def qs_result():
+    from validation.lammps.tension import quasi_static_tension
+
+    tube = swcnt(10, 10, 10.0)  # 4 unit cells, 160 atoms
+    return quasi_static_tension(tube, "tersoff:BNC.tersoff", strain_step=0.01, max_strain=0.03,
+                                ftol=1e-10, relax_ftol=1e-10)
+
+
+def test_quasi_static_record_is_consistent(qs_result, tmp_path):
+    res = qs_result
+    p = write_json(tmp_path / "r.json", res)
+    back = json.loads(p.read_text())
+    c = back["curve"]
+    assert c["strain"] == pytest.approx([0.0, 0.01, 0.02, 0.03])
+    assert len(c["stress_GPa"]) == len(c["energy_eV"]) == len(c["Lz_A"]) == 4
+    # relaxed to zero axial stress: ~0 at zero strain (a 100 GPa scale curve)
+    assert abs(back["zero_strain_stress_GPa"]) < 1e-3
+    assert np.all(np.diff(c["stress_GPa"]) > 0)
+    L0 = back["relaxation"]["L0_A"]
+    assert np.allclose(c["Lz_A"], L0 * (1 + np.array(c["strain"])), rtol=1e-9)
+    # provenance: the step-cutoff file and its checksum, the LAMMPS version
+    pot = back["potential"]
+    assert pot["cutoff"] == "step" and pot["source_file"] == "BNC.tersoff"
+    from validation.lammps.potential import cache_dir
+    f = cache_dir() / "potentials" / pot["file"]
+    assert lammps_runtime.file_sha256(f) == pot["file_sha256"]
+    assert back["lammps_version"] == lammps_runtime.lammps_version()
+    assert back["stress_convention"]["wall_thickness_A"] == 3.4
+    for k in ("youngs_modulus_TPa", "strength_GPa", "strain_at_peak", "failure_strain",
+              "wall_s", "date_utc"):
+        assert k in back
+    assert 0.7 < back["youngs_modulus_TPa"] < 1.3  # graphene-like wall, t = 3.4 Å
+
+
+def test_virial_stress_equals_energy_derivative(qs_result):
+    """sigma = -pzz V / (2 pi R t L) must equal (1/A) dE/dL from the minimised energies."""
+    c = qs_result["curve"]
+    R = qs_result["stress_convention"]["radius_A"]
+    A = 2 * math.pi * R * 3.4
+    E, L, s = (np.array(c[k]) for k in ("energy_eV", "Lz_A", "stress_GPa"))
+    # the secant dE/dL over an interval is the mean stress over it (times A); the trapezoid
+    # mean of the end stresses differs from it by -(1/12) of the second difference
+    s_fd = np.diff(E) / np.diff(L) / A * 160.21766208
+    d2 = s[:-2] - 2 * s[1:-1] + s[2:]
+    d2 = np.concatenate([d2[:1], d2])  # one per interval (nearest interior estimate)
+    s_mean = 0.5 * (s[1:] + s[:-1]) - d2 / 12.0
+    assert np.allclose(s_fd, s_mean, rtol=1e-3)
+    # and the plain trapezoid is already within 1 %
+    assert np.allclose(s_fd, 0.5 * (s[1:] + s[:-1]), rtol=1e-2)
+
+
+def test_step_cutoff_file_keeps_outer_cutoff():
+    from validation.lammps.potential import _write_step_tersoff, resolve_potential
+
+    pot = resolve_potential("BNC.tersoff", cutoff="step")
+    std = resolve_potential("BNC.tersoff", cutoff="standard")
+
+    def entries(path):
+        words, out = [], []
+        for line in open(path):
+            words += line.split("#", 1)[0].split()
+            if len(words) == 17:
+                out.append(words)
+                words = []
+        return out
+
+    a, b = entries(std.file), entries(pot.file)
+    assert len(a) == len(b) > 0
+    for ea, eb in zip(a, b):
+        assert ea[:3] == eb[:3]
+        assert float(eb[14]) == pytest.approx(1e-5)
+        assert float(eb[13]) + float(eb[14]) == pytest.approx(float(ea[13]) + float(ea[14]),
+                                                               abs=1e-12)
+    # the private fallback writes the same numbers as the file in use
+    import tempfile
+    from pathlib import Path
+    with tempfile.TemporaryDirectory() as d:
+        c = entries(_write_step_tersoff(std.file, Path(d) / "x.tersoff"))
+    assert np.allclose([[float(v) for v in e[3:]] for e in c],
+                       [[float(v) for v in e[3:]] for e in b], rtol=1e-15, atol=0)
+
+
+def test_dynamic_tiny_run_pulls_in_tension():
+    from validation.lammps.tension import dynamic_tension
+
+    tube = swcnt(5, 5, 40.0)
+    res = dynamic_tension(tube, "tersoff:BNC.tersoff", grip=12.0, speed=1.0, temperature=1.0,
+                          max_strain=0.02, sample_every=50)
+    e = np.array(res["curve"]["strain"])
+    s = np.array(res["curve"]["stress_GPa"])
+    assert len(e) >= 3 and np.all(np.diff(e) > 0)
+    assert s[-1] > 5.0  # tensile reaction on the grips at ~2 % strain
+    assert res["protocol_detail"]["timestep_ps"] == 0.001
+
+
+def test_bad_input_one_line_errors(monkeypatch):
+    from validation.lammps.potential import resolve_potential
+    from validation.lammps.tension import quasi_static_tension
+
+    with pytest.raises(FileNotFoundError, match="does not exist") as ei:
+        resolve_potential("tersoff:NoSuch.tersoff")
+    assert "\n" not in str(ei.value)
+    with pytest.raises(FileNotFoundError, match="does not exist"):
+        resolve_potential("/no/such/dir/C.tersoff")
+    with pytest.raises(ValueError, match="step cutoff"):
+        resolve_potential("rebo", cutoff="step")
+    with pytest.raises(ValueError, match="cutoff"):
+        resolve_potential("BNC.tersoff", cutoff="smooth")
+    tube = swcnt(10, 10, 10.0)
+    flat = tube.copy()
+    flat.pbc = False
+    with pytest.raises(ValueError, match="periodic along z"):
+        quasi_static_tension(flat)
+    with pytest.raises(ValueError, match="strain_step"):
+        quasi_static_tension(tube, strain_step=0.0)
+
+    def unavailable(*a, **k):
+        raise lammps_runtime.LammpsUnavailable("LAMMPS is not importable (ImportError: test)")
+
+    monkeypatch.setattr(lammps_runtime, "new_lammps", unavailable)
+    with pytest.raises(lammps_runtime.LammpsUnavailable, match="not importable") as ei:
+        quasi_static_tension(tube)
+    assert "\n" not in str(ei.value)
