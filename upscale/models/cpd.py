@@ -452,6 +452,17 @@ def _scatter(data, loc, M, ids, nv, H, dim):
 
 
 @numba.njit(cache=True)
+def _flush(data, loc, Lb, M, dim):
+    """Add the per-centre block buffer ``Lb`` (M*M, 3, 3) to the global block data."""
+    for k in range(M * M):
+        blk = data[loc[k]]
+        src = Lb[k]
+        for s in range(dim):
+            for t in range(dim):
+                blk[s, t] += src[s, t]
+
+
+@numba.njit(cache=True)
 def _pair_tangent(y, offsets, neighbors, length, q_b, w_n, C1, intact_b, indptr, indices, data, dim):
     n = offsets.shape[0] - 1
     loc = np.empty(0, np.int64)
@@ -501,6 +512,8 @@ def _triplet_tangent(y, offsets, neighbors, q_b, t_off, sj, sk, A_t, w_n, C2, in
                      indptr, indices, data, dim):
     n = offsets.shape[0] - 1
     loc = np.empty(0, np.int64)
+    Lb = np.zeros((0, 3, 3))          # per-centre dense block buffer (cache friendly)
+    ident = np.arange(0)
     H = np.zeros((6, 6))
     J = np.zeros((3, 6))     # da/d(xi_j, xi_k)
     PJ = np.zeros((3, 6))
@@ -518,6 +531,11 @@ def _triplet_tangent(y, offsets, neighbors, q_b, t_off, sj, sk, A_t, w_n, C2, in
         if loc.shape[0] < M * M:
             loc = np.empty(M * M, np.int64)
         _local_table(c, offsets, neighbors, indptr, indices, loc)
+        if Lb.shape[0] < M * M:
+            Lb = np.zeros((M * M, 3, 3))
+            ident = np.arange(M * M)
+        else:
+            Lb[:M * M] = 0.0
         for t in range(t_off[c], t_off[c + 1]):
             if not intact_t[t]:
                 continue
@@ -557,7 +575,8 @@ def _triplet_tangent(y, offsets, neighbors, q_b, t_off, sj, sk, A_t, w_n, C2, in
                     H[3 + a, b] = H[b, 3 + a]
             ids[0] = sj[t] + 1
             ids[1] = sk[t] + 1
-            _scatter(data, loc, M, ids, 2, H, dim)
+            _scatter(Lb, ident, M, ids, 2, H, dim)
+        _flush(data, loc, Lb, M, dim)
 
 
 @numba.njit(cache=True)
@@ -565,6 +584,8 @@ def _quad_tangent(y, offsets, neighbors, q_b, q_off, sj, sk, sl, V_q, w_n, C3, i
                   indptr, indices, data, dim):
     n = offsets.shape[0] - 1
     loc = np.empty(0, np.int64)
+    Lb = np.zeros((0, 3, 3))
+    ident = np.arange(0)
     H = np.zeros((9, 9))
     g = np.zeros(9)
     ids = np.zeros(3, np.int64)
@@ -582,6 +603,11 @@ def _quad_tangent(y, offsets, neighbors, q_b, q_off, sj, sk, sl, V_q, w_n, C3, i
         if loc.shape[0] < M * M:
             loc = np.empty(M * M, np.int64)
         _local_table(c, offsets, neighbors, indptr, indices, loc)
+        if Lb.shape[0] < M * M:
+            Lb = np.zeros((M * M, 3, 3))
+            ident = np.arange(M * M)
+        else:
+            Lb[:M * M] = 0.0
         if xi.shape[0] < mc:
             xi = np.empty((mc, 3))
         for p in range(mc):
@@ -622,7 +648,8 @@ def _quad_tangent(y, offsets, neighbors, q_b, q_off, sj, sk, sl, V_q, w_n, C3, i
             ids[0] = p + 1
             ids[1] = q + 1
             ids[2] = r + 1
-            _scatter(data, loc, M, ids, 3, H, dim)
+            _scatter(Lb, ident, M, ids, 3, H, dim)
+        _flush(data, loc, Lb, M, dim)
 
 
 # ---------------------------------------------------------------- failure
