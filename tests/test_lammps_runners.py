@@ -108,6 +108,16 @@ def test_dynamic_tiny_run_pulls_in_tension():
     assert res["protocol_detail"]["timestep_ps"] == 0.001
 
 
+def test_two_mpi_ranks_give_the_same_curve(qs_result):
+    from validation.lammps.tension import quasi_static_tension
+
+    res = quasi_static_tension(swcnt(10, 10, 10.0), "tersoff:BNC.tersoff", strain_step=0.01,
+                               max_strain=0.03, ftol=1e-10, relax_ftol=1e-10, nprocs=2)
+    assert res["nprocs"] == 2
+    assert np.allclose(res["curve"]["stress_GPa"][1:], qs_result["curve"]["stress_GPa"][1:],
+                       rtol=1e-8)
+
+
 def test_bad_input_one_line_errors(monkeypatch):
     from validation.lammps.potential import resolve_potential
     from validation.lammps.tension import quasi_static_tension

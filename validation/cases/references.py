@@ -268,6 +268,8 @@ def _args_tension(p):
     p.add_argument("--grip", type=float, default=50.0, help="grip length, Å")
     p.add_argument("--speed", type=float, default=1.0, help="speed of each grip, Å/ps")
     p.add_argument("--temperature", type=float, default=10.0, help="K (dynamic)")
+    p.add_argument("--np", type=int, default=1, dest="nprocs",
+                   help="MPI ranks for LAMMPS (mpiexec of the mpich wheel); default 1")
     p.add_argument("--save-reference", action="store_true",
                    help="also write the JSON (and damage map) into data/reference/")
     _add_common(p)
@@ -289,6 +291,9 @@ def run_reference_tension(args):
                   temperature=args.temperature)
     else:
         kw.update(strain_step=args.strain_step if not args.quick else 0.02)
+    if args.nprocs < 1:
+        raise SystemExit(f"--np {args.nprocs}; valid: an integer >= 1")
+    kw["nprocs"] = args.nprocs
     spec = _spec("dynamic" if dynamic else "quasi-static", n, m, args.vacancy, length,
                  ntubes=args.bundle)
     res = run_spec(spec, args.potential, args.cutoff, args.dump_dir, **kw)

@@ -266,6 +266,7 @@ def _common(atoms, pot, protocol, relax_info, types) -> dict:
             "radius_A": relax_info["radius_relaxed_A"]},
         "potential": pot.provenance(),
         "lammps_version": lammps_version(),
+        "nprocs": 1,
         "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
         "versions": versions(),
     }
@@ -276,7 +277,7 @@ def quasi_static_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
                          ftol: float = 1e-8, fmax_tol: float = 1e-4,
                          relax_ftol: float = 1e-6, fit_max_strain: float = 0.02,
                          dump: str | Path | None = None, after_failure: int = 1,
-                         progress=None) -> dict:
+                         progress=None, nprocs: int = 1) -> dict:
     """Quasi-static axial tension of a periodic tube or bundle (module docstring).
 
     Parameters
@@ -304,6 +305,13 @@ def quasi_static_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
     if not (0 < strain_step < max_strain <= 2.0):
         raise ValueError(f"strain_step={strain_step}, max_strain={max_strain}; valid: "
                          "0 < strain_step < max_strain <= 2")
+    if nprocs != 1:
+        from validation.lammps.mpi import run_mpi  # noqa: PLC0415
+
+        return run_mpi("quasi_static_tension", atoms, nprocs, potential=potential,
+                       cutoff=cutoff, strain_step=strain_step, max_strain=max_strain,
+                       ftol=ftol, fmax_tol=fmax_tol, relax_ftol=relax_ftol,
+                       fit_max_strain=fit_max_strain, dump=dump, after_failure=after_failure)
     t0 = time.perf_counter()
     pot = resolve_potential(potential, cutoff)
     relaxed, rinfo = relax_zero_stress(atoms, potential, cutoff, relax_ftol, _pot=pot)
@@ -384,7 +392,7 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
                     sample_every: int = 100, dump_every: int = 200,
                     fit_max_strain: float = 0.02, dump: str | Path | None = None,
                     seed: int = 4928459, ftol: float = 1e-6, progress=None,
-                    max_steps: int = 200000) -> dict:
+                    max_steps: int = 200000, nprocs: int = 1) -> dict:
     """Dynamic tension with end grips pulled apart at constant speed (module docstring).
 
     Parameters
@@ -410,6 +418,14 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
         raise ValueError(f"temperature={temperature!r} K; valid: >= 0")
     if sample_every % 10:
         raise ValueError(f"sample_every={sample_every}; valid: a multiple of 10")
+    if nprocs != 1:
+        from validation.lammps.mpi import run_mpi  # noqa: PLC0415
+
+        return run_mpi("dynamic_tension", atoms, nprocs, potential=potential, cutoff=cutoff,
+                       grip=grip, speed=speed, temperature=temperature, timestep=timestep,
+                       tdamp=tdamp, max_strain=max_strain, sample_every=sample_every,
+                       dump_every=dump_every, fit_max_strain=fit_max_strain, dump=dump,
+                       seed=seed, ftol=ftol, max_steps=max_steps)
     t0 = time.perf_counter()
     pot = resolve_potential(potential, cutoff)
     relaxed, rinfo = relax_zero_stress(atoms, potential, cutoff, ftol, _pot=pot)
