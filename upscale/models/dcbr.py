@@ -286,30 +286,44 @@ class LatticeStability:
         th = self.theta + self.sub * ds / (lt * self.R0)
         return np.column_stack([rho * np.cos(th), rho * np.sin(th), lz * self.z + self.sub * dz])
 
-    def min_eigenvalue(self, q, h=1e-4) -> float:
-        """Smallest eigenvalue (eV/Å^2) of the projected Hessian of the mapped piece."""
-        key = tuple(np.round(np.asarray(q, float), 7))
-        if key in self._cache:
-            return self._cache[key]
+    def hessian(self, q, h=1e-4):
+        """(H, U): Hessian (3n, 3n) of the mapped piece, eV/Å^2, and its four zero modes U
+        (orthonormal columns: translations, rotation about the axis)."""
         x = self.positions(q)
         n = len(x)
         H = K.piece_hessian(x, q[2] * self.Lz, self.owner, self.img, self.cand_off,
                             self.cand_idx, self.p, h, self.dep_off, self.dep_idx)
-        U = np.zeros((3 * n, 4))  # zero modes: translations, rotation about the axis
+        U = np.zeros((3 * n, 4))
         for c in range(3):
             U[c::3, c] = 1.0
         U[0::3, 3] = -x[:, 1]
         U[1::3, 3] = x[:, 0]
         U, _ = np.linalg.qr(U)
-        Pj = np.eye(3 * n) - U @ U.T
+        return H, U
+
+    def min_eigenvalue(self, q, h=1e-4) -> float:
+        """Smallest eigenvalue (eV/Å^2) of the Hessian projected off the zero modes."""
+        H, U = self.hessian(q, h)
+        Pj = np.eye(len(H)) - U @ U.T
         w = np.linalg.eigvalsh(Pj @ H @ Pj)
         w = np.delete(w, np.argsort(np.abs(w))[:4])  # the four projected zero modes
-        val = float(w.min())
-        self._cache[key] = val
-        return val
+        return float(w.min())
 
-    def stable(self, q) -> bool:
-        return self.min_eigenvalue(q) > -1e-3
+    def stable(self, q, tol=1e-3) -> bool:
+        """True when H + U U^T + tol I is positive definite (Cholesky), i.e. no eigenvalue
+        of the Hessian off the zero modes is below -tol (eV/Å^2; the finite-difference
+        noise is ~1e-8)."""
+        key = tuple(np.round(np.asarray(q, float), 7))
+        if key not in self._cache:
+            H, U = self.hessian(q)
+            A = H + U @ U.T + tol * np.eye(len(H))
+            try:
+                np.linalg.cholesky(A)
+                ok = True
+            except np.linalg.LinAlgError:
+                ok = False
+            self._cache[key] = ok
+        return self._cache[key]
 
 
 class DCBRTube:
