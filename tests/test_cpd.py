@@ -274,3 +274,17 @@ def test_continuum_calibration_matches_literature_C1C3():
     assert C[0] == pytest.approx(30 * mu / (np.pi * d ** 4), rel=1e-12)
     assert C[1] == 0.0
     assert C[2] == pytest.approx(32 * (lam - mu) / (np.pi ** 4 * d ** 12), rel=1e-12)
+
+
+def test_surface_correction_factors_and_consistency():
+    s = square_lattice(9, 9, 1e-3, thickness=1e-3)
+    m = CPD(horizon=2.01e-3, dim=2, E=1e9, nu=0.45, surface_correction=True)
+    fam, st = _setup(s, m)
+    c0 = m.interior_particle()
+    g1 = m.correction[0]
+    assert np.allclose(g1[c0], 1.0) and (g1[0] > 1.2).all()          # corner: missing bonds
+    assert np.allclose(m.g[0][fam.owner == c0], 1.0)
+    # the factors are constants: forces remain the exact gradient, tangent consistent
+    err, asym = _fd_tangent_err(square_lattice(5, 5, 1e-3, thickness=1e-3),
+                                CPD(horizon=2.01e-3, dim=2, E=1e9, nu=0.45, surface_correction=True))
+    assert err < 1e-6 and asym < 1e-12

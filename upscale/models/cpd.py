@@ -120,10 +120,13 @@ neighbourhood sums differ from the integrals by several per cent at ``delta/dx =
 (default) therefore solves the same two equations with the coefficients ``l_k, m_k``
 *measured* on the model's own most interior particle (isotropic least-squares fit of its
 energy density over small strains, :meth:`CPD.discrete_coefficients`); ``"continuum"`` uses
-the formulas. ``surface_correction=True`` additionally scales each centre's weights by the
-ratio of bulk to local energy density under uniaxial strains (PD energy-method surface
-correction; per centre, so forces stay energy gradients). Measured effects are in the
-validation cases ``cpd-calibration`` and ``cpd-newton``.
+the formulas. ``surface_correction=True`` (default off) additionally gives every set a
+constant weight factor built from direction-wise ratios of bulk to local energy density
+under uniaxial strains (PD energy-method surface correction,
+:meth:`CPD._apply_surface_correction`; constants of the reference, so forces stay energy
+gradients). Measured in ``cpd-newton [--surface-correction]``: it cuts the cantilever
+error (2D, delta/dx = 2-3) from +16..+26 % to -4..-6 % but over-stiffens the bar in tension
+(+0.6..+6 % -> -6..-7 %; 3D -11..-13 %), so it stays an option.
 
 Damage
 ------
@@ -266,7 +269,7 @@ def _cross(a0, a1, a2, b0, b1, b2):
 
 
 @numba.njit(cache=True)
-def _pair_energy_force(y, offsets, neighbors, length, q_b, w_n, C1, intact_b, f, e_n):
+def _pair_energy_force(y, offsets, neighbors, length, q_b, w_n, g_s, C1, intact_b, f, e_n):
     """Adds -dW1/dy to ``f`` (N, 3) and W1 per centre to ``e_n`` (N,)."""
     n = offsets.shape[0] - 1
     for c in range(n):
@@ -283,7 +286,7 @@ def _pair_energy_force(y, offsets, neighbors, length, q_b, w_n, C1, intact_b, f,
             l = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
             L = length[p]
             s = l / L - 1.0
-            ww = w * q_b[p]
+            ww = w * q_b[p] * g_s[p]
             e_n[c] += ww * 0.5 * C1 * L * s * s
             g = ww * C1 * s / l
             f[j, 0] -= g * x0
@@ -295,7 +298,7 @@ def _pair_energy_force(y, offsets, neighbors, length, q_b, w_n, C1, intact_b, f,
 
 
 @numba.njit(cache=True)
-def _triplet_energy_force(y, offsets, neighbors, q_b, t_off, sj, sk, A_t, w_n, C2, intact_t, f, e_n):
+def _triplet_energy_force(y, offsets, neighbors, q_b, t_off, sj, sk, A_t, w_n, g_s, C2, intact_t, f, e_n):
     """Adds -dW2/dy to ``f`` and W2 per centre to ``e_n``."""
     n = offsets.shape[0] - 1
     for c in range(n):
@@ -318,7 +321,7 @@ def _triplet_energy_force(y, offsets, neighbors, q_b, t_off, sj, sk, A_t, w_n, C
             m = math.sqrt(a0 * a0 + a1 * a1 + a2 * a2)
             A = A_t[t]
             s = m / A - 1.0
-            ww = w * q_b[base + sj[t]] * q_b[base + sk[t]]
+            ww = w * q_b[base + sj[t]] * q_b[base + sk[t]] * g_s[t]
             e_n[c] += ww * 0.5 * C2 * A * s * s
             if m == 0.0:
                 continue
@@ -338,7 +341,7 @@ def _triplet_energy_force(y, offsets, neighbors, q_b, t_off, sj, sk, A_t, w_n, C
 
 
 @numba.njit(cache=True)
-def _quad_energy_force(y, offsets, neighbors, q_b, q_off, sj, sk, sl, V_q, w_n, C3, intact_q, f, e_n):
+def _quad_energy_force(y, offsets, neighbors, q_b, q_off, sj, sk, sl, V_q, w_n, g_s, C3, intact_q, f, e_n):
     """Adds -dW3/dy to ``f`` and W3 per centre to ``e_n``."""
     n = offsets.shape[0] - 1
     xi = np.empty((0, 3))
@@ -364,7 +367,7 @@ def _quad_energy_force(y, offsets, neighbors, q_b, q_off, sj, sk, sl, V_q, w_n, 
             m = abs(v)
             V = V_q[t]
             s = m / V - 1.0
-            ww = w * q_b[base + p] * q_b[base + q] * q_b[base + r]
+            ww = w * q_b[base + p] * q_b[base + q] * q_b[base + r] * g_s[t]
             e_n[c] += ww * 0.5 * C3 * V * s * s
             if m == 0.0:
                 continue
@@ -463,7 +466,7 @@ def _flush(data, loc, Lb, M, dim):
 
 
 @numba.njit(cache=True)
-def _pair_tangent(y, offsets, neighbors, length, q_b, w_n, C1, intact_b, indptr, indices, data, dim):
+def _pair_tangent(y, offsets, neighbors, length, q_b, w_n, g_s, C1, intact_b, indptr, indices, data, dim):
     n = offsets.shape[0] - 1
     loc = np.empty(0, np.int64)
     H = np.zeros((3, 3))
@@ -485,7 +488,7 @@ def _pair_tangent(y, offsets, neighbors, length, q_b, w_n, C1, intact_b, indptr,
                 x[s] = y[j, s] - y[c, s]
             l = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2])
             L = length[p]
-            ww = w * q_b[p]
+            ww = w * q_b[p] * g_s[p]
             d = ww * C1 * (1.0 / L - 1.0 / l)
             e = ww * C1 / (l * l * l)
             for s in range(3):
@@ -508,7 +511,7 @@ def _E(w, out, r0, c0, sign):
 
 
 @numba.njit(cache=True)
-def _triplet_tangent(y, offsets, neighbors, q_b, t_off, sj, sk, A_t, w_n, C2, intact_t,
+def _triplet_tangent(y, offsets, neighbors, q_b, t_off, sj, sk, A_t, w_n, g_s, C2, intact_t,
                      indptr, indices, data, dim):
     n = offsets.shape[0] - 1
     loc = np.empty(0, np.int64)
@@ -550,7 +553,7 @@ def _triplet_tangent(y, offsets, neighbors, q_b, t_off, sj, sk, A_t, w_n, C2, in
                 continue
             A = A_t[t]
             nrm[0], nrm[1], nrm[2] = a0 / m, a1 / m, a2 / m
-            ww = w * q_b[base + sj[t]] * q_b[base + sk[t]]
+            ww = w * q_b[base + sj[t]] * q_b[base + sk[t]] * g_s[t]
             dpsi = ww * C2 * (m / A - 1.0)
             d2psi = ww * C2 / A
             # J = [E(xi_k), -E(xi_j)]  (a = xi_j x xi_k)
@@ -580,7 +583,7 @@ def _triplet_tangent(y, offsets, neighbors, q_b, t_off, sj, sk, A_t, w_n, C2, in
 
 
 @numba.njit(cache=True)
-def _quad_tangent(y, offsets, neighbors, q_b, q_off, sj, sk, sl, V_q, w_n, C3, intact_q,
+def _quad_tangent(y, offsets, neighbors, q_b, q_off, sj, sk, sl, V_q, w_n, g_s, C3, intact_q,
                   indptr, indices, data, dim):
     n = offsets.shape[0] - 1
     loc = np.empty(0, np.int64)
@@ -631,7 +634,7 @@ def _quad_tangent(y, offsets, neighbors, q_b, q_off, sj, sk, sl, V_q, w_n, C3, i
                 continue
             sg = 1.0 if vv > 0 else -1.0
             V = V_q[t]
-            ww = w * q_b[base + p] * q_b[base + q] * q_b[base + r]
+            ww = w * q_b[base + p] * q_b[base + q] * q_b[base + r] * g_s[t]
             dpsi = ww * C3 * (m / V - 1.0) * sg    # times d2v (sign of |v| folded in)
             d2psi = ww * C3 / V                    # times (dm)(dm) = (dv)(dv)
             for a in range(9):
@@ -719,30 +722,43 @@ _EMPTY_I32 = np.zeros(0, np.int32)
 _EMPTY_I64 = np.zeros(1, np.int64)
 
 
-def energy_forces(y, fam, tri, quad, w, C, intact, *, types=(1, 2, 3)):
+def _factors(g, fam, tri, quad):
+    ones = lambda k: np.ones(max(k, 1))  # noqa: E731
+    nb = fam.neighbors.shape[0]
+    nt = 0 if tri is None else tri.size
+    nq = 0 if quad is None else quad.size
+    if g is None:
+        return ones(nb), ones(nt), ones(nq)
+    return tuple(ones(k) if a is None else np.ascontiguousarray(a, dtype=np.float64)
+                 for a, k in zip(g, (nb, nt, nq)))
+
+
+def energy_forces(y, fam, tri, quad, w, C, intact, *, types=(1, 2, 3), g=None):
     """Energy per centre (N,) (J) and internal force per particle (N, 3) (N) on flat
     arrays. ``fam``: object with ``offsets``, ``neighbors``, ``length``; ``tri``/``quad``:
     :class:`~upscale.engine.multibody.TripletFamily` / ``QuadrupletFamily`` or None;
     ``w = (w1_n, w2_n, w3_n)`` per-centre weights (module docstring); ``C = (C1, C2, C3)``;
-    ``intact = (intact_b, intact_t, intact_q)``."""
+    ``intact = (intact_b, intact_t, intact_q)``; ``g = (g_b, g_t, g_q)`` optional per-set
+    weight factors (surface correction; default 1)."""
     y = np.ascontiguousarray(y, dtype=np.float64)
     n = y.shape[0]
     f = np.zeros((n, 3))
     e = np.zeros(n)
+    g = _factors(g, fam, tri, quad)
     if 1 in types and C[0] != 0.0:
-        _pair_energy_force(y, fam.offsets, fam.neighbors, fam.length, fam.q, w[0], float(C[0]),
+        _pair_energy_force(y, fam.offsets, fam.neighbors, fam.length, fam.q, w[0], g[0], float(C[0]),
                            intact[0], f, e)
     if 2 in types and C[1] != 0.0 and tri is not None:
         _triplet_energy_force(y, fam.offsets, fam.neighbors, fam.q, tri.offsets, tri.slot_j,
-                              tri.slot_k, tri.area, w[1], float(C[1]), intact[1], f, e)
+                              tri.slot_k, tri.area, w[1], g[1], float(C[1]), intact[1], f, e)
     if 3 in types and C[2] != 0.0 and quad is not None:
         _quad_energy_force(y, fam.offsets, fam.neighbors, fam.q, quad.offsets, quad.slot_j,
-                           quad.slot_k, quad.slot_l, quad.volume, w[2], float(C[2]),
+                           quad.slot_k, quad.slot_l, quad.volume, w[2], g[2], float(C[2]),
                            intact[2], f, e)
     return e, f
 
 
-def tangent_bsr(y, fam, tri, quad, w, C, intact, pattern, dim, *, types=(1, 2, 3)):
+def tangent_bsr(y, fam, tri, quad, w, C, intact, pattern, dim, *, types=(1, 2, 3), g=None):
     """Stiffness ``K = d^2W/dy^2`` as ``scipy.sparse.bsr_matrix`` (3N, 3N) with 3x3 blocks
     on ``pattern = (indptr, indices)`` (:func:`upscale.engine.multibody.block_pattern`).
     In 2D only the in-plane (x, y) entries are filled."""
@@ -752,15 +768,16 @@ def tangent_bsr(y, fam, tri, quad, w, C, intact, pattern, dim, *, types=(1, 2, 3
     n = y.shape[0]
     indptr, indices = pattern
     data = np.zeros((indices.shape[0], 3, 3))
+    g = _factors(g, fam, tri, quad)
     if 1 in types and C[0] != 0.0:
-        _pair_tangent(y, fam.offsets, fam.neighbors, fam.length, fam.q, w[0], float(C[0]), intact[0],
+        _pair_tangent(y, fam.offsets, fam.neighbors, fam.length, fam.q, w[0], g[0], float(C[0]), intact[0],
                       indptr, indices, data, dim)
     if 2 in types and C[1] != 0.0 and tri is not None:
         _triplet_tangent(y, fam.offsets, fam.neighbors, fam.q, tri.offsets, tri.slot_j, tri.slot_k,
-                         tri.area, w[1], float(C[1]), intact[1], indptr, indices, data, dim)
+                         tri.area, w[1], g[1], float(C[1]), intact[1], indptr, indices, data, dim)
     if 3 in types and C[2] != 0.0 and quad is not None:
         _quad_tangent(y, fam.offsets, fam.neighbors, fam.q, quad.offsets, quad.slot_j, quad.slot_k,
-                      quad.slot_l, quad.volume, w[2], float(C[2]), intact[2], indptr, indices,
+                      quad.slot_l, quad.volume, w[2], g[2], float(C[2]), intact[2], indptr, indices,
                       data, dim)
     return sp.bsr_matrix((data, indices, indptr), shape=(3 * n, 3 * n))
 
@@ -820,6 +837,7 @@ class CPD(Model):
             raise ValueError(f"calibration must be 'discrete' or 'continuum', got {calibration!r}")
         self.calibration = calibration
         self.surface_correction = bool(surface_correction)
+        self.g = None
         self.coefficients = None
         if dim not in (2, 3):
             raise ValueError(f"CPD is defined in 2D and 3D, got dim={dim!r}")
@@ -975,6 +993,7 @@ class CPD(Model):
         self.counts = {"pairs": N1, "triplets": n2, "quadruplets": n3}
         self.coefficients = modulus_coefficients(self.horizon, self.dim, self.thickness)
         self.correction = None
+        self.g = None
         if self.surface_correction:
             self._apply_surface_correction()
         if self.E is not None and self.calibration == "discrete":
@@ -985,35 +1004,55 @@ class CPD(Model):
         self._pattern = None
 
     def _apply_surface_correction(self) -> None:
-        """Scale every centre's weights, per interaction type, by ``S_bulk / S_i`` where
-        ``S_i`` is the energy density of centre ``i`` summed over the uniaxial strains
-        ``e_a (x) e_a`` (a < dim) and ``S_bulk`` that of the interior particle -- the
-        energy-method surface correction of PD (Madenci & Oterkus), per centre so the
-        forces stay the gradient of an energy (symmetric tangent)."""
+        """Directional surface correction (PD energy method, Madenci & Oterkus): for every
+        centre ``i``, interaction type and axis ``a < dim`` the factor
+        ``g_a^i = S_a(bulk) / S_a(i)`` of the energy densities under the uniaxial strain
+        ``e_a (x) e_a`` (bulk: the most interior particle). Each set then gets a constant
+        weight factor from its own geometry: a bond with unit vector ``n`` gets
+        ``(sum_a n_a^2 / g_a^2)^(-1/2)`` (the ellipse of Madenci & Oterkus); a 3D area
+        set with unit normal ``N`` the in-plane average ``sum_a (1 - N_a^2) g_a / 2``; 2D
+        area and volume sets (purely volumetric) the mean of ``g_a``. The factors are
+        constants of the reference configuration, so forces stay energy gradients."""
         from upscale.engine.state import State
 
         c0 = self.interior_particle()
         st = State.reference(self.system.x0, self.family.nb)
         ints = self._intact(st)
         amp = 1e-6
-        self.correction = []
-        w = list(self.w)
+        n, d = self.system.n, self.dim
+        x0 = self.system.x0
+        fam = self._fam()
+        self.correction = [None, None, None]
+        g_out = [None, None, None]
         for t in (1, 2, 3):
-            if not np.any(w[t - 1]):
-                self.correction.append(None)
+            if not np.any(self.w[t - 1]):
                 continue
             C = [0.0, 0.0, 0.0]; C[t - 1] = 1.0
-            S = np.zeros(self.system.n)
-            for a in range(self.dim):
+            ga = np.ones((n, d))
+            for a in range(d):
                 e = np.zeros((3, 3)); e[a, a] = amp
-                y = self.system.x0 + self.system.x0 @ e.T
-                S += energy_forces(y, self._fam(), self.triplets, self.quadruplets, self.w, C,
-                                   ints, types=(t,))[0] / self.system.volume
-            with np.errstate(divide="ignore", invalid="ignore"):
-                fac = np.where(S > 0, S[c0] / S, 1.0)
-            w[t - 1] = np.ascontiguousarray(w[t - 1] * fac)
-            self.correction.append(fac)
-        self.w = tuple(w)
+                y = x0 + x0 @ e.T
+                S = energy_forces(y, fam, self.triplets, self.quadruplets, self.w, C, ints,
+                                  types=(t,))[0] / self.system.volume
+                with np.errstate(divide="ignore", invalid="ignore"):
+                    ga[:, a] = np.where(S > 0, S[c0] / S, 1.0)
+            self.correction[t - 1] = ga
+            if t == 1:
+                nvec = self.family.xi[:, :d] / self.family.length[:, None]
+                gi = ga[self.family.owner]
+                g_out[0] = 1.0 / np.sqrt(np.sum(nvec ** 2 / gi ** 2, axis=1))
+            elif t == 2:
+                m = self.triplets.members(self.family)
+                if d == 3:
+                    N = np.cross(x0[m[:, 1]] - x0[m[:, 0]], x0[m[:, 2]] - x0[m[:, 0]])
+                    N /= np.linalg.norm(N, axis=1)[:, None]
+                    g_out[1] = np.sum((1.0 - N ** 2) * ga[m[:, 0]], axis=1) / 2.0
+                else:
+                    g_out[1] = ga[m[:, 0]].mean(axis=1)
+            else:
+                own = np.repeat(np.arange(n), self.quadruplets.counts)
+                g_out[2] = ga[own].mean(axis=1)
+        self.g = tuple(g_out)
 
     def interior_particle(self) -> int:
         """The particle with the most complete neighbourhood among the owners of sets
@@ -1061,7 +1100,7 @@ class CPD(Model):
             for e in strains:
                 y = self.system.x0 + amp * self.system.x0 @ e.T
                 q.append(energy_forces(y, self._fam(), self.triplets, self.quadruplets, wc, C,
-                                       ints, types=(t,))[0][c] / self.system.volume[c])
+                                       ints, types=(t,), g=self.g)[0][c] / self.system.volume[c])
             if t == 3 or (t == 2 and d == 2):      # purely volumetric term: fit lambda only
                 lt = float(np.linalg.lstsq(X[:, :1], np.array(q), rcond=None)[0][0])
                 mt = 0.0
@@ -1120,7 +1159,7 @@ class CPD(Model):
     def energy_and_force(self, state):
         """(W_n (N,) in J per particle, F_int (N, 3) in N) on the current positions."""
         return energy_forces(state.y, self._fam(), self.triplets, self.quadruplets, self.w,
-                             self.C, self._intact(state))
+                             self.C, self._intact(state), g=self.g)
 
     def particle_force(self, state) -> np.ndarray:
         """Internal force per particle ``-dW/dy`` (N, 3) (N)."""
@@ -1147,7 +1186,7 @@ class CPD(Model):
         (N/m), CSR (``fmt="bsr"``: the 3x3 block matrix the kernels fill, no conversion);
         in 2D the out-of-plane rows and columns are zero."""
         K = tangent_bsr(state.y, self._fam(), self.triplets, self.quadruplets, self.w, self.C,
-                        self._intact(state), self.pattern, self.dim, types=types)
+                        self._intact(state), self.pattern, self.dim, types=types, g=self.g)
         return K if fmt == "bsr" else K.tocsr()
 
     # ------------------------------------------------------------------ failure

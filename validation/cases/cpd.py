@@ -294,8 +294,14 @@ def _strip(r):
     return {k: v for k, v in r.items() if not k.startswith("_") and k != "newton_report"}
 
 
+def _newton_args(p):
+    p.add_argument("--surface-correction", action="store_true",
+                   help="directional PD surface correction of the CPD weights (default off)")
+
+
 @case("cpd-newton", "CPD static Newton-Raphson: bar (u = FL/EA) and cantilever "
-      "(Timoshenko) vs horizon and spacing, residual histories, quadratic convergence")
+      "(Timoshenko) vs horizon and spacing, residual histories, quadratic convergence",
+      add_arguments=_newton_args)
 def run_newton(args):
     from upscale.engine.newton import convergence_order
     from upscale.experiments import cpd_bar
@@ -310,12 +316,13 @@ def run_newton(args):
     for dim, grid in ((2, grid2), (3, grid3)):
         nu = 0.4 if dim == 2 else 0.3
         for dx, ratio in grid:
+            sc = dict(surface_correction=bool(getattr(args, "surface_correction", False)))
             if dim == 2:
-                rb = cpd_bar.bar_tension(dim=2, nu=nu, length=32e-3, width=8e-3, dx=dx, ratio=ratio)
-                rc = cpd_bar.cantilever(dim=2, nu=nu, length=32e-3, depth=8e-3, dx=dx, ratio=ratio)
+                rb = cpd_bar.bar_tension(dim=2, nu=nu, length=32e-3, width=8e-3, dx=dx, ratio=ratio, **sc)
+                rc = cpd_bar.cantilever(dim=2, nu=nu, length=32e-3, depth=8e-3, dx=dx, ratio=ratio, **sc)
             else:
-                rb = cpd_bar.bar_tension(dim=3, nu=nu, length=24e-3, width=6e-3, dx=dx, ratio=ratio)
-                rc = cpd_bar.cantilever(dim=3, nu=nu, length=24e-3, depth=6e-3, dx=dx, ratio=ratio)
+                rb = cpd_bar.bar_tension(dim=3, nu=nu, length=24e-3, width=6e-3, dx=dx, ratio=ratio, **sc)
+                rc = cpd_bar.cantilever(dim=3, nu=nu, length=24e-3, depth=6e-3, dx=dx, ratio=ratio, **sc)
             for r in (rb, rc):
                 runs.append(_strip(r))
                 print(f"{r['scene']} {dim}D dx={dx * 1e3:g} mm delta/dx={ratio:g}: "
@@ -358,7 +365,8 @@ def run_newton(args):
     bar_err = [abs(r["err_pct"]) for r in rows if r["scene"] == "bar"]
     cant_err = [abs(r["err_pct"]) for r in rows if r["scene"] == "cantilever"]
     converged = all(r["newton"]["converged"] for r in runs)
-    return {"bar_err_pct_min": min(bar_err), "bar_err_pct_max": max(bar_err),
+    return {"surface_correction": bool(getattr(args, "surface_correction", False)),
+            "bar_err_pct_min": min(bar_err), "bar_err_pct_max": max(bar_err),
             "cantilever_err_pct_min": min(cant_err), "cantilever_err_pct_max": max(cant_err),
             "newton_order_min": min(orders) if orders else None,
             "large_deflection_orders": big_orders,
