@@ -413,7 +413,9 @@ class DCBRTube:
             bdir /= np.linalg.norm(bdir, axis=1)[:, None]
             beta = self.x0[g.pair_j] + g.pair_image * g.cell - self.x0[g.pair_i]
             t = np.einsum("eia,ei->ea", g.frame[g.pair_i], beta)
-            t /= np.linalg.norm(t, axis=1)[:, None]
+            # a link through the axis (few particles around) has no tangent direction: it
+            # is mapped to the first bond; it carries no weight in G anyway (s = 0)
+            t /= np.maximum(np.linalg.norm(t, axis=1), 1e-12)[:, None]
             self.link_bond = np.argmax(np.abs(t @ bdir.T), axis=1)
         self.alive = g.alive.copy()
 
