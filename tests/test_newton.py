@@ -63,3 +63,20 @@ def test_bad_input_and_singular():
     f[0, 0] = 1.0
     with pytest.raises(newton.NewtonError, match="rigid-body|singular"):
         newton.solve(m, st, f_ext=f)                 # nothing fixed: singular tangent
+
+
+def test_generic_model_with_numerical_tangent():
+    """The solver only uses the Model hooks: B's PMB (finite-difference tangent) converges."""
+    from upscale import models
+
+    s = square_lattice(8, 3, 1e-3, thickness=1e-3)
+    fam = build_family(s, 3.015e-3)
+    m = models.create("pmb", E=1e9, nu=1 / 3)
+    m.prepare(s, fam)
+    st = State.reference(s.x0, fam.nb)
+    left = s.x0[:, 0] < 0.5e-3
+    f = np.zeros((s.n, 3))
+    f[s.x0[:, 0] > s.x0[:, 0].max() - 0.5e-3, 0] = 1.0
+    res = newton.solve(m, st, fixed=left, f_ext=f)
+    assert res.converged
+    assert np.abs((m.particle_force(st) + f)[~left, :2]).max() < 1e-8
