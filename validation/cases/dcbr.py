@@ -353,3 +353,106 @@ def _dcbr_table(args):
 
 case("dcbr-table", "run-time vs error table of the DCBR tube against LAMMPS (coarsening 1-4)",
      add_arguments=_table_args)(_dcbr_table)
+
+
+# ---------------------------------------------------------------------------- dcbr-stability
+ASE_TIME_FS = 10.1805055  # Å sqrt(amu/eV) in fs
+
+
+def _stability_args(p):
+    p.add_argument("--chirality", default="10,10")
+    p.add_argument("--length", type=float, default=25.0)
+    p.add_argument("--coarsening", type=float, default=2.0)
+    p.add_argument("--steps", type=int, default=None, help="NVE steps (default 10000; --quick 500)")
+    p.add_argument("--dt-fs", type=float, default=1.0, help="NVE time step, fs (default 1)")
+    p.add_argument("--temperature", type=float, default=10.0, help="initial K (default 10)")
+
+
+def _dcbr_stability(args):
+    """Critical time step (velocity Verlet: dt_c = 2 / omega_max) of the coarse tube and of
+    the atomistic lattice, and the NVE energy drift of the coarse tube."""
+    from scipy.optimize import minimize
+
+    from upscale.models.dcbr import DCBRTube
+
+    n, m = _chirality(args.chirality)
+    steps = args.steps or (500 if args.quick else 10000)
+    t = DCBRTube(n, m, args.length, coarsening=args.coarsening)
+    y, d, L0, *_ = t.minimise(t.x0, t.delta, t.L, relax_box=True, gtol=1e-9)
+    N = t.N
+    # coarse Hessian in (y, delta) by central differences of the analytic gradient, then the
+    # Schur complement over the massless shifts
+    z0 = np.concatenate([y.ravel(), d.ravel()])
+
+    def grad(z):
+        _, gy, gd, _ = t.energy_and_gradient(z[:3 * N].reshape(N, 3), z[3 * N:].reshape(N, 3), L0)
+        return np.concatenate([gy.ravel(), gd.ravel()])
+
+    h = 1e-5
+    Hf = np.empty((6 * N, 6 * N))
+    for i in range(6 * N):
+        zp, zm = z0.copy(), z0.copy()
+        zp[i] += h
+        zm[i] -= h
+        Hf[i] = (grad(zp) - grad(zm)) / (2 * h)
+    Hf = 0.5 * (Hf + Hf.T)
+    Kyy, Kyd, Kdd = Hf[:3 * N, :3 * N], Hf[:3 * N, 3 * N:], Hf[3 * N:, 3 * N:]
+    Keff = Kyy - Kyd @ np.linalg.solve(Kdd, Kyd.T)
+    mass = np.repeat(t.natoms_n * 12.011, 3)
+    w2 = np.linalg.eigvalsh(Keff / np.sqrt(np.outer(mass, mass)))
+    dt_c_coarse = 2.0 / math.sqrt(w2.max()) * ASE_TIME_FS
+    # atomistic: the relaxed lattice on the periodic piece, carbon mass
+    q = t._q_n[0].copy()
+    H, U = t.stability.hessian(q)
+    wa = np.linalg.eigvalsh(H / 12.011)
+    dt_c_atom = 2.0 / math.sqrt(wa.max()) * ASE_TIME_FS
+    print(table([{"model": f"DCBR ({n},{m}) K={args.coarsening:g}", "particles/atoms": N,
+                  "omega_max_1/fs": math.sqrt(w2.max()) / ASE_TIME_FS, "dt_crit_fs": dt_c_coarse},
+                 {"model": "atomistic lattice", "particles/atoms": t.stability.natoms,
+                  "omega_max_1/fs": math.sqrt(wa.max()) / ASE_TIME_FS, "dt_crit_fs": dt_c_atom}]))
+    # NVE: velocity Verlet on the particles, shifts relaxed at every step
+    rng = np.random.default_rng(1)
+    kB = 8.617333262e-5
+    v = rng.standard_normal((N, 3)) * np.sqrt(kB * args.temperature / (t.natoms_n * 12.011))[:, None]
+    v -= (v * t.natoms_n[:, None]).sum(0) / t.natoms_n.sum()
+    dt = args.dt_fs / ASE_TIME_FS
+    minv = 1.0 / (t.natoms_n * 12.011)[:, None]
+
+    def relaxed(yy, dd):
+        def fun(dv):
+            E, gy, gd, _ = t.energy_and_gradient(yy, dv.reshape(N, 3), L0)
+            return E, gd.ravel()
+
+        r = minimize(fun, dd.ravel(), jac=True, method="L-BFGS-B",
+                     options={"gtol": 1e-10, "ftol": 1e-16, "maxiter": 500})
+        dd = r.x.reshape(N, 3)
+        E, gy, _, _ = t.energy_and_gradient(yy, dd, L0)
+        return E, -gy, dd
+
+    E, f, d = relaxed(y, d)
+    Etot0 = E + 0.5 * np.sum(v * v / minv)
+    ke0 = 0.5 * np.sum(v * v / minv)
+    drift = []
+    t0 = time.perf_counter()
+    for k in range(steps):
+        v += 0.5 * dt * f * minv
+        y = y + dt * v
+        E, f, d = relaxed(y, d)
+        v += 0.5 * dt * f * minv
+        if (k + 1) % max(1, steps // 20) == 0:
+            Et = E + 0.5 * np.sum(v * v / minv)
+            drift.append((k + 1, Et - Etot0))
+    wall = time.perf_counter() - t0
+    Et = E + 0.5 * np.sum(v * v / minv)
+    rel = (Et - Etot0) / ke0
+    maxdev = max(abs(e) for _, e in drift) / ke0
+    print(table([{"steps": s, "E - E0 (eV)": e, "(E - E0)/KE0": e / ke0} for s, e in drift], floatfmt=".3e"))
+    return {"dt_crit_coarse_fs": dt_c_coarse, "dt_crit_atomistic_fs": dt_c_atom,
+            "dt_crit_ratio": dt_c_coarse / dt_c_atom, "nve_steps": steps, "nve_dt_fs": args.dt_fs,
+            "nve_drift_rel_to_KE0": float(rel), "nve_max_deviation_rel_to_KE0": float(maxdev),
+            "nve_initial_KE_eV": float(ke0), "nve_wall_s": wall, "particles": N,
+            "pass": bool(dt_c_coarse >= dt_c_atom and abs(maxdev) < 1e-2)}
+
+
+case("dcbr-stability", "critical time step of the DCBR tube vs the atomistic lattice, NVE drift",
+     add_arguments=_stability_args)(_dcbr_stability)
