@@ -78,3 +78,27 @@ def test_lps_matches_lammps_small():
     assert r["force_rel_err"] < 1e-10
     assert r["disp_rel_err_200_steps"] < 1e-8
     assert r["broken_bonds_engine"] > 0 and r["broken_bonds_identical"]
+    # well-posed: no bond came within 1000x the codes' stretch difference of s00, so
+    # round-off cannot make the two break different bonds
+    assert r["critical_stretch_margin_min"] > 1e3 * r["stretch_max_abs_diff_final"], r
+
+
+@pytest.mark.lammps
+@pytest.mark.parametrize("style", ["lps", "pmb"])
+def test_lammps_bond_creation_leaves_defined_s0(style):
+    """LAMMPS's bond-building run 0 leaves atom->s0 as uninitialised memory (the bonds do
+    not exist yet in that force evaluation); create_bonds resets it to DBL_MAX, so the next
+    evaluation at the reference state breaks nothing whatever the heap held."""
+    from upscale.engine.lammps_peri import LAMMPS_EXAMPLE as p
+    from upscale.engine.lammps_peri import LammpsPeri
+
+    params = {"c": p["c"]} if style == "pmb" else {"K": p["K"], "G": p["G"]}
+    lp = LammpsPeri(style, (6, 6, 3), p["lc"], p["horizon"], p["density"],
+                    {**params, "s00": p["s00"]}, crack=(2.6 * p["lc"], 3.5 * p["lc"]))
+    try:
+        lp.create_bonds()
+        assert np.all(lp.s0() == np.finfo(np.float64).max)
+        assert lp.damage().max() == 0.0            # a run 0 at the reference: nothing breaks
+        assert np.all(lp.s0() == p["s00"])         # and s0 = s00 - alpha * s with alpha = 0
+    finally:
+        lp.close()

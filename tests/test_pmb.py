@@ -130,6 +130,7 @@ def test_pmb_matches_lammps_small():
     assert r["force_rel_err"] < 1e-10
     assert r["disp_rel_err_200_steps"] < 1e-8
     assert r["broken_bonds_engine"] > 0 and r["broken_bonds_identical"]
+    assert r["critical_stretch_margin_min"] > 1e3 * r["stretch_max_abs_diff_final"], r
 
 
 def test_one_dimensional_bar():

@@ -27,6 +27,15 @@ fix_peri_neigh.cpp, compute_damage_atom.cpp) and how the engine matches them:
   Engine: ``step_force`` breaks after the force, from the same positions; the first
   evaluation (at the reference state, where no stretch exceeds s00) breaks nothing either.
   ``alpha != 0`` (s0 depending on the previous step's smallest stretch) is not implemented.
+* a LAMMPS defect worked around here: the bonds are built in ``FixPeriNeigh::setup``, which
+  ``Verlet::setup`` calls *after* the set-up force evaluation, so in that first evaluation
+  every atom has ``npartner = 0``, ``s0_new`` is never written, and ``s0 = s0_new`` copies
+  uninitialised heap memory (``memory->create``, i.e. malloc) into ``atom->s0``. The next
+  force evaluation then breaks every bond whose ``s0`` happens to be below its stretch
+  (e.g. negative garbage at the reference state): the outcome depends on what the
+  process's heap held before, i.e. on which code ran earlier (the test order).
+  :meth:`LammpsPeri.create_bonds` therefore sets ``s0`` back to DBL_MAX, the value
+  ``atom_style peri`` gives a new atom, right after the bond-building ``run 0``.
 * short-range contact: pairs closer than ``min(0.9 r0, 1.35 lc)`` repel with
   ``15 c V_j (r - d)/delta`` (pmb) or ``15 (18 K / (pi delta^4)) V_j (r - d)/delta`` (lps)
   over LAMMPS's ordinary neighbour list. Engine: :class:`LammpsContact` over a family.
@@ -171,10 +180,29 @@ class LammpsPeri:
 
     # ------------------------------------------------------------------ running
     def create_bonds(self) -> None:
-        """``run 0`` on the reference positions: fix PERI_NEIGH builds the bonds."""
+        """``run 0`` on the reference positions: fix PERI_NEIGH builds the bonds.
+
+        Afterwards ``s0`` is reset to DBL_MAX on every atom: that ``run 0`` leaves it
+        uninitialised (see the module docstring), which would break arbitrary bonds in the
+        next force evaluation, depending on the process's heap contents.
+        """
         if not self._bonded:
             self.lmp.command("run 0 post no")
+            self.set_s0(np.full(self.n, np.finfo(np.float64).max))
             self._bonded = True
+
+    def s0(self) -> np.ndarray:
+        """Per-atom critical stretch ``s0`` for the next force evaluation, by atom id (N,)."""
+        return np.array(self.lmp.gather_atoms("s0", 1, 1)[:], dtype=np.float64)
+
+    def set_s0(self, s0: np.ndarray) -> None:
+        """Set the per-atom ``s0`` (N,), ordered by atom id."""
+        import ctypes
+
+        flat = np.ascontiguousarray(s0, dtype=np.float64).ravel()
+        if flat.shape != (self.n,):
+            raise ValueError(f"s0 has {flat.size} values; expected one per atom ({self.n})")
+        self.lmp.scatter_atoms("s0", 1, 1, flat.ctypes.data_as(ctypes.POINTER(ctypes.c_double)))
 
     def force_on(self, x: np.ndarray) -> np.ndarray:
         """Force densities on positions ``x`` (bonds from the reference; ``run 0``)."""
@@ -215,11 +243,17 @@ def compare(style: str, *, counts=(16, 16, 6), steps: int = 200, perturb: float 
        u uniform in [-1, 1] (so the volume-weighted damage of each particle identifies its
        set of broken bonds), initial velocity v_y = v0 (y - y_c)/(H/2), ``steps`` velocity
        Verlet steps of LAMMPS's fix nve.
+    3. Well-posedness: ``critical_stretch_margin_min`` is the smallest |s - s00| of any bond
+       whose fate was decided in some step (engine run, bonds intact before that step);
+       ``stretch_max_abs_diff_final`` the largest stretch difference between the codes at
+       the end. A margin orders of magnitude above that difference means round-off cannot
+       make the two codes break different bonds (the comparison is not chaotic).
     """
     import time
 
     from upscale.engine.families import build_family
     from upscale.engine.integrators import VelocityVerlet, stable_time_step
+    from upscale.engine.kernels import bond_stretch
     from upscale.engine.simulation import Simulation
     from upscale.engine.state import State
     from upscale.engine.system import ParticleSystem
@@ -300,14 +334,39 @@ def compare(style: str, *, counts=(16, 16, 6), steps: int = 200, perturb: float 
         t0 = time.perf_counter()
         lp.run(steps)
         t_lmp = time.perf_counter() - t0
+        # well-posedness: how close any bond came to the critical stretch when its fate was
+        # decided (engine side, every step, over the bonds intact before that step). A
+        # margin far above the trajectories' difference means the two codes cannot break
+        # different bonds by round-off.
+        margin = [np.inf]
+        intact_before = sim.state.intact.copy()
+
+        def watch(s):
+            st = s.state
+            stretch = bond_stretch(fam.offsets, fam.neighbors, fam.length, st.y)
+            gap = np.abs(stretch[intact_before] - p["s00"])
+            if gap.size:
+                margin[0] = min(margin[0], float(gap.min()))
+            intact_before[...] = st.intact
+            return False
+
         t0 = time.perf_counter()
         sim.run(steps)
         t_eng = time.perf_counter() - t0
+        # the same run again with the margin watch (not timed)
+        sim_w = Simulation(sysm, fam, list(engine_models(p["s00"], full)),
+                           integrator=VelocityVerlet(dt=p["dt"], force=True), damage_weights="volume")
+        sim_w.state.v[...] = v
+        sim_w.run(steps, callback=watch)
+        if not np.array_equal(sim_w.state.y, sim.state.y):
+            raise RuntimeError("the engine is not deterministic: the watched run differs")
         ul = lp.positions() - x
         dl = lp.damage()
     finally:
         lp.close()
     ue = sim.state.y - x
+    s_diff = np.abs(bond_stretch(fam.offsets, fam.neighbors, fam.length, sim.state.y)
+                    - bond_stretch(fam.offsets, fam.neighbors, fam.length, x + ul)).max()
     de = sim.damage()
     broken = int(np.count_nonzero(~sim.state.intact))
     # per particle: count of broken bonds, and the volume-weighted damage, which with
@@ -321,6 +380,9 @@ def compare(style: str, *, counts=(16, 16, 6), steps: int = 200, perturb: float 
         broken_bonds_engine=broken,
         damage_max_abs_diff=float(np.abs(de - dl).max()),
         broken_bonds_identical=bool(np.abs(de - dl).max() < 1e-12 and broken > 0),
+        critical_stretch_margin_min=margin[0],
+        critical_stretch_margin_rel=margin[0] / p["s00"],
+        stretch_max_abs_diff_final=float(s_diff),
         max_damage=float(dl.max()),
         contacts_active_max=int(ct.max_active),
         wall_lammps_s=t_lmp, wall_engine_s=t_eng,

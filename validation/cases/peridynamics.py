@@ -64,6 +64,10 @@ def _lammps_case(style: str, args) -> dict:
         {"quantity": "broken bonds (engine)", "value": r["broken_bonds_engine"], "target": "> 0"},
         {"quantity": "volume-weighted damage, max |diff|", "value": r["damage_max_abs_diff"],
          "target": "< 1e-12 (sets identical)"},
+        {"quantity": "closest approach of a deciding bond to s00, |s - s00|", "value": r["critical_stretch_margin_min"],
+         "target": "> 1e3 x the next row (well-posed)"},
+        {"quantity": "bond stretch after 200 steps, max |s_engine - s_lammps|", "value": r["stretch_max_abs_diff_final"],
+         "target": "reported"},
         {"quantity": "contacts active (max over steps)", "value": r["contacts_active_max"], "target": "reported"},
         {"quantity": "effect of LAMMPS edge factor on forces", "value": r["force_rel_diff_without_lammps_edge_factor"],
          "target": "reported"},
@@ -73,7 +77,8 @@ def _lammps_case(style: str, args) -> dict:
           f"{r['precrack_bonds_removed']} removed by the pre-crack")
     print(table(rows, ["quantity", "value", "target"]))
     ok = (r["force_rel_err"] <= 1e-10 and r["disp_rel_err_200_steps"] <= 1e-8
-          and r["broken_bonds_identical"])
+          and r["broken_bonds_identical"]
+          and r["critical_stretch_margin_min"] > 1e3 * r["stretch_max_abs_diff_final"])
     return {**r, "pass": bool(ok)}
 
 
