@@ -69,8 +69,8 @@ def test_generic_model_with_numerical_tangent():
     """The solver only uses the Model hooks: B's PMB (finite-difference tangent) converges."""
     from upscale import models
 
-    s = square_lattice(8, 3, 1e-3, thickness=1e-3)
-    fam = build_family(s, 3.015e-3)
+    s = square_lattice(6, 3, 1e-3, thickness=1e-3)
+    fam = build_family(s, 2.015e-3)
     m = models.create("pmb", E=1e9, nu=1 / 3)
     m.prepare(s, fam)
     st = State.reference(s.x0, fam.nb)
