@@ -169,7 +169,7 @@ case("gain-affine", "gain matrix G on affine fields (3D cloud), cylinder stretch
 def _energy_args(p):
     p.add_argument("--chirality", action="append", default=None,
                    help="N,M (repeatable; default 10,10 17,0 12,6; --quick: 10,10)")
-    p.add_argument("--length", type=float, default=None, help="tube length, Å (default 10; --quick 10)")
+    p.add_argument("--length", type=float, default=None, help="tube length, Å (default: max(10, two unit cells))")
     p.add_argument("--coarsening", type=float, default=1.0)
 
 
@@ -178,17 +178,20 @@ def _dcbr_energy(args):
 
     chis = [_chirality(c) for c in (args.chirality or (["10,10"] if args.quick else
                                                          ["10,10", "17,0", "12,6"]))]
-    length = args.length or 10.0
+    from upscale.build import chirality
+
     step = 0.02 if args.quick else 0.01
     rows, worst, worst_ns = [], 0.0, 0.0
     for n, m in chis:
+        length = args.length or max(10.0, 2 * chirality(n, m).cell_length)
         ref = _lammps_reference(n, m, length, strain_step=step, progress=False)
         eps_peak = ref["strain_at_peak"]
         e_ref = np.array(ref["curve"]["energy_eV"])
         s_ref = np.array(ref["curve"]["strain"])
         out = {}
         for shift in (True, False):
-            t = DCBRTube(n, m, length, coarsening=args.coarsening, relax_shift=shift)
+            t = DCBRTube(n, m, length, coarsening=args.coarsening, relax_shift=shift,
+                         stability=False)  # the uniform branch: no failure rule needed
             r = quasi_static_tension(t, strain_step=step, max_strain=eps_peak + 1e-9,
                                      fit_max_strain=0.02 if step <= 0.01 else 0.04)
             out[shift] = np.array(r["curve"]["energy_eV"])
