@@ -4,7 +4,7 @@ References: closed-form affine fields (gain-affine) and LAMMPS through helper C'
 (:mod:`validation.lammps.tension`, same potential file, same tube, same protocol). A LAMMPS
 result is taken from ``data/reference/*.json`` when a record matches (chirality, atoms,
 protocol, strain step, cutoff, vacancy), else computed on the fly and cached in
-``validation/out/lammps-cache/`` (ignored by git).
+``validation/out/lammps-cache/`` (ignored by git), keyed by the runner's source checksum.
 """
 from __future__ import annotations
 
@@ -63,7 +63,12 @@ def _lammps_reference(n, m, length, *, protocol="quasi-static", strain_step=0.00
         if isinstance(r, dict) and matches(r):
             r["_source"] = str(f.relative_to(ROOT))
             return r
-    key = f"{protocol}_{n}_{m}_{natoms}_{'vac4' if vacancy else 'pristine'}_{cutoff}_{strain_step:g}"
+    import hashlib
+
+    runner = ROOT / "validation" / "lammps" / "tension.py"
+    fp = hashlib.sha256(runner.read_bytes()).hexdigest()[:10]  # a changed runner = new run
+    key = (f"{protocol}_{n}_{m}_{natoms}_{'vac4' if vacancy else 'pristine'}_{cutoff}_"
+           f"{strain_step:g}_{fp}")
     cf = CACHE / f"{key}.json"
     if cf.exists():
         r = json.loads(cf.read_text())
