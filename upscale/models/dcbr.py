@@ -49,6 +49,14 @@ sublattice shifts are extra per-particle unknowns minimised together with the po
 Broken links leave G's family (Upsilon is rebuilt); a particle left with fewer than 3
 non-collinear links drops out. Damage index mu = 1 - R/T per particle (eq. 5.16).
 
+Scope (what is and is not here): periodic pristine tubes of any chirality, uniform
+(theta, z) arrangement, quasi-static tension (:func:`quasi_static_tension`) and an ASE
+calculator (:mod:`upscale.calculators`). Not yet: defects (the 4-atom vacancy needs a
+refined or atomistic region around it), open tubes with grips and dynamic tension, and the
+engine's ``Model`` interface (this model runs its own L-BFGS loop). The surface gain leaves
+the checkerboard (hourglass) mode of a regular grid without stiffness (G of a particle does
+not see its own displacement); uniform periodic loading does not excite it.
+
 Units: eV, Å; stress in GPa with the wall area 2 pi R t, t = 3.4 Å.
 """
 from __future__ import annotations
@@ -62,7 +70,8 @@ from scipy.optimize import minimize
 from upscale.models import dcbr_kernels as K
 from upscale.models.gain import GainOperator, build_gain
 
-__all__ = ["tersoff_params", "TubeLattice", "DCBRTube", "EV_PER_A3_IN_GPA", "WALL_THICKNESS"]
+__all__ = ["tersoff_params", "TubeLattice", "LatticeStability", "DCBRTube",
+           "quasi_static_tension", "EV_PER_A3_IN_GPA", "WALL_THICKNESS"]
 
 EV_PER_A3_IN_GPA = 160.21766208
 WALL_THICKNESS = 3.4
