@@ -407,6 +407,9 @@ def _dcbr_stability(args):
     Kyy, Kyd, Kdd = Hf[:3 * N, :3 * N], Hf[:3 * N, 3 * N:], Hf[3 * N:, 3 * N:]
     Keff = Kyy - Kyd @ np.linalg.solve(Kdd, Kyd.T)
     mass = np.repeat(t.natoms_n * 12.011, 3)
+    wk = np.linalg.eigvalsh(Keff)
+    # zero-energy modes beyond the 4 rigid ones (3 translations, rotation about the axis)
+    spurious = int((np.abs(wk) < 1e-6 * wk.max()).sum()) - 4
     w2 = np.linalg.eigvalsh(Keff / np.sqrt(np.outer(mass, mass)))
     dt_c_coarse = 2.0 / math.sqrt(w2.max()) * ASE_TIME_FS
     # atomistic: the relaxed lattice on the periodic piece, carbon mass
@@ -459,6 +462,7 @@ def _dcbr_stability(args):
             "dt_crit_ratio": dt_c_coarse / dt_c_atom, "nve_steps": steps, "nve_dt_fs": args.dt_fs,
             "nve_drift_rel_to_KE0": float(rel), "nve_max_deviation_rel_to_KE0": float(maxdev),
             "nve_initial_KE_eV": float(ke0), "nve_wall_s": wall, "particles": N,
+            "zero_energy_modes_beyond_rigid": spurious,
             "pass": bool(dt_c_coarse >= dt_c_atom and abs(maxdev) < 1e-2)}
 
 
