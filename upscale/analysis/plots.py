@@ -82,7 +82,8 @@ def plot_damage_map(s_n, z_n, mu_n, path, title: str = "", vacancy_sz=None, line
     s, z, mu = (np.asarray(a, dtype=float) for a in (s_n, z_n, mu_n))
     fig, ax = plt.subplots(figsize=(6.4, 4.0))
     order = np.argsort(mu)  # damaged atoms on top
-    sc = ax.scatter(z[order], s[order], c=mu[order], s=4, cmap="inferno_r", vmin=0, vmax=1,
+    size = np.where(mu[order] > 0, 14.0, 3.0)  # damaged atoms drawn larger
+    sc = ax.scatter(z[order], s[order], c=mu[order], s=size, cmap="inferno_r", vmin=0, vmax=1,
                     linewidths=0)
     fig.colorbar(sc, ax=ax, label="damage index mu = 1 - R/T")
     if vacancy_sz is not None:

@@ -14,7 +14,9 @@ The kept reference set (``REFERENCE_SET``), all with ``BNC.tersoff`` and the ste
 * dynamic, open tubes of ~150 Å with 50 Å grips (free length ~50 Å), 1 Å/ps per grip,
   10 K: the same six tubes;
 * dynamic, 7-tube (10,10) bundle of ~150 Å (walls 3.4 Å apart, LJ between tubes), vacancy in
-  the central tube.
+  the central tube;
+* quasi-static pristine (10,10) with the standard switching function (to 60 % strain): shows
+  the cutoff artefact (plateau, then a rise), flagged ``rise_after_plateau``.
 """
 from __future__ import annotations
 
@@ -48,6 +50,9 @@ REFERENCE_SET = (
     [_spec("quasi-static", n, m, v, QS_LENGTH) for (n, m) in TUBES for v in (False, True)]
     + [_spec("dynamic", n, m, v, DYN_LENGTH) for (n, m) in TUBES for v in (False, True)]
     + [_spec("dynamic", 10, 10, True, DYN_LENGTH, ntubes=7)]
+    # the standard switching function, to show (and flag) the cutoff artefact
+    + [dict(_spec("quasi-static", 10, 10, False, QS_LENGTH), name="qs_10-10_pristine_stdcut",
+            cutoff="standard", max_strain=0.6)]
 )
 
 
@@ -88,7 +93,13 @@ def run_spec(spec, potential="tersoff:BNC.tersoff", cutoff="step", dump_dir=None
     from validation.lammps.tension import (default_dump_dir, dynamic_tension,  # noqa: PLC0415
                                            quasi_static_tension)
 
+    from validation.lammps.potential import resolve_potential  # noqa: PLC0415
+
     atoms = build_structure(spec)
+    cutoff = spec.get("cutoff", cutoff)
+    resolve_potential(potential, cutoff)  # bad potential: one-line error before any run
+    if "max_strain" in spec:
+        kw.setdefault("max_strain", spec["max_strain"])
     dump_dir = Path(dump_dir) if dump_dir else default_dump_dir()
     dump = dump_dir / f"{spec['name']}.dump"
     bar = tqdm(desc=spec["name"], unit="step", disable=not progress, leave=False)
@@ -111,7 +122,9 @@ def run_spec(spec, potential="tersoff:BNC.tersoff", cutoff="step", dump_dir=None
                      f"{spec['chirality'][0]},{spec['chirality'][1]} --length {spec['length']:g}"
                      + (" --vacancy" if spec.get("vacancy") else "")
                      + (" --dynamic" if spec["protocol"] == "dynamic" else "")
-                     + (f" --bundle {spec['ntubes']}" if spec.get("ntubes", 1) > 1 else ""))
+                     + (f" --bundle {spec['ntubes']}" if spec.get("ntubes", 1) > 1 else "")
+                     + (f" --cutoff {cutoff}" if cutoff != "step" else "")
+                     + " --save-reference")
     return res
 
 
@@ -278,6 +291,15 @@ def _args_tension(p):
 @case("reference-tension", "one LAMMPS tension reference (tube or bundle; quasi-static or "
       "dynamic), with damage analysis", add_arguments=_args_tension)
 def run_reference_tension(args):
+    from potentials.lammps_runtime import LammpsUnavailable  # noqa: PLC0415
+
+    try:
+        return _reference_tension(args)
+    except (ValueError, FileNotFoundError, LammpsUnavailable) as exc:
+        raise SystemExit(f"reference-tension: {exc}") from None
+
+
+def _reference_tension(args):
     from upscale.io import write_json  # noqa: PLC0415
 
     n, m = args.chirality
@@ -296,6 +318,8 @@ def run_reference_tension(args):
     kw["nprocs"] = args.nprocs
     spec = _spec("dynamic" if dynamic else "quasi-static", n, m, args.vacancy, length,
                  ntubes=args.bundle)
+    if args.cutoff != "step":
+        spec["name"] += "_stdcut"
     res = run_spec(spec, args.potential, args.cutoff, args.dump_dir, **kw)
     outdir = REF_DIR if args.save_reference else args.outdir
     plot = (PLOT_DIR if args.save_reference else args.outdir) / f"damage_{spec['name']}.png"
