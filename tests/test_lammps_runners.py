@@ -146,3 +146,40 @@ def test_bad_input_one_line_errors(monkeypatch):
     with pytest.raises(lammps_runtime.LammpsUnavailable, match="not importable") as ei:
         quasi_static_tension(tube)
     assert "\n" not in str(ei.value)
+
+
+def test_bundle_hybrid_is_tersoff_within_tubes_plus_lj_between():
+    """pair_style hybrid: energy = sum of each tube alone + 12-6 LJ over inter-tube pairs."""
+    from scipy.spatial.distance import cdist
+
+    from upscale.build import bundle
+    from validation.lammps.potential import LJ_CUTOFF, LJ_EPSILON_EV, LJ_SIGMA, resolve_potential
+    from validation.lammps.tension import _setup
+
+    b = bundle(5, 5, 10.0, ntubes=3, gap=3.0)
+    pot = resolve_potential("BNC.tersoff")
+
+    def energy(atoms):
+        lmp, _ = _setup(atoms, pot, "s s p")
+        lmp.command("run 0")
+        e = lmp.get_thermo("pe")
+        lmp.close()
+        return e
+
+    mol = b.arrays["mol-id"]
+    e_sep = 0.0
+    for k in (1, 2, 3):
+        t = b[mol == k]
+        del t.arrays["mol-id"]
+        e_sep += energy(t)
+    Lz = b.cell[2, 2]
+    e_lj = 0.0
+    for i in (1, 2, 3):
+        for j in range(i + 1, 4):
+            xi, xj = b.positions[mol == i], b.positions[mol == j]
+            for shift in (-Lz, 0.0, Lz):
+                r = cdist(xi, xj + [0, 0, shift]).ravel()
+                r = r[r < LJ_CUTOFF]
+                e_lj += np.sum(4 * LJ_EPSILON_EV * ((LJ_SIGMA / r) ** 12 - (LJ_SIGMA / r) ** 6))
+    assert e_lj < 0  # walls 3 Å apart attract
+    assert energy(b) == pytest.approx(e_sep + e_lj, rel=1e-10, abs=1e-8)
