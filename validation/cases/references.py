@@ -34,6 +34,7 @@ REF_DIR = REPO / "data" / "reference"
 PLOT_DIR = REF_DIR / "plots"
 
 QS_LENGTH = 100.0
+LOCALISED_FRACTION = 0.2  # damaged atoms of tube 1 below this fraction: a crack, not diffuse
 DYN_LENGTH = 150.0
 TUBES = [(10, 10), (17, 0), (12, 6)]
 
@@ -145,10 +146,7 @@ def analyse(res, atoms_info=None, plot_path=None):
     # reference network on tube 1 to find the vacancy neighbours (under-coordinated atoms)
     from upscale.analysis.damage import bond_network  # noqa: PLC0415
 
-    box = None
     x0 = dd.x_first_nc[sel]
-    if periodic:
-        u = None
     pairs = bond_network(x0, 2.0, box=[1e6, 1e6, _lz_first(dump)] if periodic else None)
     coord = np.bincount(pairs.ravel(), minlength=len(sel))
     out = {"bond_cutoff_A": 2.0, "break_cutoff_A": 2.1, "n_bonds": dd.n_bonds,
@@ -156,13 +154,6 @@ def analyse(res, atoms_info=None, plot_path=None):
     # frame -> strain mapping (quasi-static: one frame per strain; dynamic: frame k at
     # k * dump_every steps)
     strain_of_frame = _frame_strains(res, dd.frames)
-    xc = x0[:, :2].mean(axis=0)
-
-    def sz(x, idx):
-        c = x[sel][:, :2].mean(axis=0)
-        s, z = unroll(x[sel], c, radius=res["stress_convention"]["radius_A"])
-        return s[idx], z[idx]
-
     vac_idx = np.nonzero(coord < 3)[0]
     if dd.first_damage_frame is not None:
         k = dd.first_damage_frame
@@ -191,7 +182,12 @@ def analyse(res, atoms_info=None, plot_path=None):
             else:
                 out["crack_start_distance_to_vacancy_A"] = None
     line = None
-    if len(dmg) >= 2:
+    frac = float(len(dmg) / len(sel))
+    out["damaged_fraction_final"] = frac
+    # a crack line only means something for localised damage (a pristine periodic tube
+    # can fail everywhere at once: then the damage is "diffuse" and no angle is reported)
+    out["damage_localised"] = bool(len(dmg) >= 2 and frac < LOCALISED_FRACTION)
+    if out["damage_localised"]:
         line = crack_line(s_last[dmg], z_last[dmg], weights=mu_last[dmg])
         out["crack_line_final"] = line
         out["crack_angle_to_axis_deg"] = line["angle_to_axis_deg"]
@@ -370,7 +366,18 @@ def write_readme(results):
         "  before the first drop of more than 5 %. Damage index mu = 1 - R/T (seed 004",
         "  eq. 5.16): bonds < 2.0 Å in the first frame, broken beyond 2.1 Å. Crack angle:",
         "  principal axis of the damaged atoms of tube 1 on the unrolled surface (R theta, z)",
-        "  in the last frame, 90 deg = perpendicular to the axis.",
+        "  in the last frame, 90 deg = perpendicular to the axis; reported only when the",
+        "  damage is localised (< 20 % of the tube's atoms damaged; a pristine periodic tube",
+        "  can fail everywhere at once). Crack start: centre of the first damaged atoms vs the",
+        "  centre of the vacancy's under-coordinated atoms, on the unrolled surface.",
+        "* The 4-atom vacancy removes the 4 atoms nearest the seed's point (L/2, R, 0) (our",
+        "  (x_c + R, y_c, L/2), axis along z); which 4 (a compact cluster or a short chain)",
+        "  depends on where that point falls in the lattice, so strengths with a vacancy",
+        "  depend on the tube length; the removed indices are in each JSON.",
+        "* Quasi-static minimisation with the step cutoff: CG, then damped dynamics",
+        "  (LAMMPS quickmin) and CG again while a force component exceeds 1e-4 eV/Å (a bond",
+        "  held at the step stops CG line searches); residual forces per step are in the",
+        "  JSON (`curve.fmax_eV_per_A`).",
         "* Trajectories (LAMMPS dumps) are kept outside the repository",
         "  (~/.cache/upscale/dumps/).",
         "",
