@@ -183,3 +183,15 @@ def test_bundle_hybrid_is_tersoff_within_tubes_plus_lj_between():
                 e_lj += np.sum(4 * LJ_EPSILON_EV * ((LJ_SIGMA / r) ** 12 - (LJ_SIGMA / r) ** 6))
     assert e_lj < 0  # walls 3 Å apart attract
     assert energy(b) == pytest.approx(e_sep + e_lj, rel=1e-10, abs=1e-8)
+
+
+@pytest.mark.parametrize("spec", ["rebo", "airebo"])
+def test_rebo_and_airebo_run_with_standard_cutoff(spec):
+    from validation.lammps.tension import quasi_static_tension
+
+    r = quasi_static_tension(swcnt(10, 10, 10.0), spec, cutoff="standard", strain_step=0.01,
+                             max_strain=0.02)
+    s = r["curve"]["stress_GPa"]
+    assert abs(s[0]) < 1e-3 and 0 < s[1] < s[2]
+    assert r["potential"]["cutoff"] == "standard"
+    assert r["potential"]["file"] == ("CH.rebo" if spec == "rebo" else "CH.airebo")
