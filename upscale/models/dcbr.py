@@ -525,32 +525,31 @@ class DCBRTube:
             self._build_gain(self.intact)
         return nb
 
-    def check_stability(self):
-        """Lattice-stability rule: fail the most loaded particle(s) whose lattice is unstable.
+    def check_stability(self, all_equal: bool = False):
+        """Lattice-stability rule: fail the most loaded particle if its lattice is unstable.
 
-        Particles are visited in order of decreasing energy per atom (of the last
-        :meth:`energy_and_gradient`); the first whose mapped lattice is stable ends the
-        visit (less loaded ones are taken as stable). A failed particle loses all its links,
-        and so do the particles in the same lattice state (to 1e-7). Returns the number of
-        particles failed.
+        The alive particle with the largest energy per atom (of the last
+        :meth:`energy_and_gradient`) is tested; if its mapped lattice is unstable it fails
+        (loses all its links) and 1 is returned, else 0 (less loaded particles are taken as
+        stable). One particle per call: the caller re-minimises, so the load the failed
+        particle carried moves to its neighbours and the failure can run on as a crack. With
+        ``all_equal`` every particle in the same lattice state (to 1e-7) fails at once.
         """
-        if self.stability is None:
+        if self.stability is None or not self.alive.any():
             return 0
-        order = np.argsort(-self._e_n)
+        e = np.where(self.alive, self._e_n, -np.inf)
+        c = int(np.argmax(e))
+        q = self._q_n[c]
+        if self.stability.stable(q):
+            return 0
         failed = np.zeros(self.N, dtype=bool)
-        for c in order:
-            if not self.alive[c] or failed[c]:
-                continue
-            q = self._q_n[c]
-            if self.stability.stable(q):
-                break
-            same = np.all(np.abs(self._q_n - q) < 1e-7, axis=1) & self.alive
-            failed |= same
-        if failed.any():
-            g = self.gain
-            self.intact &= ~(failed[g.pair_i] | failed[g.pair_j])
-            self._build_gain(self.intact)
-            self.alive &= ~failed
+        failed[c] = True
+        if all_equal:
+            failed |= np.all(np.abs(self._q_n - q) < 1e-7, axis=1) & self.alive
+        g = self.gain
+        self.intact &= ~(failed[g.pair_i] | failed[g.pair_j])
+        self._build_gain(self.intact)
+        self.alive &= ~failed
         return int(failed.sum())
 
     def radius(self, y, delta):
@@ -602,11 +601,11 @@ def quasi_static_tension(model: DCBRTube, strain_step: float = 0.005, max_strain
         y[:, 2] *= Lz / Lprev
         Lprev = Lz
         nb_step = 0
-        for _ in range(50):
+        for _ in range(4 * model.N + 10):
             y, d, _, E, info, gL = model.minimise(y, d, Lz, gtol=gtol)
             nb = model.update_links()
             if nb == 0:
-                nb = model.check_stability()
+                nb = model.check_stability(all_equal=True)
             nb_step += nb
             if nb == 0:
                 break
