@@ -154,7 +154,12 @@ def analyse(res, atoms_info=None, plot_path=None):
     # frame -> strain mapping (quasi-static: one frame per strain; dynamic: frame k at
     # k * dump_every steps)
     strain_of_frame = _frame_strains(res, dd.frames)
-    vac_idx = np.nonzero(coord < 3)[0]
+    # the vacancy's under-coordinated atoms (not the open ends of a dynamic-test tube)
+    vac_idx = np.zeros(0, dtype=int)
+    if res["structure"].get("vacancy"):
+        z0 = x0[:, 2]
+        interior = (z0 > z0.min() + 3.0) & (z0 < z0.max() - 3.0)
+        vac_idx = np.nonzero((coord < 3) & interior)[0]
     if dd.first_damage_frame is not None:
         k = dd.first_damage_frame
         out["first_damage_frame"] = k
