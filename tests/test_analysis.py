@@ -135,3 +135,12 @@ def test_dump_damage_reads_lammps_dump_with_mdanalysis(tmp_path):
         expect[i] += 1.0 / T[i]
         expect[j] += 1.0 / T[j]
     assert np.allclose(dd.mu_fn[1], expect)
+
+
+def test_split_along_axis_separates_two_crack_rings():
+    from upscale.analysis.damage import split_along_axis
+
+    z = np.array([50.1, 110.0, 49.0, 111.2, 50.5, 109.5])
+    groups = split_along_axis(z, gap=5.0)
+    assert [sorted(g.tolist()) for g in groups] == [[0, 2, 4], [1, 3, 5]]
+    assert split_along_axis([]) == []

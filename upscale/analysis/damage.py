@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["bond_network", "damage_index", "unroll", "crack_line", "read_dump",
-           "DumpDamage", "dump_damage"]
+           "DumpDamage", "dump_damage", "split_along_axis"]
 
 
 def _box(box):
@@ -178,6 +178,20 @@ def crack_line(s_n, z_n, weights=None) -> dict:
             "angle_to_axis_deg": float(ang), "extent_A": float(2.0 * np.sqrt(max(evals[1], 0))),
             "straightness": float(straight), "n_points": int(len(s)),
             "direction_sz": [float(u[0]), float(u[1])]}
+
+
+def split_along_axis(z_n, gap: float = 5.0) -> list[np.ndarray]:
+    """Group points into clusters separated by axial gaps larger than ``gap`` Å.
+
+    Returns a list of index arrays into ``z_n`` (each sorted by z), e.g. the separate
+    crack rings of a tube that broke in two places.
+    """
+    z = np.asarray(z_n, dtype=float)
+    if z.size == 0:
+        return []
+    order = np.argsort(z, kind="stable")
+    cuts = np.nonzero(np.diff(z[order]) > gap)[0] + 1
+    return [np.asarray(g) for g in np.split(order, cuts)]
 
 
 def read_dump(path):

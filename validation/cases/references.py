@@ -131,7 +131,8 @@ def run_spec(spec, potential="tersoff:BNC.tersoff", cutoff="step", dump_dir=None
 
 def analyse(res, atoms_info=None, plot_path=None):
     """Damage analysis of a run's dump; adds ``res["damage"]`` (and a damage map PNG)."""
-    from upscale.analysis.damage import crack_line, dump_damage, unroll  # noqa: PLC0415
+    from upscale.analysis.damage import (crack_line, dump_damage,  # noqa: PLC0415
+                                         split_along_axis, unroll)
     from upscale.analysis.plots import plot_damage_map  # noqa: PLC0415
 
     dump = res.get("dump")
@@ -179,6 +180,7 @@ def analyse(res, atoms_info=None, plot_path=None):
         s1, z1 = unroll(u, u[:, :2].mean(axis=0), radius=res["stress_convention"]["radius_A"])
         first = np.nonzero(dd.mu_fn[dd.first_damage_frame][sel] > 0)[0]
         if len(first):
+            out["crack_start_z_final_A"] = float(z_last[first].mean())
             cs, cz = float(s1[first].mean()), float(z1[first].mean())
             out["crack_start_sz_A"] = [cs, cz]
             if len(vac_idx):
@@ -193,9 +195,20 @@ def analyse(res, atoms_info=None, plot_path=None):
     # can fail everywhere at once: then the damage is "diffuse" and no angle is reported)
     out["damage_localised"] = bool(len(dmg) >= 2 and frac < LOCALISED_FRACTION)
     if out["damage_localised"]:
-        line = crack_line(s_last[dmg], z_last[dmg], weights=mu_last[dmg])
-        out["crack_line_final"] = line
-        out["crack_angle_to_axis_deg"] = line["angle_to_axis_deg"]
+        # separate cracks (e.g. a tube torn at both grips) are fitted one by one; the angle
+        # reported is that of the crack nearest the vacancy (else nearest the first damage)
+        groups = [g for g in split_along_axis(z_last[dmg], gap=5.0) if len(g) >= 2]
+        lines = [crack_line(s_last[dmg][g], z_last[dmg][g], weights=mu_last[dmg][g])
+                 for g in groups]
+        out["n_cracks"] = len(lines)
+        out["crack_lines_final"] = lines
+        target = vac_sz[1] if vac_sz is not None else out.get("crack_start_z_final_A")
+        if lines:
+            k = (int(np.argmin([abs(ln["centre_z_A"] - target) for ln in lines]))
+                 if target is not None else int(np.argmax([ln["n_points"] for ln in lines])))
+            line = lines[k]
+            out["crack_line_final"] = line
+            out["crack_angle_to_axis_deg"] = line["angle_to_axis_deg"]
     if plot_path is not None:
         chi = res["structure"]["chirality"]
         title = (f"{res['protocol']} ({chi[0]},{chi[1]})"
