@@ -140,10 +140,11 @@ def analyse(res, atoms_info=None, plot_path=None):
         return res
     periodic = res["protocol"] == "quasi-static"
     dd = dump_damage(dump, bond_cutoff=2.0, break_cutoff=2.1, periodic_z=periodic)
-    n_atoms = dd.x_first_nc.shape[0]
     ntubes = res["structure"]["ntubes"]
-    per_tube = n_atoms // ntubes
-    sel = np.arange(per_tube)  # tube 1 (atoms are in tube order; ids 1..N)
+    from upscale.analysis.damage import read_dump  # noqa: PLC0415
+
+    types = np.asarray(read_dump(dump).atoms.types).astype(int)
+    sel = np.nonzero(types == 1)[0]  # tube 1 (the central tube of a bundle)
     # reference network on tube 1 to find the vacancy neighbours (under-coordinated atoms)
     from upscale.analysis.damage import bond_network  # noqa: PLC0415
 
