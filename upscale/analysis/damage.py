@@ -240,21 +240,26 @@ def dump_damage(path, bond_cutoff: float = 2.0, break_cutoff: float = 2.1,
     n = len(u.atoms)
     big = 1e6
 
-    def box_of(ts):
+    def box_of(dims):
         if not periodic_z:
             return None
-        return np.array([big, big, ts.dimensions[2]])
+        return np.array([big, big, dims[2]])
 
     traj = u.trajectory if frames is None else u.trajectory[frames]
     mus = []
     x_first = x_last = None
     pairs = None
-    for ts in traj:
-        x = u.atoms.positions.astype(np.float64)
+    import warnings  # noqa: PLC0415
+
+    with warnings.catch_warnings():  # "no dt information": times are not used
+        warnings.simplefilter("ignore", UserWarning)
+        frames_list = [(ts.dimensions.copy(), u.atoms.positions.astype(np.float64))
+                       for ts in traj]
+    for dims, x in frames_list:
         if pairs is None:
-            pairs = bond_network(x, bond_cutoff, box_of(ts))
+            pairs = bond_network(x, bond_cutoff, box_of(dims))
             x_first = x.copy()
-        mus.append(damage_index(pairs, x, break_cutoff, box_of(ts), n))
+        mus.append(damage_index(pairs, x, break_cutoff, box_of(dims), n))
         x_last = x.copy()
     mu = np.array(mus)
     first = np.nonzero(mu.max(axis=1) > 0)[0]
