@@ -81,7 +81,9 @@ def curve_metrics(strain, stress, fit_max_strain: float = 0.02, drop: float = 0.
     dict
         ``youngs_modulus_TPa``, ``youngs_fit_max_strain``, ``strength_GPa``,
         ``strain_at_peak``, ``failure_strain`` (None if no drop), ``failed``,
-        ``rise_after_plateau``, ``max_stress_before_failure_GPa``.
+        ``rise_after_plateau``, ``max_stress_before_failure_GPa``, and the maximum of the
+        whole curve ``max_stress_overall_GPa`` at ``strain_at_max_stress_overall`` (a bundle
+        whose outer tubes carry more load after the central one failed).
     """
     e = np.asarray(strain, dtype=float)
     s = np.asarray(stress, dtype=float)
@@ -99,6 +101,8 @@ def curve_metrics(strain, stress, fit_max_strain: float = 0.02, drop: float = 0.
     upto = ifail if ifail is not None else len(s)
     ipeak = int(np.argmax(s[:upto]))
     out = {"youngs_modulus_TPa": E / 1000.0, "youngs_fit_max_strain": fit_max_strain,
+           "max_stress_overall_GPa": float(s.max()),
+           "strain_at_max_stress_overall": float(e[int(np.argmax(s))]),
            "max_stress_before_failure_GPa": float(s[ipeak]),
            "strength_GPa": float(s[ipeak]), "strain_at_peak": float(e[ipeak]),
            "failure_strain": float(e[ifail]) if ifail is not None else None,

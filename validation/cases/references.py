@@ -135,6 +135,14 @@ def analyse(res, atoms_info=None, plot_path=None):
                                          split_along_axis, unroll)
     from upscale.analysis.plots import plot_damage_map  # noqa: PLC0415
 
+    from upscale.analysis.stress import curve_metrics  # noqa: PLC0415
+
+    # curve metrics from the stored curve with the current code (same function as the run)
+    fit = res.get("youngs_fit_max_strain", 0.02)
+    res.update(curve_metrics(res["curve"]["strain"], res["curve"]["stress_GPa"],
+                             fit_max_strain=fit))
+    if res.get("aborted") and not res["failed"]:
+        res.update(failed=True, failure_strain=res["aborted"]["strain"])
     dump = res.get("dump")
     if not dump or not Path(dump).is_file():
         return res
@@ -255,6 +263,7 @@ def _summary_row(res):
             "strain_at_peak": res["strain_at_peak"],
             "failure_strain": res["failure_strain"] if res["failure_strain"] is not None else "-",
             "E_TPa": res["youngs_modulus_TPa"],
+            "max_GPa": res.get("max_stress_overall_GPa", "-"),
             "crack_deg": d.get("crack_angle_to_axis_deg", "-"),
             "start_to_vac_A": d.get("crack_start_distance_to_vacancy_A", "-"),
             "wall_s": res["wall_s"]}
@@ -262,7 +271,8 @@ def _summary_row(res):
 
 def _key_figures(res):
     out = {k: res[k] for k in ("strength_GPa", "strain_at_peak", "failure_strain",
-                               "youngs_modulus_TPa", "wall_s", "failed", "rise_after_plateau")}
+                               "youngs_modulus_TPa", "wall_s", "failed", "rise_after_plateau",
+                               "max_stress_overall_GPa")}
     out["zero_strain_stress_GPa"] = res.get("zero_strain_stress_GPa",
                                             res["relaxation"]["stress_GPa"])
     d = res.get("damage", {})
