@@ -144,3 +144,20 @@ def test_split_along_axis_separates_two_crack_rings():
     groups = split_along_axis(z, gap=5.0)
     assert [sorted(g.tolist()) for g in groups] == [[0, 2, 4], [1, 3, 5]]
     assert split_along_axis([]) == []
+
+
+def test_dump_positions_are_absolute_lammps_coordinates(tmp_path):
+    """MDAnalysis shifts each frame's box to the origin; dump_damage undoes it."""
+    x = np.array([[1.0, 2.0, 3.0], [2.4, 2.0, 3.0]])
+
+    def frame(step, lo, xx):
+        return "\n".join(["ITEM: TIMESTEP", str(step), "ITEM: NUMBER OF ATOMS", "2",
+                          "ITEM: BOX BOUNDS ss ss ss", f"{lo} 10", f"{lo} 10", f"{lo} 10",
+                          "ITEM: ATOMS id type x y z"]
+                         + [f"{i + 1} 1 {p[0]} {p[1]} {p[2]}" for i, p in enumerate(xx)]) + "\n"
+
+    p = tmp_path / "s.dump"
+    p.write_text(frame(0, -5.0, x) + frame(10, -50.0, x + [0, 0, 0.5]))
+    dd = dump_damage(p, periodic_z=False)
+    assert np.allclose(dd.x_first_nc, x)
+    assert np.allclose(dd.x_last_nc, x + [0, 0, 0.5])

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["bond_network", "damage_index", "unroll", "crack_line", "read_dump",
-           "DumpDamage", "dump_damage", "split_along_axis"]
+           "DumpDamage", "dump_damage", "split_along_axis", "dump_box_lows"]
 
 
 def _box(box):
@@ -216,13 +216,28 @@ def read_dump(path):
                             lammps_coordinate_convention="unscaled")
 
 
+def dump_box_lows(path) -> np.ndarray:
+    """Lower box bounds ``(frames, 3)`` of an orthogonal LAMMPS dump, Å.
+
+    MDAnalysis moves every frame's box to the origin (it subtracts these bounds from the
+    positions); adding them back restores LAMMPS's absolute coordinates, so frames of a
+    growing shrink-wrapped box stay comparable.
+    """
+    lows = []
+    with open(path) as fh:
+        for line in fh:
+            if line.startswith("ITEM: BOX BOUNDS"):
+                lows.append([float(next(fh).split()[0]) for _ in range(3)])
+    return np.array(lows, dtype=float).reshape(-1, 3)
+
+
 @dataclasses.dataclass
 class DumpDamage:
     """Damage history of a dump: per-frame mu and the first damaged frame."""
 
     mu_fn: np.ndarray          # (frames, N)
-    x_first_nc: np.ndarray     # (N, 3) positions of the first frame
-    x_last_nc: np.ndarray      # (N, 3) positions of the last frame
+    x_first_nc: np.ndarray     # (N, 3) positions of the first frame (LAMMPS coordinates)
+    x_last_nc: np.ndarray      # (N, 3) positions of the last frame (LAMMPS coordinates)
     n_bonds: int
     first_damage_frame: int | None
     frames: int
@@ -239,6 +254,7 @@ def dump_damage(path, bond_cutoff: float = 2.0, break_cutoff: float = 2.1,
     u = read_dump(path)
     n = len(u.atoms)
     big = 1e6
+    lows = dump_box_lows(path)  # absolute LAMMPS coordinates (see dump_box_lows)
 
     def box_of(dims):
         if not periodic_z:
@@ -253,8 +269,8 @@ def dump_damage(path, bond_cutoff: float = 2.0, break_cutoff: float = 2.1,
 
     with warnings.catch_warnings():  # "no dt information": times are not used
         warnings.simplefilter("ignore", UserWarning)
-        frames_list = [(ts.dimensions.copy(), u.atoms.positions.astype(np.float64))
-                       for ts in traj]
+        frames_list = [(ts.dimensions.copy(), u.atoms.positions.astype(np.float64)
+                        + lows[ts.frame]) for ts in traj]
     for dims, x in frames_list:
         if pairs is None:
             pairs = bond_network(x, bond_cutoff, box_of(dims))
