@@ -272,7 +272,8 @@ def _frame_strains(res, frames):
 
 def _summary_row(res):
     d = res.get("damage", {})
-    return {"name": res["name"], "strength_GPa": res["strength_GPa"],
+    return {"name": res["name"], "atoms": res["structure"]["n_atoms"],
+            "strength_GPa": res["strength_GPa"],
             "strain_at_peak": res["strain_at_peak"],
             "failure_strain": res["failure_strain"] if res["failure_strain"] is not None else "-",
             "E_TPa": res["youngs_modulus_TPa"],
@@ -435,6 +436,12 @@ def write_readme(results):
         "```",
         "",
         "Plots: `plots/stress_strain_*.png` (overlays), `plots/damage_*.png` (damage maps).",
+        "",
+        "Cross-check of the chain: `python -m validation tersoff-chain` relaxes and stretches",
+        "a short periodic (10,10) tube with the project's Tersoff calculator",
+        "(`potentials.tersoff.Tersoff.from_lammps('BNC.tersoff', step_cutoff=True)`) and ASE's",
+        "LBFGS, and compares its stress with this LAMMPS runner at every strain up to the peak",
+        "(key `max_stress_rel_err`).",
         "",
     ]
     atomic_write_text(REF_DIR / "README.md", "\n".join(lines))
