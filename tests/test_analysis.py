@@ -161,3 +161,17 @@ def test_dump_positions_are_absolute_lammps_coordinates(tmp_path):
     dd = dump_damage(p, periodic_z=False)
     assert np.allclose(dd.x_first_nc, x)
     assert np.allclose(dd.x_last_nc, x + [0, 0, 0.5])
+
+
+def test_curve_metrics_single_flat_interval_then_rise_is_flagged():
+    # a standard-cutoff shape sampled at 2 %: 127.5 @ 28 %, 129.47 @ 30 %, 129.55 @ 32 %,
+    # then a steep rise to 235 GPa and a break
+    e = np.round(np.arange(0, 0.50, 0.02), 4)
+    s = np.concatenate([1000 * e[:2], np.linspace(39.4, 127.5, 13), [129.47, 129.55],
+                        np.linspace(134.8, 234.9, 6), [6.1, 6.5]])
+    assert len(s) == len(e)
+    m = curve_metrics(e, s)
+    assert m["rise_after_plateau"] and m["failed"]
+    assert m["strength_GPa"] == pytest.approx(129.47)
+    assert m["strain_at_peak"] == pytest.approx(0.30)
+    assert m["max_stress_before_failure_GPa"] == pytest.approx(234.9)

@@ -70,7 +70,8 @@ def curve_metrics(strain, stress, fit_max_strain: float = 0.02, drop: float = 0.
         is the strain of the dropping point.
     plateau_fraction : float
         Cutoff-artefact check: if, before failure, the tangent modulus falls below
-        ``plateau_fraction * E`` over two successive intervals and the stress later rises by more than ``drop`` above the
+        ``plateau_fraction * E`` in magnitude at a stress above half the maximum before
+        failure, and the stress later rises by more than ``drop`` above the
         stress where that happened, the curve "stiffens after a plateau" (the switching
         function of a standard Tersoff/REBO cutoff). Then ``strength_GPa`` is the plateau
         stress, ``rise_after_plateau`` is True and ``max_stress_before_failure_GPa`` keeps the
@@ -111,8 +112,10 @@ def curve_metrics(strain, stress, fit_max_strain: float = 0.02, drop: float = 0.
     # plateau-then-rise (cutoff artefact) check on the tangent modulus before failure
     if upto >= 3 and E > 0:
         tangent = np.diff(s[:upto]) / np.diff(e[:upto])
-        low = (tangent < plateau_fraction * E) & (e[1:upto] > fit_max_strain)
-        flat = np.nonzero(low[:-1] & low[1:])[0]  # two flat intervals in a row, not a dip
+        # flat: |tangent| small (a dip of a few % has a steep negative tangent instead)
+        low = ((np.abs(tangent) < plateau_fraction * E) & (e[1:upto] > fit_max_strain)
+               & (s[:upto - 1] > 0.5 * s[:upto].max()))  # a plateau at high stress
+        flat = np.nonzero(low)[0]
         if len(flat):
             k = int(flat[0])          # plateau starts at point k
             if s[k + 1:upto].max(initial=-np.inf) > (1.0 + drop) * s[k]:

@@ -15,8 +15,9 @@ The kept reference set (``REFERENCE_SET``), all with ``BNC.tersoff`` and the ste
   10 K: the same six tubes;
 * dynamic, 7-tube (10,10) bundle of ~150 Å (walls 3.4 Å apart, LJ between tubes), vacancy in
   the central tube;
-* quasi-static pristine (10,10) with the standard switching function (to 60 % strain): shows
-  the cutoff artefact (plateau, then a rise), flagged ``rise_after_plateau``.
+* quasi-static pristine (10,10) of ~20 Å with the standard switching function, 1 % steps to
+  60 % strain: shows the cutoff artefact (plateau, then a rise), flagged
+  ``rise_after_plateau`` (a 100 Å tube spent > 10 min in one step of the plateau here).
 """
 from __future__ import annotations
 
@@ -52,8 +53,8 @@ REFERENCE_SET = (
     + [_spec("dynamic", n, m, v, DYN_LENGTH) for (n, m) in TUBES for v in (False, True)]
     + [_spec("dynamic", 10, 10, True, DYN_LENGTH, ntubes=7)]
     # the standard switching function, to show (and flag) the cutoff artefact
-    + [dict(_spec("quasi-static", 10, 10, False, QS_LENGTH), name="qs_10-10_pristine_stdcut",
-            cutoff="standard", max_strain=0.6)]
+    + [dict(_spec("quasi-static", 10, 10, False, 20.0), name="qs_10-10_pristine_stdcut",
+            cutoff="standard", max_strain=0.6, strain_step=0.01)]
 )
 
 
@@ -99,8 +100,9 @@ def run_spec(spec, potential="tersoff:BNC.tersoff", cutoff="step", dump_dir=None
     atoms = build_structure(spec)
     cutoff = spec.get("cutoff", cutoff)
     resolve_potential(potential, cutoff)  # bad potential: one-line error before any run
-    if "max_strain" in spec:
-        kw.setdefault("max_strain", spec["max_strain"])
+    for key in ("max_strain", "strain_step"):
+        if key in spec:
+            kw.setdefault(key, spec[key])
     dump_dir = Path(dump_dir) if dump_dir else default_dump_dir()
     dump = dump_dir / f"{spec['name']}.dump"
     bar = tqdm(desc=spec["name"], unit="step", disable=not progress, leave=False)
