@@ -15,8 +15,9 @@ The kept reference set (``REFERENCE_SET``), all with ``BNC.tersoff`` and the ste
   10 K: the same six tubes;
 * dynamic, 7-tube (10,10) bundle of ~150 Å (walls 3.4 Å apart, LJ between tubes), vacancy in
   the central tube;
-* quasi-static pristine (10,10) of ~20 Å with the standard switching function, 1 % steps to
-  60 % strain: shows the cutoff artefact (plateau, then a rise), flagged
+* quasi-static pristine (10,10) of ~20 Å with the standard switching function, 2 % steps to
+  60 % strain (with 1 % steps the damped-dynamics fallback found the broken state at 27 %
+  instead of the stretched metastable branch: the artefact branch is path dependent): shows the cutoff artefact (plateau, then a rise), flagged
   ``rise_after_plateau`` (a 100 Å tube spent > 10 min in one step of the plateau here).
 """
 from __future__ import annotations
@@ -54,7 +55,7 @@ REFERENCE_SET = (
     + [_spec("dynamic", 10, 10, True, DYN_LENGTH, ntubes=7)]
     # the standard switching function, to show (and flag) the cutoff artefact
     + [dict(_spec("quasi-static", 10, 10, False, 20.0), name="qs_10-10_pristine_stdcut",
-            cutoff="standard", max_strain=0.6, strain_step=0.01)]
+            cutoff="standard", max_strain=0.6, strain_step=0.02)]
 )
 
 
@@ -88,7 +89,7 @@ def build_structure(spec):
 
 
 def run_spec(spec, potential="tersoff:BNC.tersoff", cutoff="step", dump_dir=None,
-             progress=True, **kw):
+             progress=True, dump_name=None, **kw):
     """Run one spec with LAMMPS, analyse its dump; returns the result dict."""
     from tqdm import tqdm  # noqa: PLC0415
 
@@ -104,7 +105,7 @@ def run_spec(spec, potential="tersoff:BNC.tersoff", cutoff="step", dump_dir=None
         if key in spec:
             kw.setdefault(key, spec[key])
     dump_dir = Path(dump_dir) if dump_dir else default_dump_dir()
-    dump = dump_dir / f"{spec['name']}.dump"
+    dump = dump_dir / f"{dump_name or spec['name']}.dump"
     bar = tqdm(desc=spec["name"], unit="step", disable=not progress, leave=False)
 
     def prog(eps, s):
@@ -362,9 +363,13 @@ def _reference_tension(args):
                  ntubes=args.bundle)
     if args.cutoff != "step":
         spec["name"] += "_stdcut"
-    res = run_spec(spec, args.potential, args.cutoff, args.dump_dir, **kw)
-    outdir = REF_DIR if args.save_reference else args.outdir
-    plot = (PLOT_DIR if args.save_reference else args.outdir) / f"damage_{spec['name']}.png"
+    # only a kept reference (--save-reference, full size) uses the reference dump name
+    dump_name = spec["name"] if args.save_reference and not args.quick else \
+        f"case_{spec['name']}{'_quick' if args.quick else ''}"
+    res = run_spec(spec, args.potential, args.cutoff, args.dump_dir, dump_name=dump_name, **kw)
+    keep = args.save_reference and not args.quick  # a --quick run never lands in data/
+    outdir = REF_DIR if keep else args.outdir
+    plot = (PLOT_DIR if keep else args.outdir) / f"damage_{spec['name']}.png"
     res = analyse(res, plot_path=plot)
     write_json(Path(outdir) / f"{spec['name']}.json", res)
     print(table([_summary_row(res)]))
@@ -479,7 +484,7 @@ def run_references(args):
     specs = REFERENCE_SET
     if args.quick:  # a reduced set: one short quasi-static tube, into the outdir
         res = run_spec(_spec("quasi-static", 10, 10, True, 30.0), args.potential, args.cutoff,
-                       args.dump_dir, strain_step=0.02)
+                       args.dump_dir, dump_name="case_references_quick", strain_step=0.02)
         res = analyse(res, plot_path=Path(args.outdir) / "damage_quick.png")
         write_json(Path(args.outdir) / "quick.json", res)
         print(table([_summary_row(res)]))
