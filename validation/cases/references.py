@@ -463,7 +463,8 @@ def make_overlays(results):
                if r["protocol"] == proto and r["structure"]["ntubes"] == 1]
         if sel:
             p = PLOT_DIR / f"stress_strain_{tag}.png"
-            plot_stress_strain(sel, p, title=f"LAMMPS BNC.tersoff, {proto} (step cutoff; _stdcut: standard)")
+            plot_stress_strain(sel, p, title=f"LAMMPS BNC.tersoff, {proto} "
+                               "(step cutoff; _stdcut: standard)")
             paths.append(p)
     b = [dict(r, label=r["name"]) for r in results
          if r["structure"]["chirality"] == [10, 10] and r["protocol"] == "dynamic"]
