@@ -12,7 +12,8 @@ import pkgutil
 import sys
 
 #: the sub-command (and its arguments) that ``upscale demo`` runs
-DEMO: list[str] = ["plate", "--quick"]
+DEMO: list[str] = ["tension", "--chirality", "10,10", "--length", "100", "--coarsening", "2",
+                   "--compare", "lammps"]
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -10,7 +10,6 @@ same potential file, same tube, same protocol), taken from ``data/reference/`` w
 """
 from __future__ import annotations
 
-import sys
 import time
 from pathlib import Path
 
@@ -49,20 +48,28 @@ def run(args) -> int:
     out = Path(args.outdir)
     tag = f"{n}_{m}_K{args.coarsening:g}"
     if args.compare == "lammps":
-        try:
-            from validation.cases.dcbr import run_tension_comparison
-        except ImportError:  # the validation package lives beside upscale in the repository
-            sys.path.insert(0, str(Path(__file__).resolve().parents[2]))
-            from validation.cases.dcbr import run_tension_comparison
+        from validation.cases.dcbr import run_tension_comparison  # installed with upscale
         from validation.registry import table
 
         res = run_tension_comparison(n, m, args.length, args.coarsening, args.strain_step,
                                      outdir=out)
         curve = res.pop("_curve")
-        cols = ["chirality", "coarsening", "atoms", "particles", "dof", "modulus_TPa",
-                "modulus_lammps_TPa", "strength_GPa", "strength_lammps_GPa", "strain_at_peak",
-                "strain_at_peak_lammps", "wall_s", "lammps_wall_s", "speedup"]
-        print(table([res], cols, floatfmt=".5g"))
+        rows = [
+            {"quantity": "Young's modulus (TPa)", "DCBR": res["modulus_TPa"],
+             "LAMMPS": res["modulus_lammps_TPa"], "error (%)": res["modulus_err_pct"]},
+            {"quantity": "strength (GPa)", "DCBR": res["strength_GPa"],
+             "LAMMPS": res["strength_lammps_GPa"], "error (%)": res["strength_err_pct"]},
+            {"quantity": "strain at peak", "DCBR": res["strain_at_peak"],
+             "LAMMPS": res["strain_at_peak_lammps"], "error (%)": res["strain_at_peak_err_pct"]},
+            {"quantity": "degrees of freedom", "DCBR": res["dof"], "LAMMPS": res["dof_atoms"],
+             "error (%)": ""},
+            {"quantity": "wall time (s)", "DCBR": res["wall_s"], "LAMMPS": res["lammps_wall_s"],
+             "error (%)": ""},
+        ]
+        print(f"({n},{m}) tube, {res['atoms']} atoms, coarsening {args.coarsening:g} "
+              f"({res['particles']} particles); stress on wall thickness 3.4 A")
+        print(table(rows, ["quantity", "DCBR", "LAMMPS", "error (%)"], floatfmt=".5g"))
+        print(f"speed-up {res['speedup']:.3g}x (LAMMPS: {res['lammps_source']})")
         write_json(out / f"tension_{tag}.json", {"result": res, "curve": curve,
                                                  "versions": versions()})
         print(f"wrote {out / f'tension_{tag}.json'} and {out / f'dcbr_tension_{n}_{m}_K{args.coarsening:g}.png'}")
