@@ -207,3 +207,103 @@ def test_ase_calculator_forces_are_the_energy_gradient():
         Em = a.get_potential_energy()
         assert abs(F[j, k] + (Ep - Em) / (2 * h)) < 1e-4
     assert abs(a.get_potential_energies().sum() - a.get_potential_energy()) < 1e-9
+
+
+# ---------------------------------------------------------------- zero-energy-mode control
+def _cyl_map(t, lt, gm, lz):
+    """Uniform cylindrical map s' = lt s + gm z, z' = lz z, radius' = lt R0 of the grid."""
+    R0 = t.lattice.R0
+    th = np.arctan2(t.x0[:, 1], t.x0[:, 0]) + gm * t.x0[:, 2] / (lt * R0)
+    return np.column_stack([lt * R0 * np.cos(th), lt * R0 * np.sin(th), lz * t.x0[:, 2]])
+
+
+def test_hourglass_control_vanishes_on_uniform_maps(tube):
+    """W_stab = 0 (roundoff) at the reference, under rigid motions and uniform radial/axial
+    stretch; under a twist it is O((h/R)^2): below 1e-3 of the lattice energy."""
+    assert tube.k_stab > 0
+    F = tube.gain.deformation(tube.x0, [0, 0, tube.L])
+    assert abs(tube.stab_energy_and_gradient(tube.x0, F, tube.L)[0]) < 1e-20
+    for lt, lz in [(0.97, 1.10), (1.03, 0.95), (0.9, 1.25)]:
+        y = _cyl_map(tube, lt, 0.0, lz)
+        F = tube.gain.deformation(y, [0, 0, lz * tube.L])
+        Es = tube.stab_energy_and_gradient(y, F, lz * tube.L)[0]
+        assert Es < 1e-20
+        Q = _rot([0, 0, 1], 0.7)  # rigid rotation about the axis + translation on top
+        y2 = y @ Q.T + [0.4, -0.1, 2.0]
+        assert tube.stab_energy_and_gradient(y2, tube.gain.deformation(y2, [0, 0, lz * tube.L]),
+                                             lz * tube.L)[0] < 1e-20
+    # twist: not periodic, so compare links of particles whose family has no periodic image
+    g, st = tube.gain, tube._st
+    ce = np.repeat(np.arange(tube.N), np.diff(g.offsets))
+    has_img = np.zeros(tube.N, bool)
+    has_img[ce[g.image.any(axis=1)]] = True
+    inner = ~has_img[st["c"]]
+    y = _cyl_map(tube, 1.0, 0.05, 1.0)
+    F = g.deformation(y, [0, 0, tube.L])
+    Q3, h = tube._stab_local(F)
+    r = y[st["j"]] - y[st["c"]] - np.einsum("eia,ea->ei", Q3, h + st["r0"])
+    Ws = 0.5 * np.sum((tube.k_stab * st["w"] * np.einsum("ei,ei->e", r, r))[inner])
+    tube.energy_and_gradient(y, np.zeros((tube.N, 3)), tube.L)
+    e_lat = np.sum((tube._e_n - tube.e0)[~has_img] * tube.natoms_n[~has_img])
+    assert inner.sum() > 0 and 0 < Ws < 1e-3 * e_lat
+
+
+def test_hourglass_control_forces_match_finite_differences(tube):
+    """The W_stab gradient (chain rule through dG/du, complex-step dp/dF) vs central
+    differences of W_stab alone, all components, and of the total energy."""
+    rng = np.random.default_rng(11)
+    y = tube.x0 + 0.05 * rng.standard_normal(tube.x0.shape)
+    L = tube.L * 1.03
+
+    def ws(yy, LL):
+        return tube.stab_energy_and_gradient(yy, tube.gain.deformation(yy, [0, 0, LL]), LL)
+
+    Es, Ps, gys, dLs = ws(y, L)
+    assert Es > 0
+    grad = gys - tube.gain.forces(Ps)
+    h = 1e-6
+    fd = np.empty_like(grad)
+    for j in range(tube.N):
+        for k in range(3):
+            yp, ym = y.copy(), y.copy()
+            yp[j, k] += h
+            ym[j, k] -= h
+            fd[j, k] = (ws(yp, L)[0] - ws(ym, L)[0]) / (2 * h)
+    assert np.abs(fd - grad).max() < 1e-6 * np.abs(grad).max()
+    gL = dLs + tube.gain.cell_derivative(Ps)[2]
+    fdL = (ws(y, L + h)[0] - ws(y, L - h)[0]) / (2 * h)
+    assert abs(fdL - gL) < 1e-6 * max(abs(gL), np.abs(grad).max())
+
+
+def _zero_modes_beyond_rigid(t):
+    """Count of |eigenvalues| < 1e-6 max of the relaxed tube's Hessian (shifts condensed)
+    beyond the 4 rigid modes, as in ``python -m validation dcbr-stability``."""
+    y, d, L0, *_ = t.minimise(t.x0, t.delta, t.L, relax_box=True, gtol=1e-9)
+    N = t.N
+    z0 = np.concatenate([y.ravel(), d.ravel()])
+
+    def grad(z):
+        _, gy, gd, _ = t.energy_and_gradient(z[:3 * N].reshape(N, 3), z[3 * N:].reshape(N, 3), L0)
+        return np.concatenate([gy.ravel(), gd.ravel()])
+
+    h = 1e-5
+    H = np.empty((6 * N, 6 * N))
+    for i in range(6 * N):
+        zp, zm = z0.copy(), z0.copy()
+        zp[i] += h
+        zm[i] -= h
+        H[i] = (grad(zp) - grad(zm)) / (2 * h)
+    H = 0.5 * (H + H.T)
+    a, b = slice(0, 3 * N), slice(3 * N, 6 * N)
+    K = H[a, a] - H[a, b] @ np.linalg.solve(H[b, b], H[b, a])
+    w = np.linalg.eigvalsh(K)
+    return int((np.abs(w) < 1e-6 * w.max()).sum()) - 4
+
+
+def test_hourglass_control_removes_zero_energy_modes():
+    """Coarsening 4, (10,10), 25 Å: spurious zero-energy modes without the control (8), none
+    with it."""
+    off = _zero_modes_beyond_rigid(DCBRTube(10, 10, 25.0, coarsening=4, hourglass=0.0,
+                                            stability=False))
+    on = _zero_modes_beyond_rigid(DCBRTube(10, 10, 25.0, coarsening=4, stability=False))
+    assert off > 0 and on == 0

@@ -49,13 +49,46 @@ sublattice shifts are extra per-particle unknowns minimised together with the po
 Broken links leave G's family (Upsilon is rebuilt); a particle left with fewer than 3
 non-collinear links drops out. Damage index mu = 1 - R/T per particle (eq. 5.16).
 
+**Zero-energy-mode (hourglass) control** (``hourglass``, default 0.1; 0 switches it off).
+G_c does not see u_c itself, so checkerboard-like patterns of the regular grid leave every
+G unchanged (on the curved wall: combinations of them) and cost nothing: the validation case
+dcbr-stability counted 32 / 6 / 8 such zero-energy modes beyond the 4 rigid ones for the
+(10,10) tube, 25 Å, at coarsening 1 / 2 / 4 without this control, 0 with it. A penalty on the non-affine part of each link (Silling 2017;
+Breitenfeld et al. 2014: hourglass control for correspondence peridynamics) restores its
+stiffness,
+
+    W_stab = 1/2 k_s sum_c sum_{n in family(c), intact} |y_n - y_c - p_cn(F_c)|^2 / |beta_cn|^2,
+
+where p_cn is the link predicted by c's own *uniform cylindrical map* (the same map the
+energy uses): with M_c = chol(C_c) = [[lam_t, gam], [0, lam_z]], Q_c = F_c S_c M_c^-1 (3x2,
+orthonormal columns: the deformed e_theta, e_z), n'_c = q1 x q2 and the link's reference arc
+and axial offsets (ds, dz),
+
+    p_cn = Q_c (R' sin phi, lam_z dz)^T - n'_c R' (1 - cos phi) + Q3_c r0_cn,
+    R' = lam_t R0,  phi = (lam_t ds + gam dz) / R',   Q3_c = [q1 q2 n'_c],
+
+i.e. the chord of the deformed cylinder. r0_cn (local frame, computed once per family) is
+the residual at the reference configuration: zero on a full symmetric family, nonzero only
+next to broken links, so the reference state costs nothing for any family. Consequences:
+W_stab = 0 for every rigid motion and for uniform radial/axial stretch (F recovers M
+exactly there); under a uniform twist the chord fit of G recovers gam only to O((h/R)^2)
+(gain-affine) and W_stab is of that order (measured by the tests). Its gradient is exact:
+dp/dF_c by complex-step differentiation (error ~1e-30, no truncation), then through G's
+fixed coefficients like the lattice energy, plus the direct terms in y_n, y_c and the cell.
+
+Stiffness (from the lattice's own elastic constant, not fitted): k_s = hourglass * N_c *
+c_zz / 8, c_zz = d^2 e / d lam_z^2 (eV/atom, shift relaxed, central difference of
+:meth:`TubeLattice.relaxed`); a non-affine link strain eps on all 8 links of the 3x3 stencil
+then costs ``hourglass`` times the uniaxial energy N_c c_zz eps^2 / 2 of the particle.
+The lattice-stability rule reads the lattice energy per atom only (``_e_lat_n``);
+``_e_n`` (per-atom energies, used by the ASE calculator) adds each particle's share of
+W_stab (its own links) divided by N_c, so the per-particle energies sum to the total.
+
 Scope (what is and is not here): periodic pristine tubes of any chirality, uniform
 (theta, z) arrangement, quasi-static tension (:func:`quasi_static_tension`) and an ASE
 calculator (:mod:`upscale.calculators`). Not yet: defects (the 4-atom vacancy needs a
 refined or atomistic region around it), open tubes with grips and dynamic tension, and the
-engine's ``Model`` interface (this model runs its own L-BFGS loop). The surface gain leaves
-the checkerboard (hourglass) mode of a regular grid without stiffness (G of a particle does
-not see its own displacement); uniform periodic loading does not excite it.
+engine's ``Model`` interface (this model runs its own L-BFGS loop).
 
 Units: eV, Å; stress in GPa with the wall area 2 pi R t, t = 3.4 Å.
 """
@@ -358,12 +391,15 @@ class DCBRTube:
     stability : bool
         Apply the lattice-stability failure rule (:class:`LatticeStability`) after each
         load step (:meth:`check_stability`).
+    hourglass : float
+        Zero-energy-mode control: k_s as a fraction of the lattice stiffness (module
+        docstring); 0 switches it off. Default 0.1.
     """
 
     def __init__(self, n: int, m: int, length: float, coarsening: float = 2.0,
                  horizon_factor: float = 1.5, potential: str = "tersoff:BNC.tersoff",
                  cutoff: str = "step", bond: float = 1.42, kind: str = "quartic",
-                 relax_shift: bool = True, stability: bool = True):
+                 relax_shift: bool = True, stability: bool = True, hourglass: float = 0.1):
         from upscale.build import _ncells, chirality  # noqa: PLC0415
 
         if not (coarsening >= 1.0 and np.isfinite(coarsening)):
@@ -371,6 +407,8 @@ class DCBRTube:
                              "(1 = one particle per lattice constant)")
         if not horizon_factor > 1.0:
             raise ValueError(f"horizon_factor={horizon_factor!r}; valid: > 1")
+        if not (hourglass >= 0.0 and np.isfinite(hourglass)):
+            raise ValueError(f"hourglass={hourglass!r}; valid: a number >= 0 (0 = off)")
         self.p = tersoff_params(potential, cutoff)
         self.p_standard = tersoff_params(potential, "standard")
         self.potential, self.cutoff = potential, cutoff
@@ -397,8 +435,15 @@ class DCBRTube:
         self.coarsening = float(coarsening)
         self.relax_shift = relax_shift
         self.area0 = ds * dz
+        self.hourglass = float(hourglass)
+        self.k_stab = 0.0
         self._build_gain(None)
         self.e0 = self.lattice.energy(np.array([1.0, 0, 1.0, 0, 0, 0]), self.p)[0]
+        if self.hourglass > 0:
+            h = 1e-3
+            ez = [self.lattice.relaxed(1.0, 0.0, 1.0 + t, self.p)[0] for t in (-h, 0.0, h)]
+            self.c_zz = (ez[0] - 2 * ez[1] + ez[2]) / h ** 2  # eV/atom
+            self.k_stab = self.hourglass * float(self.natoms_n[0]) * self.c_zz / 8.0
         self.delta = np.zeros((self.N, 3))
         self.stability = LatticeStability(n, m, potential, cutoff, bond) if stability else None
 
@@ -427,6 +472,90 @@ class DCBRTube:
             t /= np.maximum(np.linalg.norm(t, axis=1), 1e-12)[:, None]
             self.link_bond = np.argmax(np.abs(t @ bdir.T), axis=1)
         self.alive = g.alive.copy()
+        self._build_stab()
+
+    # ------------------------------------------------------------------ hourglass control
+    def _build_stab(self):
+        """Link data of W_stab over the entries of G (module docstring): owner c, j, image,
+        1/|beta|^2, reference arc and axial offsets, and the reference residual r0 (local)."""
+        g = self.gain
+        ce = np.repeat(np.arange(self.N), np.diff(g.offsets))
+        keep = g.alive[ce]
+        ce, je, im = ce[keep], g.neighbors[keep], g.image[keep]
+        beta = self.x0[je] + im * g.cell - self.x0[ce]
+        R0 = self.lattice.R0
+        T = g.frame[ce]
+        nrm = np.cross(T[:, :, 0], T[:, :, 1])
+        tang = np.einsum("ei,ei->e", beta, T[:, :, 0])
+        norm_c = np.einsum("ei,ei->e", beta, nrm)
+        dth = np.arctan2(tang, R0 + norm_c)
+        self._st = {"c": ce, "j": je, "im": im.astype(float),
+                    "w": 1.0 / np.einsum("ei,ei->e", beta, beta),
+                    "ds": R0 * dth, "dz": np.einsum("ei,ei->e", beta, T[:, :, 1]),
+                    "r0": np.zeros((len(ce), 3))}
+        F0 = g.deformation(self.x0, g.cell)
+        Q3, h = self._stab_local(F0)
+        self._st["r0"] = np.einsum("eia,ei->ea", Q3, beta) - h
+
+    def _stab_local(self, F):
+        """Per link: Q3_c (e,3,3) and h (e,3), the local chord of c's uniform map (real or
+        complex F, for the complex-step derivative)."""
+        st, S, R0 = self._st, self.S, self.lattice.R0
+        dead = ~self.gain.alive
+        if dead.any():  # empty rows (no links): any regular F, they own no link
+            F = F.copy()
+            F[dead] = self.gain.frame[dead]
+        FS = np.einsum("nia,nab->nib", F, S)
+        C = np.einsum("nia,nib->nab", FS, FS)  # transpose, no conjugate (complex step)
+        lt = np.sqrt(C[:, 0, 0])
+        gm = C[:, 0, 1] / lt
+        lz = np.sqrt(C[:, 1, 1] - gm * gm)
+        q1 = FS[:, :, 0] / lt[:, None]
+        q2 = (FS[:, :, 1] - gm[:, None] * q1) / lz[:, None]
+        n = np.stack([q1[:, 1] * q2[:, 2] - q1[:, 2] * q2[:, 1],
+                      q1[:, 2] * q2[:, 0] - q1[:, 0] * q2[:, 2],
+                      q1[:, 0] * q2[:, 1] - q1[:, 1] * q2[:, 0]], axis=1)
+        c = st["c"]
+        Q3 = np.stack([q1[c], q2[c], n[c]], axis=2)
+        Rp = lt[c] * R0
+        phi = (lt[c] * st["ds"] + gm[c] * st["dz"]) / Rp
+        h = np.stack([Rp * np.sin(phi), lz[c] * st["dz"], -Rp * (1.0 - np.cos(phi))], axis=1)
+        return Q3, h
+
+    def stab_energy_and_gradient(self, y, F, Lz):
+        """W_stab (eV), its P = dW/dF (N,3,2), direct dW/dy (N,3) and direct dW/dLz.
+
+        Also sets ``_w_stab_n`` (N,): each particle's share (the links it owns), eV."""
+        N = self.N
+        P = np.zeros((N, 3, 2))
+        gy = np.zeros((N, 3))
+        st = self._st
+        self._w_stab_n = np.zeros(N)
+        if self.k_stab == 0.0 or len(st["c"]) == 0:
+            return 0.0, P, gy, 0.0
+        c, j = st["c"], st["j"]
+        link = y[j] - y[c] + st["im"] * np.array([0.0, 0.0, Lz])
+        Q3, h = self._stab_local(F)
+        r = link - np.einsum("eia,ea->ei", Q3, h + st["r0"])
+        kw = self.k_stab * st["w"]
+        we = 0.5 * kw * np.einsum("ei,ei->e", r, r)
+        self._w_stab_n = np.bincount(c, weights=we, minlength=N)  # each particle's own links
+        E = float(np.sum(we))
+        kr = kw[:, None] * r
+        np.add.at(gy, j, kr)
+        np.subtract.at(gy, c, kr)
+        dL = float(np.sum(kr[:, 2] * st["im"][:, 2]))
+        eps = 1e-30
+        Fc = F.astype(complex)
+        for i in range(3):
+            for a in range(2):
+                Fc.real[:] = F
+                Fc.imag[:] = 0.0
+                Fc.imag[:, i, a] = eps
+                Q3c, hc = self._stab_local(Fc)
+                dp = np.einsum("eia,ea->ei", Q3c, hc + st["r0"]).imag / eps
+                np.add.at(P[:, i, a], c, -np.einsum("ei,ei->e", kr, dp))
+        return E, P, gy, dL
 
     @property
     def damage(self) -> np.ndarray:
@@ -436,23 +565,26 @@ class DCBRTube:
 
     # ------------------------------------------------------------------ energy
     def energy_and_gradient(self, y, delta, Lz):
-        """Total energy E - N e0 (eV) and dE/dy (N,3), dE/d delta (N,3), dE/dLz (eV/Å)."""
+        """Total energy E - N e0 + W_stab (eV) and dE/dy (N,3), dE/d delta (N,3), dE/dLz (eV/Å)."""
         g = self.gain
         cell = np.array([0.0, 0.0, Lz])
         F = g.deformation(y, cell)
         P = np.empty_like(F)
         gd = np.empty((self.N, 3))
-        self._e_n = np.empty(self.N)
+        self._e_lat_n = np.empty(self.N)
         self._q_n = np.zeros((self.N, 6))
         lat = self.lattice
         E = K.coarse_energy(F, self.S, np.ascontiguousarray(delta), self.natoms_n, self.alive,
                             lat.s, lat.z, lat.sub, lat.R0, lat.iA, lat.iB, lat.candA, lat.candB,
-                            self.p, self.e0, P, gd, self._e_n, self._q_n)
+                            self.p, self.e0, P, gd, self._e_lat_n, self._q_n)
         if not self.relax_shift:
             gd[:] = 0.0
+        Es, Ps, gys, dLs = self.stab_energy_and_gradient(np.asarray(y, float), F, Lz)
+        self._e_n = self._e_lat_n + self._w_stab_n / self.natoms_n
+        P += Ps
         fy = g.forces(P)
-        dL = g.cell_derivative(P)[2]
-        return E, -fy, gd, dL
+        dL = g.cell_derivative(P)[2] + dLs
+        return E + Es, gys - fy, gd, dL
 
     def _pack(self, y, delta, Lz=None):
         parts = [y.ravel(), delta.ravel()]
@@ -528,7 +660,7 @@ class DCBRTube:
     def check_stability(self, all_equal: bool = False):
         """Lattice-stability rule: fail the most loaded particle if its lattice is unstable.
 
-        The alive particle with the largest energy per atom (of the last
+        The alive particle with the largest lattice energy per atom (of the last
         :meth:`energy_and_gradient`) is tested; if its mapped lattice is unstable it fails
         (loses all its links) and 1 is returned, else 0 (less loaded particles are taken as
         stable). One particle per call: the caller re-minimises, so the load the failed
@@ -537,7 +669,7 @@ class DCBRTube:
         """
         if self.stability is None or not self.alive.any():
             return 0
-        e = np.where(self.alive, self._e_n, -np.inf)
+        e = np.where(self.alive, self._e_lat_n, -np.inf)
         c = int(np.argmax(e))
         q = self._q_n[c]
         if self.stability.stable(q):

@@ -232,10 +232,13 @@ def _tension_args(p):
     p.add_argument("--vacancy", action="store_true", help="the 4-atom vacancy (not yet supported)")
     p.add_argument("--dynamic", action="store_true", help="dynamic tension (not yet supported)")
     p.add_argument("--strain-step", type=float, default=0.005)
+    p.add_argument("--hourglass", type=float, default=0.1,
+                   help="zero-energy-mode control, fraction of the lattice stiffness (0 = off)")
 
 
 def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=False,
-                           dynamic=False, outdir=None, plot=True, verbose=True) -> dict:
+                           dynamic=False, outdir=None, plot=True, verbose=True,
+                           hourglass=0.1) -> dict:
     """Coarse (DCBR) and LAMMPS quasi-static tension of one tube, with errors and speed-up."""
     from upscale.models.dcbr import DCBRTube, quasi_static_tension
 
@@ -247,12 +250,13 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
                          "valid: the quasi-static protocol (omit --dynamic)")
     ref = _lammps_reference(n, m, length, strain_step=strain_step, progress=verbose)
     t0 = time.perf_counter()
-    model = DCBRTube(n, m, length, coarsening=coarsening)
+    model = DCBRTube(n, m, length, coarsening=coarsening, hourglass=hourglass)
     cb = (lambda e, s: print(f"  dcbr    strain {e:.4f}  stress {s:9.3f} GPa", flush=True)) \
         if verbose else None
     res = quasi_static_tension(model, strain_step=strain_step, progress=cb)
     wall = time.perf_counter() - t0
-    out = {"chirality": f"{n},{m}", "coarsening": coarsening, "atoms": model.n_atoms,
+    out = {"chirality": f"{n},{m}", "coarsening": coarsening, "hourglass": hourglass,
+           "atoms": model.n_atoms,
            "particles": model.N, "dof": res["dof"], "internal_dof": res["internal_dof"],
            "dof_atoms": 3 * model.n_atoms,
            "modulus_TPa": res["youngs_modulus_TPa"], "modulus_lammps_TPa": ref["youngs_modulus_TPa"],
@@ -308,7 +312,8 @@ def _dcbr_tension(args):
     n, m = _chirality(args.chirality)
     length = args.length or (25.0 if args.quick else 100.0)
     out = run_tension_comparison(n, m, length, args.coarsening, args.strain_step,
-                                 args.vacancy, args.dynamic, outdir=args.outdir)
+                                 args.vacancy, args.dynamic, outdir=args.outdir,
+                                 hourglass=args.hourglass)
     out.pop("_curve")
     cols = ["chirality", "coarsening", "atoms", "particles", "modulus_TPa", "modulus_lammps_TPa",
             "strength_GPa", "strength_lammps_GPa", "strain_at_peak", "strain_at_peak_lammps",
@@ -374,6 +379,8 @@ def _stability_args(p):
     p.add_argument("--steps", type=int, default=None, help="NVE steps (default 10000; --quick 500)")
     p.add_argument("--dt-fs", type=float, default=1.0, help="NVE time step, fs (default 1)")
     p.add_argument("--temperature", type=float, default=10.0, help="initial K (default 10)")
+    p.add_argument("--hourglass", type=float, default=0.1,
+                   help="zero-energy-mode control, fraction of the lattice stiffness (0 = off)")
 
 
 def _dcbr_stability(args):
@@ -385,7 +392,7 @@ def _dcbr_stability(args):
 
     n, m = _chirality(args.chirality)
     steps = args.steps or (500 if args.quick else 10000)
-    t = DCBRTube(n, m, args.length, coarsening=args.coarsening)
+    t = DCBRTube(n, m, args.length, coarsening=args.coarsening, hourglass=args.hourglass)
     y, d, L0, *_ = t.minimise(t.x0, t.delta, t.L, relax_box=True, gtol=1e-9)
     N = t.N
     # coarse Hessian in (y, delta) by central differences of the analytic gradient, then the
@@ -410,6 +417,7 @@ def _dcbr_stability(args):
     wk = np.linalg.eigvalsh(Keff)
     # zero-energy modes beyond the 4 rigid ones (3 translations, rotation about the axis)
     spurious = int((np.abs(wk) < 1e-6 * wk.max()).sum()) - 4
+    lowest_nonrigid = float(np.sort(np.abs(wk))[4] / wk.max())  # 5th smallest |eigenvalue|
     w2 = np.linalg.eigvalsh(Keff / np.sqrt(np.outer(mass, mass)))
     dt_c_coarse = 2.0 / math.sqrt(w2.max()) * ASE_TIME_FS
     # atomistic: the relaxed lattice on the periodic piece, carbon mass
@@ -462,8 +470,9 @@ def _dcbr_stability(args):
             "dt_crit_ratio": dt_c_coarse / dt_c_atom, "nve_steps": steps, "nve_dt_fs": args.dt_fs,
             "nve_drift_rel_to_KE0": float(rel), "nve_max_deviation_rel_to_KE0": float(maxdev),
             "nve_initial_KE_eV": float(ke0), "nve_wall_s": wall, "particles": N,
-            "zero_energy_modes_beyond_rigid": spurious,
-            "pass": bool(dt_c_coarse >= dt_c_atom and abs(maxdev) < 1e-2)}
+            "zero_energy_modes_beyond_rigid": spurious, "hourglass": args.hourglass,
+            "lowest_nonrigid_eigenvalue_over_max": lowest_nonrigid,
+            "pass": bool(dt_c_coarse >= dt_c_atom and abs(maxdev) < 1e-2 and spurious == 0)}
 
 
 case("dcbr-stability", "critical time step of the DCBR tube vs the atomistic lattice, NVE drift",
