@@ -8,32 +8,9 @@ from upscale.models import create, get
 from upscale.models.bond_based import PMB, pmb_critical_stretch, pmb_micromodulus
 
 
-def perturbed(system, fam, scale=1e-3, seed=0):
-    st = State.reference(system.x0, fam.nb)
-    rng = np.random.default_rng(seed)
-    st.y += rng.normal(scale=scale * system.spacing, size=st.y.shape)
-    if system.dim == 2:
-        st.y[:, 2] = 0.0
-    return st
-
-
 @pytest.mark.parametrize("dim", [2, 3])
-def test_force_is_minus_energy_gradient(dim):
-    sysm = cubic_lattice(5, 5, 5, 1e-3) if dim == 3 else square_lattice(9, 9, 1e-3)
-    fam = build_family(sysm, 3.015e-3)
-    m = PMB(E=70e9)
-    m.prepare(sysm, fam)
-    st = perturbed(sysm, fam, 1e-2)
-    F = m.particle_force(st)
-    assert np.abs(F.sum(axis=0)).max() < 1e-10 * np.abs(F).max()
-    h = 1e-9
-    for a, c in [(0, 0), (sysm.n // 2, 1), (sysm.n - 1, dim - 1)]:
-        st.y[a, c] += h
-        ep = m.energy(st)
-        st.y[a, c] -= 2 * h
-        em = m.energy(st)
-        st.y[a, c] += h
-        assert -(ep - em) / (2 * h) == pytest.approx(F[a, c], rel=1e-5, abs=1e-8 * np.abs(F).max())
+def test_force_is_minus_energy_gradient(dim, check_force_is_minus_energy_gradient):
+    check_force_is_minus_energy_gradient(PMB(E=70e9), dim, seed=0)
 
 
 def test_rigid_motion_costs_nothing():
@@ -121,16 +98,8 @@ def test_surface_correction_restores_edge_energy():
 
 
 @pytest.mark.lammps
-def test_pmb_matches_lammps_small():
-    from upscale.engine.kernels import set_threads
-    from upscale.engine.lammps_peri import compare
-
-    set_threads(1)
-    r = compare("pmb", counts=(8, 8, 4), steps=200)
-    assert r["force_rel_err"] < 1e-10
-    assert r["disp_rel_err_200_steps"] < 1e-8
-    assert r["broken_bonds_engine"] > 0 and r["broken_bonds_identical"]
-    assert r["critical_stretch_margin_min"] > 1e3 * r["stretch_max_abs_diff_final"], r
+def test_pmb_matches_lammps_small(check_matches_lammps_small):
+    check_matches_lammps_small("pmb")
 
 
 def test_one_dimensional_bar():

@@ -3,13 +3,24 @@
 Suffixes: ``_n`` per particle, ``_b`` per directed bond, ``_c`` Cartesian component.
 Every parallel loop runs over particles and writes only that particle's entries (its
 output row or its own CSR row of bonds), so there are no races.
+
+The small ``inline="always"`` helpers (:func:`bond_vector_sq`, :func:`bond_vector`,
+:func:`bond_length`, :func:`bond_extension`, :func:`add_to_row`) hold the pieces the model kernels share: the
+current bond vector ``y_j - y_i`` of bond i->j, its length and its extension, and the
+addition of a particle's accumulated force to its output row. numba's cache of a
+calling kernel in another module does not notice an edit of these helpers: clear the
+``__pycache__`` numba files (``*.nbi``/``*.nbc``) after changing them.
 """
 from __future__ import annotations
 
 import numba as nb
 import numpy as np
 
-__all__ = ["damage_kernel", "bond_stretch", "break_by_stretch", "set_threads"]
+__all__ = ["damage_kernel", "bond_stretch", "break_by_stretch", "set_threads", "bond_vector",
+           "bond_vector_sq", "bond_length", "bond_extension", "add_to_row"]
+
+#: |r - L| below this is taken as zero extension (LAMMPS peri's NEAR_ZERO, m).
+NEAR_ZERO = 2.2204e-16
 
 
 def set_threads(n: int | None) -> int:
@@ -17,6 +28,45 @@ def set_threads(n: int | None) -> int:
     if n is not None:
         nb.set_num_threads(max(1, min(int(n), nb.config.NUMBA_NUM_THREADS)))
     return nb.get_num_threads()
+
+
+@nb.njit(inline="always", cache=True)
+def bond_vector_sq(y_nc, i, j):
+    """Current bond vector ``y_j - y_i`` (three components) and its squared length."""
+    d0 = y_nc[j, 0] - y_nc[i, 0]
+    d1 = y_nc[j, 1] - y_nc[i, 1]
+    d2 = y_nc[j, 2] - y_nc[i, 2]
+    return d0, d1, d2, d0 * d0 + d1 * d1 + d2 * d2
+
+
+@nb.njit(inline="always", cache=True)
+def bond_vector(y_nc, i, j):
+    """Current bond vector ``y_j - y_i`` (three components) and its length r = |y_j - y_i|."""
+    d0, d1, d2, rsq = bond_vector_sq(y_nc, i, j)
+    return d0, d1, d2, np.sqrt(rsq)
+
+
+@nb.njit(inline="always", cache=True)
+def bond_length(y_nc, i, j):
+    """Current bond length r = |y_j - y_i|."""
+    return np.sqrt(bond_vector_sq(y_nc, i, j)[3])
+
+
+@nb.njit(inline="always", cache=True)
+def bond_extension(r, length):
+    """Extension e = r - |xi|, set to 0 when |e| < NEAR_ZERO (as LAMMPS peri does)."""
+    e = r - length
+    if abs(e) < NEAR_ZERO:
+        e = 0.0
+    return e
+
+
+@nb.njit(inline="always", cache=True)
+def add_to_row(out_nc, i, f0, f1, f2):
+    """Mutates ``out_nc``: row i += (f0, f1, f2)."""
+    out_nc[i, 0] += f0
+    out_nc[i, 1] += f1
+    out_nc[i, 2] += f2
 
 
 @nb.njit(parallel=True, cache=True)
@@ -43,13 +93,8 @@ def bond_stretch(offsets, neighbors, length_b, y_nc):
     n = offsets.shape[0] - 1
     s = np.empty(neighbors.shape[0])
     for i in nb.prange(n):
-        yi0, yi1, yi2 = y_nc[i, 0], y_nc[i, 1], y_nc[i, 2]
         for b in range(offsets[i], offsets[i + 1]):
-            j = neighbors[b]
-            d0 = yi0 - y_nc[j, 0]
-            d1 = yi1 - y_nc[j, 1]
-            d2 = yi2 - y_nc[j, 2]
-            r = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            r = bond_length(y_nc, i, neighbors[b])
             s[b] = (r - length_b[b]) / length_b[b]
     return s
 
@@ -60,20 +105,12 @@ def break_by_stretch(offsets, neighbors, length_b, y_nc, intact_b, s0_n):
     n = offsets.shape[0] - 1
     cnt = np.zeros(n, dtype=np.int64)
     for i in nb.prange(n):
-        yi0, yi1, yi2 = y_nc[i, 0], y_nc[i, 1], y_nc[i, 2]
         c = 0
         for b in range(offsets[i], offsets[i + 1]):
             if not intact_b[b]:
                 continue
             j = neighbors[b]
-            d0 = yi0 - y_nc[j, 0]
-            d1 = yi1 - y_nc[j, 1]
-            d2 = yi2 - y_nc[j, 2]
-            r = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-            dr = r - length_b[b]
-            if abs(dr) < 2.2204e-16:
-                dr = 0.0
-            s = dr / length_b[b]
+            s = bond_extension(bond_length(y_nc, i, j), length_b[b]) / length_b[b]
             if s > min(s0_n[i], s0_n[j]):
                 intact_b[b] = False
                 c += 1

@@ -44,6 +44,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from upscale.engine.kernels import add_to_row, bond_length, bond_vector, bond_vector_sq
 from upscale.models import register
 from upscale.models.base import Model, Needs
 
@@ -62,19 +63,12 @@ def pmb_force_kernel(offsets, neighbors, inv_length_b, cw_b, rc2_b, y_nc, intact
     n = offsets.shape[0] - 1
     broke = np.zeros(n, dtype=np.int64)
     for i in nb.prange(n):
-        yi0 = y_nc[i, 0]
-        yi1 = y_nc[i, 1]
-        yi2 = y_nc[i, 2]
         f0 = 0.0
         f1 = 0.0
         f2 = 0.0
         k = 0
         for b in range(offsets[i], offsets[i + 1]):
-            j = neighbors[b]
-            d0 = y_nc[j, 0] - yi0
-            d1 = y_nc[j, 1] - yi1
-            d2 = y_nc[j, 2] - yi2
-            rsq = d0 * d0 + d1 * d1 + d2 * d2
+            d0, d1, d2, rsq = bond_vector_sq(y_nc, i, neighbors[b])
             fb = cw_b[b] * (inv_length_b[b] - 1.0 / np.sqrt(rsq)) * intact_b[b]
             f0 += d0 * fb
             f1 += d1 * fb
@@ -82,9 +76,7 @@ def pmb_force_kernel(offsets, neighbors, inv_length_b, cw_b, rc2_b, y_nc, intact
             if fail and intact_b[b] and rsq > rc2_b[b]:
                 intact_b[b] = False
                 k += 1
-        out_nc[i, 0] += f0
-        out_nc[i, 1] += f1
-        out_nc[i, 2] += f2
+        add_to_row(out_nc, i, f0, f1, f2)
         broke[i] = k
     return broke.sum()
 
@@ -99,11 +91,7 @@ def pmb_energy_kernel(offsets, neighbors, length_b, w_b, y_nc, intact_b, c):
         for b in range(offsets[i], offsets[i + 1]):
             if not intact_b[b]:
                 continue
-            j = neighbors[b]
-            d0 = y_nc[i, 0] - y_nc[j, 0]
-            d1 = y_nc[i, 1] - y_nc[j, 1]
-            d2 = y_nc[i, 2] - y_nc[j, 2]
-            r = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            r = bond_length(y_nc, i, neighbors[b])
             s = (r - length_b[b]) / length_b[b]
             acc += s * s * length_b[b] * w_b[b]
         W[i] = 0.25 * c * acc
@@ -113,7 +101,7 @@ def pmb_energy_kernel(offsets, neighbors, length_b, w_b, y_nc, intact_b, c):
 @nb.njit(parallel=True, cache=True)
 def contact_kernel(offsets, neighbors, length_b, vol_n, y_nc, k15_over_delta, lc, out_nc):
     """LAMMPS peri short-range contact: for family pairs closer than
-    d = min(0.9 |xi|, 1.35 lc), adds -k (r - d) V_j / r * (y_i - y_j)... (repulsive).
+    d = min(0.9 |xi|, 1.35 lc), adds k (r - d) V_j / r * (y_j - y_i) (repulsive: r < d).
     Returns the number of active (directed) contacts."""
     n = offsets.shape[0] - 1
     active = np.zeros(n, dtype=np.int64)
@@ -124,21 +112,16 @@ def contact_kernel(offsets, neighbors, length_b, vol_n, y_nc, k15_over_delta, lc
         a = 0
         for b in range(offsets[i], offsets[i + 1]):
             j = neighbors[b]
-            d0 = y_nc[i, 0] - y_nc[j, 0]
-            d1 = y_nc[i, 1] - y_nc[j, 1]
-            d2 = y_nc[i, 2] - y_nc[j, 2]
-            r = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            d0, d1, d2, r = bond_vector(y_nc, i, j)
             dij = min(0.9 * length_b[b], 1.35 * lc)
             if r < dij:
                 rk = (k15_over_delta * vol_n[j]) * (r - dij)
-                fp = -(rk / r) if r > 0.0 else 0.0
+                fp = rk / r if r > 0.0 else 0.0
                 f0 += d0 * fp
                 f1 += d1 * fp
                 f2 += d2 * fp
                 a += 1
-        out_nc[i, 0] += f0
-        out_nc[i, 1] += f1
-        out_nc[i, 2] += f2
+        add_to_row(out_nc, i, f0, f1, f2)
         active[i] = a
     return active.sum()
 

@@ -30,13 +30,12 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
+from upscale.engine.kernels import add_to_row, bond_extension, bond_length, bond_vector
 from upscale.models import register
 from upscale.models.base import Model, Needs
 from upscale.models.bond_based import _check_positive
 
 __all__ = ["LPS"]
-
-_NEAR_ZERO = 2.2204e-16
 
 
 @nb.njit(parallel=True, cache=True)
@@ -48,14 +47,7 @@ def lps_dilatation_kernel(offsets, neighbors, length_b, w_b, omega_b, y_nc, inta
         for b in range(offsets[i], offsets[i + 1]):
             if not intact_b[b]:
                 continue
-            j = neighbors[b]
-            d0 = y_nc[i, 0] - y_nc[j, 0]
-            d1 = y_nc[i, 1] - y_nc[j, 1]
-            d2 = y_nc[i, 2] - y_nc[j, 2]
-            r = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
-            dr = r - length_b[b]
-            if abs(dr) < _NEAR_ZERO:
-                dr = 0.0
+            dr = bond_extension(bond_length(y_nc, i, neighbors[b]), length_b[b])
             acc += omega_b[b] * length_b[b] * dr * w_b[b]
         theta_n[i] = dm_n[i] * acc
 
@@ -68,9 +60,6 @@ def lps_force_kernel(offsets, neighbors, length_b, wa_b, wd_b, omega_b, y_nc, in
     n = offsets.shape[0] - 1
     broke = np.zeros(n, dtype=np.int64)
     for i in nb.prange(n):
-        yi0 = y_nc[i, 0]
-        yi1 = y_nc[i, 1]
-        yi2 = y_nc[i, 2]
         ti = theta_n[i] * inv_m_n[i]
         imi = inv_m_n[i]
         f0 = 0.0
@@ -81,27 +70,20 @@ def lps_force_kernel(offsets, neighbors, length_b, wa_b, wd_b, omega_b, y_nc, in
             if not intact_b[b]:
                 continue
             j = neighbors[b]
-            d0 = yi0 - y_nc[j, 0]
-            d1 = yi1 - y_nc[j, 1]
-            d2 = yi2 - y_nc[j, 2]
-            r = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            d0, d1, d2, r = bond_vector(y_nc, i, j)
             L = length_b[b]
-            dr = r - L
-            if abs(dr) < _NEAR_ZERO:
-                dr = 0.0
+            dr = bond_extension(r, L)
             om = omega_b[b]
             rk = wa_b[b] * om * (ti + theta_n[j] * inv_m_n[j]) * L
             rk += wd_b[b] * om * (imi + inv_m_n[j]) * dr
-            fb = -rk / r
+            fb = rk / r
             f0 += d0 * fb
             f1 += d1 * fb
             f2 += d2 * fb
             if fail and dr / L > s0:
                 intact_b[b] = False
                 k += 1
-        out_nc[i, 0] += f0
-        out_nc[i, 1] += f1
-        out_nc[i, 2] += f2
+        add_to_row(out_nc, i, f0, f1, f2)
         broke[i] = k
     return broke.sum()
 
@@ -116,11 +98,7 @@ def lps_energy_kernel(offsets, neighbors, length_b, wd_b, omega_b, y_nc, intact_
         for b in range(offsets[i], offsets[i + 1]):
             if not intact_b[b]:
                 continue
-            j = neighbors[b]
-            d0 = y_nc[i, 0] - y_nc[j, 0]
-            d1 = y_nc[i, 1] - y_nc[j, 1]
-            d2 = y_nc[i, 2] - y_nc[j, 2]
-            r = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+            r = bond_length(y_nc, i, neighbors[b])
             ed = (r - length_b[b]) - theta_n[i] * length_b[b] / d
             acc += omega_b[b] * ed * ed * wd_b[b]
         W[i] = 0.5 * kprime * theta_n[i] * theta_n[i] + 0.5 * inv_m_n[i] * acc
