@@ -502,9 +502,9 @@ class DCBRTube:
         complex F, for the complex-step derivative)."""
         st, S, R0 = self._st, self.S, self.lattice.R0
         dead = ~self.gain.alive
-        if dead.any():  # empty rows (no links): any regular F, they own no link
+        if dead.any():  # empty rows (no links, frame unset): any regular F, they own no link
             F = F.copy()
-            F[dead] = self.gain.frame[dead]
+            F[dead] = np.eye(3, 2)
         FS = np.einsum("nia,nab->nib", F, S)
         C = np.einsum("nia,nib->nab", FS, FS)  # transpose, no conjugate (complex step)
         lt = np.sqrt(C[:, 0, 0])
