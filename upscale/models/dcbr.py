@@ -57,7 +57,7 @@ dcbr-stability counted 32 / 6 / 8 such zero-energy modes beyond the 4 rigid ones
 Breitenfeld et al. 2014: hourglass control for correspondence peridynamics) restores its
 stiffness,
 
-    W_stab = 1/2 k_s sum_c sum_{n in family(c), intact} |y_n - y_c - p_cn(F_c)|^2 / |beta_cn|^2,
+    W_stab = 1/2 k_s sum_c sum_{n in family(c), intact} |rt_cn|^2 / |beta_cn|^2,
 
 where p_cn is the link predicted by c's own *uniform cylindrical map* (the same map the
 energy uses): with M_c = chol(C_c) = [[lam_t, gam], [0, lam_z]], Q_c = F_c S_c M_c^-1 (3x2,
@@ -67,12 +67,16 @@ and axial offsets (ds, dz),
     p_cn = Q_c (R' sin phi, lam_z dz)^T - n'_c R' (1 - cos phi) + Q3_c r0_cn,
     R' = lam_t R0,  phi = (lam_t ds + gam dz) / R',   Q3_c = [q1 q2 n'_c],
 
-i.e. the chord of the deformed cylinder. r0_cn (local frame, computed once per family) is
+i.e. the chord of the deformed cylinder; the residual r_cn = y_n - y_c - p_cn then has the
+part G can see, its own linear fit, removed: rt_cn = r_cn - (sum_m r_cm (x) a_cm) s_cn (a:
+G's coefficients, s: tangent coordinates, sum_m a_cm (x) s_cm = I), and W_stab uses rt.
+r0_cn (local frame, computed once per family) is
 the residual at the reference configuration: zero on a full symmetric family, nonzero only
 next to broken links, so the reference state costs nothing for any family. Consequences:
 W_stab = 0 for every rigid motion and for uniform radial/axial stretch (F recovers M
 exactly there); under a uniform twist the chord fit of G recovers gam only to O((h/R)^2)
-(gain-affine) and W_stab is of that order (measured by the tests). Its gradient is exact:
+(gain-affine), p_cn then misses the links by a nearly linear field that the projection
+removes; what is left is measured by the tests. Its gradient is exact:
 dp/dF_c by complex-step differentiation (error ~1e-30, no truncation), then through G's
 fixed coefficients like the lattice energy, plus the direct terms in y_n, y_c and the cell.
 
@@ -492,7 +496,8 @@ class DCBRTube:
         self._st = {"c": ce, "j": je, "im": im.astype(float),
                     "w": 1.0 / np.einsum("ei,ei->e", beta, beta),
                     "ds": R0 * dth, "dz": np.einsum("ei,ei->e", beta, T[:, :, 1]),
-                    "r0": np.zeros((len(ce), 3))}
+                    "r0": np.zeros((len(ce), 3)),
+                    "a": g.coef[keep], "s": np.einsum("eia,ei->ea", T, beta)}
         F0 = g.deformation(self.x0, g.cell)
         Q3, h = self._stab_local(F0)
         self._st["r0"] = np.einsum("eia,ei->ea", Q3, beta) - h
@@ -537,11 +542,20 @@ class DCBRTube:
         link = y[j] - y[c] + st["im"] * np.array([0.0, 0.0, Lz])
         Q3, h = self._stab_local(F)
         r = link - np.einsum("eia,ea->ei", Q3, h + st["r0"])
+        # project out the part of r that G can see (its own linear fit): rt = r - Fr_c s_e,
+        # Fr_c = sum_e r_e (x) a_e (sum_e a_e (x) s_e = I, so the fit of rt is zero)
+        a, sv = st["a"], st["s"]
+        Fr = np.zeros((N, 3, 2))
+        np.add.at(Fr, c, r[:, :, None] * a[:, None, :])
+        rt = r - np.einsum("eia,ea->ei", Fr[c], sv)
         kw = self.k_stab * st["w"]
-        we = 0.5 * kw * np.einsum("ei,ei->e", r, r)
+        we = 0.5 * kw * np.einsum("ei,ei->e", rt, rt)
         self._w_stab_n = np.bincount(c, weights=we, minlength=N)  # each particle's own links
         E = float(np.sum(we))
-        kr = kw[:, None] * r
+        krt = kw[:, None] * rt
+        B = np.zeros((N, 3, 2))
+        np.add.at(B, c, krt[:, :, None] * sv[:, None, :])
+        kr = krt - np.einsum("eia,ea->ei", B[c], a)  # dW/dr_e (transpose of the projection)
         np.add.at(gy, j, kr)
         np.subtract.at(gy, c, kr)
         dL = float(np.sum(kr[:, 2] * st["im"][:, 2]))
