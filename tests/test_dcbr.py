@@ -276,23 +276,7 @@ def _zero_modes_beyond_rigid(t):
     """Count of |eigenvalues| < 1e-6 max of the relaxed tube's Hessian (shifts condensed)
     beyond the 4 rigid modes, as in ``python -m validation dcbr-stability``."""
     y, d, L0, *_ = t.minimise(t.x0, t.delta, t.L, relax_box=True, gtol=1e-9)
-    N = t.N
-    z0 = np.concatenate([y.ravel(), d.ravel()])
-
-    def grad(z):
-        _, gy, gd, _ = t.energy_and_gradient(z[:3 * N].reshape(N, 3), z[3 * N:].reshape(N, 3), L0)
-        return np.concatenate([gy.ravel(), gd.ravel()])
-
-    h = 1e-5
-    H = np.empty((6 * N, 6 * N))
-    for i in range(6 * N):
-        zp, zm = z0.copy(), z0.copy()
-        zp[i] += h
-        zm[i] -= h
-        H[i] = (grad(zp) - grad(zm)) / (2 * h)
-    H = 0.5 * (H + H.T)
-    a, b = slice(0, 3 * N), slice(3 * N, 6 * N)
-    K = H[a, a] - H[a, b] @ np.linalg.solve(H[b, b], H[b, a])
+    K = t.condensed_hessian(y, d, L0)
     w = np.linalg.eigvalsh(K)
     return int((np.abs(w) < 1e-6 * w.max()).sum()) - 4
 

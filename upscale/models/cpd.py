@@ -144,6 +144,7 @@ Array suffixes: ``_n`` per particle, ``_b`` per directed bond, ``_t`` per triple
 from __future__ import annotations
 
 import math
+import types
 
 import numba
 import numpy as np
@@ -1112,9 +1113,7 @@ class CPD(Model):
     def _fam(self):
         fam = self.family
         if not hasattr(self, "_fam_arrays"):
-            class _F:  # contiguous int64/float64 views for the kernels
-                pass
-            f = _F()
+            f = types.SimpleNamespace()  # contiguous int64/float64 views for the kernels
             f.offsets = np.ascontiguousarray(fam.offsets, dtype=np.int64)
             f.neighbors = np.ascontiguousarray(fam.neighbors, dtype=np.int64)
             f.length = np.ascontiguousarray(fam.length, dtype=np.float64)

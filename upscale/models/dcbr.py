@@ -600,6 +600,34 @@ class DCBRTube:
         dL = g.cell_derivative(P)[2] + dLs
         return E + Es, gys - fy, gd, dL
 
+    def condensed_hessian(self, y, delta, Lz, h: float = 1e-5) -> np.ndarray:
+        """Stiffness of the particle positions with the massless sublattice shifts condensed.
+
+        Central differences (step ``h``) of the analytic gradient give the Hessian in
+        (y, delta); the Schur complement K = K_yy - K_yd K_dd^-1 K_dy eliminates the shifts.
+
+        Returns
+        -------
+        (3N, 3N) ndarray, eV/Å^2.
+        """
+        N = self.N
+        z0 = np.concatenate([y.ravel(), delta.ravel()])
+
+        def grad(z):
+            _, gy, gd, _ = self.energy_and_gradient(z[:3 * N].reshape(N, 3),
+                                                    z[3 * N:].reshape(N, 3), Lz)
+            return np.concatenate([gy.ravel(), gd.ravel()])
+
+        H = np.empty((6 * N, 6 * N))
+        for i in range(6 * N):
+            zp, zm = z0.copy(), z0.copy()
+            zp[i] += h
+            zm[i] -= h
+            H[i] = (grad(zp) - grad(zm)) / (2 * h)
+        H = 0.5 * (H + H.T)
+        a, b = slice(0, 3 * N), slice(3 * N, 6 * N)
+        return H[a, a] - H[a, b] @ np.linalg.solve(H[b, b], H[b, a])
+
     def _pack(self, y, delta, Lz=None):
         parts = [y.ravel(), delta.ravel()]
         if Lz is not None:

@@ -395,24 +395,7 @@ def _dcbr_stability(args):
     t = DCBRTube(n, m, args.length, coarsening=args.coarsening, hourglass=args.hourglass)
     y, d, L0, *_ = t.minimise(t.x0, t.delta, t.L, relax_box=True, gtol=1e-9)
     N = t.N
-    # coarse Hessian in (y, delta) by central differences of the analytic gradient, then the
-    # Schur complement over the massless shifts
-    z0 = np.concatenate([y.ravel(), d.ravel()])
-
-    def grad(z):
-        _, gy, gd, _ = t.energy_and_gradient(z[:3 * N].reshape(N, 3), z[3 * N:].reshape(N, 3), L0)
-        return np.concatenate([gy.ravel(), gd.ravel()])
-
-    h = 1e-5
-    Hf = np.empty((6 * N, 6 * N))
-    for i in range(6 * N):
-        zp, zm = z0.copy(), z0.copy()
-        zp[i] += h
-        zm[i] -= h
-        Hf[i] = (grad(zp) - grad(zm)) / (2 * h)
-    Hf = 0.5 * (Hf + Hf.T)
-    Kyy, Kyd, Kdd = Hf[:3 * N, :3 * N], Hf[:3 * N, 3 * N:], Hf[3 * N:, 3 * N:]
-    Keff = Kyy - Kyd @ np.linalg.solve(Kdd, Kyd.T)
+    Keff = t.condensed_hessian(y, d, L0)  # shifts condensed (Schur complement)
     mass = np.repeat(t.natoms_n * 12.011, 3)
     wk = np.linalg.eigvalsh(Keff)
     # zero-energy modes beyond the 4 rigid ones (3 translations, rotation about the axis)
