@@ -640,20 +640,21 @@ class DCBRTube:
         Returns (y, delta, Lz, E, info). ``gtol``: max |gradient component| in eV/Å.
         """
         N = self.N
+        Ny = len(y)  # the unknown positions (a subclass may add rows, e.g. atoms)
         x0 = self._pack(y, delta, Lz if relax_box else None)
         # relative scaling of the box length so its step matches the particle steps
         Lscale = self.L / 10.0
 
         def fun(xv):
-            yy = xv[:3 * N].reshape(N, 3)
-            dd = xv[3 * N:6 * N].reshape(N, 3)
-            L = xv[6 * N] * Lscale if relax_box else Lz
+            yy = xv[:3 * Ny].reshape(Ny, 3)
+            dd = xv[3 * Ny:3 * Ny + 3 * N].reshape(N, 3)
+            L = xv[-1] * Lscale if relax_box else Lz
             if relax_box:  # positions scale with the box along z (affine in z)
                 yy = yy.copy()
                 yy[:, 2] *= L / self.L
             E, gy, gd, gL = self.energy_and_gradient(yy, dd, L)
             if relax_box:
-                gL_tot = gL + np.dot(gy[:, 2], xv[:3 * N].reshape(N, 3)[:, 2]) / self.L
+                gL_tot = gL + np.dot(gy[:, 2], xv[:3 * Ny].reshape(Ny, 3)[:, 2]) / self.L
                 gy = gy.copy()
                 gy[:, 2] *= L / self.L
                 return E, np.concatenate([gy.ravel(), gd.ravel(), [gL_tot * Lscale]])
@@ -667,10 +668,10 @@ class DCBRTube:
                        options={"maxiter": maxiter, "maxcor": 30, "gtol": gtol, "ftol": 1e-15,
                                 "maxfun": 4 * maxiter})
         xv = res.x
-        y = xv[:3 * N].reshape(N, 3).copy()
-        delta = xv[3 * N:6 * N].reshape(N, 3).copy()
+        y = xv[:3 * Ny].reshape(Ny, 3).copy()
+        delta = xv[3 * Ny:3 * Ny + 3 * N].reshape(N, 3).copy()
         if relax_box:
-            Lz = xv[6 * N] * Lscale
+            Lz = xv[-1] * Lscale
             y[:, 2] *= Lz / self.L
         E, gy, gd, gL = self.energy_and_gradient(y, delta, Lz)
         info = {"nit": int(res.nit), "nfev": int(res.nfev), "success": bool(res.success),
@@ -760,7 +761,8 @@ def quasi_static_tension(model: DCBRTube, strain_step: float = 0.005, max_strain
         raise ValueError(f"strain_step={strain_step}, max_strain={max_strain}; valid: "
                          "0 < strain_step < max_strain <= 2")
     t0 = time.perf_counter()
-    y, d, L0, E, info, _ = model.minimise(model.x0, model.delta, model.L, relax_box=True, gtol=gtol)
+    y0 = getattr(model, "y_init", model.x0)  # the unknowns' reference (atoms too, if any)
+    y, d, L0, E, info, _ = model.minimise(y0, model.delta, model.L, relax_box=True, gtol=gtol)
     R = model.radius(y, d)
     area = 2 * math.pi * R * WALL_THICKNESS
     strains, stresses, energies, lzs, dmax, nbroken = [], [], [], [], [], []
@@ -775,6 +777,8 @@ def quasi_static_tension(model: DCBRTube, strain_step: float = 0.005, max_strain
         y[:, 2] *= Lz / Lprev
         Lprev = Lz
         nb_step = 0
+        if hasattr(model, "prepare_step"):  # per-step set-up (ghost-force correction)
+            model.prepare_step(Lz)
         for _ in range(4 * model.N + 10):
             y, d, _, E, info, gL = model.minimise(y, d, Lz, gtol=gtol)
             nb = model.update_links()
@@ -801,7 +805,7 @@ def quasi_static_tension(model: DCBRTube, strain_step: float = 0.005, max_strain
             break
         k += 1
     res = {"model": "dcbr", "protocol": "quasi-static", "chirality": [model.lattice.n, model.lattice.m],
-           "coarsening": model.coarsening, "particles": model.N, "dof": 3 * model.N,
+           "coarsening": model.coarsening, "particles": model.N, "dof": getattr(model, "dof", 3 * model.N),
            "internal_dof": 3 * model.N if model.relax_shift else 0, "atoms": model.n_atoms,
            "L0_A": float(L0), "radius_relaxed_A": R, "area_A2": area,
            "area": "2 pi R t, R = mean wall radius after zero-stress relaxation, t = 3.4 A",
@@ -812,5 +816,6 @@ def quasi_static_tension(model: DCBRTube, strain_step: float = 0.005, max_strain
     res.update(curve_metrics(strains, stresses, fit_max_strain=fit_max_strain))
     res["damage"] = model.damage
     res["positions"] = y
+    res["delta"] = d
     res["wall_s"] = time.perf_counter() - t0
     return res

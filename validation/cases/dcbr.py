@@ -229,7 +229,16 @@ def _tension_args(p):
     p.add_argument("--chirality", default="10,10", help="N,M (default 10,10)")
     p.add_argument("--length", type=float, default=None, help="Å (default 100; --quick 25)")
     p.add_argument("--coarsening", type=float, default=2.0)
-    p.add_argument("--vacancy", action="store_true", help="the 4-atom vacancy (not yet supported)")
+    p.add_argument("--vacancy", action="store_true",
+                   help="the 4-atom vacancy (atomistic region around it, DCBRDefectTube)")
+    p.add_argument("--r-atomistic", type=float, default=8.0,
+                   help="with --vacancy: half-width (band) or radius (disc) of the atomistic "
+                   "region, Å (default 8)")
+    p.add_argument("--region", choices=("band", "disc"), default="band",
+                   help="with --vacancy: atomistic band all around the tube or a disc")
+    p.add_argument("--step-crossing", choices=("energy", "always"), default="energy",
+                   help="with --vacancy: a pair held at the step cutoff crosses it when that "
+                   "lowers the energy (default) or always (as LAMMPS's damped dynamics)")
     p.add_argument("--dynamic", action="store_true", help="dynamic tension (not yet supported)")
     p.add_argument("--strain-step", type=float, default=0.005)
     p.add_argument("--hourglass", type=float, default=0.1,
@@ -238,19 +247,29 @@ def _tension_args(p):
 
 def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=False,
                            dynamic=False, outdir=None, plot=True, verbose=True,
-                           hourglass=0.1) -> dict:
-    """Coarse (DCBR) and LAMMPS quasi-static tension of one tube, with errors and speed-up."""
+                           hourglass=0.1, r_atomistic=8.0, region="band",
+                           step_crossing="energy") -> dict:
+    """Coarse (DCBR) and LAMMPS quasi-static tension of one tube, with errors and speed-up.
+
+    With ``vacancy`` the coarse model is :class:`upscale.models.dcbr_defect.DCBRDefectTube`
+    (atomistic region of ``r_atomistic`` Å around the 4-atom vacancy) and the crack angles
+    of both are compared."""
     from upscale.models.dcbr import DCBRTube, quasi_static_tension
 
-    if vacancy:
-        raise ValueError("--vacancy: the DCBR model has no defect representation yet "
-                         "(pristine periodic tubes only); valid: omit --vacancy")
     if dynamic:
         raise ValueError("--dynamic: dynamic DCBR tension is not implemented yet; "
                          "valid: the quasi-static protocol (omit --dynamic)")
-    ref = _lammps_reference(n, m, length, strain_step=strain_step, progress=verbose)
+    ref = _lammps_reference(n, m, length, strain_step=strain_step, vacancy=vacancy,
+                            progress=verbose)
     t0 = time.perf_counter()
-    model = DCBRTube(n, m, length, coarsening=coarsening, hourglass=hourglass)
+    if vacancy:
+        from upscale.models.dcbr_defect import DCBRDefectTube
+
+        model = DCBRDefectTube(n, m, length, coarsening=coarsening, hourglass=hourglass,
+                               vacancy=4, r_atomistic=r_atomistic, region=region,
+                               step_crossing=step_crossing)
+    else:
+        model = DCBRTube(n, m, length, coarsening=coarsening, hourglass=hourglass)
     cb = (lambda e, s: print(f"  dcbr    strain {e:.4f}  stress {s:9.3f} GPa", flush=True)) \
         if verbose else None
     res = quasi_static_tension(model, strain_step=strain_step, progress=cb)
@@ -270,11 +289,44 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
            "L0_A": res["L0_A"], "L0_lammps_A": ref["relaxation"]["L0_A"],
            "radius_A": res["radius_relaxed_A"], "radius_lammps_A": ref["relaxation"]["radius_relaxed_A"]}
     out["speedup"] = (out["lammps_wall_s"] / wall) if out["lammps_wall_s"] else None
+    if vacancy:
+        out.update({f"model_{k}": v for k, v in model.summary().items()})
+        out.update({"region": region, "r_atomistic_A": r_atomistic,
+                    "step_crossing": step_crossing, "dof": model.dof})
+        out.update(_crack(model, res))
+        dref = ref.get("damage", {})
+        out["crack_angle_lammps_deg"] = dref.get("crack_angle_to_axis_deg")
+        out["first_damage_strain_lammps"] = dref.get("first_damage_strain")
+        res["_atom_damage"] = out.pop("_atom_damage")
     if outdir is not None and plot:
         outdir = Path(outdir)
         outdir.mkdir(parents=True, exist_ok=True)
-        _plot(res, ref, out, outdir / f"dcbr_tension_{n}_{m}_K{coarsening:g}.png", model)
+        _plot(res, ref, out, outdir / f"dcbr_tension_{n}_{m}{'_vac4' if vacancy else ''}_K{coarsening:g}.png", model)
     out["_curve"] = res["curve"]
+    return out
+
+
+def _crack(model, res) -> dict:
+    """Damage of the free atoms at the last step and the crack line through the damaged ones
+    (unrolled wall, the references' convention: 90 deg = across the axis)."""
+    from upscale.analysis.damage import crack_line
+
+    Lz = res["curve"]["Lz_A"][-1]
+    mu = model.atom_damage(res["positions"], res["delta"], Lz)
+    xf, _ = model.atom_positions(res["positions"], res["delta"], Lz)
+    c = xf[:, :2].mean(axis=0)
+    th = np.unwrap(np.arctan2(xf[:, 1] - c[1], xf[:, 0] - c[0]))
+    R = res["radius_relaxed_A"]
+    s_, z_ = R * ((th - model.vacancy_theta_z[0] + np.pi) % (2 * np.pi) - np.pi), xf[:, 2]
+    dmg = mu > 0
+    out = {"_atom_damage": mu, "damaged_atoms": int(dmg.sum())}
+    if dmg.sum() >= 2:
+        line = crack_line(s_[dmg], z_[dmg], weights=mu[dmg])
+        out["crack_angle_deg"] = line["angle_to_axis_deg"]
+        out["crack_centre_to_vacancy_A"] = float(np.hypot(
+            line["centre_s_A"], line["centre_z_A"] - model.vacancy_theta_z[1] * Lz / model.L))
+    else:
+        out["crack_angle_deg"] = None
     return out
 
 
@@ -292,12 +344,24 @@ def _plot(res, ref, out, path, model):
     ax[0].set_ylabel("stress (GPa, t = 3.4 Å)")
     ax[0].set_title(f"({out['chirality']}) quasi-static tension, {out['atoms']} atoms")
     ax[0].legend()
-    th = np.degrees(np.arctan2(res["positions"][:, 1], res["positions"][:, 0]))
-    sc = ax[1].scatter(res["positions"][:, 2], th, c=res["damage"], vmin=0, vmax=1, cmap="viridis", s=18)
+    yp = model.particle_positions(res["positions"]) if hasattr(model, "particle_positions") \
+        else res["positions"]
+    c = yp[:, :2].mean(axis=0)
+    th = np.degrees(np.arctan2(yp[:, 1] - c[1], yp[:, 0] - c[0]))
+    sc = ax[1].scatter(yp[:, 2], th, c=res["damage"], vmin=0, vmax=1, cmap="viridis", s=18)
+    if "_atom_damage" in res:  # the free atoms of the atomistic region
+        xf, _ = model.atom_positions(res["positions"], res["delta"], res["curve"]["Lz_A"][-1])
+        tha = np.degrees(np.arctan2(xf[:, 1] - c[1], xf[:, 0] - c[0]))
+        ax[1].scatter(xf[:, 2], tha, c=res["_atom_damage"], vmin=0, vmax=1, cmap="viridis",
+                      s=6, marker=".")
+        if out.get("crack_angle_deg") is not None:
+            ax[1].set_title(f"damage at the last step; crack {out['crack_angle_deg']:.0f}° to the "
+                            f"axis (LAMMPS {out.get('crack_angle_lammps_deg') or float('nan'):.0f}°)")
     fig.colorbar(sc, ax=ax[1], label="damage mu = 1 - R/T (eq. 5.16)")
     ax[1].set_xlabel("z (Å)")
     ax[1].set_ylabel("theta (deg)")
-    ax[1].set_title("DCBR damage at the last step")
+    if "_atom_damage" not in res or out.get("crack_angle_deg") is None:
+        ax[1].set_title("DCBR damage at the last step")
     fig.tight_layout()
     from upscale.io import atomic_write_bytes
     import io
@@ -313,11 +377,14 @@ def _dcbr_tension(args):
     length = args.length or (25.0 if args.quick else 100.0)
     out = run_tension_comparison(n, m, length, args.coarsening, args.strain_step,
                                  args.vacancy, args.dynamic, outdir=args.outdir,
-                                 hourglass=args.hourglass)
+                                 hourglass=args.hourglass, r_atomistic=args.r_atomistic,
+                                 region=args.region, step_crossing=args.step_crossing)
     out.pop("_curve")
     cols = ["chirality", "coarsening", "atoms", "particles", "modulus_TPa", "modulus_lammps_TPa",
             "strength_GPa", "strength_lammps_GPa", "strain_at_peak", "strain_at_peak_lammps",
             "wall_s", "lammps_wall_s", "speedup"]
+    if args.vacancy:
+        cols += ["dof", "crack_angle_deg", "crack_angle_lammps_deg"]
     print(table([out], cols, floatfmt=".5g"))
     out["pass"] = bool(out["modulus_err_pct"] < 3 and out["strength_err_pct"] < 5
                        and out["strain_at_peak_err_pct"] < 10)
@@ -335,6 +402,8 @@ def _table_args(p):
     p.add_argument("--length", type=float, default=None, help="Å (default 100; --quick 25)")
     p.add_argument("--coarsening", type=float, action="append", default=None,
                    help="repeatable (default 1 2 3 4)")
+    p.add_argument("--vacancy", action="store_true",
+                   help="the 4-atom vacancy tubes (DCBRDefectTube, band of 8 Å)")
 
 
 def _dcbr_table(args):
@@ -346,17 +415,25 @@ def _dcbr_table(args):
     for n, m in chis:
         for k in ks:
             o = run_tension_comparison(n, m, length, k, outdir=args.outdir, verbose=False,
-                                       plot=(k == ks[-1]))
-            rows.append({"tube": f"({n},{m})", "K": k, "atoms": o["atoms"], "dof": o["dof"],
+                                       plot=(k == ks[-1]), vacancy=args.vacancy)
+            rows.append({"tube": f"({n},{m}){' vac4' if args.vacancy else ''}", "K": k,
+                         "atoms": o["atoms"], "dof": o["dof"],
                          "wall_s": o["wall_s"], "lammps_wall_s": o["lammps_wall_s"],
                          "speedup": o["speedup"], "strength_err_%": o["strength_err_pct"],
                          "modulus_err_%": o["modulus_err_pct"],
-                         "strain_at_peak_err_%": o["strain_at_peak_err_pct"]})
+                         "strain_at_peak_err_%": o["strain_at_peak_err_pct"],
+                         "strength_GPa": o["strength_GPa"],
+                         "strength_lammps_GPa": o["strength_lammps_GPa"],
+                         "strain_at_peak": o["strain_at_peak"],
+                         "strain_at_peak_lammps": o["strain_at_peak_lammps"]})
+            if args.vacancy:
+                rows[-1].update({"crack_deg": o.get("crack_angle_deg"),
+                                 "crack_lammps_deg": o.get("crack_angle_lammps_deg")})
             print(f"({n},{m}) K={k:g}: done in {o['wall_s']:.1f} s", flush=True)
     print(table(rows, floatfmt=".4g"))
     from upscale.io import write_json
 
-    write_json(Path(args.outdir) / "dcbr_table.json", rows)
+    write_json(Path(args.outdir) / f"dcbr_table{'_vac4' if args.vacancy else ''}.json", rows)
     return {"rows": rows, "strength_err_pct_max": max(r["strength_err_%"] for r in rows),
             "modulus_err_pct_max": max(r["modulus_err_%"] for r in rows),
             "strain_at_peak_err_pct_max": max(r["strain_at_peak_err_%"] for r in rows),

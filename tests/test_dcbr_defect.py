@@ -1,0 +1,93 @@
+"""DCBR tube with an atomistic region around a vacancy (upscale.models.dcbr_defect)."""
+import numpy as np
+import pytest
+
+from upscale.models.dcbr import DCBRTube
+from upscale.models.dcbr_defect import DCBRDefectTube
+
+KW = dict(coarsening=2.0, r_atomistic=5.0, region="band")
+
+
+@pytest.fixture(scope="module")
+def vac():
+    return DCBRDefectTube(6, 6, 30.0, vacancy=4, **KW)
+
+
+@pytest.fixture(scope="module")
+def pristine():
+    return DCBRDefectTube(6, 6, 30.0, vacancy=0, **KW)
+
+
+def test_atom_bookkeeping(vac):
+    s = vac.summary()
+    assert s["removed_atoms"] == 4
+    assert abs(s["atom_count_error"]) < 1e-9  # explicit + carried atoms = atoms of the tube
+    assert vac.natoms_n.sum() + vac.nf == pytest.approx(vac.n_atoms - 4)
+    # the pristine twin that gives the ghost forces has the same particles and weights
+    assert np.array_equal(vac._twin.dof_idx, vac.dof_idx)
+    assert np.allclose(vac._twin.natoms_n, vac.natoms_n)
+    assert s["dof"] < 3 * vac.n_atoms
+
+
+def test_gradient_matches_central_differences(vac):
+    rng = np.random.default_rng(3)
+    lt, lz, sh = vac.uniform_lattice(1.04)
+    y, d, Lz = vac.uniform_state(lt, lz, sh)
+    vac.prepare_step(Lz)
+    y = y + rng.normal(scale=0.02, size=y.shape)
+    d = d + rng.normal(scale=0.005, size=d.shape)
+    E, gy, gd, gL = vac.energy_and_gradient(y, d, Lz)
+    h = 1e-5
+    for _ in range(3):
+        vy, vd = rng.normal(size=y.shape), rng.normal(size=d.shape)
+        fd = (vac.energy_and_gradient(y + h * vy, d + h * vd, Lz)[0]
+              - vac.energy_and_gradient(y - h * vy, d - h * vd, Lz)[0]) / (2 * h)
+        an = np.sum(gy * vy) + np.sum(gd * vd)
+        assert fd == pytest.approx(an, rel=1e-6, abs=1e-6)
+
+
+def test_uniform_pristine_state_is_exact(pristine):
+    """With the ghost-force correction the uniformly stretched pristine tube is an
+    equilibrium of the coupled model and its stress is that of the plain DCBR tube."""
+    raw = pristine.ghost_forces(0.03)  # the uncorrected coupling's imbalance: not zero
+    assert raw["max_atom_force_eV_A"] > 1e-3
+    lt, lz, sh = pristine.uniform_lattice(1.03)
+    y, d, Lz = pristine.uniform_state(lt, lz, sh)
+    pristine.prepare_step(Lz)
+    _, gy, gd, gL = pristine.energy_and_gradient(y, d, Lz)
+    assert np.abs(gy).max() < 1e-6 and np.abs(gd).max() < 1e-6
+    ref = DCBRTube(6, 6, 30.0, coarsening=2.0)
+    R0 = ref.lattice.R0
+    yr = np.column_stack([lt * R0 * np.cos(ref.theta), lt * R0 * np.sin(ref.theta),
+                          lz * ref.x0[:, 2]])
+    _, gyr, gdr, gLr = ref.energy_and_gradient(yr, np.tile(sh, (ref.N, 1)), Lz)
+    assert np.abs(gyr).max() < 1e-6
+    # 1e-5: the correction's dLz term differentiates the relaxed uniform state numerically
+    assert gL == pytest.approx(gLr, rel=1e-5)
+
+
+def test_vacancy_forces_survive_the_correction(vac):
+    """The correction comes from the pristine twin, so the vacancy's own forces remain."""
+    lt, lz, sh = vac.uniform_lattice(1.0)
+    y, d, Lz = vac.uniform_state(lt, lz, sh)
+    vac.prepare_step(Lz)
+    _, gy, _, _ = vac.energy_and_gradient(y, d, Lz)
+    nd = len(vac.dof_idx)
+    assert np.abs(gy[nd:]).max() > 1.0  # eV/Å on the atoms next to the vacancy
+    assert np.abs(gy[:nd]).max() < 1e-3  # particles far from it feel nothing
+
+
+@pytest.mark.parametrize("kw, word", [
+    (dict(region="ring"), "region='ring'"),
+    (dict(step_crossing="sometimes"), "step_crossing='sometimes'"),
+    (dict(r_atomistic=40.0), "r_atomistic=40.0"),
+    (dict(vacancy=-1), "vacancy=-1"),
+    (dict(pad=1.0), "pad=1.0"),
+])
+def test_bad_input(kw, word):
+    args = dict(KW, vacancy=4)
+    args.update(kw)
+    with pytest.raises(ValueError) as e:
+        DCBRDefectTube(6, 6, 30.0, **args)
+    msg = str(e.value)
+    assert word in msg and "valid" in msg and "\n" not in msg

@@ -1,0 +1,629 @@
+"""DCBR tube with an atomistic region around a defect (the arrangement refined to the lattice).
+
+Seed 004 sec. 5.3 suggests a particle arrangement that is finer near a defect, down to the
+lattice itself, and coarse away from it. :class:`DCBRDefectTube` does exactly that for the
+4-atom vacancy: inside a disc of radius ``r_atomistic`` (on the unrolled wall) around the
+vacancy every atom is a degree of freedom with its own Tersoff site energy; outside, the
+coarse particles of :class:`~upscale.models.dcbr.DCBRTube` carry the lattice through G.
+It is an energy-based concurrent coupling (in the spirit of the quasicontinuum method):
+
+    E = sum_{a free} (E_a - e0) + sum_c w_c (e(C_c, delta_c) - e0) + W_stab
+
+* **Free atoms** (``r < r_atomistic``, vacancy removed): E_a is the LAMMPS-form Tersoff site
+  energy of atom a (the terms of its own bonds, :func:`potentials.tersoff_kernels._chunk` on
+  the free atoms only), so the free region is the atomistic model itself.
+* **Pad atoms** (non-free atoms within ``pad`` Å of the region, default 3.5 Å > the 2.1 Å
+  cutoff plus margin): the neighbours free atoms need. They are not unknowns: each follows
+  the coarse map of its nearest carrying particle c, the same uniform cylindrical map (with
+  the sublattice shift for B atoms) that gives c its lattice energy,
+
+      x_a = y_c + Q3_c (h_a + r0_a),  h_a = (rho sin phi, lam_z dz + sigma d_z, rho cos phi - lam_t R0),
+      phi = (lam_t ds + gam dz + sigma d_s) / (lam_t R0),  rho = lam_t R0 + sigma d_rho,
+
+  (ds, dz) its reference arc and axial offset from c, sigma = 1 on sublattice B, Q3_c the
+  deformed local frame (:meth:`DCBRTube._stab_local`), r0_a the reference residual (zero on a
+  symmetric family). Forces on pad atoms go to c's position, shift and (through G) to c's
+  neighbours by the chain rule (complex-step derivatives of the map, exact).
+* **Particle weights**: w_c = N_c - g_c (clipped to [0, N_c]; 0 when all its atoms are
+  explicit), g_c the number of free or removed atoms among those nearest particle c (Voronoi
+  on the unrolled wall, pristine tube), so the coarse energy counts only the atoms not
+  represented explicitly (the total differs from the exact count by the rounding of the
+  particles inside the region; reported as ``atom_count_error``).
+* **Slave particles**: a particle with f_c >= 1/2 lies mostly inside the atomistic region.
+  Left free it would be a cheap handle by which its neighbours could relax their G, a soft
+  spot; instead its displacement interpolates those of the 10 free atoms of sublattice A
+  nearest it (weighted quadratic fit in the unrolled coordinates), so G next to the region
+  follows the atoms.
+* The hourglass penalty of each link is scaled by its owner's w_c / N_c.
+
+In a uniform strain the pad atoms sit exactly on the uniform map, so the free atoms feel
+the perfect lattice; what is not exact is the balance at the interface (the classic
+energy-based coupling's ghost forces), measured by :meth:`ghost_forces` and reported.
+
+Failure: free atoms break their own bonds through the potential (step cutoff at R + D =
+2.1 Å); coarse particles keep the two rules of :mod:`upscale.models.dcbr` (the lattice
+stability rule is applied to particles that carry at least half their atoms). The damage
+of an atom is mu = 1 - (bonds left)/(bonds at the start) (< 2.0 Å at start, broken beyond
+2.1 Å, the references' rule); of a particle, eq. 5.16 on its links.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from upscale.models import dcbr_kernels as K
+from upscale.models.dcbr import DCBRTube
+
+__all__ = ["DCBRDefectTube"]
+
+
+def _wrap(a):
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+class DCBRDefectTube(DCBRTube):
+    """Periodic (n, m) DCBR tube with a vacancy and an atomistic region around it.
+
+    Parameters (besides those of :class:`~upscale.models.dcbr.DCBRTube`)
+    ----------
+    vacancy : int
+        Atoms removed at the seed's point (``upscale.build.vacancy``, the references' rule);
+        0 keeps the tube pristine (the atomistic region is then a plain refinement, used to
+        measure the coupling's own error).
+    r_atomistic : float
+        Radius (Å, on the unrolled wall) of the atomistic region around the vacancy.
+    pad : float
+        Width (Å) of the band of slaved pad atoms outside it (> cutoff 2.1 Å).
+    """
+
+    def __init__(self, n: int, m: int, length: float, coarsening: float = 2.0,
+                 vacancy: int = 4, r_atomistic: float = 10.0, pad: float = 3.5,
+                 region: str = "band", step_crossing: str = "energy",
+                 _twin_of: "DCBRDefectTube | None" = None, **kw):
+        super().__init__(n, m, length, coarsening, **kw)
+        if step_crossing not in ("energy", "always"):
+            raise ValueError(f"step_crossing={step_crossing!r}; valid: 'energy' (a pair held at "
+                             "the step cutoff crosses it when that lowers the energy) or 'always' "
+                             "(it crosses, as damped dynamics would)")
+        self.step_crossing = step_crossing
+        if region not in ("band", "disc"):
+            raise ValueError(f"region={region!r}; valid: 'band' (|z - z_vacancy| < r_atomistic, "
+                             "all around the tube) or 'disc' (distance on the wall < r_atomistic)")
+        self.region = region
+        self._kw = dict(kw, vacancy=vacancy, r_atomistic=r_atomistic, pad=pad, region=region)
+        from potentials.neighbours import neighbour_list  # noqa: PLC0415
+        from potentials.tersoff import Tersoff  # noqa: PLC0415
+        from upscale.build import swcnt  # noqa: PLC0415
+        from upscale.build import vacancy as make_vacancy  # noqa: PLC0415
+
+        if not (isinstance(vacancy, (int, np.integer)) and 0 <= vacancy <= 20):
+            raise ValueError(f"vacancy={vacancy!r}; valid: an integer number of atoms 0..20")
+        if not (r_atomistic > 0 and np.isfinite(r_atomistic)):
+            raise ValueError(f"r_atomistic={r_atomistic!r}; valid: a radius > 0 Å")
+        cut = float(self.p_standard[10] + self.p_standard[11])
+        if not pad > cut:
+            raise ValueError(f"pad={pad!r} Å; valid: wider than the potential cutoff {cut:g} Å")
+        atoms = swcnt(n, m, length, bond=self.lattice.bond)
+        if abs(atoms.info["length"] - self.L) > 1e-6:
+            raise RuntimeError("swcnt and DCBRTube disagree on the tube length")
+        cx, cy = atoms.info["axis_xy"]
+        X = atoms.get_positions() - [cx, cy, 0.0]
+        nat = len(X)
+        R0 = self.lattice.R0
+        th = np.arctan2(X[:, 1], X[:, 0])
+        # sublattice of every atom: 2-colour the bond graph, then match the lattice's A star
+        first, jb, _ = neighbour_list(atoms.positions, atoms.cell.array, atoms.pbc, 1.1 * 1.42)
+        col = -np.ones(nat, int)
+        col[0] = 0
+        front = [0]
+        while front:
+            nxt = []
+            for a in front:
+                for b in jb[first[a]:first[a + 1]]:
+                    if col[b] < 0:
+                        col[b] = 1 - col[a]
+                        nxt.append(b)
+            front = nxt
+        lat = self.lattice
+        starA = np.column_stack([lat.s[lat.bondsA], lat.z[lat.bondsA]])
+        a0 = 0
+        nb0 = jb[first[a0]:first[a0 + 1]]
+        d = np.column_stack([R0 * _wrap(th[nb0] - th[a0]),
+                             (X[nb0, 2] - X[a0, 2] + self.L / 2) % self.L - self.L / 2])
+        plus = max(np.min(np.linalg.norm(starA - v, axis=1)) for v in d)
+        minus = max(np.min(np.linalg.norm(starA + v, axis=1)) for v in d)
+        if min(plus, minus) > 0.05:
+            raise RuntimeError("cannot match the atoms' sublattices to the lattice patch")
+        sub = col if plus < minus else 1 - col
+        # the vacancy (the references' rule) and its centre
+        removed = np.zeros(nat, bool)
+        vac_atoms = np.zeros(nat, bool)  # atoms the slave fit must not use (twin: the vacancy)
+        if _twin_of is not None:  # the pristine twin of a defect tube: same centre and region
+            thc, zc = _twin_of.vacancy_theta_z
+            vac_atoms = _twin_of.removed.copy()
+        elif vacancy:
+            vac = make_vacancy(atoms, n=int(vacancy))
+            removed[vac.info["vacancy"]["removed"]] = True
+            zc = np.mean(X[removed, 2])
+            thc = np.angle(np.mean(np.exp(1j * th[removed])))
+            vac_atoms = removed
+        else:
+            zc = atoms.positions[:, 2].min() + 0.5 * self.L
+            thc = 0.0
+        self.vacancy_theta_z = (float(thc), float(zc))
+        s_rel = R0 * _wrap(th - thc)
+        z_rel = X[:, 2] - zc
+        r = np.hypot(s_rel, z_rel) if region == "disc" else np.abs(z_rel)
+        if zc - (r_atomistic + pad) < 0 or zc + r_atomistic + pad > self.L:
+            raise ValueError(f"r_atomistic={r_atomistic} + pad={pad} Å does not fit in the tube "
+                             f"length {self.L:.1f} Å around the vacancy; valid: "
+                             f"r_atomistic < {min(zc, self.L - zc) - pad:.1f}")
+        free = (r < r_atomistic) & ~removed
+        # Voronoi share of every atom of the pristine tube among the particles
+        ds_p = R0 * _wrap(th[:, None] - self.theta[None, :])
+        dz_p = X[:, 2][:, None] - self.x0[None, :, 2]
+        dz_p -= self.L * np.round(dz_p / self.L)
+        owner = np.argmin(ds_p ** 2 + dz_p ** 2, axis=1)
+        tot = np.bincount(owner, minlength=self.N)
+        gone = np.bincount(owner, weights=(free | removed).astype(float), minlength=self.N)
+        f = gone / np.maximum(tot, 1)
+        nominal = self.n_atoms / self.N
+        self.nominal = nominal
+        # the atoms a particle gives up are the free/removed ones nearest it; a particle all
+        # of whose atoms are explicit carries none
+        self.natoms_n = np.where(gone >= tot, 0.0, np.clip(nominal - gone, 0.0, nominal))
+        # make the count exact: the interface particles (partly explicit) absorb the rounding
+        # of the particles whose atoms are all explicit, in proportion to their weights
+        target = float((~removed).sum() - free.sum())
+        part = (self.natoms_n > 0) & (self.natoms_n < nominal)
+        if part.any():
+            excess = self.natoms_n.sum() - target
+            self.natoms_n[part] -= excess * self.natoms_n[part] / self.natoms_n[part].sum()
+            self.natoms_n = np.clip(self.natoms_n, 0.0, None)
+        self.atom_count_error = float(self.natoms_n.sum() - target)
+        slave = f >= 0.5
+        self.is_slave = slave
+        self.dof_idx = np.nonzero(~slave)[0]
+        self.slave_idx = np.nonzero(slave)[0]
+        self.free_idx = np.nonzero(free)[0]
+        self.nf = len(self.free_idx)
+        Xf = X[self.free_idx]
+        # slave particles: weighted linear fit of the nearest free A atoms (unrolled coords)
+        fA = np.nonzero((sub[self.free_idx] == 0) & ~vac_atoms[self.free_idx])[0]
+        rows, cols, vals, ref_off = [], [], [], []
+        for k, c in enumerate(self.slave_idx):
+            dsf = R0 * _wrap(th[self.free_idx[fA]] - self.theta[c])
+            dzf = Xf[fA, 2] - self.x0[c, 2]
+            dist = np.hypot(dsf, dzf)
+            near = np.argsort(dist)[:10]
+            if len(near) < 10:
+                raise ValueError(f"slave particle {c} has {len(near)} free atoms to follow "
+                                 "(10 needed); valid: a larger r_atomistic")
+            a_, b_ = dsf[near], dzf[near]
+            A = np.column_stack([np.ones(len(near)), a_, b_, a_ * a_, a_ * b_, b_ * b_])
+            wts = 1.0 / (1.0 + dist[near] ** 2)
+            Aw = A * wts[:, None]
+            phi = np.linalg.solve(A.T @ Aw, Aw.T)[0]  # row giving the value at (0, 0)
+            rows += [k] * len(near)
+            cols += list(fA[near])
+            vals += list(phi)
+            self_ref = Xf[fA[near]]
+            ref_off.append(self.x0[c] - phi @ self_ref)
+        from scipy.sparse import csr_matrix  # noqa: PLC0415
+        self.Phi = csr_matrix((vals, (rows, cols)), shape=(len(self.slave_idx), self.nf))
+        # y_e = X_e + sum phi (x_a - X_a): the fit interpolates displacements
+        self.slave_off = np.array(ref_off).reshape(-1, 3)
+        # pad atoms and the carrying particle each follows (nearest non-slave particle)
+        pad_m = (~free) & (~removed) & (r < r_atomistic + pad)
+        self.pad_idx = np.nonzero(pad_m)[0]
+        carry = self.dof_idx
+        dsc = R0 * _wrap(th[self.pad_idx][:, None] - self.theta[carry][None, :])
+        dzc = X[self.pad_idx, 2][:, None] - self.x0[carry][None, :, 2]
+        dzc -= self.L * np.round(dzc / self.L)
+        k = np.argmin(dsc ** 2 + dzc ** 2, axis=1)
+        npad = len(self.pad_idx)
+        self._pad = {"c": carry[k], "ds": dsc[np.arange(npad), k], "dz": dzc[np.arange(npad), k],
+                     "sig": sub[self.pad_idx].astype(float), "r0": np.zeros((npad, 3))}
+        F0 = self.gain.deformation(self.x0, self.gain.cell)
+        Q3, h = self._pad_local(F0, np.zeros((self.N, 3)))
+        dX = X[self.pad_idx] - self.x0[self._pad["c"]]
+        dX[:, 2] -= self.L * np.round(dX[:, 2] / self.L)
+        self._pad["r0"] = np.einsum("eia,ei->ea", Q3, dX) - h
+        self.X_atoms, self.sub_atoms, self.removed = X, sub, removed
+        self.Xf = Xf
+        # atomistic potential on the cluster (free atoms first)
+        step = self.cutoff == "step"
+        name = self.potential.split(":", 1)[1] if self.potential.startswith("tersoff:") \
+            else self.potential
+        tf = Tersoff.from_lammps(name, ["C"], step_cutoff=step)
+        self._tP, self._te2p, self._tcut = tf._P, tf._e2p, float(tf.cutoff)
+        self._types = np.zeros(self.nf + npad, np.int64)
+        # bonds of the free atoms at the start (< 2.0 Å), for the atoms' damage index
+        fl, jl, _ = neighbour_list(np.vstack([Xf, X[self.pad_idx]]), np.zeros((3, 3)),
+                                   (False, False, False), 2.0)
+        ii = np.repeat(np.arange(self.nf + npad), np.diff(fl))
+        keep = ii < self.nf
+        self._bonds0 = np.column_stack([ii[keep], jl[keep]]).astype(np.int64)
+        self.y_init = np.vstack([self.x0[self.dof_idx], Xf])
+        self.dof = 3 * (len(self.dof_idx) + self.nf)
+        # the stability rule only tests particles carrying at least half their atoms
+        self.stability_mask = self.natoms_n >= 0.5 * nominal
+        self._stab_scale()
+        self._ghost = None
+        # ghost forces are those of the pristine tube with the same region (its twin): taken
+        # from the defect tube itself they would also cancel the vacancy's own forces
+        self._twin = None
+        if _twin_of is None and removed.any():
+            self._twin = DCBRDefectTube(n, m, length, coarsening, _twin_of=self, **self._kw_all(kw))
+            tw = self._twin
+            if not (np.array_equal(tw.dof_idx, self.dof_idx)
+                    and np.allclose(tw.natoms_n, self.natoms_n)):
+                raise RuntimeError("the pristine twin's particles differ from the tube's")
+            pos = {a: k for k, a in enumerate(tw.free_idx)}
+            self._twin_rows = np.array([pos[a] for a in self.free_idx], np.int64)
+
+    def _kw_all(self, kw):
+        return dict(kw, vacancy=0, r_atomistic=self._kw["r_atomistic"], pad=self._kw["pad"],
+                    region=self.region)
+
+    # ------------------------------------------------------------------ pieces
+    def _stab_scale(self):
+        st = self._st
+        st["w"] = st["w"] * (self.natoms_n[st["c"]] / self.nominal)
+
+    def _build_gain(self, intact):
+        super()._build_gain(intact)
+        if hasattr(self, "nominal"):
+            self._stab_scale()
+
+    def _pad_local(self, F, delta):
+        """Q3 (npad,3,3) of each pad atom's carrier and its local offset h (npad,3), for real
+        or complex F (N,3,2) and delta (N,3)."""
+        pd, S, R0 = self._pad, self.S, self.lattice.R0
+        c = pd["c"]
+        Fc = F[c]
+        dead = ~self.alive[c]
+        if dead.any():  # a failed carrier has no G: its pads keep their reference map
+            Fc = Fc.copy()
+            Fc[dead] = self.gain.F0[c[dead]] if self.gain.F0.shape[1:] == (3, 2) else np.eye(3, 2)
+        FS = np.einsum("nia,nab->nib", Fc, S[c])
+        C = np.einsum("nia,nib->nab", FS, FS)
+        lt = np.sqrt(C[:, 0, 0])
+        gm = C[:, 0, 1] / lt
+        lz = np.sqrt(C[:, 1, 1] - gm * gm)
+        q1 = FS[:, :, 0] / lt[:, None]
+        q2 = (FS[:, :, 1] - gm[:, None] * q1) / lz[:, None]
+        nn = np.stack([q1[:, 1] * q2[:, 2] - q1[:, 2] * q2[:, 1],
+                       q1[:, 2] * q2[:, 0] - q1[:, 0] * q2[:, 2],
+                       q1[:, 0] * q2[:, 1] - q1[:, 1] * q2[:, 0]], axis=1)
+        Q3 = np.stack([q1, q2, nn], axis=2)
+        sig = pd["sig"]
+        dl = delta[c]
+        rp = lt * R0
+        rho = rp + sig * dl[:, 0]
+        phi = (lt * pd["ds"] + gm * pd["dz"] + sig * dl[:, 1]) / rp
+        h = np.stack([rho * np.sin(phi), lz * pd["dz"] + sig * dl[:, 2], rho * np.cos(phi) - rp],
+                     axis=1)
+        return Q3, h
+
+    def _pad_positions(self, yp, F, delta):
+        Q3, h = self._pad_local(F, delta)
+        return yp[self._pad["c"]] + np.einsum("eia,ea->ei", Q3, h + self._pad["r0"])
+
+    def particle_positions(self, y):
+        """All N particle positions from the unknowns y = [non-slave particles; free atoms]."""
+        yp = np.empty((self.N, 3))
+        yp[self.dof_idx] = y[:len(self.dof_idx)]
+        if len(self.slave_idx):
+            yp[self.slave_idx] = self.Phi @ y[len(self.dof_idx):] + self.slave_off
+        return yp
+
+    def atom_positions(self, y, delta, Lz):
+        """(free atoms (nf,3), pad atoms (npad,3)) for unknowns y, shifts delta, cell Lz."""
+        yp = self.particle_positions(y)
+        F = self.gain.deformation(yp, np.array([0.0, 0.0, Lz]))
+        return y[len(self.dof_idx):], self._pad_positions(yp, F, delta)
+
+    def _atomistic(self, x):
+        """Site energies of the free atoms (the first nf rows of x) and -forces on all rows."""
+        from scipy.spatial import cKDTree  # noqa: PLC0415
+
+        from potentials import tersoff_kernels as tk  # noqa: PLC0415
+
+        if not np.all(np.isfinite(x)):
+            bad = int(np.nonzero(~np.all(np.isfinite(x), axis=1))[0][0])
+            raise FloatingPointError(f"atom {bad} of the atomistic region has a non-finite "
+                                     f"position {x[bad].tolist()}")
+        cell = np.zeros((3, 3))
+        # a small open cluster: a k-d tree pair search is cheaper than the cell-list builder
+        pr = cKDTree(x).query_pairs(self._tcut, output_type="ndarray")
+        ii = np.concatenate([pr[:, 0], pr[:, 1]])
+        jj = np.concatenate([pr[:, 1], pr[:, 0]])
+        order = np.argsort(ii, kind="stable")
+        jl = jj[order].astype(np.int32)
+        fl = np.zeros(len(x) + 1, np.int64)
+        np.cumsum(np.bincount(ii, minlength=len(x)), out=fl[1:])
+        sh = np.zeros((len(jl), 3), np.int32)
+        f = np.zeros_like(x)
+        e_n = np.zeros(len(x))
+        W = np.zeros((3, 3))
+        E = tk._chunk(0, self.nf, np.ascontiguousarray(x), cell, fl, jl, sh, self._types,
+                      self._te2p, self._tP, self._tcut ** 2, f, e_n, W)
+        self._e_atoms = e_n[:self.nf]
+        return float(E), -f
+
+    # ------------------------------------------------------------------ energy
+    def _raw_energy_and_gradient(self, y, delta, Lz):
+        g = self.gain
+        nd = len(self.dof_idx)
+        y = np.asarray(y, float)
+        yp = self.particle_positions(y)
+        cell = np.array([0.0, 0.0, Lz])
+        F = g.deformation(yp, cell)
+        P = np.empty_like(F)
+        gd = np.empty((self.N, 3))
+        self._e_lat_n = np.empty(self.N)
+        self._q_n = np.zeros((self.N, 6))
+        lat = self.lattice
+        E = K.coarse_energy(F, self.S, np.ascontiguousarray(delta), self.natoms_n, self.alive,
+                            lat.s, lat.z, lat.sub, lat.R0, lat.iA, lat.iB, lat.candA, lat.candB,
+                            self.p, self.e0, P, gd, self._e_lat_n, self._q_n)
+        if not self.relax_shift:
+            gd[:] = 0.0
+        Es, Ps, gyp, dLs = self.stab_energy_and_gradient(yp, F, Lz)
+        P += Ps
+        # atomistic part: free atoms + pad atoms slaved to their carriers
+        xf = y[nd:]
+        xpad = self._pad_positions(yp, F, delta)
+        Ea, gx = self._atomistic(np.vstack([xf, xpad]))
+        E += Ea - self.nf * self.e0 + Es
+        gxf, gpad = gx[:self.nf], gx[self.nf:]
+        c = self._pad["c"]
+        np.add.at(gyp, c, gpad)
+        eps = 1e-30
+        Pp = np.zeros((self.N, 3, 2))
+        Fc = F.astype(complex)
+        dc = delta.astype(complex)
+        for i in range(3):
+            for a in range(2):
+                Fc.imag[:] = 0.0
+                Fc.imag[:, i, a] = eps
+                dx = self._pad_positions(yp, Fc, dc).imag / eps
+                np.add.at(Pp[:, i, a], c, np.einsum("ei,ei->e", gpad, dx))
+        Fc.imag[:] = 0.0
+        if self.relax_shift:
+            for k in range(3):
+                dc.imag[:] = 0.0
+                dc.imag[:, k] = eps
+                dx = self._pad_positions(yp, Fc, dc).imag / eps
+                np.add.at(gd[:, k], c, np.einsum("ei,ei->e", gpad, dx))
+        P += Pp
+        gyp = gyp - g.forces(P)
+        dL = g.cell_derivative(P)[2] + dLs
+        gy = np.empty_like(y)
+        gy[:nd] = gyp[self.dof_idx]
+        gy[nd:] = gxf
+        if len(self.slave_idx):
+            gy[nd:] += self.Phi.T @ gyp[self.slave_idx]
+        self._e_n = self._e_lat_n + self._w_stab_n / np.maximum(self.natoms_n, 1e-12)
+        return E, gy, gd, dL
+
+    def energy_and_gradient(self, y, delta, Lz):
+        """Coupled energy with the ghost-force correction of the current load step (if set by
+        :meth:`prepare_step`): E' = E - g . (x - x_u), g = dE/dx at the uniform state x_u."""
+        E, gy, gd, dL = self._raw_energy_and_gradient(y, delta, Lz)
+        gc = self._ghost
+        if gc is not None and abs(gc["Lz"] - Lz) < 1e-12 * Lz:
+            E -= float(np.sum(gc["gy"] * (y - gc["y"])) + np.sum(gc["gd"] * (delta - gc["d"])))
+            gy = gy - gc["gy"]
+            gd = gd - gc["gd"]
+            dL = dL + gc["dL"]
+        return E, gy, gd, dL
+
+    # ------------------------------------------------------------------ uniform states
+    def uniform_lattice(self, lam_z=None):
+        """(lam_t, lam_z, shift) of the lattice relaxed at axial stretch ``lam_z`` (gam = 0,
+        lam_t and the sublattice shift minimised), or at zero stress when ``lam_z`` is None."""
+        from scipy.optimize import minimize  # noqa: PLC0415
+
+        lat, p = self.lattice, self.p
+        if lam_z is None:
+            def fun(v):
+                e, g = lat.energy(np.array([v[0], 0.0, v[1], v[2], v[3], v[4]]), p)
+                return e, np.array([g[0], g[2], g[3], g[4], g[5]])
+            r = minimize(fun, np.array([1.0, 1.0, 0, 0, 0]), jac=True, method="BFGS",
+                         options={"gtol": 1e-12, "maxiter": 500})
+            return float(r.x[0]), float(r.x[1]), r.x[2:].copy()
+
+        def fun(v):
+            e, g = lat.energy(np.array([v[0], 0.0, lam_z, v[1], v[2], v[3]]), p)
+            return e, np.array([g[0], g[3], g[4], g[5]])
+        r = minimize(fun, np.array([1.0, 0, 0, 0]), jac=True, method="BFGS",
+                     options={"gtol": 1e-12, "maxiter": 500})
+        return float(r.x[0]), float(lam_z), r.x[1:].copy()
+
+    def uniform_state(self, lam_t, lam_z, shift):
+        """Unknowns y, shifts delta and cell Lz of the whole tube on the uniform map."""
+        R0 = self.lattice.R0
+        nd = len(self.dof_idx)
+        y = np.empty((nd + self.nf, 3))
+        th = self.theta[self.dof_idx]
+        y[:nd] = np.column_stack([lam_t * R0 * np.cos(th), lam_t * R0 * np.sin(th),
+                                  lam_z * self.x0[self.dof_idx, 2]])
+        sub = self.sub_atoms[self.free_idx]
+        tha = np.arctan2(self.Xf[:, 1], self.Xf[:, 0]) + sub * shift[1] / (lam_t * R0)
+        rho = lam_t * R0 + sub * shift[0]
+        y[nd:] = np.column_stack([rho * np.cos(tha), rho * np.sin(tha),
+                                  lam_z * self.Xf[:, 2] + sub * shift[2]])
+        return y, np.tile(np.asarray(shift, float), (self.N, 1)), lam_z * self.L
+
+    def prepare_step(self, Lz):
+        """Ghost-force correction for the load step at cell length ``Lz``: the gradient of the
+        coupled energy at the uniform, relaxed state of the pristine lattice at that stretch
+        is subtracted as a dead load (Shenoy et al., J. Mech. Phys. Solids 47, 611 (1999)),
+        so a pristine tube stays exactly uniform and the coupling adds no force of its own."""
+        tw = self._twin if self._twin is not None else self
+        nd = len(self.dof_idx)
+        rows = np.r_[np.arange(nd), nd + self._twin_rows] if self._twin is not None else \
+            np.arange(nd + self.nf)
+
+        def state(lam_z):
+            y, d, _ = tw.uniform_state(*tw.uniform_lattice(lam_z))
+            return y[rows], d
+
+        lt, lz, sh = tw.uniform_lattice(Lz / self.L)
+        y, d, _ = tw.uniform_state(lt, lz, sh)
+        self._ghost = None
+        _, gy, gd, _ = tw._raw_energy_and_gradient(y, d, Lz)
+        y, gy = y[rows], gy[rows]
+        # d/dLz of the dead-load term along the uniform path (central difference of x_u)
+        h = 1e-6 * Lz
+        yp, dp = state((Lz + h) / self.L)
+        ym, dm = state((Lz - h) / self.L)
+        dL = float(np.sum(gy * (yp - ym)) + np.sum(gd * (dp - dm))) / (2 * h)
+        self._ghost = {"Lz": float(Lz), "y": y, "d": d, "gy": gy, "gd": gd, "dL": dL}
+        return {"max_particle_force_eV_A": float(np.abs(gy[:len(self.dof_idx)]).max()),
+                "max_atom_force_eV_A": float(np.abs(gy[len(self.dof_idx):]).max()),
+                "max_shift_force_eV_A": float(np.abs(gd).max())}
+
+    def minimise(self, y, delta, Lz, relax_box=False, gtol=1e-6, maxiter=5000):
+        """As :meth:`DCBRTube.minimise`, with two additions: ``relax_box`` finds the zero-stress
+        cell length (:meth:`_relax_zero_stress`), and pairs held at the step cutoff are moved
+        across it when that lowers the energy (:meth:`_cross_steps`), then minimised again."""
+        if relax_box:
+            return self._relax_zero_stress(gtol, maxiter)
+        crossed = 0
+        out = super().minimise(y, delta, Lz, relax_box=False, gtol=gtol, maxiter=maxiter)
+        for _ in range(50):
+            if out[4]["max_force_eV_A"] <= 10 * gtol and self.step_crossing != "always":
+                break
+            better = self._cross_steps(out, Lz, gtol, maxiter)
+            if better is None:
+                break
+            out = better
+            crossed += 1
+        out[4]["step_crossings"] = crossed
+        return out
+
+    def _relax_zero_stress(self, gtol, maxiter, tol=1e-4):
+        """Zero axial stress: start from the pristine lattice's zero-stress length, then a
+        secant iteration on the cell length (positions minimised with each length's
+        correction) until |dE/dLz| < ``tol`` eV/Å."""
+        lt, lz, sh = self.uniform_lattice(None)
+        y, delta, Lz = self.uniform_state(lt, lz, sh)
+        hist = []
+        for _ in range(12):
+            self.prepare_step(Lz)
+            out = self.minimise(y, delta, Lz, gtol=gtol, maxiter=maxiter)
+            y, delta, gL = out[0], out[1], out[5]
+            hist.append((Lz, gL))
+            if abs(gL) < tol:
+                break
+            if len(hist) == 1:
+                Lnew = Lz * (1.0 - 1e-4 * np.sign(gL))
+            else:
+                (L1, g1), (L2, g2) = hist[-2], hist[-1]
+                Lnew = L2 - g2 * (L2 - L1) / (g2 - g1)
+            y = y.copy()
+            y[:, 2] *= Lnew / Lz
+            Lz = Lnew
+        out = list(out)
+        out[2] = Lz
+        out[4]["zero_stress_iterations"] = len(hist)
+        return tuple(out)
+
+    def _cross_steps(self, out, Lz, gtol, maxiter, window: float = 2e-3):
+        """Try the minima on the other side of the step cutoff for pairs held at it.
+
+        With the step cutoff a pair's energy jumps where its distance crosses R + D, so a
+        gradient minimiser stops with the pair held at the step, a minimum of the
+        discontinuous energy with a force left on it (the LAMMPS runners meet the same and
+        fall back on damped dynamics, which does not feel the step and goes through). For
+        each pair within ``window`` Å of the step (a free atom in it), largest force first,
+        the pair is moved to ``window`` Å on the other side (the free atoms share the move)
+        and the energy minimised again; the first such minimum below the current one is
+        returned (None if there is none)."""
+        from scipy.spatial import cKDTree  # noqa: PLC0415
+
+        y, delta, E0 = out[0], out[1], out[3]
+        nd = len(self.dof_idx)
+        x = np.vstack(self.atom_positions(y, delta, Lz))
+        rc = self._tcut
+        pr = cKDTree(x).query_pairs(rc + window, output_type="ndarray")
+        if len(pr) == 0:
+            return None
+        dv = x[pr[:, 1]] - x[pr[:, 0]]
+        r = np.linalg.norm(dv, axis=1)
+        near = (np.abs(r - rc) < window) & ((pr[:, 0] < self.nf) | (pr[:, 1] < self.nf))
+        for (a, b), rr, v in list(zip(pr[near], r[near], dv[near]))[:4]:
+            target = rc - window if rr >= rc - 1e-5 else rc + window
+            move = (target - rr) * v / rr  # change of x_b - x_a
+            fa, fb = a < self.nf, b < self.nf
+            yt = y.copy()
+            if fa and fb:
+                yt[nd + a] -= 0.5 * move
+                yt[nd + b] += 0.5 * move
+            elif fa:
+                yt[nd + a] -= move
+            else:
+                yt[nd + b] += move
+            trial = DCBRTube.minimise(self, yt, delta, Lz, gtol=gtol, maxiter=maxiter)
+            if trial[3] < E0 - 1e-6 or self.step_crossing == "always":
+                return trial
+        return None
+
+    # ------------------------------------------------------------------ failure and output
+    def check_stability(self, all_equal: bool = False):
+        """The lattice-stability rule of the base class on particles carrying >= 1/2 of their
+        atoms (``all_equal`` is ignored: the state is not uniform)."""
+        if self.stability is None:
+            return 0
+        saved = self._e_lat_n.copy()
+        self._e_lat_n = np.where(self.stability_mask, saved, -np.inf)
+        try:
+            return super().check_stability(all_equal=False)
+        finally:
+            self._e_lat_n = saved
+
+    def radius(self, y, delta):
+        """Mean distance of the atoms (free ones, and those the particles carry) from the
+        tube's centroid axis (the tube is free to translate sideways, and a defect's forces
+        can make the minimiser drift in it)."""
+        yp = self.particle_positions(y)
+        xf = y[len(self.dof_idx):]
+        w = self.natoms_n
+        c = (np.sum(w[:, None] * yp[:, :2], axis=0) + xf[:, :2].sum(axis=0)) / (w.sum() + self.nf)
+        rho = np.hypot(yp[:, 0] - c[0], yp[:, 1] - c[1]) + 0.5 * delta[:, 0]
+        rho_a = np.hypot(xf[:, 0] - c[0], xf[:, 1] - c[1])
+        # the mean over all atoms: a particle stands for its w_c atoms (A and B, B d_rho out)
+        return float((np.sum(w * rho) + rho_a.sum()) / (w.sum() + self.nf))
+
+    def atom_damage(self, y, delta, Lz, break_cutoff: float = 2.1):
+        """Damage index of the free atoms: 1 - bonds left / bonds at the start."""
+        xf, xpad = self.atom_positions(y, delta, Lz)
+        x = np.vstack([xf, xpad])
+        b = self._bonds0
+        L = np.linalg.norm(x[b[:, 1]] - x[b[:, 0]], axis=1)
+        tot = np.bincount(b[:, 0], minlength=self.nf)
+        ok = np.bincount(b[:, 0], weights=(L <= break_cutoff).astype(float), minlength=self.nf)
+        return 1.0 - ok / np.maximum(tot, 1)
+
+    def ghost_forces(self, strain: float = 0.0):
+        """Largest gradient component (eV/Å) of the *uncorrected* coupled energy at the
+        uniform, relaxed state of the pristine lattice at ``strain`` (from zero stress):
+        zero for an exact coupling, the interface imbalance otherwise."""
+        lt0, lz0, _ = self.uniform_lattice(None)
+        Lz = self.L * lz0 * (1.0 + strain)
+        saved = self._ghost
+        try:
+            return self.prepare_step(Lz)
+        finally:
+            self._ghost = saved
+
+    def summary(self) -> dict:
+        return {"particles": int(self.N), "slave_particles": int(len(self.slave_idx)),
+                "free_atoms": int(self.nf), "pad_atoms": int(len(self.pad_idx)),
+                "removed_atoms": int(self.removed.sum()), "dof": int(self.dof),
+                "atom_count_error": self.atom_count_error,
+                "vacancy_theta_z": list(self.vacancy_theta_z)}
