@@ -90,9 +90,10 @@ W_stab (its own links) divided by N_c, so the per-particle energies sum to the t
 
 Scope (what is and is not here): periodic pristine tubes of any chirality, uniform
 (theta, z) arrangement, quasi-static tension (:func:`quasi_static_tension`) and an ASE
-calculator (:mod:`upscale.calculators`). Not yet: defects (the 4-atom vacancy needs a
-refined or atomistic region around it), open tubes with grips and dynamic tension, and the
-engine's ``Model`` interface (this model runs its own L-BFGS loop).
+calculator (:mod:`upscale.calculators`). Defects are in :mod:`upscale.models.dcbr_defect`
+(an atomistic region around the vacancy coupled to these particles) and dynamic tension of
+open tubes with grips in :mod:`upscale.models.dcbr_dynamic`. Not yet: the engine's ``Model``
+interface (this model runs its own L-BFGS loop).
 
 Units: eV, Å; stress in GPa with the wall area 2 pi R t, t = 3.4 Å.
 """
@@ -438,6 +439,7 @@ class DCBRTube:
         self.kind = kind
         self.coarsening = float(coarsening)
         self.relax_shift = relax_shift
+        self.periodic = True  # along the axis; False for an open tube (dynamic tension)
         self.area0 = ds * dz
         self.hourglass = float(hourglass)
         self.k_stab = 0.0
@@ -455,7 +457,7 @@ class DCBRTube:
     def _build_gain(self, intact):
         self.gain: GainOperator = build_gain(
             self.x0, self.horizon, np.full(self.N, 1.0), surface=True, axis=[0, 0, 1],
-            cell=[0, 0, self.L], pbc=(False, False, True), kind=self.kind, intact=intact,
+            cell=[0, 0, self.L], pbc=(False, False, self.periodic), kind=self.kind, intact=intact,
             on_singular="raise" if intact is None else "drop")
         g = self.gain
         A0 = np.einsum("nia,nib->nab", g.F0, g.F0)

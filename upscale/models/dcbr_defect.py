@@ -254,7 +254,8 @@ class DCBRDefectTube(DCBRTube):
         # ghost forces are those of the pristine tube with the same region (its twin): taken
         # from the defect tube itself they would also cancel the vacancy's own forces
         self._twin = None
-        if _twin_of is None and removed.any():
+        if _twin_of is None:  # (also without a vacancy: the twin stays periodic when the
+            # tube is opened for dynamic tension, and the correction needs the periodic one)
             self._twin = DCBRDefectTube(n, m, length, coarsening, _twin_of=self, **self._kw_all(kw))
             tw = self._twin
             if not (np.array_equal(tw.dof_idx, self.dof_idx)
@@ -283,11 +284,20 @@ class DCBRDefectTube(DCBRTube):
         pd, S, R0 = self._pad, self.S, self.lattice.R0
         c = pd["c"]
         Fc = F[c]
-        dead = ~self.alive[c]
-        if dead.any():  # a failed carrier has no G: its pads keep their reference map
+        C0 = np.einsum("nia,nib->nab", Fc.real, Fc.real)
+        dead = ~self.alive[c] | (C0[:, 0, 0] < 1e-6) | \
+            (C0[:, 0, 0] * C0[:, 1, 1] - C0[:, 0, 1] ** 2 < 1e-9)
+        if dead.any():  # a failed carrier has no G: its pads keep the reference cylinder map
             Fc = Fc.copy()
-            Fc[dead] = self.gain.F0[c[dead]] if self.gain.F0.shape[1:] == (3, 2) else np.eye(3, 2)
-        FS = np.einsum("nia,nab->nib", Fc, S[c])
+            th = self.theta[c[dead]]
+            ref = np.zeros((len(th), 3, 2))
+            ref[:, 0, 0], ref[:, 1, 0], ref[:, 2, 1] = -np.sin(th), np.cos(th), 1.0
+            Fc[dead] = ref
+            Sd = S[c].copy()
+            Sd[dead] = np.eye(2)
+        else:
+            Sd = S[c]
+        FS = np.einsum("nia,nab->nib", Fc, Sd)
         C = np.einsum("nia,nib->nab", FS, FS)
         lt = np.sqrt(C[:, 0, 0])
         gm = C[:, 0, 1] / lt

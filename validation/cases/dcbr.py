@@ -239,7 +239,8 @@ def _tension_args(p):
     p.add_argument("--step-crossing", choices=("energy", "always"), default="energy",
                    help="with --vacancy: a pair held at the step cutoff crosses it when that "
                    "lowers the energy (default) or always (as LAMMPS's damped dynamics)")
-    p.add_argument("--dynamic", action="store_true", help="dynamic tension (not yet supported)")
+    p.add_argument("--dynamic", action="store_true",
+                   help="dynamic tension of the open tube with grips (with --vacancy)")
     p.add_argument("--strain-step", type=float, default=0.005)
     p.add_argument("--hourglass", type=float, default=0.1,
                    help="zero-energy-mode control, fraction of the lattice stiffness (0 = off)")
@@ -256,10 +257,11 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
     of both are compared."""
     from upscale.models.dcbr import DCBRTube, quasi_static_tension
 
-    if dynamic:
-        raise ValueError("--dynamic: dynamic DCBR tension is not implemented yet; "
-                         "valid: the quasi-static protocol (omit --dynamic)")
+    if dynamic and not vacancy:
+        raise ValueError("--dynamic without --vacancy: the dynamic scene runs on the defect "
+                         "model (DCBRDefectTube); valid: --dynamic --vacancy")
     ref = _lammps_reference(n, m, length, strain_step=strain_step, vacancy=vacancy,
+                            protocol="dynamic" if dynamic else "quasi-static",
                             progress=verbose)
     t0 = time.perf_counter()
     if vacancy:
@@ -272,11 +274,19 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
         model = DCBRTube(n, m, length, coarsening=coarsening, hourglass=hourglass)
     cb = (lambda e, s: print(f"  dcbr    strain {e:.4f}  stress {s:9.3f} GPa", flush=True)) \
         if verbose else None
-    res = quasi_static_tension(model, strain_step=strain_step, progress=cb)
+    if dynamic:
+        from upscale.models.dcbr_dynamic import dynamic_tension
+
+        pd = ref.get("protocol_detail", {})
+        res = dynamic_tension(model, grip=pd.get("grip_A", 50.0),
+                              speed=pd.get("speed_A_per_ps_each_grip", 1.0), progress=cb)
+        res["curve"]["Lz_A"] = [res["L0_A"]] * len(res["curve"]["strain"])
+    else:
+        res = quasi_static_tension(model, strain_step=strain_step, progress=cb)
     wall = time.perf_counter() - t0
     out = {"chirality": f"{n},{m}", "coarsening": coarsening, "hourglass": hourglass,
            "atoms": model.n_atoms,
-           "particles": model.N, "dof": res["dof"], "internal_dof": res["internal_dof"],
+           "particles": model.N, "dof": res["dof"], "internal_dof": res.get("internal_dof", 3 * model.N),
            "dof_atoms": 3 * model.n_atoms,
            "modulus_TPa": res["youngs_modulus_TPa"], "modulus_lammps_TPa": ref["youngs_modulus_TPa"],
            "strength_GPa": res["strength_GPa"], "strength_lammps_GPa": ref["strength_GPa"],
@@ -287,7 +297,8 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
            "wall_s": wall, "lammps_wall_s": ref.get("wall_s"),
            "lammps_source": ref.get("_source"),
            "L0_A": res["L0_A"], "L0_lammps_A": ref["relaxation"]["L0_A"],
-           "radius_A": res["radius_relaxed_A"], "radius_lammps_A": ref["relaxation"]["radius_relaxed_A"]}
+           "radius_A": res["radius_relaxed_A"], "radius_lammps_A": ref["relaxation"]["radius_relaxed_A"],
+           "protocol": "dynamic" if dynamic else "quasi-static"}
     out["speedup"] = (out["lammps_wall_s"] / wall) if out["lammps_wall_s"] else None
     if vacancy:
         out.update({f"model_{k}": v for k, v in model.summary().items()})
@@ -301,7 +312,8 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
     if outdir is not None and plot:
         outdir = Path(outdir)
         outdir.mkdir(parents=True, exist_ok=True)
-        _plot(res, ref, out, outdir / f"dcbr_tension_{n}_{m}{'_vac4' if vacancy else ''}_K{coarsening:g}.png", model)
+        name = f"dcbr_{'dynamic' if dynamic else 'tension'}_{n}_{m}{'_vac4' if vacancy else ''}"
+        _plot(res, ref, out, outdir / f"{name}_K{coarsening:g}.png", model)
     out["_curve"] = res["curve"]
     return out
 
@@ -342,7 +354,7 @@ def _plot(res, ref, out, path, model):
                label=f"DCBR, coarsening {out['coarsening']:g} ({out['particles']} particles)")
     ax[0].set_xlabel("axial strain")
     ax[0].set_ylabel("stress (GPa, t = 3.4 Å)")
-    ax[0].set_title(f"({out['chirality']}) quasi-static tension, {out['atoms']} atoms")
+    ax[0].set_title(f"({out['chirality']}) {out['protocol']} tension, {out['atoms']} atoms")
     ax[0].legend()
     yp = model.particle_positions(res["positions"]) if hasattr(model, "particle_positions") \
         else res["positions"]
@@ -374,7 +386,8 @@ def _plot(res, ref, out, path, model):
 
 def _dcbr_tension(args):
     n, m = _chirality(args.chirality)
-    length = args.length or (25.0 if args.quick else 100.0)
+    # the dynamic scene needs the stored 150 Å references (50 Å grips); --quick keeps them
+    length = args.length or (150.0 if args.dynamic else (25.0 if args.quick else 100.0))
     out = run_tension_comparison(n, m, length, args.coarsening, args.strain_step,
                                  args.vacancy, args.dynamic, outdir=args.outdir,
                                  hourglass=args.hourglass, r_atomistic=args.r_atomistic,
