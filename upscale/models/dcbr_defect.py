@@ -226,6 +226,7 @@ class DCBRDefectTube(DCBRTube):
         self._pad = {"c": carry[k], "ds": dsc[np.arange(npad), k], "dz": dzc[np.arange(npad), k],
                      "sig": sub[self.pad_idx].astype(float), "r0": np.zeros((npad, 3))}
         F0 = self.gain.deformation(self.x0, self.gain.cell)
+        self._FS_last = np.einsum("nia,nab->nib", F0, self.S)
         Q3, h = self._pad_local(F0, np.zeros((self.N, 3)))
         dX = X[self.pad_idx] - self.x0[self._pad["c"]]
         dX[:, 2] -= self.L * np.round(dX[:, 2] / self.L)
@@ -283,21 +284,13 @@ class DCBRDefectTube(DCBRTube):
         or complex F (N,3,2) and delta (N,3)."""
         pd, S, R0 = self._pad, self.S, self.lattice.R0
         c = pd["c"]
-        Fc = F[c]
-        C0 = np.einsum("nia,nib->nab", Fc.real, Fc.real)
+        FS = np.einsum("nia,nab->nib", F[c], S[c])
+        C0 = np.einsum("nia,nib->nab", FS.real, FS.real)
         dead = ~self.alive[c] | (C0[:, 0, 0] < 1e-6) | \
             (C0[:, 0, 0] * C0[:, 1, 1] - C0[:, 0, 1] ** 2 < 1e-9)
-        if dead.any():  # a failed carrier has no G: its pads keep the reference cylinder map
-            Fc = Fc.copy()
-            th = self.theta[c[dead]]
-            ref = np.zeros((len(th), 3, 2))
-            ref[:, 0, 0], ref[:, 1, 0], ref[:, 2, 1] = -np.sin(th), np.cos(th), 1.0
-            Fc[dead] = ref
-            Sd = S[c].copy()
-            Sd[dead] = np.eye(2)
-        else:
-            Sd = S[c]
-        FS = np.einsum("nia,nab->nib", Fc, Sd)
+        if dead.any():  # a failed carrier has no G: its pads keep its last map (no jump)
+            FS = FS.copy()
+            FS[dead] = self._FS_last[c[dead]]
         C = np.einsum("nia,nib->nab", FS, FS)
         lt = np.sqrt(C[:, 0, 0])
         gm = C[:, 0, 1] / lt
@@ -371,6 +364,11 @@ class DCBRDefectTube(DCBRTube):
         yp = self.particle_positions(y)
         cell = np.array([0.0, 0.0, Lz])
         F = g.deformation(yp, cell)
+        FS = np.einsum("nia,nab->nib", F, self.S)
+        C0 = np.einsum("nia,nib->nab", FS, FS)
+        ok = self.alive & (C0[:, 0, 0] > 1e-6) & \
+            (C0[:, 0, 0] * C0[:, 1, 1] - C0[:, 0, 1] ** 2 > 1e-9)
+        self._FS_last[ok] = FS[ok]  # the map a carrier's pads keep if it fails
         P = np.empty_like(F)
         gd = np.empty((self.N, 3))
         self._e_lat_n = np.empty(self.N)

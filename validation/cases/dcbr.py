@@ -330,8 +330,13 @@ def _crack(model, res) -> dict:
     th = np.unwrap(np.arctan2(xf[:, 1] - c[1], xf[:, 0] - c[0]))
     R = res["radius_relaxed_A"]
     s_, z_ = R * ((th - model.vacancy_theta_z[0] + np.pi) % (2 * np.pi) - np.pi), xf[:, 2]
-    dmg = mu > 0
-    out = {"_atom_damage": mu, "damaged_atoms": int(dmg.sum())}
+    # atoms thrown off the wall after fracture are left out (the references' rule)
+    on_wall = np.abs(np.hypot(xf[:, 0] - c[0], xf[:, 1] - c[1]) - R) < 3.0
+    zt = model.particle_positions(res["positions"])[:, 2]
+    on_wall &= (xf[:, 2] > zt.min()) & (xf[:, 2] < zt.max())
+    dmg = (mu > 0) & on_wall
+    out = {"_atom_damage": mu, "damaged_atoms": int(dmg.sum()),
+           "ejected_atoms": int((~on_wall).sum())}
     if dmg.sum() >= 2:
         line = crack_line(s_[dmg], z_[dmg], weights=mu[dmg])
         out["crack_angle_deg"] = line["angle_to_axis_deg"]
@@ -364,8 +369,10 @@ def _plot(res, ref, out, path, model):
     if "_atom_damage" in res:  # the free atoms of the atomistic region
         xf, _ = model.atom_positions(res["positions"], res["delta"], res["curve"]["Lz_A"][-1])
         tha = np.degrees(np.arctan2(xf[:, 1] - c[1], xf[:, 0] - c[0]))
-        ax[1].scatter(xf[:, 2], tha, c=res["_atom_damage"], vmin=0, vmax=1, cmap="viridis",
-                      s=6, marker=".")
+        keep = (np.abs(np.hypot(xf[:, 0] - c[0], xf[:, 1] - c[1]) - out["radius_A"]) < 3.0) \
+            & (xf[:, 2] > yp[:, 2].min()) & (xf[:, 2] < yp[:, 2].max())  # not thrown off
+        ax[1].scatter(xf[keep, 2], tha[keep], c=res["_atom_damage"][keep], vmin=0, vmax=1,
+                      cmap="viridis", s=6, marker=".")
         if out.get("crack_angle_deg") is not None:
             ax[1].set_title(f"damage at the last step; crack {out['crack_angle_deg']:.0f}° to the "
                             f"axis (LAMMPS {out.get('crack_angle_lammps_deg') or float('nan'):.0f}°)")
