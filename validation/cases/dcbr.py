@@ -301,6 +301,7 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
            "protocol": "dynamic" if dynamic else "quasi-static"}
     out["speedup"] = (out["lammps_wall_s"] / wall) if out["lammps_wall_s"] else None
     if vacancy:
+        out.update({k: res[k] for k in ("setup_relax_s", "dynamics_s", "steps") if k in res})
         out.update({f"model_{k}": v for k, v in model.summary().items()})
         out.update({"region": region, "r_atomistic_A": r_atomistic,
                     "step_crossing": step_crossing, "dof": model.dof})
