@@ -113,6 +113,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     blk = []
     step = 0
     smax, failed = 0.0, False
+    first = None
     sep0 = 2 * vz  # separation rate
     while True:
         # velocity Verlet (grips move at constant velocity)
@@ -142,6 +143,19 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
             smax = max(smax, s)
             if progress is not None:
                 progress(strain, s)
+            if first is None and model.nf:
+                mu = model.atom_damage(y, d, L0)
+                if mu.max() > 0:  # where the first bonds broke, on the unrolled wall
+                    xf = y[nd:][mu > 0]
+                    c = model.particle_positions(y)[:, :2].mean(axis=0)
+                    th = np.arctan2(xf[:, 1] - c[1], xf[:, 0] - c[0])
+                    dth = np.angle(np.mean(np.exp(1j * (th - model.vacancy_theta_z[0]))))
+                    zv = model.vacancy_theta_z[1] * L0 / model.L  # on the relaxed tube
+                    zmid = 0.5 * (zlo + zhi) - 0.5 * (model.x0[:, 2].min() + model.x0[:, 2].max()) \
+                        * L0 / model.L
+                    first = {"strain": strain, "n_atoms": int((mu > 0).sum()),
+                             "distance_to_vacancy_A": float(np.hypot(
+                                 R * dth, xf[:, 2].mean() - (zv + zmid)))}
             if model.update_links():
                 gy, gd = forces(y, d, strain)
             model.prepare_step(L0 * (1 + strain))
@@ -158,6 +172,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
            "dt_fs": dt, "steps": step, "free_length_A": free_len, "gauge_length_A": gauge,
            "curve": {"strain": strains, "stress_GPa": stresses, "time_ps": times}}
     res.update(curve_metrics(strains, stresses, fit_max_strain=fit_max_strain))
+    res["first_damage"] = first
     res["positions"], res["delta"] = y, d
     res["damage"] = model.damage
     res["wall_s"] = time.perf_counter() - t0

@@ -302,6 +302,11 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
     out["speedup"] = (out["lammps_wall_s"] / wall) if out["lammps_wall_s"] else None
     if vacancy:
         out.update({k: res[k] for k in ("setup_relax_s", "dynamics_s", "steps") if k in res})
+        if res.get("first_damage"):
+            out["first_damage_strain"] = res["first_damage"]["strain"]
+            out["crack_start_to_vacancy_A"] = res["first_damage"]["distance_to_vacancy_A"]
+            dref = ref.get("damage", {})
+            out["crack_start_to_vacancy_lammps_A"] = dref.get("crack_start_distance_to_vacancy_A")
         out.update({f"model_{k}": v for k, v in model.summary().items()})
         out.update({"region": region, "r_atomistic_A": r_atomistic,
                     "step_crossing": step_crossing, "dof": model.dof})
