@@ -112,3 +112,9 @@ def test_dynamic_tension_bad_grip():
     m = DCBRDefectTube(6, 6, 30.0, vacancy=4, **KW)
     with pytest.raises(ValueError, match="grip=20.0"):
         dynamic_tension(m, grip=20.0)
+
+
+@pytest.mark.parametrize("r", [4.0, 6.5, 10.0])
+def test_atom_count_is_exact_for_any_region(r):
+    m = DCBRDefectTube(10, 10, 40.0, vacancy=4, coarsening=2.0, r_atomistic=r)
+    assert abs(m.natoms_n.sum() + m.nf - (m.n_atoms - 4)) < 1e-9

@@ -580,11 +580,11 @@ class DCBRTube:
         return 1.0 - R / self.n_links0
 
     # ------------------------------------------------------------------ energy
-    def energy_and_gradient(self, y, delta, Lz):
-        """Total energy E - N e0 + W_stab (eV) and dE/dy (N,3), dE/d delta (N,3), dE/dLz (eV/Å)."""
-        g = self.gain
-        cell = np.array([0.0, 0.0, Lz])
-        F = g.deformation(y, cell)
+    def _coarse_part(self, y, delta, Lz):
+        """The particles' lattice energy and hourglass term at particle positions ``y``:
+        (E, F, P = dE/dF, dE/d delta, direct dE/dy, direct dE/dLz); sets ``_e_lat_n``,
+        ``_q_n`` and ``_w_stab_n``."""
+        F = self.gain.deformation(y, np.array([0.0, 0.0, Lz]))
         P = np.empty_like(F)
         gd = np.empty((self.N, 3))
         self._e_lat_n = np.empty(self.N)
@@ -596,11 +596,17 @@ class DCBRTube:
         if not self.relax_shift:
             gd[:] = 0.0
         Es, Ps, gys, dLs = self.stab_energy_and_gradient(np.asarray(y, float), F, Lz)
-        self._e_n = self._e_lat_n + self._w_stab_n / self.natoms_n
         P += Ps
+        return E + Es, F, P, gd, gys, dLs
+
+    def energy_and_gradient(self, y, delta, Lz):
+        """Total energy E - N e0 + W_stab (eV) and dE/dy (N,3), dE/d delta (N,3), dE/dLz (eV/Å)."""
+        g = self.gain
+        E, F, P, gd, gys, dLs = self._coarse_part(y, delta, Lz)
+        self._e_n = self._e_lat_n + self._w_stab_n / self.natoms_n
         fy = g.forces(P)
         dL = g.cell_derivative(P)[2] + dLs
-        return E + Es, gys - fy, gd, dL
+        return E, gys - fy, gd, dL
 
     def condensed_hessian(self, y, delta, Lz, h: float = 1e-5) -> np.ndarray:
         """Stiffness of the particle positions with the massless sublattice shifts condensed.

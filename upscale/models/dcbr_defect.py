@@ -78,7 +78,7 @@ class DCBRDefectTube(DCBRTube):
     """
 
     def __init__(self, n: int, m: int, length: float, coarsening: float = 2.0,
-                 vacancy: int = 4, r_atomistic: float = 10.0, pad: float = 3.5,
+                 vacancy: int = 4, r_atomistic: float = 8.0, pad: float = 3.5,
                  region: str = "band", step_crossing: str = "energy",
                  _twin_of: "DCBRDefectTube | None" = None, **kw):
         super().__init__(n, m, length, coarsening, **kw)
@@ -173,14 +173,12 @@ class DCBRDefectTube(DCBRTube):
         # the atoms a particle gives up are the free/removed ones nearest it; a particle all
         # of whose atoms are explicit carries none
         self.natoms_n = np.where(gone >= tot, 0.0, np.clip(nominal - gone, 0.0, nominal))
-        # make the count exact: the interface particles (partly explicit) absorb the rounding
-        # of the particles whose atoms are all explicit, in proportion to their weights
+        # make the count exact: all carrying particles scale by one factor (the rounding of
+        # the particles whose atoms are all explicit is a few atoms; a common factor keeps the
+        # weights uniform away from the region, so no spurious force appears there)
         target = float((~removed).sum() - free.sum())
-        part = (self.natoms_n > 0) & (self.natoms_n < nominal)
-        if part.any():
-            excess = self.natoms_n.sum() - target
-            self.natoms_n[part] -= excess * self.natoms_n[part] / self.natoms_n[part].sum()
-            self.natoms_n = np.clip(self.natoms_n, 0.0, None)
+        self.natoms_n *= target / self.natoms_n.sum()
+        nominal = self.nominal = float(self.natoms_n.max())
         self.atom_count_error = float(self.natoms_n.sum() - target)
         slave = f >= 0.5
         self.is_slave = slave
@@ -362,30 +360,17 @@ class DCBRDefectTube(DCBRTube):
         nd = len(self.dof_idx)
         y = np.asarray(y, float)
         yp = self.particle_positions(y)
-        cell = np.array([0.0, 0.0, Lz])
-        F = g.deformation(yp, cell)
+        E, F, P, gd, gyp, dLs = self._coarse_part(yp, delta, Lz)
         FS = np.einsum("nia,nab->nib", F, self.S)
         C0 = np.einsum("nia,nib->nab", FS, FS)
         ok = self.alive & (C0[:, 0, 0] > 1e-6) & \
             (C0[:, 0, 0] * C0[:, 1, 1] - C0[:, 0, 1] ** 2 > 1e-9)
         self._FS_last[ok] = FS[ok]  # the map a carrier's pads keep if it fails
-        P = np.empty_like(F)
-        gd = np.empty((self.N, 3))
-        self._e_lat_n = np.empty(self.N)
-        self._q_n = np.zeros((self.N, 6))
-        lat = self.lattice
-        E = K.coarse_energy(F, self.S, np.ascontiguousarray(delta), self.natoms_n, self.alive,
-                            lat.s, lat.z, lat.sub, lat.R0, lat.iA, lat.iB, lat.candA, lat.candB,
-                            self.p, self.e0, P, gd, self._e_lat_n, self._q_n)
-        if not self.relax_shift:
-            gd[:] = 0.0
-        Es, Ps, gyp, dLs = self.stab_energy_and_gradient(yp, F, Lz)
-        P += Ps
         # atomistic part: free atoms + pad atoms slaved to their carriers
         xf = y[nd:]
         xpad = self._pad_positions(yp, F, delta)
         Ea, gx = self._atomistic(np.vstack([xf, xpad]))
-        E += Ea - self.nf * self.e0 + Es
+        E += Ea - self.nf * self.e0
         gxf, gpad = gx[:self.nf], gx[self.nf:]
         c = self._pad["c"]
         np.add.at(gyp, c, gpad)
