@@ -106,6 +106,25 @@ def test_dynamic_tiny_run_pulls_in_tension():
     assert len(e) >= 3 and np.all(np.diff(e) > 0)
     assert s[-1] > 5.0  # tensile reaction on the grips at ~2 % strain
     assert res["protocol_detail"]["timestep_ps"] == 0.001
+    assert res["aborted"] is None
+
+
+def test_dynamic_run_stops_when_the_box_grows_past_the_limit():
+    # the guard against an atom thrown off the tube: here the box merely stretches past a
+    # limit ~8 % above the open tube's volume, and the run stops there, recorded
+    from validation.lammps.tension import dynamic_tension
+
+    tube = swcnt(5, 5, 80.0)
+    full = dynamic_tension(tube, "tersoff:BNC.tersoff", grip=12.0, temperature=1.0,
+                           max_strain=0.2)
+    res = dynamic_tension(tube, "tersoff:BNC.tersoff", grip=12.0, temperature=1.0,
+                          max_strain=0.2, max_box_volume=5000.0)
+    ab = res["aborted"]
+    assert full["aborted"] is None and ab is not None
+    assert ab["box_volume_A3"] > 5000.0 and ab["step"] % 10 == 0 and ab["strain"] < 0.2
+    n = len(res["curve"]["strain"])
+    assert 3 <= n < len(full["curve"]["strain"])
+    assert res["curve"]["stress_GPa"] == full["curve"]["stress_GPa"][:n]  # same run until then
 
 
 def test_two_mpi_ranks_give_the_same_curve(qs_result):

@@ -18,7 +18,11 @@ The kept reference set (``REFERENCE_SET``), all with ``BNC.tersoff`` and the ste
 * quasi-static pristine (10,10) of ~20 Å with the standard switching function, 2 % steps to
   60 % strain (with 1 % steps the damped-dynamics fallback found the broken state at 27 %
   instead of the stretched metastable branch: the artefact branch is path dependent): shows the cutoff artefact (plateau, then a rise), flagged
-  ``rise_after_plateau`` (a 100 Å tube spent > 10 min in one step of the plateau here).
+  ``rise_after_plateau`` (a 100 Å tube spent > 10 min in one step of the plateau here);
+* the seed 004 large tubes (> 10,000 atoms dynamic), both with the 4-atom vacancy:
+  dynamic (50,50) and (30,60) of ~150 Å (same protocol as the other dynamic tubes;
+  ``dyn_50-50_vac4``, ``dyn_30-60_vac4``) and a quasi-static periodic (50,50) of ~100 Å with
+  0.5 % steps (``qs_50-50_vac4``; the (30,60) one takes ~1.5 h on one core and is not kept yet).
 """
 from __future__ import annotations
 
@@ -39,6 +43,7 @@ QS_LENGTH = 100.0
 LOCALISED_FRACTION = 0.2  # damaged atoms of tube 1 below this fraction: a crack, not diffuse
 DYN_LENGTH = 150.0
 TUBES = [(10, 10), (17, 0), (12, 6)]
+LARGE_TUBES = [(50, 50), (30, 60)]  # the seed 004 cases, vacancy only
 
 
 def _spec(protocol, n, m, vac, length, ntubes=1):
@@ -56,6 +61,10 @@ REFERENCE_SET = (
     # the standard switching function, to show (and flag) the cutoff artefact
     + [dict(_spec("quasi-static", 10, 10, False, 20.0), name="qs_10-10_pristine_stdcut",
             cutoff="standard", max_strain=0.6, strain_step=0.02)]
+    # the seed 004 large tubes (dynamic first: they have priority when run one by one)
+    + [_spec("dynamic", n, m, True, DYN_LENGTH) for (n, m) in LARGE_TUBES]
+    # quasi-static (50,50) only: (30,60) was started but not finished (~1.5 h on one core)
+    + [_spec("quasi-static", 50, 50, True, QS_LENGTH)]
 )
 
 
@@ -432,7 +441,10 @@ def write_readme(results):
         "* With the step cutoff, an MD step that lands inside the 2e-5 Å switching window gives",
         "  an atom a huge kick (energy is not conserved there): after fracture a few atoms can",
         "  be thrown off; they are counted (`damage.n_ejected_atoms`, column `ejected`) and",
-        "  left out of the damage maps and crack fits.",
+        "  left out of the damage maps and crack fits. Such an atom drags the shrink-wrapped",
+        "  box (and LAMMPS's neighbour bins) with it: since the (50,50)/(30,60) references a",
+        "  dynamic run stops when the box volume exceeds 1e8 A^3 (`aborted` in the JSON; the",
+        "  earlier references ran without that stop, the bundle's box reached 2.6e5 A in z).",
         "* Trajectories (LAMMPS dumps) are kept outside the repository",
         "  (~/.cache/upscale/dumps/).",
         "",

@@ -34,7 +34,11 @@ Dynamic tension (non-periodic tube or bundle, seed 004 sec. 5.3.1)
     over the initial free length ``L0 - 2 grip``; stress is the mean of the reaction forces on
     the two grips (the total force on each before ``setforce`` zeroes it, averaged over the
     last 100 steps of each 100-step sample) over ``ntubes 2 pi R t``. The run stops when the
-    stress has fallen below 20 % of its maximum after failure, or at ``max_strain``.
+    stress has fallen below 20 % of its maximum after failure, or at ``max_strain``, or (a
+    ``fix halt`` checked every 10 steps) when the shrink-wrapped box exceeds
+    ``max_box_volume`` (1e8 Å^3): with the step cutoff an atom can be kicked off at tens of
+    Å/fs after fracture and LAMMPS's neighbour bins grow with the box (a 60 Å (50,50) test
+    tube reached 7 GB and minutes per 100 steps); ``aborted`` records where.
 
 Each run returns a result dict (:func:`quasi_static_tension`, :func:`dynamic_tension`) with
 the curve, Young's modulus (fit over 0-2 % strain), strength, strain at peak, failure strain,
@@ -400,7 +404,8 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
                     sample_every: int = 100, dump_every: int = 200,
                     fit_max_strain: float = 0.02, dump: str | Path | None = None,
                     seed: int = 4928459, ftol: float = 1e-6, progress=None,
-                    max_steps: int = 200000, nprocs: int = 1) -> dict:
+                    max_steps: int = 200000, max_box_volume: float = 1e8,
+                    nprocs: int = 1) -> dict:
     """Dynamic tension with end grips pulled apart at constant speed (module docstring).
 
     Parameters
@@ -416,6 +421,12 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
     sample_every, dump_every : int
         Steps between stress samples (each the average over its interval, sampled every 10
         steps) and between dump frames.
+    max_box_volume : float
+        Å^3. With the step cutoff an atom can be kicked off at tens of Å/fs after fracture;
+        the shrink-wrapped box follows it and LAMMPS's neighbour bins grow with the box
+        volume (gigabytes, minutes per step). A ``fix halt`` (checked every 10 steps) stops
+        the run once the box volume exceeds this; ``res["aborted"]`` then records the step
+        and strain (the curve ends at the last full sample).
     """
     _check_atoms(atoms)
     for name, v in (("grip", grip), ("speed", speed), ("timestep", timestep),
@@ -433,7 +444,8 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
                        grip=grip, speed=speed, temperature=temperature, timestep=timestep,
                        tdamp=tdamp, max_strain=max_strain, sample_every=sample_every,
                        dump_every=dump_every, fit_max_strain=fit_max_strain, dump=dump,
-                       seed=seed, ftol=ftol, max_steps=max_steps)
+                       seed=seed, ftol=ftol, max_steps=max_steps,
+                       max_box_volume=max_box_volume)
     t0 = time.perf_counter()
     pot = resolve_potential(potential, cutoff)
     relaxed, rinfo = relax_zero_stress(atoms, potential, cutoff, ftol, _pot=pot)
@@ -485,6 +497,9 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
             f"fix avg all ave/time 10 {sample_every // 10} {sample_every} f_sfb[3] f_sft[3]",
             "thermo_style custom step pe ke c_tpart",
             f"thermo {sample_every}",
+            "variable boxvol equal lx*ly*lz",
+            f"fix runaway all halt 10 v_boxvol > {float(max_box_volume)!r} error continue "
+            "message no",
         ])
         if dump is not None:
             lmp.commands_list([f"dump d all custom {dump_every} {dump} id type x y z",
@@ -499,8 +514,16 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
         lmp.command("run 0 post no")
         smax = -np.inf
         failed = False
+        aborted = None
         while True:
             lmp.command(f"run {sample_every} pre no post no")
+            if lmp.get_thermo("step") < step + sample_every:  # fix halt: runaway atom
+                aborted = {"step": int(lmp.get_thermo("step")),
+                           "strain": float(2.0 * v * lmp.get_thermo("step") * timestep / sep0),
+                           "box_volume_A3": float(lmp.get_thermo("vol")),
+                           "error": f"box volume > {max_box_volume:g} A^3 (an atom thrown "
+                                    "off the tube); run stopped"}
+                break
             step += sample_every
             fb = lmp.extract_fix("avg", LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR, 0)
             ft = lmp.extract_fix("avg", LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR, 1)
@@ -536,8 +559,13 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
         "stress": "mean reaction force of the two grips / (ntubes 2 pi R t), each sample "
                   f"averaged over {sample_every} steps (every 10 steps)",
         "dump_every_steps": dump_every}
+    res["protocol_detail"]["max_box_volume_A3"] = max_box_volume
     res["curve"] = {"strain": strains, "stress_GPa": stresses, "time_ps": times}
+    res["aborted"] = aborted
     res.update(curve_metrics(strains, stresses, fit_max_strain=fit_max_strain))
+    if aborted is not None and not res["failed"]:
+        res.update(failed=True, failure_strain=aborted["strain"],
+                   failure_note="run stopped: an atom thrown off the tube (box volume)")
     res["dump"] = str(dump) if dump is not None else None
     res["wall_s"] = time.perf_counter() - t0
     return res
