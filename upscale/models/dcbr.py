@@ -373,6 +373,21 @@ class LatticeStability:
         return self._cache[key]
 
 
+def uniform_map_frame(FS):
+    """(lam_t, gam, lam_z, Q3) of surface maps FS (n,3,2), real or complex: M = chol(FS^T FS)
+    (upper triangular, theta first) and the deformed frame Q3 = [q1 q2 q1 x q2] (n,3,3)."""
+    C = np.einsum("nia,nib->nab", FS, FS)  # transpose, no conjugate (complex step)
+    lt = np.sqrt(C[:, 0, 0])
+    gm = C[:, 0, 1] / lt
+    lz = np.sqrt(C[:, 1, 1] - gm * gm)
+    q1 = FS[:, :, 0] / lt[:, None]
+    q2 = (FS[:, :, 1] - gm[:, None] * q1) / lz[:, None]
+    n = np.stack([q1[:, 1] * q2[:, 2] - q1[:, 2] * q2[:, 1],
+                  q1[:, 2] * q2[:, 0] - q1[:, 0] * q2[:, 2],
+                  q1[:, 0] * q2[:, 1] - q1[:, 1] * q2[:, 0]], axis=1)
+    return lt, gm, lz, np.stack([q1, q2, n], axis=2)
+
+
 class DCBRTube:
     """Coarse (DCBR) model of a periodic single-wall (n, m) tube along z.
 
@@ -513,17 +528,9 @@ class DCBRTube:
             F = F.copy()
             F[dead] = np.eye(3, 2)
         FS = np.einsum("nia,nab->nib", F, S)
-        C = np.einsum("nia,nib->nab", FS, FS)  # transpose, no conjugate (complex step)
-        lt = np.sqrt(C[:, 0, 0])
-        gm = C[:, 0, 1] / lt
-        lz = np.sqrt(C[:, 1, 1] - gm * gm)
-        q1 = FS[:, :, 0] / lt[:, None]
-        q2 = (FS[:, :, 1] - gm[:, None] * q1) / lz[:, None]
-        n = np.stack([q1[:, 1] * q2[:, 2] - q1[:, 2] * q2[:, 1],
-                      q1[:, 2] * q2[:, 0] - q1[:, 0] * q2[:, 2],
-                      q1[:, 0] * q2[:, 1] - q1[:, 1] * q2[:, 0]], axis=1)
+        lt, gm, lz, Q3n = uniform_map_frame(FS)
         c = st["c"]
-        Q3 = np.stack([q1[c], q2[c], n[c]], axis=2)
+        Q3 = Q3n[c]
         Rp = lt[c] * R0
         phi = (lt[c] * st["ds"] + gm[c] * st["dz"]) / Rp
         h = np.stack([Rp * np.sin(phi), lz[c] * st["dz"], -Rp * (1.0 - np.cos(phi))], axis=1)

@@ -53,7 +53,7 @@ import math
 import numpy as np
 
 from upscale.models import dcbr_kernels as K
-from upscale.models.dcbr import DCBRTube
+from upscale.models.dcbr import DCBRTube, uniform_map_frame
 
 __all__ = ["DCBRDefectTube"]
 
@@ -289,16 +289,7 @@ class DCBRDefectTube(DCBRTube):
         if dead.any():  # a failed carrier has no G: its pads keep its last map (no jump)
             FS = FS.copy()
             FS[dead] = self._FS_last[c[dead]]
-        C = np.einsum("nia,nib->nab", FS, FS)
-        lt = np.sqrt(C[:, 0, 0])
-        gm = C[:, 0, 1] / lt
-        lz = np.sqrt(C[:, 1, 1] - gm * gm)
-        q1 = FS[:, :, 0] / lt[:, None]
-        q2 = (FS[:, :, 1] - gm[:, None] * q1) / lz[:, None]
-        nn = np.stack([q1[:, 1] * q2[:, 2] - q1[:, 2] * q2[:, 1],
-                       q1[:, 2] * q2[:, 0] - q1[:, 0] * q2[:, 2],
-                       q1[:, 0] * q2[:, 1] - q1[:, 1] * q2[:, 0]], axis=1)
-        Q3 = np.stack([q1, q2, nn], axis=2)
+        lt, gm, lz, Q3 = uniform_map_frame(FS)
         sig = pd["sig"]
         dl = delta[c]
         rp = lt * R0
