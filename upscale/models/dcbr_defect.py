@@ -471,6 +471,29 @@ class DCBRDefectTube(DCBRTube):
                 "max_atom_force_eV_A": float(np.abs(gy[len(self.dof_idx):]).max()),
                 "max_shift_force_eV_A": float(np.abs(gd).max())}
 
+    def prepare_sides(self, Lz_lo: float, Lz_hi: float, Lz_key: float):
+        """Ghost-force correction with each side of the region at its own stretch.
+
+        The dead load of :meth:`prepare_step` assumes the whole tube is at one uniform
+        stretch. In dynamic tension that holds until the tube breaks; after, each half
+        relaxes while the grips keep moving, and a correction taken at the grips' strain
+        would push ~1-3 eV/Å of spurious load into the interface. Here the rows below the
+        vacancy (reference z) take the correction at cell length ``Lz_lo`` and those above
+        at ``Lz_hi`` (each the stretch measured on that side); the energy is then called
+        with ``Lz_key`` (the open tube's fixed cell)."""
+        zc = self.vacancy_theta_z[1]
+        lo_y = np.r_[self.x0[self.dof_idx, 2], self.Xf[:, 2]] < zc
+        lo_d = self.x0[:, 2] < zc
+        parts = []
+        for Lz in (Lz_lo, Lz_hi):
+            self.prepare_step(Lz)
+            parts.append(self._ghost)
+        a, b = parts
+        g = {"Lz": float(Lz_key), "dL": 0.0}
+        for k, rows in (("y", lo_y), ("gy", lo_y), ("d", lo_d), ("gd", lo_d)):
+            g[k] = np.where(rows[:, None], a[k], b[k])
+        self._ghost = g
+
     def minimise(self, y, delta, Lz, relax_box=False, gtol=1e-6, maxiter=5000):
         """As :meth:`DCBRTube.minimise`, with two additions: ``relax_box`` finds the zero-stress
         cell length (:meth:`_relax_zero_stress`), and pairs held at the step cutoff are moved

@@ -12,20 +12,37 @@ on a :class:`~upscale.models.dcbr_defect.DCBRDefectTube`:
    ramp between the grip speeds; velocity Verlet, ``dt`` fs;
 4. strain = grip separation change / gauge, the initial distance between the innermost grip
    rows of particles (with particles 5-10 Å apart this differs from L0 - 2 grip by up to a
-   spacing; LAMMPS's gauge is the same distance between its grip atoms); stress = mean of the
-   two grips' reaction forces (sum of -dE/dz over each grip's particles, averaged over each
-   ``sample``-step block) over 2 pi R t; the run stops when the stress has fallen below 20 %
-   of its maximum after failure, or at ``max_strain``.
+   spacing; LAMMPS's gauge is the same distance between its grip atoms), at the middle of
+   each ``sample``-step block as LAMMPS's; stress = mean of the two grips' reaction forces
+   (sum of -dE/dz over each grip's particles, averaged over the block) over 2 pi R t; the run
+   stops when the stress has fallen below 20 % of its maximum after failure, or at
+   ``max_strain``.
 
 Masses: a free atom 12.011 amu; a particle carries m_C max(w_c, N_c/2) (its atoms, at least
 half its nominal share, so that interface particles with few atoms do not set a tiny stable
 step); the sublattice shift of a particle is a dynamic unknown with the reduced mass of the
-two sublattices, m_C max(w_c, N_c/2) / 4 (the optical mode). Differences from the LAMMPS
-runs, stated: no thermostat (0 K instead of 10 K Nose-Hoover on x, y), the ghost-force
-correction is refreshed every ``sample`` steps at the current strain (a dead load in
-between), and the coarse failure rules are the link rule only (checked every ``sample``
-steps; the lattice-stability rule needs a Hessian and the coarse region stays far below its
-~24 % instability strain when the vacancy fails).
+two sublattices, m_C max(w_c, N_c/2) / 4 (the optical mode).
+
+Thermostat, as the LAMMPS runs: Gaussian velocities at ``temperature`` (default 10 K) on the
+free part, and a Nose-Hoover thermostat (damping ``tdamp``, default 100 fs) whose temperature
+is measured from the x, y velocities of the free particles and atoms and the shift velocities
+(the axial stretching flow is not heat); ``temperature=0`` runs plain NVE from rest. Without
+it, the energy a crack releases stays in the atomistic band (the coarse particles cannot carry
+its short waves away, which reflect at the interface) and throws hundreds of atoms off the
+wall after the break; with it, none in the tests run (``curve["atoms_off_wall"]``).
+
+Ghost-force correction (:meth:`DCBRDefectTube.prepare_sides`): refreshed every ``sample``
+steps (a dead load in between), on each side of the atomistic region at the axial stretch
+that side's interface particles carry (``ghost="local"``), so that after the break each half's
+correction relaxes with it; ``ghost="grips"`` takes it at the grips' strain for the whole tube
+(the first version: after the break it pushed 1-3 eV/Å of load that nothing balanced into the
+interface atoms).
+
+Other differences from the LAMMPS runs, stated: the coarse failure rules are the link rule
+only (checked every ``sample`` steps; the lattice-stability rule needs a Hessian and the coarse
+region stays far below its ~24 % instability strain when the vacancy fails), and the thermal
+velocities are drawn by numpy, so a run is one draw of the thermal noise like the
+reference's (``python -m validation dcbr-seeds`` / ``reference-seeds`` give the spreads).
 """
 from __future__ import annotations
 
@@ -49,7 +66,8 @@ def _acc_unit() -> float:
 
 def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1.0,
                     max_strain: float = 0.3, sample: int = 100, fit_max_strain: float = 0.02,
-                    progress=None, gtol: float = 1e-4) -> dict:
+                    progress=None, gtol: float = 1e-4, temperature: float = 10.0,
+                    tdamp: float = 100.0, seed: int = 12345, ghost: str = "local") -> dict:
     """Dynamic tension of an open coarse tube with end grips (module docstring).
 
     Returns a dict like the LAMMPS runner's: ``curve`` (strain, stress_GPa, time_ps),
@@ -61,6 +79,12 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     if not (grip > 0 and speed > 0 and dt > 0 and 0 < max_strain <= 1 and sample >= 1):
         raise ValueError(f"grip={grip}, speed={speed}, dt={dt}, max_strain={max_strain}, "
                          f"sample={sample}; valid: all > 0, max_strain <= 1, sample >= 1")
+    if not (temperature >= 0 and tdamp > 0):
+        raise ValueError(f"temperature={temperature!r} K, tdamp={tdamp!r} fs; valid: "
+                         "temperature >= 0 (0: no thermostat), tdamp > 0")
+    if ghost not in ("local", "grips"):
+        raise ValueError(f"ghost={ghost!r}; valid: 'local' (each side's correction at the "
+                         "stretch its interface particles carry) or 'grips' (at the grips' strain)")
     t0 = time.perf_counter()
     acc = _acc_unit()
     # the zero-stress uniform lattice (an open tube relaxes its own length, so the periodic
@@ -91,7 +115,12 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
                          "shorter grips")
     grips = bottom | top
     # the gauge: between the innermost grip rows (the material that deforms; LAMMPS's gauge
-    # is likewise the distance between its innermost grip atoms)
+    # is likewise the distance between its innermost grip atoms). The grip particles keep
+    # their lattice energy: the force across a plane in the coarse model comes from the G
+    # stencils of the particles on both sides of it, so grips without energy would pass on
+    # only part of it (tried: the (10,10) K = 4 modulus fell from 0.86 to 0.59 TPa). Their
+    # G reaches 1.5 spacings into the free part, so the innermost grip rows deform a little
+    # and the gauge acts slightly longer than the rows' distance (reported, not corrected).
     gauge = float(z[top].min() - z[bottom].max())
     w = np.maximum(model.natoms_n[model.dof_idx], 0.5 * model.nominal)
     mass = np.concatenate([w, np.ones(model.nf)]) * CARBON_MASS
@@ -103,20 +132,69 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     v[bottom, 2], v[top, 2] = -vz, vz
     vd = np.zeros_like(d)
     movable = ~grips
+    # thermal start and Nose-Hoover thermostat on the x, y velocities of the free part (and
+    # the sublattice shifts), as LAMMPS's fix nvt with compute temp/partial 1 1 0
+    kB = 8.617333262e-5  # eV/K
+    rng = np.random.default_rng(seed)
+    thermo = temperature > 0
+    if thermo:
+        sd = np.sqrt(kB * temperature * acc / mass[movable])
+        vt = rng.standard_normal((int(movable.sum()), 3)) * sd[:, None]
+        vt -= np.sum(mass[movable, None] * vt, axis=0) / mass[movable].sum()  # no net momentum
+        v[movable] += vt
+        vd += rng.standard_normal(vd.shape) * np.sqrt(kB * temperature * acc / mass_d)[:, None]
+    ndf = 2 * int(movable.sum()) + vd.size
+    xi = 0.0
+
+    def temp_xy():
+        ke2 = np.sum(mass[movable, None] * v[movable, :2] ** 2) + np.sum(mass_d[:, None] * vd ** 2)
+        return ke2 / acc / (ndf * kB)
+
+    def thermostat_half(xi):
+        xi += 0.5 * dt * (temp_xy() / temperature - 1.0) / tdamp ** 2
+        sc = math.exp(-0.5 * dt * xi)
+        v[movable, :2] *= sc
+        vd[:] *= sc
+        return xi
+
+    # the ghost-force correction on each side of the atomistic region at the stretch that
+    # side's interface particles carry (their own uniform map's lam_z), so that it follows
+    # each half as it relaxes after the tube breaks
+    zc_vac = model.vacancy_theta_z[1]
+    pad_lo = model.x0[model._pad["c"], 2] < zc_vac
+    c_lo, c_hi = np.unique(model._pad["c"][pad_lo]), np.unique(model._pad["c"][~pad_lo])
+
+    def refresh_ghost(y, strain):
+        if ghost == "grips" or model.nf == 0:
+            model.prepare_step(L0 * (1 + strain))
+            model._ghost["Lz"] = float(L0)  # the open tube's energy is called with L0
+            return
+        from upscale.models.dcbr import uniform_map_frame  # noqa: PLC0415
+
+        F = model.gain.deformation(model.particle_positions(y), np.array([0.0, 0.0, L0]))
+        with np.errstate(invalid="ignore", divide="ignore"):  # failed particles: F = 0
+            _, _, lz, _ = uniform_map_frame(np.einsum("nia,nab->nib", F, model.S))
+
+        def side(c):  # mean stretch of the side's intact interface particles (none: at rest)
+            ok = model.alive[c] & np.isfinite(lz[c])
+            return model.L * float(np.mean(lz[c][ok])) if ok.any() else float(L0)
+        model.prepare_sides(side(c_lo), side(c_hi), L0)
 
     def forces(y, d, strain):
         _, gy, gd, _ = model.energy_and_gradient(y, d, L0)
         return gy, gd
 
     gy, gd = forces(y, d, 0.0)
-    strains, stresses, times = [], [], []
+    strains, stresses, times, off_wall, kinetic = [], [], [], [], []
     blk = []
     step = 0
     smax, failed = 0.0, False
     first = None
     sep0 = 2 * vz  # separation rate
     while True:
-        # velocity Verlet (grips move at constant velocity)
+        # velocity Verlet (grips move at constant velocity) inside Nose-Hoover half steps
+        if thermo:
+            xi = thermostat_half(xi)
         a = -gy / mass[:, None] * acc
         ad = -gd / mass_d[:, None] * acc
         y = y + v * dt
@@ -128,6 +206,8 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
         a2 = -gy2 / mass[:, None] * acc
         v[movable] += 0.5 * (a[movable] + a2[movable]) * dt
         vd += 0.5 * (ad - gd2 / mass_d[:, None] * acc) * dt
+        if thermo:
+            xi = thermostat_half(xi)
         gy, gd = gy2, gd2
         # reaction of the grips: the tube pulls the top grip down and the bottom one up
         blk.append(0.5 * (gy[top, 2].sum() - gy[bottom, 2].sum()))
@@ -137,9 +217,17 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
         if step % sample == 0:
             s = float(np.mean(blk)) / area * EV_PER_A3_IN_GPA
             blk = []
-            strains.append(strain)
+            # the block's mean stress belongs to its mid-time (as the LAMMPS runner)
+            strains.append(sep0 * (step - 0.5 * sample) * dt / gauge)
             stresses.append(s)
             times.append(step * dt * 1e-3)
+            # diagnostics: free atoms more than 3 Å off the wall (thrown off), and the
+            # kinetic energy of the free atoms (eV)
+            xf = y[nd:]
+            cc = model.particle_positions(y)[:, :2].mean(axis=0)
+            off_wall.append(int(np.sum(np.abs(np.hypot(xf[:, 0] - cc[0], xf[:, 1] - cc[1])
+                                               - R) > 3.0)))
+            kinetic.append(float(0.5 * np.sum(mass[nd:, None] * v[nd:] ** 2) / acc))
             smax = max(smax, s)
             if progress is not None:
                 progress(strain, s)
@@ -158,8 +246,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
                                  R * dth, xf[:, 2].mean() - (zv + zmid)))}
             if model.update_links():
                 gy, gd = forces(y, d, strain)
-            model.prepare_step(L0 * (1 + strain))
-            model._ghost["Lz"] = float(L0)  # the open tube's energy is called with L0
+            refresh_ghost(y, strain)
             gy, gd = forces(y, d, strain)
             if s < 0.95 * smax:
                 failed = True
@@ -170,7 +257,8 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
            "particles": model.N, "dof": model.dof, "atoms": model.n_atoms, "L0_A": float(L0),
            "radius_relaxed_A": R, "area_A2": area, "grip_A": grip, "speed_A_per_ps": speed,
            "dt_fs": dt, "steps": step, "free_length_A": free_len, "gauge_length_A": gauge,
-           "curve": {"strain": strains, "stress_GPa": stresses, "time_ps": times}}
+           "curve": {"strain": strains, "stress_GPa": stresses, "time_ps": times,
+                     "atoms_off_wall": off_wall, "free_atom_kinetic_eV": kinetic}}
     res.update(curve_metrics(strains, stresses, fit_max_strain=fit_max_strain))
     res["first_damage"] = first
     res["positions"], res["delta"] = y, d
