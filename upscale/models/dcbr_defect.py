@@ -23,7 +23,11 @@ It is an energy-based concurrent coupling (in the spirit of the quasicontinuum m
   (ds, dz) its reference arc and axial offset from c, sigma = 1 on sublattice B, Q3_c the
   deformed local frame (:meth:`DCBRTube._stab_local`), r0_a the reference residual (zero on a
   symmetric family). Forces on pad atoms go to c's position, shift and (through G) to c's
-  neighbours by the chain rule (complex-step derivatives of the map, exact).
+  neighbours by the chain rule through the map, exact (the carrier's map and frame computed
+  once per call and shared with its hourglass links, :mod:`upscale.models.dcbr_coupling_kernels`;
+  ``method="numpy"``: the reference with complex-step derivatives).
+  The free atoms' pair list is a Verlet list (skin ``nl_skin`` = 1 Å) rebuilt only when an
+  atom (free or pad) has moved more than half the skin.
 * **Particle weights**: w_c = N_c - g_c (clipped to [0, N_c]; 0 when all its atoms are
   explicit), g_c the number of free or removed atoms among those nearest particle c (Voronoi
   on the unrolled wall, pristine tube), so the coarse energy counts only the atoms not
