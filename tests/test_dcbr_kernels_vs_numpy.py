@@ -65,9 +65,11 @@ def _break_links(m, rng, frac=0.05):
     m._build_gain(m.intact)
 
 
-@pytest.mark.parametrize("periodic", [True, False])
-def test_defect_tube_kernels_match_numpy(periodic):
-    m = DCBRDefectTube(6, 6, 30.0, coarsening=2.0, vacancy=4, r_atomistic=5.0)
+@pytest.mark.parametrize("periodic, kw", [(True, {}), (False, {}),
+                                          (False, {"hourglass": 0.0}),
+                                          (True, {"relax_shift": False})])
+def test_defect_tube_kernels_match_numpy(periodic, kw):
+    m = DCBRDefectTube(6, 6, 30.0, coarsening=2.0, vacancy=4, r_atomistic=5.0, **kw)
     rng = np.random.default_rng(5)
     if not periodic:
         m.periodic = False
@@ -144,6 +146,10 @@ def test_verlet_list_rebuilds_and_stays_exact():
     bad[nd + 7, 1] = np.nan
     with pytest.raises(FloatingPointError, match="atom 7 of the atomistic region"):
         m.energy_and_gradient(bad, d, Lz)
+    m.nl_skin = 2.0  # a wider skin than the list was built with: rebuilt
+    b1 = m._nl["builds"]
+    _check(m, y, d, Lz)
+    assert m._nl["builds"] == b1 + 1
 
 
 def test_method_is_validated_and_reaches_the_twin():

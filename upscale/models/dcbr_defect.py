@@ -350,7 +350,7 @@ class DCBRDefectTube(DCBRTube):
         if bad >= 0:
             raise FloatingPointError(f"atom {bad} of the atomistic region has a non-finite "
                                      f"position {x[bad].tolist()}")
-        if d2 <= (0.5 * self.nl_skin) ** 2:
+        if d2 <= (0.5 * self.nl_skin) ** 2 and nl["skin"] == self.nl_skin:
             return nl
         pr = cKDTree(x).query_pairs(self._tcut + self.nl_skin, output_type="ndarray")
         ii = np.concatenate([pr[:, 0], pr[:, 1]])
@@ -361,7 +361,7 @@ class DCBRDefectTube(DCBRTube):
         jl = jj[order].astype(np.int32)
         fl = np.zeros(len(x) + 1, np.int64)
         np.cumsum(np.bincount(ii, minlength=len(x)), out=fl[1:])
-        self._nl = nl = {"x": x.copy(), "fl": fl, "jl": jl,
+        self._nl = nl = {"x": x.copy(), "fl": fl, "jl": jl, "skin": self.nl_skin,
                          "sh": np.zeros((len(jl), 3), np.int32), "builds": 0 if nl is None
                          else nl["builds"] + 1}
         return nl
