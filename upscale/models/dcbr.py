@@ -77,8 +77,12 @@ W_stab = 0 for every rigid motion and for uniform radial/axial stretch (F recove
 exactly there); under a uniform twist the chord fit of G recovers gam only to O((h/R)^2)
 (gain-affine), p_cn then misses the links by a nearly linear field that the projection
 removes; what is left is measured by the tests. Its gradient is exact:
-dp/dF_c by complex-step differentiation (error ~1e-30, no truncation), then through G's
-fixed coefficients like the lattice energy, plus the direct terms in y_n, y_c and the cell.
+dp/dF_c by the chain rule through the frame and the Cholesky factor (each particle's map
+evaluated once per call, the links' gradients pulled back to it in one reverse pass:
+:mod:`upscale.models.dcbr_coupling_kernels`; ``method="numpy"`` keeps the reference
+implementation, complex-step differentiation, error ~1e-30, no truncation), then through
+G's fixed coefficients like the lattice energy, plus the direct terms in y_n, y_c and the
+cell.
 
 Stiffness (from the lattice's own elastic constant, not fitted): k_s = hourglass * N_c *
 c_zz / 8, c_zz = d^2 e / d lam_z^2 (eV/atom, shift relaxed, central difference of
@@ -105,6 +109,7 @@ import math
 import numpy as np
 from scipy.optimize import minimize
 
+from upscale.models import dcbr_coupling_kernels as CK
 from upscale.models import dcbr_kernels as K
 from upscale.models.gain import GainOperator, build_gain
 
@@ -112,6 +117,22 @@ __all__ = ["tersoff_params", "TubeLattice", "LatticeStability", "DCBRTube",
            "quasi_static_tension", "EV_PER_A3_IN_GPA", "WALL_THICKNESS"]
 
 EV_PER_A3_IN_GPA = 160.21766208
+_BLAS_CONTROLLER = None
+
+
+def _one_blas_thread():
+    """Context in which BLAS runs on one thread. scipy's L-BFGS-B makes many small BLAS
+    calls per iteration (vectors of the unknowns, maxcor = 30 pairs); with OpenBLAS's
+    threads on a small, shared machine those cost ~6x more than on one thread (measured
+    3.5 vs 0.6 ms per iteration for 5,800 unknowns on 2 cores, and the spinning threads
+    slow the energy evaluations in between), while the vector sizes here are far too
+    small for threads to pay. Same algorithm and stopping rules."""
+    global _BLAS_CONTROLLER
+    from threadpoolctl import ThreadpoolController  # noqa: PLC0415
+
+    if _BLAS_CONTROLLER is None:
+        _BLAS_CONTROLLER = ThreadpoolController()
+    return _BLAS_CONTROLLER.limit(limits=1, user_api="blas")
 WALL_THICKNESS = 3.4
 
 
@@ -414,12 +435,19 @@ class DCBRTube:
     hourglass : float
         Zero-energy-mode control: k_s as a fraction of the lattice stiffness (module
         docstring); 0 switches it off. Default 0.1.
+    method : str
+        ``"numba"`` (default): the hourglass term (and a subclass's terms through the
+        particles' maps) by the kernels of :mod:`upscale.models.dcbr_coupling_kernels`;
+        ``"numpy"``: the straightforward array implementation with complex-step
+        derivatives, kept as the reference the kernels are tested against. Same results
+        to round-off. May be changed on the instance (attribute ``method``).
     """
 
     def __init__(self, n: int, m: int, length: float, coarsening: float = 2.0,
                  horizon_factor: float = 1.5, potential: str = "tersoff:BNC.tersoff",
                  cutoff: str = "step", bond: float = 1.42, kind: str = "quartic",
-                 relax_shift: bool = True, stability: bool = True, hourglass: float = 0.1):
+                 relax_shift: bool = True, stability: bool = True, hourglass: float = 0.1,
+                 method: str = "numba"):
         from upscale.build import _ncells, chirality  # noqa: PLC0415
 
         if not (coarsening >= 1.0 and np.isfinite(coarsening)):
@@ -429,6 +457,7 @@ class DCBRTube:
             raise ValueError(f"horizon_factor={horizon_factor!r}; valid: > 1")
         if not (hourglass >= 0.0 and np.isfinite(hourglass)):
             raise ValueError(f"hourglass={hourglass!r}; valid: a number >= 0 (0 = off)")
+        self.method = method
         self.p = tersoff_params(potential, cutoff)
         self.p_standard = tersoff_params(potential, "standard")
         self.potential, self.cutoff = potential, cutoff
@@ -467,6 +496,19 @@ class DCBRTube:
             self.k_stab = self.hourglass * float(self.natoms_n[0]) * self.c_zz / 8.0
         self.delta = np.zeros((self.N, 3))
         self.stability = LatticeStability(n, m, potential, cutoff, bond) if stability else None
+
+    @property
+    def method(self) -> str:
+        """``"numba"`` or ``"numpy"``: the implementation of the terms through the
+        particles' maps (class docstring)."""
+        return self._method
+
+    @method.setter
+    def method(self, value: str):
+        if value not in ("numba", "numpy"):
+            raise ValueError(f"method={value!r}; valid: 'numba' (kernels) or 'numpy' "
+                             "(reference implementation)")
+        self._method = value
 
     # ------------------------------------------------------------------ gain and links
     def _build_gain(self, intact):
@@ -510,14 +552,16 @@ class DCBRTube:
         tang = np.einsum("ei,ei->e", beta, T[:, :, 0])
         norm_c = np.einsum("ei,ei->e", beta, nrm)
         dth = np.arctan2(tang, R0 + norm_c)
-        self._st = {"c": ce, "j": je, "im": im.astype(float),
+        self._st = {"c": ce.astype(np.int64), "j": je.astype(np.int64), "im": im.astype(float),
+                    "imz": np.ascontiguousarray(im[:, 2], dtype=float),
                     "w": 1.0 / np.einsum("ei,ei->e", beta, beta),
                     "ds": R0 * dth, "dz": np.einsum("ei,ei->e", beta, T[:, :, 1]),
                     "r0": np.zeros((len(ce), 3)),
-                    "a": g.coef[keep], "s": np.einsum("eia,ei->ea", T, beta)}
+                    "a": np.ascontiguousarray(g.coef[keep], dtype=float),
+                    "s": np.ascontiguousarray(np.einsum("eia,ei->ea", T, beta))}
         F0 = g.deformation(self.x0, g.cell)
         Q3, h = self._stab_local(F0)
-        self._st["r0"] = np.einsum("eia,ei->ea", Q3, beta) - h
+        self._st["r0"] = np.ascontiguousarray(np.einsum("eia,ei->ea", Q3, beta) - h)
 
     def _stab_local(self, F):
         """Per link: Q3_c (e,3,3) and h (e,3), the local chord of c's uniform map (real or
@@ -536,10 +580,48 @@ class DCBRTube:
         h = np.stack([Rp * np.sin(phi), lz[c] * st["dz"], -Rp * (1.0 - np.cos(phi))], axis=1)
         return Q3, h
 
-    def stab_energy_and_gradient(self, y, F, Lz):
+    def _map_frames(self, F):
+        """Each particle's uniform map at F (N,3,2): (FS (N,3,2), (lam_t, gam, lam_z) (N,3),
+        Q3 (N,3,3), flag (N,) int8), see :func:`dcbr_coupling_kernels.map_frames`."""
+        N = self.N
+        FS = np.empty((N, 3, 2))
+        par = np.empty((N, 3))
+        Q3 = np.empty((N, 3, 3))
+        flag = np.empty(N, np.int8)
+        CK.map_frames(np.ascontiguousarray(F, dtype=float), self.S, self.gain.alive,
+                      self.alive, FS, par, Q3, flag)
+        return FS, par, Q3, flag
+
+    def stab_energy_and_gradient(self, y, F, Lz, frames=None):
         """W_stab (eV), its P = dW/dF (N,3,2), direct dW/dy (N,3) and direct dW/dLz.
 
-        Also sets ``_w_stab_n`` (N,): each particle's share (the links it owns), eV."""
+        Also sets ``_w_stab_n`` (N,): each particle's share (the links it owns), eV.
+        ``frames``: the particles' maps at F (:meth:`_map_frames`), if already computed."""
+        if self.method == "numpy":
+            return self._stab_energy_and_gradient_numpy(y, F, Lz)
+        N = self.N
+        P = np.zeros((N, 3, 2))
+        gy = np.zeros((N, 3))
+        self._w_stab_n = np.zeros(N)
+        st = self._st
+        if self.k_stab == 0.0 or len(st["c"]) == 0:
+            return 0.0, P, gy, 0.0
+        if frames is None:
+            frames = self._map_frames(F)
+        _, par, Q3, _ = frames
+        gQ3 = np.zeros((N, 3, 3))
+        gpar = np.zeros((N, 3))
+        E, dL = CK.stab_links(np.ascontiguousarray(y, dtype=float), float(Lz), st["c"], st["j"],
+                              st["imz"], st["w"], st["ds"], st["dz"], st["r0"], st["a"],
+                              st["s"], self.k_stab, self.lattice.R0, par, Q3, gy,
+                              self._w_stab_n, gQ3, gpar)
+        CK.frame_adjoint(np.ascontiguousarray(F, dtype=float), self.S, self.gain.alive, par, Q3,
+                         gQ3, gpar, P)
+        return float(E), P, gy, float(dL)
+
+    def _stab_energy_and_gradient_numpy(self, y, F, Lz):
+        """Reference implementation of :meth:`stab_energy_and_gradient` (numpy arrays,
+        complex-step dp/dF)."""
         N = self.N
         P = np.zeros((N, 3, 2))
         gy = np.zeros((N, 3))
@@ -590,7 +672,8 @@ class DCBRTube:
     def _coarse_part(self, y, delta, Lz):
         """The particles' lattice energy and hourglass term at particle positions ``y``:
         (E, F, P = dE/dF, dE/d delta, direct dE/dy, direct dE/dLz); sets ``_e_lat_n``,
-        ``_q_n`` and ``_w_stab_n``."""
+        ``_q_n``, ``_w_stab_n`` and ``_frames`` (the particles' maps, :meth:`_map_frames`;
+        None with ``method="numpy"``)."""
         F = self.gain.deformation(y, np.array([0.0, 0.0, Lz]))
         P = np.empty_like(F)
         gd = np.empty((self.N, 3))
@@ -602,7 +685,9 @@ class DCBRTube:
                             self.p, self.e0, P, gd, self._e_lat_n, self._q_n)
         if not self.relax_shift:
             gd[:] = 0.0
-        Es, Ps, gys, dLs = self.stab_energy_and_gradient(np.asarray(y, float), F, Lz)
+        self._frames = self._map_frames(F) if self.method == "numba" else None
+        Es, Ps, gys, dLs = self.stab_energy_and_gradient(np.asarray(y, float), F, Lz,
+                                                         frames=self._frames)
         P += Ps
         return E + Es, F, P, gd, gys, dLs
 
@@ -679,9 +764,10 @@ class DCBRTube:
             ys = y.copy()
             ys[:, 2] *= self.L / Lz
             x0 = self._pack(ys, delta, Lz / Lscale)
-        res = minimize(fun, x0, jac=True, method="L-BFGS-B",
-                       options={"maxiter": maxiter, "maxcor": 30, "gtol": gtol, "ftol": 1e-15,
-                                "maxfun": 4 * maxiter})
+        with _one_blas_thread():
+            res = minimize(fun, x0, jac=True, method="L-BFGS-B",
+                           options={"maxiter": maxiter, "maxcor": 30, "gtol": gtol,
+                                    "ftol": 1e-15, "maxfun": 4 * maxiter})
         xv = res.x
         y = xv[:3 * Ny].reshape(Ny, 3).copy()
         delta = xv[3 * Ny:3 * Ny + 3 * N].reshape(N, 3).copy()

@@ -23,7 +23,11 @@ It is an energy-based concurrent coupling (in the spirit of the quasicontinuum m
   (ds, dz) its reference arc and axial offset from c, sigma = 1 on sublattice B, Q3_c the
   deformed local frame (:meth:`DCBRTube._stab_local`), r0_a the reference residual (zero on a
   symmetric family). Forces on pad atoms go to c's position, shift and (through G) to c's
-  neighbours by the chain rule (complex-step derivatives of the map, exact).
+  neighbours by the chain rule through the map, exact (the carrier's map and frame computed
+  once per call and shared with its hourglass links, :mod:`upscale.models.dcbr_coupling_kernels`;
+  ``method="numpy"``: the reference with complex-step derivatives).
+  The free atoms' pair list is a Verlet list (skin ``nl_skin`` = 1 Å) rebuilt only when an
+  atom (free or pad) has moved more than half the skin.
 * **Particle weights**: w_c = N_c - g_c (clipped to [0, N_c]; 0 when all its atoms are
   explicit), g_c the number of free or removed atoms among those nearest particle c (Voronoi
   on the unrolled wall, pristine tube), so the coarse energy counts only the atoms not
@@ -52,6 +56,7 @@ import math
 
 import numpy as np
 
+from upscale.models import dcbr_coupling_kernels as CK
 from upscale.models import dcbr_kernels as K
 from upscale.models.dcbr import DCBRTube, uniform_map_frame
 
@@ -210,6 +215,7 @@ class DCBRDefectTube(DCBRTube):
             ref_off.append(self.x0[c] - phi @ self_ref)
         from scipy.sparse import csr_matrix  # noqa: PLC0415
         self.Phi = csr_matrix((vals, (rows, cols)), shape=(len(self.slave_idx), self.nf))
+        self._PhiT = self.Phi.T.tocsr()
         # y_e = X_e + sum phi (x_a - X_a): the fit interpolates displacements
         self.slave_off = np.array(ref_off).reshape(-1, 3)
         # pad atoms and the carrying particle each follows (nearest non-slave particle)
@@ -228,7 +234,8 @@ class DCBRDefectTube(DCBRTube):
         Q3, h = self._pad_local(F0, np.zeros((self.N, 3)))
         dX = X[self.pad_idx] - self.x0[self._pad["c"]]
         dX[:, 2] -= self.L * np.round(dX[:, 2] / self.L)
-        self._pad["r0"] = np.einsum("eia,ei->ea", Q3, dX) - h
+        self._pad["r0"] = np.ascontiguousarray(np.einsum("eia,ei->ea", Q3, dX) - h)
+        self._pad["c"] = np.ascontiguousarray(self._pad["c"], dtype=np.int64)
         self.X_atoms, self.sub_atoms, self.removed = X, sub, removed
         self.Xf = Xf
         # atomistic potential on the cluster (free atoms first)
@@ -238,6 +245,9 @@ class DCBRDefectTube(DCBRTube):
         tf = Tersoff.from_lammps(name, ["C"], step_cutoff=step)
         self._tP, self._te2p, self._tcut = tf._P, tf._e2p, float(tf.cutoff)
         self._types = np.zeros(self.nf + npad, np.int64)
+        self._cell0 = np.zeros((3, 3))
+        self._nl = None  # Verlet list of the atomistic region (:meth:`_neighbours`)
+        self.nl_skin = 1.0  # Å
         # bonds of the free atoms at the start (< 2.0 Å), for the atoms' damage index
         fl, jl, _ = neighbour_list(np.vstack([Xf, X[self.pad_idx]]), np.zeros((3, 3)),
                                    (False, False, False), 2.0)
@@ -262,6 +272,12 @@ class DCBRDefectTube(DCBRTube):
                 raise RuntimeError("the pristine twin's particles differ from the tube's")
             pos = {a: k for k, a in enumerate(tw.free_idx)}
             self._twin_rows = np.array([pos[a] for a in self.free_idx], np.int64)
+
+    @DCBRTube.method.setter
+    def method(self, value: str):
+        DCBRTube.method.fset(self, value)
+        if getattr(self, "_twin", None) is not None:  # the twin gives the ghost forces
+            self._twin.method = value
 
     def _kw_all(self, kw):
         return dict(kw, vacancy=0, r_atomistic=self._kw["r_atomistic"], pad=self._kw["pad"],
@@ -317,8 +333,57 @@ class DCBRDefectTube(DCBRTube):
         F = self.gain.deformation(yp, np.array([0.0, 0.0, Lz]))
         return y[len(self.dof_idx):], self._pad_positions(yp, F, delta)
 
+    def _neighbours(self, x):
+        """Verlet list (CSR over the rows of x, rows only for the free atoms) of the pairs
+        within cutoff + ``nl_skin``, rebuilt when some atom has moved more than half the
+        skin since the last build (so every pair within the cutoff is in it; the Tersoff
+        kernel skips the pairs beyond the cutoff itself). Raises FloatingPointError for a
+        non-finite position."""
+        from scipy.spatial import cKDTree  # noqa: PLC0415
+
+        nl = self._nl
+        if nl is not None and nl["x"].shape == x.shape:
+            d2, bad = CK.max_displacement2(x, nl["x"])
+        else:
+            d2, bad = CK.max_displacement2(x, x)
+            d2 = math.inf
+        if bad >= 0:
+            raise FloatingPointError(f"atom {bad} of the atomistic region has a non-finite "
+                                     f"position {x[bad].tolist()}")
+        if d2 <= (0.5 * self.nl_skin) ** 2 and nl["skin"] == self.nl_skin:
+            return nl
+        pr = cKDTree(x).query_pairs(self._tcut + self.nl_skin, output_type="ndarray")
+        ii = np.concatenate([pr[:, 0], pr[:, 1]])
+        jj = np.concatenate([pr[:, 1], pr[:, 0]])
+        keep = ii < self.nf  # the kernel visits the free atoms' rows only
+        ii, jj = ii[keep], jj[keep]
+        order = np.argsort(ii, kind="stable")
+        jl = jj[order].astype(np.int32)
+        fl = np.zeros(len(x) + 1, np.int64)
+        np.cumsum(np.bincount(ii, minlength=len(x)), out=fl[1:])
+        self._nl = nl = {"x": x.copy(), "fl": fl, "jl": jl, "skin": self.nl_skin,
+                         "sh": np.zeros((len(jl), 3), np.int32), "builds": 0 if nl is None
+                         else nl["builds"] + 1}
+        return nl
+
     def _atomistic(self, x):
         """Site energies of the free atoms (the first nf rows of x) and -forces on all rows."""
+        if self.method == "numpy":
+            return self._atomistic_numpy(x)
+        from potentials import tersoff_kernels as tk  # noqa: PLC0415
+
+        x = np.ascontiguousarray(x, dtype=float)
+        nl = self._neighbours(x)
+        f = np.zeros_like(x)
+        e_n = np.zeros(len(x))
+        W = np.zeros((3, 3))
+        E = tk._chunk(0, self.nf, x, self._cell0, nl["fl"], nl["jl"], nl["sh"], self._types,
+                      self._te2p, self._tP, self._tcut ** 2, f, e_n, W)
+        self._e_atoms = e_n[:self.nf]
+        return float(E), -f
+
+    def _atomistic_numpy(self, x):
+        """Reference of :meth:`_atomistic`: a new k-d tree pair list at every call."""
         from scipy.spatial import cKDTree  # noqa: PLC0415
 
         from potentials import tersoff_kernels as tk  # noqa: PLC0415
@@ -347,6 +412,45 @@ class DCBRDefectTube(DCBRTube):
 
     # ------------------------------------------------------------------ energy
     def _raw_energy_and_gradient(self, y, delta, Lz):
+        if self.method == "numpy":
+            return self._raw_energy_and_gradient_numpy(y, delta, Lz)
+        g = self.gain
+        nd = len(self.dof_idx)
+        y = np.asarray(y, float)
+        delta = np.ascontiguousarray(delta, dtype=float)
+        yp = self.particle_positions(y)
+        E, F, P, gd, gyp, dLs = self._coarse_part(yp, delta, Lz)
+        FS, par, Q3, flag = self._frames
+        ok = flag > 0
+        self._FS_last[ok] = FS[ok]  # the map a carrier's pads keep if it fails
+        # atomistic part: free atoms + pad atoms slaved to their carriers
+        pd = self._pad
+        R0 = self.lattice.R0
+        x = np.empty((self.nf + len(self.pad_idx), 3))
+        x[:self.nf] = y[nd:]
+        CK.pad_positions(yp, delta, par, Q3, flag, self._FS_last, pd["c"], pd["ds"], pd["dz"],
+                         pd["sig"], pd["r0"], R0, x[self.nf:])
+        Ea, gx = self._atomistic(x)
+        E += Ea - self.nf * self.e0
+        gQ3 = np.zeros((self.N, 3, 3))
+        gpar = np.zeros((self.N, 3))
+        CK.pad_backward(np.ascontiguousarray(gx[self.nf:]), delta, par, Q3, flag, self._FS_last,
+                        pd["c"], pd["ds"], pd["dz"], pd["sig"], pd["r0"], R0,
+                        bool(self.relax_shift), gyp, gd, gQ3, gpar)
+        CK.frame_adjoint(F, self.S, g.alive, par, Q3, gQ3, gpar, P)
+        gyp = gyp - g.forces(P)
+        dL = g.cell_derivative(P)[2] + dLs
+        gy = np.empty_like(y)
+        gy[:nd] = gyp[self.dof_idx]
+        gy[nd:] = gx[:self.nf]
+        if len(self.slave_idx):
+            gy[nd:] += self._PhiT @ gyp[self.slave_idx]
+        self._e_n = self._e_lat_n + self._w_stab_n / np.maximum(self.natoms_n, 1e-12)
+        return E, gy, gd, dL
+
+    def _raw_energy_and_gradient_numpy(self, y, delta, Lz):
+        """Reference of :meth:`_raw_energy_and_gradient` (numpy arrays, complex-step
+        derivatives of the pad map)."""
         g = self.gain
         nd = len(self.dof_idx)
         y = np.asarray(y, float)

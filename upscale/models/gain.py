@@ -122,6 +122,23 @@ def _force_kernel(P_nck, offsets, neighbors, coef_ek, out):
     return out
 
 
+@numba.njit(cache=True)
+def _cell_derivative_kernel(P_nck, offsets, image_ed, coef_ek, out):
+    """out[d] = sum_c sum_e (P[c] a_e)_d image_e[d]: dE/dL_d of E = sum_c W_c(F_c)."""
+    n = offsets.shape[0] - 1
+    k = coef_ek.shape[1]
+    for c in range(n):
+        for e in range(offsets[c], offsets[c + 1]):
+            for i in range(3):
+                if image_ed[e, i] == 0:
+                    continue
+                s = 0.0
+                for a in range(k):
+                    s += P_nck[c, i, a] * coef_ek[e, a]
+                out[i] += s * image_ed[e, i]
+    return out
+
+
 @dataclasses.dataclass
 class GainOperator:
     """Precomputed linear map u -> G (seed 004 eq. 6.1) for every particle.
@@ -214,10 +231,8 @@ class GainOperator:
 
     def cell_derivative(self, P):
         """dE/dL_d (3,) for E = sum_c W_c(F_c): derivative w.r.t. the cell lengths."""
-        P = np.asarray(P, dtype=float)
-        c_of_e = np.repeat(np.arange(self.n), np.diff(self.offsets))
-        Pa = np.einsum("eik,ek->ei", P[c_of_e], self.coef)  # (nnz, 3)
-        return np.einsum("ei,ei->i", Pa, self.image.astype(float))
+        P = np.ascontiguousarray(P, dtype=float)
+        return _cell_derivative_kernel(P, self.offsets, self.image, self.coef, np.zeros(3))
 
 
 def _family(x, horizon, cell, pbc):

@@ -1,0 +1,357 @@
+"""numba kernels of the DCBR terms that go through each particle's uniform cylindrical map.
+
+The hourglass penalty of :class:`~upscale.models.dcbr.DCBRTube` and the pad atoms of
+:class:`~upscale.models.dcbr_defect.DCBRDefectTube` both place points with a particle's
+uniform map (see :func:`upscale.models.dcbr.uniform_map_frame`): with FS = F S (3x2),
+C = FS^T FS, M = chol(C) = [[lam_t, gam], [0, lam_z]],
+
+    q1 = FS_0 / lam_t,  q2 = (FS_1 - gam q1) / lam_z,  n = q1 x q2,  Q3 = [q1 q2 n],
+    x = y_c + Q3 (h + r0),
+    h = (rho sin phi, lam_z dz + sig d_z, rho cos phi - lam_t R0),
+    rho = lam_t R0 + sig d_rho,  phi = (lam_t ds + gam dz + sig d_s) / (lam_t R0)
+
+(sig = 0 for a hourglass link, the sublattice flag for a pad atom). The numpy versions
+differentiate this by complex steps (nine whole-array evaluations per call); here the map
+is evaluated once per particle (:func:`map_frames`), each point's gradient is pulled back
+to the particle's (Q3, lam_t, gam, lam_z) (adjoints accumulated per particle), and one
+reverse pass per particle through the Cholesky factor and the frame takes them to
+dE/dF (:func:`frame_adjoint`). Serial loops: the scatter to owners is race-free and the
+problem sizes (thousands of points) are far below where threads pay on a shared machine.
+
+Array suffixes: ``_n`` per particle, ``_e`` per hourglass link, ``_a`` per pad atom.
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numba import njit
+
+__all__ = ["map_frames", "frame_adjoint", "stab_links", "pad_positions", "pad_backward",
+           "max_displacement2"]
+
+
+@njit(cache=True, error_model="numpy")
+def _frame(FS, par, Q3):
+    """(lam_t, gam, lam_z) into par[0:3] and Q3 (3,3) of one surface map FS (3,2)."""
+    C00 = FS[0, 0] * FS[0, 0] + FS[1, 0] * FS[1, 0] + FS[2, 0] * FS[2, 0]
+    C01 = FS[0, 0] * FS[0, 1] + FS[1, 0] * FS[1, 1] + FS[2, 0] * FS[2, 1]
+    C11 = FS[0, 1] * FS[0, 1] + FS[1, 1] * FS[1, 1] + FS[2, 1] * FS[2, 1]
+    lt = math.sqrt(C00)
+    gm = C01 / lt
+    lz = math.sqrt(C11 - gm * gm)
+    par[0] = lt
+    par[1] = gm
+    par[2] = lz
+    for i in range(3):
+        Q3[i, 0] = FS[i, 0] / lt
+    for i in range(3):
+        Q3[i, 1] = (FS[i, 1] - gm * Q3[i, 0]) / lz
+    Q3[0, 2] = Q3[1, 0] * Q3[2, 1] - Q3[2, 0] * Q3[1, 1]
+    Q3[1, 2] = Q3[2, 0] * Q3[0, 1] - Q3[0, 0] * Q3[2, 1]
+    Q3[2, 2] = Q3[0, 0] * Q3[1, 1] - Q3[1, 0] * Q3[0, 1]
+
+
+@njit(cache=True, error_model="numpy")
+def map_frames(F_n, S_n, gain_alive_n, alive_n, FS_n, par_n, Q3_n, flag_n):
+    """Per particle: FS = F S (the raw map, into ``FS_n``), (lam_t, gam, lam_z) into
+    ``par_n`` (N,3) and Q3 into ``Q3_n`` (N,3,3) of the map the hourglass term uses (F
+    replaced by eye(3,2) on particles G dropped: they own no link), and ``flag_n``:
+    1 if the particle is alive with a regular raw map (C_00 > 1e-6, det C > 1e-9: its map
+    is kept as the last good one), -1 if it is dead or its raw map is degenerate (C_00 <
+    1e-6 or det C < 1e-9: its pads keep the last good map), 0 otherwise."""
+    N = F_n.shape[0]
+    FSe = np.empty((3, 2))
+    for c in range(N):
+        for i in range(3):
+            for b in range(2):
+                FS_n[c, i, b] = F_n[c, i, 0] * S_n[c, 0, b] + F_n[c, i, 1] * S_n[c, 1, b]
+        C00 = FS_n[c, 0, 0] * FS_n[c, 0, 0] + FS_n[c, 1, 0] * FS_n[c, 1, 0] \
+            + FS_n[c, 2, 0] * FS_n[c, 2, 0]
+        C01 = FS_n[c, 0, 0] * FS_n[c, 0, 1] + FS_n[c, 1, 0] * FS_n[c, 1, 1] \
+            + FS_n[c, 2, 0] * FS_n[c, 2, 1]
+        C11 = FS_n[c, 0, 1] * FS_n[c, 0, 1] + FS_n[c, 1, 1] * FS_n[c, 1, 1] \
+            + FS_n[c, 2, 1] * FS_n[c, 2, 1]
+        det = C00 * C11 - C01 * C01
+        if (not alive_n[c]) or C00 < 1e-6 or det < 1e-9:
+            flag_n[c] = -1
+        elif C00 > 1e-6 and det > 1e-9:
+            flag_n[c] = 1
+        else:
+            flag_n[c] = 0
+        if gain_alive_n[c]:
+            _frame(FS_n[c], par_n[c], Q3_n[c])
+        else:
+            for i in range(3):
+                for b in range(2):
+                    FSe[i, b] = S_n[c, i, b] if i < 2 else 0.0
+            _frame(FSe, par_n[c], Q3_n[c])
+
+
+@njit(cache=True, error_model="numpy")
+def frame_adjoint(F_n, S_n, gain_alive_n, par_n, Q3_n, gQ3_n, gpar_n, P_n):
+    """Add dE/dF (N,3,2) into ``P_n`` given the adjoints dE/dQ3 (N,3,3) and
+    dE/d(lam_t, gam, lam_z) (N,3) of each particle's frame (reverse pass through
+    :func:`_frame` and FS = F S). Particles with all-zero adjoints are skipped."""
+    N = F_n.shape[0]
+    FS = np.empty((3, 2))
+    gFS = np.empty((3, 2))
+    for c in range(N):
+        nz = gpar_n[c, 0] != 0.0 or gpar_n[c, 1] != 0.0 or gpar_n[c, 2] != 0.0
+        for u in range(3):
+            for v in range(3):
+                if gQ3_n[c, u, v] != 0.0:
+                    nz = True
+        if not nz:
+            continue
+        for i in range(3):
+            for b in range(2):
+                if gain_alive_n[c]:
+                    FS[i, b] = F_n[c, i, 0] * S_n[c, 0, b] + F_n[c, i, 1] * S_n[c, 1, b]
+                else:
+                    FS[i, b] = S_n[c, i, b] if i < 2 else 0.0
+        lt, gm, lz = par_n[c, 0], par_n[c, 1], par_n[c, 2]
+        glt, ggm, glz = gpar_n[c, 0], gpar_n[c, 1], gpar_n[c, 2]
+        q10, q11, q12 = Q3_n[c, 0, 0], Q3_n[c, 1, 0], Q3_n[c, 2, 0]
+        q20, q21, q22 = Q3_n[c, 0, 1], Q3_n[c, 1, 1], Q3_n[c, 2, 1]
+        gn0, gn1, gn2 = gQ3_n[c, 0, 2], gQ3_n[c, 1, 2], gQ3_n[c, 2, 2]
+        # n = q1 x q2: n . gn = q1 . (q2 x gn) = q2 . (gn x q1)
+        gq10 = gQ3_n[c, 0, 0] + (q21 * gn2 - q22 * gn1)
+        gq11 = gQ3_n[c, 1, 0] + (q22 * gn0 - q20 * gn2)
+        gq12 = gQ3_n[c, 2, 0] + (q20 * gn1 - q21 * gn0)
+        gq20 = gQ3_n[c, 0, 1] + (gn1 * q12 - gn2 * q11)
+        gq21 = gQ3_n[c, 1, 1] + (gn2 * q10 - gn0 * q12)
+        gq22 = gQ3_n[c, 2, 1] + (gn0 * q11 - gn1 * q10)
+        # q2 = (FS_1 - gam q1) / lam_z
+        gFS[0, 1] = gq20 / lz
+        gFS[1, 1] = gq21 / lz
+        gFS[2, 1] = gq22 / lz
+        ggm -= (q10 * gq20 + q11 * gq21 + q12 * gq22) / lz
+        glz -= (q20 * gq20 + q21 * gq21 + q22 * gq22) / lz
+        gq10 -= gm * gq20 / lz
+        gq11 -= gm * gq21 / lz
+        gq12 -= gm * gq22 / lz
+        # lam_z = sqrt(C11 - gam^2)
+        gC11 = glz / (2.0 * lz)
+        ggm -= gm * glz / lz
+        # q1 = FS_0 / lam_t
+        gFS[0, 0] = gq10 / lt
+        gFS[1, 0] = gq11 / lt
+        gFS[2, 0] = gq12 / lt
+        glt -= (q10 * gq10 + q11 * gq11 + q12 * gq12) / lt
+        # gam = C01 / lam_t
+        gC01 = ggm / lt
+        glt -= gm * ggm / lt
+        # lam_t = sqrt(C00)
+        gC00 = glt / (2.0 * lt)
+        # C = FS^T FS
+        for i in range(3):
+            g0 = 2.0 * gC00 * FS[i, 0] + gC01 * FS[i, 1]
+            g1 = 2.0 * gC11 * FS[i, 1] + gC01 * FS[i, 0]
+            gFS[i, 0] += g0
+            gFS[i, 1] += g1
+        if not gain_alive_n[c]:  # the frame did not come from F
+            continue
+        # FS_ib = sum_a F_ia S_ab
+        for i in range(3):
+            for a in range(2):
+                P_n[c, i, a] += gFS[i, 0] * S_n[c, a, 0] + gFS[i, 1] * S_n[c, a, 1]
+
+
+@njit(cache=True, error_model="numpy")
+def stab_links(y_n, Lz, c_e, j_e, imz_e, w_e, ds_e, dz_e, r0_e, a_e, s_e, k_stab, R0,
+               par_n, Q3_n, gy_n, wn_n, gQ3_n, gpar_n):
+    """The hourglass penalty W_stab (:meth:`upscale.models.dcbr.DCBRTube.stab_energy_and_gradient`).
+
+    Adds dW/dy (direct terms) into ``gy_n``, each owner's share into ``wn_n`` and the
+    adjoints dW/dQ3, dW/d(lam_t, gam, lam_z) of the owners' frames into ``gQ3_n``,
+    ``gpar_n``. Returns (W, dW/dLz direct)."""
+    ne = c_e.shape[0]
+    N = y_n.shape[0]
+    r_e = np.empty((ne, 3))
+    hr_e = np.empty((ne, 3))
+    Fr = np.zeros((N, 3, 2))
+    for e in range(ne):
+        c = c_e[e]
+        j = j_e[e]
+        lt, gm, lz = par_n[c, 0], par_n[c, 1], par_n[c, 2]
+        Rp = lt * R0
+        phi = (lt * ds_e[e] + gm * dz_e[e]) / Rp
+        h0 = Rp * math.sin(phi) + r0_e[e, 0]
+        h1 = lz * dz_e[e] + r0_e[e, 1]
+        h2 = -Rp * (1.0 - math.cos(phi)) + r0_e[e, 2]
+        hr_e[e, 0] = h0
+        hr_e[e, 1] = h1
+        hr_e[e, 2] = h2
+        for i in range(3):
+            p = Q3_n[c, i, 0] * h0 + Q3_n[c, i, 1] * h1 + Q3_n[c, i, 2] * h2
+            lk = y_n[j, i] - y_n[c, i]
+            if i == 2:
+                lk += imz_e[e] * Lz
+            r = lk - p
+            r_e[e, i] = r
+            Fr[c, i, 0] += r * a_e[e, 0]
+            Fr[c, i, 1] += r * a_e[e, 1]
+    # rt = r - Fr_c s (the part G cannot see); krt = k w rt; B_c = sum krt (x) s
+    B = np.zeros((N, 3, 2))
+    E = 0.0
+    for e in range(ne):
+        c = c_e[e]
+        kw = k_stab * w_e[e]
+        rr = 0.0
+        for i in range(3):
+            rt = r_e[e, i] - (Fr[c, i, 0] * s_e[e, 0] + Fr[c, i, 1] * s_e[e, 1])
+            rr += rt * rt
+            krt = kw * rt
+            r_e[e, i] = krt
+            B[c, i, 0] += krt * s_e[e, 0]
+            B[c, i, 1] += krt * s_e[e, 1]
+        we = 0.5 * kw * rr
+        wn_n[c] += we
+        E += we
+    dL = 0.0
+    for e in range(ne):
+        c = c_e[e]
+        j = j_e[e]
+        lt, gm, lz = par_n[c, 0], par_n[c, 1], par_n[c, 2]
+        g0 = 0.0
+        g1 = 0.0
+        g2 = 0.0
+        for i in range(3):
+            kr = r_e[e, i] - (B[c, i, 0] * a_e[e, 0] + B[c, i, 1] * a_e[e, 1])
+            gy_n[j, i] += kr
+            gy_n[c, i] -= kr
+            if i == 0:
+                g0 = -kr
+            elif i == 1:
+                g1 = -kr
+            else:
+                g2 = -kr
+                dL += kr * imz_e[e]
+        # dW/dp = -kr; p = Q3 (h + r0)
+        for i in range(3):
+            gi = g0 if i == 0 else (g1 if i == 1 else g2)
+            for v in range(3):
+                gQ3_n[c, i, v] += gi * hr_e[e, v]
+        gh0 = Q3_n[c, 0, 0] * g0 + Q3_n[c, 1, 0] * g1 + Q3_n[c, 2, 0] * g2
+        gh1 = Q3_n[c, 0, 1] * g0 + Q3_n[c, 1, 1] * g1 + Q3_n[c, 2, 1] * g2
+        gh2 = Q3_n[c, 0, 2] * g0 + Q3_n[c, 1, 2] * g1 + Q3_n[c, 2, 2] * g2
+        ds = ds_e[e]
+        dz = dz_e[e]
+        Rp = lt * R0
+        phi = (lt * ds + gm * dz) / Rp
+        sp = math.sin(phi)
+        cp = math.cos(phi)
+        dphi_lt = -gm * dz / (lt * Rp)
+        dphi_gm = dz / Rp
+        gpar_n[c, 0] += gh0 * (R0 * sp + Rp * cp * dphi_lt) \
+            + gh2 * (R0 * cp - Rp * sp * dphi_lt - R0)
+        gpar_n[c, 1] += (gh0 * Rp * cp - gh2 * Rp * sp) * dphi_gm
+        gpar_n[c, 2] += gh1 * dz
+    return E, dL
+
+
+@njit(cache=True, error_model="numpy")
+def _pad_frame(c, flag_n, FS_last_n, par_n, Q3_n, par_w, Q3_w):
+    """The frame a pad of carrier c follows: the carrier's own, or (a dead or degenerate
+    carrier) the frame of its last good map, into the work arrays; True if it is the
+    carrier's own (its derivatives go to F)."""
+    if flag_n[c] < 0:
+        _frame(FS_last_n[c], par_w, Q3_w)
+        return False
+    for k in range(3):
+        par_w[k] = par_n[c, k]
+        for v in range(3):
+            Q3_w[k, v] = Q3_n[c, k, v]
+    return True
+
+
+@njit(cache=True, error_model="numpy")
+def pad_positions(y_n, delta_n, par_n, Q3_n, flag_n, FS_last_n, c_a, ds_a, dz_a, sig_a, r0_a,
+                  R0, x_out):
+    """Positions (npad,3) of the pad atoms into ``x_out``."""
+    par = np.empty(3)
+    Q3 = np.empty((3, 3))
+    for a in range(c_a.shape[0]):
+        c = c_a[a]
+        _pad_frame(c, flag_n, FS_last_n, par_n, Q3_n, par, Q3)
+        lt, gm, lz = par[0], par[1], par[2]
+        sig = sig_a[a]
+        rp = lt * R0
+        rho = rp + sig * delta_n[c, 0]
+        phi = (lt * ds_a[a] + gm * dz_a[a] + sig * delta_n[c, 1]) / rp
+        h0 = rho * math.sin(phi) + r0_a[a, 0]
+        h1 = lz * dz_a[a] + sig * delta_n[c, 2] + r0_a[a, 1]
+        h2 = rho * math.cos(phi) - rp + r0_a[a, 2]
+        for i in range(3):
+            x_out[a, i] = y_n[c, i] + (Q3[i, 0] * h0 + Q3[i, 1] * h1 + Q3[i, 2] * h2)
+
+
+@njit(cache=True, error_model="numpy")
+def pad_backward(g_a, delta_n, par_n, Q3_n, flag_n, FS_last_n, c_a, ds_a, dz_a, sig_a, r0_a,
+                 R0, relax_shift, gy_n, gd_n, gQ3_n, gpar_n):
+    """Pull the gradient dE/dx of the pad atoms (npad,3) back to their carriers: adds into
+    dE/dy (``gy_n``), dE/d delta (``gd_n``, if ``relax_shift``) and the adjoints of the
+    carriers' frames (``gQ3_n``, ``gpar_n``; not for a carrier whose pads keep its last
+    good map, which does not depend on F)."""
+    par = np.empty(3)
+    Q3 = np.empty((3, 3))
+    for a in range(c_a.shape[0]):
+        c = c_a[a]
+        own = _pad_frame(c, flag_n, FS_last_n, par_n, Q3_n, par, Q3)
+        lt, gm, lz = par[0], par[1], par[2]
+        g0, g1, g2 = g_a[a, 0], g_a[a, 1], g_a[a, 2]
+        gy_n[c, 0] += g0
+        gy_n[c, 1] += g1
+        gy_n[c, 2] += g2
+        sig = sig_a[a]
+        ds = ds_a[a]
+        dz = dz_a[a]
+        rp = lt * R0
+        rho = rp + sig * delta_n[c, 0]
+        num = lt * ds + gm * dz + sig * delta_n[c, 1]
+        phi = num / rp
+        sp = math.sin(phi)
+        cp = math.cos(phi)
+        gh0 = Q3[0, 0] * g0 + Q3[1, 0] * g1 + Q3[2, 0] * g2
+        gh1 = Q3[0, 1] * g0 + Q3[1, 1] * g1 + Q3[2, 1] * g2
+        gh2 = Q3[0, 2] * g0 + Q3[1, 2] * g1 + Q3[2, 2] * g2
+        if relax_shift:
+            dphi_d1 = sig / rp
+            gd_n[c, 0] += sig * (gh0 * sp + gh2 * cp)
+            gd_n[c, 1] += (gh0 * rho * cp - gh2 * rho * sp) * dphi_d1
+            gd_n[c, 2] += gh1 * sig
+        if not own:
+            continue
+        h0 = rho * sp + r0_a[a, 0]
+        h1 = lz * dz + sig * delta_n[c, 2] + r0_a[a, 1]
+        h2 = rho * cp - rp + r0_a[a, 2]
+        for i in range(3):
+            gi = g0 if i == 0 else (g1 if i == 1 else g2)
+            gQ3_n[c, i, 0] += gi * h0
+            gQ3_n[c, i, 1] += gi * h1
+            gQ3_n[c, i, 2] += gi * h2
+        dphi_lt = -(gm * dz + sig * delta_n[c, 1]) / (lt * rp)
+        dphi_gm = dz / rp
+        gpar_n[c, 0] += gh0 * (R0 * sp + rho * cp * dphi_lt) \
+            + gh2 * (R0 * cp - rho * sp * dphi_lt - R0)
+        gpar_n[c, 1] += (gh0 * rho * cp - gh2 * rho * sp) * dphi_gm
+        gpar_n[c, 2] += gh1 * dz
+
+
+@njit(cache=True, error_model="numpy")
+def max_displacement2(x, x_ref):
+    """(largest squared displacement of a row of x from x_ref, index of the first row of x
+    with a non-finite entry or -1)."""
+    m = 0.0
+    for i in range(x.shape[0]):
+        d2 = 0.0
+        for k in range(3):
+            v = x[i, k]
+            if not math.isfinite(v):
+                return math.inf, i
+            d = v - x_ref[i, k]
+            d2 += d * d
+        if d2 > m:
+            m = d2
+    return m, -1
