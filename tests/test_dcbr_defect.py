@@ -118,3 +118,53 @@ def test_dynamic_tension_bad_grip():
 def test_atom_count_is_exact_for_any_region(r):
     m = DCBRDefectTube(10, 10, 40.0, vacancy=4, coarsening=2.0, r_atomistic=r)
     assert abs(m.natoms_n.sum() + m.nf - (m.n_atoms - 4)) < 1e-9
+
+
+def test_prepare_sides_equals_prepare_step_at_one_stretch(pristine):
+    """Both sides at the same stretch: the per-side correction is the whole-tube one; at two
+    stretches each side's rows carry their own (the pristine tube at uniform stretch Lz_lo is
+    then an exact equilibrium on the lower side only)."""
+    lt, lz, sh = pristine.uniform_lattice(1.02)
+    y, d, Lz = pristine.uniform_state(lt, lz, sh)
+    pristine.prepare_step(Lz)
+    g1 = {k: np.copy(v) for k, v in pristine._ghost.items() if k in ("gy", "gd")}
+    pristine.prepare_sides(Lz, Lz, Lz)
+    for k in ("gy", "gd"):
+        assert np.array_equal(pristine._ghost[k], g1[k])
+    Lhi = pristine.L * 1.05
+    pristine.prepare_sides(Lz, Lhi, Lz)
+    _, gy, _, _ = pristine.energy_and_gradient(y, d, Lz)
+    zc = pristine.vacancy_theta_z[1]
+    zrow = np.r_[pristine.x0[pristine.dof_idx, 2], pristine.Xf[:, 2]]
+    assert np.abs(gy[zrow < zc]).max() < 1e-6  # lower side: its own stretch, balanced
+    assert np.abs(gy[zrow > zc]).max() > 1e-3  # upper side: corrected for 5 %, not 2 %
+
+
+def test_dynamic_thermostat_holds_the_temperature():
+    """Nose-Hoover on x, y (as LAMMPS's fix nvt + temp/partial): a 40 Å tube pulled slowly
+    stays near 10 K (the free atoms' kinetic energy, all three components, is ~3/2 N kB T
+    within the thermal noise of ~70 atoms) and nothing leaves the wall."""
+    from upscale.models.dcbr_dynamic import dynamic_tension
+
+    m = DCBRDefectTube(6, 6, 40.0, vacancy=4, **KW)
+    res = dynamic_tension(m, grip=10.0, speed=0.5, max_strain=0.012, sample=50,
+                          temperature=10.0, seed=3)
+    ke = np.array(res["curve"]["free_atom_kinetic_eV"][2:])
+    T = 2 * ke / (3 * m.nf * 8.617333262e-5)
+    assert 3.0 < T.mean() < 20.0, T
+    assert max(res["curve"]["atoms_off_wall"]) == 0
+
+
+@pytest.mark.parametrize("kw, word", [
+    (dict(temperature=-1.0), "temperature=-1.0"),
+    (dict(tdamp=0.0), "tdamp=0.0"),
+    (dict(ghost="somewhere"), "ghost='somewhere'"),
+])
+def test_dynamic_bad_input(kw, word):
+    from upscale.models.dcbr_dynamic import dynamic_tension
+
+    m = DCBRDefectTube(6, 6, 40.0, vacancy=4, **KW)
+    with pytest.raises(ValueError) as e:
+        dynamic_tension(m, grip=10.0, **kw)
+    msg = str(e.value)
+    assert word in msg and "valid" in msg and "\n" not in msg
