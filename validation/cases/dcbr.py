@@ -242,6 +242,8 @@ def _tension_args(p):
     p.add_argument("--dynamic", action="store_true",
                    help="dynamic tension of the open tube with grips (with --vacancy)")
     p.add_argument("--strain-step", type=float, default=0.005)
+    p.add_argument("--temperature", type=float, default=10.0,
+                   help="dynamic: thermostat K (default 10, as LAMMPS; 0 = NVE from rest)")
     p.add_argument("--hourglass", type=float, default=0.1,
                    help="zero-energy-mode control, fraction of the lattice stiffness (0 = off)")
 
@@ -249,7 +251,7 @@ def _tension_args(p):
 def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=False,
                            dynamic=False, outdir=None, plot=True, verbose=True,
                            hourglass=0.1, r_atomistic=8.0, region="band",
-                           step_crossing="energy") -> dict:
+                           step_crossing="energy", temperature=10.0) -> dict:
     """Coarse (DCBR) and LAMMPS quasi-static tension of one tube, with errors and speed-up.
 
     With ``vacancy`` the coarse model is :class:`upscale.models.dcbr_defect.DCBRDefectTube`
@@ -279,7 +281,8 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
 
         pd = ref.get("protocol_detail", {})
         res = dynamic_tension(model, grip=pd.get("grip_A", 50.0),
-                              speed=pd.get("speed_A_per_ps_each_grip", 1.0), progress=cb)
+                              speed=pd.get("speed_A_per_ps_each_grip", 1.0), progress=cb,
+                              temperature=temperature)
         res["curve"]["Lz_A"] = [res["L0_A"]] * len(res["curve"]["strain"])
     else:
         res = quasi_static_tension(model, strain_step=strain_step, progress=cb)
@@ -298,7 +301,8 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
            "lammps_source": ref.get("_source"),
            "L0_A": res["L0_A"], "L0_lammps_A": ref["relaxation"]["L0_A"],
            "radius_A": res["radius_relaxed_A"], "radius_lammps_A": ref["relaxation"]["radius_relaxed_A"],
-           "protocol": "dynamic" if dynamic else "quasi-static"}
+           "protocol": "dynamic" if dynamic else "quasi-static",
+           "temperature_K": temperature if dynamic else None}
     out["speedup"] = (out["lammps_wall_s"] / wall) if out["lammps_wall_s"] else None
     if vacancy:
         out.update({k: res[k] for k in ("setup_relax_s", "dynamics_s", "steps") if k in res})
@@ -404,7 +408,8 @@ def _dcbr_tension(args):
     out = run_tension_comparison(n, m, length, args.coarsening, args.strain_step,
                                  args.vacancy, args.dynamic, outdir=args.outdir,
                                  hourglass=args.hourglass, r_atomistic=args.r_atomistic,
-                                 region=args.region, step_crossing=args.step_crossing)
+                                 region=args.region, step_crossing=args.step_crossing,
+                                 temperature=args.temperature)
     out.pop("_curve")
     cols = ["chirality", "coarsening", "atoms", "particles", "modulus_TPa", "modulus_lammps_TPa",
             "strength_GPa", "strength_lammps_GPa", "strain_at_peak", "strain_at_peak_lammps",
@@ -432,6 +437,8 @@ def _table_args(p):
                    help="the 4-atom vacancy tubes (DCBRDefectTube, band of 8 Å)")
     p.add_argument("--dynamic", action="store_true",
                    help="dynamic tension (with --vacancy; 150 Å tubes, the dynamic references)")
+    p.add_argument("--temperature", type=float, default=10.0,
+                   help="dynamic: thermostat K (default 10, as LAMMPS; 0 = NVE from rest)")
 
 
 def _dcbr_table(args):
@@ -444,7 +451,7 @@ def _dcbr_table(args):
         for k in ks:
             o = run_tension_comparison(n, m, length, k, outdir=args.outdir, verbose=False,
                                        plot=(k == ks[-1]), vacancy=args.vacancy,
-                                       dynamic=args.dynamic)
+                                       dynamic=args.dynamic, temperature=args.temperature)
             rows.append({"tube": f"({n},{m}){' vac4' if args.vacancy else ''}", "K": k,
                          "atoms": o["atoms"], "dof": o["dof"],
                          "wall_s": o["wall_s"], "lammps_wall_s": o["lammps_wall_s"],
@@ -458,13 +465,15 @@ def _dcbr_table(args):
             if args.vacancy:
                 rows[-1].update({"crack_deg": o.get("crack_angle_deg"),
                                  "crack_lammps_deg": o.get("crack_angle_lammps_deg"),
-                                 "ejected": o.get("ejected_atoms")})
+                                 "ejected": o.get("ejected_atoms"),
+                                 "first_damage_to_vacancy_A": o.get("crack_start_to_vacancy_A")})
             print(f"({n},{m}) K={k:g}: done in {o['wall_s']:.1f} s", flush=True)
     print(table(rows, floatfmt=".4g"))
     from upscale.io import write_json
 
     write_json(Path(args.outdir) / f"dcbr_table{'_vac4' if args.vacancy else ''}"
-               f"{'_dynamic' if args.dynamic else ''}.json", rows)
+               f"{'_dynamic' if args.dynamic else ''}"
+               f"{'_T%g' % args.temperature if args.dynamic else ''}.json", rows)
     return {"rows": rows, "strength_err_pct_max": max(r["strength_err_%"] for r in rows),
             "modulus_err_pct_max": max(r["modulus_err_%"] for r in rows),
             "strain_at_peak_err_pct_max": max(r["strain_at_peak_err_%"] for r in rows),
