@@ -363,7 +363,11 @@ def _plot(res, ref, out, path, model):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(1, 2, figsize=(11, 4.2))
+    ref_png = (ref.get("damage") or {}).get("damage_map_png")
+    ref_png = (ROOT / ref_png) if ref_png else None
+    side = ref_png is not None and ref_png.exists()  # LAMMPS's damage map beside ours
+    fig, ax = plt.subplots(1, 3 if side else 2, figsize=(17 if side else 11, 4.2),
+                           gridspec_kw={"width_ratios": [1, 1, 1.2]} if side else None)
     ax[0].plot(ref["curve"]["strain"], ref["curve"]["stress_GPa"], "k-o", ms=3, label="LAMMPS")
     ax[0].plot(res["curve"]["strain"], res["curve"]["stress_GPa"], "b-s", ms=3,
                label=f"DCBR, coarsening {out['coarsening']:g} ({out['particles']} particles)")
@@ -387,6 +391,10 @@ def _plot(res, ref, out, path, model):
             ax[1].set_title(f"damage at the last step; crack {out['crack_angle_deg']:.0f}° to the "
                             f"axis (LAMMPS {out.get('crack_angle_lammps_deg') or float('nan'):.0f}°)")
     fig.colorbar(sc, ax=ax[1], label="damage mu = 1 - R/T (eq. 5.16)")
+    if side:
+        ax[2].imshow(plt.imread(ref_png))
+        ax[2].set_axis_off()
+        ax[2].set_title(f"LAMMPS damage map ({ref_png.name})")
     ax[1].set_xlabel("z (Å)")
     ax[1].set_ylabel("theta (deg)")
     if "_atom_damage" not in res or out.get("crack_angle_deg") is None:
