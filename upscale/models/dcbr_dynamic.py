@@ -107,13 +107,22 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     nd = len(model.dof_idx)
     z = y[:, 2]
     zlo, zhi = model.particle_positions(y)[:, 2].min(), model.particle_positions(y)[:, 2].max()
+    # a row of particles stands for the slab of atoms one row spacing h thick around it, so
+    # the tube's atoms reach h/2 beyond the end rows; a grip holds the rows whose slab centre
+    # lies within ``grip`` of the tube's end (LAMMPS: the atoms within ``grip`` of the end)
+    rows0 = np.unique(np.round(model.x0[:, 2], 6))
+    h = float(np.median(np.diff(rows0))) * L0 / model.L if len(rows0) > 1 else 0.0
+    zb, zt = zlo - 0.5 * h + grip, zhi + 0.5 * h - grip
     bottom = np.zeros(len(y), bool)
     top = np.zeros(len(y), bool)
-    bottom[:nd] = z[:nd] < zlo + grip
-    top[:nd] = z[:nd] > zhi - grip
-    if model.nf and (np.any(z[nd:] < zlo + grip) or np.any(z[nd:] > zhi - grip)):
+    bottom[:nd] = z[:nd] < zb
+    top[:nd] = z[:nd] > zt
+    if model.nf and (np.any(z[nd:] < zb) or np.any(z[nd:] > zt)):
         raise ValueError("the atomistic region reaches into a grip; valid: a longer tube or "
                          "shorter grips")
+    if not (bottom.any() and top.any()):
+        raise ValueError(f"grip={grip} Å holds no row of particles (rows {h:.2f} Å apart); "
+                         f"valid: grip > {0.5 * h:.2f}")
     grips = bottom | top
     # the gauge: between the innermost grip rows (the material that deforms; LAMMPS's gauge
     # is likewise the distance between its innermost grip atoms). The grip particles keep
