@@ -168,3 +168,18 @@ def test_dynamic_bad_input(kw, word):
         dynamic_tension(m, grip=10.0, **kw)
     msg = str(e.value)
     assert word in msg and "valid" in msg and "\n" not in msg
+
+
+@pytest.mark.parametrize("grip", [8.0, 10.0, 12.5])
+def test_dynamic_grips_hold_whole_rows(grip):
+    """A grip holds the rows whose slab (one row spacing h) is centred within ``grip`` of the
+    tube's end, so the gauge (innermost grip rows' distance) exceeds LAMMPS's free length
+    L0 - 2 grip by between 0 and 2 h, whatever the grip length."""
+    from upscale.models.dcbr_dynamic import dynamic_tension
+
+    m = DCBRDefectTube(6, 6, 40.0, vacancy=4, **KW)
+    rows = np.unique(np.round(m.x0[:, 2], 6))
+    h = float(np.median(np.diff(rows)))
+    res = dynamic_tension(m, grip=grip, max_strain=0.005, sample=10, temperature=0.0)
+    excess = res["gauge_length_A"] - res["free_length_A"]
+    assert -1e-6 < excess < 2 * h * 1.01, (excess, h)
