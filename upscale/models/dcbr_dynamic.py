@@ -7,16 +7,20 @@ on a :class:`~upscale.models.dcbr_defect.DCBRDefectTube`:
    its vacancy, which changes L0 by ~2e-4 here, and an open tube's length relaxes anyway);
 2. the axial periodicity is removed (G is rebuilt without links across the cell boundary)
    and the open tube is minimised once (R = mean atom radius after it);
-3. end grips of ``grip`` Å (the particles whose relaxed z is within ``grip`` of either end)
-   move rigidly apart at ``speed`` Å/ps each; the rest starts with the linear axial velocity
-   ramp between the grip speeds; velocity Verlet, ``dt`` fs;
+3. end grips of ``grip`` Å (the rows of particles whose slab, one row spacing h thick,
+   is centred within ``grip`` of the tube's end, h/2 beyond the end row) move rigidly apart
+   at ``speed`` Å/ps each; the rest starts with the linear axial velocity ramp between the
+   innermost grip rows; velocity Verlet, ``dt`` fs;
 4. strain = grip separation change / gauge, the initial distance between the innermost grip
-   rows of particles (with particles 5-10 Å apart this differs from L0 - 2 grip by up to a
-   spacing; LAMMPS's gauge is the same distance between its grip atoms), at the middle of
-   each ``sample``-step block as LAMMPS's; stress = mean of the two grips' reaction forces
-   (sum of -dE/dz over each grip's particles, averaged over the block) over 2 pi R t; the run
-   stops when the stress has fallen below 20 % of its maximum after failure, or at
-   ``max_strain``.
+   rows (it exceeds LAMMPS's free length L0 - 2 grip by 0 to 2 h: the grip rows' G reaches
+   into the free part, so the coarse grip boundary is smeared over ~ a row; at coarsening
+   3-4 this makes the dynamic modulus 5-9 % low, while the periodic quasi-static one is
+   within 0.5 %), at the middle of each ``sample``-step block as LAMMPS's; stress = mean of
+   the two grips' reaction forces (sum of -dE/dz over each grip's particles, averaged over
+   the block) over 2 pi R t; the run stops when the stress has fallen below 20 % of its
+   maximum after failure, or at ``max_strain``. Strength as LAMMPS's (the maximum before
+   the first drop of 5 %), with the first drop taken at or after the first broken bond
+   (see the code: the coarse grip stress rings by a few GPa at coarsening 3-4).
 
 Masses: a free atom 12.011 amu; a particle carries m_C max(w_c, N_c/2) (its atoms, at least
 half its nominal share, so that interface particles with few atoms do not set a tiny stable
