@@ -12,6 +12,7 @@ meaningful next to these spreads.
 from __future__ import annotations
 
 import datetime
+import json
 import time
 
 import numpy as np
@@ -42,7 +43,10 @@ def _args(p):
                    help="N,M (repeatable; default 10,10 17,0 12,6)")
     p.add_argument("--seeds", type=int, default=4, help="number of seeds (default 4)")
     p.add_argument("--save", action="store_true",
-                   help="write data/reference/seed_spread.json (reference-seeds only)")
+                   help="add the tubes to data/reference/seed_spread.json (reference-seeds only)")
+    p.add_argument("--reuse-kept", action="store_true",
+                   help="take the kept seed's run from data/reference/dyn_N-M_vac4.json instead "
+                        "of rerunning it (reference-seeds only; it reproduces exactly)")
 
 
 @case("reference-seeds", "spread of the LAMMPS dynamic vacancy references over thermal seeds",
@@ -61,6 +65,12 @@ def _reference_seeds(args):
         atoms = build_structure(_spec("dynamic", n, m, True, DYN_LENGTH))
         rows = []
         for s in seeds:
+            if args.reuse_kept and s == SEEDS_LAMMPS[0]:
+                kept = json.loads((REF_DIR / f"dyn_{n}-{m}_vac4.json").read_text())
+                kept = kept.get("result", kept)
+                rows.append({"seed": s, **{k: kept[k] for k in KEYS},
+                             "wall_s": kept.get("wall_s"), "from": "kept reference"})
+                continue
             t0 = time.perf_counter()
             r = dynamic_tension(atoms, "tersoff:BNC.tersoff", cutoff="step", seed=s)
             rows.append({"seed": s, **{k: r[k] for k in KEYS}, "wall_s": time.perf_counter() - t0})
@@ -73,10 +83,19 @@ def _reference_seeds(args):
                   " the kept dynamic references' protocol (150 Å tube, 4-atom vacancy, grips "
                   "50 Å at 1 Å/ps each, 10 K Nose-Hoover on x, y, BNC.tersoff, step cutoff)",
         "protocol": "same as data/reference/dyn_*_vac4.json except the velocity seed",
-        "script": "python -m validation reference-seeds --seeds %d --save" % args.seeds,
+        "script": ("python -m validation reference-seeds --seeds %d --save" % args.seeds
+                   + "".join(f" --chirality {n},{m}" for n, m in _chis(args))
+                   + (" --reuse-kept" if args.reuse_kept else "")),
         "date": datetime.date.today().isoformat()}, "tubes": result}
-    if args.save:
-        write_json(REF_DIR / "seed_spread.json", out)
+    if args.save:  # add to (or replace in) the stored set, tube by tube
+        path = REF_DIR / "seed_spread.json"
+        if path.exists():
+            old = json.loads(path.read_text())
+            old = old.get("result", old)
+            out["tubes"] = {**old.get("tubes", {}), **out["tubes"]}
+            out["provenance"]["script"] = "; ".join(dict.fromkeys(
+                [old.get("provenance", {}).get("script", ""), out["provenance"]["script"]]))
+        write_json(path, out)
     return out
 
 
