@@ -205,9 +205,11 @@ class DCBRDefectTube(DCBRTube):
                                  "(10 needed); valid: a larger r_atomistic")
             a_, b_ = dsf[near], dzf[near]
             A = np.column_stack([np.ones(len(near)), a_, b_, a_ * a_, a_ * b_, b_ * b_])
-            wts = 1.0 / (1.0 + dist[near] ** 2)
-            Aw = A * wts[:, None]
-            phi = np.linalg.solve(A.T @ Aw, Aw.T)[0]  # row giving the value at (0, 0)
+            sw = np.sqrt(1.0 / (1.0 + dist[near] ** 2))  # weights 1 / (1 + d^2)
+            # weighted least squares, row giving the value at (0, 0); the pseudo-inverse is
+            # the minimum-norm fit when the 10 atoms cannot fix all six terms (two straight
+            # rows of A atoms near a slave in a zigzag tube made the normal matrix singular)
+            phi = (np.linalg.pinv(A * sw[:, None], rcond=1e-10) * sw[None, :])[0]
             rows += [k] * len(near)
             cols += list(fA[near])
             vals += list(phi)
