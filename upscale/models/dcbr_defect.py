@@ -199,17 +199,27 @@ class DCBRDefectTube(DCBRTube):
             dsf = R0 * _wrap(th[self.free_idx[fA]] - self.theta[c])
             dzf = Xf[fA, 2] - self.x0[c, 2]
             dist = np.hypot(dsf, dzf)
-            near = np.argsort(dist)[:10]
-            if len(near) < 10:
-                raise ValueError(f"slave particle {c} has {len(near)} free atoms to follow "
+            order = np.argsort(dist)
+            if len(order) < 10:
+                raise ValueError(f"slave particle {c} has {len(order)} free atoms to follow "
                                  "(10 needed); valid: a larger r_atomistic")
-            a_, b_ = dsf[near], dzf[near]
-            A = np.column_stack([np.ones(len(near)), a_, b_, a_ * a_, a_ * b_, b_ * b_])
-            sw = np.sqrt(1.0 / (1.0 + dist[near] ** 2))  # weights 1 / (1 + d^2)
-            # weighted least squares, row giving the value at (0, 0); the pseudo-inverse is
-            # the minimum-norm fit when the 10 atoms cannot fix all six terms (two straight
-            # rows of A atoms near a slave in a zigzag tube made the normal matrix singular)
-            phi = (np.linalg.pinv(A * sw[:, None], rcond=1e-10) * sw[None, :])[0]
+            # weighted quadratic fit (weights 1 / (1 + d^2)) of the nearest A atoms, the row
+            # giving the value at (0, 0); if the 10 nearest cannot fix all six terms (two
+            # straight rows of A atoms next to a slave of a zigzag tube), more atoms are
+            # taken, and failing that the fit is linear
+            for nn, ncol in ((10, 6), (14, 6), (20, 6), (10, 3)):
+                near = order[:nn]
+                a_, b_ = dsf[near], dzf[near]
+                A = np.column_stack([np.ones(len(near)), a_, b_, a_ * a_, a_ * b_,
+                                     b_ * b_])[:, :ncol]
+                Aw = A * (1.0 / (1.0 + dist[near] ** 2))[:, None]
+                M = A.T @ Aw
+                if np.linalg.cond(M) < 1e10:
+                    break
+            else:
+                raise ValueError(f"slave particle {c}: its nearest free atoms are degenerate "
+                                 "for a linear fit; valid: a larger r_atomistic")
+            phi = np.linalg.solve(M, Aw.T)[0]
             rows += [k] * len(near)
             cols += list(fA[near])
             vals += list(phi)
