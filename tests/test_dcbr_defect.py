@@ -136,7 +136,9 @@ def test_prepare_sides_equals_prepare_step_at_one_stretch(pristine):
     _, gy, _, _ = pristine.energy_and_gradient(y, d, Lz)
     zc = pristine.vacancy_theta_z[1]
     zrow = np.r_[pristine.x0[pristine.dof_idx, 2], pristine.Xf[:, 2]]
-    assert np.abs(gy[zrow < zc]).max() < 1e-6  # lower side: its own stretch, balanced
+    # lower side: its own stretch, balanced (to 1e-4: the correction's net sideways force,
+    # not zero when the sides differ, is taken off all rows evenly)
+    assert np.abs(gy[zrow < zc]).max() < 1e-4
     assert np.abs(gy[zrow > zc]).max() > 1e-3  # upper side: corrected for 5 %, not 2 %
 
 
@@ -174,7 +176,8 @@ def test_dynamic_bad_input(kw, word):
 def test_dynamic_grips_hold_whole_rows(grip):
     """A grip holds the rows whose slab (one row spacing h) is centred within ``grip`` of the
     tube's end, so the gauge (innermost grip rows' distance) exceeds LAMMPS's free length
-    L0 - 2 grip by between 0 and 2 h, whatever the grip length."""
+    L0 - 2 grip by between 0 and 2 h, whatever the grip length (plus the set-up relaxation's
+    change of the rows' distance, < 0.5 Å: the rows are chosen on the uniform tube)."""
     from upscale.models.dcbr_dynamic import dynamic_tension
 
     m = DCBRDefectTube(6, 6, 40.0, vacancy=4, **KW)
@@ -182,7 +185,7 @@ def test_dynamic_grips_hold_whole_rows(grip):
     h = float(np.median(np.diff(rows)))
     res = dynamic_tension(m, grip=grip, max_strain=0.01, sample=20, speed=2.0, temperature=0.0)
     excess = res["gauge_length_A"] - res["free_length_A"]
-    assert -1e-6 < excess < 2 * h * 1.01, (excess, h)
+    assert -0.5 < excess < 2 * h + 0.5, (excess, h)
 
 
 def test_slave_fit_survives_collinear_atoms():
@@ -192,3 +195,22 @@ def test_slave_fit_survives_collinear_atoms():
     m = DCBRDefectTube(17, 0, 100.0, coarsening=1.0, vacancy=4)
     sums = np.asarray(m.Phi.sum(axis=1)).ravel()
     assert np.allclose(sums, 1.0, atol=1e-9)
+
+
+@pytest.mark.parametrize("phi", [0.3, np.pi / 2, np.pi])
+def test_corrected_energy_ignores_a_rigid_turn(vac, phi):
+    """The ghost-force correction is taken in cylindrical components about the rows'
+    centroid, so turning the whole tube about its axis (or shifting it sideways) leaves the
+    corrected energy as it was; a Cartesian dead load changed it by 2 sum(g_r rho) (tens of
+    eV) at a half turn and the minimiser turned tubes over to get it."""
+    lt, lz, sh = vac.uniform_lattice(1.02)
+    y, d, Lz = vac.uniform_state(lt, lz, sh)
+    vac.prepare_step(Lz)
+    E0 = vac.energy_and_gradient(y, d, Lz)[0]
+    c, s = np.cos(phi), np.sin(phi)
+    yr = y @ np.array([[c, s, 0.0], [-s, c, 0.0], [0.0, 0.0, 1.0]]) + [0.7, -0.4, 0.0]
+    E1 = vac.energy_and_gradient(yr, d, Lz)[0]
+    # 0.05 eV: the uncorrected coupled energy itself moves by up to 0.04 eV under a turn
+    # (the slave particles follow a quadratic fit in the unrolled coordinates, which a
+    # rigid turn's displacement is not); the Cartesian dead load moved it by 13.5 eV at pi
+    assert abs(E1 - E0) < 0.05, (E0, E1)

@@ -734,10 +734,11 @@ class DCBRTube:
             parts.append([Lz])
         return np.concatenate(parts)
 
-    def minimise(self, y, delta, Lz, relax_box=False, gtol=1e-6, maxiter=5000):
+    def minimise(self, y, delta, Lz, relax_box=False, gtol=1e-6, maxiter=5000, fixed=None):
         """Minimise the energy over positions and shifts (and Lz if ``relax_box``) by L-BFGS.
 
         Returns (y, delta, Lz, E, info). ``gtol``: max |gradient component| in eV/Å.
+        ``fixed``: optional boolean mask shaped like ``y``; those position components stay.
         """
         N = self.N
         Ny = len(y)  # the unknown positions (a subclass may add rows, e.g. atoms)
@@ -764,8 +765,16 @@ class DCBRTube:
             ys = y.copy()
             ys[:, 2] *= self.L / Lz
             x0 = self._pack(ys, delta, Lz / Lscale)
+        bounds = None
+        if fixed is not None:
+            fixed = np.asarray(fixed, bool)
+            if fixed.shape != y.shape:
+                raise ValueError(f"fixed has shape {fixed.shape}; valid: that of y {y.shape}")
+            fx = np.zeros(len(x0), bool)
+            fx[:3 * Ny] = fixed.ravel()
+            bounds = [(v, v) if f else (None, None) for v, f in zip(x0, fx)]
         with _one_blas_thread():
-            res = minimize(fun, x0, jac=True, method="L-BFGS-B",
+            res = minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=bounds,
                            options={"maxiter": maxiter, "maxcor": 30, "gtol": gtol,
                                     "ftol": 1e-15, "maxfun": 4 * maxiter})
         xv = res.x

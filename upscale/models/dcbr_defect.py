@@ -511,12 +511,40 @@ class DCBRDefectTube(DCBRTube):
 
     def energy_and_gradient(self, y, delta, Lz):
         """Coupled energy with the ghost-force correction of the current load step (if set by
-        :meth:`prepare_step`): E' = E - g . (x - x_u), g = dE/dx at the uniform state x_u."""
+        :meth:`prepare_step`): E' = E - g . (x - x_u), g = dE/dx at the uniform state x_u,
+        with g and x - x_u taken in each row's cylindrical components about the tube's axis
+        (radial, arc, axial; the shifts are local already): a Cartesian dead load is not
+        invariant under a rigid turn about the axis (its energy goes as -A cos(phi), A the sum
+        of radial load times radius), and the minimiser turned some tubes by 180 deg to lower
+        it, leaving the loads on the wrong atoms; the cylindrical form is the same at the
+        uniform state (the patch test is unchanged) and does not see the turn."""
         E, gy, gd, dL = self._raw_energy_and_gradient(y, delta, Lz)
         gc = self._ghost
         if gc is not None and abs(gc["Lz"] - Lz) < 1e-12 * Lz:
-            E -= float(np.sum(gc["gy"] * (y - gc["y"])) + np.sum(gc["gd"] * (delta - gc["d"])))
-            gy = gy - gc["gy"]
+            if "gr" not in gc:  # the load's cylindrical components at the uniform state
+                yu, g = gc["y"], gc["gy"]
+                xu = yu[:, :2] - yu[:, :2].mean(axis=0)
+                thu = np.arctan2(xu[:, 1], xu[:, 0])
+                c, s_ = np.cos(thu), np.sin(thu)
+                gc.update(thu=thu, rhou=np.hypot(xu[:, 0], xu[:, 1]),
+                          gr=g[:, 0] * c + g[:, 1] * s_, gt=-g[:, 0] * s_ + g[:, 1] * c)
+            # about the rows' centroid (so that a sideways shift is free as well)
+            xc = y[:, :2] - y[:, :2].mean(axis=0)
+            rho = np.hypot(xc[:, 0], xc[:, 1])
+            th = np.arctan2(xc[:, 1], xc[:, 0])
+            # arc angle change, on the branch of the rows' mean turn (so that all rows agree
+            # on it, even at a half turn; locally it is th - thu, the branch only picks 2 pi k)
+            turn = float(np.angle(np.mean(np.exp(1j * (th - gc["thu"])))))
+            dth = turn + (th - gc["thu"] - turn + np.pi) % (2 * np.pi) - np.pi
+            gr, gt, rt = gc["gr"], gc["gt"] * gc["rhou"], gc["gy"][:, 2]
+            E -= float(np.sum(gr * (rho - gc["rhou"]) + gt * dth + rt * (y[:, 2] - gc["y"][:, 2]))
+                       + np.sum(gc["gd"] * (delta - gc["d"])))
+            corr = np.empty_like(gy)
+            corr[:, 0] = (gr * xc[:, 0] - gt * xc[:, 1] / rho) / rho
+            corr[:, 1] = (gr * xc[:, 1] + gt * xc[:, 0] / rho) / rho
+            corr[:, :2] -= corr[:, :2].mean(axis=0)  # through the centroid
+            corr[:, 2] = rt
+            gy = gy - corr
             gd = gd - gc["gd"]
             dL = dL + gc["dL"]
         return E, gy, gd, dL
@@ -610,24 +638,48 @@ class DCBRDefectTube(DCBRTube):
             g[k] = np.where(rows[:, None], a[k], b[k])
         self._ghost = g
 
-    def minimise(self, y, delta, Lz, relax_box=False, gtol=1e-6, maxiter=5000):
+    def minimise(self, y, delta, Lz, relax_box=False, gtol=1e-6, maxiter=5000, fixed=None):
         """As :meth:`DCBRTube.minimise`, with two additions: ``relax_box`` finds the zero-stress
         cell length (:meth:`_relax_zero_stress`), and pairs held at the step cutoff are moved
         across it when that lowers the energy (:meth:`_cross_steps`), then minimised again."""
         if relax_box:
             return self._relax_zero_stress(gtol, maxiter)
+        if fixed is None and self.periodic:
+            fixed = self._rotation_pins(y)
         crossed = 0
-        out = super().minimise(y, delta, Lz, relax_box=False, gtol=gtol, maxiter=maxiter)
+        out = super().minimise(y, delta, Lz, relax_box=False, gtol=gtol, maxiter=maxiter,
+                               fixed=fixed)
         for _ in range(50):
             if out[4]["max_force_eV_A"] <= 10 * gtol and self.step_crossing != "always":
                 break
-            better = self._cross_steps(out, Lz, gtol, maxiter)
+            better = self._cross_steps(out, Lz, gtol, maxiter, fixed=fixed)
             if better is None:
                 break
             out = better
             crossed += 1
         out[4]["step_crossings"] = crossed
         return out
+
+    def _rotation_pins(self, y):
+        """Mask holding the rigid turn about the axis (a zero mode of the periodic tube, which
+        the minimiser otherwise wanders along, as far as 140 deg): the arc-wise component of
+        two carrying particles at opposite sides of the row farthest from the vacancy, the
+        ones whose arc direction is closest to x or y (that Cartesian component is held)."""
+        nd = len(self.dof_idx)
+        zc = self.vacancy_theta_z[1]
+        dz = np.abs((self.x0[self.dof_idx, 2] - zc + 0.5 * self.L) % self.L - 0.5 * self.L)
+        ring = np.nonzero(dz > dz.max() - 1e-6)[0]
+        th = self.theta[self.dof_idx[ring]]
+        fixed = np.zeros((len(y) if y is not None else nd + self.nf, 3), bool)
+        # the arc direction at theta is (-sin, cos): hold y where |sin| is smallest, x where
+        # |cos| is, on two particles about half a turn apart
+        score_y, score_x = np.abs(np.sin(th)), np.abs(np.cos(th))
+        a = int(np.argmin(np.minimum(score_y, score_x)))
+        opp = np.abs(np.angle(np.exp(1j * (th - th[a] - np.pi))))
+        b = int(np.argmin(opp))
+        for k in (a, b):
+            fixed[ring[k], 1 if score_y[k] <= score_x[k] else 0] = True
+        return fixed
 
     def _relax_zero_stress(self, gtol, maxiter, tol=1e-4):
         """Zero axial stress: start from the pristine lattice's zero-stress length, then a
@@ -656,7 +708,7 @@ class DCBRDefectTube(DCBRTube):
         out[4]["zero_stress_iterations"] = len(hist)
         return tuple(out)
 
-    def _cross_steps(self, out, Lz, gtol, maxiter, window: float = 2e-3):
+    def _cross_steps(self, out, Lz, gtol, maxiter, window: float = 2e-3, fixed=None):
         """Try the minima on the other side of the step cutoff for pairs held at it.
 
         With the step cutoff a pair's energy jumps where its distance crosses R + D, so a
@@ -691,7 +743,8 @@ class DCBRDefectTube(DCBRTube):
                 yt[nd + a] -= move
             else:
                 yt[nd + b] += move
-            trial = DCBRTube.minimise(self, yt, delta, Lz, gtol=gtol, maxiter=maxiter)
+            trial = DCBRTube.minimise(self, yt, delta, Lz, gtol=gtol, maxiter=maxiter,
+                                      fixed=fixed)
             if trial[3] < E0 - 1e-6 or self.step_crossing == "always":
                 return trial
         return None
