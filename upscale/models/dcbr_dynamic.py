@@ -55,7 +55,7 @@ import time
 
 import numpy as np
 
-from upscale.models.dcbr import EV_PER_A3_IN_GPA, WALL_THICKNESS
+from upscale.models.dcbr import EV_PER_A3_IN_GPA, WALL_THICKNESS, uniform_map_frame
 
 __all__ = ["dynamic_tension", "CARBON_MASS"]
 
@@ -75,9 +75,13 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
                     monitor=None) -> dict:
     """Dynamic tension of an open coarse tube with end grips (module docstring).
 
-    Returns a dict like the LAMMPS runner's: ``curve`` (strain, stress_GPa, time_ps),
-    the curve metrics, ``L0_A``, ``radius_relaxed_A``, ``dof``, ``wall_s``, the final
-    unknowns (``positions``, ``delta``) and ``damage``.
+    Returns a dict like the LAMMPS runner's: ``curve`` (strain, stress_GPa, time_ps, and
+    per sample ``atoms_off_wall`` and ``free_atom_kinetic_eV``), the curve metrics,
+    ``first_damage`` (strain, atoms, distance to the vacancy), ``L0_A``,
+    ``radius_relaxed_A``, ``dof``, ``wall_s`` (``setup_relax_s`` + ``dynamics_s``), the final
+    unknowns (``positions``, ``delta``) and ``damage``. ``monitor(step, y, v, delta,
+    stress)``, if given, is called at every sample; ``ghost`` picks the correction's stretch
+    (module docstring); ``temperature=0`` runs NVE from rest.
     """
     from upscale.analysis.stress import curve_metrics  # noqa: PLC0415
 
@@ -199,8 +203,6 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
             model.prepare_step(L0 * (1 + strain))
             model._ghost["Lz"] = float(L0)  # the open tube's energy is called with L0
             return
-        from upscale.models.dcbr import uniform_map_frame  # noqa: PLC0415
-
         F = model.gain.deformation(model.particle_positions(y), np.array([0.0, 0.0, L0]))
         with np.errstate(invalid="ignore", divide="ignore"):  # failed particles: F = 0
             _, _, lz, _ = uniform_map_frame(np.einsum("nia,nab->nib", F, model.S))
