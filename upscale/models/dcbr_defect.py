@@ -57,7 +57,6 @@ import math
 import numpy as np
 
 from upscale.models import dcbr_coupling_kernels as CK
-from upscale.models import dcbr_kernels as K
 from upscale.models.dcbr import DCBRTube, uniform_map_frame
 
 __all__ = ["DCBRDefectTube"]
