@@ -42,7 +42,12 @@ It is an energy-based concurrent coupling (in the spirit of the quasicontinuum m
 
 In a uniform strain the pad atoms sit exactly on the uniform map, so the free atoms feel
 the perfect lattice; what is not exact is the balance at the interface (the classic
-energy-based coupling's ghost forces), measured by :meth:`ghost_forces` and reported.
+energy-based coupling's ghost forces, up to 1-3 eV/Å, :meth:`ghost_forces`). They are removed
+by a dead load taken from a pristine twin at the load step's uniform state
+(:meth:`prepare_step`; per side of the region in dynamics, :meth:`prepare_sides`), applied in
+cylindrical components about the rows' centroid so that a rigid turn or shift of the tube
+costs nothing (:meth:`energy_and_gradient`); the periodic tube's turn is pinned by two
+particles (:meth:`_rotation_pins`).
 
 Failure: free atoms break their own bonds through the potential (step cutoff at R + D =
 2.1 Å); coarse particles keep the two rules of :mod:`upscale.models.dcbr` (the lattice
