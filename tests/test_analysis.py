@@ -175,3 +175,16 @@ def test_curve_metrics_single_flat_interval_then_rise_is_flagged():
     assert m["strength_GPa"] == pytest.approx(129.47)
     assert m["strain_at_peak"] == pytest.approx(0.30)
     assert m["max_stress_before_failure_GPa"] == pytest.approx(234.9)
+
+
+def test_curve_metrics_failure_from_strain():
+    """A dip before ``failure_from_strain`` is not failure; the first drop after it is."""
+    from upscale.analysis.stress import curve_metrics
+
+    e = [0.0, 0.01, 0.02, 0.03, 0.04, 0.05, 0.06, 0.07]
+    s = [0.0, 10.0, 20.0, 17.0, 30.0, 40.0, 10.0, 5.0]  # dip at 0.03, break at 0.06
+    plain = curve_metrics(e, s, plateau_fraction=0.0)
+    assert plain["strength_GPa"] == 20.0 and plain["failure_strain"] == 0.03
+    late = curve_metrics(e, s, plateau_fraction=0.0, failure_from_strain=0.045)
+    assert late["strength_GPa"] == 40.0 and late["failure_strain"] == 0.06
+    assert "at or after strain 0.045" in late["failure_criterion"]

@@ -54,7 +54,8 @@ def stress_from_force(force_ev_per_a, radius, thickness=WALL_THICKNESS, ntubes=1
 
 
 def curve_metrics(strain, stress, fit_max_strain: float = 0.02, drop: float = 0.05,
-                  plateau_fraction: float = 0.05) -> dict:
+                  plateau_fraction: float = 0.05, failure_from_strain: float | None = None
+                  ) -> dict:
     """Young's modulus, strength and failure strain of a tensile stress–strain curve.
 
     Parameters
@@ -68,6 +69,9 @@ def curve_metrics(strain, stress, fit_max_strain: float = 0.02, drop: float = 0.
         Failure is the first point whose stress is below ``(1 - drop)`` times the running
         maximum; strength is that maximum, reached at ``strain_at_peak``; ``failure_strain``
         is the strain of the dropping point.
+    failure_from_strain : float, optional
+        Only drops at or after this strain count as failure (e.g. the strain of the first
+        broken bond, when the signal rings before it); earlier dips are not failure.
     plateau_fraction : float
         Cutoff-artefact check: if, before failure, the tangent modulus falls below
         ``plateau_fraction * E`` in magnitude at a stress above half the maximum before
@@ -97,7 +101,8 @@ def curve_metrics(strain, stress, fit_max_strain: float = 0.02, drop: float = 0.
                          "use finer strain steps or a larger fit_max_strain")
     E = float(np.polyfit(e[sel], s[sel], 1)[0])  # GPa
     run_max = np.maximum.accumulate(s)
-    dropped = np.nonzero((s < (1.0 - drop) * run_max) & (run_max > 0))[0]
+    late = e >= failure_from_strain - 1e-12 if failure_from_strain is not None else True
+    dropped = np.nonzero((s < (1.0 - drop) * run_max) & (run_max > 0) & late)[0]
     ifail = int(dropped[0]) if len(dropped) else None
     upto = ifail if ifail is not None else len(s)
     ipeak = int(np.argmax(s[:upto]))
@@ -108,7 +113,9 @@ def curve_metrics(strain, stress, fit_max_strain: float = 0.02, drop: float = 0.
            "strength_GPa": float(s[ipeak]), "strain_at_peak": float(e[ipeak]),
            "failure_strain": float(e[ifail]) if ifail is not None else None,
            "failed": ifail is not None, "rise_after_plateau": False,
-           "failure_criterion": f"first stress drop > {100 * drop:g}% below the running max"}
+           "failure_criterion": f"first stress drop > {100 * drop:g}% below the running max"
+                                + (f" at or after strain {failure_from_strain:.4g}"
+                                   if failure_from_strain is not None else "")}
     # plateau-then-rise (cutoff artefact) check on the tangent modulus before failure
     if upto >= 3 and E > 0:
         tangent = np.diff(s[:upto]) / np.diff(e[:upto])

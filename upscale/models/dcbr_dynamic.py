@@ -298,8 +298,10 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     # grip stress (which rings by a few GPa at coarsening 3-4) it took a flat sample
     # before the real peak for the strength: off with the step cutoff (the LAMMPS
     # references, step cutoff too, never trigger it)
-    res.update(curve_metrics(strains, stresses, fit_max_strain=fit_max_strain,
-                             plateau_fraction=0.0 if model.cutoff == "step" else 0.05))
+    def metrics(**kw):
+        return curve_metrics(strains, stresses, fit_max_strain=fit_max_strain,
+                             plateau_fraction=0.0 if model.cutoff == "step" else 0.05, **kw)
+    res.update(metrics())
     res["first_damage"] = first
     # a 5 % dip of the grip stress before any bond has broken is an oscillation of the
     # coarse tube (the zero-energy-like row mode next to the grips rings at a few hundred fs
@@ -307,18 +309,10 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     # first broken bond (LAMMPS's references fail on their first drop; the plain
     # criterion's values are kept as *_first_drop)
     if first is not None and res["failed"] and res["failure_strain"] < first["strain"] - 1e-12:
-        e, sg = np.asarray(strains), np.asarray(stresses)
-        run = np.maximum.accumulate(sg)
-        dr = np.nonzero((sg < 0.95 * run) & (e >= first["strain"] - 1e-12))[0]
-        upto = int(dr[0]) if len(dr) else len(sg)
-        ip = int(np.argmax(sg[:upto]))
-        res.update({"strength_first_drop_GPa": res["strength_GPa"],
-                    "strain_at_peak_first_drop": res["strain_at_peak"],
-                    "strength_GPa": float(sg[ip]), "strain_at_peak": float(e[ip]),
-                    "max_stress_before_failure_GPa": float(sg[ip]),
-                    "failure_strain": float(e[upto]) if upto < len(sg) else None,
-                    "failure_criterion": "first stress drop > 5% below the running max at or "
-                                         "after the first broken bond"})
+        plain = {"strength_first_drop_GPa": res["strength_GPa"],
+                 "strain_at_peak_first_drop": res["strain_at_peak"]}
+        res.update(metrics(failure_from_strain=first["strain"]))
+        res.update(plain)
     res["positions"], res["delta"] = y, d
     res["damage"] = model.damage
     res["wall_s"] = time.perf_counter() - t0
