@@ -288,3 +288,25 @@ def test_hourglass_control_removes_zero_energy_modes():
                                             stability=False))
     on = _zero_modes_beyond_rigid(DCBRTube(10, 10, 25.0, coarsening=4, stability=False))
     assert off > 0 and on == 0
+
+
+def test_sublattice_shift_stays_in_graphenes_basin():
+    """With the step cutoff the lattice energy of BNC.tersoff has a spurious basin half a bond
+    away in the shift (B moved 0.7 Å along the arc of an armchair tube: two bonds shorten to
+    1.23 Å, the third leaves the cutoff; -8.8 to -9.1 eV/atom, below graphene's -7.91, past a
+    +3 eV/atom barrier); the
+    minimiser's bounds keep the shift out of it. Started inside it, the shifts come back to the
+    relaxed graphene lattice; with the bounds lifted the same start stays below e0."""
+    model = DCBRTube(10, 10, 25.0, coarsening=2)
+    lam = 1.125
+    y = model.x0.copy()
+    y[:, 2] *= lam
+    d0 = np.zeros((model.N, 3))
+    d0[:, 0], d0[:, 1] = 0.07, 0.7  # along the arc into the spurious basin (-8.8 eV/atom)
+    y1, d1, _, _, _, _ = model.minimise(y, d0, model.L * lam)
+    assert np.abs(d1).max() <= model.shift_bound + 1e-12
+    assert np.abs(d1).max() < 0.1  # back to the relaxed lattice (0.03 Å at this strain)
+    assert model._e_lat_n.min() > model.e0
+    model.shift_bound = np.inf
+    _, d2, _, _, _, _ = model.minimise(y, d0, model.L * lam)
+    assert model._e_lat_n.min() < model.e0 - 0.5  # the basin the bounds keep out

@@ -214,3 +214,32 @@ def test_corrected_energy_ignores_a_rigid_turn(vac, phi):
     # (the slave particles follow a quadratic fit in the unrolled coordinates, which a
     # rigid turn's displacement is not); the Cartesian dead load moved it by 13.5 eV at pi
     assert abs(E1 - E0) < 0.05, (E0, E1)
+
+
+def test_no_dead_load_on_a_failed_particle():
+    """A failed particle has no energy: the ghost-force dead load leaves it too (left on, it
+    pulled such particles away without bound; a (10,10) K = 4 run lost 900 eV in a step)."""
+    m = DCBRDefectTube(6, 6, 30.0, vacancy=4, **KW)
+    lt, lz, sh = m.uniform_lattice(1.02)
+    y, d, Lz = m.uniform_state(lt, lz, sh)
+    m.prepare_step(Lz)
+    # the carrying particle with the largest dead load
+    nd = len(m.dof_idx)
+    k = int(np.argmax(np.abs(m._ghost["gy"][:nd]).sum(axis=1)))
+    c = m.dof_idx[k]
+    assert np.abs(m._ghost["gy"][k]).max() > 1e-3
+    g = m.gain
+    intact = m.intact & (g.pair_i != c) & (g.pair_j != c)  # all its links broken: it fails
+    m.intact = intact
+    m._build_gain(intact)
+    assert not m.alive[c]
+    _, gy, gd, _ = m.energy_and_gradient(y, d, Lz)
+    _, gy_raw, gd_raw, _ = m._raw_energy_and_gradient(y, d, Lz)
+    # no dead load on the failed particle's axial position and shift (its x, y rows carry
+    # only the others' share of the mean taken through the centroid) ...
+    assert gy[k, 2] == pytest.approx(gy_raw[k, 2], abs=1e-12)
+    assert np.allclose(gd[c], gd_raw[c], atol=1e-12)
+    # ... while a living one keeps its own
+    j = int(np.argmax(np.abs(m._ghost["gy"][:nd, 2]) * m.alive[m.dof_idx]))
+    assert gy[j, 2] == pytest.approx(gy_raw[j, 2] - m._ghost["gy"][j, 2], abs=1e-12)
+    assert abs(m._ghost["gy"][j, 2]) > 1e-3

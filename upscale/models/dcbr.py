@@ -107,7 +107,7 @@ import dataclasses
 import math
 
 import numpy as np
-from scipy.optimize import minimize
+from scipy.optimize import Bounds, minimize
 
 from upscale.models import dcbr_coupling_kernels as CK
 from upscale.models import dcbr_kernels as K
@@ -118,6 +118,19 @@ __all__ = ["tersoff_params", "TubeLattice", "LatticeStability", "DCBRTube",
 
 EV_PER_A3_IN_GPA = 160.21766208
 _BLAS_CONTROLLER = None
+
+
+# Each component of a particle's sublattice shift is held within +-SHIFT_BOUND_FRACTION
+# times the bond length (0.355 Å for 1.42 Å) by the minimiser's bounds. The relaxed lattice
+# shifts by at most 0.2 Å up to 30 % axial strain ((17,0), (12,6); 0.04 Å for (10,10)), but
+# the lattice energy of BNC.tersoff with the step cutoff has a second, spurious basin half a
+# bond away: B moved 0.7 Å along the arc of an armchair tube shortens two bonds to 1.23 Å and
+# takes the third out of the cutoff, and these two-coordinated chains come out at -8.8 to
+# -9.1 eV/atom, below graphene's -7.91, past a barrier of +3 eV/atom. No atomistic tube goes
+# there (every atom would have to move at once), but an L-BFGS line search, which samples
+# energies, stepped over the barrier in a (10,10) K = 4 vacancy run at 12.5 % strain: the
+# stress jumped from 91 to 133 GPa (tests/test_dcbr.py::test_sublattice_shift_stays_in_graphenes_basin).
+SHIFT_BOUND_FRACTION = 0.25
 
 
 def _one_blas_thread():
@@ -483,6 +496,7 @@ class DCBRTube:
         self.kind = kind
         self.coarsening = float(coarsening)
         self.relax_shift = relax_shift
+        self.shift_bound = SHIFT_BOUND_FRACTION * float(self.lattice.bond)
         self.periodic = True  # along the axis; False for an open tube (dynamic tension)
         self.area0 = ds * dz
         self.hourglass = float(hourglass)
@@ -765,14 +779,20 @@ class DCBRTube:
             ys = y.copy()
             ys[:, 2] *= self.L / Lz
             x0 = self._pack(ys, delta, Lz / Lscale)
-        bounds = None
+        # each sublattice shift component stays within +-shift_bound (graphene's basin; see
+        # SHIFT_BOUND_FRACTION), positions are free unless ``fixed``
+        b = self.shift_bound
+        lo = np.full(len(x0), -np.inf)
+        hi = np.full(len(x0), np.inf)
+        lo[3 * Ny:3 * Ny + 3 * N], hi[3 * Ny:3 * Ny + 3 * N] = -b, b
+        x0[3 * Ny:3 * Ny + 3 * N] = np.clip(x0[3 * Ny:3 * Ny + 3 * N], -b, b)
         if fixed is not None:
             fixed = np.asarray(fixed, bool)
             if fixed.shape != y.shape:
                 raise ValueError(f"fixed has shape {fixed.shape}; valid: that of y {y.shape}")
-            fx = np.zeros(len(x0), bool)
-            fx[:3 * Ny] = fixed.ravel()
-            bounds = [(v, v) if f else (None, None) for v, f in zip(x0, fx)]
+            fx = np.nonzero(fixed.ravel())[0]
+            lo[fx] = hi[fx] = x0[fx]
+        bounds = Bounds(lo, hi)
         with _one_blas_thread():
             res = minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=bounds,
                            options={"maxiter": maxiter, "maxcor": 30, "gtol": gtol,

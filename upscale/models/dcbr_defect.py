@@ -541,15 +541,23 @@ class DCBRDefectTube(DCBRTube):
             turn = float(np.angle(np.mean(np.exp(1j * (th - gc["thu"])))))
             dth = turn + (th - gc["thu"] - turn + np.pi) % (2 * np.pi) - np.pi
             gr, gt, rt = gc["gr"], gc["gt"] * gc["rhou"], gc["gy"][:, 2]
+            gdl = gc["gd"]
+            if not self.alive.all():
+                # a failed particle has no energy left: a dead load on it is unbounded below
+                # (the minimiser pushed such particles away without end, the energy of a
+                # (10,10) K = 4 tube fell by 900 eV in one step); the load goes with the energy
+                on = np.r_[self.alive[self.dof_idx].astype(float), np.ones(len(y) - len(self.dof_idx))]
+                gr, gt, rt = gr * on, gt * on, rt * on
+                gdl = gdl * self.alive[:, None]
             E -= float(np.sum(gr * (rho - gc["rhou"]) + gt * dth + rt * (y[:, 2] - gc["y"][:, 2]))
-                       + np.sum(gc["gd"] * (delta - gc["d"])))
+                       + np.sum(gdl * (delta - gc["d"])))
             corr = np.empty_like(gy)
             corr[:, 0] = (gr * xc[:, 0] - gt * xc[:, 1] / rho) / rho
             corr[:, 1] = (gr * xc[:, 1] + gt * xc[:, 0] / rho) / rho
             corr[:, :2] -= corr[:, :2].mean(axis=0)  # through the centroid
             corr[:, 2] = rt
             gy = gy - corr
-            gd = gd - gc["gd"]
+            gd = gd - gdl
             dL = dL + gc["dL"]
         return E, gy, gd, dL
 
