@@ -95,11 +95,12 @@ def test_bad_input(kw, word):
 
 def test_dynamic_tension_short_open_tube():
     """Grips pull an open tube with a vacancy: finite, positive stress whose slope is the
-    tube's modulus (~0.97 TPa quasi-static; the dynamic start-up on a 16 Å gauge allows 20 %)."""
+    tube's modulus (~0.97 TPa quasi-static; the dynamic start-up and the coarse grips'
+    compliance on a 40 Å gauge (8 rows) allow 20 %; on a 19 Å gauge, 4 rows, it read 0.63)."""
     from upscale.models.dcbr_dynamic import dynamic_tension
 
-    m = DCBRDefectTube(6, 6, 40.0, vacancy=4, **KW)
-    res = dynamic_tension(m, grip=10.0, speed=2.0, max_strain=0.015, sample=40)
+    m = DCBRDefectTube(6, 6, 60.0, vacancy=4, **KW)
+    res = dynamic_tension(m, grip=10.0, speed=2.0, max_strain=0.025, sample=40)
     assert res["protocol"] == "dynamic" and res["gauge_length_A"] > 0
     s = np.array(res["curve"]["stress_GPa"])
     assert np.all(np.isfinite(s)) and s[-1] > 0
@@ -173,18 +174,20 @@ def test_dynamic_bad_input(kw, word):
 
 
 @pytest.mark.parametrize("grip", [8.0, 10.0, 12.5])
-def test_dynamic_grips_hold_whole_rows(grip):
-    """A grip holds the rows whose slab (one row spacing h) is centred within ``grip`` of the
-    tube's end, so the gauge (innermost grip rows' distance) exceeds LAMMPS's free length
-    L0 - 2 grip by between 0 and 2 h, whatever the grip length (plus the set-up relaxation's
-    change of the rows' distance, < 0.5 Å: the rows are chosen on the uniform tube)."""
+def test_dynamic_grips_are_lammps_grips(grip):
+    """As LAMMPS's, a grip holds what lies within ``grip`` of the tube's end atoms (here the
+    rows beyond that plane) and the gauge is the distance between the two planes: the atoms'
+    span less 2 grip (to the set-up relaxation of the end rows, < 0.5 Å); the innermost grip
+    rows lie beyond the planes, less than a row spacing h each."""
     from upscale.models.dcbr_dynamic import dynamic_tension
 
     m = DCBRDefectTube(6, 6, 40.0, vacancy=4, **KW)
     rows = np.unique(np.round(m.x0[:, 2], 6))
     h = float(np.median(np.diff(rows)))
-    res = dynamic_tension(m, grip=grip, max_strain=0.01, sample=20, speed=2.0, temperature=0.0)
-    excess = res["gauge_length_A"] - res["free_length_A"]
+    res = dynamic_tension(m, grip=grip, max_strain=0.03, sample=20, speed=2.0, temperature=0.0)
+    span = np.ptp(m.X_atoms[:, 2]) * res["L0_A"] / m.L
+    assert abs(res["gauge_length_A"] - (span - 2 * grip)) < 0.5
+    excess = res["grip_rows_distance_A"] - res["gauge_length_A"]
     assert -0.5 < excess < 2 * h + 0.5, (excess, h)
 
 
@@ -243,3 +246,19 @@ def test_no_dead_load_on_a_failed_particle():
     j = int(np.argmax(np.abs(m._ghost["gy"][:nd, 2]) * m.alive[m.dof_idx]))
     assert gy[j, 2] == pytest.approx(gy_raw[j, 2] - m._ghost["gy"][j, 2], abs=1e-12)
     assert abs(m._ghost["gy"][j, 2]) > 1e-3
+
+
+def test_static_grip_stiffness_is_linear_and_bounded():
+    """The coarse tube held by the dynamic scene's grips: k = F / separation is the same at
+    0.1 % and 0.25 % (linear range), and the modulus over LAMMPS's gauge lies below the
+    periodic one (the coarse grips' compliance; dcbr-grip-stiffness compares with LAMMPS)."""
+    from upscale.models.dcbr_dynamic import static_grip_stiffness
+
+    r1 = static_grip_stiffness(DCBRDefectTube(6, 6, 60.0, vacancy=4, **KW), grip=10.0,
+                               strain=0.001)
+    r2 = static_grip_stiffness(DCBRDefectTube(6, 6, 60.0, vacancy=4, **KW), grip=10.0,
+                               strain=0.0025)
+    assert r1["k_eV_per_A2"] == pytest.approx(r2["k_eV_per_A2"], rel=0.02)
+    assert 0.6 < r2["modulus_TPa"] < 1.0
+    with pytest.raises(ValueError, match="strain=0.1"):
+        static_grip_stiffness(DCBRDefectTube(6, 6, 60.0, vacancy=4, **KW), strain=0.1)

@@ -214,3 +214,20 @@ def test_rebo_and_airebo_run_with_standard_cutoff(spec):
     assert abs(s[0]) < 1e-3 and 0 < s[1] < s[2]
     assert r["potential"]["cutoff"] == "standard"
     assert r["potential"]["file"] == ("CH.rebo" if spec == "rebo" else "CH.airebo")
+
+
+def test_static_grip_stiffness_small_tube():
+    """The dynamic protocol's grips, statically: a 40 Å (10,10) tube with 10 Å grips pulled
+    by 0.25 % of its gauge; the tube between them carries ~1 TPa (its periodic modulus is
+    0.98), and k = F / separation agrees with the modulus over the gauge."""
+    from validation.lammps.tension import static_grip_stiffness
+
+    r = static_grip_stiffness(swcnt(10, 10, 40.0), "tersoff:BNC.tersoff", grip=10.0)
+    assert 0.85 < r["modulus_TPa"] < 1.15
+    area = 2 * math.pi * r["relaxation"]["radius_relaxed_A"] * 3.4
+    E = r["k_eV_per_A2"] * r["gauge_length_A"] / area * 160.21766208 / 1000.0
+    assert E == pytest.approx(r["modulus_TPa"], rel=1e-9)
+    assert r["gauge_length_A"] == pytest.approx(40.0 - 20.0, abs=2.5)
+    assert r["max_residual_force_eV_per_A"] < 1e-3
+    with pytest.raises(ValueError, match="strain=0.2"):
+        static_grip_stiffness(swcnt(10, 10, 40.0), strain=0.2)

@@ -7,17 +7,21 @@ on a :class:`~upscale.models.dcbr_defect.DCBRDefectTube`:
    its vacancy, which changes L0 by ~2e-4 here, and an open tube's length relaxes anyway);
 2. the axial periodicity is removed (G is rebuilt without links across the cell boundary)
    and the open tube is minimised once (R = mean atom radius after it);
-3. end grips of ``grip`` Å (the rows of particles whose slab, one row spacing h thick,
-   is centred within ``grip`` of the tube's end, h/2 beyond the end row) move rigidly apart
-   at ``speed`` Å/ps each; the rest starts with the linear axial velocity ramp between the
-   innermost grip rows; velocity Verlet, ``dt`` fs;
-4. strain = grip separation change / gauge, the initial distance between the innermost grip
-   rows (it exceeds LAMMPS's free length L0 - 2 grip by 0 to 2 h: the grip rows' G reaches
-   into the free part, so the coarse grip boundary is smeared over ~ a row; at coarsening
-   3-4 this makes the dynamic modulus 5-9 % low, while the periodic quasi-static one is
-   within 0.5 %), at the middle of each ``sample``-step block as LAMMPS's; stress = mean of
-   the two grips' reaction forces (sum of -dE/dz over each grip's particles, averaged over
-   the block) over 2 pi R t; the run stops when the stress has fallen below 20 % of its
+3. end grips of ``grip`` Å move rigidly apart at ``speed`` Å/ps each. As LAMMPS's, a grip
+   holds the atoms within ``grip`` of the open tube's end atoms: here the rows of particles
+   that lie beyond that plane (most of their slab's atoms do); the rest starts with the
+   linear axial velocity ramp between the grip planes; velocity Verlet, ``dt`` fs;
+4. strain = grip separation change / gauge, the initial distance between the grip planes
+   (LAMMPS's definition, so strain(t) is the same function of time in both runs), at the
+   middle of each ``sample``-step block as LAMMPS's. The coarse grips are more compliant
+   than LAMMPS's: the G stencils of the rows next to a grip plane smear the step from rigid
+   to stretched over a row spacing h, and the two row parities (the centred stencil's
+   nearly decoupled chains) reach one row apart into the grips; the static grip stiffness
+   is 5-22 % below LAMMPS's on 50 Å gauges ((10,10), coarsening 1-4,
+   ``python -m validation dcbr-grip-stiffness``), so the dynamic modulus is low by about as
+   much, while the periodic quasi-static one, which has no grips, is within 0.5 %. Stress =
+   mean of the two grips' reaction forces (sum of -dE/dz over each grip's particles, averaged
+   over the block) over 2 pi R t; the run stops when the stress has fallen below 20 % of its
    maximum after failure, or at ``max_strain``. Strength as LAMMPS's (the maximum before
    the first drop of 5 %), with the first drop taken at or after the first broken bond
    (see the code: the coarse grip stress rings by a few GPa at coarsening 3-4).
@@ -57,7 +61,7 @@ import numpy as np
 
 from upscale.models.dcbr import EV_PER_A3_IN_GPA, WALL_THICKNESS, uniform_map_frame
 
-__all__ = ["dynamic_tension", "CARBON_MASS"]
+__all__ = ["dynamic_tension", "open_tube_with_grips", "static_grip_stiffness", "CARBON_MASS"]
 
 CARBON_MASS = 12.011  # amu
 
@@ -66,6 +70,112 @@ def _acc_unit() -> float:
     """eV/(Å amu) in Å/fs^2: 1.602176634e-19 J / (1e-10 m 1.66053906660e-27 kg) in m/s^2,
     times 1e-20 (Å/fs^2 per m/s^2)."""
     return 1.602176634e-19 / (1e-10 * 1.66053906660e-27) * 1e-20
+
+
+def open_tube_with_grips(model, grip: float, gtol: float = 1e-4) -> dict:
+    """Steps 1-3 of the module docstring: the open tube relaxed with its grips.
+
+    Returns a dict: ``y``, ``delta`` (the relaxed unknowns), ``L0``, ``R`` (mean atom radius),
+    ``area`` (2 pi R t), the grip masks ``bottom`` and ``top`` over the rows of ``y``, the grip
+    planes ``zb`` < ``zt`` (Å, after the set-up relaxation), ``gauge`` = zt - zb and
+    ``grip_rows`` (the innermost grip rows' distance)."""
+    # the zero-stress uniform lattice (an open tube relaxes its own length, so the periodic
+    # zero-stress iteration of the quasi-static scene is not needed), then the tube is
+    # opened (G without links across the cell boundary) and minimised once
+    lt, lz, sh = model.uniform_lattice(None)
+    y, d, L0 = model.uniform_state(lt, lz, sh)
+    if L0 - 2 * grip <= 0:
+        raise ValueError(f"grip={grip} Å leaves no free length in a {L0:.1f} Å tube; "
+                         f"valid: grip < {L0 / 2:.1f}")
+    model.periodic = False
+    model._build_gain(None)
+    model.prepare_step(L0)
+    nd = len(model.dof_idx)
+    z = y[:, 2]
+    zlo, zhi = model.particle_positions(y)[:, 2].min(), model.particle_positions(y)[:, 2].max()
+    rows0 = np.unique(np.round(model.x0[:, 2], 6))
+    h = float(np.median(np.diff(rows0))) * L0 / model.L if len(rows0) > 1 else 0.0
+    # LAMMPS's grips hold the atoms within ``grip`` of the open tube's end atoms; here a row
+    # of particles belongs to a grip when it lies below (above) that plane, i.e. most of the
+    # atoms of its slab do. The planes are taken on the tube's own atoms (uniform lattice at
+    # L0), and moved with the end rows by the set-up relaxation below (LAMMPS: after its
+    # open-tube minimisation)
+    za = model.X_atoms[:, 2] * (L0 / model.L)
+    zb, zt = float(za.min()) + grip, float(za.max()) - grip
+    bottom = np.zeros(len(y), bool)
+    top = np.zeros(len(y), bool)
+    bottom[:nd] = z[:nd] < zb
+    top[:nd] = z[:nd] > zt
+    if model.nf and (np.any(z[nd:] < zb) or np.any(z[nd:] > zt)):
+        raise ValueError("the atomistic region reaches into a grip; valid: a longer tube or "
+                         "shorter grips")
+    if not (bottom.any() and top.any()):
+        raise ValueError(f"grip={grip} Å holds no row of particles (rows {h:.2f} Å apart); "
+                         f"valid: grip > {0.5 * h:.2f}")
+    grips = bottom | top
+    # the set-up minimisation holds the grips' x and y: the ghost-force dead load is not
+    # invariant under a rigid turn about the axis (its energy goes as -A cos(phi)), and left
+    # free the minimiser turned some open tubes by ~180 deg ((10,10) K3 179 deg, (12,6) K4
+    # 171 deg), after which the dead loads pushed on the wrong atoms; the grips hold x and y
+    # during the pull anyway, as LAMMPS's do
+    fixed = np.zeros_like(y, bool)
+    fixed[grips, :2] = True
+    end_lo, end_hi = (z[:nd] < zlo + 1e-6), (z[:nd] > zhi - 1e-6)  # the end rows
+    z_pre = z[:nd].copy()
+    y, d, _, _, _, _ = model.minimise(y, d, L0, gtol=gtol, fixed=fixed)
+    # the grip planes follow the end rows' relaxation (the end atoms move with them)
+    zb += float(np.mean(y[:nd][end_lo, 2] - z_pre[end_lo]))
+    zt += float(np.mean(y[:nd][end_hi, 2] - z_pre[end_hi]))
+    R = model.radius(y, d)
+    z = y[:, 2]
+    # the gauge is LAMMPS's: the initial distance between the grip planes, so that strain(t)
+    # = 2 v t / gauge is the same function of time in both runs. (Until 2026-11-22 it was the
+    # distance between the innermost grip rows, 0 to 2 h longer; that lowered the strain at a
+    # given grip separation by up to 19 % at coarsening 4 and hid the coarse grips' extra
+    # compliance: the G stencils of the rows next to a grip plane smear the step from rigid
+    # to stretched over a row spacing, and the two row parities form chains that reach one
+    # row apart into the grips (:func:`static_grip_stiffness`). The grip particles keep their
+    # lattice energy: without it the force across the grip plane is carried by one chain
+    # only ((10,10) K = 4 modulus 0.86 -> 0.59 TPa).)
+    return {"y": y, "delta": d, "L0": float(L0), "R": R, "area": 2 * math.pi * R * WALL_THICKNESS,
+            "bottom": bottom, "top": top, "zb": zb, "zt": zt, "gauge": float(zt - zb),
+            "grip_rows": float(z[top].min() - z[bottom].max())}
+
+
+def static_grip_stiffness(model, grip: float = 50.0, strain: float = 0.0025,
+                          gtol: float = 1e-6) -> dict:
+    """Force per grip separation of the open tube held by its grips, statically.
+
+    The tube of :func:`open_tube_with_grips` (the dynamic scene's set-up); the grips are moved
+    apart by ``strain`` times the gauge (all their components held), the free part is
+    minimised with the ghost-force correction at that stretch, and the grips' mean reaction
+    F gives k = F / separation (eV/Å^2). k is free of any gauge convention, so it compares
+    the coarse grips with LAMMPS's (``validation.lammps.tension.static_grip_stiffness``)
+    directly; ``modulus_TPa`` = (F / area) / strain with LAMMPS's gauge."""
+    if not (0 < strain < 0.05):
+        raise ValueError(f"strain={strain!r}; valid: 0 < strain < 0.05 (the linear range)")
+    st = open_tube_with_grips(model, grip, gtol)
+    y0, d0, L0 = st["y"], st["delta"], st["L0"]
+    bottom, top = st["bottom"], st["top"]
+    grips = bottom | top
+    u = 0.5 * strain * st["gauge"]
+    y = y0.copy()
+    y[bottom, 2] -= u
+    y[top, 2] += u
+    zc = 0.5 * (st["zb"] + st["zt"])
+    y[~grips, 2] = zc + (y0[~grips, 2] - zc) * (1 + strain)  # affine start
+    model.prepare_step(L0 * (1 + strain))
+    model._ghost["Lz"] = float(L0)  # the open tube's energy is called with L0
+    fixed = np.zeros_like(y, bool)
+    fixed[grips] = True
+    y, d, _, _, info, _ = model.minimise(y, d0.copy(), L0, gtol=gtol, fixed=fixed)
+    _, gy, _, _ = model.energy_and_gradient(y, d, L0)
+    F = 0.5 * (gy[top, 2].sum() - gy[bottom, 2].sum())
+    return {"k_eV_per_A2": float(F / (2 * u)), "force_eV_per_A": float(F), "strain": strain,
+            "gauge_length_A": st["gauge"], "grip_rows_distance_A": st["grip_rows"],
+            "radius_A": st["R"], "modulus_TPa": float(F / st["area"] * EV_PER_A3_IN_GPA
+                                                      / strain / 1000.0),
+            "max_force_eV_A": info["max_force_eV_A"]}
 
 
 def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1.0,
@@ -96,70 +206,23 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
                          "stretch its interface particles carry) or 'grips' (at the grips' strain)")
     t0 = time.perf_counter()
     acc = _acc_unit()
-    # the zero-stress uniform lattice (an open tube relaxes its own length, so the periodic
-    # zero-stress iteration of the quasi-static scene is not needed), then the tube is
-    # opened (G without links across the cell boundary) and minimised once
-    lt, lz, sh = model.uniform_lattice(None)
-    y, d, L0 = model.uniform_state(lt, lz, sh)
+    st = open_tube_with_grips(model, grip, gtol)
+    y, d, L0, R, area = st["y"], st["delta"], st["L0"], st["R"], st["area"]
+    bottom, top, zb, zt, gauge = st["bottom"], st["top"], st["zb"], st["zt"], st["gauge"]
+    grips, nd, grip_rows = bottom | top, len(model.dof_idx), st["grip_rows"]
     free_len = L0 - 2 * grip
-    if free_len <= 0:
-        raise ValueError(f"grip={grip} Å leaves no free length in a {L0:.1f} Å tube; "
-                         f"valid: grip < {L0 / 2:.1f}")
-    model.periodic = False
-    model._build_gain(None)
-    model.prepare_step(L0)
-    nd = len(model.dof_idx)
-    z = y[:, 2]
-    zlo, zhi = model.particle_positions(y)[:, 2].min(), model.particle_positions(y)[:, 2].max()
-    # a row of particles stands for the slab of atoms one row spacing h thick around it, so
-    # the tube's atoms reach h/2 beyond the end rows; a grip holds the rows whose slab centre
-    # lies within ``grip`` of the tube's end (LAMMPS: the atoms within ``grip`` of the end)
-    rows0 = np.unique(np.round(model.x0[:, 2], 6))
-    h = float(np.median(np.diff(rows0))) * L0 / model.L if len(rows0) > 1 else 0.0
-    zb, zt = zlo - 0.5 * h + grip, zhi + 0.5 * h - grip
-    bottom = np.zeros(len(y), bool)
-    top = np.zeros(len(y), bool)
-    bottom[:nd] = z[:nd] < zb
-    top[:nd] = z[:nd] > zt
-    if model.nf and (np.any(z[nd:] < zb) or np.any(z[nd:] > zt)):
-        raise ValueError("the atomistic region reaches into a grip; valid: a longer tube or "
-                         "shorter grips")
-    if not (bottom.any() and top.any()):
-        raise ValueError(f"grip={grip} Å holds no row of particles (rows {h:.2f} Å apart); "
-                         f"valid: grip > {0.5 * h:.2f}")
-    grips = bottom | top
-    # the set-up minimisation holds the grips' x and y: the ghost-force dead load is not
-    # invariant under a rigid turn about the axis (its energy goes as -A cos(phi)), and left
-    # free the minimiser turned some open tubes by ~180 deg ((10,10) K3 179 deg, (12,6) K4
-    # 171 deg), after which the dead loads pushed on the wrong atoms; the grips hold x and y
-    # during the pull anyway, as LAMMPS's do
-    fixed = np.zeros_like(y, bool)
-    fixed[grips, :2] = True
-    y, d, _, _, _, _ = model.minimise(y, d, L0, gtol=gtol, fixed=fixed)
-    R = model.radius(y, d)
-    area = 2 * math.pi * R * WALL_THICKNESS
     t_relax = time.perf_counter() - t0
     z = y[:, 2]
     zlo, zhi = model.particle_positions(y)[:, 2].min(), model.particle_positions(y)[:, 2].max()
-    # the gauge: between the innermost grip rows (the material that deforms; LAMMPS's gauge
-    # is likewise the distance between its innermost grip atoms). The grip particles keep
-    # their lattice energy: the force across a plane in the coarse model comes from the G
-    # stencils of the particles on both sides of it, so grips without energy would pass on
-    # only part of it (tried: the (10,10) K = 4 modulus fell from 0.86 to 0.59 TPa). Their
-    # G reaches 1.5 spacings into the free part, so the innermost grip rows deform a little
-    # and the gauge acts slightly longer than the rows' distance (reported, not corrected).
-    gauge = float(z[top].min() - z[bottom].max())
     w = np.maximum(model.natoms_n[model.dof_idx], 0.5 * model.nominal)
     mass = np.concatenate([w, np.ones(model.nf)]) * CARBON_MASS
     mass_d = np.maximum(model.natoms_n, 0.5 * model.nominal) * CARBON_MASS / 4.0
     vz = 1e-3 * speed  # Å/fs
     v = np.zeros_like(y)
-    # the axial velocity ramp runs between the innermost grip rows (whose speed is imposed),
-    # i.e. the uniform strain rate of the gauge (LAMMPS: between its grip planes); a ramp
-    # ending elsewhere starts the gauge's axial standing wave
-    zg0, zg1 = z[bottom].max(), z[top].min()
-    zc = 0.5 * (zg0 + zg1)
-    v[:, 2] = np.clip((z - zc) / (0.5 * (zg1 - zg0)), -1, 1) * vz
+    # the axial velocity ramp: the uniform strain rate of the gauge (a ramp ending elsewhere
+    # starts the gauge's axial standing wave)
+    zc = 0.5 * (zb + zt)  # between the grip planes, as LAMMPS's velocity ramp
+    v[:, 2] = np.clip((z - zc) / (0.5 * gauge), -1, 1) * vz
     v[bottom, 2], v[top, 2] = -vz, vz
     vd = np.zeros_like(d)
     movable = ~grips
@@ -291,6 +354,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
            "particles": model.N, "dof": model.dof, "atoms": model.n_atoms, "L0_A": float(L0),
            "radius_relaxed_A": R, "area_A2": area, "grip_A": grip, "speed_A_per_ps": speed,
            "dt_fs": dt, "steps": step, "free_length_A": free_len, "gauge_length_A": gauge,
+           "grip_rows_distance_A": grip_rows,
            "curve": {"strain": strains, "stress_GPa": stresses, "time_ps": times,
                      "atoms_off_wall": off_wall, "free_atom_kinetic_eV": kinetic}}
     # the plateau-then-rise rule of curve_metrics flags the switching-function artefact of

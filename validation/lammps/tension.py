@@ -61,7 +61,7 @@ from upscale.analysis.stress import (WALL_THICKNESS, curve_metrics, stress_from_
 from validation.lammps.potential import Potential, resolve_potential
 
 __all__ = ["relax_zero_stress", "quasi_static_tension", "dynamic_tension", "default_dump_dir",
-           "CARBON_MASS"]
+           "static_grip_stiffness", "CARBON_MASS"]
 
 CARBON_MASS = 12.011  # amu
 
@@ -576,4 +576,71 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
     # tube's minimisation, and the pull (dynamics, sampling and dump)
     res["timing_s"] = {"zero_stress_relaxation": t_periodic, "open_tube_minimisation": t_open,
                        "dynamics": time.perf_counter() - t2, "steps": step}
+    return res
+
+
+def static_grip_stiffness(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="step",
+                          grip: float = 50.0, strain: float = 0.0025, ftol: float = 1e-8,
+                          relax_ftol: float = 1e-6) -> dict:
+    """Force per grip separation of the open tube held by the dynamic protocol's grips.
+
+    The set-up of :func:`dynamic_tension` (zero-stress periodic relaxation, the tube cut open
+    and minimised, grips = the atoms within ``grip`` of the end atoms); then the grips are
+    moved apart rigidly by ``strain`` times the gauge (the grip planes' distance) and the
+    free atoms are minimised with the grips held (``fix setforce 0 0 0``; CG to ``ftol``).
+    The grips' mean reaction F gives k = F / separation (eV/Å^2), a stiffness free of any
+    gauge convention; ``modulus_TPa`` = (F / area) / strain with the gauge above.
+    """
+    _check_atoms(atoms)
+    if not (0 < strain < 0.05):
+        raise ValueError(f"strain={strain!r}; valid: 0 < strain < 0.05 (the linear range)")
+    t0 = time.perf_counter()
+    pot = resolve_potential(potential, cutoff)
+    relaxed, rinfo = relax_zero_stress(atoms, potential, cutoff, relax_ftol, _pot=pot)
+    L0, R = rinfo["L0_A"], rinfo["radius_relaxed_A"]
+    if L0 - 2.0 * grip < 10.0:
+        raise ValueError(f"grip={grip} Å leaves a free length {L0 - 2 * grip:.2f} Å of a "
+                         f"{L0:.2f} Å tube; valid: 2 grip <= L0 - 10 Å (use a longer tube)")
+    n = len(relaxed)
+    x = relaxed.get_positions()
+    x[:, 2] = np.mod(x[:, 2], L0)
+    relaxed.set_positions(x)
+    lmp, types = _setup(relaxed, pot, "s s s", box=relaxed.cell.lengths().copy())
+    try:
+        _minimize(lmp, ftol)
+        x = _positions(lmp, n)
+        zb, zt = float(x[:, 2].min()) + float(grip), float(x[:, 2].max()) - float(grip)
+        sep0 = zt - zb
+        u = 0.5 * strain * sep0
+        lmp.commands_list([
+            f"region rbot block INF INF INF INF INF {zb!r} units box",
+            f"region rtop block INF INF INF INF {zt!r} INF units box",
+            "group bot region rbot", "group top region rtop",
+            "fix sfb bot setforce 0.0 0.0 0.0", "fix sft top setforce 0.0 0.0 0.0",
+            f"displace_atoms bot move 0 0 {-u!r} units box",
+            f"displace_atoms top move 0 0 {u!r} units box"])
+        _minimize(lmp, ftol)
+        lmp.command("run 0")
+        from potentials.lammps_runtime import lammps_module  # noqa: PLC0415
+
+        c = lammps_module()
+        fb = lmp.extract_fix("sfb", c.LMP_STYLE_GLOBAL, c.LMP_TYPE_VECTOR, 2)
+        ft = lmp.extract_fix("sft", c.LMP_STYLE_GLOBAL, c.LMP_TYPE_VECTOR, 2)
+        fmax = float(_thermo(lmp)["Fmax"])
+    finally:
+        lmp.close()
+    F = 0.5 * (fb - ft)  # tension: the bottom grip is pulled +z, the top one -z
+    res = _common(atoms, pot, "static-grip", rinfo, types)
+    res.update({"k_eV_per_A2": float(F / (2 * u)), "force_eV_per_A": float(F),
+                "strain": strain, "grip_A": grip, "gauge_length_A": sep0,
+                "modulus_TPa": float(stress_from_force(F, R, WALL_THICKNESS, int(types.max())))
+                / strain / 1000.0,
+                "max_residual_force_eV_per_A": fmax, "wall_s": time.perf_counter() - t0,
+                "protocol_detail": {
+                    "set-up": "as dynamic_tension: zero-stress periodic relaxation, cut open "
+                              f"at the cell boundary, minimised (ftol {ftol} eV/A)",
+                    "grips": f"atoms within {grip} A of the end atoms, moved apart rigidly by "
+                             f"strain * gauge, held by fix setforce 0 0 0",
+                    "minimize": f"min_style cg, etol 0, ftol {ftol} eV/A",
+                    "k": "mean grip reaction / grip separation"}})
     return res
