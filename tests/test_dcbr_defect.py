@@ -262,3 +262,26 @@ def test_static_grip_stiffness_is_linear_and_bounded():
     assert 0.6 < r2["modulus_TPa"] < 1.0
     with pytest.raises(ValueError, match="strain=0.1"):
         static_grip_stiffness(DCBRDefectTube(6, 6, 60.0, vacancy=4, **KW), strain=0.1)
+
+
+def test_tube_extent_ignores_particles_that_left():
+    """The crack fit and the damage map take the tube's axial extent from its living carrying
+    particles: a failed particle flown 1,300 Å away (a (50,50) K = 4 run) neither stretches
+    the map nor lets the atoms it carried into the crack fit (which then read 3 deg)."""
+    from validation.cases.dcbr import _tube_z_range
+
+    m = DCBRDefectTube(6, 6, 30.0, vacancy=4, **KW)
+    lt, lz, sh = m.uniform_lattice(1.0)
+    y, d, Lz = m.uniform_state(lt, lz, sh)
+    z0, z1 = _tube_z_range(m, y)
+    k = 0
+    c = m.dof_idx[k]
+    y[k, 2] -= 1300.0
+    alive = m.alive.copy()
+    try:
+        m.alive[c] = False
+        lo, hi = _tube_z_range(m, y)
+        assert z0 <= lo and hi <= z1
+    finally:
+        m.alive[:] = alive
+    assert _tube_z_range(m, y)[0] < -1000.0  # alive, it would count

@@ -328,6 +328,14 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
     return out
 
 
+def _tube_z_range(model, y):
+    """Axial extent of the tube: its living, carrying particles (a failed or slave particle
+    can leave with the atoms it follows after the break)."""
+    yp = model.particle_positions(y) if hasattr(model, "particle_positions") else y
+    keep = model.alive & ~getattr(model, "is_slave", np.zeros(model.N, bool))
+    return float(yp[keep, 2].min()), float(yp[keep, 2].max())
+
+
 def _crack(model, res) -> dict:
     """Damage of the free atoms at the last step and the crack line through the damaged ones
     (unrolled wall, the references' convention: 90 deg = across the axis)."""
@@ -336,14 +344,16 @@ def _crack(model, res) -> dict:
     Lz = res["curve"]["Lz_A"][-1]
     mu = model.atom_damage(res["positions"], res["delta"], Lz)
     xf, _ = model.atom_positions(res["positions"], res["delta"], Lz)
-    c = xf[:, :2].mean(axis=0)
+    # the axis through the particles' centroid (an atom thrown off moves the free atoms' one)
+    c = model.particle_positions(res["positions"])[:, :2].mean(axis=0)
     th = np.unwrap(np.arctan2(xf[:, 1] - c[1], xf[:, 0] - c[0]))
     R = res["radius_relaxed_A"]
     s_, z_ = R * ((th - model.vacancy_theta_z[0] + np.pi) % (2 * np.pi) - np.pi), xf[:, 2]
     # atoms thrown off the wall after fracture are left out (the references' rule)
     on_wall = np.abs(np.hypot(xf[:, 0] - c[0], xf[:, 1] - c[1]) - R) < 3.0
-    zt = model.particle_positions(res["positions"])[:, 2]
-    on_wall &= (xf[:, 2] > zt.min()) & (xf[:, 2] < zt.max())
+    # and those beyond the tube's ends
+    z0, z1 = _tube_z_range(model, res["positions"])
+    on_wall &= (xf[:, 2] > z0) & (xf[:, 2] < z1)
     dmg = (mu > 0) & on_wall
     out = {"_atom_damage": mu, "damaged_atoms": int(dmg.sum()),
            "ejected_atoms": int((~on_wall).sum())}
@@ -379,12 +389,15 @@ def _plot(res, ref, out, path, model):
         else res["positions"]
     c = yp[:, :2].mean(axis=0)
     th = np.degrees(np.arctan2(yp[:, 1] - c[1], yp[:, 0] - c[0]))
-    sc = ax[1].scatter(yp[:, 2], th, c=res["damage"], vmin=0, vmax=1, cmap="viridis", s=18)
+    z0, z1 = _tube_z_range(model, res["positions"])
+    inside = (yp[:, 2] >= z0) & (yp[:, 2] <= z1)  # particles that left the tube not shown
+    sc = ax[1].scatter(yp[inside, 2], th[inside], c=np.asarray(res["damage"])[inside], vmin=0,
+                       vmax=1, cmap="viridis", s=18)
     if "_atom_damage" in res:  # the free atoms of the atomistic region
         xf, _ = model.atom_positions(res["positions"], res["delta"], res["curve"]["Lz_A"][-1])
         tha = np.degrees(np.arctan2(xf[:, 1] - c[1], xf[:, 0] - c[0]))
         keep = (np.abs(np.hypot(xf[:, 0] - c[0], xf[:, 1] - c[1]) - out["radius_A"]) < 3.0) \
-            & (xf[:, 2] > yp[:, 2].min()) & (xf[:, 2] < yp[:, 2].max())  # not thrown off
+            & (xf[:, 2] > z0) & (xf[:, 2] < z1)  # not thrown off
         ax[1].scatter(xf[keep, 2], tha[keep], c=res["_atom_damage"][keep], vmin=0, vmax=1,
                       cmap="viridis", s=6, marker=".")
         if out.get("crack_angle_deg") is not None:
