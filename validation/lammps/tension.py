@@ -17,7 +17,10 @@ Quasi-static tension (periodic tube or bundle)
     still above 1e-4 eV/Å, up to 5000 steps of damped dynamics (``min_style quickmin``, 1 fs, at most
     0.02 Å per step), then CG again, up to 3 times: the step cutoff makes the energy jump by ~2.4 eV when a C–C bond crosses 2.1 Å,
     which stops CG line searches with a bond held at the step; the residual force of every
-    step is kept in the curve). The stress is
+    step is kept in the curve). These are the defaults; the fallback's style (quickmin or
+    FIRE), ``dmax``, time step, step limit and number of cycles (0: CG only), the CG line
+    search, ``fmax_tol`` and the strain step are keyword arguments of
+    :func:`quasi_static_tension`, recorded in ``protocol_detail``. The stress is
     ``-p_zz V / (ntubes 2 pi R t L)``. The run stops two steps after failure (first drop of
     more than 5 % below the running maximum) or at ``max_strain``.
 
@@ -148,31 +151,42 @@ def _minimize(lmp, ftol, maxiter=20000):
     lmp.command(f"minimize 0.0 {ftol} {maxiter} {10 * maxiter}")
 
 
-DAMPED_STYLE = "quickmin"
+DAMPED_STYLE = "quickmin"  # the default damped-dynamics minimiser of the fallback
+DAMPED_STYLES = ("quickmin", "fire")
+LINE_SEARCHES = ("quadratic", "backtrack", "forcezero")
 
 
 def _minimize_robust(lmp, ftol, fmax_tol=1e-4, cycles=3, maxiter=20000,
-                     md_steps=5000, md_limit=0.02) -> dict:
+                     md_steps=5000, md_limit=0.02, md_timestep=0.001,
+                     damped_style=DAMPED_STYLE, line_search="quadratic") -> dict:
     """CG, and while the largest force component stays above ``fmax_tol`` eV/Å, damped
-    dynamics then CG again (at most ``cycles`` times).
+    dynamics then CG again (at most ``cycles`` times; 0: CG only).
 
     With the step cutoff the energy jumps by ~2.4 eV when a C–C bond crosses 2.1 Å, so the
     CG line search stops ("linesearch alpha is zero") with a stretched bond held at the step
     and a residual force of order 1 eV/Å. Damped dynamics is force-based and, like MD, steps
-    over the 2e-5 Å switching window: LAMMPS ``min_style quickmin`` (velocity projected on
-    the force, zeroed when it points uphill; 1 fs steps; no atom moves more than ``md_limit``
-    Å per step), at most ``md_steps`` steps, then CG converges the new state. FIRE was tried
-    first and lost atoms when a pristine tube failed; a viscous ``nve/limit`` run did not
-    carry cracks through. Returns the final ``fmax`` and the number of damped cycles.
+    over the 2e-5 Å switching window: by default LAMMPS ``min_style quickmin`` (velocity
+    projected on the force, zeroed when it points uphill; ``md_timestep`` ps steps, 1 fs; no
+    atom moves more than ``md_limit`` Å per step), at most ``md_steps`` steps, then CG
+    converges the new state. ``damped_style="fire"`` uses LAMMPS's FIRE (its default
+    parameters, the same time step and ``dmax``) instead; it was tried first and lost atoms
+    when a pristine tube failed; a viscous ``nve/limit`` run did not carry cracks through.
+    ``line_search`` is the CG line search (``min_modify line``; LAMMPS resets it, and
+    ``dmax``, on every ``min_style``, so it is set after each). Returns the final ``fmax``
+    and the number of damped cycles.
     """
+    cg = ["min_style cg"] + ([f"min_modify line {line_search}"]
+                             if line_search != "quadratic" else [])
+    if line_search != "quadratic":
+        lmp.commands_list(cg)
     _minimize(lmp, ftol, maxiter)
     th = _thermo(lmp)
     k = 0
     while th["Fmax"] > fmax_tol and k < cycles:
-        lmp.commands_list(["timestep 0.001", f"min_style {DAMPED_STYLE}",
-                           f"min_modify dmax {md_limit}"])
+        lmp.commands_list([f"timestep {md_timestep!r}", f"min_style {damped_style}",
+                           f"min_modify dmax {md_limit!r}"])
         _minimize(lmp, 1e-3, md_steps)
-        lmp.commands_list(["min_style cg", "min_modify dmax 0.1"])
+        lmp.commands_list(cg + ["min_modify dmax 0.1"])
         _minimize(lmp, ftol, maxiter)
         th = _thermo(lmp)
         k += 1
@@ -288,7 +302,10 @@ def quasi_static_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
                          ftol: float = 1e-8, fmax_tol: float = 1e-4,
                          relax_ftol: float = 1e-6, fit_max_strain: float = 0.02,
                          dump: str | Path | None = None, after_failure: int = 1,
-                         progress=None, nprocs: int = 1) -> dict:
+                         progress=None, nprocs: int = 1, damped_style: str = DAMPED_STYLE,
+                         damped_dmax: float = 0.02, damped_timestep_ps: float = 0.001,
+                         damped_steps: int = 5000, damped_cycles: int = 3,
+                         line_search: str = "quadratic") -> dict:
     """Quasi-static axial tension of a periodic tube or bundle (module docstring).
 
     Parameters
@@ -302,6 +319,20 @@ def quasi_static_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
         Strain increment and the largest strain applied (dimensionless).
     ftol : float
         LAMMPS minimize force tolerance (2-norm of the global force vector), eV/Å.
+    fmax_tol : float
+        Largest force component, eV/Å, above which a strain step gets damped dynamics and
+        CG again (module docstring).
+    damped_style : {"quickmin", "fire"}
+        LAMMPS ``min_style`` of the damped-dynamics fallback.
+    damped_dmax, damped_timestep_ps, damped_steps : float, float, int
+        Its largest move of an atom per step (Å, ``min_modify dmax``), time step (ps) and
+        step limit.
+    damped_cycles : int
+        At most this many damped-dynamics + CG cycles per strain step; 0: CG only (the
+        residual force of every step is still recorded).
+    line_search : {"quadratic", "backtrack", "forcezero"}
+        CG line search (``min_modify line``) of the strain steps (the zero-stress relaxation
+        always uses the default, quadratic).
     dump : path, optional
         LAMMPS dump file (``id type x y z``), one frame per strain (the first is eps = 0).
     progress : callable, optional
@@ -316,13 +347,30 @@ def quasi_static_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
     if not (0 < strain_step < max_strain <= 2.0):
         raise ValueError(f"strain_step={strain_step}, max_strain={max_strain}; valid: "
                          "0 < strain_step < max_strain <= 2")
+    if damped_style not in DAMPED_STYLES:
+        raise ValueError(f"damped_style={damped_style!r}; valid: {', '.join(DAMPED_STYLES)}")
+    if line_search not in LINE_SEARCHES:
+        raise ValueError(f"line_search={line_search!r}; valid: {', '.join(LINE_SEARCHES)}")
+    for name, v, lo in (("damped_dmax", damped_dmax, 0.0),
+                        ("damped_timestep_ps", damped_timestep_ps, 0.0),
+                        ("fmax_tol", fmax_tol, None)):
+        if isinstance(v, bool) or not isinstance(v, (int, float)) or not math.isfinite(v) \
+                or (v <= 0 if lo is not None else v < 0):
+            raise ValueError(f"{name}={v!r}; valid: a finite number "
+                             + ("> 0" if lo is not None else ">= 0"))
+    for name, v, lo in (("damped_cycles", damped_cycles, 0), ("damped_steps", damped_steps, 1)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
+            raise ValueError(f"{name}={v!r}; valid: an integer >= {lo}")
     if nprocs != 1:
         from validation.lammps.mpi import run_mpi  # noqa: PLC0415
 
         return run_mpi("quasi_static_tension", atoms, nprocs, potential=potential,
                        cutoff=cutoff, strain_step=strain_step, max_strain=max_strain,
                        ftol=ftol, fmax_tol=fmax_tol, relax_ftol=relax_ftol,
-                       fit_max_strain=fit_max_strain, dump=dump, after_failure=after_failure)
+                       fit_max_strain=fit_max_strain, dump=dump, after_failure=after_failure,
+                       damped_style=damped_style, damped_dmax=damped_dmax,
+                       damped_timestep_ps=damped_timestep_ps, damped_steps=damped_steps,
+                       damped_cycles=damped_cycles, line_search=line_search)
     t0 = time.perf_counter()
     pot = resolve_potential(potential, cutoff)
     relaxed, rinfo = relax_zero_stress(atoms, potential, cutoff, relax_ftol, _pot=pot)
@@ -345,7 +393,10 @@ def quasi_static_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
             lmp.command(f"change_box all z final {zlo!r} {zlo + L0 * (1.0 + eps)!r} "
                         "remap units box")
             try:
-                mres = _minimize_robust(lmp, ftol, fmax_tol)
+                mres = _minimize_robust(lmp, ftol, fmax_tol, cycles=int(damped_cycles),
+                                        md_steps=int(damped_steps), md_limit=damped_dmax,
+                                        md_timestep=damped_timestep_ps,
+                                        damped_style=damped_style, line_search=line_search)
             except Exception as exc:  # LAMMPS error inside a failing step (e.g. lost atoms)
                 if failed_at is None and not stresses:
                     raise
@@ -378,10 +429,18 @@ def quasi_static_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
         "relaxation": "fix box/relax z 0.0 vmax 0.001 + minimize (cg) x2, then fixed-box "
                       f"minimize, ftol {relax_ftol} eV/A",
         "strain_step": strain_step, "max_strain": max_strain,
-        "minimize": f"min_style cg, etol 0, ftol {ftol} eV/A, maxiter 20000; while fmax > "
-                    f"{fmax_tol} eV/A: quickmin (<= 5000 steps, dmax 0.02 A, ftol 1e-3) "
-                    "then cg, at most 3 cycles (the step cutoff stops CG line searches at "
-                    "the step)",
+        "minimize": (f"min_style cg (line search {line_search}), etol 0, ftol {ftol} eV/A, "
+                     "maxiter 20000; "
+                     + (f"while fmax > {fmax_tol} eV/A: {damped_style} (<= {damped_steps} "
+                        f"steps of {damped_timestep_ps:g} ps, dmax {damped_dmax:g} A, ftol "
+                        f"1e-3) then cg, at most {damped_cycles} cycles (the step cutoff "
+                        "stops CG line searches at the step)" if damped_cycles > 0 else
+                        "CG only, no damped dynamics (the residual fmax of each step is "
+                        "kept)")),
+        "fmax_tol_eV_per_A": fmax_tol, "damped_style": damped_style,
+        "damped_dmax_A": damped_dmax, "damped_timestep_ps": damped_timestep_ps,
+        "damped_steps": damped_steps, "damped_cycles": damped_cycles,
+        "line_search": line_search,
         "stress": "-pzz V / (ntubes 2 pi R t Lz)",
         "after_failure_steps": after_failure}
     res["curve"] = {"strain": strains, "stress_GPa": stresses, "energy_eV": energies,
