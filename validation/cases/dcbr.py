@@ -236,9 +236,11 @@ def _tension_args(p):
                    "region, Å (default 8)")
     p.add_argument("--region", choices=("band", "disc"), default="band",
                    help="with --vacancy: atomistic band all around the tube or a disc")
-    p.add_argument("--step-crossing", choices=("energy", "always"), default="energy",
-                   help="with --vacancy: a pair held at the step cutoff crosses it when that "
-                   "lowers the energy (default) or always (as LAMMPS's damped dynamics)")
+    p.add_argument("--step-crossing", choices=("damped", "energy", "force", "always"),
+                   default="damped",
+                   help="with --vacancy: how a pair held at the step cutoff goes across: "
+                   "damped dynamics then L-BFGS (default, LAMMPS's quasi-static protocol), or "
+                   "single pairs when that lowers the energy, when the force pushes, always")
     p.add_argument("--dynamic", action="store_true",
                    help="dynamic tension of the open tube with grips (with --vacancy)")
     p.add_argument("--strain-step", type=float, default=0.005)
@@ -251,7 +253,7 @@ def _tension_args(p):
 def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=False,
                            dynamic=False, outdir=None, plot=True, verbose=True,
                            hourglass=0.1, r_atomistic=8.0, region="band",
-                           step_crossing="energy", temperature=10.0) -> dict:
+                           step_crossing="damped", temperature=10.0) -> dict:
     """Coarse (DCBR) and LAMMPS quasi-static tension of one tube, with errors and speed-up.
 
     With ``vacancy`` the coarse model is :class:`upscale.models.dcbr_defect.DCBRDefectTube`
