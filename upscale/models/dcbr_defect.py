@@ -713,7 +713,6 @@ class DCBRDefectTube(DCBRTube):
         carried atoms (at least half its share), a shift the reduced mass of its pair of
         sublattices (as the dynamic scene)."""
         acc = 1.602176634e-19 / (1e-10 * 1.66053906660e-27) * 1e-20  # eV/(Å amu) in Å/fs^2
-        nd = len(self.dof_idx)
         w = np.maximum(self.natoms_n[self.dof_idx], 0.5 * self.nominal)
         m = np.concatenate([w, np.ones(self.nf)])[:, None] * 12.011
         md = np.maximum(self.natoms_n, 0.5 * self.nominal)[:, None] * 12.011 / 4.0
@@ -741,7 +740,6 @@ class DCBRDefectTube(DCBRTube):
                 sy, sd = sy * (dmax / big), sd * (dmax / big)
             y += sy
             delta = np.clip(delta + sd, -b, b)
-        del nd
         return y, delta
 
     def _rotation_pins(self, y):
@@ -829,6 +827,19 @@ class DCBRDefectTube(DCBRTube):
         push = np.where(rn < rc, -dEdr, dEdr)
         order = np.argsort(-push)
         done = set() if done is None else done
+
+        def across(a, b, rr, v):  # the unknowns with pair (a, b) moved across the step
+            move = ((rc - window if rr >= rc - 1e-5 else rc + window) - rr) * v / rr
+            yt = y.copy()  # move: the change of x_b - x_a, shared by the free atoms
+            if a < self.nf and b < self.nf:
+                yt[nd + a] -= 0.5 * move
+                yt[nd + b] += 0.5 * move
+            elif a < self.nf:
+                yt[nd + a] -= move
+            else:
+                yt[nd + b] += move
+            return yt
+
         if self.step_crossing == "force":
             # the pair the force pushes across hardest goes through, whatever the energy
             # does: MD and damped dynamics (LAMMPS's quickmin fallback) feel no barrier at
@@ -838,33 +849,12 @@ class DCBRDefectTube(DCBRTube):
                 if push[i] <= 10 * gtol or key in done:
                     continue
                 done.add(key)
-                a, b = key
-                rr, v = rn[i], vn[i]
-                target = rc - window if rr >= rc - 1e-5 else rc + window
-                move = (target - rr) * v / rr
-                yt = y.copy()
-                if a < self.nf and b < self.nf:
-                    yt[nd + a] -= 0.5 * move
-                    yt[nd + b] += 0.5 * move
-                elif a < self.nf:
-                    yt[nd + a] -= move
-                else:
-                    yt[nd + b] += move
+                yt = across(*key, rn[i], vn[i])
                 return DCBRTube.minimise(self, yt, delta, Lz, gtol=gtol, maxiter=maxiter,
                                          fixed=fixed)
             return None
         for (a, b), rr, v in list(zip(pn[order], rn[order], vn[order]))[:4]:
-            target = rc - window if rr >= rc - 1e-5 else rc + window
-            move = (target - rr) * v / rr  # change of x_b - x_a
-            fa, fb = a < self.nf, b < self.nf
-            yt = y.copy()
-            if fa and fb:
-                yt[nd + a] -= 0.5 * move
-                yt[nd + b] += 0.5 * move
-            elif fa:
-                yt[nd + a] -= move
-            else:
-                yt[nd + b] += move
+            yt = across(a, b, rr, v)
             trial = DCBRTube.minimise(self, yt, delta, Lz, gtol=gtol, maxiter=maxiter,
                                       fixed=fixed)
             if trial[3] < E0 - 1e-6 or self.step_crossing == "always":
