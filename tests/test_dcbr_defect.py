@@ -285,3 +285,8 @@ def test_tube_extent_ignores_particles_that_left():
     finally:
         m.alive[:] = alive
     assert _tube_z_range(m, y)[0] < -1000.0  # alive, it would count
+    try:  # every particle failed (a pristine periodic tube fails everywhere at once)
+        m.alive[:] = False
+        assert _tube_z_range(m, y)[0] < -1000.0
+    finally:
+        m.alive[:] = alive

@@ -335,6 +335,8 @@ def _tube_z_range(model, y):
     can leave with the atoms it follows after the break)."""
     yp = model.particle_positions(y) if hasattr(model, "particle_positions") else y
     keep = model.alive & ~getattr(model, "is_slave", np.zeros(model.N, bool))
+    if not keep.any():  # a pristine periodic tube fails everywhere at once: all of them
+        keep = np.ones(model.N, bool)
     return float(yp[keep, 2].min()), float(yp[keep, 2].max())
 
 
