@@ -310,3 +310,28 @@ def test_sublattice_shift_stays_in_graphenes_basin():
     model.shift_bound = np.inf
     _, d2, _, _, _, _ = model.minimise(y, d0, model.L * lam)
     assert model._e_lat_n.min() < model.e0 - 0.5  # the basin the bounds keep out
+
+
+def test_minimiser_steps_back_from_a_trial_off_the_map():
+    """A line-search trial whose energy cannot be evaluated (FloatingPointError: an atom
+    mapped to NaN after a kink) counts as infinite energy: the minimiser ends on its last
+    good (finite, not higher) state instead of stopping the run with the error."""
+    model = DCBRTube(10, 10, 25.0, coarsening=2)
+    lam = 1.03
+    y = model.x0.copy()
+    y[:, 2] *= lam
+    rng = np.random.default_rng(0)
+    y += rng.normal(scale=0.05, size=y.shape)
+    E0 = model.energy_and_gradient(y, np.zeros((model.N, 3)), model.L * lam)[0]
+    real = model.energy_and_gradient
+    calls = [0]
+
+    def flaky(yy, dd, L):
+        calls[0] += 1
+        if calls[0] in (3, 4):
+            raise FloatingPointError("atom 0 has a non-finite position")
+        return real(yy, dd, L)
+
+    model.energy_and_gradient = flaky
+    y1, d1, _, E1, info, _ = model.minimise(y, np.zeros((model.N, 3)), model.L * lam)
+    assert calls[0] > 4 and np.all(np.isfinite(y1)) and np.isfinite(E1) and E1 <= E0

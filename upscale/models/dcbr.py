@@ -767,13 +767,29 @@ class DCBRTube:
             if relax_box:  # positions scale with the box along z (affine in z)
                 yy = yy.copy()
                 yy[:, 2] *= L / self.L
-            E, gy, gd, gL = self.energy_and_gradient(yy, dd, L)
+            # a trial point off the map (non-finite unknowns, energy or forces after a
+            # kink) gets an infinite energy, so the line search steps back; the lowest
+            # finite point seen is kept in case the minimiser still ends on such a point
+            if not np.all(np.isfinite(xv)):
+                return np.inf, np.zeros_like(xv)
+            try:
+                E, gy, gd, gL = self.energy_and_gradient(yy, dd, L)
+            except FloatingPointError:
+                return np.inf, np.zeros_like(xv)
             if relax_box:
                 gL_tot = gL + np.dot(gy[:, 2], xv[:3 * Ny].reshape(Ny, 3)[:, 2]) / self.L
                 gy = gy.copy()
                 gy[:, 2] *= L / self.L
-                return E, np.concatenate([gy.ravel(), gd.ravel(), [gL_tot * Lscale]])
-            return E, np.concatenate([gy.ravel(), gd.ravel()])
+                g = np.concatenate([gy.ravel(), gd.ravel(), [gL_tot * Lscale]])
+            else:
+                g = np.concatenate([gy.ravel(), gd.ravel()])
+            if not (np.isfinite(E) and np.all(np.isfinite(g))):
+                return np.inf, np.zeros_like(xv)
+            if E < best[0]:
+                best[0], best[1] = E, xv.copy()
+            return E, g
+
+        best = [np.inf, None]
 
         if relax_box:
             ys = y.copy()
@@ -798,6 +814,8 @@ class DCBRTube:
                            options={"maxiter": maxiter, "maxcor": 30, "gtol": gtol,
                                     "ftol": 1e-15, "maxfun": 4 * maxiter})
         xv = res.x
+        if not np.all(np.isfinite(xv)) and best[1] is not None:
+            xv = best[1]  # the last good state, not the trial that left the map
         y = xv[:3 * Ny].reshape(Ny, 3).copy()
         delta = xv[3 * Ny:3 * Ny + 3 * N].reshape(N, 3).copy()
         if relax_box:
