@@ -77,6 +77,9 @@ import numpy as np
 from upscale.models import dcbr_coupling_kernels as CK
 from upscale.models.dcbr import DCBRTube, uniform_map_frame
 
+CARBON_MASS = 12.011  # amu
+ACC_UNIT = 1.602176634e-19 / (1e-10 * 1.66053906660e-27) * 1e-20  # eV/(Å amu) in Å/fs^2
+
 __all__ = ["DCBRDefectTube"]
 
 
@@ -704,6 +707,14 @@ class DCBRDefectTube(DCBRTube):
         out[4]["step_crossings"] = crossed
         return out
 
+    def masses(self):
+        """(masses of the unknowns y (particles not slaved, then free atoms), masses of the
+        shifts), amu: 12.011 per atom; a particle m_C max(w_c, N_c/2) (its atoms, at least
+        half its nominal share, so that interface particles with few atoms do not set a tiny
+        stable step); a shift the reduced mass of its two sublattices, a quarter of that."""
+        w = np.maximum(self.natoms_n, 0.5 * self.nominal) * CARBON_MASS
+        return np.concatenate([w[self.dof_idx], np.full(self.nf, CARBON_MASS)]), w / 4.0
+
     def _quickmin(self, y, delta, Lz, steps: int = 5000, dt: float = 1.0, dmax: float = 0.02,
                   ftol: float = 1e-3, fixed=None):
         """Damped dynamics as LAMMPS's ``min_style quickmin``: velocity Verlet with the
@@ -712,10 +723,9 @@ class DCBRDefectTube(DCBRTube):
         ``ftol`` eV/Å or after ``steps`` steps. Masses: 12.011 amu per atom, a particle's
         carried atoms (at least half its share), a shift the reduced mass of its pair of
         sublattices (as the dynamic scene)."""
-        acc = 1.602176634e-19 / (1e-10 * 1.66053906660e-27) * 1e-20  # eV/(Å amu) in Å/fs^2
-        w = np.maximum(self.natoms_n[self.dof_idx], 0.5 * self.nominal)
-        m = np.concatenate([w, np.ones(self.nf)])[:, None] * 12.011
-        md = np.maximum(self.natoms_n, 0.5 * self.nominal)[:, None] * 12.011 / 4.0
+        acc = ACC_UNIT
+        m, md = self.masses()
+        m, md = m[:, None], md[:, None]
         hold = np.zeros_like(y, bool) if fixed is None else np.asarray(fixed, bool)
         y, delta = y.copy(), delta.copy()
         vy, vd = np.zeros_like(y), np.zeros_like(delta)

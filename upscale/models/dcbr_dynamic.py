@@ -26,9 +26,9 @@ on a :class:`~upscale.models.dcbr_defect.DCBRDefectTube`:
    the first drop of 5 %), with the first drop taken at or after the first broken bond
    (see the code: the coarse grip stress rings by a few GPa at coarsening 3-4).
 
-Masses: a free atom 12.011 amu; a particle carries m_C max(w_c, N_c/2) (its atoms, at least
-half its nominal share, so that interface particles with few atoms do not set a tiny stable
-step); the sublattice shift of a particle is a dynamic unknown with the reduced mass of the
+Masses (:meth:`DCBRDefectTube.masses`): a free atom 12.011 amu; a particle carries
+m_C max(w_c, N_c/2) (its atoms, at least half its nominal share, so that interface particles
+with few atoms do not set a tiny stable step); the sublattice shift of a particle is a dynamic unknown with the reduced mass of the
 two sublattices, m_C max(w_c, N_c/2) / 4 (the optical mode).
 
 Thermostat, as the LAMMPS runs: Gaussian velocities at ``temperature`` (default 10 K) on the
@@ -60,17 +60,9 @@ import time
 import numpy as np
 
 from upscale.models.dcbr import EV_PER_A3_IN_GPA, WALL_THICKNESS, uniform_map_frame
+from upscale.models.dcbr_defect import ACC_UNIT, CARBON_MASS
 
 __all__ = ["dynamic_tension", "open_tube_with_grips", "static_grip_stiffness", "CARBON_MASS"]
-
-CARBON_MASS = 12.011  # amu
-
-
-def _acc_unit() -> float:
-    """eV/(Å amu) in Å/fs^2: 1.602176634e-19 J / (1e-10 m 1.66053906660e-27 kg) in m/s^2,
-    times 1e-20 (Å/fs^2 per m/s^2)."""
-    return 1.602176634e-19 / (1e-10 * 1.66053906660e-27) * 1e-20
-
 
 def open_tube_with_grips(model, grip: float, gtol: float = 1e-4) -> dict:
     """Steps 1-3 of the module docstring: the open tube relaxed with its grips.
@@ -205,7 +197,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
         raise ValueError(f"ghost={ghost!r}; valid: 'local' (each side's correction at the "
                          "stretch its interface particles carry) or 'grips' (at the grips' strain)")
     t0 = time.perf_counter()
-    acc = _acc_unit()
+    acc = ACC_UNIT
     st = open_tube_with_grips(model, grip, gtol)
     y, d, L0, R, area = st["y"], st["delta"], st["L0"], st["R"], st["area"]
     bottom, top, zb, zt, gauge = st["bottom"], st["top"], st["zb"], st["zt"], st["gauge"]
@@ -214,9 +206,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     t_relax = time.perf_counter() - t0
     z = y[:, 2]
     zlo, zhi = model.particle_positions(y)[:, 2].min(), model.particle_positions(y)[:, 2].max()
-    w = np.maximum(model.natoms_n[model.dof_idx], 0.5 * model.nominal)
-    mass = np.concatenate([w, np.ones(model.nf)]) * CARBON_MASS
-    mass_d = np.maximum(model.natoms_n, 0.5 * model.nominal) * CARBON_MASS / 4.0
+    mass, mass_d = model.masses()
     vz = 1e-3 * speed  # Å/fs
     v = np.zeros_like(y)
     # the axial velocity ramp: the uniform strain rate of the gauge (a ramp ending elsewhere

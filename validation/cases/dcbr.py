@@ -617,8 +617,7 @@ def _defect_nve_args(p):
 def _dcbr_defect_nve(args):
     """NVE of the periodic coupled tube with the vacancy (atomistic band, pads, slaves, ghost
     correction at the zero-stress state) from Gaussian velocities: total energy drift."""
-    from upscale.models.dcbr_defect import DCBRDefectTube
-    from upscale.models.dcbr_dynamic import CARBON_MASS, _acc_unit
+    from upscale.models.dcbr_defect import ACC_UNIT, DCBRDefectTube
 
     n, m = _chirality(args.chirality)
     steps = args.steps or (1000 if args.quick else 10000)
@@ -627,10 +626,8 @@ def _dcbr_defect_nve(args):
                          f"{args.temperature}; valid: steps >= 10, dt > 0, temperature > 0")
     model = DCBRDefectTube(n, m, args.length, coarsening=args.coarsening)
     y, d, Lz, _, _, _ = model.minimise(None, None, None, relax_box=True, gtol=1e-6)
-    nd, acc, kB, dt = len(model.dof_idx), _acc_unit(), 8.617333262e-5, args.dt_fs
-    mass = np.concatenate([np.maximum(model.natoms_n[model.dof_idx], 0.5 * model.nominal),
-                           np.ones(model.nf)]) * CARBON_MASS
-    mass_d = np.maximum(model.natoms_n, 0.5 * model.nominal) * CARBON_MASS / 4.0
+    nd, acc, kB, dt = len(model.dof_idx), ACC_UNIT, 8.617333262e-5, args.dt_fs
+    mass, mass_d = model.masses()
     rng = np.random.default_rng(7)
     v = rng.standard_normal(y.shape) * np.sqrt(kB * args.temperature * acc / mass)[:, None]
     v -= np.sum(mass[:, None] * v, axis=0) / mass.sum()
