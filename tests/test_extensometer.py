@@ -80,9 +80,10 @@ def test_dcbr_dynamic_extensometer_vs_grip_strain():
     """A short coarse pull: the strain on the marks follows the grip strain, lower by the
     coarse grips' extra compliance. Static grip stiffness (``python -m validation
     dcbr-grip-stiffness``): the coarse grips are 7-23 % more compliant than LAMMPS's, and
-    LAMMPS's marks read 5-6 % more than its grips (its rigid grips also hold the radius:
-    stiffer ends), so the coarse marks read between ~75 % and 100 % of the grip strain
-    (here 0.92, 6 samples on a 40 Å gauge)."""
+    on the 150 Å vacancy references LAMMPS's marks read ~5 % more than its grips (the
+    vacancy between the marks weighs more in their slope than in the grip strain), so the
+    coarse marks read between ~75 % and 100 % of the grip strain (here 0.92, 6 samples on a
+    40 Å gauge)."""
     from upscale.models.dcbr_defect import DCBRDefectTube
     from upscale.models.dcbr_dynamic import dynamic_tension
 
