@@ -105,6 +105,11 @@ def test_dynamic_tiny_run_pulls_in_tension():
     s = np.array(res["curve"]["stress_GPa"])
     assert len(e) >= 3 and np.all(np.diff(e) > 0)
     assert s[-1] > 5.0  # tensile reaction on the grips at ~2 % strain
+    # the extensometer (marks inside the gauge) follows the grip strain: 1.06, 0.92, 0.89,
+    # 0.89 of it on this 16 Å gauge
+    x = np.array(res["curve"]["extensometer_strain"])
+    assert len(x) == len(e) and np.all(np.diff(x) > 0) and 0.8 < x[-1] / e[-1] < 1.2
+    assert res["strain_at_peak_ext"] in x and res["youngs_modulus_ext_TPa"] > 0
     assert res["protocol_detail"]["timestep_ps"] == 0.001
     assert res["aborted"] is None
 

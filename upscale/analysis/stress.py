@@ -25,7 +25,8 @@ import math
 import numpy as np
 
 __all__ = ["WALL_THICKNESS", "EV_PER_A3_IN_GPA", "BAR_IN_GPA", "wall_area",
-           "stress_from_pressure", "stress_from_force", "curve_metrics"]
+           "stress_from_pressure", "stress_from_force", "curve_metrics", "Extensometer",
+           "EXTENSOMETER_MARGIN", "extensometer_metrics"]
 
 WALL_THICKNESS = 3.4           # Å
 EV_PER_A3_IN_GPA = 160.21766208
@@ -51,6 +52,20 @@ def stress_from_pressure(pzz_bar, volume, length, radius, thickness=WALL_THICKNE
 def stress_from_force(force_ev_per_a, radius, thickness=WALL_THICKNESS, ntubes=1):
     """Axial tube stress in GPa from an axial force in eV/Å: ``F / (ntubes 2 pi R t)``."""
     return np.asarray(force_ev_per_a) / wall_area(radius, thickness, ntubes) * EV_PER_A3_IN_GPA
+
+
+def _slope(x, y) -> float:
+    """Least-squares slope (with intercept) of y against x."""
+    return float(np.polyfit(x, y, 1)[0])
+
+
+def _fit_window(e, fit_max_strain):
+    """The modulus fit's points: ``0 <= strain <= fit_max_strain`` (at least 2)."""
+    sel = (e >= -1e-12) & (e <= fit_max_strain + 1e-12)
+    if sel.sum() < 2:
+        raise ValueError(f"fewer than 2 points with 0 <= strain <= {fit_max_strain}; "
+                         "use finer strain steps or a larger fit_max_strain")
+    return sel
 
 
 def curve_metrics(strain, stress, fit_max_strain: float = 0.02, drop: float = 0.05,
@@ -95,11 +110,8 @@ def curve_metrics(strain, stress, fit_max_strain: float = 0.02, drop: float = 0.
     if e.ndim != 1 or e.shape != s.shape or len(e) < 3:
         raise ValueError(f"strain and stress must be 1-D of equal length >= 3, got shapes "
                          f"{e.shape} and {s.shape}")
-    sel = (e >= -1e-12) & (e <= fit_max_strain + 1e-12)
-    if sel.sum() < 2:
-        raise ValueError(f"fewer than 2 points with 0 <= strain <= {fit_max_strain}; "
-                         "use finer strain steps or a larger fit_max_strain")
-    E = float(np.polyfit(e[sel], s[sel], 1)[0])  # GPa
+    sel = _fit_window(e, fit_max_strain)
+    E = _slope(e[sel], s[sel])  # GPa
     run_max = np.maximum.accumulate(s)
     late = e >= failure_from_strain - 1e-12 if failure_from_strain is not None else True
     dropped = np.nonzero((s < (1.0 - drop) * run_max) & (run_max > 0) & late)[0]
@@ -130,3 +142,108 @@ def curve_metrics(strain, stress, fit_max_strain: float = 0.02, drop: float = 0.
                 out.update(rise_after_plateau=True, strength_GPa=float(s[ip]),
                            strain_at_peak=float(e[ip]))
     return out
+
+
+EXTENSOMETER_MARGIN = 0.25  # of the gauge, at each end: the marks halfway between grip and centre
+
+
+class Extensometer:
+    """Strain measured on gauge marks inside the specimen, as a tensile test's extensometer.
+
+    The grip strain of the dynamic protocol (grip separation change / gauge) includes the
+    compliance of the material next to the grips; in the coarse model that boundary layer
+    is 7-23 % more compliant than LAMMPS's (the centred gain stencil next to a rigid grip),
+    so the two codes' grip strains differ by a boundary artefact. The extensometer measures
+    the strain of the material between two marks instead:
+
+        eps_ext = sum_i w_i (z0_i - zbar) u_i / sum_i w_i (z0_i - zbar)^2,  u_i = z_i - z0_i,
+
+    the weighted least-squares slope of the axial displacement u against the reference axial
+    position z0 over the points with ``lo <= z0 <= hi`` (``zbar`` their weighted mean z0);
+    the reference is the configuration at the start of the pull. It is linear in u, exact for
+    a uniform stretch (u = eps (z0 - c) gives eps), and blind to rigid motion. Written as a
+    weighted mean of the local strain u'(z), its weight is proportional to the weighted
+    count of points beyond z times their mean distance from zbar: largest at the centre of
+    the window and zero at and outside the marks, so nothing beyond the marks (the grips and
+    their boundary layers) enters. Weights: 1 per atom (LAMMPS, the coarse model's free
+    atoms) or a coarse particle's atom count, so that both codes weigh the same material.
+
+    Window (:meth:`window`): the marks are ``EXTENSOMETER_MARGIN`` = 1/4 of the gauge inside
+    each grip plane, halfway between the grip planes and the centre of the gauge, as far
+    from both as one window allows: ~12.5 Å on the 50 Å gauges of the 150 Å tubes, i.e.
+    more than two particle rows past the coarse grips' boundary layer (about one row
+    spacing, <= 5 Å at coarsening 4) and, for the vacancy tubes, just outside the coarse
+    model's atomistic band with its pad (8 + 3.5 Å around the vacancy). The vacancy itself
+    lies between the marks, as the flaw of a specimen lies between an extensometer's knife
+    edges: its extra compliance belongs to the measured material and is atomistic in both
+    codes.
+    """
+
+    def __init__(self, z0, lo: float, hi: float, weights=None):
+        z0 = np.asarray(z0, dtype=float)
+        if z0.ndim != 1:
+            raise ValueError(f"z0 has shape {z0.shape}; valid: 1-D reference axial positions")
+        if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
+            raise ValueError(f"extensometer window lo={lo!r}, hi={hi!r}; valid: finite, lo < hi")
+        w = np.ones_like(z0) if weights is None else np.asarray(weights, dtype=float)
+        if w.shape != z0.shape or np.any(w < 0):
+            raise ValueError(f"weights of shape {w.shape} (min {w.min() if w.size else 0}); "
+                             f"valid: shape {z0.shape}, all >= 0")
+        self.lo, self.hi = float(lo), float(hi)
+        self.idx = np.nonzero((z0 >= lo) & (z0 <= hi) & (w > 0))[0]
+        zs, ws = z0[self.idx], w[self.idx]
+        if len(np.unique(zs)) < 2:
+            raise ValueError(f"the window [{lo:.3f}, {hi:.3f}] Å holds {len(zs)} points at "
+                             f"{len(np.unique(zs))} distinct z; valid: a window holding "
+                             "points at two or more axial positions")
+        self.n = len(self.idx)
+        self.weight = float(ws.sum())
+        self.zbar = float(np.sum(ws * zs) / self.weight)
+        self.szz = float(np.sum(ws * (zs - self.zbar) ** 2))
+        self.z0 = zs
+        self.coef = ws * (zs - self.zbar) / self.szz
+
+    @staticmethod
+    def window(zb: float, zt: float, margin: float = EXTENSOMETER_MARGIN) -> tuple[float, float]:
+        """The marks ``(zb + margin g, zt - margin g)``, g = zt - zb (grip planes zb < zt)."""
+        if not (zt > zb and 0 <= margin < 0.5):
+            raise ValueError(f"grip planes zb={zb!r}, zt={zt!r}, margin={margin!r}; valid: "
+                             "zt > zb and 0 <= margin < 0.5 (a fraction of the gauge)")
+        g = zt - zb
+        return zb + margin * g, zt - margin * g
+
+    def strain(self, z) -> float:
+        """eps_ext for current axial positions ``z`` (same points and order as ``z0``)."""
+        return float(self.coef @ (np.asarray(z, dtype=float)[self.idx] - self.z0))
+
+    def describe(self) -> dict:
+        """The window and its points, for the result's record."""
+        return {"window_A": [self.lo, self.hi], "points": int(self.n),
+                "weight_atoms": self.weight, "margin_of_gauge": EXTENSOMETER_MARGIN,
+                "definition": "weighted least-squares slope of u_z against z0 over the "
+                              "points with z0 between the marks (z0: positions at the start "
+                              "of the pull), each stress sample's block mean"}
+
+
+def extensometer_metrics(strain, ext_strain, stress, strain_at_peak: float,
+                         fit_max_strain: float = 0.02) -> dict:
+    """The modulus and strain at peak of a curve on the extensometer strain.
+
+    ``youngs_modulus_ext_TPa``: :func:`curve_metrics`'s fit rule (least-squares line through
+    the points with ``0 <= strain <= fit_max_strain``) with the extensometer strain as
+    strain; ``strain_at_peak_ext``: the extensometer strain of the strength sample, the
+    sample whose (grip) ``strain`` equals ``strain_at_peak`` (strength itself is unchanged:
+    same stress samples)."""
+    e = np.asarray(strain, dtype=float)
+    x = np.asarray(ext_strain, dtype=float)
+    s = np.asarray(stress, dtype=float)
+    if not (e.shape == x.shape == s.shape and e.ndim == 1):
+        raise ValueError(f"strain, ext_strain, stress have shapes {e.shape}, {x.shape}, "
+                         f"{s.shape}; valid: 1-D of equal length")
+    ipk = np.nonzero(e == strain_at_peak)[0]
+    if len(ipk) == 0:
+        raise ValueError(f"strain_at_peak={strain_at_peak!r} is not a strain of the curve; "
+                         "valid: the value curve_metrics returned for it")
+    sel = _fit_window(x, fit_max_strain)
+    return {"youngs_modulus_ext_TPa": _slope(x[sel], s[sel]) / 1000.0,
+            "strain_at_peak_ext": float(x[ipk[0]])}

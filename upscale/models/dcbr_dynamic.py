@@ -24,7 +24,18 @@ on a :class:`~upscale.models.dcbr_defect.DCBRDefectTube`:
    over the block) over 2 pi R t; the run stops when the stress has fallen below 20 % of its
    maximum after failure, or at ``max_strain``. Strength as LAMMPS's (the maximum before
    the first drop of 5 %), with the first drop taken at or after the first broken bond
-   (see the code: the coarse grip stress rings by a few GPa at coarsening 3-4).
+   (see the code: the coarse grip stress rings by a few GPa at coarsening 3-4);
+5. the extensometer strain (:class:`upscale.analysis.stress.Extensometer`, defined once for
+   both codes), strain on gauge marks inside the tube, free of the grips' compliance: at
+   every step the weighted least-squares slope of the axial displacement against the axial
+   position at the start of the pull (after the set-up relaxation), over the material
+   between marks a quarter of the gauge inside each grip plane: all N particles (the
+   slaves at their interpolated positions) weighted by their atom counts ``natoms_n``, and
+   the free atoms of the atomistic region with weight 1; its block mean is the sample's
+   ``curve["extensometer_strain"]`` (LAMMPS: every 10 steps of the block, as its stress).
+   ``youngs_modulus_ext_TPa`` and ``strain_at_peak_ext`` are the modulus (same fit rule)
+   and the strain of the strength sample on it (cost: +1 % of the dynamics at coarsening
+   1, +4 % at 4, (10,10) vacancy tube).
 
 Masses (:meth:`DCBRDefectTube.masses`): a free atom 12.011 amu; a particle carries
 m_C max(w_c, N_c/2) (its atoms, at least half its nominal share, so that interface particles
@@ -177,15 +188,18 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
                     monitor=None) -> dict:
     """Dynamic tension of an open coarse tube with end grips (module docstring).
 
-    Returns a dict like the LAMMPS runner's: ``curve`` (strain, stress_GPa, time_ps, and
-    per sample ``atoms_off_wall`` and ``free_atom_kinetic_eV``), the curve metrics,
+    Returns a dict like the LAMMPS runner's: ``curve`` (strain, stress_GPa, time_ps,
+    extensometer_strain, and per sample ``atoms_off_wall`` and ``free_atom_kinetic_eV``),
+    the curve metrics (with ``youngs_modulus_ext_TPa``, ``strain_at_peak_ext`` on the
+    extensometer strain, whose window is in ``extensometer``),
     ``first_damage`` (strain, atoms, distance to the vacancy), ``L0_A``,
     ``radius_relaxed_A``, ``dof``, ``wall_s`` (``setup_relax_s`` + ``dynamics_s``), the final
     unknowns (``positions``, ``delta``) and ``damage``. ``monitor(step, y, v, delta,
     stress)``, if given, is called at every sample; ``ghost`` picks the correction's stretch
     (module docstring); ``temperature=0`` runs NVE from rest.
     """
-    from upscale.analysis.stress import curve_metrics  # noqa: PLC0415
+    from upscale.analysis.stress import (Extensometer, curve_metrics,  # noqa: PLC0415
+                                         extensometer_metrics)
 
     if not (grip > 0 and speed > 0 and dt > 0 and 0 < max_strain <= 1 and sample >= 1):
         raise ValueError(f"grip={grip}, speed={speed}, dt={dt}, max_strain={max_strain}, "
@@ -204,6 +218,11 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     grips, nd, grip_rows = bottom | top, len(model.dof_idx), st["grip_rows"]
     free_len = L0 - 2 * grip
     t_relax = time.perf_counter() - t0
+
+    def z_ext(y):  # the extensometer's points: every particle, then the free atoms
+        return np.r_[model.particle_positions(y)[:, 2], y[nd:, 2]]
+    ext = Extensometer(z_ext(y), *Extensometer.window(zb, zt),
+                       weights=np.r_[model.natoms_n, np.ones(model.nf)])
     z = y[:, 2]
     zlo, zhi = model.particle_positions(y)[:, 2].min(), model.particle_positions(y)[:, 2].max()
     mass, mass_d = model.masses()
@@ -271,7 +290,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
 
     gy, gd = forces(y, d, 0.0)
     strains, stresses, times, off_wall, kinetic = [], [], [], [], []
-    blk = []
+    blk, eblk, exts = [], [], []
     step = 0
     smax, failed = 0.0, False
     first = None
@@ -296,12 +315,14 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
         gy, gd = gy2, gd2
         # reaction of the grips: the tube pulls the top grip down and the bottom one up
         blk.append(0.5 * (gy[top, 2].sum() - gy[bottom, 2].sum()))
+        eblk.append(ext.strain(z_ext(y)))
         if not np.all(np.isfinite(y)):
             raise FloatingPointError(f"dynamic tension blew up at step {step} (strain "
                                      f"{strain:.4f}); last good stress {stresses[-1:]}")
         if step % sample == 0:
             s = float(np.mean(blk)) / area * EV_PER_A3_IN_GPA
-            blk = []
+            exts.append(float(np.mean(eblk)))
+            blk, eblk = [], []
             # the block's mean stress belongs to its mid-time (as the LAMMPS runner)
             strains.append(sep0 * (step - 0.5 * sample) * dt / gauge)
             stresses.append(s)
@@ -346,7 +367,9 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
            "dt_fs": dt, "steps": step, "free_length_A": free_len, "gauge_length_A": gauge,
            "grip_rows_distance_A": grip_rows,
            "curve": {"strain": strains, "stress_GPa": stresses, "time_ps": times,
-                     "atoms_off_wall": off_wall, "free_atom_kinetic_eV": kinetic}}
+                     "atoms_off_wall": off_wall, "free_atom_kinetic_eV": kinetic,
+                     "extensometer_strain": exts},
+           "extensometer": ext.describe()}
     # the plateau-then-rise rule of curve_metrics flags the switching-function artefact of
     # the standard cutoff; with the step cutoff there is none, and on the coarse tube's
     # grip stress (which rings by a few GPa at coarsening 3-4) it took a flat sample
@@ -356,6 +379,8 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
         return curve_metrics(strains, stresses, fit_max_strain=fit_max_strain,
                              plateau_fraction=0.0 if model.cutoff == "step" else 0.05, **kw)
     res.update(metrics())
+    res.update(extensometer_metrics(strains, exts, stresses, res["strain_at_peak"],
+                                    fit_max_strain))
     res["first_damage"] = first
     # a 5 % dip of the grip stress before any bond has broken is an oscillation of the
     # coarse tube (the zero-energy-like row mode next to the grips rings at a few hundred fs

@@ -4,6 +4,8 @@ Cases
 -----
 ``reference-tension``  one LAMMPS tension run (quasi-static or dynamic), analysed.
 ``references``         regenerates every kept reference in ``data/reference/`` and its plots.
+``reference-extensometer``  reruns the kept small dynamic references and, where the rerun
+                       reproduces the stored curve exactly, adds its extensometer strain.
 ``tersoff-chain``      the project's Tersoff calculator + an ASE optimiser against the LAMMPS
                        quasi-static curve of the same short (10,10) tube.
 
@@ -445,6 +447,23 @@ def write_readme(results):
         "  box (and LAMMPS's neighbour bins) with it: since the (50,50)/(30,60) references a",
         "  dynamic run stops when the box volume exceeds 1e8 A^3 (`aborted` in the JSON; the",
         "  earlier references ran without that stop, the bundle's box reached 2.6e5 A in z).",
+        "* Extensometer (dynamic, the small tubes; `python -m validation",
+        "  reference-extensometer`, recorded in `extensometer_added`): the grip strain includes",
+        "  the compliance of the material next to the grips, so the dynamic references also",
+        "  carry `curve.extensometer_strain`, the least-squares slope of the atoms' axial",
+        "  displacement against their axial position at the start of the pull over the atoms",
+        "  between two marks a quarter of the gauge inside each grip plane (each sample the",
+        "  mean over its 100 steps, every 10 steps, as the stress; window and atom count in",
+        "  `protocol_detail.extensometer`), `youngs_modulus_ext_TPa` (the same 0-2 % fit on",
+        "  it) and `strain_at_peak_ext` (its value at the strength sample). The runs were",
+        "  repeated with it and kept only where strain and stress reproduce bit for bit. A",
+        "  least-squares slope weighs the local strain most at the window's centre, where",
+        "  the vacancy sits: the vacancy tubes' `youngs_modulus_ext_TPa` is 4-5 % below",
+        "  their grip modulus (pristine: 2-4 % above: next to the rigid grips, which also",
+        "  hold the radius, the tube is stiffer than in the middle),",
+        "  and a crack opening inside the strength sample's 100 steps enters",
+        "  `strain_at_peak_ext` ((17,0) seed 3 in `seed_spread.json`: 0.230, the other",
+        "  seeds 0.123).",
         "* Trajectories (LAMMPS dumps) are kept outside the repository",
         "  (~/.cache/upscale/dumps/).",
         "",
@@ -459,7 +478,10 @@ def write_readme(results):
         "Seed spread: `seed_spread.json` (`python -m validation reference-seeds --seeds 4",
         "--save`) reruns the three small dynamic vacancy references with 4 thermal seeds (the",
         "kept one first; it reproduces the stored run exactly); its `stats` give how far one",
-        "dynamic run's strength, strain at peak and modulus move with the thermal start.",
+        "dynamic run's strength, strain at peak and modulus move with the thermal start (also",
+        "on the extensometer: `strain_at_peak_ext`, `youngs_modulus_ext_TPa`; rerun with it",
+        "on 2026-11-22, every run reproducing its stored strength, strain at peak and modulus",
+        "exactly, `reproduces_stored`).",
         "",
         'Grip stiffness: `grip_stiffness.json` (`python -m validation dcbr-grip-stiffness',
         '--save`) holds the static stiffness k = F / separation of each small vacancy tube',
@@ -552,6 +574,88 @@ def run_references(args):
     return {"n_runs": len(results), "n_kept": len(kept),
             "total_wall_s": float(sum(r["wall_s"] for r in kept)),
             "pass": len(kept) == len(REFERENCE_SET)}
+
+
+EXT_KEYS = ("youngs_modulus_ext_TPa", "strain_at_peak_ext")
+
+
+def _args_ext(p):
+    p.add_argument("--only", default=None,
+                   help="comma-separated names (default: the small tubes' dyn_*_vac4 and "
+                        "dyn_*_pristine)")
+    _add_common(p)
+
+
+@case("reference-extensometer", "rerun the kept small dynamic LAMMPS references and add the "
+      "extensometer strain where the rerun reproduces them exactly", add_arguments=_args_ext)
+def run_reference_extensometer(args):
+    """Adds the extensometer fields to kept dynamic references without replacing them.
+
+    Each reference is rerun with :func:`validation.lammps.tension.dynamic_tension` as it was
+    made (its spec, default seed, one rank, no dump, and no box-volume stop if it predates
+    it); the new fields (``curve.
+    extensometer_strain``, ``protocol_detail.extensometer``, ``youngs_modulus_ext_TPa``,
+    ``strain_at_peak_ext``) are written into the stored JSON only if the rerun's strain and
+    stress curves equal the stored ones exactly (the extensometer is measured inside LAMMPS
+    and does not touch the dynamics); otherwise the case stops with the largest difference.
+    """
+    from upscale.io import write_json  # noqa: PLC0415
+    from validation.lammps.tension import dynamic_tension  # noqa: PLC0415
+
+    names = (args.only.split(",") if args.only else
+             [f"dyn_{n}-{m}_{k}" for n, m in TUBES for k in ("vac4", "pristine")])
+    rows = []
+    for name in names:
+        path = REF_DIR / f"{name}.json"
+        if not path.is_file():
+            raise SystemExit(f"--only {name}: no {path.name} in data/reference/; valid: "
+                             "names of kept dyn_* references")
+        old = json.loads(path.read_text())
+        if old["protocol"] != "dynamic" or old.get("nprocs", 1) != 1:
+            raise SystemExit(f"{name}: protocol {old['protocol']!r}, nprocs "
+                             f"{old.get('nprocs')}; valid: a dynamic reference run on 1 rank")
+        spec = old["spec"]
+        pd = old["protocol_detail"]
+        t0 = time.perf_counter()
+        new = dynamic_tension(build_structure(spec), args.potential,
+                              cutoff=spec.get("cutoff", args.cutoff), grip=pd["grip_A"],
+                              speed=pd["speed_A_per_ps_each_grip"],
+                              temperature=pd["temperature_K"], timestep=pd["timestep_ps"],
+                              # references made before the box-volume stop ran without it
+                              max_box_volume=pd.get("max_box_volume_A3", 1e300))
+        wall = time.perf_counter() - t0
+        same = all(new["curve"][k] == old["curve"][k] for k in ("strain", "stress_GPa")) and \
+            all(new[k] == old[k] for k in ("strength_GPa", "youngs_modulus_TPa",
+                                           "strain_at_peak"))
+        if not same:
+            n = min(len(new["curve"]["stress_GPa"]), len(old["curve"]["stress_GPa"]))
+            d = np.abs(np.subtract(new["curve"]["stress_GPa"][:n],
+                                   old["curve"]["stress_GPa"][:n])).max()
+            raise SystemExit(f"{name}: the rerun does not reproduce the stored curve ("
+                             f"{len(new['curve']['strain'])} vs {len(old['curve']['strain'])} "
+                             f"samples, max stress difference {d:.3g} GPa); not stored")
+        old["curve"]["extensometer_strain"] = new["curve"]["extensometer_strain"]
+        old["protocol_detail"]["extensometer"] = new["protocol_detail"]["extensometer"]
+        old.update({k: new[k] for k in EXT_KEYS})
+        old["extensometer_added"] = {
+            "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            "command": f"python -m validation reference-extensometer --only {name}",
+            "reproduced": "the rerun's strain and stress curves equal the stored ones bit for "
+                          "bit (same seed, one rank)",
+            "rerun_wall_s": wall, "rerun_dynamics_s": new["timing_s"]["dynamics"]}
+        write_json(path, old)
+        rows.append({"name": name, "E_TPa": old["youngs_modulus_TPa"],
+                     "E_ext_TPa": old["youngs_modulus_ext_TPa"],
+                     "strain_at_peak": old["strain_at_peak"],
+                     "strain_at_peak_ext": old["strain_at_peak_ext"],
+                     "strength_GPa": old["strength_GPa"], "wall_s": wall,
+                     "dynamics_s": new["timing_s"]["dynamics"]})
+        print(table(rows[-1:], floatfmt=".5g"), flush=True)
+    kept = [json.loads((REF_DIR / f"{s['name']}.json").read_text()) for s in REFERENCE_SET
+            if (REF_DIR / f"{s['name']}.json").is_file()]
+    write_readme(kept)
+    print(table(rows, floatfmt=".5g"))
+    return {"runs": rows, "pass": True}
 
 
 # --------------------------------------------------------------------------------------
