@@ -173,22 +173,55 @@ def test_dynamic_bad_input(kw, word):
     assert word in msg and "valid" in msg and "\n" not in msg
 
 
-@pytest.mark.parametrize("grip", [8.0, 10.0, 12.5])
-def test_dynamic_grips_are_lammps_grips(grip):
+@pytest.mark.parametrize("grip,clamp", [(8.0, True), (10.0, True), (12.5, False)])
+def test_dynamic_grips_are_lammps_grips(grip, clamp):
     """As LAMMPS's, a grip holds what lies within ``grip`` of the tube's end atoms (here the
-    rows beyond that plane) and the gauge is the distance between the two planes: the atoms'
-    span less 2 grip (to the set-up relaxation of the end rows, < 0.5 Å); the innermost grip
-    rows lie beyond the planes, less than a row spacing h each."""
+    rows beyond that plane; clamped, also a row less than h/2 inside it, the grip's node at
+    the plane) and the gauge is the distance between the two planes: the atoms' span less
+    2 grip (to the set-up relaxation of the end rows, < 0.5 Å); the innermost grip rows lie
+    beyond the planes, less than a row spacing h each (clamped: within h/2 inside to 1.5 h
+    beyond)."""
     from upscale.models.dcbr_dynamic import dynamic_tension
 
     m = DCBRDefectTube(6, 6, 40.0, vacancy=4, **KW)
     rows = np.unique(np.round(m.x0[:, 2], 6))
     h = float(np.median(np.diff(rows)))
-    res = dynamic_tension(m, grip=grip, max_strain=0.03, sample=20, speed=2.0, temperature=0.0)
+    res = dynamic_tension(m, grip=grip, max_strain=0.03, sample=20, speed=2.0, temperature=0.0,
+                          clamp=clamp)
     span = np.ptp(m.X_atoms[:, 2]) * res["L0_A"] / m.L
     assert abs(res["gauge_length_A"] - (span - 2 * grip)) < 0.5
     excess = res["grip_rows_distance_A"] - res["gauge_length_A"]
-    assert -0.5 < excess < 2 * h + 0.5, (excess, h)
+    lo, hi = (-h - 0.5, h + 0.5) if clamp else (-0.5, 2 * h + 0.5)
+    assert lo < excess < hi, (excess, h)
+
+
+def test_clamped_gain_is_exact_between_rigid_grips():
+    """With the grips clamped (build_gain's ``clamp``), a gauge stretched uniformly between
+    rigid grips gives every gauge particle and every edge particle exactly the gauge's
+    strain, and the particles deep in a grip none; with the plain stencil the rows next to
+    a plane mix the two."""
+    from upscale.models.dcbr_dynamic import open_tube_with_grips
+
+    m = DCBRDefectTube(6, 6, 60.0, vacancy=4, **KW)
+    st = open_tube_with_grips(m, 12.0)
+    z_lo, z_hi, rigid, y_ref = m.clamp
+    g = m.gain
+    z = m.x0[:, 2]  # the fit coordinate: z clamped at the planes, a held particle at its plane
+    zf = np.where(rigid, np.where(z < 0.5 * (z_lo + z_hi), z_lo, z_hi), np.clip(z, z_lo, z_hi))
+    eps = 1e-3
+    y = y_ref.copy()
+    y[:, 2] += eps * zf  # uniform strain in the gauge, the grips rigid
+    dG = g.deformation(y) - g.deformation(y_ref)
+    gzz = np.einsum("ni,ni->n", dG[:, :, 1], g.frame[:, :, 1])
+    edge = np.zeros(m.N, bool)
+    np.logical_or.at(edge, g.pair_i, rigid[g.pair_i] & ~rigid[g.pair_j])
+    assert np.allclose(gzz[~rigid | edge], eps, rtol=0, atol=1e-12)
+    assert np.allclose(gzz[rigid & ~edge], 0.0, atol=1e-15)
+    m.clamp = None  # the plain stencil, same field: the rows next to the planes mix
+    m._build_gain(None)
+    dG = m.gain.deformation(y) - m.gain.deformation(y_ref)
+    plain = np.einsum("ni,ni->n", dG[:, :, 1], m.gain.frame[:, :, 1])
+    assert np.abs(plain[~rigid] - eps).max() > 0.02 * eps  # 5 % measured
 
 
 def test_slave_fit_survives_collinear_atoms():

@@ -17,16 +17,14 @@ def _check(out):
 
 
 def test_dynamic_17_0_vacancy_k2():
-    """Dynamic tension (150 Å, grips at 1 Å/ps, 10 K), coarsening 2: the strength target, the
-    first bond breaking next to the vacancy, a crack across the tube, nothing thrown off."""
+    """Dynamic tension (150 Å, grips at 1 Å/ps, 10 K), coarsening 2: the three targets (with
+    the grips clamped: before, the coarse grips' extra compliance, static grip stiffness
+    12.7 % below LAMMPS's for this tube and K, showed as -7.4 % in the modulus and +11.4 %
+    in the strain at peak), the first bond breaking next to the vacancy, a crack across the
+    tube, nothing thrown off."""
     out = run_tension_comparison(17, 0, 150.0, 2.0, vacancy=True, dynamic=True, plot=False,
                                  verbose=False)
-    assert out["strength_err_pct"] < 5.0, out["strength_err_pct"]
-    # not the targets: with LAMMPS's gauge the coarse grips' extra compliance (static grip
-    # stiffness 12.7 % below LAMMPS's for this tube and K, dcbr-grip-stiffness) shows as
-    # -7.4 % in the modulus and +11.4 % in the strain at peak; the bounds guard the rest
-    assert out["modulus_TPa"] < out["modulus_lammps_TPa"] and out["modulus_err_pct"] < 10.0
-    assert out["strain_at_peak_err_pct"] < 15.0, out["strain_at_peak_err_pct"]
+    _check(out)
     assert out["crack_start_to_vacancy_A"] < 6.0
     assert 70.0 < out["crack_angle_deg"] <= 90.0
     assert out["ejected_atoms"] == 0

@@ -77,13 +77,13 @@ def test_extensometer_metrics_and_bad_input():
 
 
 def test_dcbr_dynamic_extensometer_vs_grip_strain():
-    """A short coarse pull: the strain on the marks follows the grip strain, lower by the
-    coarse grips' extra compliance. Static grip stiffness (``python -m validation
-    dcbr-grip-stiffness``): the coarse grips are 7-23 % more compliant than LAMMPS's, and
-    on the 150 Å vacancy references LAMMPS's marks read ~5 % more than its grips (the
-    vacancy between the marks weighs more in their slope than in the grip strain), so the
-    coarse marks read between ~75 % and 100 % of the grip strain (here 0.92, 6 samples on a
-    40 Å gauge)."""
+    """A short coarse pull: the strain on the marks follows the grip strain. On the 150 Å
+    vacancy references LAMMPS's marks read 4-5 % more than its grips (the vacancy between
+    the marks weighs more in their slope than in the grip strain; E_ext < E_grip); the
+    coarse tube, whose clamped grips are as stiff as LAMMPS's (``python -m validation
+    dcbr-grip-stiffness``, within 4.3 %), does the same: here 1.12 on a 40 Å gauge with a
+    10 Å atomistic band (0.92 before the grips were clamped, when they were 7-23 % too
+    compliant)."""
     from upscale.models.dcbr_defect import DCBRDefectTube
     from upscale.models.dcbr_dynamic import dynamic_tension
 
@@ -95,8 +95,8 @@ def test_dcbr_dynamic_extensometer_vs_grip_strain():
     # the ratio rings by ~10 % with the short gauge's axial standing wave: its least-squares
     # value over the run
     ratio = float(x @ e / (e @ e))
-    assert 0.75 < ratio < 1.0, x / e
-    assert res["youngs_modulus_ext_TPa"] > res["youngs_modulus_TPa"]
+    assert 1.0 < ratio < 1.2, x / e
+    assert res["youngs_modulus_ext_TPa"] < res["youngs_modulus_TPa"]
     assert res["strain_at_peak_ext"] in x
     lo, hi = res["extensometer"]["window_A"]
     assert hi - lo == pytest.approx(0.5 * res["gauge_length_A"])

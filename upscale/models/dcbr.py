@@ -529,7 +529,8 @@ class DCBRTube:
         self.gain: GainOperator = build_gain(
             self.x0, self.horizon, np.full(self.N, 1.0), surface=True, axis=[0, 0, 1],
             cell=[0, 0, self.L], pbc=(False, False, self.periodic), kind=self.kind, intact=intact,
-            on_singular="raise" if intact is None else "drop")
+            on_singular="raise" if intact is None else "drop",
+            clamp=None if self.periodic else getattr(self, "clamp", None))
         g = self.gain
         A0 = np.einsum("nia,nib->nab", g.F0, g.F0)
         A0[~g.alive] = np.eye(2)
@@ -558,8 +559,15 @@ class DCBRTube:
         g = self.gain
         ce = np.repeat(np.arange(self.N), np.diff(g.offsets))
         keep = g.alive[ce]
+        clamp = None if self.periodic else getattr(self, "clamp", None)
+        if clamp is not None:  # a rigid grip particle owns no link (its G is T), and the
+            # entries of y_c itself (families fitted about c) are not links
+            keep &= ~np.asarray(clamp[2], bool)[ce] & (g.neighbors != ce)
+        fit = g.fit_beta[keep] if g.fit_beta is not None else None
         ce, je, im = ce[keep], g.neighbors[keep], g.image[keep]
         beta = self.x0[je] + im * g.cell - self.x0[ce]
+        if fit is None:
+            fit = beta
         R0 = self.lattice.R0
         T = g.frame[ce]
         nrm = np.cross(T[:, :, 0], T[:, :, 1])
@@ -569,11 +577,14 @@ class DCBRTube:
         self._st = {"c": ce.astype(np.int64), "j": je.astype(np.int64), "im": im.astype(float),
                     "imz": np.ascontiguousarray(im[:, 2], dtype=float),
                     "w": 1.0 / np.einsum("ei,ei->e", beta, beta),
-                    "ds": R0 * dth, "dz": np.einsum("ei,ei->e", beta, T[:, :, 1]),
+                    "ds": R0 * dth, "dz": np.einsum("ei,ei->e", fit, T[:, :, 1]),
                     "r0": np.zeros((len(ce), 3)),
                     "a": np.ascontiguousarray(g.coef[keep], dtype=float),
-                    "s": np.ascontiguousarray(np.einsum("eia,ei->ea", T, beta))}
-        F0 = g.deformation(self.x0, g.cell)
+                    "s": np.ascontiguousarray(np.einsum("eia,ei->ea", T, fit))}
+        x_ref = self.x0 if clamp is None or len(clamp) < 4 else clamp[3]
+        if x_ref is not self.x0:  # the residual is zero at the state the grips hold
+            beta = x_ref[je] + im * g.cell - x_ref[ce]
+        F0 = g.deformation(x_ref, g.cell)
         Q3, h = self._stab_local(F0)
         self._st["r0"] = np.ascontiguousarray(np.einsum("eia,ei->ea", Q3, beta) - h)
 
@@ -882,7 +893,7 @@ class DCBRTube:
 
 
 def quasi_static_tension(model: DCBRTube, strain_step: float = 0.005, max_strain: float = 0.40,
-                         gtol: float = 1e-6, after_failure: int = 2, fit_max_strain: float = 0.02,
+                         gtol: float = 1e-6, after_failure: int = 1, fit_max_strain: float = 0.02,
                          progress=None) -> dict:
     """Quasi-static axial tension of the periodic coarse tube (the LAMMPS runners' protocol).
 
@@ -892,7 +903,9 @@ def quasi_static_tension(model: DCBRTube, strain_step: float = 0.005, max_strain
     positions and shifts, max |gradient| < ``gtol`` eV/Å), links are broken by the failure
     rule and the minimisation repeated until no link breaks. Stress sigma = (dE/dLz) /
     (2 pi R t), t = 3.4 Å. Stops ``after_failure`` steps after the first drop of more than 5 %
-    below the running maximum, or at ``max_strain``.
+    below the running maximum (1, as the references' runner, so the last state, which the
+    damage map and crack line are read from, is the step of LAMMPS's last frame; until
+    2026-11-22 it was 2), or at ``max_strain``.
 
     Returns
     -------

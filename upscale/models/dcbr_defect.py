@@ -740,6 +740,58 @@ class DCBRDefectTube(DCBRTube):
         out[4]["step_crossings"] = crossed
         return out
 
+    def clamp_grips(self, z_lo: float, z_hi: float, rigid, y_ref=None):
+        """Rigid grips for the open tube: planes z_lo < z_hi (reference z, Å), ``rigid`` (N,)
+        the particles held.
+
+        G is fitted against the axial coordinate clamped at the planes, a held particle
+        counting as sitting at its plane (:func:`upscale.models.gain.build_gain`, ``clamp``):
+        the held particles deep in a grip have G fixed, those next to the gauge (an edge:
+        a link to a particle that is not held) stand for the material between the plane
+        and the gauge, and the gauge's particles see its strain exactly. The weights are the
+        gauge's length shares: along each column of particles (one theta), every gauge
+        particle and edge (at its plane) gets the part of the gauge nearer to it than to
+        its neighbours in the column, times the particle's atoms per unit length; a held
+        particle that is not an edge keeps its weight (its G does not change, so it adds
+        no energy). ``y_ref`` (N, 3): the particles' positions when the grips take hold (G
+        is linearised about them; default the reference lattice). Takes effect at the next
+        ``_build_gain`` of the open tube."""
+        rigid = np.asarray(rigid, dtype=bool)
+        if not (z_lo < z_hi and rigid.shape == (self.N,)):
+            raise ValueError(f"grip planes z_lo={z_lo}, z_hi={z_hi}, rigid {rigid.shape}; "
+                             f"valid: z_lo < z_hi and rigid of shape ({self.N},)")
+        if not hasattr(self, "_natoms_unclamped"):
+            self._natoms_unclamped = self.natoms_n.copy()
+        g = self.gain
+        edge = np.zeros(self.N, bool)
+        np.logical_or.at(edge, g.pair_i, rigid[g.pair_i] & ~rigid[g.pair_j])
+        z = self.x0[:, 2]
+        low = z < 0.5 * (z_lo + z_hi)
+        zf = np.where(rigid, np.where(low, z_lo, z_hi), z)  # the fit coordinate
+        h = self.spacing[1]
+        share = np.ones(self.N)  # length share / h
+        for col in np.unique(np.round(self.theta, 9)):
+            idx = np.nonzero(np.isclose(self.theta, col, atol=1e-9))[0]
+            nodes = idx[~rigid[idx] | edge[idx]]
+            # one edge per plane and column: the one nearest the gauge
+            for side in (low, ~low):
+                e = nodes[edge[nodes] & side[nodes]]
+                if len(e) > 1:
+                    drop = e[np.argsort(np.abs(z[e] - np.where(side[e], z_lo, z_hi)))[1:]]
+                    share[drop] = 0.0
+                    nodes = np.setdiff1d(nodes, drop)
+            nodes = nodes[np.argsort(zf[nodes])]
+            zn = zf[nodes]
+            mids = 0.5 * (zn[1:] + zn[:-1])
+            lo = np.r_[z_lo, mids]
+            hi = np.r_[mids, z_hi]
+            share[nodes] = np.clip(hi, z_lo, z_hi) - np.clip(lo, z_lo, z_hi)
+            share[nodes] /= h
+        share[rigid & ~edge] = 1.0
+        self.natoms_n = self._natoms_unclamped * share
+        self.clamp = (float(z_lo), float(z_hi), rigid) if y_ref is None else \
+            (float(z_lo), float(z_hi), rigid, np.asarray(y_ref, float))
+
     def masses(self):
         """(masses of the unknowns y (particles not slaved, then free atoms), masses of the
         shifts), amu: 12.011 per atom; a particle m_C max(w_c, N_c/2) (its atoms, at least

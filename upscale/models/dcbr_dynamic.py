@@ -9,33 +9,37 @@ on a :class:`~upscale.models.dcbr_defect.DCBRDefectTube`:
    and the open tube is minimised once (R = mean atom radius after it);
 3. end grips of ``grip`` Å move rigidly apart at ``speed`` Å/ps each. As LAMMPS's, a grip
    holds the atoms within ``grip`` of the open tube's end atoms: here the rows of particles
-   that lie beyond that plane (most of their slab's atoms do); the rest starts with the
-   linear axial velocity ramp between the grip planes; velocity Verlet, ``dt`` fs;
+   that lie beyond that plane, and (clamped grips, the default) also a row less than half a
+   row spacing inside it; the rest starts with the linear axial velocity ramp between the
+   grip planes; velocity Verlet, ``dt`` fs;
 4. strain = grip separation change / gauge, the initial distance between the grip planes
    (LAMMPS's definition, so strain(t) is the same function of time in both runs), at the
-   middle of each ``sample``-step block as LAMMPS's. The coarse grips are more compliant
-   than LAMMPS's: the G stencils of the rows next to a grip plane smear the step from rigid
-   to stretched over a row spacing h, and the two row parities (the centred stencil's
-   nearly decoupled chains) reach one row apart into the grips; the static grip stiffness
-   is 5-22 % below LAMMPS's on 50 Å gauges ((10,10), coarsening 1-4,
-   ``python -m validation dcbr-grip-stiffness``), so the dynamic modulus is low by about as
-   much, while the periodic quasi-static one, which has no grips, is within 0.5 %. Stress =
-   mean of the two grips' reaction forces (sum of -dE/dz over each grip's particles, averaged
-   over the block) over 2 pi R t; the run stops when the stress has fallen below 20 % of its
-   maximum after failure, or at ``max_strain``. Strength as LAMMPS's (the maximum before
-   the first drop of 5 %), with the first drop taken at or after the first broken bond
-   (see the code: the coarse grip stress rings by a few GPa at coarsening 3-4);
-5. the extensometer strain (:class:`upscale.analysis.stress.Extensometer`, defined once for
-   both codes), strain on gauge marks inside the tube, free of the grips' compliance: at
-   every step the weighted least-squares slope of the axial displacement against the axial
-   position at the start of the pull (after the set-up relaxation), over the material
-   between marks a quarter of the gauge inside each grip plane: all N particles (the
-   slaves at their interpolated positions) weighted by their atom counts ``natoms_n``, and
-   the free atoms of the atomistic region with weight 1; its block mean is the sample's
-   ``curve["extensometer_strain"]`` (LAMMPS: every 10 steps of the block, as its stress).
-   ``youngs_modulus_ext_TPa`` and ``strain_at_peak_ext`` are the modulus (same fit rule)
-   and the strain of the strength sample on it (cost: +1 % of the dynamics at coarsening
-   1, +4 % at 4, (10,10) vacancy tube).
+   middle of each ``sample``-step block as LAMMPS's. Stress = mean of the two grips'
+   reaction forces (sum of -dE/dz over each grip's particles, averaged over the block) over
+   2 pi R t; the run stops when the stress has fallen below 20 % of its maximum after
+   failure, or at ``max_strain``. Strength as LAMMPS's (the maximum before the first drop of
+   5 %), with the first drop taken at or after the first broken bond (see the code). An
+   extensometer (:class:`upscale.analysis.stress.Extensometer`, the same in the LAMMPS
+   runner) also reads the strain between two marks inside the gauge.
+
+Clamped grips (``clamp=True``, :meth:`DCBRDefectTube.clamp_grips`, build_gain's ``clamp``).
+With the plain centred stencil a grip is too compliant: the rows next to a plane mix the
+grip's zero strain into theirs, the grips' own rows take strain from the gauge, and the two
+row parities (the centred stencil's nearly decoupled chains) end one row apart in the grips;
+the effective gauge is about a row spacing longer per grip, and the static grip stiffness
+was 7-23 % below LAMMPS's on these 50 Å gauges (coarsening 1-4; ``python -m validation
+dcbr-grip-stiffness``), which showed as a dynamic modulus 5-19 % low. Clamped, once the open
+tube has relaxed, G is linearised about that state and fitted against the axial coordinate
+clamped at the planes (material beyond a plane has no strain to give), a held row counting
+as sitting at its plane; the held rows whose families reach the gauge (the edges) stand for
+the material between the plane and the gauge (their fit is taken about the plane, so they
+see that gap's strain), the others have a fixed G, the families that reach past a plane are
+fitted about their particle (so the row next to a plane feels its own position), and the
+weights are the gauge's length shares. A gauge stretched uniformly between rigid grips then
+gives every particle exactly its strain, and the static grip stiffness is within 4.3 % of
+LAMMPS's for the three tubes at coarsening 1-4. Holding the row less than h/2 inside a plane
+keeps the gap between the plane and the first free row at least h/2 (a thinner gap was a
+soft spot that the kernel-weighted fit hardly saw: (17,0) K1 86 % too soft).
 
 Masses (:meth:`DCBRDefectTube.masses`): a free atom 12.011 amu; a particle carries
 m_C max(w_c, N_c/2) (its atoms, at least half its nominal share, so that interface particles
@@ -75,7 +79,7 @@ from upscale.models.dcbr_defect import ACC_UNIT, CARBON_MASS
 
 __all__ = ["dynamic_tension", "open_tube_with_grips", "static_grip_stiffness", "CARBON_MASS"]
 
-def open_tube_with_grips(model, grip: float, gtol: float = 1e-4) -> dict:
+def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool = True) -> dict:
     """Steps 1-3 of the module docstring: the open tube relaxed with its grips.
 
     Returns a dict: ``y``, ``delta`` (the relaxed unknowns), ``L0``, ``R`` (mean atom radius),
@@ -91,6 +95,7 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4) -> dict:
         raise ValueError(f"grip={grip} Å leaves no free length in a {L0:.1f} Å tube; "
                          f"valid: grip < {L0 / 2:.1f}")
     model.periodic = False
+    model.clamp = None  # (a model opened before: its clamp is set again below)
     model._build_gain(None)
     model.prepare_step(L0)
     nd = len(model.dof_idx)
@@ -105,11 +110,16 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4) -> dict:
     # open-tube minimisation)
     za = model.X_atoms[:, 2] * (L0 / model.L)
     zb, zt = float(za.min()) + grip, float(za.max()) - grip
+    zb_ref, zt_ref = zb * model.L / L0, zt * model.L / L0  # the planes in reference z
     bottom = np.zeros(len(y), bool)
     top = np.zeros(len(y), bool)
-    bottom[:nd] = z[:nd] < zb
-    top[:nd] = z[:nd] > zt
-    if model.nf and (np.any(z[nd:] < zb) or np.any(z[nd:] > zt)):
+    # with ``clamp`` a row also belongs to a grip when it lies less than half a row
+    # spacing inside the plane: it is the grip's node at the plane (DCBRDefectTube.
+    # clamp_grips), and the gauge's first free row is then at least h/2 from it
+    hold = 0.5 * h if clamp else 0.0
+    bottom[:nd] = z[:nd] < zb + hold
+    top[:nd] = z[:nd] > zt - hold
+    if model.nf and (np.any(z[nd:] < zb + hold) or np.any(z[nd:] > zt - hold)):
         raise ValueError("the atomistic region reaches into a grip; valid: a longer tube or "
                          "shorter grips")
     if not (bottom.any() and top.any()):
@@ -129,24 +139,29 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4) -> dict:
     # the grip planes follow the end rows' relaxation (the end atoms move with them)
     zb += float(np.mean(y[:nd][end_lo, 2] - z_pre[end_lo]))
     zt += float(np.mean(y[:nd][end_hi, 2] - z_pre[end_hi]))
+    if clamp:  # the grips' particles held rigid in G from here on (DCBRDefectTube.clamp_grips)
+        yp = model.particle_positions(y)
+        rigid = np.zeros(model.N, bool)
+        rigid[model.dof_idx] = bottom[:nd] | top[:nd]
+        model.clamp_grips(zb_ref, zt_ref, rigid, yp)
+        model._build_gain(None)
+        model.prepare_step(L0)
+        fixed[grips] = True
+        y, d, _, _, _, _ = model.minimise(y, d, L0, gtol=gtol, fixed=fixed)
     R = model.radius(y, d)
     z = y[:, 2]
     # the gauge is LAMMPS's: the initial distance between the grip planes, so that strain(t)
     # = 2 v t / gauge is the same function of time in both runs. (Until 2026-11-22 it was the
     # distance between the innermost grip rows, 0 to 2 h longer; that lowered the strain at a
-    # given grip separation by up to 19 % at coarsening 4 and hid the coarse grips' extra
-    # compliance: the G stencils of the rows next to a grip plane smear the step from rigid
-    # to stretched over a row spacing, and the two row parities form chains that reach one
-    # row apart into the grips (:func:`static_grip_stiffness`). The grip particles keep their
-    # lattice energy: without it the force across the grip plane is carried by one chain
-    # only ((10,10) K = 4 modulus 0.86 -> 0.59 TPa).)
+    # given grip separation by up to 19 % at coarsening 4 and hid the plain grips' extra
+    # compliance, module docstring.)
     return {"y": y, "delta": d, "L0": float(L0), "R": R, "area": 2 * math.pi * R * WALL_THICKNESS,
             "bottom": bottom, "top": top, "zb": zb, "zt": zt, "gauge": float(zt - zb),
             "grip_rows": float(z[top].min() - z[bottom].max())}
 
 
 def static_grip_stiffness(model, grip: float = 50.0, strain: float = 0.0025,
-                          gtol: float = 1e-6) -> dict:
+                          gtol: float = 1e-6, clamp: bool = True) -> dict:
     """Force per grip separation of the open tube held by its grips, statically.
 
     The tube of :func:`open_tube_with_grips` (the dynamic scene's set-up); the grips are moved
@@ -157,7 +172,7 @@ def static_grip_stiffness(model, grip: float = 50.0, strain: float = 0.0025,
     directly; ``modulus_TPa`` = (F / area) / strain with LAMMPS's gauge."""
     if not (0 < strain < 0.05):
         raise ValueError(f"strain={strain!r}; valid: 0 < strain < 0.05 (the linear range)")
-    st = open_tube_with_grips(model, grip, gtol)
+    st = open_tube_with_grips(model, grip, gtol, clamp=clamp)
     y0, d0, L0 = st["y"], st["delta"], st["L0"]
     bottom, top = st["bottom"], st["top"]
     grips = bottom | top
@@ -185,7 +200,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
                     max_strain: float = 0.3, sample: int = 100, fit_max_strain: float = 0.02,
                     progress=None, gtol: float = 1e-4, temperature: float = 10.0,
                     tdamp: float = 100.0, seed: int = 12345, ghost: str = "local",
-                    monitor=None) -> dict:
+                    monitor=None, clamp: bool = True) -> dict:
     """Dynamic tension of an open coarse tube with end grips (module docstring).
 
     Returns a dict like the LAMMPS runner's: ``curve`` (strain, stress_GPa, time_ps,
@@ -212,7 +227,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
                          "stretch its interface particles carry) or 'grips' (at the grips' strain)")
     t0 = time.perf_counter()
     acc = ACC_UNIT
-    st = open_tube_with_grips(model, grip, gtol)
+    st = open_tube_with_grips(model, grip, gtol, clamp=clamp)
     y, d, L0, R, area = st["y"], st["delta"], st["L0"], st["R"], st["area"]
     bottom, top, zb, zt, gauge = st["bottom"], st["top"], st["zb"], st["zt"], st["gauge"]
     grips, nd, grip_rows = bottom | top, len(model.dof_idx), st["grip_rows"]

@@ -169,6 +169,11 @@ class GainOperator:
         False for particles dropped with ``on_singular="drop"`` (G undefined, row empty).
     pair_i, pair_j, pair_image : (npairs,) int64, (npairs,) int64, (npairs, 3) int64
         The full family (before any ``intact`` mask): the links between particles.
+    offset : (N, 3, k) float64 or None
+        Constant added to G (clamped grips, :func:`build_gain`'s ``clamp``), else None.
+    fit_beta : (nnz, 3) float64 or None
+        The reference link vectors of the entries that G was fitted against (the real
+        ones, or with the axial coordinate clamped at the grip planes).
     """
 
     offsets: np.ndarray
@@ -186,6 +191,8 @@ class GainOperator:
     pair_i: np.ndarray | None = None
     pair_j: np.ndarray | None = None
     pair_image: np.ndarray | None = None
+    offset: np.ndarray | None = None
+    fit_beta: np.ndarray | None = None
 
     @property
     def n(self) -> int:
@@ -220,7 +227,10 @@ class GainOperator:
         if out is None:
             out = np.empty((self.n, 3, self.k))
         zero = np.zeros_like(self.F0)
-        return _deformation_kernel(y, self.offsets, self.neighbors, self._shift(cell), self.coef, zero, out)
+        _deformation_kernel(y, self.offsets, self.neighbors, self._shift(cell), self.coef, zero, out)
+        if self.offset is not None:  # clamped grips (build_gain's ``clamp``)
+            out += self.offset
+        return out
 
     def forces(self, P, out=None):
         """Forces -dE/dy (N, 3) for E = sum_c W_c(F_c), given P_c = dW_c/dF_c (N, 3, k)."""
@@ -269,7 +279,7 @@ def _family(x, horizon, cell, pbc):
 def build_gain(x, horizon, volume=None, *, surface: bool = False, axis=None, axis_point=None,
                cell=None, pbc=(False, False, False), kind: str = "quartic",
                stabilised: bool = False, rcond: float = 1e-10, intact=None,
-               on_singular: str = "raise") -> GainOperator:
+               on_singular: str = "raise", clamp=None) -> GainOperator:
     """Precompute the gain operator of every particle (seed 004 eqs. 6.1-6.6).
 
     Parameters
@@ -301,6 +311,22 @@ def build_gain(x, horizon, volume=None, *, surface: bool = False, axis=None, axi
     on_singular : {"raise", "drop"}
         What to do with a particle whose G is singular: raise (default; bad input), or
         drop it (``op.alive[c] = False``, empty row; used after links break).
+    clamp : (z_lo, z_hi, rigid[, x_ref]) or None
+        Rigid grips along z (open directions only, no ``stabilised``): the material beyond
+        the planes z_lo < z_hi does not deform, and ``rigid`` (N,) bool marks the particles
+        held there. G is then fitted against the *stretchable* axial coordinate
+        phi(z) = clip(z, z_lo, z_hi) instead of z (the part of a link beyond a plane has no
+        strain to give), G_c = G_ref,c + sum_n a_cn (x) (y_n - x_ref,n) (``op.offset`` holds
+        the constant; x_ref: the state the grips take hold of, default x; G_ref: the plain
+        G there), for the particles whose family reaches past a plane (the others keep the
+        plain G and ``op.offset`` is zero for them). A rigid particle whose family reaches the gauge stands for the material
+        between its plane and the gauge: its G is fitted about the plane (its clamped
+        coordinate), so it sees the strain of that gap; a rigid particle deeper in has
+        G = G_ref,c. So a gauge stretched uniformly between
+        rigid grips gives every particle exactly its strain, however the rows fall about
+        the planes; with the plain stencil the particles next to a plane mix the grip's
+        zero strain into theirs and the grips' own particles take strain from the gauge,
+        which lengthens the effective gauge by about a row spacing per grip.
 
     Raises
     ------
@@ -332,6 +358,18 @@ def build_gain(x, horizon, volume=None, *, surface: bool = False, axis=None, axi
         ii, jj, im = ii[intact], jj[intact], im[intact]
     beta = x[jj] + im * cellv - x[ii]
     w = kappa(np.linalg.norm(beta, axis=1), horizon, kind) * v[jj]
+    rigid = None
+    if clamp is not None:
+        z_lo, z_hi, rigid = float(clamp[0]), float(clamp[1]), np.asarray(clamp[2], dtype=bool)
+        x_ref = np.asarray(clamp[3], dtype=float) if len(clamp) > 3 else x
+        if pbc[2] or stabilised or rigid.shape != (n,) or not z_lo < z_hi:
+            raise ValueError(f"clamp=({z_lo}, {z_hi}, rigid {rigid.shape}) with pbc={pbc.tolist()}"
+                             f", stabilised={stabilised}; valid: z_lo < z_hi, rigid (N,) bool, "
+                             "z not periodic, stabilised False")
+        xs = x.copy()
+        xs[:, 2] = np.clip(x[:, 2], z_lo, z_hi)  # the stretchable axial coordinate
+        low = x[:, 2] < 0.5 * (z_lo + z_hi)  # a held particle sits at its grip's plane
+        xs[rigid & low, 2], xs[rigid & ~low, 2] = z_lo, z_hi
     alive = np.ones(n, dtype=bool)
     fam_off = np.zeros(n + 1, dtype=np.int64)
     np.add.at(fam_off, ii + 1, 1)
@@ -356,7 +394,7 @@ def build_gain(x, horizon, volume=None, *, surface: bool = False, axis=None, axi
         np.add.at(xbar, s_i, s_w[:, None] * (x[s_j] + s_im * cellv))
         beta_fit = xbar[jj] + im * cellv - xbar[ii]
     else:
-        beta_fit = beta
+        beta_fit = beta if clamp is None else xs[jj] + im * cellv - xs[ii]
 
     k = 2 if surface else 3
     frame = np.zeros((n, 3, k))
@@ -368,6 +406,10 @@ def build_gain(x, horizon, volume=None, *, surface: bool = False, axis=None, axi
         ap = np.zeros(3) if axis_point is None else np.asarray(axis_point, float)
     coef = np.zeros((len(ii), k))
     F0 = np.zeros((n, 3, k))
+    own_rows = []  # (c, coefficient of y_c) of the families fitted about c (``clamp``)
+    touched = np.zeros(n, bool)  # particles whose G the grips change (``clamp``)
+    F0_std = np.zeros((n, 3, k))
+    G_ref = np.zeros((n, 3, k))
     for c in range(n):
         sl = slice(fam_off[c], fam_off[c + 1])
         b, wc = beta_fit[sl], w[sl]
@@ -407,7 +449,28 @@ def build_gain(x, horizon, volume=None, *, surface: bool = False, axis=None, axi
         else:
             frame[c] = np.eye(3)
             s = b
-        sbar = (wc[:, None] * s).sum(0) / W
+        own = False
+        if rigid is not None and (rigid[c] or np.any(beta_fit[sl] != beta[sl])):
+            # a particle the grips touch: its plain fit (real coordinates, centred) gives the
+            # reference chords F0 and G at x_ref, about which its clamped G is linearised
+            sr = beta[sl] @ frame[c] if surface else beta[sl]
+            dr = sr - (wc[:, None] * sr).sum(0) / W
+            Mr = (wc[:, None, None] * dr[:, :, None] * dr[:, None, :]).sum(0)
+            ar = wc[:, None] * (dr @ np.linalg.inv(Mr))
+            nb = jj[sl]
+            shift = im[sl] * cellv
+            touched[c] = True
+            F0_std[c] = np.einsum("ei,ea->ia", x[nb] + shift, ar)
+            G_ref[c] = np.einsum("ei,ea->ia", x_ref[nb] + shift, ar)
+            if rigid[c] and rigid[nb].all():  # held, deep in a grip: G = G_ref
+                continue
+            # a family that reaches past a grip plane is not symmetric in the clamped
+            # coordinate: its fit is taken about c itself (eta_n = y_n - y_c, the uncentred
+            # form of eq. 6.5), which gives y_c a coefficient; centred, the row next to a
+            # plane would not feel its own position and one of the two row parities would
+            # end free at the grip
+            own = True
+        sbar = np.zeros(k) if own else (wc[:, None] * s).sum(0) / W
         ds = s - sbar
         M = (wc[:, None, None] * ds[:, :, None] * ds[:, None, :]).sum(0)  # Upsilon^-1
         ev = np.linalg.eigvalsh(M)
@@ -422,6 +485,8 @@ def build_gain(x, horizon, volume=None, *, surface: bool = False, axis=None, axi
         Ups = np.linalg.inv(M)  # eq. 6.5 (centred)
         a = wc[:, None] * (ds @ Ups)  # a_n = w_n Upsilon (s_n - s_bar)
         coef[sl] = a
+        if own:
+            own_rows.append((c, -a.sum(0)))
 
     coef[~alive[ii]] = 0.0
     if stabilised:
@@ -454,6 +519,18 @@ def build_gain(x, horizon, volume=None, *, surface: bool = False, axis=None, axi
         offsets = np.cumsum(fam_off2)
     else:
         offsets = fam_off
+    if own_rows:  # add the entries of y_c to their rows (CSR order kept by a stable sort)
+        oc = np.array([r[0] for r in own_rows], np.int64)
+        ii = np.concatenate([ii, oc])
+        jj = np.concatenate([jj, oc])
+        im = np.concatenate([im, np.zeros((len(oc), 3), im.dtype)])
+        coef = np.concatenate([coef, np.array([r[1] for r in own_rows])])
+        beta_fit = np.concatenate([beta_fit, np.zeros((len(oc), 3))])
+        order = np.argsort(ii, kind="stable")
+        ii, jj, im, coef, beta_fit = ii[order], jj[order], im[order], coef[order], beta_fit[order]
+        offsets = np.zeros(n + 1, dtype=np.int64)
+        np.add.at(offsets, ii + 1, 1)
+        offsets = np.cumsum(offsets)
     op = GainOperator(offsets=np.ascontiguousarray(offsets, np.int64),
                       neighbors=np.ascontiguousarray(jj, np.int64),
                       image=np.ascontiguousarray(im, np.int64),
@@ -465,4 +542,11 @@ def build_gain(x, horizon, volume=None, *, surface: bool = False, axis=None, axi
     else:
         op.F0 = op.deformation(x)  # the fitted reference chords (== T on symmetric families)
         op.F0[~alive] = frame[~alive]
+    if clamp is not None:  # G_c = G_ref,c + sum a (x) (y - x_ref) where the grips touch
+        op.offset = np.zeros((n, 3, k))
+        t = touched & alive
+        op.offset[t] = G_ref[t] - op.deformation(x_ref)[t]
+        if surface:
+            op.F0[t] = F0_std[t]
+    op.fit_beta = beta_fit  # the reference link vectors G was fitted against (by family)
     return op
