@@ -137,9 +137,12 @@ def test_prepare_sides_equals_prepare_step_at_one_stretch(pristine):
     _, gy, _, _ = pristine.energy_and_gradient(y, d, Lz)
     zc = pristine.vacancy_theta_z[1]
     zrow = np.r_[pristine.x0[pristine.dof_idx, 2], pristine.Xf[:, 2]]
-    # lower side: its own stretch, balanced (to 1e-4: the correction's net sideways force,
-    # not zero when the sides differ, is taken off all rows evenly)
-    assert np.abs(gy[zrow < zc]).max() < 1e-4
+    # lower side: its own stretch, balanced but for one sideways force on every row (the
+    # correction's net sideways force, not zero when the sides differ, is taken off all rows
+    # evenly: 6e-4 eV/Å here)
+    lo = gy[zrow < zc]
+    assert np.abs(lo - lo.mean(axis=0)).max() < 1e-4
+    assert np.abs(lo.mean(axis=0)).max() < 1e-3
     assert np.abs(gy[zrow > zc]).max() > 1e-3  # upper side: corrected for 5 %, not 2 %
 
 
@@ -150,7 +153,7 @@ def test_dynamic_thermostat_holds_the_temperature():
     from upscale.models.dcbr_dynamic import dynamic_tension
 
     m = DCBRDefectTube(6, 6, 40.0, vacancy=4, **KW)
-    res = dynamic_tension(m, grip=10.0, speed=0.5, max_strain=0.012, sample=50,
+    res = dynamic_tension(m, grip=8.0, speed=0.5, max_strain=0.012, sample=50,
                           temperature=10.0, seed=3)
     ke = np.array(res["curve"]["free_atom_kinetic_eV"][2:])
     T = 2 * ke / (3 * m.nf * 8.617333262e-5)
@@ -183,7 +186,7 @@ def test_dynamic_grips_are_lammps_grips(grip, clamp):
     beyond)."""
     from upscale.models.dcbr_dynamic import dynamic_tension
 
-    m = DCBRDefectTube(6, 6, 40.0, vacancy=4, **KW)
+    m = DCBRDefectTube(6, 6, 50.0, vacancy=4, **KW)
     rows = np.unique(np.round(m.x0[:, 2], 6))
     h = float(np.median(np.diff(rows)))
     res = dynamic_tension(m, grip=grip, max_strain=0.03, sample=20, speed=2.0, temperature=0.0,
@@ -327,8 +330,8 @@ def test_tube_extent_ignores_particles_that_left():
 
 def test_region_is_made_of_whole_cells():
     """With whole_cells every particle is either atomistic (weight 0, all its atoms free) or
-    coarse (its full weight, none of its atoms free); a cell mostly inside r_atomistic is
-    atomistic and one mostly outside is coarse. Without it, particles cut by the boundary
+    coarse (its full weight, none of its atoms free); a cell with an atom inside r_atomistic is
+    atomistic and one with none is coarse. Without it, particles cut by the boundary
     keep part of their atoms (the case that delayed failure at coarsening 4)."""
     m = DCBRDefectTube(6, 6, 30.0, vacancy=4, **KW)
     w = m.natoms_n

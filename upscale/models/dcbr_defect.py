@@ -12,10 +12,10 @@ It is an energy-based concurrent coupling (in the spirit of the quasicontinuum m
 * **Free atoms**: E_a is the LAMMPS-form Tersoff site energy of atom a (the terms of its own
   bonds, :func:`potentials.tersoff_kernels._chunk` on the free atoms only), so the free
   region is the atomistic model itself. With ``whole_cells`` (default) the region is made of
-  whole particle cells: every particle whose cell (its Voronoi share of the atoms) lies
-  mostly within ``r_atomistic`` of the vacancy, or holds a removed atom, gives all its atoms
-  to the region and every other particle keeps all of its, so each particle is either
-  atomistic or coarse. Without it the free atoms are those with ``r < r_atomistic`` and
+  whole particle cells: every particle whose cell (its Voronoi share of the atoms) has an
+  atom within ``r_atomistic`` of the vacancy, or a removed atom, gives all its atoms to the
+  region and every other particle keeps all of its, so each particle is either atomistic or
+  coarse and the region holds at least every atom within ``r_atomistic``. Without it the free atoms are those with ``r < r_atomistic`` and
   particles cut by the boundary keep a part of their atoms, with a G whose stencil can
   reach across the defect: such particles stiffened the vacancy's neighbourhood and
   delayed failure ((10,10), coarsening 4, ``r_atomistic`` 8 Å, its two slave rows carrying
@@ -202,11 +202,11 @@ class DCBRDefectTube(DCBRTube):
         dz_p = X[:, 2][:, None] - self.x0[None, :, 2]
         dz_p -= self.L * np.round(dz_p / self.L)
         owner = np.argmin(ds_p ** 2 + dz_p ** 2, axis=1)
-        if whole_cells:  # a particle mostly inside r_atomistic (or holding a removed atom)
-            # gives up all its atoms; one mostly outside keeps all of its
-            inside = np.bincount(owner, weights=(r < r_atomistic).astype(float),
-                                 minlength=self.N) >= 0.5 * np.bincount(owner, minlength=self.N)
-            inside[owner[removed | vac_atoms]] = True
+        if whole_cells:  # a particle with any atom inside r_atomistic (or a removed atom)
+            # gives up all its atoms, the others keep all of theirs: the region is the disc
+            # or band rounded out to whole cells
+            inside = np.zeros(self.N, bool)
+            inside[owner[(r < r_atomistic) | removed | vac_atoms]] = True
             free = inside[owner] & ~removed
         else:
             free = (r < r_atomistic) & ~removed
