@@ -319,10 +319,10 @@ def build_gain(x, horizon, volume=None, *, surface: bool = False, axis=None, axi
         strain to give), G_c = G_ref,c + sum_n a_cn (x) (y_n - x_ref,n) (``op.offset`` holds
         the constant; x_ref: the state the grips take hold of, default x; G_ref: the plain
         G there), for the particles whose family reaches past a plane (the others keep the
-        plain G and ``op.offset`` is zero for them). A rigid particle whose family reaches the gauge stands for the material
-        between its plane and the gauge: its G is fitted about the plane (its clamped
-        coordinate), so it sees the strain of that gap; a rigid particle deeper in has
-        G = G_ref,c. So a gauge stretched uniformly between
+        plain G and ``op.offset`` is zero for them). A rigid particle whose family reaches
+        the gauge stands for the material between its plane and the gauge: its G is fitted
+        about the plane (its clamped coordinate), so it sees the strain of that gap; a
+        rigid particle deeper in has G = G_ref,c. So a gauge stretched uniformly between
         rigid grips gives every particle exactly its strain, however the rows fall about
         the planes; with the plain stencil the particles next to a plane mix the grip's
         zero strain into theirs and the grips' own particles take strain from the gauge,
