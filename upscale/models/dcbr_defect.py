@@ -112,12 +112,18 @@ class DCBRDefectTube(DCBRTube):
         Width (Å) of the band of slaved pad atoms outside it (> cutoff 2.1 Å).
     whole_cells : bool
         The region is made of whole particle cells (module docstring; default True).
+    band_z : sequence of float, optional
+        Only with ``vacancy=0`` and ``region="band"``: centres (reference z, Å) of atomistic
+        bands of half-width ``r_atomistic`` placed where the protocol, not a defect, sets
+        the failure site (the pristine dynamic scene puts one across each grip plane,
+        :func:`upscale.models.dcbr_dynamic.pristine_grip_tube`). ``vacancy_theta_z`` is then
+        (0, tube centre), the plane that splits the ghost-force correction's two sides.
     """
 
     def __init__(self, n: int, m: int, length: float, coarsening: float = 2.0,
                  vacancy: int = 4, r_atomistic: float = 8.0, pad: float = 3.5,
                  region: str = "band", step_crossing: str = "damped", whole_cells: bool = True,
-                 _twin_of: "DCBRDefectTube | None" = None, **kw):
+                 band_z=None, _twin_of: "DCBRDefectTube | None" = None, **kw):
         super().__init__(n, m, length, coarsening, **kw)
         if step_crossing not in ("energy", "always", "force", "damped"):
             raise ValueError(f"step_crossing={step_crossing!r}; valid: 'damped' (while a "
@@ -128,6 +134,7 @@ class DCBRDefectTube(DCBRTube):
                              "the step cutoff crosses it when that lowers the energy) or 'always' "
                              "(it crosses, as damped dynamics would)")
         self.step_crossing = step_crossing
+        self.skip_empty_links = False  # (update_links)
         if region not in ("band", "disc"):
             raise ValueError(f"region={region!r}; valid: 'band' (|z - z_vacancy| < r_atomistic, "
                              "all around the tube) or 'disc' (distance on the wall < r_atomistic)")
@@ -141,6 +148,9 @@ class DCBRDefectTube(DCBRTube):
 
         if not (isinstance(vacancy, (int, np.integer)) and 0 <= vacancy <= 20):
             raise ValueError(f"vacancy={vacancy!r}; valid: an integer number of atoms 0..20")
+        if band_z is not None and (vacancy or region != "band" or len(band_z) == 0):
+            raise ValueError(f"band_z={band_z!r} with vacancy={vacancy!r}, region={region!r}; "
+                             "valid: band centres only with vacancy=0 and region='band'")
         if not (r_atomistic > 0 and np.isfinite(r_atomistic)):
             raise ValueError(f"r_atomistic={r_atomistic!r}; valid: a radius > 0 Å")
         cut = float(self.p_standard[10] + self.p_standard[11])
@@ -194,8 +204,17 @@ class DCBRDefectTube(DCBRTube):
             zc = atoms.positions[:, 2].min() + 0.5 * self.L
             thc = 0.0
         self.vacancy_theta_z = (float(thc), float(zc))
+        if _twin_of is not None:
+            band_z = _twin_of.band_z
+        self.band_z = None if band_z is None else tuple(float(b) for b in band_z)
         s_rel = R0 * _wrap(th - thc)
         z_rel = X[:, 2] - zc
+        if self.band_z is not None:  # the nearest band's centre
+            if min(self.band_z) < X[:, 2].min() or max(self.band_z) > X[:, 2].max():
+                raise ValueError(f"band_z={band_z!r}; valid: centres inside the tube "
+                                 f"({X[:, 2].min():.1f} to {X[:, 2].max():.1f} Å)")
+            cz = np.asarray(self.band_z)
+            z_rel = X[:, 2] - cz[np.argmin(np.abs(X[:, 2][:, None] - cz[None, :]), axis=1)]
         r = np.hypot(s_rel, z_rel) if region == "disc" else np.abs(z_rel)
         # Voronoi share of every atom of the pristine tube among the particles
         ds_p = R0 * _wrap(th[:, None] - self.theta[None, :])
@@ -211,7 +230,9 @@ class DCBRDefectTube(DCBRTube):
         else:
             free = (r < r_atomistic) & ~removed
         reach = float(np.abs(z_rel[free | removed]).max(initial=0.0)) + pad
-        if zc - reach < 0 or zc + reach > self.L:
+        zr = X[free | removed, 2]
+        if (self.band_z is None and (zc - reach < 0 or zc + reach > self.L)) or \
+                (self.band_z is not None and (zr.min() - pad < 0 or zr.max() + pad > self.L)):
             raise ValueError(f"r_atomistic={r_atomistic} Å: the atomistic region and its pad "
                              f"reach {reach:.1f} Å from the vacancy, beyond the tube's ends "
                              f"(length {self.L:.1f} Å); valid: a smaller r_atomistic or a "
@@ -963,9 +984,19 @@ class DCBRDefectTube(DCBRTube):
         share, often zero), so its lattice state, and above all its sublattice shift, which
         then has next to no stiffness, says nothing about a bond (at 10 K their shifts
         drifted and broke links next to the region of a pristine tube at 3 % strain). Links
-        to a slave still break on the carrying particle's mapped bond."""
+        to a slave still break on the carrying particle's mapped bond. The same holds for a
+        particle that carries no atoms at all (at coarsening 1 a few cells of the particle
+        Voronoi tiling hold no atom, anywhere along the tube; weights before any grip
+        clamp): its shift has no stiffness and drifted with its thermal velocity (pristine
+        (10,10) dynamic, 10 K: links broken at 1.2 % strain, shift 1.4 Å). That exclusion is
+        on with ``skip_empty_links`` (set by the pristine dynamic scene); it is off by
+        default only so that the stored vacancy results reproduce: on, the vacancy (10,10)
+        coarsening-1 dynamic strength moves from 69.74 to 69.33 GPa (coarsening 2-4 have no
+        empty particle)."""
         a = self.alive
         masked = a & ~self.is_slave
+        if self.skip_empty_links:
+            masked &= getattr(self, "_natoms_unclamped", self.natoms_n) > 0
         self.alive = masked
         try:
             return super().update_links()
@@ -1025,4 +1056,5 @@ class DCBRDefectTube(DCBRTube):
                 "free_atoms": int(self.nf), "pad_atoms": int(len(self.pad_idx)),
                 "removed_atoms": int(self.removed.sum()), "dof": int(self.dof),
                 "atom_count_error": self.atom_count_error,
-                "vacancy_theta_z": list(self.vacancy_theta_z)}
+                "vacancy_theta_z": list(self.vacancy_theta_z),
+                "band_z": None if self.band_z is None else list(self.band_z)}

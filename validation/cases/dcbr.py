@@ -242,7 +242,8 @@ def _tension_args(p):
                    "damped dynamics then L-BFGS (default, LAMMPS's quasi-static protocol), or "
                    "single pairs when that lowers the energy, when the force pushes, always")
     p.add_argument("--dynamic", action="store_true",
-                   help="dynamic tension of the open tube with grips (with --vacancy)")
+                   help="dynamic tension of the open tube with grips (without --vacancy: "
+                   "atomistic bands of --r-atomistic across the grip planes)")
     p.add_argument("--strain-step", type=float, default=0.005)
     p.add_argument("--temperature", type=float, default=10.0,
                    help="dynamic: thermostat K (default 10, as LAMMPS; 0 = NVE from rest)")
@@ -258,17 +259,25 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
 
     With ``vacancy`` the coarse model is :class:`upscale.models.dcbr_defect.DCBRDefectTube`
     (atomistic region of ``r_atomistic`` Å around the 4-atom vacancy) and the crack angles
-    of both are compared."""
+    of both are compared. ``dynamic`` without ``vacancy``: the pristine open tube with an
+    atomistic band of ``r_atomistic`` Å across each grip plane
+    (:func:`upscale.models.dcbr_dynamic.pristine_grip_tube`; LAMMPS's pristine tubes fail
+    next to a grip plane, where the held atoms keep the radius)."""
     from upscale.models.dcbr import DCBRTube, quasi_static_tension
 
-    if dynamic and not vacancy:
-        raise ValueError("--dynamic without --vacancy: the dynamic scene runs on the defect "
-                         "model (DCBRDefectTube); valid: --dynamic --vacancy")
     ref = _lammps_reference(n, m, length, strain_step=strain_step, vacancy=vacancy,
                             protocol="dynamic" if dynamic else "quasi-static",
                             progress=verbose)
     t0 = time.perf_counter()
-    if vacancy:
+    pd = ref.get("protocol_detail", {})
+    banded = dynamic and not vacancy  # the pristine dynamic scene: bands at the grip planes
+    if banded:
+        from upscale.models.dcbr_dynamic import pristine_grip_tube
+
+        model = pristine_grip_tube(n, m, length, coarsening, grip=pd.get("grip_A", 50.0),
+                                   r_atomistic=r_atomistic, hourglass=hourglass,
+                                   step_crossing=step_crossing)
+    elif vacancy:
         from upscale.models.dcbr_defect import DCBRDefectTube
 
         model = DCBRDefectTube(n, m, length, coarsening=coarsening, hourglass=hourglass,
@@ -281,10 +290,10 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
     if dynamic:
         from upscale.models.dcbr_dynamic import dynamic_tension
 
-        pd = ref.get("protocol_detail", {})
         res = dynamic_tension(model, grip=pd.get("grip_A", 50.0),
                               speed=pd.get("speed_A_per_ps_each_grip", 1.0), progress=cb,
-                              temperature=temperature)
+                              temperature=temperature, clamp=not banded,
+                              planes=_reference_grip_planes(ref) if banded else None)
         res["curve"]["Lz_A"] = [res["L0_A"]] * len(res["curve"]["strain"])
     else:
         res = quasi_static_tension(model, strain_step=strain_step, progress=cb)
@@ -311,11 +320,15 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
                                                                    "strain_at_peak_ext")):
             out[ko], out[f"{ko}_lammps"] = res.get(k), ref[k]
             out[f"{ko}_err_pct"] = _err_pct(res[k], ref[k]) if res.get(k) is not None else None
-    if vacancy:
+    if vacancy or banded:
         out.update({k: res[k] for k in ("setup_relax_s", "dynamics_s", "steps") if k in res})
         if res.get("first_damage"):
             out["first_damage_strain"] = res["first_damage"]["strain"]
             out["crack_start_to_vacancy_A"] = res["first_damage"]["distance_to_vacancy_A"]
+            if banded:  # [min, median, max] signed distance into the gauge; per half
+                fd = res["first_damage"]
+                out["first_damage_to_grip_plane_A"] = fd["distance_to_grip_plane_A"]
+                out["first_damage_halves"] = [fd["n_bottom_half"], fd["n_top_half"]]
             dref = ref.get("damage", {})
             out["crack_start_to_vacancy_lammps_A"] = dref.get("crack_start_distance_to_vacancy_A")
         out.update({f"model_{k}": v for k, v in model.summary().items()})
@@ -329,10 +342,38 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
     if outdir is not None and plot:
         outdir = Path(outdir)
         outdir.mkdir(parents=True, exist_ok=True)
-        name = f"dcbr_{'dynamic' if dynamic else 'tension'}_{n}_{m}{'_vac4' if vacancy else ''}"
+        name = f"dcbr_{'dynamic' if dynamic else 'tension'}_{n}_{m}" \
+            f"{'_vac4' if vacancy else ('_pristine' if dynamic else '')}"
         _plot(res, ref, out, outdir / f"{name}_K{coarsening:g}.png", model)
     out["_curve"] = res["curve"]
     return out
+
+
+def _reference_grip_planes(ref) -> tuple[float, float]:
+    """The LAMMPS run's grip planes on the built tube's lattice (reference z, Å).
+
+    LAMMPS's planes lie 50 Å inside its end atoms after the open-tube minimisation; which
+    atoms end its tube depends on the periodic wrap after its zero-stress relaxation (the
+    builder's layer at z = 0 sits on the cell boundary: it went to the top of the (10,10) and
+    (17,0) tubes, not of the (12,6) one) and on the end atoms' relaxation (0.2-0.3 Å), so
+    where the planes cut the lattice (for (17,0): across the inclined or the axial bonds)
+    is an accident of the set-up that the coarse ends do not carry. The coarse scene holds
+    the same atoms: its planes are LAMMPS's, recovered from the stored extensometer window
+    (marks a quarter of the gauge inside the planes) and mapped back by the relaxed axial
+    stretch L0 / built length (relaxation scales z about z = 0; the fit of the dumps' first
+    frame to the built positions gives an offset of < 1e-3 Å)."""
+    from upscale.analysis.stress import EXTENSOMETER_MARGIN
+
+    pd = ref["protocol_detail"]
+    lo, hi = pd["extensometer"]["window_A"]
+    mg = pd["extensometer"].get("margin_of_gauge", EXTENSOMETER_MARGIN)
+    g = (hi - lo) / (1.0 - 2.0 * mg)
+    zb, zt = lo - mg * g, hi + mg * g
+    if abs(g - pd["gauge_length_A"]) > 1e-6:
+        raise ValueError(f"reference gauge {pd['gauge_length_A']} Å vs {g} Å from its "
+                         "extensometer window; valid: a reference with a consistent record")
+    s = ref["structure"]["length_built_A"] / ref["relaxation"]["L0_A"]
+    return zb * s, zt * s
 
 
 def _tube_z_range(model, y):
@@ -451,8 +492,10 @@ def _dcbr_tension(args):
     cols = ["chirality", "coarsening", "atoms", "particles", "modulus_TPa", "modulus_lammps_TPa",
             "strength_GPa", "strength_lammps_GPa", "strain_at_peak", "strain_at_peak_lammps",
             "wall_s", "lammps_wall_s", "speedup"]
-    if args.vacancy:
+    if args.vacancy or args.dynamic:
         cols += ["dof", "crack_angle_deg", "crack_angle_lammps_deg"]
+    if args.dynamic and not args.vacancy:
+        cols += ["first_damage_strain", "first_damage_to_grip_plane_A"]
     print(table([out], cols, floatfmt=".5g"))
     out["pass"] = bool(out["modulus_err_pct"] < 3 and out["strength_err_pct"] < 5
                        and out["strain_at_peak_err_pct"] < 10)
@@ -473,7 +516,8 @@ def _table_args(p):
     p.add_argument("--vacancy", action="store_true",
                    help="the 4-atom vacancy tubes (DCBRDefectTube, band of 8 Å)")
     p.add_argument("--dynamic", action="store_true",
-                   help="dynamic tension (with --vacancy; 150 Å tubes, the dynamic references)")
+                   help="dynamic tension (150 Å tubes, the dynamic references; pristine: "
+                   "atomistic bands across the grip planes)")
     p.add_argument("--temperature", type=float, default=10.0,
                    help="dynamic: thermostat K (default 10, as LAMMPS; 0 = NVE from rest)")
 
@@ -502,6 +546,14 @@ def _dcbr_table(args):
             if "modulus_ext_err_pct" in o:  # dynamic: the extensometer's figures too
                 rows[-1].update({"modulus_ext_err_%": o["modulus_ext_err_pct"],
                                  "strain_at_peak_ext_err_%": o["strain_at_peak_ext_err_pct"]})
+            if args.dynamic and not args.vacancy:  # where the pristine tube failed
+                rows[-1].update({"first_damage_strain": o.get("first_damage_strain"),
+                                 "first_damage_to_grip_plane_A":
+                                     o.get("first_damage_to_grip_plane_A"),
+                                 "first_damage_halves": o.get("first_damage_halves"),
+                                 "crack_deg": o.get("crack_angle_deg"),
+                                 "crack_lammps_deg": o.get("crack_angle_lammps_deg"),
+                                 "ejected": o.get("ejected_atoms")})
             if args.vacancy:
                 rows[-1].update({"crack_deg": o.get("crack_angle_deg"),
                                  "crack_lammps_deg": o.get("crack_angle_lammps_deg"),
@@ -511,7 +563,8 @@ def _dcbr_table(args):
     print(table(rows, floatfmt=".4g"))
     from upscale.io import write_json
 
-    write_json(Path(args.outdir) / f"dcbr_table{'_vac4' if args.vacancy else ''}"
+    kind = "_vac4" if args.vacancy else ("_pristine" if args.dynamic else "")
+    write_json(Path(args.outdir) / f"dcbr_table{kind}"
                f"{'_dynamic' if args.dynamic else ''}"
                f"{'_T%g' % args.temperature if args.dynamic else ''}.json", rows)
     return {"rows": rows, "strength_err_pct_max": max(r["strength_err_%"] for r in rows),

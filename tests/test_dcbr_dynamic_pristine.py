@@ -1,0 +1,80 @@
+"""Dynamic tension of the pristine coarse tube with atomistic bands across the grip planes
+(upscale.models.dcbr_dynamic.pristine_grip_tube; validation case dcbr-tension --dynamic)."""
+import numpy as np
+import pytest
+
+from upscale.models.dcbr_defect import DCBRDefectTube
+from upscale.models.dcbr_dynamic import dynamic_tension, pristine_grip_tube
+
+GRIP = 15.0
+KW = dict(r_atomistic=5.0, hourglass=0.1)
+
+
+def test_pristine_scene_grips_and_linear_rise():
+    """A 70 Å (6,6) tube, coarsening 2, grips of 15 Å pulled at 2 Å/ps each, NVE from rest
+    (no thermal noise: the check is deterministic), to 2 % strain:
+
+    * the grips hold the band atoms beyond each plane (some atoms in each grip) and every
+      held row moves rigidly: axially by exactly speed * time, sideways not at all;
+    * the stress rises linearly (within 1.5 GPa of its own line) with the modulus of the
+      periodic quasi-static coarse tube, within 6 %: LAMMPS's own dynamic grip modulus is
+      3.1 % below its quasi-static one on the stored (10,10) runs (0.953 vs 0.984 TPa; the
+      start-up and the sampling of the ramp), and the held radius next to each plane (a
+      stiffer boundary layer of a few Å, in LAMMPS as here) moves it the other way by a
+      few % on a gauge this short (40 Å); measured here -2.6 % (0.940 vs 0.966 TPa). A
+      gauge one row spacing (2.1 Å) off, a wrong area or held rows that do not move miss
+      by more."""
+    from upscale.models.dcbr import DCBRTube, quasi_static_tension
+
+    m = pristine_grip_tube(6, 6, 70.0, 2.0, grip=GRIP, **KW)
+    seen = []
+    res = dynamic_tension(m, grip=GRIP, speed=2.0, max_strain=0.02, sample=50,
+                          temperature=0.0, clamp=False,
+                          monitor=lambda step, y, v, d, s: seen.append((step, y.copy())))
+    nd = len(m.dof_idx)
+    bot, top = res["grip_bottom"], res["grip_top"]
+    assert bot[nd:].any() and top[nd:].any()  # band atoms held by each grip
+    assert bot[:nd].any() and top[:nd].any()  # and coarse rows
+    (s0, y0), (s1, y1) = seen[0], seen[-1]
+    du = 2.0e-3 * (s1 - s0)  # Å: speed (Å/fs) x steps x 1 fs
+    np.testing.assert_allclose(y1[top, 2] - y0[top, 2], du, atol=1e-9)
+    np.testing.assert_allclose(y1[bot, 2] - y0[bot, 2], -du, atol=1e-9)
+    np.testing.assert_allclose(y1[bot | top, :2], y0[bot | top, :2], atol=1e-9)
+    s = np.array(res["curve"]["stress_GPa"])
+    e = np.array(res["curve"]["strain"])
+    assert np.all(np.isfinite(s)) and np.all(np.diff(s) > 0)
+    qs = quasi_static_tension(DCBRTube(6, 6, 25.0, coarsening=2.0, hourglass=0.1),
+                              strain_step=0.005, max_strain=0.02)
+    E = qs["youngs_modulus_TPa"]
+    assert abs(res["youngs_modulus_TPa"] / E - 1) < 0.06, (res["youngs_modulus_TPa"], E)
+    # linear: the stress stays on its own fitted line (no start-up kink beyond 1.5 GPa)
+    A = np.polyfit(e, s, 1)
+    assert np.max(np.abs(np.polyval(A, e) - s)) < 1.5
+
+
+def test_band_and_plane_input_is_checked():
+    with pytest.raises(ValueError, match="band_z"):
+        DCBRDefectTube(6, 6, 30.0, vacancy=4, band_z=(10.0,), **KW)
+    with pytest.raises(ValueError, match="band_z"):
+        DCBRDefectTube(6, 6, 30.0, vacancy=0, band_z=(-5.0,), **KW)
+    m = pristine_grip_tube(6, 6, 70.0, 2.0, grip=GRIP, **KW)
+    with pytest.raises(ValueError, match="clamp=True"):
+        dynamic_tension(m, grip=GRIP, clamp=True)
+    m = pristine_grip_tube(6, 6, 70.0, 2.0, grip=GRIP, **KW)
+    with pytest.raises(ValueError, match="planes="):
+        dynamic_tension(m, grip=GRIP, clamp=False, planes=(40.0, 20.0))
+    with pytest.raises(ValueError, match="grip="):
+        pristine_grip_tube(6, 6, 40.0, 2.0, grip=GRIP, **KW)
+
+
+@pytest.mark.slow
+def test_pristine_dynamic_vs_lammps_12_6():
+    """One full comparison with the stored reference (data/reference/dyn_12-6_pristine.json),
+    at coarsening 2, against the issue's targets; LAMMPS's tube fails at a grip plane, so
+    the coarse one must too (its first damage within 5 Å of a plane)."""
+    from validation.cases.dcbr import run_tension_comparison
+
+    o = run_tension_comparison(12, 6, 150.0, 2.0, dynamic=True, verbose=False, plot=False)
+    assert o["strength_err_pct"] < 5 and o["modulus_err_pct"] < 3
+    assert o["strain_at_peak_err_pct"] < 10
+    assert abs(o["first_damage_to_grip_plane_A"][1]) < 5.0
