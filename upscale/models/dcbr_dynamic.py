@@ -97,10 +97,10 @@ that small, while the periodic tube's lattice becomes unstable only at 24 %; the
 strength error over the 12 runs was 2.8 % with it, 1.6 % without. Its cost: 0.2-0.45 s of
 6-7 s at coarsening 2 (3-7 %).
 
-Other differences from the LAMMPS runs, stated: in the vacancy scene the coarse failure rule
-is the link rule only (checked every ``sample`` steps; the lattice-stability rule needs a
-Hessian and the coarse region stays far below its ~24 % instability strain when the vacancy
-fails; the pristine scene adds it, above), and the thermal
+Other differences from the LAMMPS runs, stated: the coarse failure rule is the link rule
+only (checked every ``sample`` steps; the lattice-stability rule needs a Hessian, the coarse
+region stays far below its ~24 % instability strain when the vacancy fails, and the pristine
+scene leaves it off for the reasons above), and the thermal
 velocities are drawn by numpy, so a run is one draw of the thermal noise like the
 reference's (``python -m validation dcbr-seeds`` / ``reference-seeds`` give the spreads).
 """
