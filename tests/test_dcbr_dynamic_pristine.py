@@ -78,3 +78,27 @@ def test_pristine_dynamic_vs_lammps_12_6():
     assert o["strength_err_pct"] < 5 and o["modulus_err_pct"] < 3
     assert o["strain_at_peak_err_pct"] < 10
     assert abs(o["first_damage_to_grip_plane_A"][1]) < 5.0
+
+
+def test_extensometer_strain_at_peak_is_the_final_strength_sample():
+    """A curve that dips by > 5 % (a ringing of the coarse grips) before its first broken
+    bond and fails later: the strength is the later peak, and the extensometer's strain at
+    peak is that same sample's, not the dip's (the order of the two corrections was wrong
+    until 2026-11-22)."""
+    from upscale.models.dcbr_dynamic import run_metrics
+
+    e = np.linspace(0.0, 0.25, 101)
+    s = 600.0 * e
+    s[40:42] *= 0.9   # a dip at strain 0.1 (no bond broken yet)
+    s[81:] = 20.0     # the break, after the first damage at 0.2
+    x = 0.9 * e       # the extensometer reads 0.9 of the grip strain
+    r = run_metrics(list(e), list(s), list(x), {"strain": 0.2})
+    assert r["strain_at_peak"] == pytest.approx(e[80])
+    assert r["strength_GPa"] == pytest.approx(600.0 * e[80])
+    assert r["strain_at_peak_first_drop"] == pytest.approx(e[39])
+    assert r["strain_at_peak_ext"] == pytest.approx(0.9 * e[80])
+    assert r["youngs_modulus_ext_TPa"] == pytest.approx(0.6 / 0.9)
+    # without a first damage the first drop is the failure, and both strains are its
+    r = run_metrics(list(e), list(s), list(x), None)
+    assert r["strain_at_peak"] == pytest.approx(e[39])
+    assert r["strain_at_peak_ext"] == pytest.approx(0.9 * e[39])

@@ -115,7 +115,7 @@ from upscale.models.dcbr import EV_PER_A3_IN_GPA, WALL_THICKNESS, uniform_map_fr
 from upscale.models.dcbr_defect import ACC_UNIT, CARBON_MASS
 
 __all__ = ["dynamic_tension", "open_tube_with_grips", "static_grip_stiffness",
-           "pristine_grip_tube", "CARBON_MASS"]
+           "pristine_grip_tube", "run_metrics", "CARBON_MASS"]
 
 
 def pristine_grip_tube(n: int, m: int, length: float, coarsening: float, grip: float = 50.0,
@@ -333,6 +333,49 @@ def static_grip_stiffness(model, grip: float = 50.0, strain: float = 0.0025,
             "max_force_eV_A": info["max_force_eV_A"]}
 
 
+def run_metrics(strains, stresses, exts, first, fit_max_strain: float = 0.02,
+                plateau_fraction: float = 0.0) -> dict:
+    """The curve metrics of a dynamic run, on the grip strain and on the extensometer.
+
+    :func:`upscale.analysis.stress.curve_metrics` on (``strains``, ``stresses``), then,
+    when ``first`` (the first damage, a dict with its ``strain``) comes after the failure
+    drop that rule found, again from that strain on: a 5 % dip of the grip stress before any
+    bond has broken is an oscillation of the coarse tube (the zero-energy-like row mode next
+    to the grips rings at a few hundred fs at coarsening 3-4), not failure; LAMMPS's
+    references fail on their first drop. The first drop's values are kept as
+    ``strength_first_drop_GPa``, ``strain_at_peak_first_drop``. Last, the extensometer
+    metrics (:func:`upscale.analysis.stress.extensometer_metrics`) of the final strength
+    sample, so that ``strain_at_peak_ext`` always belongs to the same sample as
+    ``strain_at_peak`` (before 2026-11-22 they were taken before the correction and gave the
+    first drop's sample: (10,10) pristine coarsening 3, seed 1000, 0.162 against 0.193).
+    The extensometer's fit takes the samples up to the peak only: its window selects by the
+    extensometer strain, and after a break next to a grip (the pristine tubes) the unloaded
+    gauge springs back below ``fit_max_strain`` (a (10,10) fit through those samples gave
+    0.07 TPa); a vacancy tube breaks inside the window, whose strain then grows.
+
+    ``plateau_fraction``: the plateau-then-rise rule of ``curve_metrics``, which flags the
+    switching-function artefact of the standard cutoff; with the step cutoff there is none,
+    and on the coarse tube's grip stress (which rings by a few GPa at coarsening 3-4) it
+    took a flat sample before the real peak for the strength, so the caller turns it off
+    (0) with the step cutoff (the LAMMPS references, step cutoff too, never trigger it)."""
+    from upscale.analysis.stress import curve_metrics, extensometer_metrics  # noqa: PLC0415
+
+    def metrics(**kw):
+        return curve_metrics(strains, stresses, fit_max_strain=fit_max_strain,
+                             plateau_fraction=plateau_fraction, **kw)
+
+    res = metrics()
+    if first is not None and res["failed"] and res["failure_strain"] < first["strain"] - 1e-12:
+        plain = {"strength_first_drop_GPa": res["strength_GPa"],
+                 "strain_at_peak_first_drop": res["strain_at_peak"]}
+        res.update(metrics(failure_from_strain=first["strain"]))
+        res.update(plain)
+    ipk = int(np.nonzero(np.asarray(strains) == res["strain_at_peak"])[0][0]) + 1
+    res.update(extensometer_metrics(strains[:ipk], exts[:ipk], stresses[:ipk],
+                                    res["strain_at_peak"], fit_max_strain))
+    return res
+
+
 def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1.0,
                     max_strain: float = 0.3, sample: int = 100, fit_max_strain: float = 0.02,
                     progress=None, gtol: float = 1e-4, temperature: float = 10.0,
@@ -355,8 +398,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     the lattice-stability rule (:meth:`DCBRDefectTube.check_stability`) every ``sample``
     steps (its time in ``stability_s``).
     """
-    from upscale.analysis.stress import (Extensometer, curve_metrics,  # noqa: PLC0415
-                                         extensometer_metrics)
+    from upscale.analysis.stress import Extensometer  # noqa: PLC0415
 
     if not (grip > 0 and speed > 0 and dt > 0 and 0 < max_strain <= 1 and sample >= 1):
         raise ValueError(f"grip={grip}, speed={speed}, dt={dt}, max_strain={max_strain}, "
@@ -562,33 +604,9 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
                      "atoms_off_wall": off_wall, "free_atom_kinetic_eV": kinetic,
                      "extensometer_strain": exts},
            "extensometer": ext.describe()}
-    # the plateau-then-rise rule of curve_metrics flags the switching-function artefact of
-    # the standard cutoff; with the step cutoff there is none, and on the coarse tube's
-    # grip stress (which rings by a few GPa at coarsening 3-4) it took a flat sample
-    # before the real peak for the strength: off with the step cutoff (the LAMMPS
-    # references, step cutoff too, never trigger it)
-    def metrics(**kw):
-        return curve_metrics(strains, stresses, fit_max_strain=fit_max_strain,
-                             plateau_fraction=0.0 if model.cutoff == "step" else 0.05, **kw)
-    res.update(metrics())
-    # the extensometer's fit takes the samples up to the peak only: its window selects by
-    # the extensometer strain, and after a break next to a grip (the pristine tubes) the
-    # unloaded gauge springs back below fit_max_strain (a (10,10) fit through those samples
-    # gave 0.07 TPa); a vacancy tube breaks inside the window, whose strain then grows
-    ipk = int(np.nonzero(np.asarray(strains) == res["strain_at_peak"])[0][0]) + 1
-    res.update(extensometer_metrics(strains[:ipk], exts[:ipk], stresses[:ipk],
-                                    res["strain_at_peak"], fit_max_strain))
+    res.update(run_metrics(strains, stresses, exts, first, fit_max_strain,
+                           plateau_fraction=0.0 if model.cutoff == "step" else 0.05))
     res["first_damage"] = first
-    # a 5 % dip of the grip stress before any bond has broken is an oscillation of the
-    # coarse tube (the zero-energy-like row mode next to the grips rings at a few hundred fs
-    # at coarsening 3-4), not failure: the failure drop is the first one at or after the
-    # first broken bond (LAMMPS's references fail on their first drop; the plain
-    # criterion's values are kept as *_first_drop)
-    if first is not None and res["failed"] and res["failure_strain"] < first["strain"] - 1e-12:
-        plain = {"strength_first_drop_GPa": res["strength_GPa"],
-                 "strain_at_peak_first_drop": res["strain_at_peak"]}
-        res.update(metrics(failure_from_strain=first["strain"]))
-        res.update(plain)
     res["positions"], res["delta"] = y, d
     res["damage"] = model.damage
     res["wall_s"] = time.perf_counter() - t0
