@@ -54,7 +54,9 @@ def test_pristine_scene_grips_and_linear_rise():
 
 def test_band_and_plane_input_is_checked():
     with pytest.raises(ValueError, match="band_z"):
-        DCBRDefectTube(6, 6, 30.0, vacancy=4, band_z=(10.0,), **KW)
+        DCBRDefectTube(6, 6, 30.0, vacancy=0, region="disc", band_z=(10.0,), **KW)
+    with pytest.raises(ValueError, match="band_z"):
+        DCBRDefectTube(6, 6, 30.0, vacancy=4, band_z=(), **KW)
     with pytest.raises(ValueError, match="band_z"):
         DCBRDefectTube(6, 6, 30.0, vacancy=0, band_z=(-5.0,), **KW)
     m = pristine_grip_tube(6, 6, 70.0, 2.0, grip=GRIP, **KW)
@@ -102,3 +104,32 @@ def test_extensometer_strain_at_peak_is_the_final_strength_sample():
     r = run_metrics(list(e), list(s), list(x), None)
     assert r["strain_at_peak"] == pytest.approx(e[39])
     assert r["strain_at_peak_ext"] == pytest.approx(0.9 * e[39])
+
+
+def test_vacancy_region_and_grip_bands_together():
+    """With a vacancy and bands (the default dynamic scene of the vacancy tubes), the
+    atomistic region is the union of the vacancy's band and the grip bands: every atom
+    within r_atomistic of the vacancy's centre or of a band's centre is explicit, and
+    nothing else far from all three; the pristine twin that gives the ghost forces has the
+    same region (its ghost forces vanish away from the interfaces)."""
+    from upscale.models.dcbr_dynamic import grip_band_tube
+
+    m = grip_band_tube(6, 6, 160.0, 2.0, grip=15.0, r_atomistic=5.0, vacancy=4)
+    z = m.X_atoms[:, 2]
+    zv = m.vacancy_theta_z[1]
+    free = np.zeros(len(z), bool)
+    free[m.free_idx] = True
+    dband = np.min(np.abs(z[:, None] - np.array(m.band_z)), axis=1)
+    near = (np.abs(z - zv) < 5.0) | (dband < 5.0)
+    assert np.all(free[near & ~m.removed])
+    far = (np.abs(z - zv) > 12.0) & (dband > 12.0)
+    assert far.any() and not free[far].any()
+    assert m.removed.sum() == 4
+    m.prepare_step(m.L)
+    g = np.abs(m._ghost["gy"][:len(m.dof_idx)]).max(axis=1)
+    zp = m.x0[m.dof_idx, 2]
+    # (the interfaces' ghost forces reach ~r_atomistic + a cell + pad + one G stencil:
+    # 0.26 eV/Å at 15 Å from a centre, 5e-10 beyond 20 Å)
+    away = (np.abs(zp - zv) > 20.0) & (np.min(np.abs(zp[:, None] - np.array(m.band_z)),
+                                               axis=1) > 20.0)
+    assert away.any() and g[away].max() < 1e-6

@@ -113,11 +113,14 @@ class DCBRDefectTube(DCBRTube):
     whole_cells : bool
         The region is made of whole particle cells (module docstring; default True).
     band_z : sequence of float, optional
-        Only with ``vacancy=0`` and ``region="band"``: centres (reference z, Å) of atomistic
-        bands of half-width ``r_atomistic`` placed where the protocol, not a defect, sets
-        the failure site (the pristine dynamic scene puts one across each grip plane,
-        :func:`upscale.models.dcbr_dynamic.pristine_grip_tube`). ``vacancy_theta_z`` is then
-        (0, tube centre), the plane that splits the ghost-force correction's two sides.
+        Centres (reference z, Å) of further atomistic bands of half-width ``r_atomistic``,
+        all around the tube, placed where the protocol, not a defect, needs the lattice
+        itself: the dynamic scene puts one across each grip plane
+        (:func:`upscale.models.dcbr_dynamic.grip_band_tube`), where LAMMPS's held atoms
+        meet the free ones. With a vacancy the region is the union of its own (band or disc)
+        and these bands; with ``vacancy=0`` (``region="band"`` only) it is the bands alone and
+        ``vacancy_theta_z`` is (0, tube centre), the plane that splits the ghost-force
+        correction's two sides.
     """
 
     def __init__(self, n: int, m: int, length: float, coarsening: float = 2.0,
@@ -148,9 +151,9 @@ class DCBRDefectTube(DCBRTube):
 
         if not (isinstance(vacancy, (int, np.integer)) and 0 <= vacancy <= 20):
             raise ValueError(f"vacancy={vacancy!r}; valid: an integer number of atoms 0..20")
-        if band_z is not None and (vacancy or region != "band" or len(band_z) == 0):
+        if band_z is not None and (len(band_z) == 0 or (not vacancy and region != "band")):
             raise ValueError(f"band_z={band_z!r} with vacancy={vacancy!r}, region={region!r}; "
-                             "valid: band centres only with vacancy=0 and region='band'")
+                             "valid: one or more band centres (with vacancy=0: region='band')")
         if not (r_atomistic > 0 and np.isfinite(r_atomistic)):
             raise ValueError(f"r_atomistic={r_atomistic!r}; valid: a radius > 0 Å")
         cut = float(self.p_standard[10] + self.p_standard[11])
@@ -209,13 +212,20 @@ class DCBRDefectTube(DCBRTube):
         self.band_z = None if band_z is None else tuple(float(b) for b in band_z)
         s_rel = R0 * _wrap(th - thc)
         z_rel = X[:, 2] - zc
-        if self.band_z is not None:  # the nearest band's centre
+        r = np.hypot(s_rel, z_rel) if region == "disc" else np.abs(z_rel)
+        if self.band_z is not None:  # distance to the nearest band's centre
             if min(self.band_z) < X[:, 2].min() or max(self.band_z) > X[:, 2].max():
                 raise ValueError(f"band_z={band_z!r}; valid: centres inside the tube "
                                  f"({X[:, 2].min():.1f} to {X[:, 2].max():.1f} Å)")
             cz = np.asarray(self.band_z)
-            z_rel = X[:, 2] - cz[np.argmin(np.abs(X[:, 2][:, None] - cz[None, :]), axis=1)]
-        r = np.hypot(s_rel, z_rel) if region == "disc" else np.abs(z_rel)
+            zb_rel = X[:, 2] - cz[np.argmin(np.abs(X[:, 2][:, None] - cz[None, :]), axis=1)]
+            has_vac = bool(vacancy) or (_twin_of is not None and _twin_of.removed.any())
+            if has_vac:  # the union of the vacancy's region and the bands
+                z_rel = np.where(np.abs(zb_rel) < r, zb_rel, z_rel)
+                r = np.minimum(r, np.abs(zb_rel))
+            else:
+                z_rel = zb_rel
+                r = np.abs(z_rel)
         # Voronoi share of every atom of the pristine tube among the particles
         ds_p = R0 * _wrap(th[:, None] - self.theta[None, :])
         dz_p = X[:, 2][:, None] - self.x0[None, :, 2]

@@ -21,6 +21,8 @@ def _args(p):
     p.add_argument("--chirality", action="append", default=None,
                    help="N,M (repeatable; default 50,50 30,60)")
     p.add_argument("--coarsening", type=float, default=4.0)
+    p.add_argument("--grips", choices=("bands", "clamped"), default="bands",
+                   help="the coarse grips (validation.cases.dcbr.dynamic_scene; default bands)")
     p.add_argument("--lammps-ftol", type=float, default=1e-4,
                    help="LAMMPS minimize force tolerance, eV/Å (default 1e-4)")
 
@@ -28,9 +30,8 @@ def _args(p):
 @case("bench-dcbr-seed", "coarse vs LAMMPS wall time, seed 004 large vacancy tubes (dynamic)",
       add_arguments=_args)
 def _bench(args):
-    from upscale.models.dcbr_defect import DCBRDefectTube
     from upscale.models.dcbr_dynamic import dynamic_tension as coarse_dynamic
-    from validation.cases.dcbr import _chirality, _lammps_reference
+    from validation.cases.dcbr import _chirality, _lammps_reference, dynamic_scene
     from validation.cases.references import DYN_LENGTH, _spec, build_structure
     from validation.lammps.tension import dynamic_tension as lammps_dynamic
 
@@ -40,16 +41,17 @@ def _bench(args):
     for n, m in [_chirality(c) for c in (args.chirality or ["50,50", "30,60"])]:
         ref = _lammps_reference(n, m, DYN_LENGTH, vacancy=True, protocol="dynamic")
         t0 = time.perf_counter()
-        model = DCBRDefectTube(n, m, DYN_LENGTH, coarsening=args.coarsening)
+        model, dyn = dynamic_scene(n, m, DYN_LENGTH, args.coarsening, ref, grips=args.grips)
         build = time.perf_counter() - t0
-        rc = coarse_dynamic(model)
+        rc = coarse_dynamic(model, **dyn)
         wall_c = time.perf_counter() - t0
         atoms = build_structure(_spec("dynamic", n, m, True, DYN_LENGTH))
         t0 = time.perf_counter()
         rl = lammps_dynamic(atoms, "tersoff:BNC.tersoff", cutoff="step", ftol=args.lammps_ftol)
         wall_l = time.perf_counter() - t0
         tl = rl["timing_s"]
-        row = {"tube": f"({n},{m})", "K": args.coarsening, "atoms": len(atoms), "dof": model.dof,
+        row = {"tube": f"({n},{m})", "K": args.coarsening, "grips": args.grips,
+               "atoms": len(atoms), "dof": model.dof,
                "coarse_build_s": build, "coarse_setup_s": rc["setup_relax_s"],
                "coarse_dynamics_s": rc["dynamics_s"], "coarse_steps": rc["steps"],
                "coarse_wall_s": wall_c,

@@ -242,8 +242,10 @@ def _tension_args(p):
                    "damped dynamics then L-BFGS (default, LAMMPS's quasi-static protocol), or "
                    "single pairs when that lowers the energy, when the force pushes, always")
     p.add_argument("--dynamic", action="store_true",
-                   help="dynamic tension of the open tube with grips (without --vacancy: "
-                   "atomistic bands of --r-atomistic across the grip planes)")
+                   help="dynamic tension of the open tube with grips (--grips)")
+    p.add_argument("--grips", choices=GRIPS, default="bands",
+                   help="dynamic: atomistic bands of --r-atomistic across the grip planes "
+                   "(default) or, with --vacancy, coarse rows clamped rigid")
     p.add_argument("--strain-step", type=float, default=0.005)
     p.add_argument("--temperature", type=float, default=10.0,
                    help="dynamic: thermostat K (default 10, as LAMMPS; 0 = NVE from rest)")
@@ -251,18 +253,60 @@ def _tension_args(p):
                    help="zero-energy-mode control, fraction of the lattice stiffness (0 = off)")
 
 
+GRIPS = ("bands", "clamped")
+
+
+def dynamic_scene(n, m, length, coarsening, ref, vacancy=True, grips="bands",
+                  r_atomistic=8.0, **kw):
+    """The coarse model of the dynamic protocol and the keywords of its
+    :func:`upscale.models.dcbr_dynamic.dynamic_tension` call, as every case builds it.
+
+    ``grips="bands"`` (default): atomistic bands of ``r_atomistic`` across both grip planes
+    (:func:`upscale.models.dcbr_dynamic.grip_band_tube`), the grips holding the band atoms
+    beyond them as LAMMPS's hold its atoms, on LAMMPS's own planes when the reference
+    ``ref`` records them (its extensometer window; the seed-scale references predate it and
+    the planes are then ``grip`` inside the lattice's end atoms, 0.2-1 Å off). With the
+    vacancy its own region is kept. ``grips="clamped"`` (vacancy only): coarse rows up to the
+    planes, held rigid in G (:meth:`~upscale.models.dcbr_defect.DCBRDefectTube.clamp_grips`).
+    Why the bands are the default: the clamped grips' edge rows are out of balance under a
+    uniform stretch (the gap next to a plane is soft, -6 to -8 % in static grip stiffness at
+    coarsening 4, and trips the link rule early: pristine (10,10) K2 broke there at 98 GPa,
+    LAMMPS 119), while a coarse row spacing of ~10 Å at coarsening 4 makes the grips' edge
+    layer too stiff on a 50 Å gauge; on main before 2026-11-22 the two cancelled in the
+    vacancy tubes' dynamic modulus. ``kw`` goes to the model (hourglass, step_crossing, ...)."""
+    from upscale.models.dcbr_defect import DCBRDefectTube  # noqa: PLC0415
+    from upscale.models.dcbr_dynamic import grip_band_tube  # noqa: PLC0415
+
+    if grips not in GRIPS or (grips == "clamped" and not vacancy):
+        raise ValueError(f"grips={grips!r} (vacancy={vacancy}); valid: 'bands', or 'clamped' "
+                         "with the vacancy")
+    pd = ref.get("protocol_detail", {})
+    grip = pd.get("grip_A", 50.0)
+    dyn = {"grip": grip, "speed": pd.get("speed_A_per_ps_each_grip", 1.0)}
+    if grips == "bands":
+        model = grip_band_tube(n, m, length, coarsening, grip=grip, r_atomistic=r_atomistic,
+                               vacancy=4 if vacancy else 0, **kw)
+        planes = _reference_grip_planes(ref) if "extensometer" in pd else None
+        dyn.update(clamp=False, planes=planes)
+    else:
+        model = DCBRDefectTube(n, m, length, coarsening=coarsening, vacancy=4,
+                               r_atomistic=r_atomistic, **kw)
+        dyn.update(clamp=True)
+    return model, dyn
+
+
 def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=False,
                            dynamic=False, outdir=None, plot=True, verbose=True,
                            hourglass=0.1, r_atomistic=8.0, region="band",
-                           step_crossing="damped", temperature=10.0) -> dict:
+                           step_crossing="damped", temperature=10.0, grips="bands") -> dict:
     """Coarse (DCBR) and LAMMPS quasi-static tension of one tube, with errors and speed-up.
 
     With ``vacancy`` the coarse model is :class:`upscale.models.dcbr_defect.DCBRDefectTube`
     (atomistic region of ``r_atomistic`` Å around the 4-atom vacancy) and the crack angles
-    of both are compared. ``dynamic`` without ``vacancy``: the pristine open tube with an
-    atomistic band of ``r_atomistic`` Å across each grip plane
-    (:func:`upscale.models.dcbr_dynamic.pristine_grip_tube`; LAMMPS's pristine tubes fail
-    next to a grip plane, where the held atoms keep the radius)."""
+    of both are compared. ``dynamic``: the open tube with grips of :func:`dynamic_scene`
+    (``grips``; by default an atomistic band of ``r_atomistic`` Å across each grip plane:
+    LAMMPS's pristine tubes fail next to a grip plane, where the held atoms keep the
+    radius)."""
     from upscale.models.dcbr import DCBRTube, quasi_static_tension
 
     ref = _lammps_reference(n, m, length, strain_step=strain_step, vacancy=vacancy,
@@ -270,13 +314,12 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
                             progress=verbose)
     t0 = time.perf_counter()
     pd = ref.get("protocol_detail", {})
-    banded = dynamic and not vacancy  # the pristine dynamic scene: bands at the grip planes
-    if banded:
-        from upscale.models.dcbr_dynamic import pristine_grip_tube
-
-        model = pristine_grip_tube(n, m, length, coarsening, grip=pd.get("grip_A", 50.0),
+    banded = dynamic and grips == "bands"  # atomistic bands across the grip planes
+    if dynamic:
+        kw = {"region": region} if vacancy else {}
+        model, dyn = dynamic_scene(n, m, length, coarsening, ref, vacancy=vacancy, grips=grips,
                                    r_atomistic=r_atomistic, hourglass=hourglass,
-                                   step_crossing=step_crossing)
+                                   step_crossing=step_crossing, **kw)
     elif vacancy:
         from upscale.models.dcbr_defect import DCBRDefectTube
 
@@ -290,10 +333,7 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
     if dynamic:
         from upscale.models.dcbr_dynamic import dynamic_tension
 
-        res = dynamic_tension(model, grip=pd.get("grip_A", 50.0),
-                              speed=pd.get("speed_A_per_ps_each_grip", 1.0), progress=cb,
-                              temperature=temperature, clamp=not banded,
-                              planes=_reference_grip_planes(ref) if banded else None)
+        res = dynamic_tension(model, progress=cb, temperature=temperature, **dyn)
         res["curve"]["Lz_A"] = [res["L0_A"]] * len(res["curve"]["strain"])
     else:
         res = quasi_static_tension(model, strain_step=strain_step, progress=cb)
@@ -313,6 +353,7 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
            "L0_A": res["L0_A"], "L0_lammps_A": ref["relaxation"]["L0_A"],
            "radius_A": res["radius_relaxed_A"], "radius_lammps_A": ref["relaxation"]["radius_relaxed_A"],
            "protocol": "dynamic" if dynamic else "quasi-static",
+           "grips": grips if dynamic else None,
            "temperature_K": temperature if dynamic else None}
     out["speedup"] = (out["lammps_wall_s"] / wall) if out["lammps_wall_s"] else None
     if dynamic and ref.get("youngs_modulus_ext_TPa") is not None:  # the same extensometer
@@ -325,7 +366,7 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
         if res.get("first_damage"):
             out["first_damage_strain"] = res["first_damage"]["strain"]
             out["crack_start_to_vacancy_A"] = res["first_damage"]["distance_to_vacancy_A"]
-            if banded:  # [min, median, max] signed distance into the gauge; per half
+            if banded and not vacancy:  # [min, median, max] distance into the gauge
                 fd = res["first_damage"]
                 out["first_damage_to_grip_plane_A"] = fd["distance_to_grip_plane_A"]
                 out["first_damage_halves"] = [fd["n_bottom_half"], fd["n_top_half"]]
@@ -487,7 +528,7 @@ def _dcbr_tension(args):
                                  args.vacancy, args.dynamic, outdir=args.outdir,
                                  hourglass=args.hourglass, r_atomistic=args.r_atomistic,
                                  region=args.region, step_crossing=args.step_crossing,
-                                 temperature=args.temperature)
+                                 temperature=args.temperature, grips=args.grips)
     out.pop("_curve")
     cols = ["chirality", "coarsening", "atoms", "particles", "modulus_TPa", "modulus_lammps_TPa",
             "strength_GPa", "strength_lammps_GPa", "strain_at_peak", "strain_at_peak_lammps",
@@ -516,8 +557,10 @@ def _table_args(p):
     p.add_argument("--vacancy", action="store_true",
                    help="the 4-atom vacancy tubes (DCBRDefectTube, band of 8 Å)")
     p.add_argument("--dynamic", action="store_true",
-                   help="dynamic tension (150 Å tubes, the dynamic references; pristine: "
-                   "atomistic bands across the grip planes)")
+                   help="dynamic tension (150 Å tubes, the dynamic references)")
+    p.add_argument("--grips", choices=GRIPS, default="bands",
+                   help="dynamic: atomistic bands across the grip planes (default) or, with "
+                   "--vacancy, coarse rows clamped rigid")
     p.add_argument("--temperature", type=float, default=10.0,
                    help="dynamic: thermostat K (default 10, as LAMMPS; 0 = NVE from rest)")
 
@@ -532,7 +575,8 @@ def _dcbr_table(args):
         for k in ks:
             o = run_tension_comparison(n, m, length, k, outdir=args.outdir, verbose=False,
                                        plot=(k == ks[-1]), vacancy=args.vacancy,
-                                       dynamic=args.dynamic, temperature=args.temperature)
+                                       dynamic=args.dynamic, temperature=args.temperature,
+                                       grips=args.grips)
             rows.append({"tube": f"({n},{m}){' vac4' if args.vacancy else ''}", "K": k,
                          "atoms": o["atoms"], "dof": o["dof"],
                          "wall_s": o["wall_s"], "lammps_wall_s": o["lammps_wall_s"],

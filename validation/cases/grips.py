@@ -30,6 +30,8 @@ def _args(p):
                    help="the coarse model's zero-energy-mode control (default 0.1, the model's)")
     p.add_argument("--save", action="store_true",
                    help="store the LAMMPS stiffnesses in data/reference/grip_stiffness.json")
+    p.add_argument("--grips", choices=("bands", "clamped"), default="bands",
+                   help="the coarse grips (validation.cases.dcbr.dynamic_scene; default bands)")
 
 
 def _lammps(n, m, stored):
@@ -54,9 +56,8 @@ def _lammps(n, m, stored):
       "grips: coarse model (coarsening 1-4) vs LAMMPS", add_arguments=_args)
 def _grip_stiffness(args):
     from upscale.io import write_json
-    from upscale.models.dcbr_defect import DCBRDefectTube
     from upscale.models.dcbr_dynamic import static_grip_stiffness
-    from validation.cases.dcbr import _chirality
+    from validation.cases.dcbr import _chirality, _lammps_reference, dynamic_scene
     from validation.cases.references import DYN_LENGTH, REF_DIR
 
     chis = [_chirality(c) for c in (args.chirality or ["10,10", "17,0", "12,6"])]
@@ -73,11 +74,16 @@ def _grip_stiffness(args):
             new_refs[f"{n},{m}"] = ref
         print(f"({n},{m}) LAMMPS: k = {ref['k_eV_per_A2']:.4f} eV/Å^2 (gauge "
               f"{ref['gauge_length_A']:.2f} Å, {'computed' if fresh else 'stored'})", flush=True)
+        dref = _lammps_reference(n, m, DYN_LENGTH, protocol="dynamic", vacancy=True,
+                                 progress=False)
         for K in ks:
             t0 = time.perf_counter()
-            model = DCBRDefectTube(n, m, DYN_LENGTH, coarsening=K, hourglass=args.hourglass)
-            r = static_grip_stiffness(model, grip=GRIP, strain=STRAIN)
-            rows.append({"tube": f"({n},{m})", "K": K, "hourglass": args.hourglass,
+            model, dyn = dynamic_scene(n, m, DYN_LENGTH, K, dref, grips=args.grips,
+                                       hourglass=args.hourglass)
+            r = static_grip_stiffness(model, grip=GRIP, strain=STRAIN, clamp=dyn["clamp"],
+                                      planes=dyn.get("planes"))
+            rows.append({"tube": f"({n},{m})", "K": K, "grips": args.grips,
+                         "hourglass": args.hourglass, "dof": model.dof,
                          "k_eV_per_A2": r["k_eV_per_A2"], "k_lammps": ref["k_eV_per_A2"],
                          "k_err_%": 100 * (r["k_eV_per_A2"] / ref["k_eV_per_A2"] - 1),
                          "gauge_A": r["gauge_length_A"], "gauge_lammps_A": ref["gauge_length_A"],

@@ -129,31 +129,30 @@ def _reference_seeds(args):
 
 @case("dcbr-seeds", "spread of the coarse model's dynamic tension over thermal seeds (vacancy "
       "tubes; --pristine: pristine tubes with atomistic bands across the grip planes)",
-      add_arguments=lambda p: (_args(p), p.add_argument("--coarsening", type=float, default=2.0)))
+      add_arguments=lambda p: (_args(p), p.add_argument("--coarsening", type=float, default=2.0),
+                               p.add_argument("--grips", choices=("bands", "clamped"),
+                                              default="bands",
+                                              help="atomistic bands across the grip planes "
+                                                   "(default) or, vacancy tubes only, coarse "
+                                                   "rows clamped rigid")))
 def _dcbr_seeds(args):
     """The coarse scene of ``dcbr-tension --dynamic`` (with ``--vacancy`` unless
-    ``--pristine``), seeds 1000, 1001, ...: the pristine scene takes LAMMPS's grip planes from
-    the stored reference, as :func:`validation.cases.dcbr.run_tension_comparison` does."""
-    from upscale.models.dcbr_defect import DCBRDefectTube
-    from upscale.models.dcbr_dynamic import dynamic_tension, pristine_grip_tube
-    from validation.cases.dcbr import _lammps_reference, _reference_grip_planes
+    ``--pristine``; :func:`validation.cases.dcbr.dynamic_scene`), seeds 1000, 1001, ..."""
+    from upscale.models.dcbr_dynamic import dynamic_tension
+    from validation.cases.dcbr import _lammps_reference, dynamic_scene
 
     if not args.coarsening >= 1.0:
         raise SystemExit(f"--coarsening {args.coarsening}; valid: >= 1")
     result = {}
     for n, m in _chis(args):
         rows = []
-        if args.pristine:
-            ref = _lammps_reference(n, m, 150.0, protocol="dynamic", progress=False)
-            planes, grip = _reference_grip_planes(ref), ref["protocol_detail"]["grip_A"]
+        ref = _lammps_reference(n, m, 150.0, protocol="dynamic", vacancy=not args.pristine,
+                                progress=False)
         for s in range(args.seeds):
             t0 = time.perf_counter()
-            if args.pristine:
-                model = pristine_grip_tube(n, m, 150.0, args.coarsening, grip=grip)
-                r = dynamic_tension(model, grip=grip, seed=1000 + s, clamp=False, planes=planes)
-            else:
-                model = DCBRDefectTube(n, m, 150.0, coarsening=args.coarsening)
-                r = dynamic_tension(model, seed=1000 + s)
+            model, dyn = dynamic_scene(n, m, 150.0, args.coarsening, ref,
+                                       vacancy=not args.pristine, grips=args.grips)
+            r = dynamic_tension(model, seed=1000 + s, **dyn)
             rows.append({"seed": 1000 + s, **{k: r[k] for k in KEYS},
                          "wall_s": time.perf_counter() - t0})
             print(f"({n},{m}) K={args.coarsening:g} seed {1000 + s}: {r['strength_GPa']:.2f} GPa "
@@ -161,7 +160,8 @@ def _dcbr_seeds(args):
                   flush=True)
         result[f"{n},{m}"] = {"runs": rows, "stats": _stats(rows)}
         print(table(rows, floatfmt=".4g"))
-    return {"coarsening": args.coarsening, "pristine": bool(args.pristine), "tubes": result}
+    return {"coarsening": args.coarsening, "pristine": bool(args.pristine),
+            "grips": args.grips, "tubes": result}
 
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
