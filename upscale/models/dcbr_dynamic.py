@@ -23,11 +23,12 @@ on a :class:`~upscale.models.dcbr_defect.DCBRDefectTube`:
    extensometer (:class:`upscale.analysis.stress.Extensometer`, the same in the LAMMPS
    runner) also reads the strain between two marks inside the gauge.
 
-Grips. The validation cases (``validation.cases.dcbr.dynamic_scene``) put an atomistic band
-across each grip plane, with or without the vacancy (:func:`grip_band_tube`, "Pristine
-tubes" below): the grip then holds atoms as LAMMPS's does and no coarse row has to stand for
-the gap between a plane and the gauge. The alternative, kept as ``clamp=True`` (the default
-of this function for a model without bands), is the clamped coarse grip:
+Grips (``validation.cases.dcbr.dynamic_scene``). The pristine tubes get an atomistic band
+across each grip plane (:func:`grip_band_tube`, "Atomistic bands" below): the grip then holds
+atoms as LAMMPS's does, where those tubes break. The vacancy tubes keep clamped coarse grips
+(``clamp=True``, the default of this function for a model without bands): with bands, the
+vacancy's region and the bands cover 80-100 % of the 50 Å gauge's atoms at coarsening 2-4,
+and the gauge would no longer be coarse.
 
 Clamped grips (``clamp=True``, :meth:`DCBRDefectTube.clamp_grips`, build_gain's ``clamp``).
 With the plain centred stencil a grip is too compliant: the rows next to a plane mix the

@@ -21,8 +21,9 @@ def _args(p):
     p.add_argument("--chirality", action="append", default=None,
                    help="N,M (repeatable; default 50,50 30,60)")
     p.add_argument("--coarsening", type=float, default=4.0)
-    p.add_argument("--grips", choices=("bands", "clamped"), default="bands",
-                   help="the coarse grips (validation.cases.dcbr.dynamic_scene; default bands)")
+    p.add_argument("--grips", choices=("bands", "clamped"), default="clamped",
+                   help="the coarse grips (validation.cases.dcbr.dynamic_scene; default clamped;"
+                        " bands make these tubes' gauge atomistic)")
     p.add_argument("--lammps-ftol", type=float, default=1e-4,
                    help="LAMMPS minimize force tolerance, eV/Å (default 1e-4)")
 

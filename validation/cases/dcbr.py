@@ -243,9 +243,10 @@ def _tension_args(p):
                    "single pairs when that lowers the energy, when the force pushes, always")
     p.add_argument("--dynamic", action="store_true",
                    help="dynamic tension of the open tube with grips (--grips)")
-    p.add_argument("--grips", choices=GRIPS, default="bands",
-                   help="dynamic: atomistic bands of --r-atomistic across the grip planes "
-                   "(default) or, with --vacancy, coarse rows clamped rigid")
+    p.add_argument("--grips", choices=GRIPS, default=None,
+                   help="dynamic: 'bands' (atomistic bands of --r-atomistic across the grip "
+                   "planes; the default without --vacancy) or 'clamped' (coarse rows clamped "
+                   "rigid; the default with --vacancy)")
     p.add_argument("--strain-step", type=float, default=0.005)
     p.add_argument("--temperature", type=float, default=10.0,
                    help="dynamic: thermostat K (default 10, as LAMMPS; 0 = NVE from rest)")
@@ -256,27 +257,34 @@ def _tension_args(p):
 GRIPS = ("bands", "clamped")
 
 
-def dynamic_scene(n, m, length, coarsening, ref, vacancy=True, grips="bands",
+def dynamic_scene(n, m, length, coarsening, ref, vacancy=True, grips=None,
                   r_atomistic=8.0, **kw):
     """The coarse model of the dynamic protocol and the keywords of its
     :func:`upscale.models.dcbr_dynamic.dynamic_tension` call, as every case builds it.
 
-    ``grips="bands"`` (default): atomistic bands of ``r_atomistic`` across both grip planes
+    ``grips``: ``None`` (default) picks ``"clamped"`` with the vacancy, ``"bands"`` without.
+    ``"bands"``: atomistic bands of ``r_atomistic`` across both grip planes
     (:func:`upscale.models.dcbr_dynamic.grip_band_tube`), the grips holding the band atoms
     beyond them as LAMMPS's hold its atoms, on LAMMPS's own planes when the reference
     ``ref`` records them (its extensometer window; the seed-scale references predate it and
     the planes are then ``grip`` inside the lattice's end atoms, 0.2-1 Å off). With the
     vacancy its own region is kept. ``grips="clamped"`` (vacancy only): coarse rows up to the
     planes, held rigid in G (:meth:`~upscale.models.dcbr_defect.DCBRDefectTube.clamp_grips`).
-    Why the bands are the default: the clamped grips' edge rows are out of balance under a
-    uniform stretch (the gap next to a plane is soft, -6 to -8 % in static grip stiffness at
-    coarsening 4, and trips the link rule early: pristine (10,10) K2 broke there at 98 GPa,
-    LAMMPS 119), while a coarse row spacing of ~10 Å at coarsening 4 makes the grips' edge
-    layer too stiff on a 50 Å gauge; on main before 2026-11-22 the two cancelled in the
-    vacancy tubes' dynamic modulus. ``kw`` goes to the model (hourglass, step_crossing, ...)."""
+    Why the default differs: a pristine tube breaks at a grip plane (LAMMPS's do), where the
+    clamped grips' edge rows are out of balance and trip the link rule early ((10,10) K2
+    broke there at 98 GPa, LAMMPS 119; ``upscale.models.dcbr_dynamic``'s docstring), and its
+    bands leave 62 % of the 50 Å gauge's atoms coarse. With the vacancy, its own region and
+    the two bands (rounded out to whole cells) cover 80 % of the gauge's atoms at coarsening
+    2 and all of them at 4 on these tubes ((10,10); the (50,50) likewise), so the gauge
+    would no longer be coarse at all; measured that way (4 seeds) the small tubes were within
+    3.5 % (strength), 1.9 % (modulus) and 4.3 % (strain at peak) of LAMMPS, but that tests
+    the atoms, not the coarse model. ``kw`` goes to the model (hourglass, step_crossing,
+    ...)."""
     from upscale.models.dcbr_defect import DCBRDefectTube  # noqa: PLC0415
     from upscale.models.dcbr_dynamic import grip_band_tube  # noqa: PLC0415
 
+    if grips is None:
+        grips = "clamped" if vacancy else "bands"
     if grips not in GRIPS or (grips == "clamped" and not vacancy):
         raise ValueError(f"grips={grips!r} (vacancy={vacancy}); valid: 'bands', or 'clamped' "
                          "with the vacancy")
@@ -298,15 +306,15 @@ def dynamic_scene(n, m, length, coarsening, ref, vacancy=True, grips="bands",
 def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=False,
                            dynamic=False, outdir=None, plot=True, verbose=True,
                            hourglass=0.1, r_atomistic=8.0, region="band",
-                           step_crossing="damped", temperature=10.0, grips="bands") -> dict:
+                           step_crossing="damped", temperature=10.0, grips=None) -> dict:
     """Coarse (DCBR) and LAMMPS quasi-static tension of one tube, with errors and speed-up.
 
     With ``vacancy`` the coarse model is :class:`upscale.models.dcbr_defect.DCBRDefectTube`
     (atomistic region of ``r_atomistic`` Å around the 4-atom vacancy) and the crack angles
     of both are compared. ``dynamic``: the open tube with grips of :func:`dynamic_scene`
-    (``grips``; by default an atomistic band of ``r_atomistic`` Å across each grip plane:
-    LAMMPS's pristine tubes fail next to a grip plane, where the held atoms keep the
-    radius)."""
+    (``grips``; by default clamped coarse grips with the vacancy and, pristine, an atomistic
+    band of ``r_atomistic`` Å across each grip plane: LAMMPS's pristine tubes fail next to a
+    grip plane, where the held atoms keep the radius)."""
     from upscale.models.dcbr import DCBRTube, quasi_static_tension
 
     ref = _lammps_reference(n, m, length, strain_step=strain_step, vacancy=vacancy,
@@ -314,6 +322,8 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
                             progress=verbose)
     t0 = time.perf_counter()
     pd = ref.get("protocol_detail", {})
+    if dynamic and grips is None:
+        grips = "clamped" if vacancy else "bands"
     banded = dynamic and grips == "bands"  # atomistic bands across the grip planes
     if dynamic:
         kw = {"region": region} if vacancy else {}
@@ -558,9 +568,9 @@ def _table_args(p):
                    help="the 4-atom vacancy tubes (DCBRDefectTube, band of 8 Å)")
     p.add_argument("--dynamic", action="store_true",
                    help="dynamic tension (150 Å tubes, the dynamic references)")
-    p.add_argument("--grips", choices=GRIPS, default="bands",
-                   help="dynamic: atomistic bands across the grip planes (default) or, with "
-                   "--vacancy, coarse rows clamped rigid")
+    p.add_argument("--grips", choices=GRIPS, default=None,
+                   help="dynamic: 'bands' (atomistic bands across the grip planes; the "
+                   "default without --vacancy) or 'clamped' (the default with --vacancy)")
     p.add_argument("--temperature", type=float, default=10.0,
                    help="dynamic: thermostat K (default 10, as LAMMPS; 0 = NVE from rest)")
 

@@ -30,8 +30,9 @@ def _args(p):
                    help="the coarse model's zero-energy-mode control (default 0.1, the model's)")
     p.add_argument("--save", action="store_true",
                    help="store the LAMMPS stiffnesses in data/reference/grip_stiffness.json")
-    p.add_argument("--grips", choices=("bands", "clamped"), default="bands",
-                   help="the coarse grips (validation.cases.dcbr.dynamic_scene; default bands)")
+    p.add_argument("--grips", choices=("bands", "clamped"), default="clamped",
+                   help="the coarse grips (validation.cases.dcbr.dynamic_scene; default clamped;"
+                        " bands make these tubes' gauge atomistic)")
 
 
 def _lammps(n, m, stored):

@@ -131,10 +131,10 @@ def _reference_seeds(args):
       "tubes; --pristine: pristine tubes with atomistic bands across the grip planes)",
       add_arguments=lambda p: (_args(p), p.add_argument("--coarsening", type=float, default=2.0),
                                p.add_argument("--grips", choices=("bands", "clamped"),
-                                              default="bands",
-                                              help="atomistic bands across the grip planes "
-                                                   "(default) or, vacancy tubes only, coarse "
-                                                   "rows clamped rigid")))
+                                              default=None,
+                                              help="'bands' (atomistic bands across the grip "
+                                                   "planes; default with --pristine) or "
+                                                   "'clamped' (default for the vacancy tubes)")))
 def _dcbr_seeds(args):
     """The coarse scene of ``dcbr-tension --dynamic`` (with ``--vacancy`` unless
     ``--pristine``; :func:`validation.cases.dcbr.dynamic_scene`), seeds 1000, 1001, ..."""
@@ -161,7 +161,7 @@ def _dcbr_seeds(args):
         result[f"{n},{m}"] = {"runs": rows, "stats": _stats(rows)}
         print(table(rows, floatfmt=".4g"))
     return {"coarsening": args.coarsening, "pristine": bool(args.pristine),
-            "grips": args.grips, "tubes": result}
+            "grips": args.grips or ("bands" if args.pristine else "clamped"), "tubes": result}
 
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
