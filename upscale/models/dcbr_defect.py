@@ -784,13 +784,17 @@ class DCBRDefectTube(DCBRTube):
         particle and edge (at its plane) gets the part of the gauge nearer to it than to
         its neighbours in the column, times the particle's atoms per unit length; a held
         particle that is not an edge keeps its weight (its G does not change, so it adds
-        no energy). ``y_ref`` (N, 3): the particles' positions when the grips take hold (G
-        is linearised about them; default the reference lattice). Takes effect at the next
-        ``_build_gain`` of the open tube."""
+        no energy); then the weights of the particles fitted about themselves (edges and
+        first free rows) are corrected so that the uniform gauge is an equilibrium
+        (:meth:`_balanced_grip_weights`; same total). ``y_ref`` (N, 3): the particles'
+        positions when the grips take hold (G is linearised about them; default the
+        reference lattice). The open tube's G is rebuilt here (the weights need its
+        coefficients)."""
         rigid = np.asarray(rigid, dtype=bool)
-        if not (z_lo < z_hi and rigid.shape == (self.N,)):
-            raise ValueError(f"grip planes z_lo={z_lo}, z_hi={z_hi}, rigid {rigid.shape}; "
-                             f"valid: z_lo < z_hi and rigid of shape ({self.N},)")
+        if not (z_lo < z_hi and rigid.shape == (self.N,) and not self.periodic):
+            raise ValueError(f"grip planes z_lo={z_lo}, z_hi={z_hi}, rigid {rigid.shape}, "
+                             f"periodic={self.periodic}; valid: z_lo < z_hi, rigid of shape "
+                             f"({self.N},), an open tube (periodic False)")
         if not hasattr(self, "_natoms_unclamped"):
             self._natoms_unclamped = self.natoms_n.copy()
         g = self.gain
@@ -822,6 +826,80 @@ class DCBRDefectTube(DCBRTube):
         self.natoms_n = self._natoms_unclamped * share
         self.clamp = (float(z_lo), float(z_hi), rigid) if y_ref is None else \
             (float(z_lo), float(z_hi), rigid, np.asarray(y_ref, float))
+        self._build_gain(None)  # the clamped G, whose coefficients the weights balance
+        self.natoms_n = self._balanced_grip_weights(self.natoms_n)
+        self._build_gain(None)
+
+    def _balanced_grip_weights(self, w):
+        """Weights of the particles next to the grip planes such that a gauge stretched
+        uniformly between the grips is in equilibrium (the patch test of the energy sum).
+
+        The clamped G gives every particle exactly the strain of a uniform gauge (its fit),
+        but E = sum_c w_c W(F_c) is a quadrature of the strain energy, and a uniform state is
+        only an equilibrium when every free particle j has sum_c w_c a_cj = 0 (a_cj: the
+        coefficient of y_j in G_c; P = dW/dF is then the same per atom in every term, and
+        f_j = -P sum_c w_c a_cj). Away from the planes the families are symmetric and the
+        sum vanishes term by term; next to a plane the families fitted about their own
+        particle (the grip edges and the first free rows) are not, and with the gauge's
+        length shares as weights the first free row was pulled into the gauge: (10,10)
+        coarsening 2, 5 % static strain, the edge row's axial stretch 1.082 against the
+        gauge's 1.065, and under load the gap between the plane and the first free row
+        softened further (dynamic, 15 % strain: 31 % in the gap, the edge row's mapped bond
+        2.10 Å, the link rule broke the grip's edge at 98 GPa instead of the tube's 118 GPa).
+
+        The weights of the particles whose families are fitted about themselves (the set U,
+        pad-atom carriers excluded) are therefore solved from sum_c w_c a_cj = 0 (both
+        tangent components) at every free particle j in their families, the smallest change
+        from the length shares ``w`` (least squares); every other particle counts with a full
+        particle's atoms (``nominal``; at the atomistic region's interface the atoms and the
+        ghost-force correction carry the rest of the uniform state's balance). The total
+        weight, i.e. the energy of the uniform gauge, is then fixed by the grips' motion
+        alone (with every free j balanced, sum_c w_c G_c depends on the grips' rows only),
+        and it equals the length shares' total (measured: to 1e-12), so the static grip
+        stiffness of the uniform field is unchanged; what changes is that the field stays
+        uniform. Each plane is solved on its own. Where the atomistic region's pad reaches
+        the rows next to a plane (a gauge that is mostly atomistic: (6,6), 40 Å, 8 Å grips,
+        5 Å band, coarsening 2) the system can have no positive solution; that plane then
+        keeps the length shares (the region's atoms, not coarse rows, fill its gauge), and
+        ``grip_weights_balanced`` (bottom, top) records which planes were balanced."""
+        g = self.gain
+        rigid = np.asarray(self.clamp[2], bool)
+        ce = np.repeat(np.arange(self.N), np.diff(g.offsets))
+        carrier = np.zeros(self.N, bool)
+        carrier[self._pad["c"]] = True
+        own = np.zeros(self.N, bool)
+        own[ce[g.neighbors == ce]] = True  # the families fitted about their own particle
+        own &= g.alive & ~carrier
+        weff = np.where(own, w, self.nominal)
+        b = np.zeros((self.N, 2))  # sum_c w_c a_cj with the length shares
+        np.add.at(b, g.neighbors, weff[ce, None] * g.coef)
+        low = self.x0[:, 2] < 0.5 * (self.clamp[0] + self.clamp[1])
+        out = w.copy()
+        self.grip_weights_balanced = []
+        for side in (low, ~low):  # each plane on its own
+            inU = own & side
+            U = np.nonzero(inU)[0]
+            J = np.unique(g.neighbors[inU[ce] & ~rigid[g.neighbors]])
+            if len(U) == 0 or len(J) == 0:
+                self.grip_weights_balanced.append(True)
+                continue
+            col = np.full(self.N, -1)
+            col[U] = np.arange(len(U))
+            row = np.full(self.N, -1)
+            row[J] = np.arange(len(J))
+            e = np.nonzero(inU[ce] & (row[g.neighbors] >= 0))[0]
+            A = np.zeros((2, len(J), len(U)))
+            for k in range(2):
+                np.add.at(A[k], (row[g.neighbors[e]], col[ce[e]]), g.coef[e, k])
+            A = A.reshape(2 * len(J), len(U))
+            rhs = -b[J].T.reshape(-1)
+            dw = np.linalg.lstsq(A, rhs, rcond=None)[0]
+            res = float(np.abs(A @ dw - rhs).max())
+            ok = bool(np.all(w[U] + dw > 0) and res <= 1e-8 * self.nominal)
+            if ok:
+                out[U] += dw
+            self.grip_weights_balanced.append(ok)
+        return out
 
     def masses(self):
         """(masses of the unknowns y (particles not slaved, then free atoms), masses of the

@@ -43,20 +43,25 @@ as sitting at its plane; the held rows whose families reach the gauge (the edges
 the material between the plane and the gauge (their fit is taken about the plane, so they
 see that gap's strain), the others have a fixed G, the families that reach past a plane are
 fitted about their particle (so the row next to a plane feels its own position), and the
-weights are the gauge's length shares. A gauge stretched uniformly between rigid grips then
-gives every particle exactly its strain, and the static grip stiffness is within 4.3 % of
-LAMMPS's for the three tubes at coarsening 1-4. Holding the row less than h/2 inside a plane
+weights are the gauge's length shares, corrected next to the planes so that the uniform
+gauge is an equilibrium (:meth:`DCBRDefectTube._balanced_grip_weights`). A gauge stretched
+uniformly between rigid grips then gives every particle exactly its strain and stays so when
+it is relaxed, and the static grip stiffness is within 2.6 % of LAMMPS's for the three tubes
+at coarsening 1-4. (With the length shares alone the families fitted about their own
+particle left the first free row pulled into the gauge at uniform strain: the gap between a
+plane and the gauge took 1.3 times the gauge's strain statically and about twice under load,
+the coarse link rule broke the grip's edge rows first (pristine (10,10) coarsening 2: 98 GPa
+at 15 % strain, LAMMPS 119 GPa at 22 %; the (30,60) coarsening-4 vacancy tube 7.7 % weak),
+and the coarsening-4 grips were 6-8 % too compliant.) Holding the row less than h/2 inside a plane
 keeps the gap between the plane and the first free row at least h/2 (a thinner gap was a
 soft spot that the kernel-weighted fit hardly saw: (17,0) K1 86 % too soft).
-Two faults remain, measured on 2026-11-22, and are why the cases use bands. (a) With the
-gauge's length shares as weights the edge rows are out of balance under a uniform stretch
-(pristine (10,10) K2, 5 % static stretch: +8.9 eV/Å net axial force on the first free row;
-the edge row then carries stretch 1.313 against 1.16 mid-gauge at 15 % strain, and the link
-rule broke it at 98 GPa, LAMMPS 119). (b) At coarsening 4 a row spacing is ~10 Å, a fifth of
-the 50 Å gauge, and the grips' edge layer is too stiff: static secant modulus 4.7 % above
-coarsening 1's, softening 1.7 % instead of 4.1 % from 0.25 to 2 % strain (on a 153 Å gauge
-coarsening 4 matches coarsening 2 within 0.6 %). In the vacancy tubes' dynamic modulus the two
-cancelled; a weight fix for (a) (branch ``edgerows``) leaves (b) at +7-8 %.
+What remains (measured on 2026-11-22): at coarsening 4 a row spacing is ~10 Å, a fifth of the
+50 Å gauge, and the grips' edge layer is too stiff for its size: static secant modulus of the
+pristine (10,10) 4.7 % above coarsening 1's, softening 1.7 % instead of 4.1 % from 0.25 to
+2 % strain; on a 153 Å gauge coarsening 4 matches coarsening 2 within 0.6 % and softens the
+same 4.1 %. In the small vacancy tubes' dynamic modulus by grip separation (fitted over the
+first 2 %) this shows as +5 to +8 % at coarsening 3-4; with the length-share weights the
+soft gap used to cancel it.
 
 Masses (:meth:`DCBRDefectTube.masses`): a free atom 12.011 amu; a particle carries
 m_C max(w_c, N_c/2) (its atoms, at least half its nominal share, so that interface particles
@@ -86,9 +91,12 @@ held atoms the longest all along the pull ((10,10) at 15.9 % strain: 1.641 Å th
 at most in the gauge; (12,6) at 16.7 %: 1.738 vs 1.643 Å): a rigid grip keeps its atoms at
 their radius, so the wall next to it cannot contract and its bonds across the plane stretch
 more. (17,0) fails in the gauge (its bonds at the planes stay shorter than the gauge's). The
-coarse grip edge gets this concentration wrong: the held edge row, which stands for the gap
-to the first free row, had its mapped bonds 0.07 Å longer than the gauge's at 14 % strain
-(LAMMPS: 0.03 Å at 16 %) and the (10,10) tube broke there at 15 % strain, 98 GPa. The site
+clamped coarse grip edge does not carry this concentration: with the length-share weights
+it overdid it (the held edge row, which stands for the gap to the first free row, had its
+mapped bonds 0.07 Å longer than the gauge's at 14 % strain, LAMMPS: 0.03 Å at 16 %, and the
+(10,10) tube broke there at 15 % strain, 98 GPa), with the balanced weights the gap is
+strained as the gauge (up to the wall's lateral constraint by the grip) and the (10,10)
+tube breaks in the gauge. The site
 is set by the protocol (the planes), not by chance, so the pristine scene puts an atomistic
 band (``r_atomistic``, default 8 Å, whole cells) across each grip plane; the band atoms
 beyond a plane are held by the grip as LAMMPS's (no clamp: the grip's edge is atomistic) and

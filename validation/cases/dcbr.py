@@ -270,10 +270,10 @@ def dynamic_scene(n, m, length, coarsening, ref, vacancy=True, grips=None,
     the planes are then ``grip`` inside the lattice's end atoms, 0.2-1 Å off). With the
     vacancy its own region is kept. ``grips="clamped"`` (vacancy only): coarse rows up to the
     planes, held rigid in G (:meth:`~upscale.models.dcbr_defect.DCBRDefectTube.clamp_grips`).
-    Why the default differs: a pristine tube breaks at a grip plane (LAMMPS's do), where the
-    clamped grips' edge rows are out of balance and trip the link rule early ((10,10) K2
-    broke there at 98 GPa, LAMMPS 119; ``upscale.models.dcbr_dynamic``'s docstring), and its
-    bands leave 62 % of the 50 Å gauge's atoms coarse. With the vacancy, its own region and
+    Why the default differs: a pristine tube breaks at a grip plane (LAMMPS's do: the held
+    radius stretches the first free bonds), a concentration of a few atoms that the
+    atomistic band carries and a clamped coarse row does not (``upscale.models.dcbr_dynamic``'s
+    docstring); its bands leave 62 % of the 50 Å gauge's atoms coarse. With the vacancy, its own region and
     the two bands (rounded out to whole cells) cover 80 % of the gauge's atoms at coarsening
     2 and all of them at 4 on these tubes ((10,10); the (50,50) likewise), so the gauge
     would no longer be coarse at all; measured that way (4 seeds) the small tubes were within
