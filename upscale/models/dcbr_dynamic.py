@@ -280,8 +280,7 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | N
         yp = model.particle_positions(y)
         rigid = np.zeros(model.N, bool)
         rigid[model.dof_idx] = bottom[:nd] | top[:nd]
-        model.clamp_grips(zb_ref, zt_ref, rigid, yp)
-        model._build_gain(None)
+        model.clamp_grips(zb_ref, zt_ref, rigid, yp)  # (rebuilds G)
         model.prepare_step(L0)
         fixed[grips] = True
         y, d, _, _, _, _ = model.minimise(y, d, L0, gtol=gtol, fixed=fixed)

@@ -272,14 +272,14 @@ def dynamic_scene(n, m, length, coarsening, ref, vacancy=True, grips=None,
     planes, held rigid in G (:meth:`~upscale.models.dcbr_defect.DCBRDefectTube.clamp_grips`).
     Why the default differs: a pristine tube breaks at a grip plane (LAMMPS's do: the held
     radius stretches the first free bonds), a concentration of a few atoms that the
-    atomistic band carries and a clamped coarse row does not (``upscale.models.dcbr_dynamic``'s
-    docstring); its bands leave 62 % of the 50 Å gauge's atoms coarse. With the vacancy, its own region and
-    the two bands (rounded out to whole cells) cover 80 % of the gauge's atoms at coarsening
-    2 and all of them at 4 on these tubes ((10,10); the (50,50) likewise), so the gauge
-    would no longer be coarse at all; measured that way (4 seeds) the small tubes were within
-    3.5 % (strength), 1.9 % (modulus) and 4.3 % (strain at peak) of LAMMPS, but that tests
-    the atoms, not the coarse model. ``kw`` goes to the model (hourglass, step_crossing,
-    ...)."""
+    atomistic band carries and a clamped coarse row does not (``upscale.models.dcbr_dynamic``
+    docstring); its bands leave 62 % of the 50 Å gauge's atoms coarse. With the vacancy, its
+    own region and the two bands (rounded out to whole cells) cover 80 % of the gauge's
+    atoms at coarsening 2 and all of them at 4 on these tubes ((10,10); the (50,50)
+    likewise), so the gauge would no longer be coarse at all; measured that way (4 seeds)
+    the small tubes were within 3.5 % (strength), 1.9 % (modulus) and 4.3 % (strain at
+    peak) of LAMMPS, but that tests the atoms, not the coarse model. ``kw`` goes to the
+    model (hourglass, step_crossing, ...). ``dyn["grips"]`` records the grips chosen."""
     from upscale.models.dcbr_defect import DCBRDefectTube  # noqa: PLC0415
     from upscale.models.dcbr_dynamic import grip_band_tube  # noqa: PLC0415
 
@@ -300,7 +300,7 @@ def dynamic_scene(n, m, length, coarsening, ref, vacancy=True, grips=None,
         model = DCBRDefectTube(n, m, length, coarsening=coarsening, vacancy=4,
                                r_atomistic=r_atomistic, **kw)
         dyn.update(clamp=True)
-    return model, dyn
+    return model, dyn | {"grips": grips}
 
 
 def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=False,
@@ -321,15 +321,14 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
                             protocol="dynamic" if dynamic else "quasi-static",
                             progress=verbose)
     t0 = time.perf_counter()
-    pd = ref.get("protocol_detail", {})
-    if dynamic and grips is None:
-        grips = "clamped" if vacancy else "bands"
-    banded = dynamic and grips == "bands"  # atomistic bands across the grip planes
+    banded = False  # atomistic bands across the grip planes (dynamic_scene's choice)
     if dynamic:
         kw = {"region": region} if vacancy else {}
         model, dyn = dynamic_scene(n, m, length, coarsening, ref, vacancy=vacancy, grips=grips,
                                    r_atomistic=r_atomistic, hourglass=hourglass,
                                    step_crossing=step_crossing, **kw)
+        grips = dyn.pop("grips")
+        banded = grips == "bands"
     elif vacancy:
         from upscale.models.dcbr_defect import DCBRDefectTube
 

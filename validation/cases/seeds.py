@@ -143,7 +143,7 @@ def _dcbr_seeds(args):
 
     if not args.coarsening >= 1.0:
         raise SystemExit(f"--coarsening {args.coarsening}; valid: >= 1")
-    result = {}
+    result, grips = {}, None
     for n, m in _chis(args):
         rows = []
         ref = _lammps_reference(n, m, 150.0, protocol="dynamic", vacancy=not args.pristine,
@@ -152,6 +152,7 @@ def _dcbr_seeds(args):
             t0 = time.perf_counter()
             model, dyn = dynamic_scene(n, m, 150.0, args.coarsening, ref,
                                        vacancy=not args.pristine, grips=args.grips)
+            grips = dyn.pop("grips")
             r = dynamic_tension(model, seed=1000 + s, **dyn)
             rows.append({"seed": 1000 + s, **{k: r[k] for k in KEYS},
                          "wall_s": time.perf_counter() - t0})
@@ -161,7 +162,7 @@ def _dcbr_seeds(args):
         result[f"{n},{m}"] = {"runs": rows, "stats": _stats(rows)}
         print(table(rows, floatfmt=".4g"))
     return {"coarsening": args.coarsening, "pristine": bool(args.pristine),
-            "grips": args.grips or ("bands" if args.pristine else "clamped"), "tubes": result}
+            "grips": grips, "tubes": result}
 
 
 RESULTS = Path(__file__).resolve().parents[1] / "results"
