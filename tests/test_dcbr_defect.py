@@ -300,6 +300,42 @@ def test_static_grip_stiffness_is_linear_and_bounded():
         static_grip_stiffness(DCBRDefectTube(6, 6, 60.0, vacancy=4, **KW), strain=0.1)
 
 
+def test_static_grip_stiffness_does_not_count_the_setup_reaction():
+    """Clamping the grips leaves a small reaction at zero strain (the (10,10) coarsening-4
+    tube: +0.026 eV/Å); k = F / separation must not count it, or k moves with the strain in
+    the linear range (it did: 17.98 at 0.1 % against 17.61 eV/Å^2 at 0.25 %, and with the 8 Å
+    region 17.19 against 18.20)."""
+    from upscale.models.dcbr_dynamic import clamped_grip_tube, static_grip_stiffness
+
+    k = [static_grip_stiffness(clamped_grip_tube(10, 10, 150.0, 4, hourglass=0.1),
+                               strain=s)["k_eV_per_A2"] for s in (0.001, 0.0025)]
+    assert k[0] == pytest.approx(k[1], rel=0.005)
+
+
+def test_vacancy_region_keeps_a_row_off_the_clamped_grips():
+    """The dynamic scene's vacancy tube (clamped_grip_tube): its atomistic region, rounded
+    out to whole cells, keeps the slave particles and the pad atoms' carriers at least a
+    row spacing inside each grip plane, lowering r_atomistic when the whole cells of 8 Å
+    reach nearer ((10,10), 150 Å, 50 Å grips: at coarsening 4 the carriers of the 8 Å
+    region lie 5-10 Å inside the planes); the lowered region still holds every atom within
+    the radius used; where no radius will do, a one-line error."""
+    from upscale.models.dcbr_dynamic import clamped_grip_tube, region_clear_of_grips
+
+    assert not region_clear_of_grips(DCBRDefectTube(10, 10, 150.0, coarsening=4, vacancy=4),
+                                     50.0)
+    m = clamped_grip_tube(10, 10, 150.0, 4)
+    assert m.r_atomistic == 5.0 and region_clear_of_grips(m, 50.0)
+    assert not region_clear_of_grips(m, 50.0, clear=2.0)  # (the rule can fail: 5 rows)
+    zc = m.vacancy_theta_z[1]
+    near = (np.abs(m.X_atoms[:, 2] - zc) < m.r_atomistic) & ~m.removed
+    assert np.isin(np.nonzero(near)[0], m.free_idx).all()
+    assert clamped_grip_tube(10, 10, 150.0, 2).r_atomistic == 8.0  # far enough: untouched
+    with pytest.raises(ValueError, match="grips 60 Å.*r_atomistic=2 Å"):
+        clamped_grip_tube(10, 10, 150.0, 4, grip=60.0)
+    with pytest.raises(ValueError, match="r_min=0"):
+        clamped_grip_tube(10, 10, 150.0, 4, r_min=0.0)
+
+
 def test_tube_extent_ignores_particles_that_left():
     """The crack fit and the damage map take the tube's axial extent from its living carrying
     particles: a failed particle flown 1,300 Å away (a (50,50) K = 4 run) neither stretches
