@@ -682,11 +682,35 @@ class DCBRDefectTube(DCBRTube):
                                   lam_z * self.Xf[:, 2] + sub * shift[2]])
         return y, np.tile(np.asarray(shift, float), (self.N, 1)), lam_z * self.L
 
+    def clamped_uniform_state(self, y, lam_z, lam0):
+        """The uniform state ``y`` (:meth:`uniform_state` at axial stretch ``lam_z``) of a
+        tube held by clamped grips (:meth:`clamp_grips`): the grips' particles put back where
+        the grips took hold (``clamp``'s reference positions; the lattice's at stretch
+        ``lam0`` when none were given) and moved rigidly with their planes, (lam_z - lam0) z_plane.
+        Returns (y, held, low): the grips' rows among the unknown particles, and which of
+        them belong to the lower grip."""
+        z_lo, z_hi, rigid = self.clamp[0], self.clamp[1], np.asarray(self.clamp[2], bool)
+        nd = len(self.dof_idx)
+        held = rigid[self.dof_idx]
+        low = self.x0[self.dof_idx, 2] < 0.5 * (z_lo + z_hi)
+        if len(self.clamp) > 3:
+            yr = np.asarray(self.clamp[3], float)[self.dof_idx]
+        else:
+            yr = self.uniform_state(*self.uniform_lattice(lam0))[0][:nd]
+        y = np.array(y, dtype=float, copy=True)
+        y[:nd][held] = yr[held]
+        y[:nd, 2][held] += (lam_z - lam0) * np.where(low, z_lo, z_hi)[held]
+        return y, held, low
+
     def prepare_step(self, Lz):
         """Ghost-force correction for the load step at cell length ``Lz``: the gradient of the
         coupled energy at the uniform, relaxed state of the pristine lattice at that stretch
         is subtracted as a dead load (Shenoy et al., J. Mech. Phys. Solids 47, 611 (1999)),
-        so a pristine tube stays exactly uniform and the coupling adds no force of its own."""
+        so a pristine tube stays exactly uniform and the coupling adds no force of its own.
+        With clamped grips and a clamped twin (:meth:`clamp_grips` with ``Lz0``) the uniform
+        state is :meth:`clamped_uniform_state` (the grips rigid), and the grips' rows take as
+        dead load what the twin's grips carry beyond the uniform tube's tension
+        T = N / L de/dlam_z, so that they carry T there (the patch test at the grips)."""
         tw = self._twin if self._twin is not None else self
         nd = len(self.dof_idx)
         rows = np.r_[np.arange(nd), nd + self._twin_rows] if self._twin is not None else \
@@ -699,13 +723,27 @@ class DCBRDefectTube(DCBRTube):
         lt, lz, sh = tw.uniform_lattice(Lz / self.L)
         y, d, _ = tw.uniform_state(lt, lz, sh)
         self._ghost = None
+        clamped = tw is not self and getattr(tw, "clamp", None) is not None and \
+            not tw.periodic and hasattr(self, "_clamp_Lz0")
+        if clamped:  # the gauge uniform, the grips rigid (their planes' displacement)
+            y, held, low = tw.clamped_uniform_state(y, lz, self._clamp_Lz0 / self.L)
         _, gy, gd, _ = tw._raw_energy_and_gradient(y, d, Lz)
+        if clamped:  # the grips' reaction at the uniform state is the uniform tube's tension
+            # T = (N / L) de/dlam_z: what the pristine twin's grips carry beyond it is the
+            # coupling's (a ghost force on the grips), so it is the held rows' dead load
+            _, ge = tw.lattice.energy(np.array([lt, 0.0, lz, *sh]), tw.p)
+            T = self.n_atoms / self.L * float(ge[2])
+            for side, sign in ((held & low, -1.0), (held & ~low, 1.0)):
+                k = np.nonzero(side)[0]
+                gy[k, 2] -= sign * T / len(k)
         y, gy = y[rows], gy[rows]
-        # d/dLz of the dead-load term along the uniform path (central difference of x_u)
-        h = 1e-6 * Lz
-        yp, dp = state((Lz + h) / self.L)
-        ym, dm = state((Lz - h) / self.L)
-        dL = float(np.sum(gy * (yp - ym)) + np.sum(gd * (dp - dm))) / (2 * h)
+        if clamped:  # (the open tube's cell is fixed: no dL)
+            dL = 0.0
+        else:  # d/dLz of the dead-load term along the uniform path (central difference of x_u)
+            h = 1e-6 * Lz
+            yp, dp = state((Lz + h) / self.L)
+            ym, dm = state((Lz - h) / self.L)
+            dL = float(np.sum(gy * (yp - ym)) + np.sum(gd * (dp - dm))) / (2 * h)
         self._ghost = {"Lz": float(Lz), "y": y, "d": d, "gy": gy, "gd": gd, "dL": dL}
         return {"max_particle_force_eV_A": float(np.abs(gy[:len(self.dof_idx)]).max()),
                 "max_atom_force_eV_A": float(np.abs(gy[len(self.dof_idx):]).max()),
@@ -771,7 +809,7 @@ class DCBRDefectTube(DCBRTube):
         out[4]["step_crossings"] = crossed
         return out
 
-    def clamp_grips(self, z_lo: float, z_hi: float, rigid, y_ref=None):
+    def clamp_grips(self, z_lo: float, z_hi: float, rigid, y_ref=None, Lz0=None):
         """Rigid grips for the open tube: planes z_lo < z_hi (reference z, Å), ``rigid`` (N,)
         the particles held.
 
@@ -789,7 +827,10 @@ class DCBRDefectTube(DCBRTube):
         (:meth:`_balanced_grip_weights`; same total). ``y_ref`` (N, 3): the particles'
         positions when the grips take hold (G is linearised about them; default the
         reference lattice). The open tube's G is rebuilt here (the weights need its
-        coefficients)."""
+        coefficients). ``Lz0``: the cell length at which the grips take hold; given, the
+        pristine twin that gives the ghost forces is opened and clamped alike, linearised
+        about its uniform lattice at that stretch (:meth:`prepare_step`;
+        ``upscale.models.dcbr_dynamic`` docstring, "Ghost forces with clamped grips")."""
         rigid = np.asarray(rigid, dtype=bool)
         if not (z_lo < z_hi and rigid.shape == (self.N,) and not self.periodic):
             raise ValueError(f"grip planes z_lo={z_lo}, z_hi={z_hi}, rigid {rigid.shape}, "
@@ -829,6 +870,15 @@ class DCBRDefectTube(DCBRTube):
         self._build_gain(None)  # the clamped G, whose coefficients the weights balance
         self.natoms_n = self._balanced_grip_weights(self.natoms_n)
         self._build_gain(None)
+        tw = getattr(self, "_twin", None)
+        if tw is not None and Lz0 is not None:  # the ghost forces' twin: opened and clamped
+            # alike, linearised about its own uniform lattice at the set-up stretch
+            tw.periodic = False
+            tw.clamp = None
+            tw._build_gain(None)
+            yu, _, _ = tw.uniform_state(*tw.uniform_lattice(float(Lz0) / self.L))
+            tw.clamp_grips(z_lo, z_hi, rigid, tw.particle_positions(yu))
+            self._clamp_Lz0 = float(Lz0)
 
     def _balanced_grip_weights(self, w):
         """Weights of the particles next to the grip planes such that a gauge stretched

@@ -46,10 +46,8 @@ fitted about their particle (so the row next to a plane feels its own position),
 weights are the gauge's length shares, corrected next to the planes so that the uniform
 gauge is an equilibrium (:meth:`DCBRDefectTube._balanced_grip_weights`). A gauge stretched
 uniformly between rigid grips then gives every particle exactly its strain and stays so when
-it is relaxed, and the static grip stiffness is within 1.9 % of LAMMPS's for the three tubes
-at coarsening 1-4 except (12,6) at 4 (-5.0 %; its held rows reach 4.5 Å inside both planes;
-its dynamic modulus over 4 seeds is -2.0 %) (with the vacancy's region of "Region and
-grips" below). (With the length shares alone the families fitted about their own
+it is relaxed, and with the ghost forces of a clamped twin (below) the static grip
+stiffness is within 1.2 % of LAMMPS's for the three tubes at coarsening 1-4. (With the length shares alone the families fitted about their own
 particle left the first free row pulled into the gauge at uniform strain: the gap between a
 plane and the gauge took 1.3 times the gauge's strain statically and about twice under load,
 the coarse link rule broke the grip's edge rows first (pristine (10,10) coarsening 2: 98 GPa
@@ -58,33 +56,36 @@ and the coarsening-4 grips were 6-8 % too compliant.) Holding the row less than 
 keeps the gap between the plane and the first free row at least h/2 (a thinner gap was a
 soft spot that the kernel-weighted fit hardly saw: (17,0) K1 86 % too soft).
 
-Region and grips (:func:`clamped_grip_tube`, the vacancy scene's tube). The vacancy's
-atomistic region, rounded out to whole cells, keeps its coupling (slave particles and the
-particles that pad atoms follow) at least one row spacing inside each grip plane; where the
-asked radius (8 Å) would not, the radius is lowered in 1 Å steps until it does (150 Å tubes,
-50 Å grips: 5 Å at coarsening 4 for all five tubes, 7 Å at coarsening 3 for (17,0), (12,6)
-and (30,60), 8 Å otherwise). Why: the ghost-force correction is the periodic pristine twin's
-gradient at the uniform stretch; where a coupling row borders the grip's node row, the
-twin's dead load falls on held rows, where it is no ghost force but part of the measured
-reaction, and the rows around it are balanced for the periodic G, not the clamped one.
-Measured as the static stiffness between 1 and 2 % strain (:func:`static_grip_stiffness`),
-against LAMMPS's 16.65 / 16.24 / 15.96 eV/Å^2 for (10,10) / (17,0) / (12,6): coarsening 4
-with the 8 Å region (its carriers 5-10 Å inside the planes) +5.5 / +6.2 / +5.5 % (for
-(10,10) the twin's dead load on the held rows gives +10.4 % and the coupling without it -4.9
-%), with 5 Å -2.2 / -1.1 / -5.4 %; coarsening 3, (17,0) and (12,6), +1.6 / +2.7 % with 8 Å,
-+1.1 / +0.3 % with 7 Å; coarsening 2, untouched, 0.0 / +1.2 / 0.0 %. Over 4 thermal seeds
-the dynamic modulus by grip separation at coarsening 3-4 moved from +1.8 ... +8.4 % to -2.0
-... +3.0 % of LAMMPS's. What it costs: at coarsening 4 the region is then one row of cells
-(10 Å along the axis), enough for the small tubes' cracks (strength over 4 seeds within 2.1
-%) but narrower than the path of LAMMPS's crack in the seed-scale tubes (about 25 Å along
-the axis in (50,50)): the (50,50) tube, thermal seed 12345, first breaks at the vacancy at
-8.5 % strain (LAMMPS 9.6 %) but its crack stops at the band's edge until 14 % (strength +21
-%; seeds 1000-1002: mean 76.6 GPa, LAMMPS's three 75.8), and (30,60) is 4.8-5.5 % weak; the
-seed-scale tubes are within 3.1 % at coarsening 3. What it leaves: the 50 Å gauge holds five
-rows at coarsening 4, and the twin's dead load still reaches the (10,10) upper grip's node
-row (its carriers are 10.2 Å away: +5 % of the stiffness, against a softer coupling); a
-correction taken from a twin opened and clamped like the tube would remove it, and is not
-built.
+Ghost forces with clamped grips (:meth:`DCBRDefectTube.clamp_grips`, ``Lz0``;
+:meth:`DCBRDefectTube.prepare_step`). The ghost-force correction of the atomistic region is
+the gradient of a pristine twin at the uniform stretch. A periodic twin is right far from
+the grips, but at coarsening 4 a 50 Å gauge holds five rows and the region's coupling (8 Å,
+rounded out to whole cells: its carriers 5-10 Å inside the planes) borders the grips: the
+periodic twin's dead load then fell on held rows, where it is no ghost force but part of the
+measured reaction, and the rows next to them were balanced for the periodic G, not the
+clamped one. So the twin is opened and clamped like the tube (linearised about its own
+uniform lattice at the set-up stretch), its uniform state has the gauge uniform and the
+grips' rows moved rigidly with their planes (:meth:`DCBRDefectTube.clamped_uniform_state`),
+its gradient there is the dead load of every free particle and atom, and on the grips' rows
+the dead load is what the twin's grips carry beyond the uniform tube's tension T = N / L
+de/dlam_z (the patch test at the grips: a pristine tube stretched uniformly between them is
+in equilibrium and its grips carry T; uncorrected, at coarsening 4, up to 1.7 eV/Å was left
+on free particles and the grips carried 10.7 % more). Measured, static stiffness of the
+vacancy tubes between the grips (:func:`static_grip_stiffness`, 150 Å, 50 Å grips) against
+LAMMPS's 17.74 / 17.37 / 17.01 eV/Å^2 at 0.25 % for (10,10) / (17,0) / (12,6): with the
+clamped twin +0.6 to +1.1 % / +0.9 to +1.1 % / -0.1 to +0.2 % at coarsening 1-4, the same at
+every coarsening within 0.5 %; between 1 and 2 % strain (LAMMPS 16.65 / 16.24 / 15.96) +0.5
+to +0.9 % / +0.7 to +0.9 % / -0.2 to +0.1 %. With the periodic twin coarsening 4 was +5.5 /
++6.2 / +5.5 % between 1 and 2 % (for (10,10) the dead load on the held rows gave +10.4 % and
+the rest -4.9 %), and the dynamic modulus by grip separation +7.2 to +8.4 % over 4 thermal
+seeds; with the clamped twin it is +1.1 to +3.4 % at coarsening 1-4 (the static stiffness
++1.2 % at most: the rest comes with the dynamics of the first 0.5 ps, over which the modulus
+is fitted, and grows with the coarsening for (17,0): +1.5, +2.7, +3.2, +3.4 %). (Tried
+first, commit 1dac62b: lowering the vacancy's region until its coupling kept a row spacing
+from the grips, 5 Å at coarsening 4. That fixed the small tubes' modulus, but the one-row
+band (10 Å) is narrower than the path of LAMMPS's crack in the seed-scale tubes: (50,50) at
+coarsening 4 first broke at the vacancy at 8.5 % strain but its crack stopped at the band's
+edge until 14 %, +21 % in strength.)
 
 Masses (:meth:`DCBRDefectTube.masses`): a free atom 12.011 amu; a particle carries
 m_C max(w_c, N_c/2) (its atoms, at least half its nominal share, so that interface particles
@@ -163,8 +164,7 @@ from upscale.models.dcbr import EV_PER_A3_IN_GPA, WALL_THICKNESS, uniform_map_fr
 from upscale.models.dcbr_defect import ACC_UNIT, CARBON_MASS
 
 __all__ = ["dynamic_tension", "open_tube_with_grips", "static_grip_stiffness",
-           "grip_band_tube", "clamped_grip_tube", "region_clear_of_grips", "pristine_grip_tube",
-           "run_metrics", "CARBON_MASS"]
+           "grip_band_tube", "pristine_grip_tube", "run_metrics", "CARBON_MASS"]
 
 
 def grip_band_tube(n: int, m: int, length: float, coarsening: float, grip: float = 50.0,
@@ -224,6 +224,12 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | N
                          f"valid: grip < {L0 / 2:.1f}")
     model.periodic = False
     model.clamp = None  # (a model opened before: its clamp is set again below)
+    tw = getattr(model, "_twin", None)
+    if tw is not None and getattr(tw, "clamp", None) is not None:  # (and its twin)
+        tw.periodic, tw.clamp = True, None
+        tw.natoms_n = tw._natoms_unclamped.copy()
+        tw._build_gain(None)
+        del model._clamp_Lz0
     model._build_gain(None)
     model.prepare_step(L0)
     nd = len(model.dof_idx)
@@ -300,7 +306,7 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | N
         yp = model.particle_positions(y)
         rigid = np.zeros(model.N, bool)
         rigid[model.dof_idx] = bottom[:nd] | top[:nd]
-        model.clamp_grips(zb_ref, zt_ref, rigid, yp)  # (rebuilds G)
+        model.clamp_grips(zb_ref, zt_ref, rigid, yp, Lz0=L0)  # (rebuilds G and its twin)
         model.prepare_step(L0)
         fixed[grips] = True
         y, d, _, _, _, _ = model.minimise(y, d, L0, gtol=gtol, fixed=fixed)
@@ -325,59 +331,6 @@ def _held_rows(model, z, zb, zt, hold):
     carrier[model._pad["c"]] = True
     inner = carrier[model.dof_idx]
     return (z < zb) | ((z < zb + hold) & ~inner), (z > zt) | ((z > zt - hold) & ~inner)
-
-
-def region_clear_of_grips(model, grip: float, clear: float = 1.0) -> bool:
-    """Whether the atomistic region's coupling keeps ``clear`` row spacings from each grip
-    plane (:func:`clamped_grip_tube`): no slave particle and no particle that pad atoms
-    follow lies less than ``clear`` times the row spacing inside a plane (the planes of
-    :func:`open_tube_with_grips`, ``grip`` inside the end atoms, on the zero-stress uniform
-    lattice, as there)."""
-    if not clear > 0:
-        raise ValueError(f"clear={clear!r}; valid: a number of row spacings > 0")
-    lt, lz, sh = model.uniform_lattice(None)
-    y, _, L0 = model.uniform_state(lt, lz, sh)
-    za = model.X_atoms[:, 2] * (L0 / model.L)
-    zb, zt = float(za.min()) + grip, float(za.max()) - grip
-    rows0 = np.unique(np.round(model.x0[:, 2], 6))
-    reach = clear * float(np.median(np.diff(rows0))) * L0 / model.L
-    z = model.particle_positions(y)[:, 2]
-    coupled = model.is_slave.copy()
-    coupled[model._pad["c"]] = True
-    near = ((z >= zb) & (z < zb + reach)) | ((z <= zt) & (z > zt - reach))
-    return not np.any(coupled & near)
-
-
-def clamped_grip_tube(n: int, m: int, length: float, coarsening: float, grip: float = 50.0,
-                      r_atomistic: float = 8.0, r_min: float = 2.0, clear: float = 1.0, **kw):
-    """The vacancy tube of the dynamic scene with clamped coarse grips (module docstring,
-    "Region and grips"): a :class:`~upscale.models.dcbr_defect.DCBRDefectTube` whose
-    atomistic region keeps its coupling (slave particles, pad atoms' carriers) at least
-    ``clear`` row spacings inside each grip plane (:func:`region_clear_of_grips`).
-
-    ``r_atomistic`` is the radius asked for. When its region, rounded out to whole cells,
-    comes nearer a plane, the radius is lowered in 1 Å steps, not below ``r_min``;
-    ``model.r_atomistic`` is the radius used (the region still holds every atom within it
-    of the vacancy). No tube can be built: a one-line error."""
-    from upscale.models.dcbr_defect import DCBRDefectTube  # noqa: PLC0415
-
-    if not (r_min > 0 and r_atomistic >= r_min):
-        raise ValueError(f"r_atomistic={r_atomistic}, r_min={r_min}; valid: "
-                         "r_atomistic >= r_min > 0 (Å)")
-    r = float(r_atomistic)
-    while True:
-        model = DCBRDefectTube(n, m, length, coarsening=coarsening, vacancy=4, r_atomistic=r,
-                               **kw)
-        if region_clear_of_grips(model, grip, clear):
-            model.r_atomistic = r
-            return model
-        if r - 1.0 < r_min:
-            raise ValueError(
-                f"({n},{m}), coarsening {coarsening:g}, {length:g} Å, grips {grip:g} Å: the "
-                f"vacancy's atomistic region comes within {clear:g} row spacing(s) of a grip "
-                f"plane even at r_atomistic={r:g} Å; valid: a longer tube, shorter grips or a "
-                "smaller coarsening")
-        r -= 1.0
 
 
 def _hold_grip_ghost(model, st) -> None:

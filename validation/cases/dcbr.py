@@ -269,9 +269,7 @@ def dynamic_scene(n, m, length, coarsening, ref, vacancy=True, grips=None,
     ``ref`` records them (its extensometer window; the seed-scale references predate it and
     the planes are then ``grip`` inside the lattice's end atoms, 0.2-1 Å off). With the
     vacancy its own region is kept. ``grips="clamped"`` (vacancy only): coarse rows up to the
-    planes, held rigid in G (:meth:`~upscale.models.dcbr_defect.DCBRDefectTube.clamp_grips`),
-    the vacancy's region at least a row spacing inside them, ``r_atomistic`` lowered if need
-    be (:func:`upscale.models.dcbr_dynamic.clamped_grip_tube`; ``model.r_atomistic``).
+    planes, held rigid in G (:meth:`~upscale.models.dcbr_defect.DCBRDefectTube.clamp_grips`).
     Why the default differs: a pristine tube breaks at a grip plane (LAMMPS's do: the held
     radius stretches the first free bonds), a concentration of a few atoms that the
     atomistic band carries and a clamped coarse row does not (``upscale.models.dcbr_dynamic``
@@ -282,7 +280,8 @@ def dynamic_scene(n, m, length, coarsening, ref, vacancy=True, grips=None,
     the small tubes were within 3.5 % (strength), 1.9 % (modulus) and 4.3 % (strain at
     peak) of LAMMPS, but that tests the atoms, not the coarse model. ``kw`` goes to the
     model (hourglass, step_crossing, ...). ``dyn["grips"]`` records the grips chosen."""
-    from upscale.models.dcbr_dynamic import clamped_grip_tube, grip_band_tube  # noqa: PLC0415
+    from upscale.models.dcbr_defect import DCBRDefectTube  # noqa: PLC0415
+    from upscale.models.dcbr_dynamic import grip_band_tube  # noqa: PLC0415
 
     if grips is None:
         grips = "clamped" if vacancy else "bands"
@@ -298,8 +297,8 @@ def dynamic_scene(n, m, length, coarsening, ref, vacancy=True, grips=None,
         planes = _reference_grip_planes(ref) if "extensometer" in pd else None
         dyn.update(clamp=False, planes=planes)
     else:
-        model = clamped_grip_tube(n, m, length, coarsening, grip=grip, r_atomistic=r_atomistic,
-                                  **kw)
+        model = DCBRDefectTube(n, m, length, coarsening=coarsening, vacancy=4,
+                               r_atomistic=r_atomistic, **kw)
         dyn.update(clamp=True)
     return model, dyn | {"grips": grips}
 
@@ -383,8 +382,7 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
             dref = ref.get("damage", {})
             out["crack_start_to_vacancy_lammps_A"] = dref.get("crack_start_distance_to_vacancy_A")
         out.update({f"model_{k}": v for k, v in model.summary().items()})
-        out.update({"region": region, "r_atomistic_A": getattr(model, "r_atomistic", r_atomistic),
-                    "r_atomistic_asked_A": r_atomistic,
+        out.update({"region": region, "r_atomistic_A": r_atomistic,
                     "step_crossing": step_crossing, "dof": model.dof})
         out.update(_crack(model, res))
         dref = ref.get("damage", {})
