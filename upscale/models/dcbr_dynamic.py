@@ -47,13 +47,14 @@ weights are the gauge's length shares, corrected next to the planes so that the 
 gauge is an equilibrium (:meth:`DCBRDefectTube._balanced_grip_weights`). A gauge stretched
 uniformly between rigid grips then gives every particle exactly its strain and stays so when
 it is relaxed, and with the ghost forces of a clamped twin (below) the static grip
-stiffness is within 1.2 % of LAMMPS's for the three tubes at coarsening 1-4. (With the length shares alone the families fitted about their own
-particle left the first free row pulled into the gauge at uniform strain: the gap between a
-plane and the gauge took 1.3 times the gauge's strain statically and about twice under load,
-the coarse link rule broke the grip's edge rows first (pristine (10,10) coarsening 2: 98 GPa
-at 15 % strain, LAMMPS 119 GPa at 22 %; the (30,60) coarsening-4 vacancy tube 7.7 % weak),
-and the coarsening-4 grips were 6-8 % too compliant.) Holding the row less than h/2 inside a plane
-keeps the gap between the plane and the first free row at least h/2 (a thinner gap was a
+stiffness is within 1.2 % of LAMMPS's for the three tubes at coarsening 1-4. (With the
+length shares alone the families fitted about their own particle left the first free row
+pulled into the gauge at uniform strain: the gap between a plane and the gauge took 1.3
+times the gauge's strain statically and about twice under load, the coarse link rule broke
+the grip's edge rows first (pristine (10,10) coarsening 2: 98 GPa at 15 % strain, LAMMPS 119
+GPa at 22 %; the (30,60) coarsening-4 vacancy tube 7.7 % weak), and the coarsening-4 grips
+were 6-8 % too compliant.) Holding the row less than h/2 inside a plane keeps the gap
+between the plane and the first free row at least h/2 (a thinner gap was a
 soft spot that the kernel-weighted fit hardly saw: (17,0) K1 86 % too soft).
 
 Ghost forces with clamped grips (:meth:`DCBRDefectTube.clamp_grips`, ``Lz0``;
@@ -87,10 +88,11 @@ band (10 Å) is narrower than the path of LAMMPS's crack in the seed-scale tubes
 coarsening 4 first broke at the vacancy at 8.5 % strain but its crack stopped at the band's
 edge until 14 %, +21 % in strength.)
 
-Masses (:meth:`DCBRDefectTube.masses`): a free atom 12.011 amu; a particle carries
-m_C max(w_c, N_c/2) (its atoms, at least half its nominal share, so that interface particles
-with few atoms do not set a tiny stable step); the sublattice shift of a particle is a dynamic unknown with the reduced mass of the
-two sublattices, m_C max(w_c, N_c/2) / 4 (the optical mode).
+Masses (:meth:`DCBRDefectTube.masses`): a free atom 12.011 amu; a particle carries m_C
+max(w_c, N_c/2) (its atoms, at least half its nominal share, so that interface particles
+with few atoms do not set a tiny stable step); the sublattice shift of a particle is a
+dynamic unknown with the reduced mass of the two sublattices, m_C max(w_c, N_c/2) / 4 (the
+optical mode).
 
 Thermostat, as the LAMMPS runs: Gaussian velocities at ``temperature`` (default 10 K) on the
 free part, and a Nose-Hoover thermostat (damping ``tdamp``, default 100 fs) whose temperature
@@ -263,7 +265,11 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | N
     # gauge atoms, too; (12,6) coarsening 4, whose 50 Å gauge is then all atomistic but for
     # those two rows, was 19 % too stiff)
     hold = 0.5 * h if clamp else 0.0
-    bottom[:nd], top[:nd] = _held_rows(model, z[:nd], zb, zt, hold)
+    carrier = np.zeros(model.N, bool)
+    carrier[model._pad["c"]] = True
+    inner = carrier[model.dof_idx]
+    bottom[:nd] = (z[:nd] < zb) | ((z[:nd] < zb + hold) & ~inner)
+    top[:nd] = (z[:nd] > zt) | ((z[:nd] > zt - hold) & ~inner)
     if banded:  # atomistic bands across the grip planes: the atoms beyond a plane are held
         # by the grip, as LAMMPS's (the grip's edge is then atomistic and needs no clamp)
         if clamp:
@@ -324,15 +330,6 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | N
                        for k, v in model._ghost.items()}}
 
 
-def _held_rows(model, z, zb, zt, hold):
-    """The grips' particles among the unknown ones (z: their axial positions): beyond a plane,
-    or less than ``hold`` inside it unless pad atoms follow them (open_tube_with_grips)."""
-    carrier = np.zeros(model.N, bool)
-    carrier[model._pad["c"]] = True
-    inner = carrier[model.dof_idx]
-    return (z < zb) | ((z < zb + hold) & ~inner), (z > zt) | ((z > zt - hold) & ~inner)
-
-
 def _hold_grip_ghost(model, st) -> None:
     """With atomistic bands across the grip planes, the ghost-force dead load on the grips'
     rows (and on their particles' shifts) is put back to its set-up value (``st["ghost0"]``).
@@ -377,11 +374,11 @@ def static_grip_stiffness(model, grip: float = 50.0, strain: float = 0.0025,
     apart by ``strain`` times the gauge (all their components held), the free part is
     minimised with the ghost-force correction at that stretch, and the grips' mean reaction
     F (less its value at the set-up state, ``force_at_setup_eV_per_A``: clamping the grips
-    leaves a small residual reaction, (10,10) coarsening 4: -0.05 eV/Å, which at 0.25 %
-    strain moved k by -2.5 %) gives k = F / separation (eV/Å^2). k is free of any gauge
-    convention, so it compares
-    the coarse grips with LAMMPS's (``validation.lammps.tension.static_grip_stiffness``)
-    directly; ``modulus_TPa`` = (F / area) / strain with LAMMPS's gauge."""
+    leaves a small reaction, (10,10) coarsening 3: -0.013 eV/Å; with the periodic twin at
+    coarsening 4, -0.05 eV/Å, which moved k by -2.5 % at 0.25 % strain) gives
+    k = F / separation (eV/Å^2). k is free of any gauge convention, so it compares the coarse
+    grips with LAMMPS's (``validation.lammps.tension.static_grip_stiffness``) directly;
+    ``modulus_TPa`` = (F / area) / strain with LAMMPS's gauge."""
     if not (0 < strain < 0.05):
         raise ValueError(f"strain={strain!r}; valid: 0 < strain < 0.05 (the linear range)")
     st = open_tube_with_grips(model, grip, gtol, clamp=clamp, planes=planes)
