@@ -315,24 +315,45 @@ def test_static_grip_stiffness_does_not_count_the_setup_reaction():
 
 def test_clamped_grips_stiffness_is_lammps_at_every_coarsening():
     """The tube held by clamped grips, with the ghost forces of a twin opened and clamped
-    alike (DCBRDefectTube.clamp_grips, prepare_step): the static stiffness between the grips
-    (150 Å (10,10) with the vacancy, 50 Å grips, 0.25 %) is LAMMPS's within 1.5 % at
-    coarsening 2 and 4 (data/reference/grip_stiffness.json, LAMMPS's own run). With the
-    periodic twin the region's coupling, which reaches the grips at coarsening 4, made it
-    +2.6 % here and +5.5 % between 1 and 2 % strain; at coarsening 2 both agree."""
+    alike (DCBRDefectTube.clamp_grips, prepare_step), taking hold where LAMMPS's grips do
+    (validation.cases.dcbr.dynamic_scene: its innermost held atoms, and its planes for the
+    gauge): the static stiffness between the grips (150 Å (10,10) with the vacancy, 50 Å
+    grips, 0.25 %) is LAMMPS's within 1.5 % at coarsening 2 and 4
+    (data/reference/grip_stiffness.json, LAMMPS's own run), and so is the gauge (the strain's
+    length), to 0.1 %. With the periodic twin the region's coupling, which reaches the grips
+    at coarsening 4, made k +2.6 % here and +5.5 % between 1 and 2 % strain. With the coarse
+    tube's own planes (50 Å inside its own end atoms) the gauge was 1.0 % ((10,10)) to 2.3 %
+    ((17,0)) longer than LAMMPS's, and the modulus by grip separation that much higher."""
     import json
     from pathlib import Path
 
     from upscale.models.dcbr_dynamic import static_grip_stiffness
+    from validation.cases.dcbr import _lammps_reference, dynamic_scene
 
     ref = json.loads((Path(__file__).resolve().parents[1] / "data" / "reference" /
                       "grip_stiffness.json").read_text())["tubes"]["10,10"]
     assert ref["strain"] == 0.0025 and ref["grip_A"] == 50.0
+    dref = _lammps_reference(10, 10, 150.0, protocol="dynamic", vacancy=True, progress=False)
     for K in (2.0, 4.0):
-        m = DCBRDefectTube(10, 10, 150.0, coarsening=K, vacancy=4, hourglass=0.1)
-        k = static_grip_stiffness(m, strain=0.0025)["k_eV_per_A2"]
-        assert k == pytest.approx(ref["k_eV_per_A2"], rel=0.015), (K, k)
+        m, dyn = dynamic_scene(10, 10, 150.0, K, dref, hourglass=0.1)
+        assert dyn["grips"] == "clamped" and dyn["planes"][0] < dyn["gauge_planes"][0]
+        r = static_grip_stiffness(m, strain=0.0025, planes=dyn["planes"],
+                                  gauge_planes=dyn["gauge_planes"])
+        assert r["k_eV_per_A2"] == pytest.approx(ref["k_eV_per_A2"], rel=0.015), (K, r)
+        assert r["gauge_length_A"] == pytest.approx(ref["gauge_length_A"], rel=1e-3), (K, r)
         assert m._twin.clamp is not None and not m._twin.periodic
+
+
+def test_reference_held_planes():
+    """The clamp of a coarse grip goes to LAMMPS's innermost held atoms: the nearest atom
+    below (above) each plane, of a lattice given by its axial coordinates; a plane past
+    the tube's end is a one-line error naming the planes."""
+    from validation.cases.dcbr import _reference_held_planes
+
+    z = np.array([0.0, 0.71, 2.13, 2.84, 4.26, 4.97, 6.39])
+    assert _reference_held_planes(z, (1.0, 4.5)) == (0.71, 4.97)
+    with pytest.raises(ValueError, match="planes="):
+        _reference_held_planes(z, (-1.0, 4.5))
 
 
 def test_clamped_twin_patch_test():

@@ -30,6 +30,21 @@ atoms as LAMMPS's does, where those tubes break. The vacancy tubes keep clamped 
 vacancy's region and the bands cover 80-100 % of the 50 Å gauge's atoms at coarsening 2-4,
 and the gauge would no longer be coarse.
 
+The gauge (``gauge_planes``) and where a clamp takes hold (``planes``). Which atoms end
+LAMMPS's open tube depends on its periodic wrap (the builder's layer at z = 0 went to the top
+of the (10,10) and (17,0) tubes) and on the end atoms' relaxation, so its planes, 50 Å inside
+them, cut the lattice elsewhere than planes 50 Å inside the coarse tube's own end atoms: the
+coarse gauge was 1.0 % ((10,10)), 2.3 % ((17,0)) and 2.0 % ((12,6)) longer than LAMMPS's,
+the strain at a given grip separation that much smaller, and the modulus by grip
+separation that much higher at the same static grip stiffness (seed means +3.1 to +3.4 %
+in three rows, static k within 1.2 %). The validation scenes therefore take LAMMPS's planes
+as the gauge (the strain's length, the extensometer's window and the velocity ramp), and
+put each clamp where LAMMPS's grip takes hold, at its innermost held atoms
+(``validation.cases.dcbr._reference_held_planes``): a lattice stretched uniformly between
+held layers strains the bonds across them as the rest, and a clamped coarse grip counts its
+held rows as sitting at its plane. Then the static grip stiffness is +0.2 to +1.6 % of
+LAMMPS's at coarsening 1-4 and the gauge LAMMPS's to 0.05 %.
+
 Clamped grips (``clamp=True``, :meth:`DCBRDefectTube.clamp_grips`, build_gain's ``clamp``).
 With the plain centred stencil a grip is too compliant: the rows next to a plane mix the
 grip's zero strain into theirs, the grips' own rows take strain from the gauge, and the two
@@ -47,7 +62,7 @@ weights are the gauge's length shares, corrected next to the planes so that the 
 gauge is an equilibrium (:meth:`DCBRDefectTube._balanced_grip_weights`). A gauge stretched
 uniformly between rigid grips then gives every particle exactly its strain and stays so when
 it is relaxed, and with the ghost forces of a clamped twin (below) the static grip
-stiffness is within 1.2 % of LAMMPS's for the three tubes at coarsening 1-4. (With the
+stiffness is within 1.7 % of LAMMPS's for the three tubes at coarsening 1-4. (With the
 length shares alone the families fitted about their own particle left the first free row
 pulled into the gauge at uniform strain: the gap between a plane and the gauge took 1.3
 times the gauge's strain statically and about twice under load, the coarse link rule broke
@@ -72,16 +87,18 @@ the dead load is what the twin's grips carry beyond the uniform tube's tension T
 de/dlam_z (the patch test at the grips: a pristine tube stretched uniformly between them is
 in equilibrium and its grips carry T; uncorrected, at coarsening 4, up to 1.7 eV/Å was left
 on free particles and the grips carried 10.7 % more). Measured, static stiffness of the
-vacancy tubes between the grips (:func:`static_grip_stiffness`, 150 Å, 50 Å grips) against
-LAMMPS's 17.74 / 17.37 / 17.01 eV/Å^2 at 0.25 % for (10,10) / (17,0) / (12,6): with the
-clamped twin +0.6 to +1.1 % / +0.9 to +1.1 % / -0.1 to +0.2 % at coarsening 1-4, the same at
-every coarsening within 0.5 %; between 1 and 2 % strain (LAMMPS 16.65 / 16.24 / 15.96) +0.5
-to +0.9 % / +0.7 to +0.9 % / -0.2 to +0.1 %. With the periodic twin coarsening 4 was +5.5 /
+vacancy tubes between the grips (:func:`static_grip_stiffness`, 150 Å, 50 Å grips, the
+clamps and gauge of LAMMPS's grips, "The gauge" above) against LAMMPS's 17.74 / 17.37 / 17.01
+eV/Å^2 at 0.25 % for (10,10) / (17,0) / (12,6): +0.2 to +0.8 % / +0.8 to +1.3 % / +1.4 to
++1.6 % at coarsening 1-4; between 1 and 2 % strain (LAMMPS 16.65 / 16.24 / 15.96) +0.2 to
++0.7 % / +0.8 to +1.2 % / +1.3 to +1.6 %. With the periodic twin coarsening 4 was +5.5 /
 +6.2 / +5.5 % between 1 and 2 % (for (10,10) the dead load on the held rows gave +10.4 % and
 the rest -4.9 %), and the dynamic modulus by grip separation +7.2 to +8.4 % over 4 thermal
-seeds; with the clamped twin it is +1.1 to +3.4 % at coarsening 1-4 (the static stiffness
-+1.2 % at most: the rest comes with the dynamics of the first 0.5 ps, over which the modulus
-is fitted, and grows with the coarsening for (17,0): +1.5, +2.7, +3.2, +3.4 %). (Tried
+seeds; with the clamped twin but the coarse tube's own planes, +1.1 to +3.4 % (the gauge
+1-2.3 % longer than LAMMPS's: the excess that was first taken for a dynamic effect, since
+the static stiffness agreed within 1.2 %); with LAMMPS's gauge and clamps ("The gauge"
+above) -0.3 to +2.3 % at coarsening 1-4, 16 coarse seeds against LAMMPS's 16 ((10,10)) and
+8 ((17,0), (12,6)), ``python -m validation seeds-extensometer``. (Tried
 first, commit 1dac62b: lowering the vacancy's region until its coupling kept a row spacing
 from the grips, 5 Å at coarsening 4. That fixed the small tubes' modulus, but the one-row
 band (10 Å) is narrower than the path of LAMMPS's crack in the seed-scale tubes: (50,50) at
@@ -202,20 +219,25 @@ def pristine_grip_tube(n: int, m: int, length: float, coarsening: float, grip: f
     return grip_band_tube(n, m, length, coarsening, grip, r_atomistic, vacancy=0, **kw)
 
 def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | None = None,
-                         planes=None) -> dict:
+                         planes=None, gauge_planes=None) -> dict:
     """Steps 1-3 of the module docstring: the open tube relaxed with its grips.
 
     ``clamp``: clamped coarse grips (module docstring); ``None`` (default): clamped unless
     the model has atomistic bands across the planes (``model.band_z``), which need none.
 
-    ``planes`` (only with atomistic bands across the grip planes, ``model.band_z``): the
-    grip planes' reference z (Å, the lattice of ``model.X_atoms``) instead of ``grip``
-    inside the end atoms (module docstring, "Pristine tubes").
+    ``planes``: the grip planes' reference z (Å, the lattice of ``model.X_atoms``) instead
+    of ``grip`` inside the end atoms: with atomistic bands across them, the planes the atoms
+    are held beyond (module docstring, "Atomistic bands"); with clamped grips, where the
+    clamp takes hold (a held row counts as sitting there: the innermost held material,
+    module docstring, "The gauge"). ``gauge_planes`` (reference z, default ``planes``):
+    the planes whose distance is the gauge of the strain, and between which the
+    extensometer and the velocity ramp lie.
 
     Returns a dict: ``y``, ``delta`` (the relaxed unknowns), ``L0``, ``R`` (mean atom radius),
     ``area`` (2 pi R t), the grip masks ``bottom`` and ``top`` over the rows of ``y``, the grip
-    planes ``zb`` < ``zt`` (Å, after the set-up relaxation), ``gauge`` = zt - zb and
-    ``grip_rows`` (the innermost grip rows' distance)."""
+    planes ``zb`` < ``zt`` (Å, after the set-up relaxation), the gauge planes ``gb`` < ``gt``
+    (likewise), ``gauge`` = gt - gb and ``grip_rows`` (the innermost grip rows'
+    distance)."""
     # the zero-stress uniform lattice (an open tube relaxes its own length, so the periodic
     # zero-stress iteration of the quasi-static scene is not needed), then the tube is
     # opened (G without links across the cell boundary) and minimised once
@@ -249,12 +271,17 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | N
     za = model.X_atoms[:, 2] * (L0 / model.L)
     zb, zt = float(za.min()) + grip, float(za.max()) - grip
     banded = getattr(model, "band_z", None) is not None
-    if planes is not None:  # given on the reference lattice (the pristine scene, docstring)
-        if not (banded and len(planes) == 2 and za.min() < planes[0] * L0 / model.L
-                < planes[1] * L0 / model.L < za.max()):
-            raise ValueError(f"planes={planes!r}; valid: two reference z inside the tube, "
-                             "lower first, with atomistic bands across them (band_z)")
+    for name, pl in (("planes", planes), ("gauge_planes", gauge_planes)):
+        if pl is not None and not (len(pl) == 2 and za.min() < pl[0] * L0 / model.L
+                                   < pl[1] * L0 / model.L < za.max()):
+            raise ValueError(f"{name}={pl!r}; valid: two reference z inside the tube "
+                             f"({za.min() * model.L / L0:.2f}..{za.max() * model.L / L0:.2f} Å), "
+                             "lower first")
+    if planes is not None:  # given on the reference lattice (the validation scenes)
         zb, zt = float(planes[0]) * L0 / model.L, float(planes[1]) * L0 / model.L
+    # the gauge planes, as offsets from the grip planes (they move with them below)
+    db, dt_ = (0.0, 0.0) if gauge_planes is None else \
+        (float(gauge_planes[0]) * L0 / model.L - zb, float(gauge_planes[1]) * L0 / model.L - zt)
     zb_ref, zt_ref = zb * model.L / L0, zt * model.L / L0  # the planes in reference z
     bottom = np.zeros(len(y), bool)
     top = np.zeros(len(y), bool)
@@ -318,13 +345,15 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | N
         y, d, _, _, _, _ = model.minimise(y, d, L0, gtol=gtol, fixed=fixed)
     R = model.radius(y, d)
     z = y[:, 2]
-    # the gauge is LAMMPS's: the initial distance between the grip planes, so that strain(t)
-    # = 2 v t / gauge is the same function of time in both runs. (Until 2026-11-22 it was the
-    # distance between the innermost grip rows, 0 to 2 h longer; that lowered the strain at a
-    # given grip separation by up to 19 % at coarsening 4 and hid the plain grips' extra
-    # compliance, module docstring.)
+    # the gauge is LAMMPS's: the initial distance between its grip planes (gauge_planes), so
+    # that strain(t) = 2 v t / gauge is the same function of time in both runs. (Until
+    # 2026-11-22 it was the distance between the innermost grip rows, 0 to 2 h longer; that
+    # lowered the strain at a given grip separation by up to 19 % at coarsening 4 and hid the
+    # plain grips' extra compliance, module docstring.)
+    gb, gt = zb + db, zt + dt_
     return {"y": y, "delta": d, "L0": float(L0), "R": R, "area": 2 * math.pi * R * WALL_THICKNESS,
-            "bottom": bottom, "top": top, "zb": zb, "zt": zt, "gauge": float(zt - zb),
+            "bottom": bottom, "top": top, "zb": zb, "zt": zt, "gb": gb, "gt": gt,
+            "gauge": float(gt - gb),
             "grip_rows": float(z[top].min() - z[bottom].max()),
             "ghost0": {k: np.array(v, copy=True) if isinstance(v, np.ndarray) else v
                        for k, v in model._ghost.items()}}
@@ -367,7 +396,7 @@ def _where(z, strain, u, zb, zt, what="n_atoms") -> dict:
 
 def static_grip_stiffness(model, grip: float = 50.0, strain: float = 0.0025,
                           gtol: float = 1e-6, clamp: bool | None = None,
-                          planes=None) -> dict:
+                          planes=None, gauge_planes=None) -> dict:
     """Force per grip separation of the open tube held by its grips, statically.
 
     The tube of :func:`open_tube_with_grips` (the dynamic scene's set-up); the grips are moved
@@ -381,7 +410,8 @@ def static_grip_stiffness(model, grip: float = 50.0, strain: float = 0.0025,
     ``modulus_TPa`` = (F / area) / strain with LAMMPS's gauge."""
     if not (0 < strain < 0.05):
         raise ValueError(f"strain={strain!r}; valid: 0 < strain < 0.05 (the linear range)")
-    st = open_tube_with_grips(model, grip, gtol, clamp=clamp, planes=planes)
+    st = open_tube_with_grips(model, grip, gtol, clamp=clamp, planes=planes,
+                              gauge_planes=gauge_planes)
     y0, d0, L0 = st["y"], st["delta"], st["L0"]
     bottom, top = st["bottom"], st["top"]
     grips = bottom | top
@@ -391,7 +421,7 @@ def static_grip_stiffness(model, grip: float = 50.0, strain: float = 0.0025,
     y = y0.copy()
     y[bottom, 2] -= u
     y[top, 2] += u
-    zc = 0.5 * (st["zb"] + st["zt"])
+    zc = 0.5 * (st["gb"] + st["gt"])
     y[~grips, 2] = zc + (y0[~grips, 2] - zc) * (1 + strain)  # affine start
     model.prepare_step(L0 * (1 + strain))
     model._ghost["Lz"] = float(L0)  # the open tube's energy is called with L0
@@ -457,7 +487,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
                     progress=None, gtol: float = 1e-4, temperature: float = 10.0,
                     tdamp: float = 100.0, seed: int = 12345, ghost: str = "local",
                     monitor=None, clamp: bool | None = None, stability: bool = False,
-                    planes=None, rigid_shifts=None) -> dict:
+                    planes=None, gauge_planes=None, rigid_shifts=None) -> dict:
     """Dynamic tension of an open coarse tube with end grips (module docstring).
 
     Returns a dict like the LAMMPS runner's: ``curve`` (strain, stress_GPa, time_ps,
@@ -469,7 +499,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     unknowns (``positions``, ``delta``) and ``damage``. ``monitor(step, y, v, delta,
     stress)``, if given, is called at every sample; ``ghost`` picks the correction's stretch
     (module docstring); ``temperature=0`` runs NVE from rest; ``clamp``: as
-    :func:`open_tube_with_grips`; ``planes``: the grip planes
+    :func:`open_tube_with_grips`; ``planes``, ``gauge_planes``: the grip and gauge planes
     (:func:`open_tube_with_grips`); ``rigid_shifts``: hold the grips' particles' sublattice
     shifts (default: with bands across the planes only, see the code); ``stability`` also applies
     the lattice-stability rule (:meth:`DCBRDefectTube.check_stability`) every ``sample``
@@ -488,7 +518,8 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
                          "stretch its interface particles carry) or 'grips' (at the grips' strain)")
     t0 = time.perf_counter()
     acc = ACC_UNIT
-    st = open_tube_with_grips(model, grip, gtol, clamp=clamp, planes=planes)
+    st = open_tube_with_grips(model, grip, gtol, clamp=clamp, planes=planes,
+                              gauge_planes=gauge_planes)
     y, d, L0, R, area = st["y"], st["delta"], st["L0"], st["R"], st["area"]
     bottom, top, zb, zt, gauge = st["bottom"], st["top"], st["zb"], st["zt"], st["gauge"]
     grips, nd, grip_rows = bottom | top, len(model.dof_idx), st["grip_rows"]
@@ -501,7 +532,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
 
     def z_ext(y):  # the extensometer's points: every particle, then the free atoms
         return np.r_[model.particle_positions(y)[:, 2], y[nd:, 2]]
-    ext = Extensometer(z_ext(y), *Extensometer.window(zb, zt),
+    ext = Extensometer(z_ext(y), *Extensometer.window(st["gb"], st["gt"]),
                        weights=np.r_[model.natoms_n, np.ones(model.nf)])
     z = y[:, 2]
     zlo, zhi = model.particle_positions(y)[:, 2].min(), model.particle_positions(y)[:, 2].max()
@@ -510,7 +541,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     v = np.zeros_like(y)
     # the axial velocity ramp: the uniform strain rate of the gauge (a ramp ending elsewhere
     # starts the gauge's axial standing wave)
-    zc = 0.5 * (zb + zt)  # between the grip planes, as LAMMPS's velocity ramp
+    zc = 0.5 * (st["gb"] + st["gt"])  # between the gauge planes, as LAMMPS's velocity ramp
     v[:, 2] = np.clip((z - zc) / (0.5 * gauge), -1, 1) * vz
     v[bottom, 2], v[top, 2] = -vz, vz
     vd = np.zeros_like(d)
@@ -693,6 +724,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     res["setup_relax_s"] = t_relax  # build excluded (the caller times it)
     res["stability_s"] = t_stab
     res["grip_planes_A"] = [float(zb), float(zt)]
+    res["gauge_planes_A"] = [float(st["gb"]), float(st["gt"])]
     res["grip_bottom"], res["grip_top"] = bottom, top  # masks over the rows of positions
     res["dynamics_s"] = res["wall_s"] - t_relax
     return res

@@ -300,6 +300,9 @@ def dynamic_scene(n, m, length, coarsening, ref, vacancy=True, grips=None,
         model = DCBRDefectTube(n, m, length, coarsening=coarsening, vacancy=4,
                                r_atomistic=r_atomistic, **kw)
         dyn.update(clamp=True)
+        if "extensometer" in pd:  # LAMMPS's planes, and its held atoms (_reference_held_planes)
+            dyn["gauge_planes"] = _reference_grip_planes(ref)
+            dyn["planes"] = _reference_held_planes(model.X_atoms[:, 2], dyn["gauge_planes"])
     return model, dyn | {"grips": grips}
 
 
@@ -424,6 +427,29 @@ def _reference_grip_planes(ref) -> tuple[float, float]:
                          "extensometer window; valid: a reference with a consistent record")
     s = ref["structure"]["length_built_A"] / ref["relaxation"]["L0_A"]
     return zb * s, zt * s
+
+
+def _reference_held_planes(z, planes) -> tuple[float, float]:
+    """Where LAMMPS's grips take hold, for clamped coarse grips (reference z, Å).
+
+    ``z``: the built lattice's atoms' axial coordinates; ``planes``: LAMMPS's grip planes on
+    it (:func:`_reference_grip_planes`). A grip holds the atoms beyond its plane, and the free
+    part begins at the innermost of them: a lattice stretched uniformly between two held
+    layers strains every bond across them as the rest, so the held layers' distance is the
+    free length (in one dimension exactly the chain between its held atoms). A clamped
+    coarse grip counts its held rows as sitting at its plane
+    (:meth:`~upscale.models.dcbr_defect.DCBRDefectTube.clamp_grips`), so its plane goes there.
+    How far LAMMPS's planes lie inside those atoms depends on where they cut the lattice:
+    (17,0) 0.54 Å at each end, which with the coarse tube's own planes (50 Å inside its own
+    end atoms, whose bottom layer LAMMPS's periodic wrap had put at the top) made the coarse
+    gauge 2.3 % longer than LAMMPS's and the modulus by grip separation 2.3 % higher at the
+    same grip stiffness."""
+    z = np.asarray(z, dtype=float)
+    lo, hi = z[z < planes[0]], z[z > planes[1]]
+    if not (len(lo) and len(hi)):
+        raise ValueError(f"planes={planes!r} hold no atom of a tube spanning "
+                         f"{z.min():.2f}..{z.max():.2f} Å; valid: planes inside the tube")
+    return float(lo.max()), float(hi.min())
 
 
 def _tube_z_range(model, y):

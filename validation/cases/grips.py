@@ -82,7 +82,8 @@ def _grip_stiffness(args):
             model, dyn = dynamic_scene(n, m, DYN_LENGTH, K, dref, grips=args.grips,
                                        hourglass=args.hourglass)
             r = static_grip_stiffness(model, grip=GRIP, strain=STRAIN, clamp=dyn["clamp"],
-                                      planes=dyn.get("planes"))
+                                      planes=dyn.get("planes"),
+                                      gauge_planes=dyn.get("gauge_planes"))
             rows.append({"tube": f"({n},{m})", "K": K, "grips": args.grips,
                          "hourglass": args.hourglass, "dof": model.dof,
                          "k_eV_per_A2": r["k_eV_per_A2"], "k_lammps": ref["k_eV_per_A2"],
