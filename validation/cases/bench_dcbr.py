@@ -20,7 +20,9 @@ from validation.registry import case, table
 def _args(p):
     p.add_argument("--chirality", action="append", default=None,
                    help="N,M (repeatable; default 50,50 30,60)")
-    p.add_argument("--coarsening", type=float, default=4.0)
+    p.add_argument("--coarsening", type=float, action="append", default=None,
+                   help="coarsening factor (default 4); repeatable, then one per --chirality "
+                        "in the same order (the coarsest resolution within 5 %% differs by tube)")
     p.add_argument("--grips", choices=("bands", "clamped"), default="clamped",
                    help="the coarse grips (validation.cases.dcbr.dynamic_scene; default clamped;"
                         " bands make these tubes' gauge atomistic)")
@@ -38,11 +40,17 @@ def _bench(args):
 
     if not args.lammps_ftol > 0:
         raise SystemExit(f"--lammps-ftol {args.lammps_ftol}; valid: > 0")
+    tubes = [_chirality(c) for c in (args.chirality or ["50,50", "30,60"])]
+    ks = args.coarsening or [4.0]
+    if len(ks) not in (1, len(tubes)) or not all(k >= 1.0 for k in ks):
+        raise SystemExit(f"--coarsening {ks}; valid: one factor >= 1, or one per tube "
+                         f"({len(tubes)} tubes)")
+    ks = ks * len(tubes) if len(ks) == 1 else ks
     rows = []
-    for n, m in [_chirality(c) for c in (args.chirality or ["50,50", "30,60"])]:
+    for (n, m), K in zip(tubes, ks):
         ref = _lammps_reference(n, m, DYN_LENGTH, vacancy=True, protocol="dynamic")
         t0 = time.perf_counter()
-        model, dyn = dynamic_scene(n, m, DYN_LENGTH, args.coarsening, ref, grips=args.grips)
+        model, dyn = dynamic_scene(n, m, DYN_LENGTH, K, ref, grips=args.grips)
         dyn.pop("grips")
         build = time.perf_counter() - t0
         rc = coarse_dynamic(model, **dyn)
@@ -52,7 +60,7 @@ def _bench(args):
         rl = lammps_dynamic(atoms, "tersoff:BNC.tersoff", cutoff="step", ftol=args.lammps_ftol)
         wall_l = time.perf_counter() - t0
         tl = rl["timing_s"]
-        row = {"tube": f"({n},{m})", "K": args.coarsening, "grips": args.grips,
+        row = {"tube": f"({n},{m})", "K": K, "grips": args.grips,
                "atoms": len(atoms), "dof": model.dof,
                "coarse_build_s": build, "coarse_setup_s": rc["setup_relax_s"],
                "coarse_dynamics_s": rc["dynamics_s"], "coarse_steps": rc["steps"],
