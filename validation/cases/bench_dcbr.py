@@ -49,6 +49,7 @@ def _bench(args):
     rows = []
     for (n, m), K in zip(tubes, ks):
         ref = _lammps_reference(n, m, DYN_LENGTH, vacancy=True, protocol="dynamic")
+        print(f"({n},{m}) K={K:g}: coarse run (build, set-up relaxation, dynamics)...", flush=True)
         t0 = time.perf_counter()
         model, dyn = dynamic_scene(n, m, DYN_LENGTH, K, ref, grips=args.grips)
         dyn.pop("grips")
@@ -56,6 +57,8 @@ def _bench(args):
         rc = coarse_dynamic(model, **dyn)
         wall_c = time.perf_counter() - t0
         atoms = build_structure(_spec("dynamic", n, m, True, DYN_LENGTH))
+        print(f"({n},{m}): coarse {wall_c:.1f} s; LAMMPS run ({len(atoms)} atoms; its set-up "
+              "minimisation takes several minutes)...", flush=True)
         t0 = time.perf_counter()
         rl = lammps_dynamic(atoms, "tersoff:BNC.tersoff", cutoff="step", ftol=args.lammps_ftol)
         wall_l = time.perf_counter() - t0
