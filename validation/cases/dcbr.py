@@ -269,8 +269,10 @@ def dynamic_scene(n, m, length, coarsening, ref, vacancy=True, grips=None,
     ``ref`` records them (its extensometer window; the seed-scale references predate it and
     the planes are then ``grip`` inside the lattice's end atoms, 0.2-1 Å off). With the
     vacancy its own region is kept. ``grips="clamped"`` (vacancy only): coarse rows up to the
-    planes, held rigid in G (:meth:`~upscale.models.dcbr_defect.DCBRDefectTube.clamp_grips`).
-    Why the default differs: a pristine tube breaks at a grip plane (LAMMPS's do: the held
+    planes, held rigid in G (:meth:`~upscale.models.dcbr_defect.DCBRDefectTube.clamp_grips`);
+    where the reference records its planes, they are the gauge (``dyn["gauge_planes"]``) and
+    each clamp takes hold at LAMMPS's innermost held atoms (``dyn["planes"]``,
+    :func:`_reference_held_planes`). Why the default differs: a pristine tube breaks at a grip plane (LAMMPS's do: the held
     radius stretches the first free bonds), a concentration of a few atoms that the
     atomistic band carries and a clamped coarse row does not (``upscale.models.dcbr_dynamic``
     docstring); its bands leave 62 % of the 50 Å gauge's atoms coarse. With the vacancy, its
