@@ -25,6 +25,9 @@ def save_checkpoint(path, state: State, meta: dict | None = None) -> Path:
               "t": np.float64(state.t), "step": np.int64(state.step)}
     for k, v in state.extra.items():
         arrays[f"extra__{k}"] = np.asarray(v)
+    for k, v in state.fields.items():
+        arrays[f"field__{k}"] = np.asarray(v)
+        arrays[f"fieldv__{k}"] = np.asarray(state.field_v[k])
     m = dict(meta or {})
     m.setdefault("n", int(state.y.shape[0]))
     m.setdefault("nb", int(state.intact.shape[0]))
@@ -47,13 +50,15 @@ def load_checkpoint(path, x0: np.ndarray | None = None, *, nb: int | None = None
         y, v, intact = z["y"].copy(), z["v"].copy(), z["intact"].copy()
         extra = {k[len("extra__"):]: z[k].copy() for k in z.files if k.startswith("extra__")}
         t, step = float(z["t"]), int(z["step"])
+        fields = {k[len("field__"):]: z[k].copy() for k in z.files if k.startswith("field__")}
+        field_v = {k[len("fieldv__"):]: z[k].copy() for k in z.files if k.startswith("fieldv__")}
     if x0 is not None and np.asarray(x0).shape != y.shape:
         raise ValueError(f"checkpoint {path} holds {y.shape[0]} particles, the body has "
                          f"{np.asarray(x0).shape[0]}")
     if nb is not None and intact.shape[0] != nb:
         raise ValueError(f"checkpoint {path} holds {intact.shape[0]} bonds, the family has {nb}")
     ref = np.asarray(x0, dtype=np.float64) if x0 is not None else y.copy()
-    return State(ref, y, v, intact, t, step, extra), meta
+    return State(ref, y, v, intact, t, step, extra, fields, field_v), meta
 
 
 class Checkpoint:

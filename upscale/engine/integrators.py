@@ -42,10 +42,17 @@ def stiffness_over_inertia(system, models) -> np.ndarray | None:
 
 
 def stable_time_step(system, models) -> float | None:
-    """Gershgorin/Silling-Askari stable step estimate (s) for velocity Verlet, or None."""
+    """Gershgorin/Silling-Askari stable step estimate (s) for velocity Verlet, or None.
+    Field rows (rotations, ``upscale.engine.fields``) count with their own inertia."""
     lam = stiffness_over_inertia(system, models)
     if lam is None:
         return None
+    if any(hasattr(m, "fields") for m in models):
+        from upscale.engine.fields import collect_fields, field_stiffness_over_inertia
+
+        lam_f = field_stiffness_over_inertia(system, models, collect_fields(models, system.n))
+        if lam_f is not None:
+            lam = np.maximum(lam, lam_f)
     lmax = float(lam.max())
     return float("inf") if lmax <= 0 else 2.0 / np.sqrt(lmax)
 
@@ -124,16 +131,31 @@ class VelocityVerlet:
 
         st, dt = sim.state, self.dt
         inv_m = sim.inv_mass_n
+        fields = getattr(sim, "field_specs", None)
         kick(st.v, sim.F, inv_m, 0.5 * dt)
+        if fields:
+            _kick_fields(sim, 0.5 * dt)
         sim.apply_velocity(st.t + 0.5 * dt)
         drift(st.y, st.v, dt)
+        if fields:
+            for k in fields:
+                st.fields[k] += dt * st.field_v[k]
         st.t += dt
         st.step += 1
         sim.apply_displacement(st.t, dt)
         broken = sim.update_forces()
         kick(st.v, sim.F, inv_m, 0.5 * dt)
+        if fields:
+            _kick_fields(sim, 0.5 * dt)
         sim.apply_velocity(st.t)
         return broken
+
+
+def _kick_fields(sim, h: float) -> None:
+    """Field rates += h G / inertia (generalised degrees of freedom)."""
+    st = sim.state
+    for k, inv in sim.field_inv_inertia.items():
+        st.field_v[k] += h * sim.G[k] * inv[:, None]
 
 
 class AdaptiveDynamicRelaxation:

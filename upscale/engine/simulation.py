@@ -73,6 +73,7 @@ class Simulation:
         self.state = state if state is not None else State.reference(system.x0, nb)
         for m in self.models:
             m.init_state(self.state)
+        self._init_fields()
         self.constrained = constrained_dofs(system.n, self.conditions)
         self.inv_mass = (1.0 / system.mass)[:, None]
         self.inv_mass_n = np.ascontiguousarray(1.0 / system.mass)
@@ -90,6 +91,30 @@ class Simulation:
         self.reactions = np.zeros((system.n, 3))  # forces on the prescribed dofs
         self._prepared = False
         self.broken_total = 0
+
+    def _init_fields(self) -> None:
+        """Generalised degrees of freedom (``upscale.engine.fields``): the models' field
+        declarations, zero arrays in the state, the prescribed components, force buffers."""
+        from upscale.engine import fields
+
+        self.field_specs = fields.collect_fields(self.models, self.system.n)
+        fields.init_fields(self.state, self.field_specs)
+        self.field_constrained = fields.field_constrained(self.system.n, self.field_specs,
+                                                          self.conditions)
+        self.G = {k: np.zeros((self.system.n, s.ncomp)) for k, s in self.field_specs.items()}
+        self.field_inv_inertia = {k: 1.0 / (s.inertia * self.system.volume)
+                                  for k, s in self.field_specs.items()}
+
+    def update_field_forces(self) -> None:
+        """Recompute ``self.G`` (generalised forces per particle on the fields; zero on the
+        prescribed components)."""
+        from upscale.engine.fields import add_field_forces
+
+        for k in self.G:
+            self.G[k][...] = 0.0
+        add_field_forces(self, self.state, self.G)
+        for k, mask in self.field_constrained.items():
+            self.G[k][mask] = 0.0
 
     # ------------------------------------------------------------------ forces
     def internal_forces(self, failure: bool = False) -> np.ndarray:
@@ -126,6 +151,8 @@ class Simulation:
         if self._any_constrained:
             np.multiply(F, self.constrained, out=self.reactions)
             F[self.constrained] = 0.0
+        if self.field_specs:
+            self.update_field_forces()
         return self.broken_total - before
 
     def forces(self) -> np.ndarray:
@@ -195,6 +222,10 @@ class Simulation:
             return False
         st, _ = load_checkpoint(p, self.system.x0, nb=self.family.nb if self.family else 0)
         self.state = st
+        if self.field_specs:
+            from upscale.engine.fields import init_fields
+
+            init_fields(st, self.field_specs)
         self._prepared = False
         return True
 

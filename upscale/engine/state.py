@@ -30,6 +30,10 @@ class State:
     extra : dict[str, ndarray]
         Model-owned state that must survive a restart (e.g. history variables). Keys are
         prefixed with the model name; saved and restored by the checkpoint.
+    fields, field_v : dict[str, ndarray]
+        Generalised degrees of freedom beyond the translations (``name -> (N, k)``) and
+        their rates, declared by the models (:mod:`upscale.engine.fields`); empty unless
+        a model has fields.
     """
 
     x0: np.ndarray
@@ -39,6 +43,8 @@ class State:
     t: float = 0.0
     step: int = 0
     extra: dict = dataclasses.field(default_factory=dict)
+    fields: dict = dataclasses.field(default_factory=dict)
+    field_v: dict = dataclasses.field(default_factory=dict)
 
     @classmethod
     def reference(cls, x0: np.ndarray, nb: int) -> "State":
@@ -57,4 +63,6 @@ class State:
 
     def copy(self) -> "State":
         return State(self.x0, self.y.copy(), self.v.copy(), self.intact.copy(), self.t,
-                     self.step, {k: np.array(v, copy=True) for k, v in self.extra.items()})
+                     self.step, {k: np.array(v, copy=True) for k, v in self.extra.items()},
+                     {k: v.copy() for k, v in self.fields.items()},
+                     {k: v.copy() for k, v in self.field_v.items()})

@@ -1,0 +1,735 @@
+"""Tridynamic beams (seed 004, ch. 2-3): three-particle interactions on the engine.
+
+Bodies are 1D chains of particles on the x axis (``line_lattice``); the transverse
+displacement w is the z translation, the axial displacement u the x translation and the
+rotation phi of the cross-section the field ``"rot"`` (one component, rotation about y,
+:mod:`upscale.engine.fields`). Triplets (i; j, k): centre i, j and k in i's family; the
+set is built here because the engine's :func:`~upscale.engine.multibody.build_triplets`
+keeps only non-collinear triplets, and on a line every triplet is collinear.
+
+Variants (``variant=``)
+-----------------------
+``"text"``
+    The printed equations of motion and calibrations. They differentiate only the
+    centre's own energy density with respect to the centre's degrees of freedom
+    (after eq. 3.20), so the operator is not the gradient of the energy 3.11-3.13 and
+    its tangent is not symmetric.
+``"consistent"``
+    The energy 3.11-3.13 (EB: the turning-angle energy below), its exact gradient
+    (symmetric tangent) and moduli calibrated on the long-wave limit: the energy density
+    of a uniform strain, curvature and shear at a bulk particle equals
+    ``E eps^2/2``, ``EI/A kappa^2/2``, ``k_s G gamma^2/2``.
+
+Measures (Timoshenko beam, eqs. 3.1-3.9, unsigned distances xi_ab = |x_b - x_a|,
+``n_ab = sign(x_b - x_a)``)::
+
+    eps_ijk = (u_j - u_i)/xi_ij + (u_k - u_i)/xi_ik           (3.1-3.2)
+    kappa_ijk = (phi_j - phi_i)/xi_ij + (phi_k - phi_i)/xi_ik  (3.4-3.5)
+    psi_ijk = psi_ij + psi_ik,  psi_ab = (w_b - w_a)/xi_ab - n_ab (phi_a + phi_b)/2
+                                                               (3.6-3.9)
+
+and their permutations ``jki``, ``kij``; an edge term with ``xi_jk = 0`` (j = k) is zero.
+Energy per triplet ``(1/6) K (s_ijk^2 + s_jki^2 + s_kij^2) V_i V_j V_k`` summed over
+ordered (j, k) (3.13, 3.22, 3.30). The text's EOM (3.27-3.29) for the degree of freedom
+q_i is ``-(1/3) sum_jk K sum_s s ds/dq_i V_j V_k``; its calibration (3.38) is
+``K^eps = E / V_T^2``, ``K^psi = k_s mu / V_T^2``, ``K^phi = EI/(A V_T^2)``,
+``V_T = sum_j V_j`` (3.36).
+
+``edge_factor`` multiplies the j-k edge terms of the shear measures psi_jki, psi_kij
+(Appendix C, after C.6: "the value of 2 should be multiplied by terms theta_12 and n_12");
+1 is the text's 3.6, 2 the appendix's correction. ``self_pairs`` includes j = k in the
+double sums, as the appendix's local limit (C.1-C.3, j, k in {1, 2}) does.
+
+Euler-Bernoulli beam (ch. 2)
+----------------------------
+``"text"``: the slope jump at i from the one-sided gradients (2.16, reduced to the beam)
+``theta_i = (w_{i+1} - w_i)/dx - (w_i - w_{i-1})/dx``, the nonlocal difference
+``theta_ijk = (theta_j - theta_i)/xi_ij + (theta_k - theta_i)/xi_ik`` and the force
+density of 2.15, ``rho w_i'' = (2/3) sum_{j != k} beta_hat theta_ijk V_j V_k + f_i``, with
+``beta_hat = -3 (EI/A) / (4 xi^2 varsigma)`` (2.19) and varsigma = sum over j in the
+horizon and k on the right half of it (2.18), j != k. The xi of 2.19 is read as the
+spacing (``xi="spacing"``) or the horizon (``xi="horizon"``). In the long-wave limit this
+operator is ``-(m + 1)/2 EI/A w''''`` for ``xi = dx`` and delta = m dx (derivation: the
+odd moments cancel and ``sum_{j != k} (|xi_ij| + |xi_ik|)/2 = (2m - 1) m (m + 1) dx``):
+exact at m = 1 and stiffer than EB by (m+1)/2 beyond, which is what "stiffer than the
+classical EB model" (sec. 2.4.1) measures.
+
+``"consistent"``: the turning angle of the chord polygon j-i-k at the centre, the
+nonlocal form of 2.16 with j on the left and k on the right,
+``theta_ijk = (w_j - w_i)/xi_ij + (w_k - w_i)/xi_ik``, energy
+``(1/2) beta theta_ijk^2 V_i V_j V_k`` summed over those pairs, beta calibrated so that
+a uniform curvature stores ``EI/A kappa^2 / 2`` per unit volume. (The printed energy
+2.9-2.11 in terms of the differences of the slope jumps is of higher order: its gradient
+is a sixth-order operator, not EB.)
+
+Supports (:func:`beam`): ``"ss"`` (w = 0, mirror ghosts w odd, phi even), ``"cc"`` (EB:
+w = 0 with even mirror ghosts, i.e. zero slope; Timoshenko: w = phi = 0 on a clamped
+layer of ghosts) and ``"free"``; a cantilever is ``("cc", "free")``. Ghost layers are
+2 horizons + 1 spacing deep, so a support particle's force sees an unbroken family.
+"""
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from upscale.models import register
+from upscale.models.base import Model, Needs
+
+__all__ = ["TridynEB", "TridynTimoshenko", "line_triplets", "beam", "SUPPORTS", "VARIANTS"]
+
+VARIANTS = ("text", "consistent")
+SUPPORTS = ("ss", "cc", "free")
+
+
+# =========================================================================== triplets
+@nb.njit(cache=True)
+def _line_triplets(offsets, neighbors, xi_b, self_pairs, opposite, count_only, off_t, mem_t):
+    n = offsets.shape[0] - 1
+    pos = 0
+    for i in range(n):
+        if not count_only:
+            off_t[i] = pos
+        a, b = offsets[i], offsets[i + 1]
+        for p in range(a, b):
+            for q in range(p if self_pairs else p + 1, b):
+                if opposite and xi_b[p] * xi_b[q] >= 0.0:
+                    continue
+                if not count_only:
+                    mem_t[pos, 0] = i
+                    mem_t[pos, 1] = neighbors[p]
+                    mem_t[pos, 2] = neighbors[q]
+                pos += 1
+    if not count_only:
+        off_t[n] = pos
+    return pos
+
+
+def line_triplets(family, x0, *, self_pairs=False, opposite=False):
+    """Triplets (i; j, k) of a 1D family: unordered pairs of i's neighbours (j = k too if
+    ``self_pairs``; only j, k on opposite sides of i if ``opposite``). Returns
+    ``(offsets (N+1,) int64, members (nt, 3) int64)`` with members (i, j, k), x_j < x_k
+    for opposite pairs."""
+    xi = np.ascontiguousarray(family.xi[:, 0])
+    dummy_o, dummy_m = np.zeros(1, np.int64), np.zeros((1, 3), np.int64)
+    nt = _line_triplets(family.offsets, family.neighbors, xi, self_pairs, opposite, True,
+                        dummy_o, dummy_m)
+    off = np.zeros(family.n + 1, np.int64)
+    mem = np.zeros((nt, 3), np.int64)
+    _line_triplets(family.offsets, family.neighbors, xi, self_pairs, opposite, False, off, mem)
+    if opposite:
+        swap = x0[mem[:, 1], 0] > x0[mem[:, 2], 0]
+        mem[swap, 1], mem[swap, 2] = mem[swap, 2].copy(), mem[swap, 1].copy()
+    return off, mem
+
+
+# =========================================================================== kernels
+@nb.njit(parallel=True, cache=True)
+def text_force_kernel(off_t, mem_t, coef, w_tm, q_nd, out_nd):
+    """Centre-only operator (the printed EOM): ``out[i, d] -= sum_t sum_m W s C[t, m, 0, d]``
+    with ``s = sum_{a, e} C[t, m, a, e] q[mem[t, a], e]`` over the triplets of centre i.
+    Writes only row i: race-free."""
+    n = off_t.shape[0] - 1
+    nm, nd = coef.shape[1], coef.shape[3]
+    for i in nb.prange(n):
+        for t in range(off_t[i], off_t[i + 1]):
+            for m in range(nm):
+                s = 0.0
+                for a in range(3):
+                    p = mem_t[t, a]
+                    for e in range(nd):
+                        s += coef[t, m, a, e] * q_nd[p, e]
+                ws = w_tm[t, m] * s
+                for d in range(nd):
+                    out_nd[i, d] -= ws * coef[t, m, 0, d]
+
+
+@nb.njit(parallel=True, cache=True)
+def grad_force_kernel(off_t, mem_t, coef, w_tm, q_nd, buf_cnd):
+    """Exact gradient of ``E = sum_t sum_m W s^2 / 2``: ``buf[c, p, d] -= W s C[t, m, a, d]``
+    for every member p = mem[t, a]; chunk c of the centres writes only its own buffer
+    (race-free; the caller sums over c)."""
+    n = off_t.shape[0] - 1
+    nm, nd = coef.shape[1], coef.shape[3]
+    nc = buf_cnd.shape[0]
+    for c in nb.prange(nc):
+        i0 = c * n // nc
+        i1 = (c + 1) * n // nc
+        for t in range(off_t[i0], off_t[i1]):
+            for m in range(nm):
+                s = 0.0
+                for a in range(3):
+                    p = mem_t[t, a]
+                    for e in range(nd):
+                        s += coef[t, m, a, e] * q_nd[p, e]
+                ws = w_tm[t, m] * s
+                for a in range(3):
+                    p = mem_t[t, a]
+                    for d in range(nd):
+                        buf_cnd[c, p, d] -= ws * coef[t, m, a, d]
+
+
+@nb.njit(parallel=True, cache=True)
+def energy_kernel(off_t, mem_t, coef, w_tm, q_nd, out_n):
+    """Energy of each centre's triplets ``sum_t sum_m W s^2 / 2`` (J) into ``out_n``."""
+    n = off_t.shape[0] - 1
+    nm, nd = coef.shape[1], coef.shape[3]
+    for i in nb.prange(n):
+        acc = 0.0
+        for t in range(off_t[i], off_t[i + 1]):
+            for m in range(nm):
+                s = 0.0
+                for a in range(3):
+                    p = mem_t[t, a]
+                    for e in range(nd):
+                        s += coef[t, m, a, e] * q_nd[p, e]
+                acc += 0.5 * w_tm[t, m] * s * s
+        out_n[i] = acc
+
+
+@nb.njit(parallel=True, cache=True)
+def bound_kernel(off_t, mem_t, coef, w_tm, scale_d, centre_only, buf_cnd):
+    """Gershgorin row bounds of the mass-scaled operator: row (p, d) gets
+    ``sum W |C[a, d]| sum_{b, e} |C[b, e]| scale[e] / scale[d]`` (scale = 1/sqrt(inertia)
+    per dof kind), for the members p = mem[t, a] (only the centre if ``centre_only``)."""
+    n = off_t.shape[0] - 1
+    nm, nd = coef.shape[1], coef.shape[3]
+    nc = buf_cnd.shape[0]
+    for c in nb.prange(nc):
+        i0 = c * n // nc
+        i1 = (c + 1) * n // nc
+        for t in range(off_t[i0], off_t[i1]):
+            for m in range(nm):
+                tot = 0.0
+                for a in range(3):
+                    for e in range(nd):
+                        tot += abs(coef[t, m, a, e]) * scale_d[e]
+                na = 1 if centre_only else 3
+                for a in range(na):
+                    p = mem_t[t, a]
+                    for d in range(nd):
+                        buf_cnd[c, p, d] += w_tm[t, m] * abs(coef[t, m, a, d]) * tot / scale_d[d]
+
+
+@nb.njit(parallel=True, cache=True)
+def slope_jump_kernel(left_n, right_n, x_n, w_n, out_n):
+    """theta_i = (w_r - w_i)/(x_r - x_i) - (w_i - w_l)/(x_i - x_l) (eq. 2.16 on a line);
+    zero where a neighbour is missing."""
+    n = w_n.shape[0]
+    for i in nb.prange(n):
+        l, r = left_n[i], right_n[i]
+        if l < 0 or r < 0:
+            out_n[i] = 0.0
+        else:
+            out_n[i] = (w_n[r] - w_n[i]) / (x_n[r] - x_n[i]) - (w_n[i] - w_n[l]) / (x_n[i] - x_n[l])
+
+
+@nb.njit(parallel=True, cache=True)
+def eb_text_force_kernel(off_t, mem_t, inv_a_t, inv_b_t, g_t, theta_n, out_n):
+    """Eq. 2.15: ``out[i] += sum_t g_t ((theta_j - theta_i)/xi_ij + (theta_k - theta_i)/xi_ik)``
+    with ``g_t`` = (2/3) beta_hat V_i V_j V_k x 2 (both orders of the pair)."""
+    n = off_t.shape[0] - 1
+    for i in nb.prange(n):
+        acc = 0.0
+        for t in range(off_t[i], off_t[i + 1]):
+            j, k = mem_t[t, 1], mem_t[t, 2]
+            acc += g_t[t] * ((theta_n[j] - theta_n[i]) * inv_a_t[t]
+                             + (theta_n[k] - theta_n[i]) * inv_b_t[t])
+        out_n[i] += acc
+
+
+def _nchunks(n):
+    return max(1, min(int(nb.get_num_threads()) * 4, n))
+
+
+# =========================================================================== helpers
+def _positive(**kw):
+    for k, v in kw.items():
+        if not (v is not None and np.isfinite(v) and v > 0):
+            raise ValueError(f"{k} must be positive, got {v!r}")
+
+
+def _variant(v):
+    if v not in VARIANTS:
+        raise ValueError(f"unknown variant {v!r}; valid: {', '.join(VARIANTS)}")
+    return v
+
+
+def _check_triplets(family, off_t, ends_only=True):
+    """Refuse a horizon that leaves a particle without triplets: only a chain's end
+    particle (one neighbour; or, for opposite pairs, all neighbours on one side) may have
+    none."""
+    none = np.diff(off_t) == 0
+    bad = none & (family.counts == 0) if not ends_only else none & (family.counts != 1)
+    if bad.any():
+        i = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"horizon {family.horizon:.6g} m leaves particle {i} without triplets "
+                         f"({int(family.counts[i])} neighbours); valid: a horizon that gives every "
+                         f"particle two neighbours (delta/dx >= 1 on a uniform chain)")
+
+
+def _check_line(system, family, name):
+    if system.dim != 1:
+        raise ValueError(f"model {name!r} needs a 1D body (line_lattice), got dim={system.dim}")
+
+
+class _TripletBeam(Model):
+    """Shared machinery: measure tables ``coef (nt, M, 3, nd)``, weights ``W (nt, M)``,
+    dof gather/scatter, forces, energy, bounds."""
+
+    force_kind = "density"
+    nd = 1
+    dof_map: tuple = ()  # ("y", c) or (field, c) per generalised dof
+
+    def _gather(self, state):
+        n = state.y.shape[0]
+        q = np.empty((n, self.nd))
+        for a, (kind, c) in enumerate(self.dof_map):
+            q[:, a] = (state.y[:, c] - state.x0[:, c]) if kind == "y" else state.fields[kind][:, c]
+        return q
+
+    def _operator_force(self, q):
+        """Generalised particle forces (N, nd) (N; N m for rotations)."""
+        n = q.shape[0]
+        if self.variant == "text":
+            out = np.zeros((n, self.nd))
+            text_force_kernel(self.off_t, self.mem_t, self.coef, self.w_tm, q, out)
+            return out
+        buf = np.zeros((_nchunks(n), n, self.nd))
+        grad_force_kernel(self.off_t, self.mem_t, self.coef, self.w_tm, q, buf)
+        return buf.sum(axis=0)
+
+    def _generalised(self, state):
+        return self._operator_force(self._gather(state))
+
+    def add_force(self, state, out):
+        f = self._generalised(state)
+        inv_v = 1.0 / self.system.volume
+        for a, (kind, c) in enumerate(self.dof_map):
+            if kind == "y":
+                out[:, c] += f[:, a] * inv_v
+
+    def add_field_force(self, state, out):
+        f = self._generalised(state)
+        inv_v = 1.0 / self.system.volume
+        for a, (kind, c) in enumerate(self.dof_map):
+            if kind != "y":
+                out[kind][:, c] += f[:, a] * inv_v
+
+    @property
+    def translations(self):
+        return tuple(c for kind, c in self.dof_map if kind == "y")
+
+    def energy_density(self, state):
+        if self.variant == "text":
+            raise ValueError(f"model {self.name!r} variant 'text' has no energy whose gradient is "
+                             "its force (use variant='consistent')")
+        e = np.zeros(self.system.n)
+        energy_kernel(self.off_t, self.mem_t, self.coef, self.w_tm, self._gather(state), e)
+        return e / self.system.volume
+
+    def _inertia_d(self):
+        return np.ones(self.nd)
+
+    def _bounds(self):
+        n = self.system.n
+        buf = np.zeros((_nchunks(n), n, self.nd))
+        scale = 1.0 / np.sqrt(self._inertia_d())
+        bound_kernel(self.off_t, self.mem_t, self.coef, self.w_tm, scale, self.variant == "text", buf)
+        return buf.sum(axis=0) / self.system.volume[:, None]
+
+    def stiffness_bound(self):
+        b = self._bounds()
+        cols = [a for a, (kind, _) in enumerate(self.dof_map) if kind == "y"]
+        return b[:, cols].max(axis=1)
+
+    def field_stiffness_bound(self):
+        b = self._bounds()
+        out = {}
+        for a, (kind, c) in enumerate(self.dof_map):
+            if kind != "y":
+                out.setdefault(kind, np.zeros(self.system.n))
+                out[kind] = np.maximum(out[kind], b[:, a])
+        return out
+
+    def influence_radius(self):
+        return 2.0 * self.family.horizon + 2.0 * self.system.spacing
+
+    def _bulk_centre(self):
+        """A particle with the most triplets, nearest the middle of the body."""
+        counts = np.diff(self.off_t)
+        cand = np.flatnonzero(counts == counts.max())
+        x = self.system.x0[cand]
+        mid = 0.5 * (self.system.x0.min(axis=0) + self.system.x0.max(axis=0))
+        return int(cand[np.argmin(np.sum((x - mid) ** 2, axis=1))])
+
+    def _bulk_energy(self, q, groups):
+        """Energy density (J/m^3) at the bulk centre of field q with unit weights, per
+        measure group (list of measure-index arrays)."""
+        i = self._bulk_centre()
+        t0, t1 = self.off_t[i], self.off_t[i + 1]
+        out = []
+        for g in groups:
+            e = 0.0
+            for t in range(t0, t1):
+                for m in g:
+                    s = float(np.sum(self.coef[t, m] * q[self.mem_t[t]]))
+                    e += 0.5 * self.w0_tm[t, m] * s * s
+            out.append(e / self.system.volume[i])
+        return out
+
+
+# =========================================================================== Timoshenko
+class TridynTimoshenko(_TripletBeam):
+    """Tridynamic Timoshenko beam (seed 004 ch. 3): dofs u (x), w (z), phi (field "rot").
+
+    Parameters
+    ----------
+    E : float
+        Young's modulus (Pa).
+    nu : float
+        Poisson ratio (shear modulus ``mu = E / (2 (1 + nu))``), in (-1, 0.5).
+    area, second_moment : float
+        Cross-section A (m^2) and I (m^4); a rectangle b x h has I/A = h^2/12.
+    shear_factor : float
+        k_s in (0, 1] (5/6 for a rectangle).
+    variant : {"text", "consistent"}
+    edge_factor : float
+        Factor on the j-k edge terms of the shear measure (1: eq. 3.6; 2: Appendix C).
+    self_pairs : bool, optional
+        Include j = k in the double sums (default: True for "text", as in C.1; False for
+        "consistent").
+    """
+
+    name = "tridyn-timoshenko"
+    needs = Needs(pairs=True, energy=True)
+    nd = 3
+    dof_map = (("y", 0), ("y", 2), ("rot", 0))
+
+    def __init__(self, E, nu=0.3, *, area, second_moment, shear_factor=5.0 / 6.0,
+                 variant="consistent", edge_factor=1.0, self_pairs=None):
+        _positive(E=E, area=area, second_moment=second_moment)
+        if not (-1.0 < nu < 0.5):
+            raise ValueError(f"Poisson ratio must be in (-1, 0.5), got {nu!r}")
+        if not (0.0 < shear_factor <= 1.0):
+            raise ValueError(f"shear correction factor must be in (0, 1], got {shear_factor!r}")
+        _positive(edge_factor=edge_factor)
+        self.E, self.nu, self.A, self.I = float(E), float(nu), float(area), float(second_moment)
+        self.mu = self.E / (2.0 * (1.0 + self.nu))
+        self.ks = float(shear_factor)
+        self.variant = _variant(variant)
+        self.edge_factor = float(edge_factor)
+        self.self_pairs = (variant == "text") if self_pairs is None else bool(self_pairs)
+
+    def fields(self):
+        from upscale.engine.fields import FieldSpec
+
+        rho = self.system.density if self.system is not None else 1.0
+        return {"rot": FieldSpec(1, rho * self.I / self.A, "rad")}
+
+    def _inertia_d(self):
+        rho = float(np.mean(self.system.density))
+        return np.array([rho, rho, rho * self.I / self.A])
+
+    def prepare(self, system, family, **kw):
+        super().prepare(system, family, **kw)
+        _check_line(system, family, self.name)
+        self.off_t, self.mem_t = line_triplets(family, system.x0, self_pairs=self.self_pairs)
+        _check_triplets(family, self.off_t)
+        x = system.x0[:, 0]
+        V = system.volume
+        mem = self.mem_t
+        i, j, k = mem[:, 0], mem[:, 1], mem[:, 2]
+        nt = mem.shape[0]
+        a = np.abs(x[j] - x[i])
+        b = np.abs(x[k] - x[i])
+        c = np.abs(x[k] - x[j])
+        ia, ib = 1.0 / a, 1.0 / b
+        ic = np.where(c > 0, 1.0 / np.where(c > 0, c, 1.0), 0.0)
+        nij, nik, njk = np.sign(x[j] - x[i]), np.sign(x[k] - x[i]), np.sign(x[k] - x[j])
+        ef = self.edge_factor
+        # measures: 0-2 eps (u, dof 0), 3-5 kappa (phi, dof 2), 6-8 psi (w dof 1, phi dof 2)
+        C = np.zeros((nt, 9, 3, 3))
+        for base, dof in ((0, 0), (3, 2), (6, 1)):
+            # s_ijk
+            C[:, base, 0, dof] = -(ia + ib)
+            C[:, base, 1, dof] = ia
+            C[:, base, 2, dof] = ib
+            e = ef if base == 6 else 1.0
+            # s_jki = (q_k - q_j)/xi_jk + (q_i - q_j)/xi_ji
+            C[:, base + 1, 1, dof] = -e * ic - ia
+            C[:, base + 1, 2, dof] = e * ic
+            C[:, base + 1, 0, dof] = ia
+            # s_kij = (q_j - q_k)/xi_kj + (q_i - q_k)/xi_ki
+            C[:, base + 2, 2, dof] = -e * ic - ib
+            C[:, base + 2, 1, dof] = e * ic
+            C[:, base + 2, 0, dof] = ib
+        # psi rotation parts: -n_ab (phi_a + phi_b)/2 per edge
+        C[:, 6, 0, 2] = -(nij + nik) / 2
+        C[:, 6, 1, 2] = -nij / 2
+        C[:, 6, 2, 2] = -nik / 2
+        # psi_jki = psi_jk + psi_ji, n_ji = -n_ij
+        C[:, 7, 1, 2] = -ef * njk / 2 + nij / 2
+        C[:, 7, 2, 2] = -ef * njk / 2
+        C[:, 7, 0, 2] = nij / 2
+        # psi_kij = psi_kj + psi_ki, n_kj = -n_jk, n_ki = -n_ik
+        C[:, 8, 2, 2] = ef * njk / 2 + nik / 2
+        C[:, 8, 1, 2] = ef * njk / 2
+        C[:, 8, 0, 2] = nik / 2
+        self.coef = np.ascontiguousarray(C)
+        pair_w = np.where(j == k, 1.0 / 3.0, 2.0 / 3.0) * V[i] * V[j] * V[k]
+        self.w0_tm = np.repeat(pair_w[:, None], 9, axis=1)
+        EIA = self.E * self.I / self.A
+        targets = (self.E, EIA, self.ks * self.mu)
+        if self.variant == "text":
+            i0 = self._bulk_centre()
+            VT = float(np.sum(V[family.neighbors[family.offsets[i0]:family.offsets[i0 + 1]]]))
+            K = np.array(targets) / VT ** 2  # eq. 3.38
+        else:
+            n = system.n
+            xs = x - x[self._bulk_centre()]
+            q_u = np.zeros((n, 3))
+            q_u[:, 0] = xs
+            q_k = np.zeros((n, 3))
+            q_k[:, 2] = xs
+            q_s = np.zeros((n, 3))
+            q_s[:, 1] = xs
+            e = [self._bulk_energy(q_u, [range(0, 3)])[0], self._bulk_energy(q_k, [range(3, 6)])[0],
+                 self._bulk_energy(q_s, [range(6, 9)])[0]]
+            K = np.array([0.5 * tv / ev for tv, ev in zip(targets, e)])
+        self.K = K  # (K^eps, K^phi, K^psi)
+        self.w_tm = np.ascontiguousarray(self.w0_tm * np.repeat(K, 3)[None, :])
+
+    def describe(self):
+        d = {"model": self.name, "variant": self.variant, "E_Pa": self.E, "nu": self.nu,
+             "area_m2": self.A, "second_moment_m4": self.I, "shear_factor": self.ks,
+             "edge_factor": self.edge_factor, "self_pairs": self.self_pairs}
+        if hasattr(self, "K"):
+            d.update(K_eps=float(self.K[0]), K_phi=float(self.K[1]), K_psi=float(self.K[2]))
+        return d
+
+
+# =========================================================================== Euler-Bernoulli
+class TridynEB(_TripletBeam):
+    """Tridynamic Euler-Bernoulli beam (seed 004 ch. 2): dof w (z translation).
+
+    Parameters
+    ----------
+    E : float
+        Young's modulus (Pa).
+    area, second_moment : float
+        A (m^2), I (m^4).
+    variant : {"text", "consistent"}
+    xi : {"spacing", "horizon"}
+        Reading of the xi in the calibration 2.19 (text variant).
+    """
+
+    name = "tridyn-eb"
+    needs = Needs(pairs=True, energy=True)
+    nd = 1
+    dof_map = (("y", 2),)
+
+    def __init__(self, E, *, area, second_moment, variant="consistent", xi="spacing"):
+        _positive(E=E, area=area, second_moment=second_moment)
+        if xi not in ("spacing", "horizon"):
+            raise ValueError(f"unknown xi reading {xi!r}; valid: 'spacing', 'horizon'")
+        self.E, self.A, self.I = float(E), float(area), float(second_moment)
+        self.variant = _variant(variant)
+        self.xi = xi
+
+    def prepare(self, system, family, **kw):
+        super().prepare(system, family, **kw)
+        _check_line(system, family, self.name)
+        x = system.x0[:, 0]
+        V = system.volume
+        EIA = self.E * self.I / self.A
+        if self.variant == "text":
+            self.off_t, self.mem_t = line_triplets(family, system.x0, self_pairs=False)
+            _check_triplets(family, self.off_t)
+            i, j, k = self.mem_t.T
+            self.inv_a = 1.0 / np.abs(x[j] - x[i])
+            self.inv_b = 1.0 / np.abs(x[k] - x[i])
+            # nearest neighbours for the slope jump
+            order = np.argsort(x)
+            self.left = np.full(system.n, -1, np.int64)
+            self.right = np.full(system.n, -1, np.int64)
+            self.left[order[1:]] = order[:-1]
+            self.right[order[:-1]] = order[1:]
+            i0 = self._bulk_centre()
+            nb_ = family.neighbors[family.offsets[i0]:family.offsets[i0 + 1]]
+            right = nb_[x[nb_] > x[i0]]
+            vs = float(np.sum(V[nb_]) * np.sum(V[right]) - np.sum(V[right] ** 2))  # eq. 2.18, j != k
+            xi_ = system.spacing if self.xi == "spacing" else family.horizon
+            self.beta_hat = -3.0 * EIA / (4.0 * xi_ ** 2 * vs)  # eq. 2.19
+            self.g_t = 2.0 * (2.0 / 3.0) * self.beta_hat * V[j] * V[k] * V[i]
+            return
+        self.off_t, self.mem_t = line_triplets(family, system.x0, self_pairs=False, opposite=True)
+        _check_triplets(family, self.off_t, ends_only=False)
+        i, j, k = self.mem_t.T
+        a = np.abs(x[j] - x[i])
+        b = np.abs(x[k] - x[i])
+        C = np.zeros((self.mem_t.shape[0], 1, 3, 1))
+        C[:, 0, 0, 0] = -(1 / a + 1 / b)
+        C[:, 0, 1, 0] = 1 / a
+        C[:, 0, 2, 0] = 1 / b
+        self.coef = np.ascontiguousarray(C)
+        self.w0_tm = (V[i] * V[j] * V[k])[:, None].copy()
+        q = np.zeros((system.n, 1))
+        q[:, 0] = 0.5 * (x - x[self._bulk_centre()]) ** 2
+        e = self._bulk_energy(q, [range(1)])[0]
+        self.beta = 0.5 * EIA / e
+        self.w_tm = np.ascontiguousarray(self.w0_tm * self.beta)
+
+    def _generalised(self, state):
+        if self.variant != "text":
+            return super()._generalised(state)
+        w = np.ascontiguousarray(state.y[:, 2] - state.x0[:, 2])
+        th = np.empty_like(w)
+        slope_jump_kernel(self.left, self.right, np.ascontiguousarray(self.system.x0[:, 0]), w, th)
+        out = np.zeros(w.shape[0])
+        eb_text_force_kernel(self.off_t, self.mem_t, self.inv_a, self.inv_b, self.g_t, th, out)
+        return out[:, None]
+
+    def _bounds(self):
+        if self.variant != "text":
+            return super()._bounds()
+        # |F_i| <= sum_t |g_t| (|theta_j| + |theta_k| + 2 |theta_i|)/xi, |theta| <= 4 |w|/dx
+        h = self.system.spacing
+        n = self.system.n
+        r = np.zeros(n)
+        np.add.at(r, self.mem_t[:, 0], np.abs(self.g_t) * 2 * (self.inv_a + self.inv_b) * 4.0 / h)
+        return (r / self.system.volume)[:, None]
+
+    def influence_radius(self):
+        return 2.0 * self.family.horizon + 2.0 * self.system.spacing
+
+    def describe(self):
+        d = {"model": self.name, "variant": self.variant, "E_Pa": self.E, "area_m2": self.A,
+             "second_moment_m4": self.I}
+        if self.variant == "text":
+            d.update(xi=self.xi, beta_hat=getattr(self, "beta_hat", None))
+        else:
+            d.update(beta=getattr(self, "beta", None))
+        return d
+
+
+register("tridyn-eb", TridynEB)
+register("tridyn-timoshenko", TridynTimoshenko)
+
+
+# =========================================================================== beam bodies
+def beam(*, length, n, horizon_ratio=1.0, theory="eb", supports=("ss", "ss"), E=200e9,
+         nu=0.3, width=0.05, height=0.001, density=7850.0, shear_factor=5.0 / 6.0,
+         variant="consistent", load=0.0, **model_kw):
+    """A beam of ``n`` spacings on [0, length] with supports, ghost layers, a uniform load.
+
+    Nodes at ``x_i = i dx`` (dx = length/n), free end nodes with half volume; ghosts beyond
+    a supported end. ``supports`` = (left, right), each in ``SUPPORTS``; ``load`` q (N/m,
+    in +z). Returns ``(system, family, model, conditions, body_mask)`` (``body_mask``: the
+    particles of [0, length])."""
+    from upscale.engine import conditions as cnd
+    from upscale.engine.families import build_family
+    from upscale.engine.fields import FixedField, Tie
+    from upscale.engine.system import ParticleSystem
+
+    if theory not in ("eb", "timoshenko"):
+        raise ValueError(f"unknown theory {theory!r}; valid: 'eb', 'timoshenko'")
+    for s in supports:
+        if s not in SUPPORTS:
+            raise ValueError(f"unknown support {s!r}; valid: {', '.join(SUPPORTS)}")
+    _positive(length=length, width=width, height=height, E=E, density=density)
+    if int(n) < 4:
+        raise ValueError(f"a beam needs at least 4 spacings, got n={n!r}")
+    if not horizon_ratio >= 1.0:
+        raise ValueError(f"horizon_ratio delta/dx must be >= 1, got {horizon_ratio!r}")
+    n = int(n)
+    dx = length / n
+    delta = horizon_ratio * dx * (1 + 1e-9)
+    ng = int(np.ceil(2 * delta / dx)) + 1
+    def n_ghost(s):
+        if s == "ss" or (s == "cc" and theory == "eb"):
+            return ng
+        if s == "free" and theory == "eb" and variant == "text":
+            return ng  # extrapolated: the slope jump 2.16 needs both neighbours
+        return 0
+
+    gl, gr = n_ghost(supports[0]), n_ghost(supports[1])
+    idx = np.arange(-gl, n + 1 + gr)
+    x = idx * dx
+    A = width * height
+    I = width * height ** 3 / 12.0
+    V = np.full(x.size, A * dx)
+    if supports[0] == "free":
+        V[idx == 0] *= 0.5
+    if supports[1] == "free":
+        V[idx == n] *= 0.5
+    system = ParticleSystem(x[:, None], V, density, dim=1, spacing=dx)
+    family = build_family(system, delta)
+    if theory == "eb":
+        model = TridynEB(E, area=A, second_moment=I, variant=variant, **model_kw)
+    else:
+        model = TridynTimoshenko(E, nu, area=A, second_moment=I, shear_factor=shear_factor,
+                                 variant=variant, **model_kw)
+    body = (idx >= 0) & (idx <= n)
+    conds = []
+    pos = {int(v): p for p, v in enumerate(idx)}
+    for side, s in ((0, supports[0]), (1, supports[1])):
+        end = 0 if side == 0 else n
+        sgn = -1 if side == 0 else 1
+        tag = "left" if side == 0 else "right"
+        em = np.zeros(x.size, bool)
+        em[pos[end]] = True
+        reg_e = cnd.Region(f"support_{tag}", em)
+        if (gl, gr)[side]:
+            ghosts = np.array([pos[end + sgn * g] for g in range(1, ng + 1)])
+            masters = np.array([pos[end - sgn * g] for g in range(1, ng + 1)])
+            gm = np.zeros(x.size, bool)
+            gm[ghosts] = True
+            reg_g = cnd.Region(f"ghosts_{tag}", gm)
+            image = dict(zip(ghosts.tolist(), masters.tolist()))
+            depth = {gh: g for g, gh in enumerate(ghosts.tolist(), start=1)}
+            masters = np.array([image[g] for g in reg_g.index.tolist()])  # region order
+        if s == "free":
+            if (gl, gr)[side]:
+                # w'' = w''' = 0 at the end: linear extrapolation w_{end+g} = w_end + g (w_end - w_{end-1})
+                gdep = np.array([depth[g] for g in reg_g.index.tolist()], float)
+                ms = np.stack([np.full(ng, pos[end]), np.full(ng, pos[end - sgn])], axis=1)
+                conds.append(Tie(reg_g, ms, np.stack([1 + gdep, -gdep], axis=1), ("y", 2)))
+            continue
+        if theory == "eb":
+            conds.append(cnd.Fixed(reg_e, components=(2,)))
+            conds.append(Tie(reg_g, masters[:, None], np.full((ng, 1), -1.0 if s == "ss" else 1.0),
+                             ("y", 2)))
+        else:
+            if s == "ss":
+                conds.append(cnd.Fixed(reg_e, components=(0, 2)))
+                conds.append(Tie(reg_g, masters[:, None], -np.ones((ng, 1)), ("y", 0)))
+                conds.append(Tie(reg_g, masters[:, None], -np.ones((ng, 1)), ("y", 2)))
+                conds.append(Tie(reg_g, masters[:, None], np.ones((ng, 1)), ("rot", 0)))
+            else:
+                conds.append(cnd.Fixed(reg_e, components=(0, 2)))
+                conds.append(FixedField(reg_e, "rot", (0,)))
+    if load:
+        conds.append(cnd.BodyForce(cnd.Region("beam", body), (0.0, 0.0, load / A)))
+    return system, family, model, conds, body
+
+
+def beam_reference(x, length, q, EI, supports, kGA=None):
+    """Closed-form deflection under uniform load q (EB; plus the Timoshenko shear term
+    ``q x (L - x)/(2 k G A)`` (ss), ``q x (2L - x)/(2 k G A)`` (cantilever)).
+
+    Simply supported ``q x (L^3 - 2 L x^2 + x^3)/(24 EI)``; clamped-clamped
+    ``q x^2 (L - x)^2 / (24 EI)``; cantilever ``q x^2 (6 L^2 - 4 L x + x^2)/(24 EI)``."""
+    L = length
+    key = tuple(supports)
+    if key == ("ss", "ss"):
+        w = q * x * (L ** 3 - 2 * L * x ** 2 + x ** 3) / (24 * EI)
+        ws = q * x * (L - x) / (2 * kGA) if kGA else 0.0
+    elif key == ("cc", "cc"):
+        w = q * x ** 2 * (L - x) ** 2 / (24 * EI)
+        ws = q * x * (L - x) / (2 * kGA) if kGA else 0.0
+    elif key == ("cc", "free"):
+        w = q * x ** 2 * (6 * L ** 2 - 4 * L * x + x ** 2) / (24 * EI)
+        ws = q * x * (2 * L - x) / (2 * kGA) if kGA else 0.0
+    else:
+        raise ValueError(f"no closed form for supports {supports!r}; valid: ss-ss, cc-cc, cc-free")
+    return w + ws
