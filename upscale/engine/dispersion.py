@@ -3,12 +3,14 @@
 For a translation-invariant linear operator the force on degree of freedom a of a
 particle c far from the boundary, under the plane wave ``q_b(x) = exp(i k.(x - x_c))`` in
 degree of freedom b, is ``F_a(c) = -D_ab(k)`` with the dynamical matrix
-``D_ab(k) = sum_n K_ab(c, n) exp(i k.(x_n - x_c))``. Two real evaluations per degree of
-freedom (cosine and sine waves) give it::
+``D_ab(k) = sum_n K_ab(c, n) exp(i k.(x_n - x_c))``. Real evaluations per degree of freedom
+(cosine and sine waves) give it::
 
     D_ab(k) = -(F_a[cos] + i F_a[sin]),
 
-and the frequencies are ``omega^2 = eig(M_c^-1 D(k))`` with the inertia ``M_c`` of each
+(the cosine evaluated as ``(cos - 1) + 1``, the uniform field on its own, so that the
+differences of a long wave keep their digits), and the frequencies are
+``omega^2 = eig(M_c^-1 D(k))`` with the inertia ``M_c`` of each
 degree of freedom of particle c (mass, or field inertia times volume). Because the matrix
 comes from the models' own force routines (``Simulation.internal_forces`` and the field
 forces of :mod:`upscale.engine.fields`), the result tests the code, not a formula. The
@@ -63,12 +65,16 @@ def dynamical_matrix(sim, k, centre: int | None = None, *, amplitude: float = 1.
             _set(st, key, 0.0)
         F0 = generalised_forces(sim)[c, rows]
         for b, key in enumerate(lay):
-            _set(st, key, amplitude * np.cos(phase))
+            # cos = (cos - 1) + 1: the long-wave differences of cos - 1 = -2 sin^2(phase/2)
+            # carry no cancellation; the uniform field's response is evaluated on its own
+            _set(st, key, -2.0 * amplitude * np.sin(0.5 * phase) ** 2)
             Fc = generalised_forces(sim)[c, rows] - F0
+            _set(st, key, np.full(phase.shape, amplitude))
+            F1 = generalised_forces(sim)[c, rows] - F0
             _set(st, key, amplitude * np.sin(phase))
             Fs = generalised_forces(sim)[c, rows] - F0
             _set(st, key, 0.0)
-            D[:, b] = -(Fc + 1j * Fs) / amplitude
+            D[:, b] = -((Fc + F1) + 1j * Fs) / amplitude
     finally:
         st.y[...] = saved.y
         for name in st.fields:

@@ -63,9 +63,11 @@ a uniform curvature stores ``EI/A kappa^2 / 2`` per unit volume. (The printed en
 is a sixth-order operator, not EB.)
 
 Supports (:func:`beam`): ``"ss"`` (w = 0, mirror ghosts w odd, phi even), ``"cc"`` (EB:
-w = 0 with even mirror ghosts, i.e. zero slope; Timoshenko: w = phi = 0 on a clamped
-layer of ghosts) and ``"free"``; a cantilever is ``("cc", "free")``. Ghost layers are
-2 horizons + 1 spacing deep, so a support particle's force sees an unbroken family.
+w = 0 with even mirror ghosts, i.e. zero slope; Timoshenko: u = w = phi = 0 at the
+support node, extrapolated ghosts) and ``"free"``; a cantilever is ``("cc", "free")``. Ghost layers are
+2 horizons + 1 spacing deep, so a support particle's force sees an unbroken family. A
+Timoshenko clamp cannot be a mirror (w = phi = 0 with w' != 0 has no parity): its ghosts
+carry the cubic extrapolation of u, w, phi from the support node and the next three.
 """
 from __future__ import annotations
 
@@ -307,9 +309,18 @@ class _TripletBeam(Model):
         for a, (kind, c) in enumerate(self.dof_map):
             if kind == "y":
                 out[:, c] += f[:, a] * inv_v
+        if any(kind != "y" for kind, _ in self.dof_map):
+            # the field part of the same evaluation, reused by add_field_force when the
+            # degrees of freedom have not changed in between (one triplet pass per step)
+            self._cache = (self._gather(state), f)
 
     def add_field_force(self, state, out):
-        f = self._generalised(state)
+        cache = getattr(self, "_cache", None)
+        if cache is not None and np.array_equal(cache[0], self._gather(state)):
+            f = cache[1]
+        else:
+            f = self._generalised(state)
+        self._cache = None
         inv_v = 1.0 / self.system.volume
         for a, (kind, c) in enumerate(self.dof_map):
             if kind != "y":
@@ -646,7 +657,7 @@ def beam(*, length, n, horizon_ratio=1.0, theory="eb", supports=("ss", "ss"), E=
     delta = horizon_ratio * dx * (1 + 1e-9)
     ng = int(np.ceil(2 * delta / dx)) + 1
     def n_ghost(s):
-        if s == "ss" or (s == "cc" and theory == "eb"):
+        if s in ("ss", "cc"):
             return ng
         if s == "free" and theory == "eb" and variant == "text":
             return ng  # extrapolated: the slope jump 2.16 needs both neighbours
@@ -706,11 +717,30 @@ def beam(*, length, n, horizon_ratio=1.0, theory="eb", supports=("ss", "ss"), E=
                 conds.append(Tie(reg_g, masters[:, None], -np.ones((ng, 1)), ("y", 2)))
                 conds.append(Tie(reg_g, masters[:, None], np.ones((ng, 1)), ("rot", 0)))
             else:
+                # clamp: u = w = phi = 0 at the support node, ghosts continue the body's
+                # fields smoothly (cubic extrapolation from the support node and the next 3)
                 conds.append(cnd.Fixed(reg_e, components=(0, 2)))
                 conds.append(FixedField(reg_e, "rot", (0,)))
+                gdep = np.array([depth[g] for g in reg_g.index.tolist()], float)
+                nodes = np.array([pos[end - sgn * t] for t in range(4)])
+                wts = _lagrange_weights(np.arange(4.0), -gdep)
+                ms = np.repeat(nodes[None, :], ng, axis=0)
+                for target in (("y", 0), ("y", 2), ("rot", 0)):
+                    conds.append(Tie(reg_g, ms, wts, target))
     if load:
         conds.append(cnd.BodyForce(cnd.Region("beam", body), (0.0, 0.0, load / A)))
     return system, family, model, conds, body
+
+
+def _lagrange_weights(t, at):
+    """Weights (len(at), len(t)) of the Lagrange polynomial through nodes t at points at."""
+    at = np.atleast_1d(at)
+    w = np.ones((at.size, t.size))
+    for a in range(t.size):
+        for b in range(t.size):
+            if a != b:
+                w[:, a] *= (at - t[b]) / (t[a] - t[b])
+    return w
 
 
 def beam_reference(x, length, q, EI, supports, kGA=None):

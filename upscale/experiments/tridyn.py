@@ -1,0 +1,377 @@
+"""Tridynamic beam scenes (seed 004 ch. 2-3): static beams under uniform load against
+Euler-Bernoulli and Timoshenko, and dispersion from the models' force routines against
+the classical branches and the peridynamic bar.
+
+References (closed forms, none produced by the models): EB deflections under uniform load
+(simply supported ``5 q L^4/(384 EI)``, clamped-clamped ``q L^4/(384 EI)``, cantilever tip
+``q L^4/(8 EI)``) plus the Timoshenko shear term ``q L^2/(8 k G A)`` (ss, mid-span) or
+``q L^2/(2 k G A)`` (cantilever tip); the Timoshenko dispersion relation (C.16-C.17)
+``(k_s G k^2 - rho w^2)(EI k^2/A + k_s G - rho I w^2/A) = (k_s G k)^2`` solved with the
+flexural root in the cancellation-free form ``X_- = 2 c/(B + sqrt(B^2 - 4 a c))``; the
+peridynamic bar ``rho w^2 = (4E/delta^2) Cin(k delta)`` and its truncation 3.55.
+
+Command line::
+
+    upscale beam --theory eb --support ss --n 100 --ratios 1,2,3 --plot beam.png
+    upscale dispersion --model tridyn-timoshenko --variant consistent --ratio 1
+"""
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["beam_static", "timoshenko_branches", "beam_dispersion", "pd_bar_dispersion",
+           "cin", "register", "SUPPORT_PAIRS"]
+
+SUPPORT_PAIRS = {"ss": ("ss", "ss"), "cc": ("cc", "cc"), "cantilever": ("cc", "free")}
+
+# seed 004 eq. 3.58 (spacing not given in the text: dx = 0.01 h here)
+STEEL = dict(E=200e9, rho=7850.0, ks=5.0 / 6.0, h=1e-7, nu=0.3)
+
+
+def cin(x):
+    """Cin(x) = int_0^x (1 - cos t)/t dt, by quadrature of ``2 sin^2(t/2)/t`` (no
+    cancellation at small x)."""
+    from scipy.integrate import quad
+
+    x = np.atleast_1d(np.asarray(x, dtype=float))
+    out = np.array([quad(lambda t: 2.0 * np.sin(0.5 * t) ** 2 / t if t > 0 else 0.0, 0.0, v,
+                         epsabs=0, epsrel=1e-13, limit=200)[0] for v in x])
+    return out
+
+
+def timoshenko_branches(k, *, E, G, ks, A, I, rho):
+    """Flexural and thickness-shear ``omega^2`` (rad^2/s^2) of the Timoshenko beam
+    (C.16-C.17) for wavenumbers k (1/m)."""
+    k = np.asarray(k, dtype=float)
+    r = I / A
+    s = ks * G * k ** 2
+    e = E * I * k ** 2 / A
+    g = ks * G
+    B = s * r + e + g
+    disc = np.sqrt(B * B - 4 * r * s * e)
+    return 2 * s * e / (B + disc) / rho, (B + disc) / (2 * r) / rho
+
+
+# =========================================================================== statics
+def beam_static(*, theory="eb", support="ss", n=100, ratio=1.0, variant="consistent",
+                length=1.0, load=5.0, E=200e9, nu=0.3, width=0.05, height=0.001,
+                density=8050.0, shear_factor=5.0 / 6.0, **model_kw) -> dict:
+    """Static deflection of a beam under uniform load q (N/m) by a sparse LU solve of the
+    model's operator (:func:`upscale.engine.fields.solve_static`).
+
+    Default section and load: seed 004 sec. 2.4.1 read as a 0.05 x 0.001 m section, 5 N/m,
+    steel E = 200 GPa (Table 2.1's area 5e-8 m^2, N/m^2 load unit and 200e11 Pa are read
+    as misprints). Returns profiles, the maximum deflection against the closed form (EB;
+    Timoshenko adds the shear term), the solver's residual and the operator's asymmetry."""
+    from upscale.engine import fields
+    from upscale.engine.simulation import Simulation
+    from upscale.models.tridynamics import beam, beam_reference
+
+    if support not in SUPPORT_PAIRS:
+        raise ValueError(f"unknown support {support!r}; valid: {', '.join(SUPPORT_PAIRS)}")
+    sup = SUPPORT_PAIRS[support]
+    system, family, model, conds, body = beam(
+        length=length, n=n, horizon_ratio=ratio, theory=theory, supports=sup, E=E, nu=nu,
+        width=width, height=height, density=density, shear_factor=shear_factor,
+        variant=variant, load=load, **model_kw)
+    sim = Simulation(system, family, model, conds)
+    rep = fields.solve_static(sim)
+    x = system.x0[body, 0]
+    w = sim.state.y[body, 2] - system.x0[body, 2]
+    EI = E * width * height ** 3 / 12.0
+    kGA = shear_factor * E / (2 * (1 + nu)) * width * height if theory == "timoshenko" else None
+    ref = beam_reference(x, length, load, EI, sup, kGA=kGA)
+    i = int(np.argmax(np.abs(ref)))
+    return {"theory": theory, "support": support, "variant": variant, "n": int(n),
+            "delta_over_dx": float(ratio), "x_m": x, "w_m": w, "w_ref_m": ref,
+            "wmax_m": float(w[i]), "wmax_ref_m": float(ref[i]),
+            "wmax_err_pct": float(100 * (w[i] / ref[i] - 1)), "residual": rep["residual"],
+            "asymmetry": rep["asymmetry"], "model": model.describe(), "_sim": sim}
+
+
+# =========================================================================== dispersion
+def _chain(n_each_side, dx, area, density):
+    from upscale.engine.system import ParticleSystem
+
+    x = np.arange(-n_each_side, n_each_side + 1) * dx
+    return ParticleSystem(x[:, None], area * dx, density, dim=1, spacing=dx)
+
+
+def beam_dispersion(*, theory="timoshenko", variant="consistent", ratio=1, kh=None,
+                    dx_over_h=0.01, E=STEEL["E"], nu=STEEL["nu"], rho=STEEL["rho"],
+                    ks=STEEL["ks"], h=STEEL["h"], **model_kw) -> dict:
+    """Branches of a tridynamic beam (square section h x h) from its force routine, beside
+    the classical ones, wavenumbers ``kh`` (k times the depth h)."""
+    from upscale.engine.dispersion import dispersion
+    from upscale.engine.families import build_family
+    from upscale.engine.simulation import Simulation
+    from upscale.models.tridynamics import TridynEB, TridynTimoshenko
+
+    kh = np.array([0.01, 0.05, 0.1, 0.5, 1.0]) if kh is None else np.asarray(kh, float)
+    dx = dx_over_h * h
+    A, I = h * h, h ** 4 / 12.0
+    G = E / (2 * (1 + nu))
+    m = int(np.ceil(ratio))
+    system = _chain(2 * m + 4, dx, A, rho)
+    family = build_family(system, ratio * dx * (1 + 1e-9))
+    if theory == "timoshenko":
+        model = TridynTimoshenko(E, nu, area=A, second_moment=I, shear_factor=ks,
+                                 variant=variant, **model_kw)
+    else:
+        model = TridynEB(E, area=A, second_moment=I, variant=variant, **model_kw)
+    sim = Simulation(system, family, model, [])
+    k = kh / h
+    d = dispersion(sim, k)
+    out = {"theory": theory, "variant": variant, "delta_over_dx": float(ratio),
+           "dx_over_h": dx_over_h, "kh": kh, "model": model.describe(), "D": d["D"],
+           "mass": d["mass"], "dofs": d["dofs"]}
+    if theory == "timoshenko":
+        D, M = d["D"], d["mass"]
+        out["axial"] = (D[:, 0, 0] / M[0]).real
+        fl, sh = [], []
+        for Dk in D:
+            ev = np.sort(np.linalg.eigvals(Dk[1:, 1:] / M[1:, None]).real)
+            fl.append(ev[0])
+            sh.append(ev[1])
+        out["flexural"], out["shear"] = np.array(fl), np.array(sh)
+        out["axial_ref"] = E / rho * k ** 2
+        out["flexural_ref"], out["shear_ref"] = timoshenko_branches(
+            k, E=E, G=G, ks=ks, A=A, I=I, rho=rho)
+    else:
+        out["flexural"] = (d["omega2"][:, 0]).real
+        out["flexural_ref"] = E * I / (rho * A) * k ** 4
+    return out
+
+
+def pd_bar_dispersion(*, ratio=3.0, kdelta=None, E=STEEL["E"], rho=STEEL["rho"],
+                      delta=1e-8, area=1e-14) -> dict:
+    """The project's bond-based bar (PMB, 1D, ``c = 2E/(A delta^2)``) from its force
+    routine, against its lattice sum ``rho w^2 = sum_j c V_j (1 - cos k xi_j)/|xi_j|``, the
+    continuum relation ``(4E/delta^2) Cin(k delta)`` and 3.55."""
+    from upscale.engine.dispersion import dispersion
+    from upscale.engine.families import build_family
+    from upscale.engine.simulation import Simulation
+    from upscale.models.bond_based import PMB
+
+    kd = np.array([0.1, 0.5, 1.0, 2.0, 3.0]) if kdelta is None else np.asarray(kdelta, float)
+    dx = delta / ratio
+    m = int(np.ceil(ratio))
+    system = _chain(2 * m + 4, dx, area, rho)
+    family = build_family(system, delta * (1 + 1e-9))
+    model = PMB(E=E)
+    sim = Simulation(system, family, model, [])
+    k = kd / delta
+    d = dispersion(sim, k, amplitude=0.2 * dx, dofs=[("y", 0)])
+    w2 = d["omega2"][:, 0].real
+    c = model.c
+    xi = np.arange(1, m + 1) * dx
+    xi = xi[xi <= delta * (1 + 1e-9)]
+    lattice = np.array([2 * np.sum(c * area * dx * (1 - np.cos(kk * xi)) / xi) for kk in k]) / rho
+    cont = 4 * E / delta ** 2 * cin(kd) / rho
+    trunc = E / rho * k ** 2 * (1 - kd ** 2 / 24)
+    return {"delta_over_dx": float(ratio), "kdelta": kd, "omega2": w2, "lattice": lattice,
+            "continuum": cont, "eq_3_55": trunc, "c": c}
+
+
+# =========================================================================== plots
+def _plt():
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def plot_beams(results: list, path) -> Path:
+    """Deflection profiles for several horizons against the closed form (Figs. 2.3-2.5)."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 4))
+    r0 = results[0]
+    ax.plot(r0["x_m"], r0["w_ref_m"] * 1e3, "k-", lw=2, label="closed form")
+    for r in results:
+        ax.plot(r["x_m"], r["w_m"] * 1e3, "--", label=f"{r['variant']} delta/dx={r['delta_over_dx']:g} "
+                f"({r['wmax_err_pct']:+.2f} %)")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("w (mm)")
+    ax.set_title(f"{r0['theory']} beam, {r0['support']}, N={r0['n']}")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_dispersion(results: list, path, h=STEEL["h"]) -> Path:
+    """Frequency and phase speed against k h in the normalisation of Figs. 3.3-3.8:
+    ``Omega = omega h / v_s`` with ``v_s = sqrt(G/rho)``; phase speed ``Omega/(k h sqrt(k_s))``."""
+    plt = _plt()
+    G = STEEL["E"] / (2 * (1 + STEEL["nu"]))
+    vs = np.sqrt(G / STEEL["rho"])
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
+    for r in results:
+        kh = r["kh"]
+        for br, st in (("axial", "-"), ("flexural", "--"), ("shear", ":")):
+            if br not in r:
+                continue
+            Om = np.sqrt(np.abs(r[br])) * h / vs
+            lab = f"{r['variant']} d/dx={r['delta_over_dx']:g} {br}"
+            axes[0].plot(kh, Om, st, label=lab)
+            axes[1].plot(kh, Om / (kh * np.sqrt(STEEL["ks"])), st, label=lab)
+    r = results[0]
+    for br in ("axial", "flexural", "shear"):
+        if br + "_ref" in r:
+            Om = np.sqrt(r[br + "_ref"]) * h / vs
+            axes[0].plot(r["kh"], Om, "k.", ms=4)
+            axes[1].plot(r["kh"], Om / (r["kh"] * np.sqrt(STEEL["ks"])), "k.", ms=4)
+    axes[0].set_xlabel("k h")
+    axes[0].set_ylabel("Omega = omega h / v_s")
+    axes[1].set_xlabel("k h")
+    axes[1].set_ylabel("Omega / (k h sqrt(k_s))")
+    axes[1].set_yscale("log")
+    axes[0].set_yscale("log")
+    axes[0].set_xscale("log")
+    axes[1].set_xscale("log")
+    axes[0].legend(fontsize=6)
+    fig.suptitle("tridynamic beam branches (dots: classical Timoshenko / bar)")
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+# =========================================================================== CLI
+def _clean(r):
+    return {k: (v.tolist() if isinstance(v, np.ndarray) and not np.iscomplexobj(v) else v)
+            for k, v in r.items() if not k.startswith("_") and k not in ("D",)}
+
+
+def _run_beam(args) -> int:
+    from upscale.io import write_json
+
+    ratios = [float(v) for v in str(args.ratios).split(",")]
+    res = [beam_static(theory=args.theory, support=args.support, n=args.n, ratio=m,
+                       variant=args.variant, height=args.height) for m in ratios]
+    for r in res:
+        print(f"{r['theory']:10s} {r['support']:10s} {r['variant']:10s} delta/dx={r['delta_over_dx']:g} "
+              f"w_max={r['wmax_m']:.6e} m  ref={r['wmax_ref_m']:.6e} m  err={r['wmax_err_pct']:+.4f} %")
+    if args.plot:
+        print("plot:", plot_beams(res, args.plot))
+    if args.json:
+        write_json(args.json, [_clean(r) for r in res])
+    return 0
+
+
+def _run_dispersion(args) -> int:
+    from upscale.io import write_json
+
+    kh = np.geomspace(0.01, 3.0, 25)
+    if args.model == "pmb":
+        r = pd_bar_dispersion(ratio=args.ratio)
+        for i, kd in enumerate(r["kdelta"]):
+            print(f"k delta={kd:6.3f} omega^2={r['omega2'][i]:.8e} lattice={r['lattice'][i]:.8e} "
+                  f"continuum={r['continuum'][i]:.8e} 3.55={r['eq_3_55'][i]:.8e}")
+        res = [r]
+    else:
+        theory = "timoshenko" if args.model == "tridyn-timoshenko" else "eb"
+        kw = {"edge_factor": args.edge_factor} if theory == "timoshenko" else {}
+        r = beam_dispersion(theory=theory, variant=args.variant, ratio=args.ratio, kh=kh, **kw)
+        for br in ("axial", "flexural", "shear"):
+            if br in r:
+                rel = r[br] / r[br + "_ref"] - 1
+                print(f"{br:9s} rel. error vs classical: " + " ".join(f"{v:+.2e}" for v in rel[::4]))
+        res = [r]
+        if args.plot:
+            print("plot:", plot_dispersion(res, args.plot))
+    if args.json:
+        write_json(args.json, [_clean(x) for x in res])
+    return 0
+
+
+def register(subparsers) -> None:
+    """Adds ``beam`` and ``dispersion`` sub-commands."""
+    p = subparsers.add_parser("beam", help="tridynamic beam under uniform load vs EB/Timoshenko")
+    p.add_argument("--theory", choices=("eb", "timoshenko"), default="eb")
+    p.add_argument("--support", choices=tuple(SUPPORT_PAIRS), default="ss")
+    p.add_argument("--variant", choices=("text", "consistent"), default="consistent")
+    p.add_argument("--n", type=int, default=100, help="spacings along the beam")
+    p.add_argument("--ratios", default="1,2,3", help="delta/dx values, comma separated")
+    p.add_argument("--height", type=float, default=0.001, help="beam depth h (m)")
+    p.add_argument("--plot", type=Path, default=None)
+    p.add_argument("--json", type=Path, default=None)
+    p.set_defaults(func=_run_beam)
+    p = subparsers.add_parser("dispersion", help="dispersion of a linear model from its force routine")
+    p.add_argument("--model", choices=("tridyn-timoshenko", "tridyn-eb", "pmb"),
+                   default="tridyn-timoshenko")
+    p.add_argument("--variant", choices=("text", "consistent"), default="consistent")
+    p.add_argument("--ratio", type=float, default=1.0, help="delta/dx")
+    p.add_argument("--edge-factor", type=float, default=1.0, help="Appendix C factor (1 or 2)")
+    p.add_argument("--plot", type=Path, default=None)
+    p.add_argument("--json", type=Path, default=None)
+    p.set_defaults(func=_run_dispersion)
+
+
+# =========================================================================== dynamics
+def beam_nve(*, theory="eb", n=100, ratio=1.0, length=1.0, height=0.01, width=0.01,
+             E=200e9, nu=0.3, density=7850.0, steps=10_000, safety=0.8) -> dict:
+    """Free vibration of a beam held by clamped walls (zero displacements and rotations
+    on a layer one influence radius deep beyond each end), released from a smooth bump
+    ``w = w0 sin^4(pi x/L)`` (w to w''' vanish at the walls; phi = w' for Timoshenko): relative drift of the total energy (translational and rotary
+    kinetic plus the model's energy) over ``steps`` velocity-Verlet steps at ``safety`` x the
+    engine's stable estimate, and that estimate against the sharp limit
+    :func:`upscale.engine.fields.critical_dt`."""
+    from upscale.engine import conditions as cnd
+    from upscale.engine import fields
+    from upscale.engine.families import build_family
+    from upscale.engine.integrators import VelocityVerlet
+    from upscale.engine.simulation import Simulation
+    from upscale.engine.system import ParticleSystem
+    from upscale.models.tridynamics import TridynEB, TridynTimoshenko
+
+    dx = length / n
+    ng = int(np.ceil(2 * ratio)) + 1
+    idx = np.arange(-ng, n + 1 + ng)
+    x = idx * dx
+    A, I = width * height, width * height ** 3 / 12.0
+    system = ParticleSystem(x[:, None], A * dx, density, dim=1, spacing=dx)
+    family = build_family(system, ratio * dx * (1 + 1e-9))
+    if theory == "eb":
+        model = TridynEB(E, area=A, second_moment=I)
+    else:
+        model = TridynTimoshenko(E, nu, area=A, second_moment=I)
+    wall = cnd.Region("walls", (idx <= 0) | (idx >= n))
+    conds = [cnd.Fixed(wall)]
+    if theory == "timoshenko":
+        conds.append(fields.FixedField(wall, "rot", (0,)))
+    sim = Simulation(system, family, model, conds, integrator=VelocityVerlet(safety=safety))
+    w0 = 1e-3 * height
+    inside = (idx > 0) & (idx < n)
+    s_ = np.sin(np.pi * x[inside] / length)
+    c_ = np.cos(np.pi * x[inside] / length)
+    sim.state.y[inside, 2] += w0 * s_ ** 4
+    if theory == "timoshenko":
+        sim.state.fields["rot"][inside, 0] = 4 * w0 * np.pi / length * s_ ** 3 * c_
+    crit = fields.critical_dt(sim)
+    sim.prepare()
+    est = sim.integrator.estimate
+
+    def total():
+        return fields.kinetic_energy(sim) + sim.energy()
+
+    E0 = total()
+    hist = [E0]
+    every = max(steps // 200, 1)
+    for _ in range(steps // every):
+        sim.run(every)
+        hist.append(total())
+    hist = np.array(hist)
+    return {"theory": theory, "steps": int(sim.state.step), "dt_s": sim.integrator.dt,
+            "estimate_s": est, "critical_s": crit, "estimate_over_critical": est / crit,
+            "rel_drift": float(np.max(np.abs(hist - E0)) / E0),
+            "final_rel_change": float((hist[-1] - E0) / E0)}

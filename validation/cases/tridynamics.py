@@ -1,0 +1,315 @@
+"""Tridynamic beams and plates (seed 004 ch. 2-4) against beam and plate theory.
+
+``tridyn-dispersion``: the models' force routines applied to plane waves against
+(i) the text's own analytic dispersion coefficients 3.42-3.51, evaluated here directly
+from the printed formulas, (ii) the classical Timoshenko branches C.16-C.17 and the bar,
+(iii) the peridynamic bar's lattice sum and ``(4E/delta^2) Cin(k delta)``, 3.55.
+``tridyn-beam``: static beams against the EB/Timoshenko closed forms, convergence order,
+the literal calibration's stiffening, stable step and NVE drift.
+``bench-tridyn``: time per particle-step of the beam kernels against the PMB kernel,
+same particle count and horizon, one run.
+"""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+
+from validation.registry import case, table
+
+
+# =========================================================================== 3.42-3.51
+def text_coefficients(offsets, dx, V, k, edge_factor=1.0, self_pairs=True):
+    """A1, B1, B2, C2, C3, C4 of eq. 3.51 for a centre at x = 0 with neighbours at
+    ``offsets * dx`` (ordered double sums over j, k; j = k included if ``self_pairs``; the
+    j-k edge terms of P and Q times ``edge_factor``), from 3.42-3.48 as printed."""
+    xs = np.asarray(offsets, float) * dx
+    A1 = B1 = B2 = C2 = C3 = C4 = 0j
+    e = edge_factor
+    for xj in xs:
+        for xk in xs:
+            if xj == xk and not self_pairs:
+                continue
+            Lj, Lk = np.exp(1j * k * xj), np.exp(1j * k * xk)
+            xij, xik, xjk = abs(xj), abs(xk), abs(xk - xj)
+            ijk = 1.0 / xjk if xjk > 0 else 0.0
+            nij, nik, njk = np.sign(xj), np.sign(xk), np.sign(xk - xj)
+            T_ijk = (Lj - 1) / xij + (Lk - 1) / xik
+            T_jki = (Lk - Lj) * ijk + (1 - Lj) / xij
+            T_kij = (1 - Lk) / xik + (Lj - Lk) * ijk
+            P_ijk, P_jki, P_kij = T_ijk, e * (Lk - Lj) * ijk + (1 - Lj) / xij, \
+                (1 - Lk) / xik + e * (Lj - Lk) * ijk
+            Q_ijk = -nij / 2 * (1 + Lj) - nik / 2 * (1 + Lk)
+            Q_jki = -e * njk / 2 * (Lj + Lk) + nij / 2 * (1 + Lj)      # n_ji = -n_ij
+            Q_kij = nik / 2 * (1 + Lk) + e * njk / 2 * (Lj + Lk)       # n_ki, n_kj
+            w = V * V
+
+            def row(X, Y, Z):
+                return ((1 / xij + 1 / xik) * X - Y / xij - Z / xik) * w / 3
+
+            def rown(X, Y, Z):
+                return ((nij + nik) * X - nij * Y - nik * Z) * w / 6
+
+            A1 += row(T_ijk, T_jki, T_kij)
+            C4 += row(T_ijk, T_jki, T_kij)  # J has the form of T (3.45)
+            B1 += row(P_ijk, P_jki, P_kij)
+            B2 += row(Q_ijk, Q_jki, Q_kij)
+            C2 += rown(P_ijk, P_jki, P_kij)
+            C3 += rown(Q_ijk, Q_jki, Q_kij)
+    return A1, B1, B2, C2, C3, C4
+
+
+def _coeff_check(ratios, nks, edge_factors=(1.0, 2.0)):
+    """Max relative difference between the force routine's D(k) and the printed
+    coefficients (force density per amplitude: D = -K x coefficient x V)."""
+    from upscale.experiments.tridyn import beam_dispersion
+
+    worst, rows = 0.0, []
+    for ef in edge_factors:
+        for m in ratios:
+            dx_over_h = 0.01
+            h = 1e-7
+            dx = dx_over_h * h
+            kh = np.linspace(0.0, np.pi / dx_over_h, nks + 1)[1:] * (1 - 1e-9)  # to the BZ edge
+            r = beam_dispersion(theory="timoshenko", variant="text", ratio=m, kh=kh,
+                                dx_over_h=dx_over_h, edge_factor=ef)
+            Ke, Kp, Ks = (r["model"][k] for k in ("K_eps", "K_phi", "K_psi"))
+            V = h * h * dx
+            offs = [o for o in range(-m, m + 1) if o != 0]
+            err = 0.0
+            for kk, D in zip(kh / h, r["D"]):
+                A1, B1, B2, C2, C3, C4 = text_coefficients(offs, dx, V, kk, ef)
+                ref = -V * np.array([[Ke * A1, 0, 0], [0, Ks * B1, Ks * B2],
+                                     [0, Ks * C2, Ks * C3 + Kp * C4]])
+                scale = np.abs(ref).max(axis=1, keepdims=True)
+                err = max(err, float(np.max(np.abs(D - ref) / scale)))
+            rows.append({"edge_factor": ef, "delta/dx": m, "wavenumbers": nks,
+                         "max rel. diff (row-scaled)": err})
+            worst = max(worst, err)
+    return worst, rows
+
+
+@case("tridyn-dispersion", "tridynamic beam dispersion from the force routines vs the text's "
+      "coefficients 3.42-3.51, Timoshenko C.16-C.17 and the PD bar (lattice sum, Cin, 3.55)",
+      )
+def run_dispersion(args):
+    from upscale.experiments.tridyn import beam_dispersion, pd_bar_dispersion
+
+    quick = getattr(args, "quick", False)
+    ratios = (1, 2) if quick else (1, 2, 3, 4)
+    # (i) the text's own coefficients
+    coeff_err, crow = _coeff_check(ratios, 8 if quick else 24)
+    print("force routine vs printed coefficients 3.42-3.51 (text variant)")
+    print(table(crow))
+    # (ii) consistent Timoshenko vs C.16-C.17, dx/h = 0.01
+    kh = np.array([0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0])
+    trow, tim_err = [], {}
+    for m in ratios:
+        r = beam_dispersion(theory="timoshenko", variant="consistent", ratio=m, kh=kh)
+        ef = np.abs(r["flexural"] / r["flexural_ref"] - 1)
+        es = np.abs(r["shear"] / r["shear_ref"] - 1)
+        ea = np.abs(r["axial"] / r["axial_ref"] - 1)
+        tim_err[m] = (float(max(ef.max(), es.max())), float(ea[0]))
+        trow.append({"delta/dx": m, "flexural max": float(ef.max()), "thickness-shear max": float(es.max()),
+                     "axial at kh=0.01": float(ea[0])})
+    print("\nconsistent Timoshenko beam vs C.16-C.17 (k h in [0.01, 1], dx/h = 0.01)")
+    print(table(trow))
+    # flexural branch below kh = 0.01: limited by rounding in the force sums
+    r_small = beam_dispersion(theory="timoshenko", variant="consistent", ratio=1,
+                              kh=np.array([1e-3]))
+    small = float(abs(r_small["flexural"][0] / r_small["flexural_ref"][0] - 1))
+    # text variant, delta/dx = 1, without (x1) and with (x2) the appendix factor
+    tf = {}
+    trow2 = []
+    for ef in (1.0, 2.0):
+        for sp in (True, False):
+            r = beam_dispersion(theory="timoshenko", variant="text", ratio=1,
+                                kh=np.array([1e-3, 1e-4]), edge_factor=ef, self_pairs=sp)
+            D, M = r["D"][1], r["mass"]
+            cut = float((D[2, 2] / M[2]).real / (STEEL_KS_G() / (r_I_over_A())))
+            flex = float(r["flexural"][0] / r["flexural_ref"][0])
+            ax = float(r["axial"][0] / r["axial_ref"][0])
+            trow2.append({"edge_factor": ef, "self_pairs (C.1)": sp, "shear cutoff ratio": cut,
+                          "flexural ratio kh=1e-3": flex, "axial ratio": ax})
+            if sp:
+                tf[ef] = (cut, flex)
+    print("\ntext-faithful beam, delta/dx = 1: model / Timoshenko (cutoff: k -> 0 limit of "
+          "the phi-phi entry, k_s G A/(rho I))")
+    print(table(trow2))
+    # (iii) PD bar
+    brow, lat = [], 0.0
+    kd = np.array([0.1, 0.2, 0.5, 1.0, 2.0, 3.0])
+    conv = []
+    for ratio in ((2, 4, 8, 16) if quick else (2, 4, 8, 16, 32, 64)):
+        r = pd_bar_dispersion(ratio=ratio, kdelta=kd)
+        e_lat = float(np.max(np.abs(r["omega2"] / r["lattice"] - 1)))
+        e_cont = float(np.max(np.abs(r["omega2"] / r["continuum"] - 1)))
+        lat = max(lat, e_lat)
+        conv.append((ratio, e_cont))
+        brow.append({"delta/dx": ratio, "vs lattice sum": e_lat, "vs 4E Cin/(rho delta^2)": e_cont})
+    p = np.polyfit(np.log([c[0] for c in conv]), np.log([c[1] for c in conv]), 1)[0]
+    r = pd_bar_dispersion(ratio=4, kdelta=np.array([0.1, 0.25, 0.5]))
+    e355 = float(np.max(np.abs(r["eq_3_55"] / r["continuum"] - 1)))
+    print("\nPD bar (PMB 1D, c = 2E/(A delta^2)) from the force routine")
+    print(table(brow))
+    print(f"convergence to the continuum relation: order {-p:.3f} in dx/delta; "
+          f"3.55 vs Cin form for k delta <= 0.5: {e355:.3e}")
+    m1 = tim_err[1]
+    out = {
+        "coeff_rel_err_max": coeff_err,
+        "timoshenko_rel_err_max": m1[0],
+        "timoshenko_rel_err_by_ratio": {str(m): v[0] for m, v in tim_err.items()},
+        "flexural_rel_err_kh_1e-3": small,
+        "axial_long_wave_rel_err": m1[1],
+        "pd_bar_lattice_rel_err": lat,
+        "pd_bar_continuum_order": float(-p),
+        "eq_3_55_rel_err_kdelta_le_0_5": e355,
+        "tf_shear_cutoff_ratio_x1": tf[1.0][0], "tf_flexural_long_wave_ratio_x1": tf[1.0][1],
+        "tf_shear_cutoff_ratio_x2": tf[2.0][0], "tf_flexural_long_wave_ratio_x2": tf[2.0][1],
+    }
+    out["pass"] = bool(coeff_err < 1e-10 and m1[0] < 1e-4 and m1[1] < 1e-6 and lat < 1e-12
+                       and e355 < 1e-4)
+    return out
+
+
+def STEEL_KS_G():
+    from upscale.experiments.tridyn import STEEL
+
+    return STEEL["ks"] * STEEL["E"] / (2 * (1 + STEEL["nu"])) / STEEL["rho"]
+
+
+def r_I_over_A():
+    from upscale.experiments.tridyn import STEEL
+
+    return STEEL["h"] ** 2 / 12.0
+
+
+# =========================================================================== statics
+@case("tridyn-beam", "tridynamic beams under uniform load vs Euler-Bernoulli / Timoshenko "
+      "closed forms; convergence order; literal calibration; stable step and NVE drift",
+      )
+def run_beam(args):
+    from upscale.experiments.tridyn import beam_static, beam_nve
+
+    quick = getattr(args, "quick", False)
+    rows, errs = [], []
+    ns = (50, 100, 200) if quick else (50, 100, 200, 400)
+    orders = {}
+    for sup in ("ss", "cc", "cantilever"):
+        e_n = []
+        for n in ns:
+            r = beam_static(theory="eb", support=sup, n=n, ratio=1)
+            e_n.append(abs(r["wmax_err_pct"]))
+            rows.append({"support": sup, "N": n, "delta/dx": 1, "variant": "consistent",
+                         "w_max (m)": r["wmax_m"], "EB (m)": r["wmax_ref_m"],
+                         "err %": r["wmax_err_pct"], "residual": r["residual"]})
+            if n >= 100:
+                errs.append(abs(r["wmax_err_pct"]))
+        orders[sup] = float(-np.polyfit(np.log(ns), np.log(e_n), 1)[0])
+    print("EB beams, q = 5 N/m, L = 1 m, 0.05 x 0.001 m, E = 200 GPa (delta/dx = 1)")
+    print(table(rows))
+    print("convergence order of |w_max error| in dx: " +
+          ", ".join(f"{k} {v:.2f}" for k, v in orders.items()))
+    # literal vs consistent calibration against delta/L
+    rows2 = []
+    for var in ("text", "consistent"):
+        for m in ((1, 2, 3) if quick else (1, 2, 3, 4, 6)):
+            r = beam_static(theory="eb", support="ss", n=100, ratio=m, variant=var)
+            rows2.append({"variant": var, "delta/dx": m, "delta/L": m / 100,
+                          "w_max / EB": r["wmax_m"] / r["wmax_ref_m"],
+                          "(m+1)/2 x w_max/EB" if var == "text" else "-":
+                              (m + 1) / 2 * r["wmax_m"] / r["wmax_ref_m"] if var == "text" else ""})
+    print("\nsimply supported EB beam, N = 100: literal calibration 2.19 (xi = dx) vs the "
+          "long-wave one")
+    print(table(rows2))
+    # Timoshenko h/L = 0.1
+    rows3, terr = [], []
+    for sup in ("ss", "cantilever", "cc"):
+        r = beam_static(theory="timoshenko", support=sup, n=100, ratio=1, height=0.1)
+        rows3.append({"support": sup, "h/L": 0.1, "w_max (m)": r["wmax_m"],
+                      "EB + shear (m)": r["wmax_ref_m"], "err %": r["wmax_err_pct"]})
+        terr.append(abs(r["wmax_err_pct"]))
+    print("\nconsistent Timoshenko beam, h/L = 0.1, N = 100, delta/dx = 1")
+    print(table(rows3))
+    # thin Timoshenko beams lock for delta > dx
+    rows4 = []
+    for m in (1, 2, 3):
+        r = beam_static(theory="timoshenko", support="ss", n=100, ratio=m, height=0.001)
+        rows4.append({"delta/dx": m, "h/L": 0.001, "err %": r["wmax_err_pct"]})
+    print("\nconsistent Timoshenko, thin (h/L = 0.001), ss: shear locking beyond delta = dx")
+    print(table(rows4))
+    # stability and NVE
+    nve = []
+    for th in ("eb", "timoshenko"):
+        r = beam_nve(theory=th, steps=2000 if quick else 10000)
+        nve.append(r)
+    print("\nexplicit dynamics (velocity Verlet, 0.8 x the Gershgorin estimate)")
+    print(table([{k: v for k, v in r.items() if not isinstance(v, (list, np.ndarray))} for r in nve]))
+    out = {"eb_wmax_err_pct_max": float(max(errs)), "eb_order": float(min(orders.values())),
+           "eb_order_by_support": orders,
+           "timoshenko_wmax_err_pct": float(max(terr)),
+           "text_stiffening_ratio_by_delta_over_dx": {str(r["delta/dx"]): 1 / r["w_max / EB"]
+                                                       for r in rows2 if r["variant"] == "text"},
+           "nve_rel_drift_max": float(max(r["rel_drift"] for r in nve)),
+           "dt_estimate_over_critical": {r["theory"]: r["estimate_over_critical"] for r in nve}}
+    out["pass"] = bool(out["eb_wmax_err_pct_max"] < 0.5 and out["timoshenko_wmax_err_pct"] < 1.0
+                       and out["nve_rel_drift_max"] < 1e-4
+                       and all(r["estimate_over_critical"] <= 1.0 for r in nve))
+    return out
+
+
+# =========================================================================== bench
+@case("bench-tridyn", "time per particle-step of the tridynamic beam kernels vs the PMB kernel "
+      "(same particles, same horizon, one run)", )
+def run_bench(args):
+    from upscale.engine.families import build_family
+    from upscale.engine.state import State
+    from upscale.engine.system import line_lattice
+    from upscale.models.bond_based import PMB
+    from upscale.models.tridynamics import TridynEB, TridynTimoshenko
+
+    quick = getattr(args, "quick", False)
+    n = 20_000 if quick else 100_000
+    reps = 5 if quick else 20
+    rows = []
+    res = {}
+    for m in (1, 3):
+        s = line_lattice(n, 1e-3, area=1e-6, density=7850.0)
+        fam = build_family(s, m * 1e-3 * (1 + 1e-9))
+        st = State.reference(s.x0, fam.nb)
+        st.fields["rot"] = np.zeros((n, 1))
+        st.field_v["rot"] = np.zeros((n, 1))
+        rng = np.random.default_rng(0)
+        st.y[:, 0] += 1e-9 * rng.normal(size=n)
+        st.y[:, 2] += 1e-9 * rng.normal(size=n)
+        st.fields["rot"][:, 0] = 1e-6 * rng.normal(size=n)
+        models = {"pmb": PMB(E=200e9),
+                  "eb": TridynEB(200e9, area=1e-6, second_moment=1e-13),
+                  "timoshenko": TridynTimoshenko(200e9, 0.3, area=1e-6, second_moment=1e-13)}
+        t = {}
+        for name, mod in models.items():
+            mod.prepare(s, fam)
+            out = np.zeros((n, 3))
+            fo = {"rot": np.zeros((n, 1))}
+
+            def step():
+                out[...] = 0.0
+                mod.add_force(st, out)
+                if hasattr(mod, "add_field_force"):
+                    fo["rot"][...] = 0.0
+                    mod.add_field_force(st, fo)
+
+            step()  # compile
+            t0 = time.perf_counter()
+            for _ in range(reps):
+                step()
+            t[name] = (time.perf_counter() - t0) / reps / n
+        rows.append({"delta/dx": m, "particles": n, "PMB s/particle-step": t["pmb"],
+                     "EB / PMB": t["eb"] / t["pmb"], "Timoshenko / PMB": t["timoshenko"] / t["pmb"]})
+        res[m] = (t["eb"] / t["pmb"], t["timoshenko"] / t["pmb"])
+    print(table(rows))
+    out = {"beam_step_over_pmb": float(max(max(v) for v in res.values())),
+           "eb_step_over_pmb": {str(m): v[0] for m, v in res.items()},
+           "timoshenko_step_over_pmb": {str(m): v[1] for m, v in res.items()}}
+    out["pass"] = bool(out["beam_step_over_pmb"] <= 3.0)
+    return out
