@@ -212,6 +212,108 @@ def bound_kernel(off_t, mem_t, coef, w_tm, scale_d, centre_only, buf_cnd):
                         buf_cnd[c, p, d] += w_tm[t, m] * abs(coef[t, m, a, d]) * tot / scale_d[d]
 
 
+@nb.njit(cache=True, inline="always")
+def _timo_measures(x_n, q_nd, i, j, k, ef):
+    """The nine measures of triplet (i; j, k) (3.1-3.9) and the geometry they use."""
+    a = abs(x_n[j] - x_n[i])
+    b = abs(x_n[k] - x_n[i])
+    c = abs(x_n[k] - x_n[j])
+    ia = 1.0 / a
+    ib = 1.0 / b
+    ic = 1.0 / c if c > 0.0 else 0.0
+    nij = np.sign(x_n[j] - x_n[i])
+    nik = np.sign(x_n[k] - x_n[i])
+    njk = np.sign(x_n[k] - x_n[j])
+    ui, uj, uk = q_nd[i, 0], q_nd[j, 0], q_nd[k, 0]
+    wi, wj, wk = q_nd[i, 1], q_nd[j, 1], q_nd[k, 1]
+    pi_, pj, pk = q_nd[i, 2], q_nd[j, 2], q_nd[k, 2]
+    e1 = (uj - ui) * ia + (uk - ui) * ib
+    e2 = (uk - uj) * ic + (ui - uj) * ia
+    e3 = (uj - uk) * ic + (ui - uk) * ib
+    k1 = (pj - pi_) * ia + (pk - pi_) * ib
+    k2 = (pk - pj) * ic + (pi_ - pj) * ia
+    k3 = (pj - pk) * ic + (pi_ - pk) * ib
+    s1 = (wj - wi) * ia + (wk - wi) * ib - 0.5 * nij * (pi_ + pj) - 0.5 * nik * (pi_ + pk)
+    s2 = ef * ((wk - wj) * ic - 0.5 * njk * (pj + pk)) + (wi - wj) * ia + 0.5 * nij * (pj + pi_)
+    s3 = ef * ((wj - wk) * ic + 0.5 * njk * (pk + pj)) + (wi - wk) * ib + 0.5 * nik * (pk + pi_)
+    return e1, e2, e3, k1, k2, k3, s1, s2, s3, ia, ib, ic, nij, nik, njk
+
+
+@nb.njit(parallel=True, cache=True)
+def timo_text_kernel(off_t, mem_t, pw_t, x_n, q_nd, Ke, Kp, Ks, ef, out_nd):
+    """Printed EOM 3.27-3.29 (particle forces, ``pw_t`` = pair weight x V_i V_j V_k):
+    the centre's own derivative of its triplets' energy, geometry on the fly."""
+    n = off_t.shape[0] - 1
+    for i in nb.prange(n):
+        fu = 0.0
+        fw = 0.0
+        fp = 0.0
+        for t in range(off_t[i], off_t[i + 1]):
+            j, k = mem_t[t, 1], mem_t[t, 2]
+            e1, e2, e3, k1, k2, k3, s1, s2, s3, ia, ib, ic, nij, nik, njk = \
+                _timo_measures(x_n, q_nd, i, j, k, ef)
+            w = pw_t[t]
+            fu -= w * Ke * (-(ia + ib) * e1 + ia * e2 + ib * e3)
+            fp -= w * Kp * (-(ia + ib) * k1 + ia * k2 + ib * k3)
+            fw -= w * Ks * (-(ia + ib) * s1 + ia * s2 + ib * s3)
+            fp -= w * Ks * (-0.5 * (nij + nik) * s1 + 0.5 * nij * s2 + 0.5 * nik * s3)
+        out_nd[i, 0] += fu
+        out_nd[i, 1] += fw
+        out_nd[i, 2] += fp
+
+
+@nb.njit(parallel=True, cache=True)
+def timo_grad_kernel(off_t, mem_t, pw_t, x_n, q_nd, Ke, Kp, Ks, ef, buf_cnd):
+    """Exact gradient of the Timoshenko energy 3.11-3.13 (chunked, race-free; geometry on
+    the fly)."""
+    n = off_t.shape[0] - 1
+    nc = buf_cnd.shape[0]
+    for ch in nb.prange(nc):
+        i0 = ch * n // nc
+        i1 = (ch + 1) * n // nc
+        for t in range(off_t[i0], off_t[i1]):
+            i, j, k = mem_t[t, 0], mem_t[t, 1], mem_t[t, 2]
+            e1, e2, e3, k1, k2, k3, s1, s2, s3, ia, ib, ic, nij, nik, njk = \
+                _timo_measures(x_n, q_nd, i, j, k, ef)
+            w = pw_t[t]
+            g1, g2, g3 = w * Ke * e1, w * Ke * e2, w * Ke * e3
+            buf_cnd[ch, i, 0] -= -(ia + ib) * g1 + ia * g2 + ib * g3
+            buf_cnd[ch, j, 0] -= ia * g1 - (ic + ia) * g2 + ic * g3
+            buf_cnd[ch, k, 0] -= ib * g1 + ic * g2 - (ic + ib) * g3
+            g1, g2, g3 = w * Kp * k1, w * Kp * k2, w * Kp * k3
+            buf_cnd[ch, i, 2] -= -(ia + ib) * g1 + ia * g2 + ib * g3
+            buf_cnd[ch, j, 2] -= ia * g1 - (ic + ia) * g2 + ic * g3
+            buf_cnd[ch, k, 2] -= ib * g1 + ic * g2 - (ic + ib) * g3
+            g1, g2, g3 = w * Ks * s1, w * Ks * s2, w * Ks * s3
+            buf_cnd[ch, i, 1] -= -(ia + ib) * g1 + ia * g2 + ib * g3
+            buf_cnd[ch, j, 1] -= ia * g1 - (ef * ic + ia) * g2 + ef * ic * g3
+            buf_cnd[ch, k, 1] -= ib * g1 + ef * ic * g2 - (ef * ic + ib) * g3
+            buf_cnd[ch, i, 2] -= -0.5 * (nij + nik) * g1 + 0.5 * nij * g2 + 0.5 * nik * g3
+            buf_cnd[ch, j, 2] -= -0.5 * nij * g1 + (0.5 * nij - 0.5 * ef * njk) * g2 \
+                + 0.5 * ef * njk * g3
+            buf_cnd[ch, k, 2] -= -0.5 * nik * g1 - 0.5 * ef * njk * g2 \
+                + (0.5 * ef * njk + 0.5 * nik) * g3
+
+
+@nb.njit(parallel=True, cache=True)
+def eb_grad_kernel(off_t, mem_t, w_t, x_n, w_n, buf_cn):
+    """Exact gradient of the turning-angle energy ``sum_t w_t theta_ijk^2 / 2``
+    (chunked, race-free)."""
+    n = off_t.shape[0] - 1
+    nc = buf_cn.shape[0]
+    for ch in nb.prange(nc):
+        i0 = ch * n // nc
+        i1 = (ch + 1) * n // nc
+        for t in range(off_t[i0], off_t[i1]):
+            i, j, k = mem_t[t, 0], mem_t[t, 1], mem_t[t, 2]
+            ia = 1.0 / abs(x_n[j] - x_n[i])
+            ib = 1.0 / abs(x_n[k] - x_n[i])
+            g = w_t[t] * ((w_n[j] - w_n[i]) * ia + (w_n[k] - w_n[i]) * ib)
+            buf_cn[ch, i] += (ia + ib) * g
+            buf_cn[ch, j] -= ia * g
+            buf_cn[ch, k] -= ib * g
+
+
 @nb.njit(parallel=True, cache=True)
 def slope_jump_kernel(left_n, right_n, x_n, w_n, out_n):
     """theta_i = (w_r - w_i)/(x_r - x_i) - (w_i - w_l)/(x_i - x_l) (eq. 2.16 on a line);
@@ -240,7 +342,7 @@ def eb_text_force_kernel(off_t, mem_t, inv_a_t, inv_b_t, g_t, theta_n, out_n):
 
 
 def _nchunks(n):
-    return max(1, min(int(nb.get_num_threads()) * 4, n))
+    return max(1, min(int(nb.get_num_threads()), n))
 
 
 # =========================================================================== helpers
@@ -289,9 +391,20 @@ class _TripletBeam(Model):
             q[:, a] = (state.y[:, c] - state.x0[:, c]) if kind == "y" else state.fields[kind][:, c]
         return q
 
+    kernel = "fast"
+
+    def _fast_force(self, q):
+        return None
+
     def _operator_force(self, q):
-        """Generalised particle forces (N, nd) (N; N m for rotations)."""
+        """Generalised particle forces (N, nd) (N; N m for rotations): the model's own
+        kernel (``kernel="fast"``, geometry on the fly) or the generic measure-table
+        kernels (``kernel="table"``; the same operator, used to cross-check)."""
         n = q.shape[0]
+        if self.kernel == "fast":
+            f = self._fast_force(q)
+            if f is not None:
+                return f
         if self.variant == "text":
             out = np.zeros((n, self.nd))
             text_force_kernel(self.off_t, self.mem_t, self.coef, self.w_tm, q, out)
@@ -508,7 +621,24 @@ class TridynTimoshenko(_TripletBeam):
                  self._bulk_energy(q_s, [range(6, 9)])[0]]
             K = np.array([0.5 * tv / ev for tv, ev in zip(targets, e)])
         self.K = K  # (K^eps, K^phi, K^psi)
+        self.pw_t = np.ascontiguousarray(pair_w)
+        self._x = np.ascontiguousarray(x)
         self.w_tm = np.ascontiguousarray(self.w0_tm * np.repeat(K, 3)[None, :])
+
+    def _fast_force(self, q):
+        n = q.shape[0]
+        x = self._x
+        Ke, Kp, Ks = (float(v) for v in self.K)
+        if self.variant == "text":
+            out = np.zeros((n, 3))
+            timo_text_kernel(self.off_t, self.mem_t, self.pw_t, x, q, Ke, Kp, Ks,
+                             self.edge_factor, out)
+            return out
+        nc = _nchunks(n)
+        buf = np.zeros((nc, n, 3))
+        timo_grad_kernel(self.off_t, self.mem_t, self.pw_t, x, q, Ke, Kp, Ks,
+                         self.edge_factor, buf)
+        return buf[0] if nc == 1 else buf.sum(axis=0)
 
     def describe(self):
         d = {"model": self.name, "variant": self.variant, "E_Pa": self.E, "nu": self.nu,
@@ -589,6 +719,18 @@ class TridynEB(_TripletBeam):
         e = self._bulk_energy(q, [range(1)])[0]
         self.beta = 0.5 * EIA / e
         self.w_tm = np.ascontiguousarray(self.w0_tm * self.beta)
+        self._wt = np.ascontiguousarray(self.w_tm[:, 0])
+        self._x = np.ascontiguousarray(x)
+
+    def _fast_force(self, q):
+        if self.variant == "text":
+            return None
+        n = q.shape[0]
+        nc = _nchunks(n)
+        buf = np.zeros((nc, n))
+        eb_grad_kernel(self.off_t, self.mem_t, self._wt, self._x,
+                       np.ascontiguousarray(q[:, 0]), buf)
+        return (buf[0] if nc == 1 else buf.sum(axis=0))[:, None]
 
     def _generalised(self, state):
         if self.variant != "text":
