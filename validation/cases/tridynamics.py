@@ -313,3 +313,60 @@ def run_bench(args):
            "timoshenko_step_over_pmb": {str(m): v[1] for m, v in res.items()}}
     out["pass"] = bool(out["beam_step_over_pmb"] <= 3.0)
     return out
+
+
+# =========================================================================== plate
+@case("tridyn-plate", "tridynamic FSDT plate: printed local limit vs Mindlin 4.62, dispersion "
+      "of the corrected plate along x, y, 45 deg, positivity, Navier-Mindlin square plate, NVE")
+def run_plate(args):
+    from upscale.experiments.tridyn import (plate_bending, plate_dispersion, plate_energy_random,
+                                            plate_nve)
+    from upscale.models.tridynamics import literal_local_coefficients
+
+    quick = getattr(args, "quick", False)
+    E, nu = 200e9, 0.3
+    lit = literal_local_coefficients(E, nu)
+    rows = [{"term": k, "literal (4.60, 4.63)": v[0], "Mindlin 4.62": v[1], "ratio": v[0] / v[1]}
+            for k, v in lit.items()]
+    print("printed local limit with the printed constants vs Mindlin (E = 200 GPa, nu = 0.3, "
+          "I/A = 1)")
+    print(table(rows))
+    drow, derr = [], {}
+    for m in ((1,) if quick else (1, 2)):
+        r = plate_dispersion(ratio=m)
+        derr[m] = r["rel_err_max"]
+        for ang, e in r["rel_err"].items():
+            drow.append({"delta/dx": m, "angle (deg)": ang,
+                         **{f"{nm}": float(e[:, b].max()) for b, nm in
+                            enumerate(("flexural", "SH", "P", "twist-shear", "thickness-shear"))}})
+    print("\ncorrected plate vs Mindlin, max relative error of omega^2 for k dx <= 0.05 "
+          "(h = 10 dx)")
+    print(table(drow))
+    en = plate_energy_random(samples=50 if quick else 200)
+    print(f"\nrandom fields (free plate, delta/dx = 2): energy min {en['min_energy_J']:.4g} J, "
+          f"max {en['max_energy_J']:.4g} J; stiffness: {en['negative_eigs']} negative, "
+          f"{en['zero_eigs']} zero eigenvalues (6 rigid modes)")
+    prow, perr = [], None
+    for n in ((20, 40) if quick else (20, 40, 60)):
+        r = plate_bending(n=n)
+        prow.append({"n": n, "h/a": r["h_over_a"], "w_centre (m)": r["w_centre_m"],
+                     "Navier+Mindlin (m)": r["navier_mindlin_m"],
+                     "Navier Kirchhoff (m)": r["navier_kirchhoff_m"], "err %": r["err_pct"],
+                     "residual": r["residual"]})
+        perr = r["err_pct"]
+    print("\nsimply supported square plate, uniform load (a = 1 m, h = 0.1 m), delta/dx = 1")
+    print(table(prow))
+    nve = plate_nve(steps=2000 if quick else 10_000)
+    print("\nexplicit dynamics, plate (20 x 20, velocity Verlet at 0.8 x the estimate)")
+    print(table([nve]))
+    out = {"mindlin_rel_err_max": float(derr[1]),
+           "mindlin_rel_err_by_ratio": {str(k): v for k, v in derr.items()},
+           "navier_err_pct": float(perr),
+           "min_energy_random": en["min_energy_J"], "negative_eigenvalues": en["negative_eigs"],
+           "literal_v_xx_over_mindlin": float(lit["v: v,xx"][0] / lit["v: v,xx"][1]),
+           "nve_rel_drift": nve["rel_drift"],
+           "dt_estimate_over_critical": nve["estimate_over_critical"]}
+    out["pass"] = bool(out["mindlin_rel_err_max"] < 1e-3 and abs(perr) < 1.0
+                       and en["min_energy_J"] > 0 and en["negative_eigs"] == 0
+                       and nve["rel_drift"] < 1e-4 and nve["estimate_over_critical"] <= 1)
+    return out
