@@ -205,3 +205,83 @@ def test_bad_input():
     s = ParticleSystem(x[:, None], 1e-9, 7850.0, dim=1, spacing=1e-3)
     with pytest.raises(ValueError, match="without triplets"):
         Simulation(s, build_family(s, 1.5e-3), _timo(), [])
+
+
+# ----------------------------------------------------------------------------- plate
+def _plate_sim(n=8, ratio=2.0, support="free"):
+    from upscale.models.tridynamics import plate
+
+    s, f, m, c, body = plate(a=1.0, n=n, thickness=0.1, horizon_ratio=ratio, support=support)
+    return Simulation(s, f, m, [] if support == "free" else c)
+
+
+def test_plate_force_is_minus_energy_gradient():
+    rng = np.random.default_rng(5)
+    sim = _plate_sim()
+    st = sim.state
+    st.y[:, :3] += 1e-6 * rng.normal(size=(sim.system.n, 3))
+    st.fields["rot"][...] = 1e-5 * rng.normal(size=(sim.system.n, 2))
+    G = fields.generalised_forces(sim)
+    lay = fields.dof_layout(sim)
+    for p in (0, 13, 40):
+        for a, key in enumerate(lay):
+            h = 1e-9 if key[0] == "y" else 1e-8
+            vals = fields._get(st, key).copy()
+            e = []
+            for sgn in (1, -1):
+                v = vals.copy()
+                v[p] += sgn * h
+                fields._set(st, key, v)
+                e.append(sim.energy())
+            fields._set(st, key, vals)
+            assert -(e[0] - e[1]) / (2 * h) == pytest.approx(G[p, a], rel=1e-5,
+                                                              abs=1e-8 * np.abs(G).max())
+
+
+def test_plate_energy_positive_and_rigid_modes_only():
+    from upscale.experiments.tridyn import plate_energy_random
+
+    r = plate_energy_random(n=6, ratio=2.0, samples=20)
+    assert r["min_energy_J"] > 0
+    assert r["negative_eigs"] == 0
+    assert r["zero_eigs"] == 6  # u, v, w translations, in-plane rotation, two tilts
+
+
+def test_plate_dispersion_long_wave_mindlin():
+    from upscale.experiments.tridyn import plate_dispersion
+
+    r = plate_dispersion(ratio=1, kdx=np.array([0.01, 0.05]), angles_deg=(0.0, 45.0))
+    assert r["rel_err_max"] < 1e-3
+
+
+def test_plate_navier_mindlin():
+    from upscale.experiments.tridyn import plate_bending
+
+    r = plate_bending(n=20)
+    assert abs(r["err_pct"]) < 1.0
+    assert r["asymmetry"] < 1e-12
+
+
+def test_literal_plate_local_limit_departs_only_in_v_xx():
+    from upscale.models.tridynamics import literal_local_coefficients
+
+    E, nu = 200e9, 0.3
+    c = literal_local_coefficients(E, nu)
+    off = {k for k, (a, b) in c.items() if not np.isclose(a, b, rtol=1e-12)}
+    assert off == {"v: v,xx", "phi_y: phi_y,xx"}
+    assert np.isclose(*literal_local_coefficients(E, 0.0)["v: v,xx"])
+
+
+def test_plate_bad_input():
+    from upscale.engine.system import line_lattice
+    from upscale.models.tridynamics import TridynPlate, plate
+
+    with pytest.raises(ValueError, match="2D body"):
+        s = line_lattice(10, 1e-3)
+        Simulation(s, build_family(s, 1.5e-3), TridynPlate(200e9, thickness=1e-3), [])
+    with pytest.raises(ValueError, match="variant"):
+        TridynPlate(200e9, thickness=1e-3, variant="text")
+    with pytest.raises(ValueError, match="thickness"):
+        TridynPlate(200e9, thickness=0.0)
+    with pytest.raises(ValueError, match="support"):
+        plate(a=1.0, n=4, thickness=0.1, support="clamped")

@@ -33,7 +33,8 @@ Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bon
     ``upscale.engine.multibody`` (helper D) when a model's ``needs`` asks for them.
 
 ``upscale.engine.state``
-    ``State(x0, y, v, intact, t=0, step=0, extra={})``; ``State.reference(x0, nb)``;
+    ``State(x0, y, v, intact, t=0, step=0, extra={}, fields={}, field_v={})``;
+    ``State.reference(x0, nb)``;
     ``state.u`` (= y - x0, settable). ``y`` (current positions) is the primary variable.
     ``extra`` holds model history arrays that checkpoints save.
 
@@ -78,6 +79,26 @@ Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bon
     progress=False, callback=None, meta=None)`` (``steps`` more steps; raises
     ``integrators.BlowUp`` with a diagnosis), ``sim.resume(path)``, ``sim.relax(adr)``.
     The engine does only what the models' ``needs`` and the outputs ask for.
+
+``upscale.engine.fields`` (generalised degrees of freedom)
+    Per-particle fields beyond the translations with their own inertia (rotations of
+    tridynamic beams and plates): ``state.fields[name]`` / ``state.field_v[name]``
+    (N, k). A model declares ``fields() -> {name: FieldSpec(ncomp, inertia)}`` (inertia
+    density, e.g. ``rho I/A``), adds generalised force densities in
+    ``add_field_force(state, out)``, may give ``field_stiffness_bound() -> {name: (N,)}``
+    (the stable step counts field rows with their inertia), ``translations`` (the
+    translation components it acts on) and ``influence_radius()``. ``sim.G`` holds the
+    field forces per particle; velocity Verlet kicks and drifts the fields; checkpoints
+    save them. Conditions: ``FixedField(region, field, components)`` and
+    ``Tie(region, masters, weights, target)`` (ghost dofs slaved to linear combinations:
+    mirror supports, extrapolated ends). Linear tools: ``operator(sim)`` (K = -dF/dq by
+    probing the force routines), ``solve_static(sim)`` (sparse LU, no symmetry assumed),
+    ``critical_dt(sim)``. Massless internal fields and global variables are not part of
+    this extension.
+
+``upscale.engine.dispersion``
+    ``dynamical_matrix(sim, k)`` / ``dispersion(sim, ks)``: the discrete dispersion of any
+    linear model from its force routine applied to plane waves.
 
 ``upscale.engine.output`` / ``upscale.engine.checkpoint``
     ``Output(outdir, every, formats=("extxyz", "vtk", "json"), energy=False)``: extxyz via

@@ -13,6 +13,7 @@ peridynamic bar ``rho w^2 = (4E/delta^2) Cin(k delta)`` and its truncation 3.55.
 Command line::
 
     upscale beam --theory eb --support ss --n 100 --ratios 1,2,3 --plot beam.png
+    upscale plate-bending --n 20,40 --plot plate.png
     upscale dispersion --model tridyn-timoshenko --variant consistent --ratio 1
 """
 from __future__ import annotations
@@ -272,6 +273,18 @@ def _run_dispersion(args) -> int:
     from upscale.io import write_json
 
     kh = np.geomspace(0.01, 3.0, 25)
+    if args.model == "tridyn-plate":
+        r = plate_dispersion(ratio=args.ratio, kdx=np.geomspace(0.005, 0.5, 12))
+        names = ("flexural", "SH", "P", "twist-shear", "thickness-shear")
+        for ang, e in r["rel_err"].items():
+            print(f"{ang:5.1f} deg, max rel. error for k dx <= 0.05: " + ", ".join(
+                f"{nm} {e[r['kdx'] <= 0.05 + 1e-12, b].max():.2e}" for b, nm in enumerate(names)))
+        if args.plot:
+            print("plot:", plot_plate_dispersion(r, args.plot))
+        if args.json:
+            write_json(args.json, {"kdx": r["kdx"].tolist(), "rel_err": {
+                str(a): e.tolist() for a, e in r["rel_err"].items()}})
+        return 0
     if args.model == "pmb":
         r = pd_bar_dispersion(ratio=args.ratio)
         for i, kd in enumerate(r["kdelta"]):
@@ -294,8 +307,74 @@ def _run_dispersion(args) -> int:
     return 0
 
 
+def plot_plate(results: list, path) -> Path:
+    """Mid-line deflection of the simply supported plate against Navier + Mindlin."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 4))
+    r0 = results[0]
+    ax.plot(r0["x_m"], r0["w_ref_m"] * 1e6, "k-", lw=2, label="Navier + Mindlin shear")
+    for r in results:
+        ax.plot(r["x_m"], r["w_m"] * 1e6, "--", label=f"tridynamic n={r['n']} delta/dx="
+                f"{r['delta_over_dx']:g} (centre {r['err_pct']:+.3f} %)")
+    ax.set_xlabel("x (m), y = a/2")
+    ax.set_ylabel("w (um)")
+    ax.set_title(f"simply supported square plate, h/a = {r0['h_over_a']:g}, uniform load")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def plot_plate_dispersion(r: dict, path) -> Path:
+    """Relative error of the plate's five branches against Mindlin, per direction."""
+    plt = _plt()
+    fig, ax = plt.subplots(figsize=(7, 4))
+    names = ("flexural", "SH", "P", "twist-shear", "thickness-shear")
+    for ang, e in r["rel_err"].items():
+        for b, nm in enumerate(names):
+            ax.loglog(r["kdx"], np.maximum(e[:, b], 1e-16), marker="o", ms=3,
+                      label=f"{nm} {ang:g} deg")
+    ax.set_xlabel("k dx")
+    ax.set_ylabel("|omega^2 / Mindlin - 1|")
+    ax.set_title(f"tridynamic plate, delta/dx = {r['delta_over_dx']:g}, h = {r['h_over_dx']:g} dx")
+    ax.legend(fontsize=6, ncol=3)
+    fig.tight_layout()
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+    return path
+
+
+def _run_plate(args) -> int:
+    from upscale.io import write_json
+
+    res = [plate_bending(n=n, ratio=args.ratio, h=args.thickness)
+           for n in (int(v) for v in str(args.n).split(","))]
+    for r in res:
+        print(f"n={r['n']:4d} delta/dx={r['delta_over_dx']:g} w_centre={r['w_centre_m']:.6e} m "
+              f"Navier+Mindlin={r['navier_mindlin_m']:.6e} m (Kirchhoff {r['navier_kirchhoff_m']:.6e})"
+              f" err={r['err_pct']:+.4f} %")
+    if args.plot:
+        print("plot:", plot_plate(res, args.plot))
+    if args.json:
+        write_json(args.json, [_clean(r) for r in res])
+    return 0
+
+
 def register(subparsers) -> None:
-    """Adds ``beam`` and ``dispersion`` sub-commands."""
+    """Adds ``beam``, ``plate-bending`` and ``dispersion`` sub-commands."""
+    p = subparsers.add_parser("plate-bending", help="tridynamic simply supported square plate "
+                              "under uniform load vs Navier + Mindlin")
+    p.add_argument("--n", default="20,40", help="spacings per side, comma separated")
+    p.add_argument("--ratio", type=float, default=1.0, help="delta/dx")
+    p.add_argument("--thickness", type=float, default=0.1, help="h (m), a = 1 m")
+    p.add_argument("--plot", type=Path, default=None)
+    p.add_argument("--json", type=Path, default=None)
+    p.set_defaults(func=_run_plate)
     p = subparsers.add_parser("beam", help="tridynamic beam under uniform load vs EB/Timoshenko")
     p.add_argument("--theory", choices=("eb", "timoshenko"), default="eb")
     p.add_argument("--support", choices=tuple(SUPPORT_PAIRS), default="ss")
@@ -307,7 +386,7 @@ def register(subparsers) -> None:
     p.add_argument("--json", type=Path, default=None)
     p.set_defaults(func=_run_beam)
     p = subparsers.add_parser("dispersion", help="dispersion of a linear model from its force routine")
-    p.add_argument("--model", choices=("tridyn-timoshenko", "tridyn-eb", "pmb"),
+    p.add_argument("--model", choices=("tridyn-timoshenko", "tridyn-eb", "tridyn-plate", "pmb"),
                    default="tridyn-timoshenko")
     p.add_argument("--variant", choices=("text", "consistent"), default="consistent")
     p.add_argument("--ratio", type=float, default=1.0, help="delta/dx")
