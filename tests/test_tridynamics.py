@@ -285,3 +285,14 @@ def test_plate_bad_input():
         TridynPlate(200e9, thickness=0.0)
     with pytest.raises(ValueError, match="support"):
         plate(a=1.0, n=4, thickness=0.1, support="clamped")
+
+
+def test_plate_fast_kernel_equals_measure_tables():
+    rng = np.random.default_rng(2)
+    sim = _plate_sim(n=7, ratio=2.0)
+    m = sim.models[0]
+    q = rng.normal(size=(sim.system.n, 5))
+    m.kernel = "table"
+    ref = m._operator_force(q)
+    m.kernel = "fast"
+    assert np.abs(m._operator_force(q) - ref).max() < 1e-12 * np.abs(ref).max()
