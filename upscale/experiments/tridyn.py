@@ -221,6 +221,8 @@ def plot_dispersion(results: list, path, h=STEEL["h"]) -> Path:
                 continue
             Om = np.sqrt(np.abs(r[br])) * h / vs
             lab = f"{r['variant']} d/dx={r['delta_over_dx']:g} {br}"
+            if r is not results[0] and br == "axial":
+                continue
             axes[0].plot(kh, Om, st, label=lab)
             axes[1].plot(kh, Om / (kh * np.sqrt(STEEL["ks"])), st, label=lab)
     r = results[0]
@@ -294,12 +296,20 @@ def _run_dispersion(args) -> int:
     else:
         theory = "timoshenko" if args.model == "tridyn-timoshenko" else "eb"
         kw = {"edge_factor": args.edge_factor} if theory == "timoshenko" else {}
+        if args.brillouin:
+            kh = np.geomspace(0.01, 0.99 * np.pi / 0.01, 40)  # to the zone edge, dx = 0.01 h
         r = beam_dispersion(theory=theory, variant=args.variant, ratio=args.ratio, kh=kh, **kw)
+        print("k h: " + " ".join(f"{v:9.3g}" for v in kh[::4]))
         for br in ("axial", "flexural", "shear"):
             if br in r:
                 rel = r[br] / r[br + "_ref"] - 1
                 print(f"{br:9s} rel. error vs classical: " + " ".join(f"{v:+.2e}" for v in rel[::4]))
         res = [r]
+        if theory == "timoshenko" and args.compare_text:
+            for ef in (1.0, 2.0):
+                res.append(beam_dispersion(theory=theory, variant="text", ratio=args.ratio,
+                                           kh=kh, edge_factor=ef))
+                res[-1]["variant"] = f"text x{ef:g}"
         if args.plot:
             print("plot:", plot_dispersion(res, args.plot))
     if args.json:
@@ -391,6 +401,9 @@ def register(subparsers) -> None:
     p.add_argument("--variant", choices=("text", "consistent"), default="consistent")
     p.add_argument("--ratio", type=float, default=1.0, help="delta/dx")
     p.add_argument("--edge-factor", type=float, default=1.0, help="Appendix C factor (1 or 2)")
+    p.add_argument("--brillouin", action="store_true", help="wavenumbers up to the zone edge")
+    p.add_argument("--compare-text", action="store_true",
+                   help="add the text-faithful beam without and with the appendix factor")
     p.add_argument("--plot", type=Path, default=None)
     p.add_argument("--json", type=Path, default=None)
     p.set_defaults(func=_run_dispersion)
@@ -401,7 +414,8 @@ def beam_nve(*, theory="eb", n=100, ratio=1.0, length=1.0, height=0.01, width=0.
              E=200e9, nu=0.3, density=7850.0, steps=10_000, safety=0.8) -> dict:
     """Free vibration of a beam held by clamped walls (zero displacements and rotations
     on a layer one influence radius deep beyond each end), released from a smooth bump
-    ``w = w0 sin^4(pi x/L)`` (w to w''' vanish at the walls; phi = w' for Timoshenko): relative drift of the total energy (translational and rotary
+    ``w = w0 sin^4(pi x/L)`` (w to w''' vanish at the walls; phi = w' for Timoshenko):
+    relative drift of the total energy (translational and rotary
     kinetic plus the model's energy) over ``steps`` velocity-Verlet steps at ``safety`` x the
     engine's stable estimate, and that estimate against the sharp limit
     :func:`upscale.engine.fields.critical_dt`."""

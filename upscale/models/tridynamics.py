@@ -905,7 +905,8 @@ def beam(*, length, n, horizon_ratio=1.0, theory="eb", supports=("ss", "ss"), E=
             masters = np.array([image[g] for g in reg_g.index.tolist()])  # region order
         if s == "free":
             if (gl, gr)[side]:
-                # w'' = w''' = 0 at the end: linear extrapolation w_{end+g} = w_end + g (w_end - w_{end-1})
+                # w'' = w''' = 0 at the end: linear extrapolation
+                # w_{end+g} = w_end + g (w_end - w_{end-1})
                 gdep = np.array([depth[g] for g in reg_g.index.tolist()], float)
                 ms = np.stack([np.full(ng, pos[end]), np.full(ng, pos[end - sgn])], axis=1)
                 conds.append(Tie(reg_g, ms, np.stack([1 + gdep, -gdep], axis=1), ("y", 2)))
@@ -1048,7 +1049,8 @@ class TridynPlate(_TripletBeam):
 
         Model.prepare(self, system, family, **kw)
         if system.dim != 2:
-            raise ValueError(f"model {self.name!r} needs a 2D body (square_lattice), got dim={system.dim}")
+            raise ValueError(f"model {self.name!r} needs a 2D body (square_lattice), "
+                             f"got dim={system.dim}")
         if not np.isclose(system.thickness, self.h, rtol=1e-12):
             raise ValueError(f"plate thickness {self.h!r} m differs from the body's "
                              f"{system.thickness!r} m; valid: the same value")
