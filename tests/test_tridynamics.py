@@ -296,3 +296,11 @@ def test_plate_fast_kernel_equals_measure_tables():
     ref = m._operator_force(q)
     m.kernel = "fast"
     assert np.abs(m._operator_force(q) - ref).max() < 1e-12 * np.abs(ref).max()
+
+
+def test_critical_step_separates_stable_from_unstable():
+    from upscale.experiments.tridyn import step_scan
+
+    for r in step_scan(theory="timoshenko", steps=200):
+        assert r["blew_up"] == (r["dt_over_critical"] > 1.0)
+        assert r["estimate_s"] <= r["critical_s"]

@@ -229,13 +229,15 @@ def run_beam(args):
           ", ".join(f"{k} {v:.2f}" for k, v in orders.items()))
     # literal vs consistent calibration against delta/L
     rows2 = []
-    for var in ("text", "consistent"):
+    for var, xi in (("text", "spacing"), ("text", "horizon"), ("consistent", None)):
         for m in ((1, 2, 3) if quick else (1, 2, 3, 4, 6)):
-            r = beam_static(theory="eb", support="ss", n=100, ratio=m, variant=var)
-            rows2.append({"variant": var, "delta/dx": m, "delta/L": m / 100,
+            kw = {"xi": xi} if xi else {}
+            r = beam_static(theory="eb", support="ss", n=100, ratio=m, variant=var, **kw)
+            rows2.append({"variant": var + (f" xi={xi}" if xi else ""), "delta/dx": m,
+                          "delta/L": m / 100,
                           "w_max / EB": r["wmax_m"] / r["wmax_ref_m"],
-                          "(m+1)/2 x w_max/EB" if var == "text" else "-":
-                              (m + 1) / 2 * r["wmax_m"] / r["wmax_ref_m"] if var == "text" else ""})
+                          "(m+1)/2 x w_max/EB": (m + 1) / 2 * r["wmax_m"] / r["wmax_ref_m"]
+                          if xi == "spacing" else ""})
     print("\nsimply supported EB beam, N = 100: literal calibration 2.19 (xi = dx) vs the "
           "long-wave one")
     print(table(rows2))
@@ -260,18 +262,30 @@ def run_beam(args):
     for th in ("eb", "timoshenko"):
         r = beam_nve(theory=th, steps=2000 if quick else 10000)
         nve.append(r)
+    from upscale.experiments.tridyn import step_scan
+
+    scan = step_scan(theory="eb") + step_scan(theory="timoshenko")
+    print("\nvelocity Verlet at 0.98 and 1.02 x the sharp critical step, random initial state")
+    print(table(scan))
     print("\nexplicit dynamics (velocity Verlet, 0.8 x the Gershgorin estimate)")
     print(table([{k: v for k, v in r.items() if not isinstance(v, (list, np.ndarray))} for r in nve]))
     out = {"eb_wmax_err_pct_max": float(max(errs)), "eb_order": float(min(orders.values())),
            "eb_order_by_support": orders,
            "timoshenko_wmax_err_pct": float(max(terr)),
-           "text_stiffening_ratio_by_delta_over_dx": {str(r["delta/dx"]): 1 / r["w_max / EB"]
-                                                       for r in rows2 if r["variant"] == "text"},
+           "text_stiffening_ratio_by_delta_over_dx": {
+               str(r["delta/dx"]): 1 / r["w_max / EB"] for r in rows2
+               if r["variant"] == "text xi=spacing"},
+           "text_xi_horizon_stiffness_ratio_by_delta_over_dx": {
+               str(r["delta/dx"]): 1 / r["w_max / EB"] for r in rows2
+               if r["variant"] == "text xi=horizon"},
            "nve_rel_drift_max": float(max(r["rel_drift"] for r in nve)),
-           "dt_estimate_over_critical": {r["theory"]: r["estimate_over_critical"] for r in nve}}
+           "dt_estimate_over_critical": {r["theory"]: r["estimate_over_critical"] for r in nve},
+           "critical_step_confirmed": bool(all(r["blew_up"] == (r["dt_over_critical"] > 1)
+                                               for r in scan))}
     out["pass"] = bool(out["eb_wmax_err_pct_max"] < 0.5 and out["timoshenko_wmax_err_pct"] < 1.0
                        and out["nve_rel_drift_max"] < 1e-4
-                       and all(r["estimate_over_critical"] <= 1.0 for r in nve))
+                       and all(r["estimate_over_critical"] <= 1.0 for r in nve)
+                       and out["critical_step_confirmed"])
     return out
 
 
