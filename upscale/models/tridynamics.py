@@ -213,17 +213,15 @@ def bound_kernel(off_t, mem_t, coef, w_tm, scale_d, centre_only, buf_cnd):
 
 
 @nb.njit(cache=True, inline="always")
-def _timo_measures(x_n, q_nd, i, j, k, ef):
-    """The nine measures of triplet (i; j, k) (3.1-3.9) and the geometry they use."""
-    a = abs(x_n[j] - x_n[i])
-    b = abs(x_n[k] - x_n[i])
-    c = abs(x_n[k] - x_n[j])
-    ia = 1.0 / a
-    ib = 1.0 / b
-    ic = 1.0 / c if c > 0.0 else 0.0
-    nij = np.sign(x_n[j] - x_n[i])
-    nik = np.sign(x_n[k] - x_n[i])
-    njk = np.sign(x_n[k] - x_n[j])
+def _timo_measures(g_t6, t, q_nd, i, j, k, ef):
+    """The nine measures of triplet t = (i; j, k) (3.1-3.9); ``g_t6[t]`` holds
+    ``1/xi_ij, 1/xi_ik, 1/xi_jk (0 if j = k), n_ij, n_ik, n_jk``."""
+    ia = g_t6[t, 0]
+    ib = g_t6[t, 1]
+    ic = g_t6[t, 2]
+    nij = g_t6[t, 3]
+    nik = g_t6[t, 4]
+    njk = g_t6[t, 5]
     ui, uj, uk = q_nd[i, 0], q_nd[j, 0], q_nd[k, 0]
     wi, wj, wk = q_nd[i, 1], q_nd[j, 1], q_nd[k, 1]
     pi_, pj, pk = q_nd[i, 2], q_nd[j, 2], q_nd[k, 2]
@@ -240,9 +238,10 @@ def _timo_measures(x_n, q_nd, i, j, k, ef):
 
 
 @nb.njit(parallel=True, cache=True)
-def timo_text_kernel(off_t, mem_t, pw_t, x_n, q_nd, Ke, Kp, Ks, ef, out_nd):
+def timo_text_kernel(off_t, mem_t, pw_t, g_t6, q_nd, Ke, Kp, Ks, ef, out_nd):
     """Printed EOM 3.27-3.29 (particle forces, ``pw_t`` = pair weight x V_i V_j V_k):
-    the centre's own derivative of its triplets' energy, geometry on the fly."""
+    the centre's own derivative of its triplets' energy (geometry ``g_t6`` as in
+    ``_timo_measures``)."""
     n = off_t.shape[0] - 1
     for i in nb.prange(n):
         fu = 0.0
@@ -251,7 +250,7 @@ def timo_text_kernel(off_t, mem_t, pw_t, x_n, q_nd, Ke, Kp, Ks, ef, out_nd):
         for t in range(off_t[i], off_t[i + 1]):
             j, k = mem_t[t, 1], mem_t[t, 2]
             e1, e2, e3, k1, k2, k3, s1, s2, s3, ia, ib, ic, nij, nik, njk = \
-                _timo_measures(x_n, q_nd, i, j, k, ef)
+                _timo_measures(g_t6, t, q_nd, i, j, k, ef)
             w = pw_t[t]
             fu -= w * Ke * (-(ia + ib) * e1 + ia * e2 + ib * e3)
             fp -= w * Kp * (-(ia + ib) * k1 + ia * k2 + ib * k3)
@@ -263,9 +262,9 @@ def timo_text_kernel(off_t, mem_t, pw_t, x_n, q_nd, Ke, Kp, Ks, ef, out_nd):
 
 
 @nb.njit(parallel=True, cache=True)
-def timo_grad_kernel(off_t, mem_t, pw_t, x_n, q_nd, Ke, Kp, Ks, ef, buf_cnd):
-    """Exact gradient of the Timoshenko energy 3.11-3.13 (chunked, race-free; geometry on
-    the fly)."""
+def timo_grad_kernel(off_t, mem_t, pw_t, g_t6, q_nd, Ke, Kp, Ks, ef, buf_cnd):
+    """Exact gradient of the Timoshenko energy 3.11-3.13 (chunked, race-free; geometry
+    ``g_t6`` as in ``_timo_measures``)."""
     n = off_t.shape[0] - 1
     nc = buf_cnd.shape[0]
     for ch in nb.prange(nc):
@@ -274,7 +273,7 @@ def timo_grad_kernel(off_t, mem_t, pw_t, x_n, q_nd, Ke, Kp, Ks, ef, buf_cnd):
         for t in range(off_t[i0], off_t[i1]):
             i, j, k = mem_t[t, 0], mem_t[t, 1], mem_t[t, 2]
             e1, e2, e3, k1, k2, k3, s1, s2, s3, ia, ib, ic, nij, nik, njk = \
-                _timo_measures(x_n, q_nd, i, j, k, ef)
+                _timo_measures(g_t6, t, q_nd, i, j, k, ef)
             w = pw_t[t]
             g1, g2, g3 = w * Ke * e1, w * Ke * e2, w * Ke * e3
             buf_cnd[ch, i, 0] -= -(ia + ib) * g1 + ia * g2 + ib * g3
@@ -475,11 +474,12 @@ class _TripletBeam(Model):
         grad_force_kernel(self.off_t, self.mem_t, self.coef, self.w_tm, q, buf)
         return buf.sum(axis=0)
 
-    def _generalised(self, state):
-        return self._operator_force(self._gather(state))
+    def _generalised(self, state, q=None):
+        return self._operator_force(self._gather(state) if q is None else q)
 
     def add_force(self, state, out):
-        f = self._generalised(state)
+        q = self._gather(state)
+        f = self._generalised(state, q)
         inv_v = 1.0 / self.system.volume
         for a, (kind, c) in enumerate(self.dof_map):
             if kind == "y":
@@ -487,7 +487,7 @@ class _TripletBeam(Model):
         if any(kind != "y" for kind, _ in self.dof_map):
             # the field part of the same evaluation, reused by add_field_force when the
             # degrees of freedom have not changed in between (one triplet pass per step)
-            self._cache = (self._gather(state), f)
+            self._cache = (q, f)
 
     def add_field_force(self, state, out):
         cache = getattr(self, "_cache", None)
@@ -685,20 +685,20 @@ class TridynTimoshenko(_TripletBeam):
         self.K = K  # (K^eps, K^phi, K^psi)
         self.pw_t = np.ascontiguousarray(pair_w)
         self._x = np.ascontiguousarray(x)
+        self._g6 = np.ascontiguousarray(np.stack([ia, ib, ic, nij, nik, njk], axis=1))
         self.w_tm = np.ascontiguousarray(self.w0_tm * np.repeat(K, 3)[None, :])
 
     def _fast_force(self, q):
         n = q.shape[0]
-        x = self._x
         Ke, Kp, Ks = (float(v) for v in self.K)
         if self.variant == "text":
             out = np.zeros((n, 3))
-            timo_text_kernel(self.off_t, self.mem_t, self.pw_t, x, q, Ke, Kp, Ks,
+            timo_text_kernel(self.off_t, self.mem_t, self.pw_t, self._g6, q, Ke, Kp, Ks,
                              self.edge_factor, out)
             return out
         nc = _nchunks(n)
         buf = np.zeros((nc, n, 3))
-        timo_grad_kernel(self.off_t, self.mem_t, self.pw_t, x, q, Ke, Kp, Ks,
+        timo_grad_kernel(self.off_t, self.mem_t, self.pw_t, self._g6, q, Ke, Kp, Ks,
                          self.edge_factor, buf)
         return buf[0] if nc == 1 else buf.sum(axis=0)
 
@@ -794,9 +794,9 @@ class TridynEB(_TripletBeam):
                        np.ascontiguousarray(q[:, 0]), buf)
         return (buf[0] if nc == 1 else buf.sum(axis=0))[:, None]
 
-    def _generalised(self, state):
+    def _generalised(self, state, q=None):
         if self.variant != "text":
-            return super()._generalised(state)
+            return super()._generalised(state, q)
         w = np.ascontiguousarray(state.y[:, 2] - state.x0[:, 2])
         th = np.empty_like(w)
         slope_jump_kernel(self.left, self.right, np.ascontiguousarray(self.system.x0[:, 0]), w, th)
