@@ -77,7 +77,9 @@ import numpy as np
 from upscale.models import register
 from upscale.models.base import Model, Needs
 
-__all__ = ["TridynEB", "TridynTimoshenko", "line_triplets", "beam", "SUPPORTS", "VARIANTS"]
+__all__ = ["TridynEB", "TridynTimoshenko", "TridynPlate", "line_triplets", "beam", "plate",
+           "beam_reference", "navier_mindlin", "literal_local_coefficients", "SUPPORTS",
+           "VARIANTS"]
 
 VARIANTS = ("text", "consistent")
 SUPPORTS = ("ss", "cc", "free")
@@ -263,35 +265,41 @@ def timo_text_kernel(off_t, mem_t, pw_t, g_t6, q_nd, Ke, Kp, Ks, ef, out_nd):
 
 @nb.njit(parallel=True, cache=True)
 def timo_grad_kernel(off_t, mem_t, pw_t, g_t6, q_nd, Ke, Kp, Ks, ef, buf_cnd):
-    """Exact gradient of the Timoshenko energy 3.11-3.13 (chunked, race-free; geometry
-    ``g_t6`` as in ``_timo_measures``)."""
+    """Exact gradient of the Timoshenko energy 3.11-3.13 (chunked over centres, race-free:
+    chunk c writes only ``buf[c]``; the centre's own share is summed in registers;
+    geometry ``g_t6`` as in ``_timo_measures``)."""
     n = off_t.shape[0] - 1
     nc = buf_cnd.shape[0]
     for ch in nb.prange(nc):
         i0 = ch * n // nc
         i1 = (ch + 1) * n // nc
-        for t in range(off_t[i0], off_t[i1]):
-            i, j, k = mem_t[t, 0], mem_t[t, 1], mem_t[t, 2]
-            e1, e2, e3, k1, k2, k3, s1, s2, s3, ia, ib, ic, nij, nik, njk = \
-                _timo_measures(g_t6, t, q_nd, i, j, k, ef)
-            w = pw_t[t]
-            g1, g2, g3 = w * Ke * e1, w * Ke * e2, w * Ke * e3
-            buf_cnd[ch, i, 0] -= -(ia + ib) * g1 + ia * g2 + ib * g3
-            buf_cnd[ch, j, 0] -= ia * g1 - (ic + ia) * g2 + ic * g3
-            buf_cnd[ch, k, 0] -= ib * g1 + ic * g2 - (ic + ib) * g3
-            g1, g2, g3 = w * Kp * k1, w * Kp * k2, w * Kp * k3
-            buf_cnd[ch, i, 2] -= -(ia + ib) * g1 + ia * g2 + ib * g3
-            buf_cnd[ch, j, 2] -= ia * g1 - (ic + ia) * g2 + ic * g3
-            buf_cnd[ch, k, 2] -= ib * g1 + ic * g2 - (ic + ib) * g3
-            g1, g2, g3 = w * Ks * s1, w * Ks * s2, w * Ks * s3
-            buf_cnd[ch, i, 1] -= -(ia + ib) * g1 + ia * g2 + ib * g3
-            buf_cnd[ch, j, 1] -= ia * g1 - (ef * ic + ia) * g2 + ef * ic * g3
-            buf_cnd[ch, k, 1] -= ib * g1 + ef * ic * g2 - (ef * ic + ib) * g3
-            buf_cnd[ch, i, 2] -= -0.5 * (nij + nik) * g1 + 0.5 * nij * g2 + 0.5 * nik * g3
-            buf_cnd[ch, j, 2] -= -0.5 * nij * g1 + (0.5 * nij - 0.5 * ef * njk) * g2 \
-                + 0.5 * ef * njk * g3
-            buf_cnd[ch, k, 2] -= -0.5 * nik * g1 - 0.5 * ef * njk * g2 \
-                + (0.5 * ef * njk + 0.5 * nik) * g3
+        for i in range(i0, i1):
+            fu = 0.0
+            fw = 0.0
+            fp = 0.0
+            for t in range(off_t[i], off_t[i + 1]):
+                j, k = mem_t[t, 1], mem_t[t, 2]
+                e1, e2, e3, k1, k2, k3, s1, s2, s3, ia, ib, ic, nij, nik, njk = \
+                    _timo_measures(g_t6, t, q_nd, i, j, k, ef)
+                w = pw_t[t]
+                g1, g2, g3 = w * Ke * e1, w * Ke * e2, w * Ke * e3
+                fu -= -(ia + ib) * g1 + ia * g2 + ib * g3
+                buf_cnd[ch, j, 0] -= ia * g1 - (ic + ia) * g2 + ic * g3
+                buf_cnd[ch, k, 0] -= ib * g1 + ic * g2 - (ic + ib) * g3
+                h1, h2, h3 = w * Kp * k1, w * Kp * k2, w * Kp * k3
+                c1, c2, c3 = w * Ks * s1, w * Ks * s2, w * Ks * s3
+                fp -= -(ia + ib) * h1 + ia * h2 + ib * h3 \
+                    - 0.5 * (nij + nik) * c1 + 0.5 * nij * c2 + 0.5 * nik * c3
+                buf_cnd[ch, j, 2] -= ia * h1 - (ic + ia) * h2 + ic * h3 \
+                    - 0.5 * nij * c1 + (0.5 * nij - 0.5 * ef * njk) * c2 + 0.5 * ef * njk * c3
+                buf_cnd[ch, k, 2] -= ib * h1 + ic * h2 - (ic + ib) * h3 \
+                    - 0.5 * nik * c1 - 0.5 * ef * njk * c2 + (0.5 * ef * njk + 0.5 * nik) * c3
+                fw -= -(ia + ib) * c1 + ia * c2 + ib * c3
+                buf_cnd[ch, j, 1] -= ia * c1 - (ef * ic + ia) * c2 + ef * ic * c3
+                buf_cnd[ch, k, 1] -= ib * c1 + ef * ic * c2 - (ef * ic + ib) * c3
+            buf_cnd[ch, i, 0] += fu
+            buf_cnd[ch, i, 1] += fw
+            buf_cnd[ch, i, 2] += fp
 
 
 @nb.njit(parallel=True, cache=True)
@@ -437,7 +445,7 @@ def _check_line(system, family, name):
         raise ValueError(f"model {name!r} needs a 1D body (line_lattice), got dim={system.dim}")
 
 
-class _TripletBeam(Model):
+class _TripletModel(Model):
     """Shared machinery: measure tables ``coef (nt, M, 3, nd)``, weights ``W (nt, M)``,
     dof gather/scatter, forces, energy, bounds."""
 
@@ -565,7 +573,7 @@ class _TripletBeam(Model):
 
 
 # =========================================================================== Timoshenko
-class TridynTimoshenko(_TripletBeam):
+class TridynTimoshenko(_TripletModel):
     """Tridynamic Timoshenko beam (seed 004 ch. 3): dofs u (x), w (z), phi (field "rot").
 
     Parameters
@@ -712,7 +720,7 @@ class TridynTimoshenko(_TripletBeam):
 
 
 # =========================================================================== Euler-Bernoulli
-class TridynEB(_TripletBeam):
+class TridynEB(_TripletModel):
     """Tridynamic Euler-Bernoulli beam (seed 004 ch. 2): dof w (z translation).
 
     Parameters
@@ -971,7 +979,7 @@ def beam_reference(x, length, q, EI, supports, kGA=None):
 
 
 # =========================================================================== FSDT plate
-class TridynPlate(_TripletBeam):
+class TridynPlate(_TripletModel):
     """Energy-consistent tridynamic FSDT (Mindlin) plate (seed 004 ch. 4, corrected).
 
     Degrees of freedom u, v, w (translations x, y, z) and the rotations phi_x, phi_y
