@@ -1,4 +1,7 @@
-"""Tridynamic beams (seed 004, ch. 2-3): three-particle interactions on the engine.
+"""Tridynamic beams and plates (seed 004, ch. 2-4): three-particle interactions on the engine.
+
+Beams (:class:`TridynEB`, :class:`TridynTimoshenko`) below; the FSDT plate
+(:class:`TridynPlate`) has its own docstring.
 
 Bodies are 1D chains of particles on the x axis (``line_lattice``); the transverse
 displacement w is the z translation, the axial displacement u the x translation and the
