@@ -332,3 +332,9 @@ def test_run_resume_with_fields_matches_uninterrupted(tmp_path):
     assert np.allclose(c.state.fields["rot"], a.state.fields["rot"], rtol=1e-12, atol=1e-20)
     assert np.allclose(c.state.field_v["rot"], a.state.field_v["rot"], rtol=1e-12, atol=1e-20)
     assert np.abs(a.state.fields["rot"]).max() > 0
+
+
+def test_adr_refuses_fields():
+    sim = _sim(_timo())
+    with pytest.raises(ValueError, match="fields"):
+        sim.relax()

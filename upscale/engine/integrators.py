@@ -173,6 +173,10 @@ class AdaptiveDynamicRelaxation:
         self.dt = float(dt)
 
     def run(self, sim, progress: bool = False) -> dict:
+        if getattr(sim, "field_specs", None):
+            raise ValueError(f"adaptive dynamic relaxation moves translations only; fields "
+                             f"{sorted(sim.field_specs)} need upscale.engine.fields.solve_static "
+                             f"(linear models) or velocity Verlet")
         st = sim.state
         R = np.zeros(sim.system.n)
         for m in sim.models:
