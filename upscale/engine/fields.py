@@ -144,12 +144,6 @@ class Tie(Displacement):
         if np.isin(self.masters, region.index).any():
             raise ValueError(f"tie on {region.name!r}: a ghost cannot be its own master")
 
-    def _arrays(self, state):
-        kind, c = self.target
-        if kind == "y":
-            return None, c
-        return kind, c
-
     def apply(self, state, t, dt=None) -> None:
         kind, c = self.target
         g, m, w = self.region.index, self.masters, self.weights
