@@ -300,7 +300,7 @@ def _best(fn, reps):
     return best
 
 
-@case("bench-tridyn", "time per particle-step of the tridynamic beam kernels vs the PMB kernel "
+@case("bench-tridyn", "time per particle-step of the tridynamic beam and plate kernels vs the PMB kernel "
       "(same particles, same horizon, one run)", )
 def run_bench(args):
     from upscale.engine.families import build_family
