@@ -197,3 +197,36 @@ def test_cli_one_line_error_and_exit_code(tmp_path, capsys):
     assert err.startswith("upscale sweep: error: parameter x='one'") and "\n" not in err
     assert main(["sweep", str(tmp_path / "missing.toml")]) == 2
     assert "no such file" in capsys.readouterr().err
+
+
+def test_execute_sets_numba_threads_and_records_the_error_line():
+    rec = sweep.execute("test_sweep:square", {"x": 2.0}, numba_threads=1)
+    assert rec["status"] == "ok" and rec["result"] == {"y": 4.0, "nested": {"x_twice": 4.0}}
+    assert rec["numba_threads"] == 1
+    rec = sweep.execute("test_sweep:fails_at_three", {"x": 3.0})
+    assert rec["status"] == "error" and rec["error"].startswith("RuntimeError: deliberate")
+    rec = sweep.execute("test_sweep:not_a_dict", {})
+    assert rec["status"] == "error" and "returned a list" in rec["error"]
+
+
+def not_a_dict() -> list:
+    """A broken scene: returns a list."""
+    return [1.0]
+
+
+def test_plot_x_must_be_a_parameter(tmp_path):
+    with pytest.raises(ValueError, match="plot x = 'seedz'; valid: a parameter"):
+        sweep.load_spec(_spec(tmp_path, plot={"x": "seedz", "metrics": ["y"]}))
+
+
+def test_sweep_machinery_does_not_import_validation():
+    """Layering: upscale.experiments must not need validation (a fresh interpreter)."""
+    import subprocess
+    import sys
+
+    code = ("import sys, upscale.experiments.sweep as s; s.load_spec({'scene': 'cpd-bar', "
+            "'output': 'x', 'grid': {'ratio': [2.0]}}); "
+            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'validation'))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True)
+    assert out.stdout.strip() == "[]"
