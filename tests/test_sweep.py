@@ -168,6 +168,7 @@ def test_unreachable_scheduler(tmp_path):
         sweep.run_sweep(_spec(tmp_path), scheduler=addr, timeout=0.5, progress=False)
     assert f"scheduler '{addr}' unreachable within 0.5 s" in str(err.value)
     assert "\n" not in str(err.value)
+    assert not (tmp_path / "out").exists()  # nothing written
 
 
 def test_folder_of_another_spec_is_refused(tmp_path, cluster):

@@ -463,10 +463,8 @@ def _now() -> str:
     return datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%dT%H:%M:%S.%fZ")
 
 
-def _claim_folder(spec: Spec) -> None:
-    """Write ``sweep.json`` into a new or empty folder, or check it is this spec's."""
-    from upscale.io import write_json
-
+def _check_folder(spec: Spec) -> bool:
+    """Check that the output folder is this spec's (True) or new or empty (False)."""
     out = spec.output
     f = out / "sweep.json"
     if f.is_file():
@@ -481,13 +479,21 @@ def _claim_folder(spec: Spec) -> None:
                 f"{len(held.get('identity', {}).get('runs', []))} runs, spec "
                 f"{held.get('spec_hash')}; this spec {spec.spec_hash}); valid: the same spec "
                 "or a new output folder")
-        return
+        return True
     if out.exists() and (not out.is_dir() or any(out.iterdir())):
         raise ValueError(f"output {str(out)!r} exists and is not a sweep's folder (no "
                          "sweep.json); valid: a new or empty folder")
-    write_json(f, {"scene": spec.scene, "target": spec.target, "spec_hash": spec.spec_hash,
-                   "identity": spec.identity, "param_names": spec.param_names,
-                   "plot": spec.plot, "created_utc": _now()})
+    return False
+
+
+def _claim_folder(spec: Spec) -> None:
+    """Write ``sweep.json``, which makes the folder this spec's."""
+    from upscale.io import write_json
+
+    write_json(spec.output / "sweep.json", {
+        "scene": spec.scene, "target": spec.target, "spec_hash": spec.spec_hash,
+        "identity": spec.identity, "param_names": spec.param_names, "plot": spec.plot,
+        "created_utc": _now()})
 
 
 def _result_path(out: Path, rid: str) -> Path:
@@ -581,7 +587,7 @@ def run_sweep(spec, *, output=None, workers=None, scheduler=None, timeout=None,
     timeout = cfg.get("timeout", 10.0)
     if isinstance(timeout, bool) or not isinstance(timeout, (int, float)) or not timeout > 0:
         raise ValueError(f"timeout={timeout!r}; valid: seconds > 0")
-    _claim_folder(spec)
+    ours = _check_folder(spec)
     code = code_version()
     out = spec.output
     ids = [run_id(spec.target, p, code) for p in spec.runs]
@@ -595,13 +601,17 @@ def run_sweep(spec, *, output=None, workers=None, scheduler=None, timeout=None,
     session = {"started_utc": _now(), "pid": os.getpid(), "code_version": code,
                "planned": len(ids), "skipped": skipped, "executed": [], "failed": []}
     sess_file = out / "sessions" / f"{session['started_utc'].replace(':', '')}-{os.getpid()}.json"
-    write_json(sess_file, session)
     nworkers, nt, t_compute = 0, None, 0.0
-    if todo:
+    client = cluster = None
+    if todo:  # connect before writing anything: an unreachable scheduler leaves no trace
         client, cluster, nt = _connect(spec, cfg.get("workers"), cfg.get("scheduler"),
                                        timeout, cfg.get("numba_threads"),
                                        bool(cfg.get("processes", True)))
-        try:
+    try:
+        if not ours:
+            _claim_folder(spec)
+        write_json(sess_file, session)
+        if todo:
             from distributed import as_completed
             from tqdm import tqdm
 
@@ -633,10 +643,11 @@ def run_sweep(spec, *, output=None, workers=None, scheduler=None, timeout=None,
                 fut.release()
             bar.close()
             t_compute = time.perf_counter() - t0
-        finally:
+    finally:
+        if client is not None:
             client.close()
-            if cluster is not None:
-                cluster.close()
+        if cluster is not None:
+            cluster.close()
     table = gather(spec, code=code)
     plots = plot_summary(spec, table) if spec.plot else []
     failed = [r["run_id"] for r in table["rows"] if r["status"] == "error"]
