@@ -52,9 +52,10 @@ Identity and restarts
 
 Parallelism
     By default a ``LocalCluster`` with one worker process per core and one task thread per
-    worker: the scenes' numba kernels are not safe to enter from two Python threads of one
-    process with numba's default threading layer, and processes sidestep the GIL in the
-    Python parts of a scene. Each worker's numba gets ``cores // workers`` threads
+    worker: two tasks in one process would each start their own team of numba threads (and
+    numba's ``workqueue`` layer, its fallback without OpenMP or TBB, must not be entered
+    from two threads at once), and processes sidestep the GIL in the Python parts of a
+    scene. Each worker's numba gets ``cores // workers`` threads
     (``NUMBA_NUM_THREADS`` in the worker's environment and :func:`numba.set_num_threads`
     in the task), so the kernels of all workers together use the cores once, not once per
     worker. On an existing cluster (``scheduler``) the task sets one numba thread unless
