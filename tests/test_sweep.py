@@ -1,8 +1,9 @@
 """The sweep machinery (upscale.experiments.sweep) on a LocalCluster with trivial scenes.
 
 The scenes below are module-level functions of this module, so the sweep can name them
-(``test_sweep:square``); the cluster runs its workers as threads of this process, which
-starts in well under a second and imports nothing new.
+(``test_sweep:square``); the shared cluster runs its workers as threads of this process,
+which starts in well under a second and imports nothing new; one test starts the default
+LocalCluster of worker processes (a few seconds).
 """
 import csv
 import json
@@ -231,3 +232,17 @@ def test_sweep_machinery_does_not_import_validation():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True)
     assert out.stdout.strip() == "[]"
+
+
+def test_local_cluster_of_processes_sets_numba_threads(tmp_path):
+    """The default LocalCluster (worker processes): each worker's numba is capped at
+    cores // workers through its environment, and the task uses that many threads."""
+    import os
+
+    rep = sweep.run_sweep(_spec(tmp_path, seeds=[0], grid={"x": [1.0, 2.0]}, plot={}),
+                          workers=2, progress=False)
+    recs = [json.loads(p.read_text()) for p in (tmp_path / "out" / "runs").glob("*/result.json")]
+    assert len(recs) == 2 and all(r["status"] == "ok" for r in recs)
+    want = max(1, (os.cpu_count() or 1) // 2)
+    assert rep["numba_threads"] == want and all(r["numba_threads"] == want for r in recs)
+    assert all(r["pid"] != os.getpid() for r in recs)  # ran in the worker processes
