@@ -41,7 +41,8 @@ Identity and restarts
     A run's identity is a hash of the scene's full name, its parameters and the code version
     (:func:`code_version`: the package version and, in a git checkout, the commit and a hash
     of uncommitted changes), so a result computed by other code is never taken for this
-    code's. Each result is written atomically (:func:`upscale.io.write_json`, a temporary
+    code's: after a code change the sweep reruns every run, and the earlier version's
+    results stay in their folders, out of the table. Each result is written atomically (:func:`upscale.io.write_json`, a temporary
     file and :func:`os.replace`) by the driver as soon as it arrives, so killing the sweep
     loses only the runs in flight, and a restart skips every run whose ``result.json``
     exists. A run that raises is recorded with its error and traceback (status
