@@ -42,10 +42,10 @@ Identity and restarts
     (:func:`code_version`: the package version and, in a git checkout, the commit and a hash
     of uncommitted changes), so a result computed by other code is never taken for this
     code's: after a code change the sweep reruns every run, and the earlier version's
-    results stay in their folders, out of the table. Each result is written atomically (:func:`upscale.io.write_json`, a temporary
-    file and :func:`os.replace`) by the driver as soon as it arrives, so killing the sweep
-    loses only the runs in flight, and a restart skips every run whose ``result.json``
-    exists. A run that raises is recorded with its error and traceback (status
+    results stay in their folders, out of the table. Each result is written atomically
+    (:func:`upscale.io.write_json`, a temporary file and :func:`os.replace`) by the driver
+    as soon as it arrives, so killing the sweep loses only the runs in flight, and a
+    restart skips every run whose ``result.json`` exists. A run that raises is recorded with its error and traceback (status
     ``"error"``) and the others go on; a restart does not retry it unless asked
     (``retry_failed``): with the same code and parameters it would fail the same way.
     The output folder belongs to one spec: a different spec there is refused, so nothing
