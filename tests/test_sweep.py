@@ -246,3 +246,47 @@ def test_local_cluster_of_processes_sets_numba_threads(tmp_path):
     want = max(1, (os.cpu_count() or 1) // 2)
     assert rep["numba_threads"] == want and all(r["numba_threads"] == want for r in recs)
     assert all(r["pid"] != os.getpid() for r in recs)  # ran in the worker processes
+
+
+def nap(seconds: float = 1.0, seed: int = 0) -> dict:
+    """A scene that takes its time: sleeps, returns the seed."""
+    import time
+
+    time.sleep(seconds)
+    return {"seed_back": seed}
+
+
+@pytest.mark.slow
+def test_sigkill_of_the_command_and_restart(tmp_path):
+    """``upscale sweep`` killed (SIGKILL, its process group) midway, then restarted: the
+    finished runs' files are untouched, the rest run, and no process of the group is left."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    root = Path(sweep.__file__).resolve().parents[2]
+    f = tmp_path / "s.toml"
+    f.write_text(f'scene = "test_sweep:nap"\noutput = "{tmp_path / "o"}"\nrepeats = 8\n'
+                 '[params]\nseconds = 1.0\n[run]\nworkers = 2\n')
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([str(root), str(Path(__file__).parent)])}
+    cmd = [sys.executable, "-m", "upscale.cli", "sweep", str(f), "--no-progress"]
+    proc = subprocess.Popen(cmd, env=env, start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    runs = tmp_path / "o" / "runs"
+    while proc.poll() is None and len(list(runs.glob("*/result.json"))) < 3:
+        time.sleep(0.05)
+    assert proc.poll() is None, "the sweep ended before it could be killed"
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    before = {p: p.stat().st_mtime_ns for p in runs.glob("*/result.json")}
+    assert 3 <= len(before) < 8
+    out = subprocess.run(cmd, env=env, capture_output=True, text=True, check=True).stdout
+    assert f"8 runs: {len(before)} already done, {8 - len(before)} run now, 0 failed" in out
+    assert all(p.stat().st_mtime_ns == t for p, t in before.items())
+    rows = _csv(tmp_path / "o" / "results.csv")
+    assert sorted(int(r["seed_back"]) for r in rows) == list(range(8))
+    with pytest.raises(ProcessLookupError):
+        os.killpg(proc.pid, 0)
