@@ -1,0 +1,298 @@
+"""Sweeps on Dask (``upscale.experiments.sweep``) checked on a real ensemble: sweep-check.
+
+The ensemble is the (10,10) 4-atom-vacancy tube's coarse thermal seeds at coarsening 2
+(``dcbr-seeds``' scene, seeds 1000, 1001, ...), whose 16 runs are stored in
+``validation/results/dcbr_seeds_small_K2.json``; with ``--lammps-seeds`` also LAMMPS
+reference seeds of the same tube as tasks of a sweep (one MPI rank each), against
+``data/reference/seed_spread.json``. The case runs the ensemble
+
+1. on two LocalCluster workers, uninterrupted, plus one run that raises (a negative
+   temperature): the seeds' figures against the stored ones, exactly, and the failure
+   listed with its error while the others complete;
+2. on one worker: the speed-up of two workers over one (whole sweep, cluster start
+   included), with the machine's load average beside it, since two workers on two cores
+   measure nothing while other jobs use the cores;
+3. through the command line ``upscale sweep``, killed with SIGKILL (its whole process
+   group: driver, nanny and worker processes) once half the runs are written, then
+   restarted: how many finished runs the restart redid, how many runs are missing from
+   the final table, and whether the table equals the uninterrupted sweep's (wall times
+   aside).
+"""
+from __future__ import annotations
+
+import csv
+import datetime
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from validation.registry import case, table
+
+RESULTS = Path(__file__).resolve().parents[1] / "results"
+ROOT = Path(__file__).resolve().parents[2]
+KEYS = ("strength_GPa", "strain_at_peak", "youngs_modulus_TPa", "strain_at_peak_ext",
+        "youngs_modulus_ext_TPa")
+SEED0 = 1000  # dcbr-seeds' first seed
+
+
+# ----------------------------------------------------------------------------- scenes
+def coarse_vacancy_seed(n: int = 10, m: int = 10, coarsening: float = 2.0, seed: int = SEED0,
+                        temperature: float = 10.0) -> dict:
+    """One thermal seed of the coarse dynamic tension of the (n, m) 4-atom-vacancy tube.
+
+    The single-seed run of ``dcbr-seeds`` (its scene, :func:`validation.cases.dcbr.
+    dynamic_scene`, and protocol, LAMMPS's grips and gauge from the dynamic reference),
+    reached through this one function so that the sweep follows the scene wherever it is
+    kept. Returns the five figures ``dcbr-seeds`` stores, the grips and the DOF.
+    """
+    from upscale.models.dcbr_dynamic import dynamic_tension
+    from validation.cases.dcbr import _lammps_reference, dynamic_scene
+
+    ref = _lammps_reference(n, m, 150.0, protocol="dynamic", vacancy=True, progress=False)
+    model, dyn = dynamic_scene(n, m, 150.0, coarsening, ref, vacancy=True)
+    grips = dyn.pop("grips")
+    r = dynamic_tension(model, seed=seed, temperature=temperature, **dyn)
+    return {**{k: r[k] for k in KEYS}, "grips": grips, "dof": r.get("dof")}
+
+
+def lammps_vacancy_seed(n: int = 10, m: int = 10, seed: int = 4928459, nprocs: int = 1) -> dict:
+    """One thermal seed of the LAMMPS dynamic reference of the (n, m) vacancy tube, the
+    protocol of ``reference-seeds`` (:func:`validation.lammps.tension.dynamic_tension`), on
+    ``nprocs`` MPI ranks (1: in the worker's process; more: through the mpich wheel's
+    ``mpiexec``)."""
+    from validation.cases.references import DYN_LENGTH, _spec, build_structure
+    from validation.lammps.tension import dynamic_tension
+
+    atoms = build_structure(_spec("dynamic", n, m, True, DYN_LENGTH))
+    r = dynamic_tension(atoms, "tersoff:BNC.tersoff", cutoff="step", seed=seed, nprocs=nprocs)
+    return {k: r[k] for k in KEYS}
+
+
+# ------------------------------------------------------------------------------ check
+def _ensemble_spec(seeds, out: Path) -> dict:
+    return {"scene": f"{__name__}:coarse_vacancy_seed", "output": str(out),
+            "params": {"n": 10, "m": 10, "coarsening": 2.0}, "seeds": list(seeds),
+            "runs": [{"seed": SEED0, "temperature": -1.0}],  # raises: a deliberate failure
+            "plot": {"x": "coarsening", "metrics": ["strength_GPa", "youngs_modulus_TPa",
+                                                    "strain_at_peak"]}}
+
+
+def _toml(spec: dict) -> str:
+    """The ensemble spec as TOML (the command line reads files; its values are simple)."""
+    def val(v):
+        return json.dumps(v)
+
+    lines = [f"scene = {val(spec['scene'])}", f"output = {val(spec['output'])}",
+             f"seeds = {val(spec['seeds'])}"]
+    for sec in ("params", "plot"):
+        lines.append(f"[{sec}]")
+        lines += [f"{k} = {val(v)}" for k, v in spec[sec].items()]
+    for r in spec["runs"]:
+        lines.append("[[runs]]")
+        lines += [f"{k} = {val(v)}" for k, v in r.items()]
+    return "\n".join(lines) + "\n"
+
+
+def _csv(path):
+    with open(path) as fh:
+        return list(csv.DictReader(fh))
+
+
+def _no_wall(rows):
+    return [{k: v for k, v in r.items() if k != "wall_s"} for r in rows]
+
+
+def _cli(spec_file: Path, workers: int) -> list[str]:
+    return [sys.executable, "-m", "upscale.cli", "sweep", str(spec_file), "--workers",
+            str(workers), "--no-progress"]
+
+
+def _env():
+    env = dict(os.environ)
+    env["PYTHONPATH"] = os.pathsep.join([str(ROOT), env.get("PYTHONPATH", "")]).rstrip(os.pathsep)
+    return env
+
+
+def _kill_and_resume(spec: dict, workers: int, kill_after: int) -> dict:
+    """Run the sweep through ``upscale sweep``, SIGKILL its process group after
+    ``kill_after`` results are on disk, restart it to the end; count what was redone/lost."""
+    from upscale.experiments import sweep
+
+    out = Path(spec["output"])
+    f = out.parent / f"{out.name}.toml"
+    f.write_text(_toml(spec))
+    runs = out / "runs"
+    t0 = time.perf_counter()
+    proc = subprocess.Popen(_cli(f, workers), env=_env(), start_new_session=True,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    while proc.poll() is None and len(list(runs.glob("*/result.json"))) < kill_after:
+        time.sleep(0.1)
+    if proc.poll() is not None:
+        raise RuntimeError(f"the sweep ended (exit {proc.returncode}) before {kill_after} runs "
+                           f"were written; run {' '.join(_cli(f, workers))} to see why")
+    os.killpg(proc.pid, signal.SIGKILL)  # the driver, its nannies and workers
+    proc.wait()
+    t_kill = time.perf_counter() - t0
+    survivors = True
+    for _ in range(50):
+        try:
+            os.killpg(proc.pid, 0)
+        except ProcessLookupError:
+            survivors = False
+            break
+        time.sleep(0.1)
+    before = {p.parent.name: (p.stat().st_ino, p.stat().st_mtime_ns)
+              for p in runs.glob("*/result.json")}
+    partial = list(runs.glob("*/.result.json.*.tmp"))
+    res = subprocess.run(_cli(f, workers), env=_env(), capture_output=True, text=True)
+    if res.returncode != 0:
+        raise RuntimeError(f"restart failed (exit {res.returncode}): "
+                           f"{res.stderr.strip().splitlines()[-1:]}")
+    sessions = sorted((out / "sessions").glob("*.json"), key=lambda p: p.stat().st_mtime_ns)
+    restart = json.loads(sessions[-1].read_text())
+    after = {p.parent.name: (p.stat().st_ino, p.stat().st_mtime_ns)
+             for p in runs.glob("*/result.json")}
+    redone = {r for r in restart["executed"] if r in before} | {
+        r for r, st in before.items() if after.get(r) != st}
+    rows = sweep.gather(sweep.load_spec(spec))["rows"]
+    done = {r["run_id"] for r in rows if r["status"] in ("ok", "error")}
+    lost = (set(before) - done) | {r["run_id"] for r in rows if r["status"] == "missing"}
+    return {"finished_before_kill": len(before), "killed_after_s": t_kill,
+            "processes_left_after_kill": survivors, "temporary_files_left": len(partial),
+            "restart_executed": len(restart["executed"]), "restart_skipped":
+            len(restart["skipped"]), "redone": sorted(redone), "lost": sorted(lost),
+            "table": str(out / "results.csv")}
+
+
+def _args(p):
+    p.add_argument("--seeds", type=int, default=None,
+                   help="coarse seeds in the ensemble (default 16, --quick 4)")
+    p.add_argument("--lammps-seeds", type=int, default=None,
+                   help="LAMMPS reference seeds run as a sweep of their own and compared "
+                        "with data/reference/seed_spread.json (default 2, --quick 0)")
+    p.add_argument("--no-speedup", action="store_true",
+                   help="skip the one-worker run (no speed-up figure)")
+
+
+@case("sweep-check", "sweeps on Dask: the (10,10) vacancy K=2 seed ensemble as a sweep "
+      "against its stored runs, speed-up of 2 workers, SIGKILL + restart, a failing run",
+      add_arguments=_args)
+def _sweep_check(args):
+    from upscale.experiments import sweep
+
+    nseeds = args.seeds or (4 if args.quick else 16)
+    nlammps = args.lammps_seeds if args.lammps_seeds is not None else (0 if args.quick else 2)
+    stored_all = json.loads((RESULTS / "dcbr_seeds_small_K2.json").read_text())["result"]
+    stored = stored_all["tubes"]["10,10"]["runs"]
+    if not 1 <= nseeds <= len(stored):
+        raise SystemExit(f"--seeds {nseeds}; valid: 1..{len(stored)} (the stored seeds)")
+    seeds = [SEED0 + i for i in range(nseeds)]
+    by_seed = {r["seed"]: r for r in stored}
+    base = Path(args.outdir) / datetime.datetime.now(datetime.timezone.utc).strftime(
+        "run-%Y%m%dT%H%M%SZ")
+    load0 = os.getloadavg()
+    print(f"sweep-check: {nseeds} coarse seeds + 1 failing run; load average {load0[0]:.2f} "
+          f"(1 min), {os.cpu_count()} cores; folders under {base}", flush=True)
+
+    # 1. two workers, uninterrupted
+    spec_a = _ensemble_spec(seeds, base / "two_workers")
+    rep_a = sweep.run_sweep(spec_a, workers=2)
+    rows_a = sweep.gather(sweep.load_spec(spec_a))["rows"]
+    ens = [r for r in rows_a if r.get("temperature") is None]
+    per_seed = []
+    for r in ens:
+        s = by_seed[r["seed"]]
+        per_seed.append({"seed": r["seed"], "status": r["status"],
+                         "strength_GPa": r.get("strength_GPa"),
+                         "stored_strength_GPa": s["strength_GPa"],
+                         "all_5_equal": r["status"] == "ok" and all(r[k] == s[k] for k in KEYS)})
+    print(table(per_seed, floatfmt=".10g"))
+    seeds_equal = all(p["all_5_equal"] for p in per_seed)
+    means = {}
+    if nseeds == len(stored):  # the stored seed means (dcbr-seeds' _stats: numpy mean in order)
+        st = stored_all["tubes"]["10,10"]["stats"]
+        for k in KEYS:
+            v = float(np.array([r[k] for r in sorted(ens, key=lambda r: r["seed"])]).mean())
+            means[k] = {"sweep": v, "stored": st[k]["mean"], "equal": v == st[k]["mean"]}
+        print(table([{"figure": k, **v} for k, v in means.items()], floatfmt=".12g"))
+    reproduces = seeds_equal and all(v["equal"] for v in means.values())
+    bad = [r for r in rows_a if r["status"] == "error"]
+    rec = json.loads((base / "two_workers" / "runs" / bad[0]["run_id"] / "result.json")
+                     .read_text()) if bad else {}
+    failed_recorded = (len(bad) == 1 and bad[0].get("temperature") == -1.0
+                       and "temperature=-1.0" in bad[0]["error"]
+                       and "Traceback" in rec.get("traceback", "")
+                       and all(r["status"] == "ok" for r in ens))
+    print(f"failing run listed: {failed_recorded} ({bad[0]['error'] if bad else 'none'})")
+
+    # 2. one worker: speed-up
+    speed = {}
+    if not args.no_speedup:
+        load1 = os.getloadavg()
+        rep_b = sweep.run_sweep(_ensemble_spec(seeds, base / "one_worker"), workers=1)
+        load2 = os.getloadavg()
+        speed = {"speedup_2workers": rep_b["wall_s"] / rep_a["wall_s"],
+                 "speedup_2workers_compute": rep_b["compute_s"] / rep_a["compute_s"],
+                 "wall_1worker_s": rep_b["wall_s"], "wall_2workers_s": rep_a["wall_s"],
+                 "load_avg_1min_at_start": [load0[0], load1[0], load2[0]]}
+        quiet = max(load0[0], load1[0], load2[0]) < 0.5
+        speed["speedup_pass"] = speed["speedup_2workers"] >= 1.7 if quiet else None
+        print(f"1 worker {rep_b['wall_s']:.1f} s, 2 workers {rep_a['wall_s']:.1f} s: speed-up "
+              f"{speed['speedup_2workers']:.2f}x (compute phase "
+              f"{speed['speedup_2workers_compute']:.2f}x); load averages "
+              f"{load0[0]:.2f} / {load1[0]:.2f} / {load2[0]:.2f}"
+              + ("" if quiet else " (not a quiet machine: re-measure with nothing else "
+                                  "running)"), flush=True)
+
+    # 3. SIGKILL midway, restart
+    spec_c = _ensemble_spec(seeds, base / "killed")
+    kr = _kill_and_resume(spec_c, 2, max(1, (nseeds + 1) // 2))
+    same_table = _no_wall(_csv(kr["table"])) == _no_wall(_csv(rep_a["table"]))
+    print(f"killed after {kr['finished_before_kill']} of {nseeds + 1} runs "
+          f"({kr['killed_after_s']:.1f} s); processes left: {kr['processes_left_after_kill']};"
+          f" restart ran {kr['restart_executed']}, skipped {kr['restart_skipped']}; redone "
+          f"{len(kr['redone'])}, lost {len(kr['lost'])}; table equals the uninterrupted "
+          f"sweep's: {same_table}", flush=True)
+
+    # 4. LAMMPS reference seeds as tasks
+    lam = {}
+    if nlammps:
+        from validation.cases.references import REF_DIR
+        from validation.cases.seeds import SEEDS_LAMMPS
+
+        ref = json.loads((REF_DIR / "seed_spread.json").read_text())
+        ref = {r["seed"]: r for r in ref.get("result", ref)["tubes"]["10,10"]["runs"]}
+        lseeds = [s for s in SEEDS_LAMMPS if s in ref][:nlammps]
+        spec_d = {"scene": f"{__name__}:lammps_vacancy_seed", "output": str(base / "lammps"),
+                  "seeds": lseeds}
+        rep_d = sweep.run_sweep(spec_d, workers=min(2, len(lseeds)))
+        rows_d = sweep.gather(sweep.load_spec(spec_d))["rows"]
+        eq = [r["status"] == "ok" and all(r[k] == ref[r["seed"]][k] for k in KEYS)
+              for r in rows_d]
+        lam = {"lammps_seeds": lseeds, "lammps_reproduces_stored": all(eq),
+               "lammps_wall_s": rep_d["wall_s"]}
+        print(f"LAMMPS seeds {lseeds} as sweep tasks: reproduce the stored runs: {eq}")
+
+    out = {"reproduces_stored": reproduces, "seeds": nseeds,
+           "compared": "seed means and every seed's 5 figures" if means else
+                       "every seed's 5 figures (fewer seeds than stored: no means)",
+           "speedup_2workers": speed.get("speedup_2workers"),
+           "resumed_redone_runs": len(kr["redone"]), "resumed_lost_runs": len(kr["lost"]),
+           "failed_run_recorded": failed_recorded,
+           "resumed_table_equals_uninterrupted": same_table,
+           "processes_left_after_kill": kr["processes_left_after_kill"],
+           "killed_after_runs": kr["finished_before_kill"],
+           **{k: v for k, v in speed.items() if k != "speedup_2workers"}, **lam,
+           "means": means, "per_seed": per_seed, "folders": str(base),
+           "code_version": rep_a["code_version"]}
+    checks = [reproduces, failed_recorded, same_table, not kr["redone"], not kr["lost"],
+              not kr["processes_left_after_kill"], lam.get("lammps_reproduces_stored", True),
+              speed.get("speedup_pass") is not False]
+    out["pass"] = all(checks)
+    return out
