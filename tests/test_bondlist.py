@@ -146,3 +146,28 @@ def test_thread_chunks_cover_every_particle_once():
     for t in (1, 2, 3, 7):
         c = bl.chunks(t)
         assert c[0] == 0 and c[-1] == fam.n and np.all(np.diff(c) >= 0) and c.size == t + 1
+
+
+@pytest.mark.parametrize("threads", [1, 2])
+def test_lammps_contact_half_list_matches_directed_equations(threads):
+    from upscale.models.bond_based import LammpsContact
+
+    sysm, fam, st = _body()
+    st.y[...] = 0.8 * sysm.x0 + np.random.default_rng(4).normal(scale=0.05 * H, size=st.y.shape)
+    ct = LammpsContact(1e20, H)
+    ct.prepare(sysm, fam)
+    i, j = fam.owner, fam.neighbors
+    d = st.y[j] - st.y[i]
+    r = np.linalg.norm(d, axis=1)
+    dij = np.minimum(0.9 * fam.length, 1.35 * H)
+    on = r < dij
+    assert on.any() and not on.all()
+    ref = np.zeros_like(st.y)
+    np.add.at(ref, i, (on * 1e20 * sysm.volume[j] * (r - dij) / r)[:, None] * d)
+    set_threads(threads)
+    try:
+        out = ct.force(st)
+    finally:
+        set_threads(1)
+    assert np.abs(out - ref).max() <= 1e-13 * np.abs(ref).max()
+    assert ct.last_active == on.sum()

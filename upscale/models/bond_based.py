@@ -49,7 +49,7 @@ import numba as nb
 import numpy as np
 
 from upscale.engine.bondlist import BondList
-from upscale.engine.kernels import add_to_row, bond_length, bond_vector
+from upscale.engine.kernels import bond_length, bond_vector
 from upscale.models import register
 from upscale.models.base import Model, Needs
 
@@ -146,31 +146,43 @@ def pmb_energy_kernel(offsets, neighbors, length_b, w_b, y_nc, intact_b, c):
     return W
 
 
-@nb.njit(parallel=True, cache=True)
-def contact_kernel(offsets, neighbors, length_b, vol_n, y_nc, k15_over_delta, lc, out_nc):
-    """LAMMPS peri short-range contact: for family pairs closer than
-    d = min(0.9 |xi|, 1.35 lc), adds k (r - d) V_j / r * (y_j - y_i) (repulsive: r < d).
-    Returns the number of active (directed) contacts."""
-    n = offsets.shape[0] - 1
-    active = np.zeros(n, dtype=np.int64)
-    for i in nb.prange(n):
-        f0 = 0.0
-        f1 = 0.0
-        f2 = 0.0
+@nb.njit(parallel=True, cache=True, error_model="numpy")
+def contact_pair_kernel(row_n, j_p, k_p, dc_k, chunk_t, vol_n, y_nc, k15_over_delta, buf_tnc, zero):
+    """LAMMPS peri short-range contact over the half bond list: for a pair closer than
+    ``dc_k = min(0.9 |xi|, 1.35 lc)`` (per class) adds ``k (r - d) V_j / r (y_j - y_i)``
+    to i and the opposite with ``V_i`` to j (repulsive: r < d), intact or not. Thread t
+    adds into ``buf_tnc[t]``. Returns the number of active directed contacts."""
+    nt = chunk_t.shape[0] - 1
+    active = np.zeros(nt, dtype=np.int64)
+    for t in nb.prange(nt):
+        buf = buf_tnc[t]
+        if zero:
+            buf[:, :] = 0.0
         a = 0
-        for b in range(offsets[i], offsets[i + 1]):
-            j = neighbors[b]
-            d0, d1, d2, r = bond_vector(y_nc, i, j)
-            dij = min(0.9 * length_b[b], 1.35 * lc)
-            if r < dij:
-                rk = (k15_over_delta * vol_n[j]) * (r - dij)
-                fp = rk / r if r > 0.0 else 0.0
-                f0 += d0 * fp
-                f1 += d1 * fp
-                f2 += d2 * fp
-                a += 1
-        add_to_row(out_nc, i, f0, f1, f2)
-        active[i] = a
+        for i in range(chunk_t[t], chunk_t[t + 1]):
+            vi = vol_n[i]
+            f0 = 0.0
+            f1 = 0.0
+            f2 = 0.0
+            for p in range(row_n[i], row_n[i + 1]):
+                j = j_p[p]
+                d0, d1, d2, r = bond_vector(y_nc, i, j)
+                dij = dc_k[k_p[p]]
+                if r < dij:
+                    fp = k15_over_delta * (r - dij) / r if r > 0.0 else 0.0
+                    gi = fp * vol_n[j]
+                    gj = fp * vi
+                    f0 += gi * d0
+                    f1 += gi * d1
+                    f2 += gi * d2
+                    buf[j, 0] -= gj * d0
+                    buf[j, 1] -= gj * d1
+                    buf[j, 2] -= gj * d2
+                    a += 2
+            buf[i, 0] += f0
+            buf[i, 1] += f1
+            buf[i, 2] += f2
+        active[t] = a
     return active.sum()
 
 
@@ -388,7 +400,8 @@ class LammpsContact(Model):
     (peri/lps). LAMMPS applies it over its ordinary neighbour list (any particles within
     the cut-off in the *current* configuration); here it runs over the pair family
     (broken bonds included), which is the same set as long as no two particles that
-    started farther apart than the horizon come within 1.35 lc. ``last_active`` counts
+    started farther apart than the horizon come within 1.35 lc; each pair once, over the
+    half bond list of that family. ``last_active`` counts
     the active directed contacts of the last evaluation.
     """
 
@@ -415,15 +428,22 @@ class LammpsContact(Model):
         """``family`` given at construction (e.g. the family before a pre-crack was
         removed, as LAMMPS's neighbour list still holds those pairs) takes precedence."""
         super().prepare(system, self.contact_family if self.contact_family is not None else family, **kw)
+        self.bonds = BondList(self.family, system.volume)
+        self._k_p, L_k = self.bonds.classes()[:2]
+        self._dc_k = np.ascontiguousarray(np.minimum(0.9 * L_k, 1.35 * self.lc))
 
     def stiffness_bound(self):
         """No contact is active in the reference state: zero."""
         return np.zeros(self.system.n)
 
     def add_force(self, state, out):
-        f = self.family
-        self.last_active = int(contact_kernel(f.offsets, f.neighbors, f.length, self.system.volume,
-                                              state.y, self.k, self.lc, out))
+        bl = self.bonds
+        nt = nb.get_num_threads()
+        buf, zero = bl.target(out, nt)
+        self.last_active = int(contact_pair_kernel(bl.row_n, bl.j_p, self._k_p, self._dc_k,
+                                                   bl.chunks(nt), bl.volume, state.y, self.k,
+                                                   buf, zero))
+        bl.finish(buf, zero, out)
         self.max_active = max(self.max_active, self.last_active)
 
     def describe(self):

@@ -277,7 +277,7 @@ def bench_pmb(args):
             f"{pre}achieved_GBps_1thread": sb / t1 / 1e9,
         })
     tc = best["contact_engine_1t"]
-    rows.append({"code": "engine LAMMPS contact (directed family)", "threads": 1, "s_per_eval": tc,
+    rows.append({"code": "engine LammpsContact (half list)", "threads": 1, "s_per_eval": tc,
                  "Mbonds_per_s": nb_ / tc / 1e6})
     rows.append({"code": "engine (whole VV step, PMB)", "threads": 1, "s_per_eval": step1, "Mbonds_per_s": nb_ / step1 / 1e6})
     print(f"block {n + 1}^3 = {sysm.n} particles, horizon {P['horizon'] / P['lc']:.4f} spacings, "
