@@ -121,12 +121,12 @@ def test_lps_half_list_matches_directed_equations(name, irregular, shuffle, thre
 
 
 def test_layout_of_a_lattice():
-    """A lattice needs one byte of class per pair and 32-bit partners; a family that
+    """A lattice needs one byte of class per pair and unsigned 32-bit partners; a family that
     differs between directions is refused."""
     sysm, fam, _ = _body()
     bl = BondList(fam, sysm.volume)
     k_p, L_k, bf_k, br_k = bl.classes()
-    assert bl.npairs * 2 == fam.nb and k_p.dtype == np.uint8 and bl.j_p.dtype == np.int32
+    assert bl.npairs * 2 == fam.nb and k_p.dtype == np.uint8 and bl.j_p.dtype == np.uint32
     assert bl.fwd_p.size == 0
     fwd = bl.forward_index()
     np.testing.assert_array_equal(L_k[k_p], fam.length[fwd])

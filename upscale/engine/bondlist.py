@@ -10,7 +10,7 @@ This list holds each pair once: the pair's current length, its stretch and its f
 test are computed once and applied to both ends (Newton's third law), and per pair it
 streams only
 
-``j_p`` (int32)
+``j_p`` (uint32)
     the partner j > i; the pairs of particle i are ``row_n[i]:row_n[i+1]``, in the
     family's row order;
 ``k_p`` (uint8; uint16 or int32 when needed)
@@ -22,7 +22,7 @@ streams only
     it would otherwise store per bond (1/L, c beta, (L (1 + s0))^2, ...). On an
     irregular point cloud the classes are as many as the pairs and the tables are
     per-pair arrays: correct, only no smaller;
-``rev_p`` (int32; int64 beyond 2^31 bonds)
+``rev_p`` (uint32; uint64 beyond 2^32 bonds)
     the directed index of j->i in the family. The bond state stays the engine's
     ``state.intact (nb,) bool`` (read, not copied: anything that sets or checkpoints it
     keeps working); i->j is ``fwd_n[i] + (p - row_n[i])`` when the forward bonds of a row
@@ -32,6 +32,10 @@ streams only
     so a bond state that differs between the two directions is honoured;
 
 and reads per particle the positions ``y``, the volumes ``V`` and the output.
+
+The indices are unsigned and the kernels' inner loops run over unsigned pair indices:
+numba then emits no negative-index wraparound test per array access (signed indices cost
+a compare and a select on every load of the loop).
 
 Force densities with Newton's third law: a pair term ``g (y_j - y_i)`` acts as
 ``b_i += g V_j beta_ij (y_j - y_i)`` and ``b_j -= g V_i beta_ji (y_j - y_i)``.
@@ -110,12 +114,12 @@ class BondList:
         Particles, pairs (``family.nb / 2``).
     row_n : int64 (N+1,)
         Pair rows: particle i's pairs (partners j > i) are ``row_n[i]:row_n[i+1]``.
-    j_p : int32 (npairs,)
+    j_p : uint32 (npairs,)
     fwd_n : int64 (N,)
         Directed index of i's first forward bond (used when ``fwd_p`` is empty).
-    fwd_p : int32/int64 (npairs,) or (0,)
+    fwd_p : uint32/uint64 (npairs,) or (0,)
         Directed index of i->j, only when forward bonds are not contiguous in a row.
-    rev_p : int32/int64 (npairs,)
+    rev_p : uint32/uint64 (npairs,)
         Directed index of j->i.
     volume : float64 (N,)
     """
@@ -130,11 +134,11 @@ class BondList:
         if 2 * fwd.size != family.nb or np.any(nbr == owner):
             raise ValueError("the family must hold both directions of every bond and no self-bonds")
         self.npairs = int(fwd.size)
-        itype = np.int64 if family.nb >= 2 ** 31 - 1 else np.int32
+        itype = np.uint64 if family.nb >= 2 ** 32 else np.uint32
         cnt = np.bincount(owner[fwd], minlength=n).astype(np.int64)
         self.row_n = np.zeros(n + 1, dtype=np.int64)
         np.cumsum(cnt, out=self.row_n[1:])
-        self.j_p = np.ascontiguousarray(nbr[fwd].astype(itype))
+        self.j_p = np.ascontiguousarray(nbr[fwd].astype(np.uint64 if n >= 2 ** 32 else np.uint32))
         first = np.zeros(n, dtype=np.int64)
         has = cnt > 0
         first[has] = fwd[self.row_n[:-1][has]]

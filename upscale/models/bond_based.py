@@ -89,13 +89,13 @@ def pmb_pair_kernel(row_n, j_p, k_p, fwd_n, fwd_p, rev_p, invL_k, cf_k, cr_k, rc
             yi1 = y_nc[i, 1]
             yi2 = y_nc[i, 2]
             vi = vol_n[i]
-            bf0 = fwd_n[i] - p0
+            bf0 = np.uint64(fwd_n[i] - p0)
             f0 = 0.0
             f1 = 0.0
             f2 = 0.0
-            for p in range(p0, row_n[i + 1]):
+            for p in range(np.uint64(p0), np.uint64(row_n[i + 1])):
                 j = j_p[p]
-                bi = fwd_p[p] if has_fwd else bf0 + p
+                bi = np.uint64(fwd_p[p]) if has_fwd else bf0 + p
                 bj = rev_p[p]
                 ii = intact_b[bi]
                 ij = intact_b[bj]
@@ -164,7 +164,7 @@ def contact_pair_kernel(row_n, j_p, k_p, dc_k, chunk_t, vol_n, y_nc, k15_over_de
             f0 = 0.0
             f1 = 0.0
             f2 = 0.0
-            for p in range(row_n[i], row_n[i + 1]):
+            for p in range(np.uint64(row_n[i]), np.uint64(row_n[i + 1])):
                 j = j_p[p]
                 d0, d1, d2, r = bond_vector(y_nc, i, j)
                 dij = dc_k[k_p[p]]

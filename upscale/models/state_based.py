@@ -74,11 +74,11 @@ def lps_pair_dilatation_kernel(row_n, j_p, k_p, fwd_n, fwd_p, rev_p, L_k, omL_f_
         for i in range(chunk_t[t], chunk_t[t + 1]):
             p0 = row_n[i]
             vi = vol_n[i]
-            bf0 = fwd_n[i] - p0
+            bf0 = np.uint64(fwd_n[i] - p0)
             acc = 0.0
-            for p in range(p0, row_n[i + 1]):
+            for p in range(np.uint64(p0), np.uint64(row_n[i + 1])):
                 j = j_p[p]
-                bi = fwd_p[p] if has_fwd else bf0 + p
+                bi = np.uint64(fwd_p[p]) if has_fwd else bf0 + p
                 ii = intact_b[bi]
                 ij = intact_b[rev_p[p]]
                 if not (ii or ij):
@@ -119,13 +119,13 @@ def lps_pair_force_kernel(row_n, j_p, k_p, fwd_n, fwd_p, rev_p, L_k, aom_f_k, ao
             ti = theta_n[i] * inv_m_n[i]
             imi = inv_m_n[i]
             vi = vol_n[i]
-            bf0 = fwd_n[i] - p0
+            bf0 = np.uint64(fwd_n[i] - p0)
             f0 = 0.0
             f1 = 0.0
             f2 = 0.0
-            for p in range(p0, row_n[i + 1]):
+            for p in range(np.uint64(p0), np.uint64(row_n[i + 1])):
                 j = j_p[p]
-                bi = fwd_p[p] if has_fwd else bf0 + p
+                bi = np.uint64(fwd_p[p]) if has_fwd else bf0 + p
                 bj = rev_p[p]
                 ii = intact_b[bi]
                 ij = intact_b[bj]
