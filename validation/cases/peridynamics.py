@@ -144,9 +144,10 @@ def _engine_force_time(model, state, reps: int) -> tuple[float, float]:
 def memory_bandwidth(n: int = 50_000_000, reps: int = 5) -> dict:
     """STREAM-like triad ``a = b + s c`` on three float64 arrays of ``n`` elements (400 MB
     each by default, far beyond the caches), counted as STREAM counts it (24 bytes per
-    element: two reads, one write). Best of ``reps``: numba one thread, numba all threads,
-    and numpy (``np.multiply`` then ``np.add`` into ``a``: two passes, 40 bytes per
-    element)."""
+    element: two reads, one write). Best of ``reps`` for numba on one thread (by wall
+    time, and by the process's CPU time, which on a loaded machine is the bandwidth one
+    core gets while it runs), numba on all threads (wall), and numpy (``np.multiply`` then
+    ``np.add`` into ``a``: two passes, 40 bytes per element; wall)."""
     import numba as nb
 
     from upscale.engine.kernels import set_threads
@@ -155,6 +156,11 @@ def memory_bandwidth(n: int = 50_000_000, reps: int = 5) -> dict:
     def triad(a, b, c, s):
         for i in nb.prange(a.shape[0]):
             a[i] = b[i] + s * c[i]
+
+    def timed(fn):
+        t0, c0 = time.perf_counter(), time.process_time()
+        fn()
+        return time.perf_counter() - t0, time.process_time() - c0
 
     a = np.zeros(n)
     b = np.ones(n)
@@ -165,20 +171,15 @@ def memory_bandwidth(n: int = 50_000_000, reps: int = 5) -> dict:
         for label, t in (("numba_1thread", 1), ("numba_all_threads", nb.config.NUMBA_NUM_THREADS)):
             set_threads(t)
             triad(a, b, c, 3.0)
-            best = min(_timed(lambda: triad(a, b, c, 3.0)) for _ in range(reps))
-            out[label] = 24.0 * n / best / 1e9
-        best = min(_timed(lambda: (np.multiply(c, 3.0, out=a), np.add(a, b, out=a)))
-                   for _ in range(reps))
-        out["numpy"] = 40.0 * n / best / 1e9
+            ts = [timed(lambda: triad(a, b, c, 3.0)) for _ in range(reps)]
+            out[label] = 24.0 * n / min(w for w, _ in ts) / 1e9
+            if t == 1:
+                out["numba_1thread_cpu"] = 24.0 * n / min(cp for _, cp in ts) / 1e9
+        ts = [timed(lambda: (np.multiply(c, 3.0, out=a), np.add(a, b, out=a))) for _ in range(reps)]
+        out["numpy"] = 40.0 * n / min(w for w, _ in ts) / 1e9
     finally:
         set_threads(threads)
     return out
-
-
-def _timed(fn) -> float:
-    t0 = time.perf_counter()
-    fn()
-    return time.perf_counter() - t0
 
 
 def _bench_args(p):
@@ -274,7 +275,7 @@ def bench_pmb(args):
             f"{pre}throughput_ratio_vs_lammps_1core_cpu_time": best[f"{s}_lammps_cpu"] / t1c,
             f"{pre}speedup_2threads": t1 / t2 if np.isfinite(t2) else None,
             f"{pre}bytes_per_bond": sb / nb_, f"{pre}bytes_per_eval": sb,
-            f"{pre}achieved_GBps_1thread": sb / t1 / 1e9,
+            f"{pre}achieved_GBps_1thread": sb / t1 / 1e9, f"{pre}achieved_GBps_1thread_cpu": sb / t1c / 1e9,
         })
     tc = best["contact_engine_1t"]
     rows.append({"code": "engine LammpsContact (half list)", "threads": 1, "s_per_eval": tc,
@@ -284,12 +285,16 @@ def bench_pmb(args):
           f"{nb_} directed bonds (LAMMPS: {bonds['pmb']}), {out['classes']} bond classes; best of "
           f"{rounds} interleaved rounds; load average {load0:.2f} -> {load1:.2f} on {os.cpu_count()} cores")
     print(table(rows, ["code", "threads", "s_per_eval", "Mbonds_per_s"], floatfmt=".4g"))
-    print(f"memory bandwidth (triad, GB/s): numba 1 thread {bw['numba_1thread']:.1f}, all threads "
-          f"{bw['numba_all_threads']:.1f}, numpy {bw['numpy']:.1f}; PMB kernel streams "
-          f"{out['bytes_per_bond']:.2f} bytes per directed bond = {out['achieved_GBps_1thread']:.2f} GB/s on one thread")
+    print(f"memory bandwidth (triad, GB/s): numba 1 thread {bw['numba_1thread']:.1f} (by CPU time "
+          f"{bw['numba_1thread_cpu']:.1f}), all threads {bw['numba_all_threads']:.1f}, numpy {bw['numpy']:.1f}")
+    for s, pre in (("PMB", ""), ("LPS", "lps_")):
+        print(f"{s} kernel streams {out[pre + 'bytes_per_bond']:.2f} bytes per directed bond: "
+              f"{out[pre + 'achieved_GBps_1thread']:.2f} GB/s on one thread (by CPU time "
+              f"{out[pre + 'achieved_GBps_1thread_cpu']:.2f})")
     ratio = out["throughput_ratio_vs_lammps_1core"]
     out.update({
-        "memory_bandwidth_GBps": bw["numba_1thread"], "memory_bandwidth_GBps_all_threads": bw["numba_all_threads"],
+        "memory_bandwidth_GBps": bw["numba_1thread_cpu"], "memory_bandwidth_GBps_1thread_wall": bw["numba_1thread"],
+        "memory_bandwidth_GBps_all_threads": bw["numba_all_threads"],
         "memory_bandwidth_GBps_numpy": bw["numpy"],
         "engine_vv_step_s_1thread": step1,
         "throughput_ratio_whole_step_1core": (nb_ / step1) / (bonds["pmb"] / out["lammps_loop_s_per_step"]),
