@@ -16,12 +16,14 @@ streams only
 ``k_p`` (uint8; uint16 or int32 when needed)
     the pair's *class*: the index of its reference geometry in small tables. A class is
     a distinct bit pattern of (reference length L, partial-volume factor of each
-    direction, and any per-bond factor a model adds). On a lattice there are a few dozen
-    classes (on the simple-cubic block of the benchmarks, 80 distinct lengths to the
-    last bit), so the tables stay in L1 cache and the model precomputes per class what
-    it would otherwise store per bond (1/L, c beta, (L (1 + s0))^2, ...). On an
-    irregular point cloud the classes are as many as the pairs and the tables are
-    per-pair arrays: correct, only no smaller;
+    direction, and any per-bond factor a model adds). On a lattice a stencil of a few
+    distinct bond lengths gives a few dozen classes (round-off in the lattice
+    coordinates splits each ideal length into a handful of bit patterns), so the tables
+    stay in L1 cache and the model precomputes per class what it would otherwise store
+    per bond (1/L, c beta, (L (1 + s0))^2, ...). On an irregular point cloud the classes
+    are as many as the pairs and the tables are per-pair arrays: correct, only no
+    smaller. Reading L from a table rather than recomputing it from ``x0`` spares a
+    square root and a division per pair, and keeps L bit for bit the family's;
 ``rev_p`` (uint32; uint64 beyond 2^32 bonds)
     the directed index of j->i in the family. The bond state stays the engine's
     ``state.intact (nb,) bool`` (read, not copied: anything that sets or checkpoints it

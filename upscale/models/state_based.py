@@ -324,7 +324,9 @@ class LPS(Model):
         """Bytes of one force evaluation (dilatation pass + force pass; see
         :meth:`~upscale.engine.bondlist.BondList.stream_bytes`)."""
         bl = self.bonds
-        return (bl.stream_bytes(self._dil_tables, per_particle_bytes=-48 + 8 * 2)
+        # dilatation pass: theta (N,) read and written instead of an (N, 3) output;
+        # force pass: theta and 1/m read besides
+        return (bl.stream_bytes(self._dil_tables, per_particle_bytes=2 * 8 - 2 * 24)
                 + bl.stream_bytes(self._force_tables, per_particle_bytes=2 * 8))
 
     def add_force(self, state, out):
