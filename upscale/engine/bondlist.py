@@ -91,14 +91,22 @@ def reduce_buffers_scalar(buf_tn, out_n):
 
 def _class_index(columns) -> tuple[np.ndarray, np.ndarray]:
     """Classes of the rows of ``columns`` (equal bit patterns in every column): the class
-    of each row and the index of one representative row per class."""
-    code = np.zeros(columns[0].shape[0], dtype=np.int64)
-    for col in columns:
-        u, inv = np.unique(np.asarray(col, dtype=np.float64).view(np.int64), return_inverse=True)
-        code = code * u.size + inv.ravel()
-        code = np.unique(code, return_inverse=True)[1].ravel().astype(np.int64)  # dense again
-    _, first, cls = np.unique(code, return_index=True, return_inverse=True)
-    return cls.ravel(), first
+    of each row and the index of one representative row per class.
+
+    One sort of the first column; a further column costs a sort only where it is not
+    already a function of the classes so far (on a family, the partial-volume factors
+    and a model's factors usually are functions of the length)."""
+    bits = [np.ascontiguousarray(c, dtype=np.float64).view(np.int64) for c in columns]
+    _, first, cls = np.unique(bits[0], return_index=True, return_inverse=True)
+    cls = cls.ravel()
+    for col in bits[1:]:
+        if np.array_equal(col[first][cls], col):
+            continue
+        _, inv = np.unique(col, return_inverse=True)
+        code = cls.astype(np.int64) * (int(inv.max()) + 1) + inv.ravel()
+        _, first, cls = np.unique(code, return_index=True, return_inverse=True)
+        cls = cls.ravel()
+    return cls, first
 
 
 class BondList:
