@@ -171,3 +171,19 @@ def test_lammps_contact_half_list_matches_directed_equations(threads):
         set_threads(1)
     assert np.abs(out - ref).max() <= 1e-13 * np.abs(ref).max()
     assert ct.last_active == on.sum()
+
+
+def test_reverse_index_by_bisection_matches_the_family():
+    sysm, fam, _ = _body()
+    bl = BondList(fam, sysm.volume)
+    np.testing.assert_array_equal(bl.rev_p, fam.reverse[bl.forward_index()])
+    shuffled, _ = _shuffled_rows(fam)
+    bl2 = BondList(shuffled, sysm.volume)  # unsorted rows: the family's own reverse
+    np.testing.assert_array_equal(bl2.rev_p, shuffled.reverse[bl2.forward_index()])
+    one_way = Family(fam.offsets, fam.neighbors, fam.xi, fam.length, fam.volume_factor,
+                     fam.horizon, fam.spacing)
+    one_way.neighbors = fam.neighbors.copy()
+    row = slice(fam.offsets[5], fam.offsets[6])
+    one_way.neighbors[row] = np.where(one_way.neighbors[row] > 5, one_way.neighbors[row], 0)
+    with pytest.raises(ValueError, match="not symmetric"):
+        BondList(one_way, sysm.volume)

@@ -89,6 +89,28 @@ def reduce_buffers_scalar(buf_tn, out_n):
         out_n[i] += s
 
 
+@nb.njit(parallel=True, cache=True)
+def _reverse_in_sorted_rows(offsets, neighbors, row_n, j_p):
+    """Directed index of j->i for every pair (i, j) by bisection in row j (the family's
+    rows sorted by neighbour); -1 where row j does not hold i."""
+    n = offsets.shape[0] - 1
+    rev = np.empty(j_p.shape[0], dtype=np.int64)
+    for i in nb.prange(n):
+        for p in range(row_n[i], row_n[i + 1]):
+            j = j_p[p]
+            lo = offsets[j]
+            end = offsets[j + 1]
+            hi = end
+            while lo < hi:
+                mid = (lo + hi) // 2
+                if neighbors[mid] < i:
+                    lo = mid + 1
+                else:
+                    hi = mid
+            rev[p] = lo if (lo < end and neighbors[lo] == i) else -1
+    return rev
+
+
 def _class_index(columns) -> tuple[np.ndarray, np.ndarray]:
     """Classes of the rows of ``columns`` (equal bit patterns in every column): the class
     of each row and the index of one representative row per class.
@@ -157,10 +179,25 @@ class BondList:
         contiguous = np.array_equal(fwd - first[own_p], np.arange(fwd.size) - self.row_n[own_p])
         self.fwd_p = np.zeros(0, dtype=itype) if contiguous else np.ascontiguousarray(fwd.astype(itype))
         self._fwd = fwd
-        self.rev_p = np.ascontiguousarray(family.reverse[fwd].astype(itype))
+        self.rev_p = np.ascontiguousarray(self._reverse(family).astype(itype))
         self._buffers: dict = {}
         self._chunks: dict = {}
         self._classes: dict = {}
+
+    def _reverse(self, family: Family) -> np.ndarray:
+        """Directed index of j->i per pair: bisection when the rows are sorted (as
+        ``build_family`` makes them), else the family's own ``reverse``."""
+        nbr, off = family.neighbors, family.offsets
+        step = np.diff(nbr)
+        row_end = np.zeros(step.size, dtype=bool)
+        ends = off[1:-1] - 1
+        row_end[ends[(ends >= 0) & (ends < step.size)]] = True
+        if not np.all((step > 0) | row_end):
+            return family.reverse[self._fwd]
+        rev = _reverse_in_sorted_rows(off, nbr, self.row_n, self.j_p)
+        if np.any(rev < 0):
+            raise ValueError("family is not symmetric: some bond has no reverse")
+        return rev
 
     # ------------------------------------------------------------------ classes
     def classes(self, *factors_b) -> tuple:
