@@ -32,6 +32,13 @@ Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bon
     Higher families (triplets, quadruplets) are built from the pair CSR by
     ``upscale.engine.multibody`` (helper D) when a model's ``needs`` asks for them.
 
+``upscale.engine.bondlist``
+    ``BondList(family, volume)``: the pair loops' layout, derived from a family once in a
+    model's ``prepare`` (each pair once, unsigned 32-bit partners, a reference-geometry
+    class per pair, the directed index of the reverse bond; the bond state stays
+    ``state.intact``); ``classes(*factors_b)``, ``chunks(nthreads)``, ``target(out,
+    nthreads)`` / ``finish`` (per-thread buffers), ``stream_bytes()``.
+
 ``upscale.engine.state``
     ``State(x0, y, v, intact, t=0, step=0, extra={}, fields={}, field_v={})``;
     ``State.reference(x0, nb)``;

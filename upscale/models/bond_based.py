@@ -35,6 +35,10 @@ Surface correction (``surface_correction=True``): per-particle factors
 ``g_i = W_bulk / W_i`` from an isotropic stretch, bond factor ``(g_i + g_j)/2``
 (the energy method of Madenci & Oterkus 2014, isotropic test).
 
+Force loop: each pair once, over the half bond list of :mod:`upscale.engine.bondlist`
+(int32 partners, a one-byte reference-geometry class per pair, the coefficients per
+class), both ends updated from one evaluation (:func:`pmb_pair_kernel`).
+
 LAMMPS conventions: ``PMB(c=..., s0=...)`` on a family built with
 ``partial_volume="lammps"`` is pair_style peri/pmb with ``alpha = 0``;
 :class:`LammpsContact` is its short-range repulsive contact force.
@@ -44,7 +48,8 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from upscale.engine.kernels import add_to_row, bond_length, bond_vector, bond_vector_sq
+from upscale.engine.bondlist import BondList
+from upscale.engine.kernels import bond_length, bond_vector
 from upscale.models import register
 from upscale.models.base import Model, Needs
 
@@ -53,31 +58,74 @@ __all__ = ["PMB", "LammpsContact", "pmb_micromodulus", "pmb_critical_stretch"]
 
 
 # ---------------------------------------------------------------------------- kernels
-@nb.njit(parallel=True, cache=True)
-def pmb_force_kernel(offsets, neighbors, inv_length_b, cw_b, rc2_b, y_nc, intact_b, fail, out_nc):
-    """Adds PMB force densities to ``out_nc``; if ``fail``, mutates ``intact_b``: a bond
-    whose squared length exceeds ``rc2_b = (|xi| (1 + s0))^2`` breaks after its force is
-    counted. ``cw_b = c V_j beta_ij g_ij``; the bond force density is
-    ``c s w / r = cw (1/|xi| - 1/r)`` along ``y_j - y_i`` (one sqrt and one division per
-    bond). Returns the number of directed bonds broken."""
-    n = offsets.shape[0] - 1
-    broke = np.zeros(n, dtype=np.int64)
-    for i in nb.prange(n):
-        f0 = 0.0
-        f1 = 0.0
-        f2 = 0.0
-        k = 0
-        for b in range(offsets[i], offsets[i + 1]):
-            d0, d1, d2, rsq = bond_vector_sq(y_nc, i, neighbors[b])
-            fb = cw_b[b] * (inv_length_b[b] - 1.0 / np.sqrt(rsq)) * intact_b[b]
-            f0 += d0 * fb
-            f1 += d1 * fb
-            f2 += d2 * fb
-            if fail and intact_b[b] and rsq > rc2_b[b]:
-                intact_b[b] = False
-                k += 1
-        add_to_row(out_nc, i, f0, f1, f2)
-        broke[i] = k
+@nb.njit(parallel=True, cache=True, error_model="numpy")
+def pmb_pair_kernel(row_n, j_p, k_p, fwd_n, fwd_p, rev_p, invL_k, cf_k, cr_k, rc2_k, chunk_t,
+                    vol_n, y_nc, intact_b, fail, buf_tnc, zero):
+    """PMB force densities over the half bond list (:mod:`upscale.engine.bondlist`).
+
+    Per pair (i, j > i) of class k, with d = y_j - y_i and r = |d|::
+
+        g = 1/L_k - 1/r                      (= s / r, s the stretch)
+        b_i += g c beta_ij V_j d             if i->j is intact
+        b_j -= g c beta_ji V_i d             if j->i is intact
+
+    ``invL_k = 1/L``, ``cf_k = c beta_ij (g_ij)``, ``cr_k = c beta_ji (g_ji)`` per class
+    (g: the optional surface-correction factor), ``rc2_k = (L (1 + s0))^2``. With
+    ``fail`` a direction that is intact breaks when ``r^2 > rc2`` (after its force is
+    counted: LAMMPS's order); mutates ``intact_b``. Thread t adds into ``buf_tnc[t]``
+    (zeroed first if ``zero``) over the particles ``chunk_t[t]:chunk_t[t+1]``. One sqrt
+    and one division per pair. Returns the number of directed bonds broken."""
+    nt = chunk_t.shape[0] - 1
+    has_fwd = fwd_p.shape[0] > 0
+    broke = np.zeros(nt, dtype=np.int64)
+    for t in nb.prange(nt):
+        buf = buf_tnc[t]
+        if zero:
+            buf[:, :] = 0.0
+        nbroke = 0
+        for i in range(chunk_t[t], chunk_t[t + 1]):
+            p0 = row_n[i]
+            yi0 = y_nc[i, 0]
+            yi1 = y_nc[i, 1]
+            yi2 = y_nc[i, 2]
+            vi = vol_n[i]
+            bf0 = np.uint64(fwd_n[i] - p0)
+            f0 = 0.0
+            f1 = 0.0
+            f2 = 0.0
+            for p in range(np.uint64(p0), np.uint64(row_n[i + 1])):
+                j = j_p[p]
+                bi = np.uint64(fwd_p[p]) if has_fwd else bf0 + p
+                bj = rev_p[p]
+                ii = intact_b[bi]
+                ij = intact_b[bj]
+                d0 = y_nc[j, 0] - yi0
+                d1 = y_nc[j, 1] - yi1
+                d2 = y_nc[j, 2] - yi2
+                rsq = d0 * d0 + d1 * d1 + d2 * d2
+                k = k_p[p]
+                g = invL_k[k] - 1.0 / np.sqrt(rsq)
+                if ii:
+                    gi = g * (cf_k[k] * vol_n[j])
+                    f0 += gi * d0
+                    f1 += gi * d1
+                    f2 += gi * d2
+                if ij:
+                    gj = g * (cr_k[k] * vi)
+                    buf[j, 0] -= gj * d0
+                    buf[j, 1] -= gj * d1
+                    buf[j, 2] -= gj * d2
+                if fail and rsq > rc2_k[k]:
+                    if ii:
+                        intact_b[bi] = False
+                        nbroke += 1
+                    if ij:
+                        intact_b[bj] = False
+                        nbroke += 1
+            buf[i, 0] += f0
+            buf[i, 1] += f1
+            buf[i, 2] += f2
+        broke[t] = nbroke
     return broke.sum()
 
 
@@ -98,31 +146,43 @@ def pmb_energy_kernel(offsets, neighbors, length_b, w_b, y_nc, intact_b, c):
     return W
 
 
-@nb.njit(parallel=True, cache=True)
-def contact_kernel(offsets, neighbors, length_b, vol_n, y_nc, k15_over_delta, lc, out_nc):
-    """LAMMPS peri short-range contact: for family pairs closer than
-    d = min(0.9 |xi|, 1.35 lc), adds k (r - d) V_j / r * (y_j - y_i) (repulsive: r < d).
-    Returns the number of active (directed) contacts."""
-    n = offsets.shape[0] - 1
-    active = np.zeros(n, dtype=np.int64)
-    for i in nb.prange(n):
-        f0 = 0.0
-        f1 = 0.0
-        f2 = 0.0
+@nb.njit(parallel=True, cache=True, error_model="numpy")
+def contact_pair_kernel(row_n, j_p, k_p, dc_k, chunk_t, vol_n, y_nc, k15_over_delta, buf_tnc, zero):
+    """LAMMPS peri short-range contact over the half bond list: for a pair closer than
+    ``dc_k = min(0.9 |xi|, 1.35 lc)`` (per class) adds ``k (r - d) V_j / r (y_j - y_i)``
+    to i and the opposite with ``V_i`` to j (repulsive: r < d), intact or not. Thread t
+    adds into ``buf_tnc[t]``. Returns the number of active directed contacts."""
+    nt = chunk_t.shape[0] - 1
+    active = np.zeros(nt, dtype=np.int64)
+    for t in nb.prange(nt):
+        buf = buf_tnc[t]
+        if zero:
+            buf[:, :] = 0.0
         a = 0
-        for b in range(offsets[i], offsets[i + 1]):
-            j = neighbors[b]
-            d0, d1, d2, r = bond_vector(y_nc, i, j)
-            dij = min(0.9 * length_b[b], 1.35 * lc)
-            if r < dij:
-                rk = (k15_over_delta * vol_n[j]) * (r - dij)
-                fp = rk / r if r > 0.0 else 0.0
-                f0 += d0 * fp
-                f1 += d1 * fp
-                f2 += d2 * fp
-                a += 1
-        add_to_row(out_nc, i, f0, f1, f2)
-        active[i] = a
+        for i in range(chunk_t[t], chunk_t[t + 1]):
+            vi = vol_n[i]
+            f0 = 0.0
+            f1 = 0.0
+            f2 = 0.0
+            for p in range(np.uint64(row_n[i]), np.uint64(row_n[i + 1])):
+                j = j_p[p]
+                d0, d1, d2, r = bond_vector(y_nc, i, j)
+                dij = dc_k[k_p[p]]
+                if r < dij:
+                    fp = k15_over_delta * (r - dij) / r if r > 0.0 else 0.0
+                    gi = fp * vol_n[j]
+                    gj = fp * vi
+                    f0 += gi * d0
+                    f1 += gi * d1
+                    f2 += gi * d2
+                    buf[j, 0] -= gj * d0
+                    buf[j, 1] -= gj * d1
+                    buf[j, 2] -= gj * d2
+                    a += 2
+            buf[i, 0] += f0
+            buf[i, 1] += f1
+            buf[i, 2] += f2
+        active[t] = a
     return active.sum()
 
 
@@ -227,11 +287,23 @@ class PMB(Model):
                                            thickness=system.thickness, area=area)
         self.w_b = np.ascontiguousarray(w)
         if self.surface_correction:
-            self.w_b = np.ascontiguousarray(w * self._surface_factors())
-        self.cw_b = np.ascontiguousarray(self.c * self.w_b)
-        self.inv_length_b = np.ascontiguousarray(1.0 / family.length)
-        self.rc2_b = np.ascontiguousarray((family.length * (1.0 + self.s0)) ** 2) \
-            if self.needs.failure else np.zeros(1)
+            self._surface_b = self._surface_factors()
+            self.w_b = np.ascontiguousarray(w * self._surface_b)
+        self.bonds = BondList(family, system.volume)
+        self._pair_tables()
+
+    def _pair_tables(self) -> None:
+        """Per-class coefficients of the pair kernel (see :func:`pmb_pair_kernel`)."""
+        bl = self.bonds
+        if self.surface_correction:
+            k_p, L_k, bf_k, br_k, gf_k, gr_k = bl.classes(self._surface_b)
+        else:
+            k_p, L_k, bf_k, br_k = bl.classes()
+            gf_k = gr_k = 1.0
+        rc2 = (L_k * (1.0 + self.s0)) ** 2 if self.needs.failure else np.full(L_k.size, np.inf)
+        self._k_p = k_p
+        self._tables = tuple(np.ascontiguousarray(a) for a in (
+            1.0 / L_k, self.c * (bf_k * gf_k), self.c * (br_k * gr_k), rc2))
 
     def _lattice_factor(self, w) -> float:
         """Continuum integral of |xi| over the horizon divided by its discrete value
@@ -266,16 +338,27 @@ class PMB(Model):
         return 0.5 * (g[fam.owner] + g[fam.neighbors])
 
     # ------------------------------------------------------------------ forces
+    def _pair_force(self, state, out, fail: bool) -> int:
+        bl = self.bonds
+        nt = nb.get_num_threads()
+        buf, zero = bl.target(out, nt)
+        invL, cf, cr, rc2 = self._tables
+        broke = pmb_pair_kernel(bl.row_n, bl.j_p, self._k_p, bl.fwd_n, bl.fwd_p, bl.rev_p,
+                                invL, cf, cr, rc2, bl.chunks(nt), bl.volume, state.y,
+                                state.intact, fail, buf, zero)
+        bl.finish(buf, zero, out)
+        return int(broke)
+
     def add_force(self, state, out):
-        f = self.family
-        pmb_force_kernel(f.offsets, f.neighbors, self.inv_length_b, self.cw_b, self.rc2_b,
-                         state.y, state.intact, False, out)
+        self._pair_force(state, out, False)
 
     def step_force(self, state, out, *, failure=True):
-        f = self.family
-        fail = bool(failure and self.needs.failure)
-        return int(pmb_force_kernel(f.offsets, f.neighbors, self.inv_length_b, self.cw_b,
-                                    self.rc2_b, state.y, state.intact, fail, out))
+        return self._pair_force(state, out, bool(failure and self.needs.failure))
+
+    def stream_bytes(self) -> int:
+        """Bytes one force evaluation reads and writes (see
+        :meth:`~upscale.engine.bondlist.BondList.stream_bytes`)."""
+        return self.bonds.stream_bytes(self._tables)
 
     def break_bonds(self, state):
         from upscale.engine.kernels import break_by_stretch
@@ -317,7 +400,8 @@ class LammpsContact(Model):
     (peri/lps). LAMMPS applies it over its ordinary neighbour list (any particles within
     the cut-off in the *current* configuration); here it runs over the pair family
     (broken bonds included), which is the same set as long as no two particles that
-    started farther apart than the horizon come within 1.35 lc. ``last_active`` counts
+    started farther apart than the horizon come within 1.35 lc; each pair once, over the
+    half bond list of that family. ``last_active`` counts
     the active directed contacts of the last evaluation.
     """
 
@@ -344,15 +428,22 @@ class LammpsContact(Model):
         """``family`` given at construction (e.g. the family before a pre-crack was
         removed, as LAMMPS's neighbour list still holds those pairs) takes precedence."""
         super().prepare(system, self.contact_family if self.contact_family is not None else family, **kw)
+        self.bonds = BondList(self.family, system.volume)
+        self._k_p, L_k = self.bonds.classes()[:2]
+        self._dc_k = np.ascontiguousarray(np.minimum(0.9 * L_k, 1.35 * self.lc))
 
     def stiffness_bound(self):
         """No contact is active in the reference state: zero."""
         return np.zeros(self.system.n)
 
     def add_force(self, state, out):
-        f = self.family
-        self.last_active = int(contact_kernel(f.offsets, f.neighbors, f.length, self.system.volume,
-                                              state.y, self.k, self.lc, out))
+        bl = self.bonds
+        nt = nb.get_num_threads()
+        buf, zero = bl.target(out, nt)
+        self.last_active = int(contact_pair_kernel(bl.row_n, bl.j_p, self._k_p, self._dc_k,
+                                                   bl.chunks(nt), bl.volume, state.y, self.k,
+                                                   buf, zero))
+        bl.finish(buf, zero, out)
         self.max_active = max(self.max_active, self.last_active)
 
     def describe(self):

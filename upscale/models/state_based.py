@@ -24,13 +24,18 @@ m_i is computed from each particle's real family, which is LPS's own surface cor
 for the dilatation. ``surface_correction=True`` additionally scales the deviatoric bond
 stiffness by ``(g_i + g_j)/2``, ``g = W_bulk / W_i`` under simple shear (energy method);
 near a surface the corrected forces are then not exactly the gradient of an energy.
+
+Force loop: two passes over the half bond list of :mod:`upscale.engine.bondlist` (each
+pair once, both ends updated): the dilatation sums, then the forces
+(:func:`lps_pair_dilatation_kernel`, :func:`lps_pair_force_kernel`).
 """
 from __future__ import annotations
 
 import numba as nb
 import numpy as np
 
-from upscale.engine.kernels import add_to_row, bond_extension, bond_length, bond_vector
+from upscale.engine.bondlist import BondList
+from upscale.engine.kernels import bond_extension, bond_length, bond_vector
 from upscale.models import register
 from upscale.models.base import Model, Needs
 from upscale.models.bond_based import _check_positive
@@ -52,39 +57,108 @@ def lps_dilatation_kernel(offsets, neighbors, length_b, w_b, omega_b, y_nc, inta
         theta_n[i] = dm_n[i] * acc
 
 
-@nb.njit(parallel=True, cache=True)
-def lps_force_kernel(offsets, neighbors, length_b, wa_b, wd_b, omega_b, y_nc, intact_b, theta_n,
-                     inv_m_n, s0, fail, out_nc):
-    """Adds LPS force densities; if ``fail`` breaks bonds with s > s0 after their force.
-    ``wa_b = A w``, ``wd_b = alpha w g`` (g: surface-correction factor, 1 by default)."""
-    n = offsets.shape[0] - 1
-    broke = np.zeros(n, dtype=np.int64)
-    for i in nb.prange(n):
-        ti = theta_n[i] * inv_m_n[i]
-        imi = inv_m_n[i]
-        f0 = 0.0
-        f1 = 0.0
-        f2 = 0.0
-        k = 0
-        for b in range(offsets[i], offsets[i + 1]):
-            if not intact_b[b]:
-                continue
-            j = neighbors[b]
-            d0, d1, d2, r = bond_vector(y_nc, i, j)
-            L = length_b[b]
-            dr = bond_extension(r, L)
-            om = omega_b[b]
-            rk = wa_b[b] * om * (ti + theta_n[j] * inv_m_n[j]) * L
-            rk += wd_b[b] * om * (imi + inv_m_n[j]) * dr
-            fb = rk / r
-            f0 += d0 * fb
-            f1 += d1 * fb
-            f2 += d2 * fb
-            if fail and dr / L > s0:
-                intact_b[b] = False
-                k += 1
-        add_to_row(out_nc, i, f0, f1, f2)
-        broke[i] = k
+@nb.njit(parallel=True, cache=True, error_model="numpy")
+def lps_pair_dilatation_kernel(row_n, j_p, k_p, fwd_n, fwd_p, rev_p, L_k, omL_f_k, omL_r_k,
+                               chunk_t, vol_n, y_nc, intact_b, buf_tn, zero):
+    """Dilatation sums over the half bond list: per pair of class k with extension
+    ``e = r - L`` (0 below NEAR_ZERO), ``acc_i += omega L beta_ij V_j e`` if i->j is intact
+    and ``acc_j += omega L beta_ji V_i e`` if j->i is intact (``omL_f_k = omega L
+    beta_ij``, ``omL_r_k = omega L beta_ji``). Thread t adds into ``buf_tn[t]``; theta is
+    ``(d / m) acc``."""
+    nt = chunk_t.shape[0] - 1
+    has_fwd = fwd_p.shape[0] > 0
+    for t in nb.prange(nt):
+        buf = buf_tn[t]
+        if zero:
+            buf[:] = 0.0
+        for i in range(chunk_t[t], chunk_t[t + 1]):
+            p0 = row_n[i]
+            vi = vol_n[i]
+            bf0 = np.uint64(fwd_n[i] - p0)
+            acc = 0.0
+            for p in range(np.uint64(p0), np.uint64(row_n[i + 1])):
+                j = j_p[p]
+                bi = np.uint64(fwd_p[p]) if has_fwd else bf0 + p
+                ii = intact_b[bi]
+                ij = intact_b[rev_p[p]]
+                if not (ii or ij):
+                    continue
+                k = k_p[p]
+                e = bond_extension(bond_length(y_nc, i, j), L_k[k])
+                if ii:
+                    acc += omL_f_k[k] * (vol_n[j] * e)
+                if ij:
+                    buf[j] += omL_r_k[k] * (vi * e)
+            buf[i] += acc
+
+
+@nb.njit(parallel=True, cache=True, error_model="numpy")
+def lps_pair_force_kernel(row_n, j_p, k_p, fwd_n, fwd_p, rev_p, L_k, aom_f_k, aom_r_k,
+                          dom_f_k, dom_r_k, chunk_t, vol_n, y_nc, intact_b, theta_n, inv_m_n,
+                          s0, fail, buf_tnc, zero):
+    """LPS force densities over the half bond list. Per pair of class k, with
+    ``S = theta_i/m_i + theta_j/m_j``, ``M = 1/m_i + 1/m_j``, extension e and d = y_j - y_i::
+
+        b_i += V_j (aom_f S + dom_f M e) d / r      if i->j is intact
+        b_j -= V_i (aom_r S + dom_r M e) d / r      if j->i is intact
+
+    where ``aom = A omega L beta`` and ``dom = alpha omega beta g`` per direction
+    (g: the surface-correction factor), i.e. ``(t_ij + t_ji) V_j beta_ij`` along the
+    bond. With ``fail`` an intact direction breaks when ``e / L > s0`` (after its force;
+    mutates ``intact_b``). Returns the number of directed bonds broken."""
+    nt = chunk_t.shape[0] - 1
+    has_fwd = fwd_p.shape[0] > 0
+    broke = np.zeros(nt, dtype=np.int64)
+    for t in nb.prange(nt):
+        buf = buf_tnc[t]
+        if zero:
+            buf[:, :] = 0.0
+        nbroke = 0
+        for i in range(chunk_t[t], chunk_t[t + 1]):
+            p0 = row_n[i]
+            ti = theta_n[i] * inv_m_n[i]
+            imi = inv_m_n[i]
+            vi = vol_n[i]
+            bf0 = np.uint64(fwd_n[i] - p0)
+            f0 = 0.0
+            f1 = 0.0
+            f2 = 0.0
+            for p in range(np.uint64(p0), np.uint64(row_n[i + 1])):
+                j = j_p[p]
+                bi = np.uint64(fwd_p[p]) if has_fwd else bf0 + p
+                bj = rev_p[p]
+                ii = intact_b[bi]
+                ij = intact_b[bj]
+                if not (ii or ij):
+                    continue
+                k = k_p[p]
+                d0, d1, d2, r = bond_vector(y_nc, i, j)
+                L = L_k[k]
+                e = bond_extension(r, L)
+                S = ti + theta_n[j] * inv_m_n[j]
+                Me = (imi + inv_m_n[j]) * e
+                inv_r = 1.0 / r
+                if ii:
+                    gi = (aom_f_k[k] * S + dom_f_k[k] * Me) * (vol_n[j] * inv_r)
+                    f0 += gi * d0
+                    f1 += gi * d1
+                    f2 += gi * d2
+                if ij:
+                    gj = (aom_r_k[k] * S + dom_r_k[k] * Me) * (vi * inv_r)
+                    buf[j, 0] -= gj * d0
+                    buf[j, 1] -= gj * d1
+                    buf[j, 2] -= gj * d2
+                if fail and e / L > s0:
+                    if ii:
+                        intact_b[bi] = False
+                        nbroke += 1
+                    if ij:
+                        intact_b[bj] = False
+                        nbroke += 1
+            buf[i, 0] += f0
+            buf[i, 1] += f1
+            buf[i, 2] += f2
+        broke[t] = nbroke
     return broke.sum()
 
 
@@ -171,7 +245,6 @@ class LPS(Model):
         with np.errstate(divide="ignore"):
             self.inv_m = np.where(m > 0, 1.0 / np.where(m > 0, m, 1.0), 0.0)
         self.dm = self.dimf * self.inv_m
-        self.wa_b = np.ascontiguousarray(self.A * self.w_b)
         self.wd_b = np.ascontiguousarray(self.alpha * self.w_b)
         self._theta = np.zeros(family.n)
         if self.Gc is not None:
@@ -181,8 +254,27 @@ class LPS(Model):
             else:
                 self.s0 = float(np.sqrt(self.Gc / ((6 * G / np.pi + 16 / (9 * np.pi ** 2) *
                                                     (self.kprime - 2 * G)) * dl)))
-        if self.surface_correction:
-            self.wd_b = np.ascontiguousarray(self.wd_b * self._deviatoric_correction())
+        self._dev_b = self._deviatoric_correction() if self.surface_correction else None
+        if self._dev_b is not None:
+            self.wd_b = np.ascontiguousarray(self.wd_b * self._dev_b)
+        self.bonds = BondList(family, system.volume)
+        self._pair_tables()
+
+    def _pair_tables(self) -> None:
+        """Per-class coefficients of the pair kernels (see :func:`lps_pair_force_kernel`)."""
+        bl = self.bonds
+        if self._dev_b is not None:
+            k_p, L_k, bf_k, br_k, gf_k, gr_k = bl.classes(self._dev_b)
+        else:
+            k_p, L_k, bf_k, br_k = bl.classes()
+            gf_k = gr_k = 1.0
+        om_k = 1.0 / L_k if self.influence == "inverse" else np.ones_like(L_k)
+        omL = om_k * L_k
+        self._k_p = k_p
+        c = np.ascontiguousarray
+        self._dil_tables = (c(L_k), c(omL * bf_k), c(omL * br_k))
+        self._force_tables = (c(L_k), c(self.A * omL * bf_k), c(self.A * omL * br_k),
+                              c(self.alpha * om_k * bf_k * gf_k), c(self.alpha * om_k * br_k * gr_k))
 
     def _deviatoric_correction(self) -> np.ndarray:
         """Bond factors (g_i + g_j)/2 with g_i = W_bulk / W_i under simple shear."""
@@ -210,12 +302,32 @@ class LPS(Model):
         return theta
 
     def _force(self, state, out, fail):
-        f = self.family
-        lps_dilatation_kernel(f.offsets, f.neighbors, f.length, self.w_b, self.omega_b, state.y,
-                              state.intact, self.dm, self._theta)
-        return int(lps_force_kernel(f.offsets, f.neighbors, f.length, self.wa_b, self.wd_b, self.omega_b,
-                                    state.y, state.intact, self._theta, self.inv_m, self.s0,
-                                    fail, out))
+        bl = self.bonds
+        nt = nb.get_num_threads()
+        ch = bl.chunks(nt)
+        theta = self._theta
+        theta[:] = 0.0
+        buf, zero = bl.target(theta, nt)
+        lps_pair_dilatation_kernel(bl.row_n, bl.j_p, self._k_p, bl.fwd_n, bl.fwd_p, bl.rev_p,
+                                   *self._dil_tables, ch, bl.volume, state.y, state.intact,
+                                   buf, zero)
+        bl.finish(buf, zero, theta)
+        theta *= self.dm
+        buf, zero = bl.target(out, nt)
+        broke = lps_pair_force_kernel(bl.row_n, bl.j_p, self._k_p, bl.fwd_n, bl.fwd_p, bl.rev_p,
+                                      *self._force_tables, ch, bl.volume, state.y, state.intact,
+                                      theta, self.inv_m, self.s0, fail, buf, zero)
+        bl.finish(buf, zero, out)
+        return int(broke)
+
+    def stream_bytes(self) -> int:
+        """Bytes of one force evaluation (dilatation pass + force pass; see
+        :meth:`~upscale.engine.bondlist.BondList.stream_bytes`)."""
+        bl = self.bonds
+        # dilatation pass: theta (N,) read and written instead of an (N, 3) output;
+        # force pass: theta and 1/m read besides
+        return (bl.stream_bytes(self._dil_tables, per_particle_bytes=2 * 8 - 2 * 24)
+                + bl.stream_bytes(self._force_tables, per_particle_bytes=2 * 8))
 
     def add_force(self, state, out):
         self._force(state, out, False)

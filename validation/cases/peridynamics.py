@@ -7,9 +7,12 @@
     breaking (critical stretch, alpha = 0). See :mod:`upscale.engine.lammps_peri` for every
     convention and how it is matched.
 ``bench-pmb``
-    PMB bond-force throughput (directed bonds per second) of the engine against LAMMPS
-    peri/pmb on the same ~30,000-particle block (horizon 3 spacings), in one run, one core;
-    and the engine's 2-thread speed-up.
+    PMB and LPS bond-force throughput (directed bonds per second) of the engine against
+    LAMMPS peri/pmb and peri/lps (their Pair time, which includes their short-range
+    contact loop) on the same ~30,000-particle block (horizon 3 spacings), interleaved
+    rounds in one run, one core; the bytes per bond the engine's kernels stream, the
+    machine's memory bandwidth (triad) measured in the same run, and the 2-thread
+    speed-up.
 ``pd-elasticity``
     Bulk energy density of homogeneous deformations against linear elasticity (PMB, LPS;
     3D, 2D plane stress/strain; several horizons and partial-volume rules), and the
@@ -95,97 +98,212 @@ def lps_vs_lammps(args):
 # ---------------------------------------------------------------------------- benchmark
 
 
-def _lammps_pair_time(n_cells: int, steps: int) -> tuple[float, float, int]:
-    """(pair seconds per step, loop seconds per step, directed bonds) of peri/pmb."""
-    from upscale.engine.lammps_peri import LAMMPS_EXAMPLE as P, LammpsPeri
+class _LammpsPairTimer:
+    """LAMMPS peri/<style> on the benchmark block, bonds built once; :meth:`time` runs
+    ``steps`` steps and returns (Pair seconds per step from LAMMPS's timer breakdown, loop
+    seconds per step, CPU seconds per step of the process over the run). The block is at
+    rest in its reference state: no bond breaks, no neighbour rebuild."""
 
-    with tempfile.TemporaryDirectory() as d:
-        log = os.path.join(d, "log.lammps")
-        lp = LammpsPeri("pmb", (n_cells,) * 3, P["lc"], P["horizon"], P["density"],
-                        {"c": P["c"], "s00": P["s00"]}, log=log)
-        try:
-            lp.create_bonds()
-            lp.lmp.command(f"run {int(steps)}")
-        finally:
-            lp.close()
-        txt = Path(log).read_text()
-    bonds = int(re.findall(r"total # of bonds = (\d+)", txt)[0])
-    loop = float(re.findall(r"Loop time of ([0-9.eE+-]+) on \d+ procs for (\d+) steps", txt)[-1][0])
-    pair = float(re.findall(r"^Pair\s*\|\s*([0-9.eE+-]+)", txt, re.M)[-1])
-    return pair / steps, loop / steps, bonds
+    def __init__(self, style: str, n_cells: int, log: str):
+        from upscale.engine.lammps_peri import LAMMPS_EXAMPLE as P, LammpsPeri
+
+        params = {"c": P["c"]} if style == "pmb" else {"K": P["K"], "G": P["G"]}
+        self.log = log
+        self.lp = LammpsPeri(style, (n_cells,) * 3, P["lc"], P["horizon"], P["density"],
+                             {**params, "s00": P["s00"]}, log=log)
+        self.lp.create_bonds()
+        self.lp.lmp.command("run 1")
+        self.bonds = int(re.findall(r"total # of bonds = (\d+)", Path(log).read_text())[0])
+
+    def time(self, steps: int) -> tuple[float, float, float]:
+        c0 = time.process_time()
+        self.lp.lmp.command(f"run {int(steps)}")
+        cpu = (time.process_time() - c0) / steps
+        txt = Path(self.log).read_text()
+        loop = float(re.findall(r"Loop time of ([0-9.eE+-]+) on \d+ procs for (\d+) steps", txt)[-1][0])
+        pair = float(re.findall(r"^Pair\s*\|\s*([0-9.eE+-]+)", txt, re.M)[-1])
+        return pair / steps, loop / steps, cpu
+
+    def close(self):
+        self.lp.close()
 
 
-def _engine_force_time(model, state, reps: int) -> float:
+def _engine_force_time(model, state, reps: int) -> tuple[float, float]:
+    """(best wall seconds, best CPU seconds) of one ``step_force`` over ``reps`` calls."""
     out = np.zeros_like(state.y)
     model.step_force(state, out)  # compile / warm
-    t0 = time.perf_counter()
+    wall = cpu = np.inf
     for _ in range(reps):
+        t0, c0 = time.perf_counter(), time.process_time()
         model.step_force(state, out)
-    return (time.perf_counter() - t0) / reps
+        wall = min(wall, time.perf_counter() - t0)
+        cpu = min(cpu, time.process_time() - c0)
+    return wall, cpu
+
+
+def memory_bandwidth(n: int = 50_000_000, reps: int = 5) -> dict:
+    """STREAM-like triad ``a = b + s c`` on three float64 arrays of ``n`` elements (400 MB
+    each by default, far beyond the caches), counted as STREAM counts it (24 bytes per
+    element: two reads, one write). Best of ``reps`` for numba on one thread (by wall
+    time, and by the process's CPU time, which on a loaded machine is the bandwidth one
+    core gets while it runs), numba on all threads (wall), and numpy (``np.multiply`` then
+    ``np.add`` into ``a``: two passes, 40 bytes per element; wall)."""
+    import numba as nb
+
+    from upscale.engine.kernels import set_threads
+
+    @nb.njit(parallel=True)
+    def triad(a, b, c, s):
+        for i in nb.prange(a.shape[0]):
+            a[i] = b[i] + s * c[i]
+
+    def timed(fn):
+        t0, c0 = time.perf_counter(), time.process_time()
+        fn()
+        return time.perf_counter() - t0, time.process_time() - c0
+
+    a = np.zeros(n)
+    b = np.ones(n)
+    c = np.full(n, 2.0)
+    threads = set_threads(None)
+    out = {}
+    try:
+        for label, t in (("numba_1thread", 1), ("numba_all_threads", nb.config.NUMBA_NUM_THREADS)):
+            set_threads(t)
+            triad(a, b, c, 3.0)
+            ts = [timed(lambda: triad(a, b, c, 3.0)) for _ in range(reps)]
+            out[label] = 24.0 * n / min(w for w, _ in ts) / 1e9
+            if t == 1:
+                out["numba_1thread_cpu"] = 24.0 * n / min(cp for _, cp in ts) / 1e9
+        ts = [timed(lambda: (np.multiply(c, 3.0, out=a), np.add(a, b, out=a))) for _ in range(reps)]
+        out["numpy"] = 40.0 * n / min(w for w, _ in ts) / 1e9
+    finally:
+        set_threads(threads)
+    return out
 
 
 def _bench_args(p):
     p.add_argument("--cells", type=int, default=None, help="lattice cells per side (default 30, quick 20)")
+    p.add_argument("--repeats", type=int, default=None,
+                   help="interleaved rounds (engine, LAMMPS, ...); the best of each is kept (default 5, quick 2)")
 
 
-@case("bench-pmb", "PMB bond-force throughput vs LAMMPS peri/pmb on a ~30k-particle block, one core; 2-thread speed-up",
-      add_arguments=_bench_args)
+@case("bench-pmb", "PMB and LPS bond-force throughput vs LAMMPS peri/pmb, peri/lps on a ~30k-particle block, one "
+      "core; bytes per bond, memory bandwidth, 2-thread speed-up", add_arguments=_bench_args)
 def bench_pmb(args):
     from upscale.engine import ParticleSystem, Simulation, build_family
     from upscale.engine.integrators import VelocityVerlet
     from upscale.engine.lammps_peri import LAMMPS_EXAMPLE as P, LammpsPeri
     from upscale.engine.state import State
-    from upscale.models.bond_based import PMB
+    from upscale.models.bond_based import PMB, LammpsContact
+    from upscale.models.state_based import LPS
 
     n = args.cells or (20 if args.quick else 30)
     steps = 10 if args.quick else 20
     reps = 10 if args.quick else 20
+    rounds = args.repeats or (2 if args.quick else 5)
     lp = LammpsPeri("pmb", (n,) * 3, P["lc"], P["horizon"], P["density"], {"c": P["c"], "s00": P["s00"]})
     x = lp.positions()
     lp.close()
     sysm = ParticleSystem(x, P["lc"] ** 3, P["density"], spacing=P["lc"])
     fam = build_family(sysm, P["horizon"], partial_volume="lammps")
-    model = PMB(c=P["c"], s0=P["s00"])
-    model.prepare(sysm, fam)
+    models = {"pmb": PMB(c=P["c"], s0=P["s00"]), "lps": LPS(K=P["K"], G=P["G"], s0=P["s00"])}
+    for m in models.values():
+        m.prepare(sysm, fam)
+    contact = LammpsContact.for_pmb(P["c"], P["horizon"], P["lc"])
+    contact.prepare(sysm, fam)
     state = State.reference(sysm.x0, fam.nb)
     load0 = _load()
-    # interleave: engine 1 thread, LAMMPS, engine 1 thread, engine 2 threads
-    _threads(1)
-    t1a = _engine_force_time(model, state, reps)
-    pair, loop, bonds = _lammps_pair_time(n, steps)
-    t1b = _engine_force_time(model, state, reps)
-    t1 = min(t1a, t1b)
-    avail = _threads(2)
-    t2 = _engine_force_time(model, state, reps) if avail >= 2 else float("nan")
+    avail = _threads(None)
+    two = min(2, max(avail, 1)) >= 2
+    best: dict = {}
+
+    def keep(key, value):
+        best[key] = min(best.get(key, np.inf), value)
+
+    with tempfile.TemporaryDirectory() as d:
+        lmp = {s: _LammpsPairTimer(s, n, os.path.join(d, f"log.{s}")) for s in models}
+        try:
+            for _ in range(rounds):  # interleaved: both codes see the same machine load
+                for s, m in models.items():
+                    _threads(1)
+                    w, c = _engine_force_time(m, state, reps)
+                    keep(f"{s}_engine_1t", w)
+                    keep(f"{s}_engine_1t_cpu", c)
+                    pair, loop, cpu = lmp[s].time(steps)
+                    keep(f"{s}_lammps_pair", pair)
+                    keep(f"{s}_lammps_loop", loop)
+                    keep(f"{s}_lammps_cpu", cpu)
+                    if two:
+                        _threads(2)
+                        keep(f"{s}_engine_2t", _engine_force_time(m, state, reps)[0])
+                _threads(1)
+                keep("contact_engine_1t", _engine_force_time(contact, state, reps)[0])
+            bonds = {s: lmp[s].bonds for s in models}
+        finally:
+            for t in lmp.values():
+                t.close()
     _threads(1)
     sim = Simulation(sysm, fam, PMB(c=P["c"], s0=P["s00"]), integrator=VelocityVerlet(dt=P["dt"], force=True))
     sim.run(2)
     t0 = time.perf_counter()
     sim.run(steps)
     step1 = (time.perf_counter() - t0) / steps
+    bw = memory_bandwidth()
+    _threads(avail)
     load1 = _load()
-    rows = [
-        {"code": "LAMMPS peri/pmb (Pair)", "threads": 1, "s_per_eval": pair, "Mbonds_per_s": bonds / pair / 1e6},
-        {"code": "LAMMPS (whole step)", "threads": 1, "s_per_eval": loop, "Mbonds_per_s": bonds / loop / 1e6},
-        {"code": "engine PMB force+failure", "threads": 1, "s_per_eval": t1, "Mbonds_per_s": fam.nb / t1 / 1e6},
-        {"code": "engine (whole VV step)", "threads": 1, "s_per_eval": step1, "Mbonds_per_s": fam.nb / step1 / 1e6},
-        {"code": "engine PMB force+failure", "threads": 2, "s_per_eval": t2, "Mbonds_per_s": fam.nb / t2 / 1e6},
-    ]
+    nb_ = fam.nb
+    rows = []
+    out: dict = {"particles": int(sysm.n), "bonds": int(nb_), "bonds_lammps": bonds["pmb"],
+                 "bonds_match": bool(bonds["pmb"] == nb_ == bonds["lps"]),
+                 "classes": int(models["pmb"].bonds.classes()[1].size), "rounds": rounds}
+    for s, m in models.items():
+        t1, t1c, pair = best[f"{s}_engine_1t"], best[f"{s}_engine_1t_cpu"], best[f"{s}_lammps_pair"]
+        t2 = best.get(f"{s}_engine_2t", float("nan"))
+        rows += [
+            {"code": f"LAMMPS peri/{s} (Pair)", "threads": 1, "s_per_eval": pair, "Mbonds_per_s": nb_ / pair / 1e6},
+            {"code": f"engine {s.upper()} force+failure", "threads": 1, "s_per_eval": t1, "Mbonds_per_s": nb_ / t1 / 1e6},
+            {"code": f"engine {s.upper()} force+failure", "threads": 2, "s_per_eval": t2, "Mbonds_per_s": nb_ / t2 / 1e6},
+        ]
+        sb = m.stream_bytes()
+        pre = "" if s == "pmb" else "lps_"
+        out.update({
+            f"{pre}lammps_pair_s_per_step": pair, f"{pre}lammps_loop_s_per_step": best[f"{s}_lammps_loop"],
+            f"{pre}engine_force_s_1thread": t1, f"{pre}engine_force_s_2threads": t2,
+            f"{pre}engine_bonds_per_s_1thread": nb_ / t1, f"{pre}lammps_bonds_per_s_1core": bonds[s] / pair,
+            f"{pre}throughput_ratio_vs_lammps_1core": (nb_ / t1) / (bonds[s] / pair),
+            f"{pre}throughput_ratio_vs_lammps_1core_cpu_time": best[f"{s}_lammps_cpu"] / t1c,
+            f"{pre}speedup_2threads": t1 / t2 if np.isfinite(t2) else None,
+            f"{pre}bytes_per_bond": sb / nb_, f"{pre}bytes_per_eval": sb,
+            f"{pre}achieved_GBps_1thread": sb / t1 / 1e9, f"{pre}achieved_GBps_1thread_cpu": sb / t1c / 1e9,
+        })
+    tc = best["contact_engine_1t"]
+    rows.append({"code": "engine LammpsContact (half list)", "threads": 1, "s_per_eval": tc,
+                 "Mbonds_per_s": nb_ / tc / 1e6})
+    rows.append({"code": "engine (whole VV step, PMB)", "threads": 1, "s_per_eval": step1, "Mbonds_per_s": nb_ / step1 / 1e6})
     print(f"block {n + 1}^3 = {sysm.n} particles, horizon {P['horizon'] / P['lc']:.4f} spacings, "
-          f"{fam.nb} directed bonds (LAMMPS: {bonds}); load average {load0:.2f} -> {load1:.2f} on "
-          f"{os.cpu_count()} cores")
+          f"{nb_} directed bonds (LAMMPS: {bonds['pmb']}), {out['classes']} bond classes; best of "
+          f"{rounds} interleaved rounds; load average {load0:.2f} -> {load1:.2f} on {os.cpu_count()} cores")
     print(table(rows, ["code", "threads", "s_per_eval", "Mbonds_per_s"], floatfmt=".4g"))
-    ratio = (fam.nb / t1) / (bonds / pair)
-    return {"particles": int(sysm.n), "bonds": int(fam.nb), "bonds_lammps": bonds,
-            "bonds_match": bool(bonds == fam.nb),
-            "lammps_pair_s_per_step": pair, "lammps_loop_s_per_step": loop,
-            "engine_force_s_1thread": t1, "engine_force_s_2threads": t2, "engine_vv_step_s_1thread": step1,
-            "engine_bonds_per_s_1thread": fam.nb / t1, "lammps_bonds_per_s_1core": bonds / pair,
-            "throughput_ratio_vs_lammps_1core": ratio,
-            "throughput_ratio_whole_step_1core": (fam.nb / step1) / (bonds / loop),
-            "speedup_2threads": t1 / t2 if np.isfinite(t2) else None,
-            "load_average_start": load0, "load_average_end": load1, "cpu_count": os.cpu_count(),
-            "pass": bool(ratio >= 3.0)}
+    print(f"memory bandwidth (triad, GB/s): numba 1 thread {bw['numba_1thread']:.1f} (by CPU time "
+          f"{bw['numba_1thread_cpu']:.1f}), all threads {bw['numba_all_threads']:.1f}, numpy {bw['numpy']:.1f}")
+    for s, pre in (("PMB", ""), ("LPS", "lps_")):
+        print(f"{s} kernel streams {out[pre + 'bytes_per_bond']:.2f} bytes per directed bond: "
+              f"{out[pre + 'achieved_GBps_1thread']:.2f} GB/s on one thread (by CPU time "
+              f"{out[pre + 'achieved_GBps_1thread_cpu']:.2f})")
+    ratio = out["throughput_ratio_vs_lammps_1core"]
+    out.update({
+        "memory_bandwidth_GBps": bw["numba_1thread_cpu"], "memory_bandwidth_GBps_1thread_wall": bw["numba_1thread"],
+        "memory_bandwidth_GBps_all_threads": bw["numba_all_threads"],
+        "memory_bandwidth_GBps_numpy": bw["numpy"],
+        "engine_vv_step_s_1thread": step1,
+        "throughput_ratio_whole_step_1core": (nb_ / step1) / (bonds["pmb"] / out["lammps_loop_s_per_step"]),
+        "throughput_ratio_with_contact_1core": (nb_ / (out["engine_force_s_1thread"] + tc))
+        / (bonds["pmb"] / out["lammps_pair_s_per_step"]),
+        "load_average_start": load0, "load_average_end": load1, "cpu_count": os.cpu_count(),
+        "pass": bool(ratio >= 4.0),
+    })
+    return out
 
 
 # ---------------------------------------------------------------------------- elasticity

@@ -1,0 +1,297 @@
+"""A compact half bond list for the pair loops of bond models (PMB, LPS), derived from a
+:class:`~upscale.engine.families.Family`.
+
+Why another layout
+------------------
+The :class:`Family` stores both directions of every bond with 64-bit indices, and a model
+on it keeps its per-bond coefficients per directed bond (8 bytes each), so a force loop
+streams some 30-40 bytes per directed bond and does the arithmetic of every pair twice.
+This list holds each pair once: the pair's current length, its stretch and its failure
+test are computed once and applied to both ends (Newton's third law), and per pair it
+streams only
+
+``j_p`` (uint32)
+    the partner j > i; the pairs of particle i are ``row_n[i]:row_n[i+1]``, in the
+    family's row order;
+``k_p`` (uint8; uint16 or int32 when needed)
+    the pair's *class*: the index of its reference geometry in small tables. A class is
+    a distinct bit pattern of (reference length L, partial-volume factor of each
+    direction, and any per-bond factor a model adds). On a lattice a stencil of a few
+    distinct bond lengths gives a few dozen classes (round-off in the lattice
+    coordinates splits each ideal length into a handful of bit patterns), so the tables
+    stay in L1 cache and the model precomputes per class what it would otherwise store
+    per bond (1/L, c beta, (L (1 + s0))^2, ...). On an irregular point cloud the classes
+    are as many as the pairs and the tables are per-pair arrays: correct, only no
+    smaller. Reading L from a table rather than recomputing it from ``x0`` spares a
+    square root and a division per pair, and keeps L bit for bit the family's;
+``rev_p`` (uint32; uint64 beyond 2^32 bonds)
+    the directed index of j->i in the family. The bond state stays the engine's
+    ``state.intact (nb,) bool`` (read, not copied: anything that sets or checkpoints it
+    keeps working); i->j is ``fwd_n[i] + (p - row_n[i])`` when the forward bonds of a row
+    are contiguous (rows sorted, as :func:`~upscale.engine.families.build_family` and
+    :meth:`Family.remove_bonds` make them), else ``fwd_p[p]``. Each direction that is
+    intact contributes its force to its own particle, exactly as in the directed loop,
+    so a bond state that differs between the two directions is honoured;
+
+and reads per particle the positions ``y``, the volumes ``V`` and the output.
+
+The indices are unsigned and the kernels' inner loops run over unsigned pair indices:
+numba then emits no negative-index wraparound test per array access (signed indices cost
+a compare and a select on every load of the loop).
+
+Force densities with Newton's third law: a pair term ``g (y_j - y_i)`` acts as
+``b_i += g V_j beta_ij (y_j - y_i)`` and ``b_j -= g V_i beta_ji (y_j - y_i)``.
+
+Race-free threads: the pair rows are cut into one contiguous block of particles per
+thread, balanced by pair count (:meth:`BondList.chunks`). A thread adds its pairs' terms
+on i and on j into its own buffer ``buf[t] (N, 3)`` (or ``(N,)``), and the buffers are
+summed per particle in a second parallel loop (:func:`reduce_buffers`). With one thread
+the kernel adds into the output directly (:meth:`BondList.target`). The summation order
+differs from the directed loop's: results agree to round-off.
+"""
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from upscale.engine.families import Family
+
+__all__ = ["BondList", "reduce_buffers", "reduce_buffers_scalar"]
+
+
+@nb.njit(parallel=True, cache=True)
+def reduce_buffers(buf_tnc, out_nc):
+    """Mutates ``out_nc``: ``out[i] += sum_t buf[t, i]`` (N, 3)."""
+    nt = buf_tnc.shape[0]
+    n = out_nc.shape[0]
+    for i in nb.prange(n):
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        for t in range(nt):
+            s0 += buf_tnc[t, i, 0]
+            s1 += buf_tnc[t, i, 1]
+            s2 += buf_tnc[t, i, 2]
+        out_nc[i, 0] += s0
+        out_nc[i, 1] += s1
+        out_nc[i, 2] += s2
+
+
+@nb.njit(parallel=True, cache=True)
+def reduce_buffers_scalar(buf_tn, out_n):
+    """Mutates ``out_n``: ``out[i] += sum_t buf[t, i]`` (N,)."""
+    nt = buf_tn.shape[0]
+    n = out_n.shape[0]
+    for i in nb.prange(n):
+        s = 0.0
+        for t in range(nt):
+            s += buf_tn[t, i]
+        out_n[i] += s
+
+
+@nb.njit(parallel=True, cache=True)
+def _reverse_in_sorted_rows(offsets, neighbors, row_n, j_p):
+    """Directed index of j->i for every pair (i, j) by bisection in row j (the family's
+    rows sorted by neighbour); -1 where row j does not hold i."""
+    n = offsets.shape[0] - 1
+    rev = np.empty(j_p.shape[0], dtype=np.int64)
+    for i in nb.prange(n):
+        for p in range(row_n[i], row_n[i + 1]):
+            j = j_p[p]
+            lo = offsets[j]
+            end = offsets[j + 1]
+            hi = end
+            while lo < hi:
+                mid = (lo + hi) // 2
+                if neighbors[mid] < i:
+                    lo = mid + 1
+                else:
+                    hi = mid
+            rev[p] = lo if (lo < end and neighbors[lo] == i) else -1
+    return rev
+
+
+def _class_index(columns) -> tuple[np.ndarray, np.ndarray]:
+    """Classes of the rows of ``columns`` (equal bit patterns in every column): the class
+    of each row and the index of one representative row per class.
+
+    One sort of the first column; a further column costs a sort only where it is not
+    already a function of the classes so far (on a family, the partial-volume factors
+    and a model's factors usually are functions of the length)."""
+    bits = [np.ascontiguousarray(c, dtype=np.float64).view(np.int64) for c in columns]
+    _, first, cls = np.unique(bits[0], return_index=True, return_inverse=True)
+    cls = cls.ravel()
+    for col in bits[1:]:
+        if np.array_equal(col[first][cls], col):
+            continue
+        _, inv = np.unique(col, return_inverse=True)
+        code = cls.astype(np.int64) * (int(inv.max()) + 1) + inv.ravel()
+        _, first, cls = np.unique(code, return_index=True, return_inverse=True)
+        cls = cls.ravel()
+    return cls, first
+
+
+class BondList:
+    """Half bond list of a :class:`Family` (see the module docstring for the layout).
+
+    Parameters
+    ----------
+    family : Family
+    volume : (N,) float64 or scalar
+        Particle volumes V (the partner volumes of the force densities).
+
+    Attributes
+    ----------
+    n, npairs : int
+        Particles, pairs (``family.nb / 2``).
+    row_n : int64 (N+1,)
+        Pair rows: particle i's pairs (partners j > i) are ``row_n[i]:row_n[i+1]``.
+    j_p : uint32 (npairs,)
+    fwd_n : int64 (N,)
+        Directed index of i's first forward bond (used when ``fwd_p`` is empty).
+    fwd_p : uint32/uint64 (npairs,) or (0,)
+        Directed index of i->j, only when forward bonds are not contiguous in a row.
+    rev_p : uint32/uint64 (npairs,)
+        Directed index of j->i.
+    volume : float64 (N,)
+    """
+
+    def __init__(self, family: Family, volume):
+        n = family.n
+        self.family = family
+        self.n = n
+        self.volume = np.ascontiguousarray(np.broadcast_to(np.asarray(volume, dtype=np.float64), (n,)))
+        owner, nbr = family.owner, family.neighbors
+        fwd = np.flatnonzero(nbr > owner)
+        if 2 * fwd.size != family.nb or np.any(nbr == owner):
+            raise ValueError("the family must hold both directions of every bond and no self-bonds")
+        self.npairs = int(fwd.size)
+        itype = np.uint64 if family.nb >= 2 ** 32 else np.uint32
+        cnt = np.bincount(owner[fwd], minlength=n).astype(np.int64)
+        self.row_n = np.zeros(n + 1, dtype=np.int64)
+        np.cumsum(cnt, out=self.row_n[1:])
+        self.j_p = np.ascontiguousarray(nbr[fwd].astype(np.uint64 if n >= 2 ** 32 else np.uint32))
+        first = np.zeros(n, dtype=np.int64)
+        has = cnt > 0
+        first[has] = fwd[self.row_n[:-1][has]]
+        self.fwd_n = first
+        own_p = owner[fwd]
+        contiguous = np.array_equal(fwd - first[own_p], np.arange(fwd.size) - self.row_n[own_p])
+        self.fwd_p = np.zeros(0, dtype=itype) if contiguous else np.ascontiguousarray(fwd.astype(itype))
+        self._fwd = fwd
+        self.rev_p = np.ascontiguousarray(self._reverse(family).astype(itype))
+        self._buffers: dict = {}
+        self._chunks: dict = {}
+        self._classes: dict = {}
+
+    def _reverse(self, family: Family) -> np.ndarray:
+        """Directed index of j->i per pair: bisection when the rows are sorted (as
+        ``build_family`` makes them), else the family's own ``reverse``."""
+        nbr, off = family.neighbors, family.offsets
+        step = np.diff(nbr)
+        row_end = np.zeros(step.size, dtype=bool)
+        ends = off[1:-1] - 1
+        row_end[ends[(ends >= 0) & (ends < step.size)]] = True
+        if not np.all((step > 0) | row_end):
+            return family.reverse[self._fwd]
+        rev = _reverse_in_sorted_rows(off, nbr, self.row_n, self.j_p)
+        if np.any(rev < 0):
+            raise ValueError("family is not symmetric: some bond has no reverse")
+        return rev
+
+    # ------------------------------------------------------------------ classes
+    def classes(self, *factors_b) -> tuple:
+        """Reference-geometry classes of the pairs.
+
+        Parameters
+        ----------
+        *factors_b : (nb,) arrays
+            Per-directed-bond factors a model adds (e.g. a surface correction); they become
+            part of the class key.
+
+        Returns
+        -------
+        (k_p, L_k, beta_f_k, beta_r_k, [factor_f_k, factor_r_k, ...])
+            ``k_p`` (npairs,) the class of each pair (uint8 up to 256 classes, uint16 up to
+            65536, else int32); per class the reference length ``L``, the partial-volume
+            factors of i->j (``f``) and j->i (``r``), and the same for each given factor.
+            Cached for the call without factors.
+        """
+        key = len(factors_b)
+        if key == 0 and 0 in self._classes:
+            return self._classes[0]
+        fam, fwd, rev = self.family, self._fwd, self.rev_p
+        cols = [fam.length[fwd], fam.length[rev], fam.volume_factor[fwd], fam.volume_factor[rev]]
+        for f in factors_b:
+            f = np.asarray(f, dtype=np.float64)
+            cols += [f[fwd], f[rev]]
+        cls, first = _class_index(cols)
+        if not np.array_equal(cols[0], cols[1]):
+            raise ValueError("the family's reference lengths differ between the two directions of a bond")
+        ncls = first.size
+        ktype = np.uint8 if ncls <= 256 else (np.uint16 if ncls <= 65536 else np.int32)
+        out = (np.ascontiguousarray(cls.astype(ktype)),
+               *(np.ascontiguousarray(c[first]) for i, c in enumerate(cols) if i != 1))
+        if key == 0:
+            self._classes[0] = out
+        return out
+
+    def forward_index(self) -> np.ndarray:
+        """Directed index of i->j for every pair (npairs,) int64."""
+        return self._fwd
+
+    # ------------------------------------------------------------------ threads
+    def chunks(self, nthreads: int) -> np.ndarray:
+        """Particle ranges ``[c[t], c[t+1])`` per thread, balanced by pair count (T+1,)."""
+        c = self._chunks.get(nthreads)
+        if c is None:
+            target = np.linspace(0, self.npairs, nthreads + 1)
+            c = np.searchsorted(self.row_n, target, side="left").astype(np.int64)
+            c[0], c[-1] = 0, self.n
+            c = np.maximum.accumulate(c)
+            self._chunks[nthreads] = c
+        return c
+
+    def target(self, out: np.ndarray, nthreads: int) -> tuple[np.ndarray, bool]:
+        """Where a kernel accumulates: ``(buf (T, N[, 3]), zero)``. One thread and a
+        C-contiguous float64 ``out``: a view of ``out`` itself (no zeroing, no
+        reduction); else the reused per-thread buffers, which the kernel zeroes. Call
+        :meth:`finish` afterwards."""
+        if nthreads == 1 and out.dtype == np.float64 and out.flags.c_contiguous:
+            return out.reshape((1,) + out.shape), False
+        key = (nthreads, out.shape[1:])
+        buf = self._buffers.get(key)
+        if buf is None:
+            buf = np.zeros((nthreads,) + out.shape)
+            self._buffers[key] = buf
+        return buf, True
+
+    @staticmethod
+    def finish(buf: np.ndarray, zero: bool, out: np.ndarray) -> None:
+        """Mutates ``out``: adds the per-thread buffers into it (nothing when the kernel
+        wrote into ``out`` directly)."""
+        if not zero:
+            return
+        if out.ndim == 2:
+            reduce_buffers(buf, out)
+        else:
+            reduce_buffers_scalar(buf, out)
+
+    # ------------------------------------------------------------------ accounting
+    def stream_bytes(self, class_tables=(), per_particle_bytes: int = 0) -> int:
+        """Bytes a pair kernel reads (and writes) once per evaluation: the per-pair arrays
+        (``j_p``, ``k_p``, ``rev_p``, ``fwd_p``), the bond state (one byte per directed
+        bond), the row pointers and volumes, positions read and output read and written
+        (3 x 24 bytes per particle), the class tables, and ``per_particle_bytes`` more
+        per particle for a model's own per-particle arrays."""
+        k_p = self.classes()[0]
+        nbytes = sum(a.nbytes for a in (self.j_p, k_p, self.rev_p, self.fwd_p, self.row_n,
+                                        self.fwd_n, self.volume))
+        nbytes += sum(np.asarray(a).nbytes for a in class_tables)
+        nbytes += self.family.nb
+        nbytes += self.n * (3 * 24 + per_particle_bytes)
+        return int(nbytes)
+
+    def __repr__(self) -> str:
+        ncls = self.classes()[1].size
+        return f"BondList(n={self.n}, pairs={self.npairs}, classes={ncls})"
