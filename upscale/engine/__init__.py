@@ -30,7 +30,7 @@ Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bon
     volume=None) -> mu (N,)``, mu = 1 - R/T (seed 004 eq. 5.16).
     ``bonds_crossing_segment(x0, a, b)`` -> an ``exclude`` callable for straight cracks.
     Higher families (triplets, quadruplets) are built from the pair CSR by
-    ``upscale.engine.multibody`` (helper D) when a model's ``needs`` asks for them.
+    ``upscale.engine.multibody`` when a model's ``needs`` asks for them.
 
 ``upscale.engine.state``
     ``State(x0, y, v, intact, t=0, step=0, extra={})``; ``State.reference(x0, nb)``;
@@ -66,7 +66,7 @@ Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bon
     dt above the estimate is refused unless ``force=True``);
     ``AdaptiveDynamicRelaxation(dt=1.0, tol=..., max_steps=...)`` (Underwood/Kilic-Madenci
     ADR for quasi-static loading); ``stable_time_step(system, models) -> float``.
-    Newton-Raphson lives in ``upscale.engine.newton`` (helper D) on the models'
+    Newton-Raphson lives in ``upscale.engine.newton`` on the models'
     ``residual`` / ``tangent`` hooks.
 
 ``upscale.engine.simulation``
@@ -93,7 +93,12 @@ Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bon
 
 ``upscale.engine.lammps_peri``
     LAMMPS PERI (peri/pmb, peri/lps) as a reference: every convention and how the engine
-    matches it; ``compare(style, ...)`` runs both.
+    matches it (``LammpsPeri``); ``upscale.experiments.peri_lammps.compare(style, ...)``
+    runs both.
+
+Layering: ``upscale.engine`` imports neither ``upscale.models`` nor
+``upscale.experiments`` (it knows models only by this contract); ``tests/test_layering.py``
+walks the imports.
 """
 from __future__ import annotations
 

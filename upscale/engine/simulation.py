@@ -42,9 +42,7 @@ class Simulation:
 
     def __init__(self, system, family=None, models=(), conditions=(), integrator=None,
                  state: State | None = None, *, damage_weights: str = "count"):
-        from upscale.models.base import Model
-
-        if isinstance(models, Model):
+        if hasattr(models, "step_force"):  # one model (the engine knows models by contract)
             models = [models]
         self.system = system
         self.family = family

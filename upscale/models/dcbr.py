@@ -461,7 +461,7 @@ class DCBRTube:
                  cutoff: str = "step", bond: float = 1.42, kind: str = "quartic",
                  relax_shift: bool = True, stability: bool = True, hourglass: float = 0.1,
                  method: str = "numba"):
-        from upscale.build import _ncells, chirality  # noqa: PLC0415
+        from upscale.build import cells_for_length, chirality  # noqa: PLC0415
 
         if not (coarsening >= 1.0 and np.isfinite(coarsening)):
             raise ValueError(f"coarsening factor {coarsening!r} is below 1; valid: a number >= 1 "
@@ -476,7 +476,7 @@ class DCBRTube:
         self.potential, self.cutoff = potential, cutoff
         self.lattice = TubeLattice.build(n, m, bond)
         ch = chirality(n, m, bond)
-        nc = _ncells(ch, length)
+        nc = cells_for_length(ch, length)
         self.L = nc * ch.cell_length
         self.n_atoms = nc * ch.atoms_per_cell
         R0 = self.lattice.R0
