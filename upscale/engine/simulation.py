@@ -88,6 +88,8 @@ class Simulation:
         self.reactions = np.zeros((system.n, 3))  # forces on the prescribed dofs
         self._prepared = False
         self.broken_total = 0
+        self._ke_hist: list[float] = []  # kinetic energies of the last steps (blow-up guard)
+        self._restored: dict | None = None  # driver arrays of a checkpoint being resumed
 
     # ------------------------------------------------------------------ forces
     def internal_forces(self, failure: bool = False) -> np.ndarray:
@@ -176,25 +178,82 @@ class Simulation:
 
     # ------------------------------------------------------------------ running
     def prepare(self) -> None:
-        """Check the step, apply the conditions and compute the initial forces."""
+        """Check the step, apply the conditions and compute the initial forces (on a
+        resumed state: take the forces the checkpoint saved, see :meth:`resume`)."""
         if self._prepared:
             return
         self.integrator.prepare(self)
+        if self._restored is not None:
+            eng, self._restored = self._restored, None
+            dt = eng.get("dt")
+            if dt is not None and getattr(self.integrator, "dt", None) != float(dt):
+                raise ValueError(f"the checkpoint was written with time step {float(dt)!r}, "
+                                 f"this run has {self.integrator.dt!r}; valid: the same step "
+                                 "(a resumed run continues the one it interrupted)")
+            for k in ("F", "F_ext", "reactions"):
+                getattr(self, k)[...] = eng[k]
+            self.broken_total = int(eng["broken_total"])
+            self._ke_hist = [float(x) for x in eng["ke_hist"]]
+            restore = getattr(self.integrator, "restore_arrays", None)
+            ia = {k[len("integrator__"):]: v for k, v in eng.items() if k.startswith("integrator__")}
+            if restore is not None:
+                restore(ia)
+            self._prepared = True
+            return
         if self.state.step == 0:
             self.apply_velocity(self.state.t)
             self.apply_displacement(self.state.t, None)
         self.update_forces()
         self._prepared = True
 
+    def checkpoint_arrays(self) -> dict:
+        """What a resumed run needs beyond the state to continue bit for bit: the forces of
+        the last step (the next half-kick uses them; recomputed after the resume they would
+        miss the bonds that broke in that evaluation), the external forces and reactions,
+        the broken-bond counter, the blow-up guard's history, the time step and the
+        integrator's own arrays (e.g. a thermostat's variables and random state)."""
+        eng = {"F": self.F, "F_ext": self.F_ext, "reactions": self.reactions,
+               "broken_total": np.int64(self.broken_total),
+               "ke_hist": np.asarray(self._ke_hist, dtype=np.float64)}
+        dt = getattr(self.integrator, "dt", None)
+        if dt is not None:
+            eng["dt"] = np.float64(dt)
+        arrays = getattr(self.integrator, "checkpoint_arrays", None)
+        if arrays is not None:
+            eng.update({f"integrator__{k}": v for k, v in arrays().items()})
+        return eng
+
     def resume(self, path) -> bool:
-        """Load the checkpoint at ``path`` if it exists (returns True if it did)."""
+        """Load the checkpoint at ``path`` if it exists (returns True if it did).
+
+        The run then continues exactly as the one that wrote it would have: the state, the
+        forces of its last step and the integrator's arrays come from the checkpoint, and
+        no force is recomputed (a recomputation would apply the failure criterion again and
+        lose the forces of the bonds that broke in the last evaluation). A checkpoint
+        without these arrays resumes from forces recomputed without failure."""
         p = Path(path)
         if not p.is_file():
             return False
-        st, _ = load_checkpoint(p, self.system.x0, nb=self.family.nb if self.family else 0)
+        st, _, eng = load_checkpoint(p, self.system.x0, nb=self.family.nb if self.family else 0,
+                                     engine=True)
         self.state = st
         self._prepared = False
+        if "F" in eng:
+            self._restored = eng
+        else:
+            self._restored = None
+            self.integrator.prepare(self)
+            self.update_forces_without_failure()
+            self._prepared = True
         return True
+
+    def update_forces_without_failure(self) -> None:
+        """Like :meth:`update_forces` but the models' failure criteria are not applied."""
+        failure, self.failure = self.failure, False
+        try:
+            self.update_forces()
+        finally:
+            self.failure = failure
 
     def _healthy(self, health, ke_hist: list, spacing: float, dt: float) -> str | None:
         st = self.state
@@ -238,8 +297,9 @@ class Simulation:
             if st.step == 0 or not output.rows:
                 output.write(self)
         if checkpoint is not None and checkpoint.last_step is None:
-            checkpoint.write(st, {**(meta or {}), "dt_s": dt})  # a good state to fall back on
-        ke_hist: list[float] = []
+            # a good state to fall back on
+            checkpoint.write(st, {**(meta or {}), "dt_s": dt}, engine=self.checkpoint_arrays())
+        ke_hist = self._ke_hist
         t0 = time.perf_counter()
         target = st.step + int(steps)
         bar = tqdm(total=int(steps), disable=not progress, unit="step", mininterval=0.5,
@@ -268,7 +328,8 @@ class Simulation:
                     growing = len(ke_hist) >= 5 and all(
                         b > 1.5 * a > 0 for a, b in zip(ke_hist[-5:-1], ke_hist[-4:]))
                     if not growing:
-                        checkpoint.write(st, {**(meta or {}), "dt_s": dt})
+                        checkpoint.write(st, {**(meta or {}), "dt_s": dt},
+                                         engine=self.checkpoint_arrays())
                 if output is not None and st.step % output.every == 0:
                     output.write(self)
                 if callback is not None and callback(self):
@@ -279,7 +340,7 @@ class Simulation:
         if output is not None and (not output.rows or output.rows[-1]["step"] != st.step):
             output.write(self)
         if checkpoint is not None and checkpoint.last_step != st.step:
-            checkpoint.write(st, {**(meta or {}), "dt_s": dt})
+            checkpoint.write(st, {**(meta or {}), "dt_s": dt}, engine=self.checkpoint_arrays())
         broken = int(st.intact.size - np.count_nonzero(st.intact))
         return {"steps": int(st.step), "time_s": float(st.t), "dt_s": dt, "wall_s": wall,
                 "broken_bonds": broken, "broken_this_run": broken - broken0}
