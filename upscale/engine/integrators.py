@@ -92,11 +92,15 @@ class VelocityVerlet:
     force : bool
         Allow a ``dt`` above the stable estimate (otherwise refused with a ValueError
         that gives the estimate).
+    thermostat : Langevin or NoseHooverChain, optional
+        :mod:`upscale.engine.thermostats`, on a region (NVE without).
     """
 
     name = "velocity-verlet"
 
-    def __init__(self, dt: float | None = None, *, safety: float = 0.8, force: bool = False):
+    def __init__(self, dt: float | None = None, *, safety: float = 0.8, force: bool = False,
+                 thermostat=None):
+        self.thermostat = thermostat
         if dt is not None and not (np.isfinite(dt) and dt > 0):
             raise ValueError(f"time step must be positive, got {dt!r}")
         if not (0 < safety <= 1):
@@ -117,6 +121,18 @@ class VelocityVerlet:
             raise ValueError(f"time step {self.dt:.6g} s exceeds the stable estimate "
                              f"{self.estimate:.6g} s (Silling-Askari/Gershgorin bound); use "
                              f"dt <= {self.estimate:.6g} or pass force=True (--force-dt)")
+        if self.thermostat is not None:
+            self.thermostat.prepare(sim)
+
+    def checkpoint_arrays(self) -> dict:
+        """The thermostat's variables (and random state), for an exact restart."""
+        th = self.thermostat
+        return {} if th is None else {f"thermostat_{k}": v for k, v in th.checkpoint_arrays().items()}
+
+    def restore_arrays(self, d: dict) -> None:
+        if self.thermostat is not None:
+            self.thermostat.restore_arrays({k[len("thermostat_"):]: v for k, v in d.items()
+                                            if k.startswith("thermostat_")})
 
     def step(self, sim) -> int:
         """Advance ``sim.state`` by one step; returns the number of bonds broken."""
@@ -124,6 +140,8 @@ class VelocityVerlet:
 
         st, dt = sim.state, self.dt
         inv_m = sim.inv_mass_n
+        if self.thermostat is not None:
+            self.thermostat.begin(sim, dt)
         kick(st.v, sim.F, inv_m, 0.5 * dt)
         sim.apply_velocity(st.t + 0.5 * dt)
         drift(st.y, st.v, dt)
@@ -133,6 +151,8 @@ class VelocityVerlet:
         broken = sim.update_forces()
         kick(st.v, sim.F, inv_m, 0.5 * dt)
         sim.apply_velocity(st.t)
+        if self.thermostat is not None:
+            self.thermostat.end(sim, dt)
         return broken
 
 

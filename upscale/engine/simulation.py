@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from upscale.engine.checkpoint import Checkpoint, load_checkpoint
-from upscale.engine.conditions import BodyForce, Displacement, Force, Velocity, constrained_dofs
+from upscale.engine.conditions import (BodyForce, Displacement, Force, Grip, Velocity,
+                                       constrained_dofs)
 from upscale.engine.families import damage
 from upscale.engine.integrators import BlowUp, VelocityVerlet
 from upscale.engine.state import State
@@ -80,6 +81,7 @@ class Simulation:
         self._disp = [c for c in self.conditions if isinstance(c, Displacement)]
         self._vel = [c for c in self.conditions if isinstance(c, Velocity)]
         self._loads = [c for c in self.conditions if isinstance(c, (Force, BodyForce))]
+        self._grips = [c for c in self.conditions if isinstance(c, Grip)]
         self._density_models = [m for m in self.models if m.force_kind == "density"]
         self._particle_models = [m for m in self.models if m.force_kind != "density"]
         self._b = np.zeros((system.n, 3))
@@ -123,6 +125,8 @@ class Simulation:
             for c in self._loads:
                 c.add(self.F_ext, self.system, st.t)
             F += self.F_ext
+        for g in self._grips:  # before the prescribed dofs are zeroed
+            g.record(F, st.t)
         if self._any_constrained:
             np.multiply(F, self.constrained, out=self.reactions)
             F[self.constrained] = 0.0
@@ -130,11 +134,14 @@ class Simulation:
 
     def forces(self) -> np.ndarray:
         """Internal + external particle forces (N, 3) on the current state, no failure."""
-        F = self.internal_forces(failure=False)
-        ext = np.zeros_like(F)
+        return self.internal_forces(failure=False) + self.external_forces()
+
+    def external_forces(self) -> np.ndarray:
+        """The load conditions' particle forces (N, 3) at the current time (a new array)."""
+        ext = np.zeros_like(self.state.y)
         for c in self._loads:
             c.add(ext, self.system, self.state.t)
-        return F + ext
+        return ext
 
     # ------------------------------------------------------------------ conditions
     def apply_displacement(self, t: float, dt: float | None) -> None:
@@ -234,7 +241,7 @@ class Simulation:
         p = Path(path)
         if not p.is_file():
             return False
-        st, _, eng = load_checkpoint(p, self.system.x0, nb=self.family.nb if self.family else 0,
+        st, _, eng = load_checkpoint(p, self.system.x0, nb=self.state.intact.shape[0],
                                      engine=True)
         self.state = st
         self._prepared = False
@@ -344,6 +351,13 @@ class Simulation:
         broken = int(st.intact.size - np.count_nonzero(st.intact))
         return {"steps": int(st.step), "time_s": float(st.t), "dt_s": dt, "wall_s": wall,
                 "broken_bonds": broken, "broken_this_run": broken - broken0}
+
+    def minimise(self, minimiser=None, **kw):
+        """Static equilibrium by a minimiser of :mod:`upscale.engine.minimisers` (default
+        FIRE); returns its :class:`~upscale.engine.minimisers.MinimiseResult`."""
+        from upscale.engine.minimisers import FIRE
+
+        return (minimiser or FIRE()).minimise(self, **kw)
 
     def relax(self, adr=None, progress: bool = False) -> dict:
         """Quasi-static equilibrium by adaptive dynamic relaxation (see integrators)."""
