@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["parse_chirality", "lammps_reference", "GRIPS", "dynamic_scene",
+           "quasi_static_tension_engine",
            "run_tension_comparison", "reference_grip_planes", "reference_held_planes",
            "tube_z_range", "crack_metrics", "plot_comparison", "ROOT", "REFERENCE_DIR"]
 
@@ -462,3 +463,107 @@ def plot_comparison(res, ref, out, path, model):
     plt.close(fig)
     atomic_write_bytes(path, buf.getvalue())
 
+
+
+def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: float = 0.40,
+                                gtol: float = 1e-6, after_failure: int = 1,
+                                fit_max_strain: float = 0.02, progress=None,
+                                checkpoint=None) -> dict:
+    """Quasi-static tension of the periodic coarse tube on the engine.
+
+    The protocol of :func:`upscale.models.dcbr.quasi_static_tension` (zero-stress
+    relaxation; at eps_k = k ``strain_step`` the cell is set to L0 (1 + eps_k), the
+    particles mapped affinely along z, the energy minimised at fixed cell, the failure rules
+    applied and the minimisation repeated until no link breaks; stress
+    sigma = (dE/dLz) / (2 pi R t), t = 3.4 Å; stop ``after_failure`` steps after the first
+    5 % drop), with the tube as an engine model (:class:`upscale.models.dcbr.DCBRTubeModel`:
+    shifts relaxed at every configuration) in a :class:`~upscale.engine.simulation.Simulation`
+    and every load step minimised by the engine's L-BFGS-B
+    (:class:`upscale.engine.minimisers.LBFGS`, memory 30, ``ftol = sqrt(3) gtol`` so that
+    its per-component gradient test is ``gtol`` eV/Å as in :meth:`DCBRTube.minimise`). The
+    zero-stress relaxation, which also relaxes the cell length, is
+    :meth:`DCBRTube.minimise` (``relax_box=True``): the cell length is not an engine
+    variable. ``checkpoint``: a :class:`~upscale.engine.checkpoint.Checkpoint` written at
+    every load step (state, shifts, the load step in its meta).
+
+    Returns the dict of :func:`upscale.models.dcbr.quasi_static_tension` (``curve``, the
+    metrics of :func:`upscale.analysis.stress.curve_metrics`, ``L0_A``,
+    ``radius_relaxed_A``, ``damage``, ``positions``, ``delta``, ``wall_s``) plus
+    ``minimiser`` (iterations and force evaluations in all, load steps whose minimisation
+    ended above its tolerance).
+    """
+    import math
+
+    from upscale.analysis.stress import curve_metrics
+    from upscale.constants import CARBON_MASS_AMU, EV_PER_A3_IN_GPA, WALL_THICKNESS_A
+    from upscale.engine.minimisers import LBFGS
+    from upscale.engine.simulation import Simulation
+    from upscale.engine.system import ParticleSystem
+    from upscale.models.dcbr import DCBRTubeModel
+
+    if not (0 < strain_step < max_strain <= 2.0):
+        raise ValueError(f"strain_step={strain_step}, max_strain={max_strain}; valid: "
+                         "0 < strain_step < max_strain <= 2")
+    t0 = time.perf_counter()
+    y, d, L0, _, _, _ = tube.minimise(tube.x0, tube.delta, tube.L, relax_box=True, gtol=gtol)
+    R = tube.radius(y, d)
+    area = 2 * math.pi * R * WALL_THICKNESS_A
+    # a particle's mass: its atoms (volume = atoms, density = the carbon mass)
+    system = ParticleSystem(tube.x0, tube.natoms_n, CARBON_MASS_AMU,
+                            spacing=float(min(tube.spacing)))
+    model = DCBRTubeModel(tube)
+    sim = Simulation(system, None, model)
+    sim.state.y[...] = y
+    sim.state.extra["dcbr.delta"][...] = d
+    lbfgs = LBFGS(ftol=math.sqrt(3.0) * gtol, max_iter=5000, memory=30)
+    strains, stresses, energies, lzs, dmax, nbroken = [], [], [], [], [], []
+    k, failed_at, Lprev = 0, None, L0
+    n_it = n_f = unconverged = 0
+    while True:
+        eps = k * strain_step
+        if eps > max_strain + 1e-12:
+            break
+        Lz = L0 * (1.0 + eps)
+        sim.state.y[:, 2] *= Lz / Lprev
+        Lprev = Lz
+        model.set_cell(Lz)
+        for _ in range(4 * tube.N + 10):
+            r = sim.minimise(lbfgs, raise_on_fail=False)
+            n_it, n_f = n_it + r.iterations, n_f + r.n_force
+            unconverged += not r.converged
+            nb = model.break_bonds(sim.state)
+            if nb == 0 or not tube.alive.any():
+                break
+        s = model.cell_force(sim.state) / area * EV_PER_A3_IN_GPA
+        strains.append(eps)
+        stresses.append(float(s))
+        energies.append(model.energy(sim.state))
+        lzs.append(float(Lz))
+        dmax.append(float(tube.damage.max()))
+        nbroken.append(int((~tube.intact).sum()))
+        if checkpoint is not None:
+            checkpoint.write(sim.state, {"scene": "tube quasi-static tension", "load_step": k,
+                                         "strain": eps})
+        if progress is not None:
+            progress(eps, s)
+        if failed_at is None and s < 0.95 * max(stresses) and max(stresses) > 0:
+            failed_at = k
+        if failed_at is not None and k - failed_at >= after_failure:
+            break
+        k += 1
+    res = {"model": "dcbr", "driver": "engine", "protocol": "quasi-static",
+           "chirality": [tube.lattice.n, tube.lattice.m], "coarsening": tube.coarsening,
+           "particles": tube.N, "dof": 3 * tube.N, "internal_dof": 3 * tube.N if tube.relax_shift else 0,
+           "atoms": tube.n_atoms, "L0_A": float(L0), "radius_relaxed_A": R, "area_A2": area,
+           "area": "2 pi R t, R = mean wall radius after zero-stress relaxation, t = 3.4 A",
+           "strain_step": strain_step,
+           "curve": {"strain": strains, "stress_GPa": stresses, "energy_eV": energies,
+                     "Lz_A": lzs, "damage_max": dmax, "broken_links": nbroken},
+           "minimiser": {"iterations": n_it, "force_evaluations": n_f,
+                         "minimisations_above_tolerance": unconverged}}
+    res.update(curve_metrics(strains, stresses, fit_max_strain=fit_max_strain))
+    res["damage"] = tube.damage
+    res["positions"] = sim.state.y.copy()
+    res["delta"] = sim.state.extra["dcbr.delta"].copy()
+    res["wall_s"] = time.perf_counter() - t0
+    return res

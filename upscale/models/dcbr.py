@@ -114,7 +114,7 @@ from upscale.models import dcbr_kernels as K
 from upscale.models.gain import GainOperator, build_gain
 
 __all__ = ["tersoff_params", "TubeLattice", "LatticeStability", "DCBRTube",
-           "quasi_static_tension", "EV_PER_A3_IN_GPA", "WALL_THICKNESS"]
+           "quasi_static_tension", "DCBRTubeModel", "EV_PER_A3_IN_GPA", "WALL_THICKNESS"]
 
 EV_PER_A3_IN_GPA = 160.21766208
 _BLAS_CONTROLLER = None
@@ -980,3 +980,147 @@ def quasi_static_tension(model: DCBRTube, strain_step: float = 0.005, max_strain
     res["delta"] = d
     res["wall_s"] = time.perf_counter() - t0
     return res
+
+
+class DCBRTubeModel:
+    """The periodic coarse tube (:class:`DCBRTube`) as an engine model, by composition.
+
+    The engine's state holds the particle positions ``y`` (Å); the model holds the cell
+    length ``Lz`` (Å, set by the scene with :meth:`set_cell`: the load of a tension scene)
+    and relaxes the massless sublattice shifts delta at every configuration,
+
+        E*(y) = min_{|delta_c| <= b} E(y, delta; Lz),     F = -dE*/dy = -dE/dy |_{delta*},
+
+    (the envelope theorem; ``b`` = :data:`SHIFT_BOUND_FRACTION` a_cc, as
+    :meth:`DCBRTube.minimise`), by L-BFGS-B on the shifts alone at fixed gains (the shift
+    energy is local to each particle's lattice, eq. 5.13, so the gains F_c stay fixed), warm
+    started from the last shifts, which live in ``state.extra["dcbr.delta"]`` (N, 3) and so
+    are checkpointed. Forces are per particle (eV/Å, ``force_kind = "particle"``); masses
+    are the scene's (``natoms_n`` x the carbon mass, amu). The failure rules
+    (:meth:`DCBRTube.update_links`, then :meth:`DCBRTube.check_stability` if no link broke)
+    are :meth:`break_bonds`; the links live in the tube (``tube.intact``), not in the
+    engine's pair family (``needs.pairs`` is False).
+
+    Parameters
+    ----------
+    tube : DCBRTube
+        Periodic (``tube.periodic``); the model mutates its links on failure.
+    shift_gtol : float
+        Tolerance of the shift relaxation (max |dE/d delta| component, eV/Å).
+    """
+
+    name = "dcbr-tube"
+    force_kind = "particle"
+
+    def __init__(self, tube: DCBRTube, *, shift_gtol: float = 1e-10):
+        from upscale.models.base import Needs
+
+        if not isinstance(tube, DCBRTube) or not getattr(tube, "periodic", True):
+            raise ValueError(f"DCBRTubeModel takes a periodic DCBRTube, got {type(tube).__name__}")
+        if not (np.isfinite(shift_gtol) and shift_gtol > 0):
+            raise ValueError(f"shift_gtol must be positive, got {shift_gtol!r}")
+        self.tube = tube
+        self.Lz = float(tube.L)
+        self.shift_gtol = float(shift_gtol)
+        self.needs = Needs(pairs=False, failure=True, energy=True)
+        self._cache = None
+        self.system = None
+
+    def prepare(self, system, family=None, **kw) -> None:
+        if system.n != self.tube.N:
+            raise ValueError(f"the body has {system.n} particles, the tube {self.tube.N}; valid: "
+                             "the tube's own particles (DCBRTube.x0)")
+        if system.dim != 3:
+            raise ValueError(f"the tube model needs a 3D body, got dim={system.dim}")
+        self.system = system
+
+    def init_state(self, state) -> None:
+        state.extra.setdefault("dcbr.delta", np.array(self.tube.delta, dtype=np.float64))
+
+    def set_cell(self, Lz: float) -> None:
+        """The periodic cell length (Å), the load of a tension scene."""
+        if not (np.isfinite(Lz) and Lz > 0):
+            raise ValueError(f"cell length must be positive, got {Lz!r}")
+        self.Lz = float(Lz)
+        self._cache = None
+
+    def relax_shifts(self, y, delta) -> np.ndarray:
+        """Mutates ``delta`` (N, 3) to the shifts minimising the energy at positions ``y``."""
+        t = self.tube
+        if not t.relax_shift:
+            return delta
+        Fg = t.gain.deformation(y, np.array([0.0, 0.0, self.Lz]))
+        lat = t.lattice
+        P = np.empty_like(Fg)
+        e_n = np.empty(t.N)
+        q_n = np.zeros((t.N, 6))
+        gd = np.empty((t.N, 3))
+
+        def fun(dv):
+            dd = dv.reshape(t.N, 3)
+            E = K.coarse_energy(Fg, t.S, np.ascontiguousarray(dd), t.natoms_n, t.alive, lat.s,
+                                lat.z, lat.sub, lat.R0, lat.iA, lat.iB, lat.candA, lat.candB,
+                                t.p, t.e0, P, gd, e_n, q_n)
+            if not (np.isfinite(E) and np.all(np.isfinite(gd))):
+                return np.inf, np.zeros_like(dv)
+            return E, gd.ravel().copy()
+
+        b = t.shift_bound
+        x0 = np.clip(delta.ravel(), -b, b)
+        with _one_blas_thread():
+            r = minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=Bounds(-b, b),
+                         options={"maxiter": 1000, "gtol": self.shift_gtol, "ftol": 1e-15,
+                                  "maxcor": 10})
+        delta[...] = r.x.reshape(t.N, 3)
+        return delta
+
+    def _evaluate(self, state):
+        y = np.ascontiguousarray(state.y)
+        c = self._cache
+        if c is not None and c[0] == self.Lz and np.array_equal(c[1], y):
+            return c[2], c[3], c[4]
+        d = state.extra["dcbr.delta"]
+        self.relax_shifts(y, d)
+        E, gy, _, gL = self.tube.energy_and_gradient(y, d, self.Lz)
+        self._cache = (self.Lz, y.copy(), E, gy, gL)
+        return E, gy, gL
+
+    # ------------------------------------------------------------------ the contract
+    def add_force(self, state, out) -> None:
+        out -= self._evaluate(state)[1]
+
+    def step_force(self, state, out, *, failure=True) -> int:
+        self.add_force(state, out)
+        return self.break_bonds(state) if failure else 0
+
+    def break_bonds(self, state) -> int:
+        """The tube's failure rules at the current state (links first, then stability)."""
+        self._evaluate(state)  # the rules read the lattice state of this configuration
+        nb = self.tube.update_links()
+        if nb == 0:
+            nb = self.tube.check_stability(all_equal=True)
+        if nb:
+            self._cache = None
+        return int(nb)
+
+    def force(self, state):
+        out = np.zeros_like(state.y)
+        self.add_force(state, out)
+        return out
+
+    def energy(self, state) -> float:
+        return float(self._evaluate(state)[0])
+
+    def cell_force(self, state) -> float:
+        """dE/dLz (eV/Å): the axial force the periodic tube carries."""
+        return float(self._evaluate(state)[2])
+
+    def stiffness_bound(self):
+        return None
+
+    def describe(self) -> dict:
+        t = self.tube
+        return {"model": self.name, "chirality": [t.lattice.n, t.lattice.m],
+                "coarsening": t.coarsening, "particles": t.N, "atoms": t.n_atoms,
+                "potential": t.potential, "cutoff": t.cutoff, "hourglass": t.hourglass,
+                "cell_length_A": self.Lz}

@@ -478,3 +478,67 @@ def _dcbr_defect_nve(args):
 
 case("dcbr-defect-nve", "NVE energy drift of the coupled vacancy tube (periodic, 10 K start)",
      add_arguments=_defect_nve_args)(_dcbr_defect_nve)
+
+
+# ---------------------------------------------------------------------------- dcbr-regression
+def _regression_args(p):
+    p.add_argument("--chirality", action="append", default=None,
+                   help="N,M (repeatable; default 10,10 17,0 12,6; --quick: 10,10)")
+    p.add_argument("--length", type=float, default=None, help="Å (default 100; --quick 25)")
+    p.add_argument("--coarsening", type=float, action="append", default=None,
+                   help="repeatable (default 2)")
+
+
+def _dcbr_regression(args):
+    """The quasi-static pristine tension of each tube by the model's own driver
+    (:func:`upscale.models.dcbr.quasi_static_tension`, its joint L-BFGS over positions and
+    shifts: the code before the port) and on the engine
+    (:func:`upscale.experiments.tube_tension.quasi_static_tension_engine`), one after the
+    other in this process, on the same machine: the change of every figure and the wall-time
+    ratio. The dynamic runs are not on the engine yet: their step-time ratio is null."""
+    from upscale.experiments.tube_tension import quasi_static_tension_engine
+    from upscale.models.dcbr import DCBRTube, quasi_static_tension
+
+    chis = [_chirality(c) for c in (args.chirality or (["10,10"] if args.quick else
+                                                         ["10,10", "17,0", "12,6"]))]
+    length = args.length or (25.0 if args.quick else 100.0)
+    rows = []
+    for n, m in chis:
+        for k in args.coarsening or [2.0]:
+            a = quasi_static_tension(DCBRTube(n, m, length, coarsening=k))
+            b = quasi_static_tension_engine(DCBRTube(n, m, length, coarsening=k))
+            sa, sb = np.array(a["curve"]["stress_GPa"]), np.array(b["curve"]["stress_GPa"])
+            nn = min(len(sa), len(sb))
+            rows.append({"tube": f"({n},{m})", "K": k, "strength_before_GPa": a["strength_GPa"],
+                         "strength_after_GPa": b["strength_GPa"],
+                         "strength_change_%": 100 * (b["strength_GPa"] / a["strength_GPa"] - 1),
+                         "modulus_before_TPa": a["youngs_modulus_TPa"],
+                         "modulus_after_TPa": b["youngs_modulus_TPa"],
+                         "modulus_change_%": 100 * (b["youngs_modulus_TPa"]
+                                                    / a["youngs_modulus_TPa"] - 1),
+                         "strain_at_peak_before": a["strain_at_peak"],
+                         "strain_at_peak_after": b["strain_at_peak"],
+                         "curve_max_abs_diff_GPa": float(np.abs(sb[:nn] - sa[:nn]).max()),
+                         "points_before": len(sa), "points_after": len(sb),
+                         "wall_before_s": a["wall_s"], "wall_after_s": b["wall_s"],
+                         "minimisations_above_tolerance_after":
+                             b["minimiser"]["minimisations_above_tolerance"]})
+            print(f"({n},{m}) K={k:g}: before {a['wall_s']:.1f} s, after {b['wall_s']:.1f} s",
+                  flush=True)
+    print(table(rows, floatfmt=".6g"))
+    wall_b = sum(r["wall_before_s"] for r in rows)
+    wall_a = sum(r["wall_after_s"] for r in rows)
+    ms = max(abs(r["strength_change_%"]) for r in rows)
+    mm = max(abs(r["modulus_change_%"]) for r in rows)
+    return {"rows": rows, "max_strength_change_pct": ms, "max_modulus_change_pct": mm,
+            "max_strain_at_peak_change": max(abs(r["strain_at_peak_after"]
+                                                 - r["strain_at_peak_before"]) for r in rows),
+            "qs_wall_ratio_after_over_before": wall_a / wall_b,
+            "step_time_ratio_after_over_before": None,
+            "note": "quasi-static pristine tubes only: the vacancy tubes (DCBRDefectTube) and "
+                    "the dynamic runs (dcbr_dynamic.dynamic_tension) still run their own loops",
+            "pass": bool(ms < 1e-4 and mm < 1e-4)}
+
+
+case("dcbr-regression", "DCBR quasi-static tension: the model's own driver against the engine's "
+     "minimiser, same process (figures and wall time)", add_arguments=_regression_args)(_dcbr_regression)

@@ -1,0 +1,66 @@
+"""The periodic coarse tube as an engine model (upscale.models.dcbr.DCBRTubeModel).
+
+Its force is minus the gradient of the energy with the shifts relaxed (envelope theorem,
+central differences), and one load step minimised by the engine's L-BFGS-B reaches the
+equilibrium of the tube's own joint minimiser (positions and shifts together)."""
+import numpy as np
+import pytest
+
+from upscale.constants import CARBON_MASS_AMU
+from upscale.engine.minimisers import LBFGS
+from upscale.engine.simulation import Simulation
+from upscale.engine.system import ParticleSystem
+from upscale.models.dcbr import DCBRTube, DCBRTubeModel
+
+
+def _sim(tube):
+    s = ParticleSystem(tube.x0, tube.natoms_n, CARBON_MASS_AMU, spacing=float(min(tube.spacing)))
+    model = DCBRTubeModel(tube)
+    return Simulation(s, None, model), model
+
+
+def test_force_is_minus_the_gradient_of_the_relaxed_energy():
+    tube = DCBRTube(6, 6, 20.0, coarsening=2)
+    sim, model = _sim(tube)
+    model.set_cell(1.03 * tube.L)
+    rng = np.random.default_rng(2)
+    sim.state.y[:, 2] *= 1.03
+    sim.state.y += 0.01 * rng.standard_normal(sim.state.y.shape)
+    F = sim.internal_forces()
+    h = 1e-5
+    for i, c in [(0, 0), (3, 2), (7, 1)]:
+        st = sim.state
+        st.y[i, c] += h
+        ep = model.energy(st)
+        st.y[i, c] -= 2 * h
+        em = model.energy(st)
+        st.y[i, c] += h
+        assert -(ep - em) / (2 * h) == pytest.approx(F[i, c], rel=1e-5, abs=1e-7)
+
+
+def test_one_load_step_matches_the_tubes_own_minimiser():
+    tube = DCBRTube(6, 6, 20.0, coarsening=2)
+    y, d, L0, *_ = tube.minimise(tube.x0, tube.delta, tube.L, relax_box=True, gtol=1e-8)
+    Lz = 1.04 * L0
+    ya = y.copy()
+    ya[:, 2] *= 1.04
+    ya, da, _, Ea, _, gLa = tube.minimise(ya, d, Lz, gtol=1e-8)
+    sim, model = _sim(tube)
+    sim.state.y[...] = y
+    sim.state.y[:, 2] *= 1.04
+    sim.state.extra["dcbr.delta"][...] = d
+    model.set_cell(Lz)
+    r = sim.minimise(LBFGS(ftol=1e-6, memory=30), raise_on_fail=False)
+    assert r.fmax < 1e-5
+    assert model.energy(sim.state) == pytest.approx(Ea, rel=1e-11)
+    assert model.cell_force(sim.state) == pytest.approx(gLa, rel=1e-7)
+
+
+def test_bad_bodies_are_one_line_errors():
+    tube = DCBRTube(6, 6, 20.0, coarsening=2)
+    with pytest.raises(ValueError, match="particles, the tube"):
+        Simulation(ParticleSystem(tube.x0[:-1], 1.0, 1.0), None, DCBRTubeModel(tube))
+    with pytest.raises(ValueError, match="periodic DCBRTube"):
+        DCBRTubeModel(object())
+    with pytest.raises(ValueError, match="cell length must be positive"):
+        DCBRTubeModel(tube).set_cell(-1.0)
