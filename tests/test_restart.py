@@ -10,7 +10,7 @@ CPD solve is killed inside a load step after at least one checkpoint.
 import numpy as np
 import pytest
 
-from validation.kill_resume import cpd_kill_resume, plate_kill_resume
+from validation.kill_resume import cpd_kill_resume, dcbr_kill_resume, plate_kill_resume
 
 
 @pytest.mark.parametrize("model", ["pmb", "lps"])
@@ -43,3 +43,14 @@ def test_cpd_checkpoint_of_another_solve_is_refused(tmp_path):
     bar_tension(dim=2, dx=4e-3, strain=0.01, steps=2, checkpoint=ck)
     with pytest.raises(ValueError, match="3 load steps"):
         bar_tension(dim=2, dx=4e-3, strain=0.01, steps=3, checkpoint=ck, resume=True)
+
+
+@pytest.mark.slow
+def test_dcbr_periodic_tube_on_the_engine_killed_and_resumed_is_bit_identical(tmp_path):
+    """The periodic coarse tube stretched on the engine with a Nose-Hoover chain, links
+    breaking (shifts, links and the chain are in the checkpoint)."""
+    seed = int(np.random.SeedSequence().entropy % 2**32)
+    r = dcbr_kill_resume(tmp_path, steps=150, every=20, strain_rate=2e-3, seed=seed)
+    assert r["resumed_from_step"] > 0 and r["broken_links_uninterrupted"] > 0, r
+    assert r["broken_links_resumed"] == r["broken_links_uninterrupted"], (seed, r)
+    assert r["bit_identical"], (seed, r)

@@ -35,12 +35,14 @@ import numpy as np
 from ase import Atoms
 from ase.build import nanotube
 
+from upscale.constants import WALL_THICKNESS_A
+
 __all__ = ["Chirality", "chirality", "cells_for_length", "swcnt", "bundle", "vacancy", "graphene",
            "WALL_THICKNESS", "VDW_GAP"]
 
 #: Wall thickness of a graphitic shell used to convert forces to stresses, Å (interlayer
 #: spacing of graphite; Yakobson et al., PRL 76, 2511 (1996) discuss the choice).
-WALL_THICKNESS = 3.4
+WALL_THICKNESS = WALL_THICKNESS_A
 #: Default wall-to-wall gap between neighbouring tubes of a bundle, Å (graphite interlayer
 #: spacing, ~ the equilibrium of the carbon Lennard-Jones pair sigma 2^(1/6) * 3.4 / 2^(1/6)).
 VDW_GAP = 3.4

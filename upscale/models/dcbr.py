@@ -109,6 +109,9 @@ import math
 import numpy as np
 from scipy.optimize import Bounds, minimize
 
+from potentials.tersoff import INDEX as TI
+from upscale.constants import EV_PER_A3_IN_GPA, WALL_THICKNESS_A
+
 from upscale.models import dcbr_coupling_kernels as CK
 from upscale.models import dcbr_kernels as K
 from upscale.models.gain import GainOperator, build_gain
@@ -116,7 +119,6 @@ from upscale.models.gain import GainOperator, build_gain
 __all__ = ["tersoff_params", "TubeLattice", "LatticeStability", "DCBRTube",
            "quasi_static_tension", "DCBRTubeModel", "EV_PER_A3_IN_GPA", "WALL_THICKNESS"]
 
-EV_PER_A3_IN_GPA = 160.21766208
 _BLAS_CONTROLLER = None
 
 
@@ -146,7 +148,9 @@ def _one_blas_thread():
     if _BLAS_CONTROLLER is None:
         _BLAS_CONTROLLER = ThreadpoolController()
     return _BLAS_CONTROLLER.limit(limits=1, user_api="blas")
-WALL_THICKNESS = 3.4
+
+
+WALL_THICKNESS = WALL_THICKNESS_A
 
 
 def tersoff_params(potential: str = "tersoff:BNC.tersoff", cutoff: str = "step",
@@ -154,7 +158,8 @@ def tersoff_params(potential: str = "tersoff:BNC.tersoff", cutoff: str = "step",
     """Parameters of the ``element element element`` entry of a LAMMPS tersoff file.
 
     Returns the 14 numbers m, gamma, lambda3, c, d, costheta0 (h), n, beta, lambda2, B, R, D,
-    lambda1, A, read by helper A1's :func:`potentials.tersoff.read_tersoff_file`. With
+    lambda1, A (:data:`potentials.tersoff.NAMES`; ``p[INDEX[name]]``), read by
+    :func:`potentials.tersoff.read_tersoff_file`. With
     ``cutoff="step"`` they are those of the file LAMMPS is given
     (:func:`potentials.tersoff.write_step_cutoff_file`): R' = R + D - 1e-5, D' = 1e-5 Å.
     """
@@ -166,8 +171,8 @@ def tersoff_params(potential: str = "tersoff:BNC.tersoff", cutoff: str = "step",
     entry = read_tersoff_file(name, [element]).entry(element, element, element)
     v = np.array([entry[k] for k in NAMES], dtype=float)
     if cutoff == "step":
-        outer = v[10] + v[11]
-        v[10], v[11] = outer - STEP_CUTOFF_D, STEP_CUTOFF_D
+        outer = v[TI["R"]] + v[TI["D"]]
+        v[TI["R"]], v[TI["D"]] = outer - STEP_CUTOFF_D, STEP_CUTOFF_D
     return v
 
 
@@ -314,7 +319,7 @@ class LatticeStability:
         from upscale.build import chirality  # noqa: PLC0415
 
         self.p = tersoff_params(potential, cutoff)
-        self.cut = float(self.p[10] + self.p[11])
+        self.cut = float(self.p[TI['R']] + self.p[TI['D']])
         ch = chirality(n, m, bond)
         ncell = max(1, int(math.ceil(2 * self.cut / ch.cell_length)))
         t = nanotube(n, m, length=ncell, bond=bond)
@@ -844,7 +849,7 @@ class DCBRTube:
         lat = self.lattice
         L = K.mapped_bond_lengths(np.ascontiguousarray(q), lat.s, lat.z, lat.sub, lat.R0,
                                   lat.iA, lat.bondsA)
-        rcut = self.p_standard[10] + self.p_standard[11]  # outer cutoff R + D
+        rcut = self.p_standard[TI['R']] + self.p_standard[TI['D']]  # outer cutoff R + D
         g = self.gain
         over = np.zeros(len(g.pair_i), dtype=bool)
         li = L[g.pair_i, self.link_bond]
@@ -1007,12 +1012,24 @@ class DCBRTubeModel:
         Periodic (``tube.periodic``); the model mutates its links on failure.
     shift_gtol : float
         Tolerance of the shift relaxation (max |dE/d delta| component, eV/Å).
+    failure : bool
+        Apply the failure rules in the engine's force evaluations (False: links never
+        break, e.g. for an NVE stability run).
+    cell : callable, optional
+        ``cell(t) -> Lz`` (Å): a cell length prescribed in time (dynamic tension of the
+        periodic tube, strain controlled); else the length of :meth:`set_cell`.
+
+    The tube's link state (``tube.intact``, ``tube.alive``) is mirrored in
+    ``state.extra["dcbr.intact"]`` / ``["dcbr.alive"]``, so a checkpoint carries it; a
+    state whose links differ from the tube's (a resumed one) is given to the tube, and its
+    gains rebuilt, at the next evaluation.
     """
 
     name = "dcbr-tube"
     force_kind = "particle"
 
-    def __init__(self, tube: DCBRTube, *, shift_gtol: float = 1e-10):
+    def __init__(self, tube: DCBRTube, *, shift_gtol: float = 1e-10, failure: bool = True,
+                 cell=None):
         from upscale.models.base import Needs
 
         if not isinstance(tube, DCBRTube) or not getattr(tube, "periodic", True):
@@ -1022,7 +1039,10 @@ class DCBRTubeModel:
         self.tube = tube
         self.Lz = float(tube.L)
         self.shift_gtol = float(shift_gtol)
-        self.needs = Needs(pairs=False, failure=True, energy=True)
+        if cell is not None and not callable(cell):
+            raise ValueError(f"cell must be a callable cell(t) -> Lz, got {cell!r}")
+        self.cell = cell
+        self.needs = Needs(pairs=False, failure=bool(failure), energy=True)
         self._cache = None
         self.system = None
 
@@ -1036,6 +1056,20 @@ class DCBRTubeModel:
 
     def init_state(self, state) -> None:
         state.extra.setdefault("dcbr.delta", np.array(self.tube.delta, dtype=np.float64))
+        state.extra.setdefault("dcbr.intact", self.tube.intact.copy())
+        state.extra.setdefault("dcbr.alive", self.tube.alive.copy())
+
+    def _sync_links(self, state) -> None:
+        """Give the tube the state's links if they differ (a resumed state)."""
+        t = self.tube
+        li, la = state.extra.get("dcbr.intact"), state.extra.get("dcbr.alive")
+        if li is None:
+            return
+        if not (np.array_equal(li, t.intact) and np.array_equal(la, t.alive)):
+            t.intact[...] = li
+            t._build_gain(t.intact)
+            t.alive &= la  # particles failed by the stability rule keep no link either
+            self._cache = None
 
     def set_cell(self, Lz: float) -> None:
         """The periodic cell length (Å), the load of a tension scene."""
@@ -1075,6 +1109,11 @@ class DCBRTubeModel:
         return delta
 
     def _evaluate(self, state):
+        self._sync_links(state)
+        if self.cell is not None:
+            Lz = float(self.cell(state.t))
+            if Lz != self.Lz:
+                self.set_cell(Lz)
         y = np.ascontiguousarray(state.y)
         c = self._cache
         if c is not None and c[0] == self.Lz and np.array_equal(c[1], y):
@@ -1101,6 +1140,9 @@ class DCBRTubeModel:
             nb = self.tube.check_stability(all_equal=True)
         if nb:
             self._cache = None
+            if "dcbr.intact" in state.extra:
+                state.extra["dcbr.intact"][...] = self.tube.intact
+                state.extra["dcbr.alive"][...] = self.tube.alive
         return int(nb)
 
     def force(self, state):

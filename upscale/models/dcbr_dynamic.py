@@ -179,6 +179,7 @@ import time
 
 import numpy as np
 
+from upscale.constants import K_B_EV
 from upscale.models.dcbr import EV_PER_A3_IN_GPA, WALL_THICKNESS, uniform_map_frame
 from upscale.models.dcbr_defect import ACC_UNIT, CARBON_MASS
 
@@ -548,7 +549,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     movable = ~grips
     # thermal start and Nose-Hoover thermostat on the x, y velocities of the free part (and
     # the sublattice shifts), as LAMMPS's fix nvt with compute temp/partial 1 1 0
-    kB = 8.617333262e-5  # eV/K
+    kB = K_B_EV
     rng = np.random.default_rng(seed)
     thermo = temperature > 0
     if thermo:

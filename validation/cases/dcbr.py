@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from upscale.constants import ACC_EV_A_AMU_IN_A_FS2, ASE_TIME_FS, CARBON_MASS_AMU, K_B_EV
 from upscale.experiments.tube_tension import (GRIPS, dynamic_scene, lammps_reference,
                                               parse_chirality)
 from upscale.experiments.tube_tension import run_tension_comparison as _run_tension
@@ -326,7 +327,6 @@ case("dcbr-table", "run-time vs error table of the DCBR tube against LAMMPS (coa
 
 
 # ---------------------------------------------------------------------------- dcbr-stability
-ASE_TIME_FS = 10.1805055  # Å sqrt(amu/eV) in fs
 
 
 def _stability_args(p):
@@ -343,9 +343,10 @@ def _stability_args(p):
 def _dcbr_stability(args):
     """Critical time step (velocity Verlet: dt_c = 2 / omega_max) of the coarse tube and of
     the atomistic lattice, and the NVE energy drift of the coarse tube."""
-    from scipy.optimize import minimize
-
-    from upscale.models.dcbr import DCBRTube
+    from upscale.engine.integrators import VelocityVerlet
+    from upscale.engine.simulation import Simulation
+    from upscale.engine.system import ParticleSystem
+    from upscale.models.dcbr import DCBRTube, DCBRTubeModel
 
     n, m = _chirality(args.chirality)
     steps = args.steps or (500 if args.quick else 10000)
@@ -353,7 +354,7 @@ def _dcbr_stability(args):
     y, d, L0, *_ = t.minimise(t.x0, t.delta, t.L, relax_box=True, gtol=1e-9)
     N = t.N
     Keff = t.condensed_hessian(y, d, L0)  # shifts condensed (Schur complement)
-    mass = np.repeat(t.natoms_n * 12.011, 3)
+    mass = np.repeat(t.natoms_n * CARBON_MASS_AMU, 3)
     wk = np.linalg.eigvalsh(Keff)
     # zero-energy modes beyond the 4 rigid ones (3 translations, rotation about the axis)
     spurious = int((np.abs(wk) < 1e-6 * wk.max()).sum()) - 4
@@ -363,46 +364,41 @@ def _dcbr_stability(args):
     # atomistic: the relaxed lattice on the periodic piece, carbon mass
     q = t._q_n[0].copy()
     H, U = t.stability.hessian(q)
-    wa = np.linalg.eigvalsh(H / 12.011)
+    wa = np.linalg.eigvalsh(H / CARBON_MASS_AMU)
     dt_c_atom = 2.0 / math.sqrt(wa.max()) * ASE_TIME_FS
     print(table([{"model": f"DCBR ({n},{m}) K={args.coarsening:g}", "particles/atoms": N,
                   "omega_max_1/fs": math.sqrt(w2.max()) / ASE_TIME_FS, "dt_crit_fs": dt_c_coarse},
                  {"model": "atomistic lattice", "particles/atoms": t.stability.natoms,
                   "omega_max_1/fs": math.sqrt(wa.max()) / ASE_TIME_FS, "dt_crit_fs": dt_c_atom}]))
-    # NVE: velocity Verlet on the particles, shifts relaxed at every step
+    # NVE on the engine: velocity Verlet on the particles, shifts relaxed at every step
+    # (upscale.models.dcbr.DCBRTubeModel), links held (no failure in a 10 K run)
     rng = np.random.default_rng(1)
-    kB = 8.617333262e-5
-    v = rng.standard_normal((N, 3)) * np.sqrt(kB * args.temperature / (t.natoms_n * 12.011))[:, None]
+    mass_n = t.natoms_n * CARBON_MASS_AMU
+    v = rng.standard_normal((N, 3)) * np.sqrt(K_B_EV * args.temperature / mass_n)[:, None]
     v -= (v * t.natoms_n[:, None]).sum(0) / t.natoms_n.sum()
-    dt = args.dt_fs / ASE_TIME_FS
-    minv = 1.0 / (t.natoms_n * 12.011)[:, None]
-
-    def relaxed(yy, dd):
-        def fun(dv):
-            E, gy, gd, _ = t.energy_and_gradient(yy, dv.reshape(N, 3), L0)
-            return E, gd.ravel()
-
-        r = minimize(fun, dd.ravel(), jac=True, method="L-BFGS-B",
-                     options={"gtol": 1e-10, "ftol": 1e-16, "maxiter": 500})
-        dd = r.x.reshape(N, 3)
-        E, gy, _, _ = t.energy_and_gradient(yy, dd, L0)
-        return E, -gy, dd
-
-    E, f, d = relaxed(y, d)
-    Etot0 = E + 0.5 * np.sum(v * v / minv)
-    ke0 = 0.5 * np.sum(v * v / minv)
+    t.delta = d
+    model = DCBRTubeModel(t, failure=False)
+    model.set_cell(L0)
+    sim = Simulation(ParticleSystem(t.x0, t.natoms_n, CARBON_MASS_AMU,
+                                    spacing=float(min(t.spacing))), None, model,
+                     integrator=VelocityVerlet(dt=args.dt_fs / ASE_TIME_FS))
+    sim.state.y[...] = y
+    sim.state.v[...] = v
+    sim.prepare()
+    ke0 = sim.kinetic_energy()
+    Etot0 = sim.energy() + ke0
     drift = []
+    every = max(1, steps // 20)
     t0 = time.perf_counter()
-    for k in range(steps):
-        v += 0.5 * dt * f * minv
-        y = y + dt * v
-        E, f, d = relaxed(y, d)
-        v += 0.5 * dt * f * minv
-        if (k + 1) % max(1, steps // 20) == 0:
-            Et = E + 0.5 * np.sum(v * v / minv)
-            drift.append((k + 1, Et - Etot0))
+    done = 0
+    while done < steps:
+        k = min(every, steps - done)
+        sim.run(k)
+        done += k
+        if done % every == 0:
+            drift.append((done, sim.energy() + sim.kinetic_energy() - Etot0))
     wall = time.perf_counter() - t0
-    Et = E + 0.5 * np.sum(v * v / minv)
+    Et = sim.energy() + sim.kinetic_energy()
     rel = (Et - Etot0) / ke0
     maxdev = max(abs(e) for _, e in drift) / ke0
     print(table([{"steps": s, "E - E0 (eV)": e, "(E - E0)/KE0": e / ke0} for s, e in drift], floatfmt=".3e"))
@@ -432,7 +428,7 @@ def _defect_nve_args(p):
 def _dcbr_defect_nve(args):
     """NVE of the periodic coupled tube with the vacancy (atomistic band, pads, slaves, ghost
     correction at the zero-stress state) from Gaussian velocities: total energy drift."""
-    from upscale.models.dcbr_defect import ACC_UNIT, DCBRDefectTube
+    from upscale.models.dcbr_defect import DCBRDefectTube
 
     n, m = _chirality(args.chirality)
     steps = args.steps or (1000 if args.quick else 10000)
@@ -441,7 +437,7 @@ def _dcbr_defect_nve(args):
                          f"{args.temperature}; valid: steps >= 10, dt > 0, temperature > 0")
     model = DCBRDefectTube(n, m, args.length, coarsening=args.coarsening)
     y, d, Lz, _, _, _ = model.minimise(None, None, None, relax_box=True, gtol=1e-6)
-    nd, acc, kB, dt = len(model.dof_idx), ACC_UNIT, 8.617333262e-5, args.dt_fs
+    nd, acc, kB, dt = len(model.dof_idx), ACC_EV_A_AMU_IN_A_FS2, K_B_EV, args.dt_fs
     mass, mass_d = model.masses()
     rng = np.random.default_rng(7)
     v = rng.standard_normal(y.shape) * np.sqrt(kB * args.temperature * acc / mass)[:, None]
