@@ -113,7 +113,14 @@ Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bon
     ``sim.reactions``), ``sim.energy()``, ``sim.kinetic_energy()``, ``sim.damage()``,
     ``sim.constrained (N,3) bool``, ``sim.run(steps, output=None, checkpoint=None,
     progress=False, callback=None, meta=None)`` (``steps`` more steps; raises
-    ``integrators.BlowUp`` with a diagnosis), ``sim.resume(path)``, ``sim.relax(adr)``.
+    ``integrators.BlowUp`` with a diagnosis), ``sim.resume(path)``, ``sim.relax(adr)``,
+    ``sim.minimise(minimiser)``, ``sim.external_forces()``; ``sim.damage()`` also takes a
+    model's own ``particle_damage(state) -> (N,)`` (a model with its own links).
+    ``sim.resume`` continues bit for bit: a checkpoint holds, besides the state,
+    ``sim.checkpoint_arrays()`` (the last step's forces, reactions, counters, the time
+    step, the integrator's and thermostat's variables), and no force is recomputed on
+    resume (a recomputation would apply the failure criterion again at the same positions
+    and drop the forces of the bonds broken in the last evaluation).
     The engine does only what the models' ``needs`` and the outputs ask for.
 
 ``upscale.engine.output`` / ``upscale.engine.checkpoint``

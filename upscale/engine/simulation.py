@@ -163,11 +163,18 @@ class Simulation:
         return float(sum(m.energy(self.state) for m in self.models))
 
     def damage(self) -> np.ndarray:
-        """Damage index mu (N,) (0 without a family)."""
-        if self.family is None:
-            return np.zeros(self.system.n)
-        return damage(self.family, self.state.intact, weights=self.damage_weights,
-                      volume=self.system.volume)
+        """Damage index mu (N,): of the pair family's bonds, or, for models that keep their
+        own links (``model.particle_damage(state) -> (N,)``, e.g. the coarse tube), the largest of
+        theirs; 0 with neither."""
+        mu = np.zeros(self.system.n)
+        if self.family is not None:
+            mu = damage(self.family, self.state.intact, weights=self.damage_weights,
+                        volume=self.system.volume)
+        for m in self.models:
+            own = getattr(m, "particle_damage", None)
+            if callable(own):
+                mu = np.maximum(mu, own(self.state))
+        return mu
 
     def describe(self) -> dict:
         s = self.system

@@ -1153,6 +1153,11 @@ class DCBRTubeModel:
     def energy(self, state) -> float:
         return float(self._evaluate(state)[0])
 
+    def particle_damage(self, state) -> np.ndarray:
+        """mu = 1 - R/T of the tube's links per particle (seed 004 eq. 5.16)."""
+        self._sync_links(state)
+        return self.tube.damage
+
     def cell_force(self, state) -> float:
         """dE/dLz (eV/Å): the axial force the periodic tube carries."""
         return float(self._evaluate(state)[2])
