@@ -147,7 +147,7 @@ def _run(cmd: list[str], env_threads: int = 1) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""),
                NUMBA_NUM_THREADS=str(max(1, env_threads)))
     return subprocess.run([sys.executable, "-m", "validation.kill_resume", *cmd], cwd=ROOT,
-                          env=env, capture_output=True, text=True, timeout=900)
+                          env=env, capture_output=True, text=True, timeout=6 * 3600)
 
 
 def _check(p: subprocess.CompletedProcess, killed: bool = False) -> None:
