@@ -64,3 +64,25 @@ def test_bad_bodies_are_one_line_errors():
         DCBRTubeModel(object())
     with pytest.raises(ValueError, match="cell length must be positive"):
         DCBRTubeModel(tube).set_cell(-1.0)
+
+
+def test_engine_driver_reproduces_the_tubes_own_driver(tmp_path):
+    """The first load steps of the quasi-static tension by the engine's L-BFGS-B give the
+    stresses of the tube's own joint minimiser to 1e-6 relative; the engine run writes a
+    checkpoint and a frame (with damage) per load step."""
+    from upscale.engine.checkpoint import Checkpoint, load_checkpoint
+    from upscale.engine.output import Output
+    from upscale.experiments.tube_tension import quasi_static_tension_engine
+    from upscale.models.dcbr import quasi_static_tension
+
+    a = quasi_static_tension(DCBRTube(6, 6, 20.0, coarsening=2), max_strain=0.02)
+    b = quasi_static_tension_engine(DCBRTube(6, 6, 20.0, coarsening=2), max_strain=0.02,
+                                    checkpoint=Checkpoint(tmp_path / "ck.npz", every=1),
+                                    output=Output(tmp_path, every=1))
+    sa, sb = np.array(a["curve"]["stress_GPa"]), np.array(b["curve"]["stress_GPa"])
+    assert len(sa) == len(sb) == 5
+    assert np.abs(sb[1:] / sa[1:] - 1).max() < 1e-6
+    assert b["youngs_modulus_TPa"] == pytest.approx(a["youngs_modulus_TPa"], rel=1e-6)
+    st, meta = load_checkpoint(tmp_path / "ck.npz")
+    assert meta["load_step"] == 4 and "dcbr.delta" in st.extra and "dcbr.intact" in st.extra
+    assert (tmp_path / "traj.extxyz").is_file() and (tmp_path / "vtk").is_dir()

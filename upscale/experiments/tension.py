@@ -31,6 +31,10 @@ def register(subparsers):
     p.add_argument("--compare", choices=["lammps"], default=None,
                    help="load the stored LAMMPS reference and print the comparison")
     p.add_argument("--outdir", type=Path, default=Path("out/tension"))
+    p.add_argument("--engine", action="store_true",
+                   help="run the load steps on the particle engine (L-BFGS-B on the positions, "
+                   "shifts relaxed at every configuration): a checkpoint and an extxyz/VTK "
+                   "frame with damage per load step in OUTDIR/engine_N_M_K/")
     p.set_defaults(func=run)
 
 
@@ -76,9 +80,20 @@ def run(args) -> int:
         return 0
     t0 = time.perf_counter()
     model = DCBRTube(n, m, args.length, coarsening=args.coarsening, potential=args.potential)
-    res = quasi_static_tension(model, strain_step=args.strain_step, max_strain=args.max_strain,
-                               progress=lambda e, s: print(f"strain {e:.4f}  stress {s:9.3f} GPa",
-                                                           flush=True))
+    show = lambda e, s: print(f"strain {e:.4f}  stress {s:9.3f} GPa", flush=True)  # noqa: E731
+    if args.engine:
+        from upscale.engine.checkpoint import Checkpoint
+        from upscale.engine.output import Output
+        from upscale.experiments.tube_tension import quasi_static_tension_engine
+
+        frames = out / f"engine_{tag}"
+        res = quasi_static_tension_engine(
+            model, strain_step=args.strain_step, max_strain=args.max_strain, progress=show,
+            checkpoint=Checkpoint(frames / "checkpoint.npz", every=1),
+            output=Output(frames, every=1, length_unit=1e-10))
+    else:
+        res = quasi_static_tension(model, strain_step=args.strain_step,
+                                   max_strain=args.max_strain, progress=show)
     res["wall_s"] = time.perf_counter() - t0
     write_json(out / f"tension_{tag}.json", {"result": res, "versions": versions()})
     print(f"({n},{m}) coarsening {args.coarsening:g}: {model.N} particles for {model.n_atoms} atoms; "

@@ -468,7 +468,7 @@ def plot_comparison(res, ref, out, path, model):
 def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: float = 0.40,
                                 gtol: float = 1e-6, after_failure: int = 1,
                                 fit_max_strain: float = 0.02, progress=None,
-                                checkpoint=None) -> dict:
+                                checkpoint=None, output=None) -> dict:
     """Quasi-static tension of the periodic coarse tube on the engine.
 
     The protocol of :func:`upscale.models.dcbr.quasi_static_tension` (zero-stress
@@ -484,7 +484,9 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
     zero-stress relaxation, which also relaxes the cell length, is
     :meth:`DCBRTube.minimise` (``relax_box=True``): the cell length is not an engine
     variable. ``checkpoint``: a :class:`~upscale.engine.checkpoint.Checkpoint` written at
-    every load step (state, shifts, the load step in its meta).
+    every load step (state, shifts, links, the load step in its meta); ``output``: an
+    :class:`~upscale.engine.output.Output` written at every load step (extxyz and VTK
+    frames with displacement and the links' damage; ``state.step`` counts load steps).
 
     Returns the dict of :func:`upscale.models.dcbr.quasi_static_tension` (``curve``, the
     metrics of :func:`upscale.analysis.stress.curve_metrics`, ``L0_A``,
@@ -541,9 +543,12 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
         lzs.append(float(Lz))
         dmax.append(float(tube.damage.max()))
         nbroken.append(int((~tube.intact).sum()))
+        sim.state.step = k
         if checkpoint is not None:
             checkpoint.write(sim.state, {"scene": "tube quasi-static tension", "load_step": k,
-                                         "strain": eps})
+                                         "strain": eps, "cell_length_A": Lz})
+        if output is not None:
+            output.write(sim)
         if progress is not None:
             progress(eps, s)
         if failed_at is None and s < 0.95 * max(stresses) and max(stresses) > 0:
