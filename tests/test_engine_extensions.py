@@ -323,3 +323,37 @@ def test_assembly_refuses_mismatched_bodies():
     with pytest.raises(ValueError, match="names must differ"):
         assemble([Body(a, build_family(a, 2.0), PMB(E=1.0), "a"),
                   Body(a, build_family(a, 2.0), PMB(E=1.0), "a")])
+
+
+def test_adr_interrupted_and_resumed_is_bit_identical(tmp_path):
+    """Adaptive dynamic relaxation of the gripped bar, interrupted at an iteration (an
+    exception out of the force evaluation, as a kill) and resumed from its checkpoint."""
+    from upscale.engine.checkpoint import Checkpoint
+    from upscale.engine.integrators import AdaptiveDynamicRelaxation
+
+    def sim():
+        s, fam, pmb, lo, hi = _bar()
+        return Simulation(s, fam, pmb, [Grip(lo, displacement=(0.0, 0.0, 0.0)),
+                                        Grip(hi, displacement=(1e-5, 0.0, 0.0))])
+
+    a = sim()
+    ra = a.relax(AdaptiveDynamicRelaxation(tol=1e-8, max_steps=400))
+    b = sim()
+    calls = {"n": 0}
+    orig = b.update_forces
+
+    def dying():
+        calls["n"] += 1
+        if calls["n"] == 57:
+            raise KeyboardInterrupt("killed")
+        return orig()
+
+    b.update_forces = dying
+    ck = Checkpoint(tmp_path / "adr.npz", every=10)
+    with pytest.raises(KeyboardInterrupt):
+        b.relax(AdaptiveDynamicRelaxation(tol=1e-8, max_steps=400), checkpoint=ck)
+    c = sim()
+    rc = c.relax(AdaptiveDynamicRelaxation(tol=1e-8, max_steps=400),
+                 checkpoint=Checkpoint(ck.path, 10), resume=True)
+    assert rc["iterations"] == ra["iterations"] and rc["residual"] == ra["residual"]
+    assert np.array_equal(c.state.y, a.state.y)

@@ -161,6 +161,9 @@ class AdaptiveDynamicRelaxation:
 
     ``sim.relax(adr)`` iterates until the out-of-balance force on the free degrees of
     freedom, relative to the largest of the reaction and applied forces, is below ``tol``.
+    ``run(sim, checkpoint=Checkpoint(path, every))`` writes the iterate, its fictitious
+    velocity and last force every ``every`` iterations; ``resume=True`` continues from
+    there bit for bit.
     """
 
     name = "adr"
@@ -170,7 +173,7 @@ class AdaptiveDynamicRelaxation:
         self.max_steps = int(max_steps)
         self.dt = float(dt)
 
-    def run(self, sim, progress: bool = False) -> dict:
+    def run(self, sim, progress: bool = False, checkpoint=None, resume: bool = False) -> dict:
         st = sim.state
         R = np.zeros(sim.system.n)
         for m in sim.models:
@@ -188,8 +191,20 @@ class AdaptiveDynamicRelaxation:
         v_half = 0.5 * dt * F / lam
         F_prev = F.copy()
         res = np.inf
-        it = 0
-        for it in range(1, self.max_steps + 1):
+        it = start = 0
+        if resume and checkpoint is not None and checkpoint.path.is_file():
+            from upscale.engine.checkpoint import load_checkpoint
+
+            s2, meta, eng = load_checkpoint(checkpoint.path, sim.system.x0,
+                                            nb=st.intact.shape[0], engine=True)
+            if meta.get("solver") != "adr":
+                raise ValueError(f"checkpoint {checkpoint.path} is not of an ADR run "
+                                 f"({meta.get('solver')!r}); valid: the run it interrupted")
+            st.y[...], st.intact[...] = s2.y, s2.intact
+            v_half, F_prev = eng["v_half"], eng["F_prev"]
+            start = it = int(eng["iteration"])
+            checkpoint.last_step = it
+        for it in range(start + 1, self.max_steps + 1):
             st.y += dt * v_half
             sim.apply_displacement(st.t, None)
             sim.update_forces()
@@ -208,5 +223,9 @@ class AdaptiveDynamicRelaxation:
             res = float(np.linalg.norm(F)) / scale
             if res < self.tol:
                 break
+            if checkpoint is not None and it % checkpoint.every == 0:
+                checkpoint.write(st, {"solver": "adr"},
+                                 engine={"v_half": v_half, "F_prev": F_prev,
+                                         "iteration": np.int64(it)})
         st.v[...] = 0.0
         return {"iterations": it, "residual": res, "converged": bool(res < self.tol)}

@@ -366,9 +366,10 @@ class Simulation:
 
         return (minimiser or FIRE()).minimise(self, **kw)
 
-    def relax(self, adr=None, progress: bool = False) -> dict:
-        """Quasi-static equilibrium by adaptive dynamic relaxation (see integrators)."""
+    def relax(self, adr=None, progress: bool = False, **kw) -> dict:
+        """Quasi-static equilibrium by adaptive dynamic relaxation (see integrators);
+        ``kw``: ``checkpoint``, ``resume``."""
         from upscale.engine.integrators import AdaptiveDynamicRelaxation
 
         adr = adr or AdaptiveDynamicRelaxation()
-        return adr.run(self, progress=progress)
+        return adr.run(self, progress=progress, **kw)
