@@ -909,8 +909,8 @@ def quasi_static_tension(model: DCBRTube, strain_step: float = 0.005, max_strain
     rule and the minimisation repeated until no link breaks. Stress sigma = (dE/dLz) /
     (2 pi R t), t = 3.4 Å. Stops ``after_failure`` steps after the first drop of more than 5 %
     below the running maximum (1, as the references' runner, so the last state, which the
-    damage map and crack line are read from, is the step of LAMMPS's last frame; until
-    2026-11-22 it was 2), or at ``max_strain``.
+    damage map and crack line are read from, is the step of LAMMPS's last frame), or at
+    ``max_strain``.
 
     Returns
     -------
