@@ -64,6 +64,10 @@ def test_bad_bodies_are_one_line_errors():
         DCBRTubeModel(object())
     with pytest.raises(ValueError, match="cell length must be positive"):
         DCBRTubeModel(tube).set_cell(-1.0)
+    with pytest.raises(ValueError, match="needs a 3D body, got dim=2"):
+        Simulation(ParticleSystem(tube.x0[:, :2], 1.0, 1.0, dim=2), None, DCBRTubeModel(tube))
+    with pytest.raises(ValueError, match="shorter than two unit cells"):
+        DCBRTube(7, 3, 40.0)
 
 
 def test_engine_driver_reproduces_the_tubes_own_driver(tmp_path):
