@@ -468,7 +468,8 @@ def plot_comparison(res, ref, out, path, model):
 def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: float = 0.40,
                                 gtol: float = 1e-6, after_failure: int = 1,
                                 fit_max_strain: float = 0.02, progress=None,
-                                checkpoint=None, output=None) -> dict:
+                                checkpoint=None, output=None,
+                                shift_gtol: float = 1e-10) -> dict:
     """Quasi-static tension of the periodic coarse tube on the engine.
 
     The protocol of :func:`upscale.models.dcbr.quasi_static_tension` (zero-stress
@@ -487,6 +488,7 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
     every load step (state, shifts, links, the load step in its meta); ``output``: an
     :class:`~upscale.engine.output.Output` written at every load step (extxyz and VTK
     frames with displacement and the links' damage; ``state.step`` counts load steps).
+    ``shift_gtol``: tolerance of the shifts' relaxation at every configuration (eV/Å).
 
     Returns the dict of :func:`upscale.models.dcbr.quasi_static_tension` (``curve``, the
     metrics of :func:`upscale.analysis.stress.curve_metrics`, ``L0_A``,
@@ -513,7 +515,7 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
     # a particle's mass: its atoms (volume = atoms, density = the carbon mass)
     system = ParticleSystem(tube.x0, tube.natoms_n, CARBON_MASS_AMU,
                             spacing=float(min(tube.spacing)))
-    model = DCBRTubeModel(tube)
+    model = DCBRTubeModel(tube, shift_gtol=shift_gtol)
     sim = Simulation(system, None, model)
     sim.state.y[...] = y
     sim.state.extra["dcbr.delta"][...] = d

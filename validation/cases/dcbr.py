@@ -490,8 +490,9 @@ def _dcbr_regression(args):
     (:func:`upscale.models.dcbr.quasi_static_tension`, its joint L-BFGS over positions and
     shifts: the code before the port) and on the engine
     (:func:`upscale.experiments.tube_tension.quasi_static_tension_engine`), one after the
-    other in this process, on the same machine: the change of every figure and the wall-time
-    ratio. The dynamic runs are not on the engine yet: their step-time ratio is null."""
+    other in this process, on the same machine: the change of every figure, and the ratio of
+    wall and of CPU times (this process's; CPU time is what a loaded machine does not
+    change). The dynamic runs are not on the engine yet: their step-time ratio is null."""
     from upscale.experiments.tube_tension import quasi_static_tension_engine
     from upscale.models.dcbr import DCBRTube, quasi_static_tension
 
@@ -501,8 +502,11 @@ def _dcbr_regression(args):
     rows = []
     for n, m in chis:
         for k in args.coarsening or [2.0]:
+            c0 = time.process_time()
             a = quasi_static_tension(DCBRTube(n, m, length, coarsening=k))
+            c1 = time.process_time()
             b = quasi_static_tension_engine(DCBRTube(n, m, length, coarsening=k))
+            c2 = time.process_time()
             sa, sb = np.array(a["curve"]["stress_GPa"]), np.array(b["curve"]["stress_GPa"])
             nn = min(len(sa), len(sb))
             rows.append({"tube": f"({n},{m})", "K": k, "strength_before_GPa": a["strength_GPa"],
@@ -517,6 +521,7 @@ def _dcbr_regression(args):
                          "curve_max_abs_diff_GPa": float(np.abs(sb[:nn] - sa[:nn]).max()),
                          "points_before": len(sa), "points_after": len(sb),
                          "wall_before_s": a["wall_s"], "wall_after_s": b["wall_s"],
+                         "cpu_before_s": c1 - c0, "cpu_after_s": c2 - c1,
                          "minimisations_above_tolerance_after":
                              b["minimiser"]["minimisations_above_tolerance"]})
             print(f"({n},{m}) K={k:g}: before {a['wall_s']:.1f} s, after {b['wall_s']:.1f} s",
@@ -530,6 +535,8 @@ def _dcbr_regression(args):
             "max_strain_at_peak_change": max(abs(r["strain_at_peak_after"]
                                                  - r["strain_at_peak_before"]) for r in rows),
             "qs_wall_ratio_after_over_before": wall_a / wall_b,
+            "qs_cpu_ratio_after_over_before": sum(r["cpu_after_s"] for r in rows)
+            / sum(r["cpu_before_s"] for r in rows),
             "step_time_ratio_after_over_before": None,
             "note": "quasi-static pristine tubes only: the vacancy tubes (DCBRDefectTube) and "
                     "the dynamic runs (dcbr_dynamic.dynamic_tension) still run their own loops",
