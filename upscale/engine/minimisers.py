@@ -36,7 +36,12 @@ Methods
     Limited-memory BFGS with bounds (R. H. Byrd, P. Lu, J. Nocedal, C. Zhu, SIAM J. Sci.
     Comput. 16, 1190 (1995), through :func:`scipy.optimize.minimize` ``L-BFGS-B``) on
     eq. (1); needs the models' energies. ``bounds=(lo, hi)``: (N, 3) arrays (or scalars,
-    ``+-inf`` for none) on the positions ``y``. Its line search compares energies, so
+    ``+-inf`` for none) on the positions ``y``. A model's massless internal fields are
+    minimised together with the positions: a model that declares ``internal_fields``
+    (``{name: (lo, hi)}``, arrays ``state.extra[name]`` with bounds) gives
+    ``internal_gradient(state) -> {name: dE/dfield}`` and stops relaxing them itself while
+    ``hold_internal(True)`` (as the integrators and the other minimisers need it to);
+    ``fmax`` then includes the largest field gradient component off its bound. Its line search compares energies, so
     it cannot resolve forces below about ``sqrt(machine eps) |Pi| / length`` (e.g.
     ~1e-6 eps/sigma for a 13-atom LJ cluster): a tighter ``ftol`` ends in
     :class:`NotConverged` with scipy's reason; FIRE, driven by forces only, goes further.
@@ -375,19 +380,44 @@ class LBFGS:
         count = {"f": 0, "it": 0}
         y_good = st.y.copy()
         hist = []
+        # massless internal fields minimised together with the positions (module docstring)
+        fields = [(m, name, lh) for m in sim.models
+                  for name, lh in (getattr(m, "internal_fields", None) or {}).items()]
+        ny = idx.size
+        fsl, off = [], ny
+        for m, name, (flo, fhi) in fields:
+            a = st.extra[name]
+            fsl.append(slice(off, off + a.size))
+            off += a.size
+        if fields:
+            flo_all = np.concatenate([np.full(st.extra[nm].size, float(lh[0])) for _, nm, lh in fields])
+            fhi_all = np.concatenate([np.full(st.extra[nm].size, float(lh[1])) for _, nm, lh in fields])
+            ylo = np.full(ny, -np.inf) if bnds is None else np.array([b[0] for b in bnds])
+            yhi = np.full(ny, np.inf) if bnds is None else np.array([b[1] for b in bnds])
+            bnds = list(zip(np.r_[ylo, flo_all], np.r_[yhi, fhi_all]))
+            for m, name, _ in fields:
+                m.hold_internal(True)
+
+        def put(x):
+            yflat[idx] = x[:ny]
+            for (m, name, _), sl in zip(fields, fsl):
+                st.extra[name].reshape(-1)[...] = x[sl]
 
         def fun(x):
-            yflat[idx] = x
+            put(x)
             count["f"] += 1
             e = total_energy(sim)
             g = -sim.forces().reshape(-1)[idx]
+            if fields:
+                g = np.concatenate([g] + [m.internal_gradient(st)[name].reshape(-1)
+                                          for m, name, _ in fields])
             if not (np.isfinite(e) and np.all(np.isfinite(g))):
                 return np.inf, np.zeros_like(x)
             return e, g
 
         def cb(x):
             count["it"] += 1
-            yflat[idx] = x
+            put(x)
             y_good[...] = st.y
             if count["it"] % 50 == 0:
                 hist.append((count["it"], _fmax(_free_forces(sim))))
@@ -395,16 +425,31 @@ class LBFGS:
                 checkpoint.write(st, {"minimiser": self.name},
                                  engine={"iteration": np.int64(count["it"])})
 
-        # scipy's projected-gradient test is per component; ours is per particle
-        r = minimize(fun, yflat[idx].copy(), jac=True, method="L-BFGS-B", bounds=bnds,
-                     callback=cb, options={"maxiter": self.max_iter, "maxcor": self.memory,
-                                           "gtol": self.ftol / np.sqrt(3.0), "ftol": 0.0,
-                                           "maxfun": 20 * self.max_iter, "maxls": 40})
-        yflat[idx] = r.x
+        x0 = yflat[idx].copy()
+        if fields:
+            x0 = np.concatenate([x0] + [np.clip(st.extra[nm].reshape(-1), lh[0], lh[1])
+                                        for _, nm, lh in fields])
+        try:
+            # scipy's projected-gradient test is per component; ours is per particle
+            r = minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=bnds,
+                         callback=cb, options={"maxiter": self.max_iter, "maxcor": self.memory,
+                                               "gtol": self.ftol / np.sqrt(3.0), "ftol": 0.0,
+                                               "maxfun": 20 * self.max_iter, "maxls": 40})
+            put(r.x)
+            g_fields = 0.0
+            if fields:  # the largest field gradient component off its active bound
+                gf = np.concatenate([m.internal_gradient(st)[name].reshape(-1)
+                                     for m, name, _ in fields])
+                xf = r.x[ny:]
+                gf[((xf <= flo_all) & (gf > 0)) | ((xf >= fhi_all) & (gf < 0))] = 0.0
+                g_fields = float(np.abs(gf).max()) if gf.size else 0.0
+        finally:
+            for m, name, _ in fields:
+                m.hold_internal(False)
 
         def projected():  # a force pushing a dof against its active bound holds it there
             F = _free_forces(sim)
-            if bnds is not None:
+            if self.bounds is not None:
                 f = F.reshape(-1)
                 yv = yflat[idx]
                 fv = f[idx]
@@ -413,7 +458,7 @@ class LBFGS:
             return F
 
         F = projected()
-        fm = _fmax(F)
+        fm = max(_fmax(F), g_fields)
         msg = ""
         if not np.isfinite(fm):
             st.y[...] = y_good

@@ -1044,6 +1044,7 @@ class DCBRTubeModel:
         self.cell = cell
         self.needs = Needs(pairs=False, failure=bool(failure), energy=True)
         self._cache = None
+        self._held = False
         self.system = None
 
     def prepare(self, system, family=None, **kw) -> None:
@@ -1108,6 +1109,24 @@ class DCBRTubeModel:
         delta[...] = r.x.reshape(t.N, 3)
         return delta
 
+    # the shifts as a massless internal field minimised with the positions (engine L-BFGS-B)
+    @property
+    def internal_fields(self) -> dict:
+        """``{"dcbr.delta": (-b, b)}`` (the shifts and their bounds), empty without shift
+        relaxation."""
+        b = self.tube.shift_bound
+        return {"dcbr.delta": (-b, b)} if self.tube.relax_shift else {}
+
+    def hold_internal(self, flag: bool) -> None:
+        """While held, the shifts are taken as they are in ``state.extra`` (a minimiser
+        moves them); else they are relaxed at every configuration."""
+        self._held = bool(flag)
+        self._cache = None
+
+    def internal_gradient(self, state) -> dict:
+        """``{"dcbr.delta": dE/d delta (N, 3)}`` (eV/Å) at the state's shifts."""
+        return {"dcbr.delta": self._evaluate(state)[3]}
+
     def _evaluate(self, state):
         self._sync_links(state)
         if self.cell is not None:
@@ -1115,14 +1134,16 @@ class DCBRTubeModel:
             if Lz != self.Lz:
                 self.set_cell(Lz)
         y = np.ascontiguousarray(state.y)
-        c = self._cache
-        if c is not None and c[0] == self.Lz and np.array_equal(c[1], y):
-            return c[2], c[3], c[4]
         d = state.extra["dcbr.delta"]
-        self.relax_shifts(y, d)
-        E, gy, _, gL = self.tube.energy_and_gradient(y, d, self.Lz)
-        self._cache = (self.Lz, y.copy(), E, gy, gL)
-        return E, gy, gL
+        c = self._cache
+        if c is not None and c[0] == self.Lz and np.array_equal(c[1], y) and \
+                (not self._held or np.array_equal(c[6], d)):
+            return c[2], c[3], c[4], c[5]
+        if not self._held:
+            self.relax_shifts(y, d)
+        E, gy, gd, gL = self.tube.energy_and_gradient(y, d, self.Lz)
+        self._cache = (self.Lz, y.copy(), E, gy, gL, gd, d.copy())
+        return E, gy, gL, gd
 
     # ------------------------------------------------------------------ the contract
     def add_force(self, state, out) -> None:
