@@ -357,3 +357,62 @@ def test_adr_interrupted_and_resumed_is_bit_identical(tmp_path):
                  checkpoint=Checkpoint(ck.path, 10), resume=True)
     assert rc["iterations"] == ra["iterations"] and rc["residual"] == ra["residual"]
     assert np.array_equal(c.state.y, a.state.y)
+
+
+class SpringsWithField(Model):
+    """E = sum k/2 |y - c - a e_x|^2 + kappa/2 (a - a0)^2, a (N,) a massless internal field
+    (state.extra["a"]), relaxed in closed form unless held."""
+
+    name = "springs-field"
+    needs = Needs(pairs=False, energy=True)
+    force_kind = "particle"
+
+    def __init__(self, c, a0, lo, hi, k=1.0, kappa=3.0):
+        self.c, self.a0, self.lo, self.hi, self.k, self.kappa = c, a0, lo, hi, k, kappa
+        self.held = False
+        self.internal_fields = {"a": (lo, hi)}
+
+    def init_state(self, state):
+        state.extra["a"] = np.zeros(len(self.c))
+
+    def hold_internal(self, flag):
+        self.held = flag
+
+    def _a(self, state):
+        a = state.extra["a"]
+        if not self.held:  # argmin over a at fixed y, then the bound
+            a[...] = np.clip((self.k * (state.y[:, 0] - self.c[:, 0]) + self.kappa * self.a0)
+                             / (self.k + self.kappa), self.lo, self.hi)
+        return a
+
+    def add_force(self, state, out):
+        d = state.y - self.c
+        d[:, 0] -= self._a(state)
+        out -= self.k * d
+
+    def energy(self, state):
+        a = self._a(state)
+        d = state.y - self.c
+        d[:, 0] -= a
+        return float(0.5 * self.k * np.sum(d * d) + 0.5 * self.kappa * np.sum((a - self.a0) ** 2))
+
+    def internal_gradient(self, state):
+        a = state.extra["a"]
+        return {"a": -self.k * (state.y[:, 0] - self.c[:, 0] - a) + self.kappa * (a - self.a0)}
+
+
+def test_lbfgs_minimises_internal_fields_with_the_positions():
+    """The joint minimum is y = c + a0 e_x, a = a0; with the bound a <= 0.2 (below every a0)
+    the field sits at the bound and the positions follow it (y_x = c_x + 0.2)."""
+    rng = np.random.default_rng(8)
+    n = 20
+    x0 = rng.uniform(0, 10, (n, 3))
+    c = x0 + 0.2
+    a0 = rng.uniform(0.3, 0.5, n)
+    for hi, a_star in ((np.inf, a0), (0.2, np.full(n, 0.2))):
+        m = SpringsWithField(c, a0, -np.inf, hi)
+        sim = Simulation(ParticleSystem(x0, 1.0, 1.0, spacing=1.0), None, m)
+        r = sim.minimise(LBFGS(ftol=1e-9))
+        assert r.converged and not m.held
+        assert np.abs(sim.state.extra["a"] - a_star).max() < 1e-8
+        assert np.abs(sim.state.y - c - a_star[:, None] * [1, 0, 0]).max() < 1e-8

@@ -95,7 +95,11 @@ Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bon
     not break. Not converged in ``max_iter``: ``NotConverged`` (one line: method, fmax vs
     ftol, iterations; ``.result``), the state left at the last finite iterate. FIRE and
     QuickMin resume bit for bit from their checkpoint; L-BFGS-B resumes from its iterate
-    with a new curvature history.
+    with a new curvature history. Massless internal fields (per-particle arrays in
+    ``state.extra`` a model relaxes at every configuration, e.g. the tube's sublattice
+    shifts): a model declares ``internal_fields = {name: (lo, hi)}`` and provides
+    ``internal_gradient(state) -> {name: dE/dfield}`` and ``hold_internal(flag)``; L-BFGS-B
+    then minimises them together with the positions (the model holds them meanwhile).
 
 ``upscale.engine.bodies``
     ``Body(system, family, models, name)``; ``assemble(bodies, interactions=()) ->
