@@ -90,3 +90,28 @@ def test_engine_driver_reproduces_the_tubes_own_driver(tmp_path):
     st, meta = load_checkpoint(tmp_path / "ck.npz")
     assert meta["load_step"] == 4 and "dcbr.delta" in st.extra and "dcbr.intact" in st.extra
     assert (tmp_path / "traj.extxyz").is_file() and (tmp_path / "vtk").is_dir()
+
+
+def test_engine_driver_resumes_bit_for_bit(tmp_path):
+    """Interrupted after its third load step (an exception out of the progress callback, as
+    a kill) and resumed from the checkpoint: the curve and the final state are the
+    uninterrupted run's, bit for bit."""
+    from upscale.engine.checkpoint import Checkpoint
+    from upscale.experiments.tube_tension import quasi_static_tension_engine
+
+    a = quasi_static_tension_engine(DCBRTube(6, 6, 20.0, coarsening=2), max_strain=0.03)
+
+    def die(eps, s):
+        if eps > 0.0125:
+            raise KeyboardInterrupt("killed")
+
+    ck = tmp_path / "ck.npz"
+    with pytest.raises(KeyboardInterrupt):
+        quasi_static_tension_engine(DCBRTube(6, 6, 20.0, coarsening=2), max_strain=0.03,
+                                    checkpoint=Checkpoint(ck, 1), progress=die)
+    tube = DCBRTube(6, 6, 20.0, coarsening=2)
+    tube.minimise = None  # a resumed run does not relax the zero-stress state again
+    b = quasi_static_tension_engine(tube, max_strain=0.03, checkpoint=Checkpoint(ck, 1),
+                                    resume=True)
+    assert b["curve"] == a["curve"]
+    assert np.array_equal(b["positions"], a["positions"]) and np.array_equal(b["delta"], a["delta"])

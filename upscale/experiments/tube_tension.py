@@ -469,7 +469,7 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
                                 gtol: float = 1e-6, after_failure: int = 1,
                                 fit_max_strain: float = 0.02, progress=None,
                                 checkpoint=None, output=None,
-                                shift_gtol: float = 1e-10) -> dict:
+                                shift_gtol: float = 1e-10, resume: bool = False) -> dict:
     """Quasi-static tension of the periodic coarse tube on the engine.
 
     The protocol of :func:`upscale.models.dcbr.quasi_static_tension` (zero-stress
@@ -489,6 +489,9 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
     :class:`~upscale.engine.output.Output` written at every load step (extxyz and VTK
     frames with displacement and the links' damage; ``state.step`` counts load steps).
     ``shift_gtol``: tolerance of the shifts' relaxation at every configuration (eV/Å).
+    ``resume``: continue from ``checkpoint`` (if its file exists) after its load step; every
+    load step's minimisation starts afresh, so the resumed run ends bit for bit where the
+    uninterrupted one does.
 
     Returns the dict of :func:`upscale.models.dcbr.quasi_static_tension` (``curve``, the
     metrics of :func:`upscale.analysis.stress.curve_metrics`, ``L0_A``,
@@ -509,8 +512,18 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
         raise ValueError(f"strain_step={strain_step}, max_strain={max_strain}; valid: "
                          "0 < strain_step < max_strain <= 2")
     t0 = time.perf_counter()
-    y, d, L0, _, _, _ = tube.minimise(tube.x0, tube.delta, tube.L, relax_box=True, gtol=gtol)
-    R = tube.radius(y, d)
+    restored = None
+    if resume and checkpoint is not None and checkpoint.path.is_file():
+        from upscale.engine.checkpoint import load_checkpoint
+
+        restored = load_checkpoint(checkpoint.path, tube.x0)
+        if restored[1].get("scene") != "tube quasi-static tension":
+            raise ValueError(f"checkpoint {checkpoint.path} is not of a tube quasi-static "
+                             f"tension ({restored[1].get('scene')!r})")
+        y, d, L0 = restored[0].y, restored[0].extra["dcbr.delta"], restored[1]["L0_A"]
+    else:
+        y, d, L0, _, _, _ = tube.minimise(tube.x0, tube.delta, tube.L, relax_box=True, gtol=gtol)
+    R = tube.radius(y, d) if restored is None else restored[1]["radius_relaxed_A"]
     area = 2 * math.pi * R * WALL_THICKNESS_A
     # a particle's mass: its atoms (volume = atoms, density = the carbon mass)
     system = ParticleSystem(tube.x0, tube.natoms_n, CARBON_MASS_AMU,
@@ -523,7 +536,18 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
     strains, stresses, energies, lzs, dmax, nbroken = [], [], [], [], [], []
     k, failed_at, Lprev = 0, None, L0
     n_it = n_f = unconverged = 0
-    while True:
+    if restored is not None:
+        st0, meta = restored
+        sim.state.extra["dcbr.intact"][...] = st0.extra["dcbr.intact"]
+        sim.state.extra["dcbr.alive"][...] = st0.extra["dcbr.alive"]
+        c = meta["curve"]
+        strains, stresses, energies = c["strain"], c["stress_GPa"], c["energy_eV"]
+        lzs, dmax, nbroken = c["Lz_A"], c["damage_max"], c["broken_links"]
+        k, failed_at, Lprev = meta["load_step"] + 1, meta["failed_at"], meta["cell_length_A"]
+        n_it, n_f, unconverged = meta["iterations"], meta["force_evaluations"], meta["unconverged"]
+        if failed_at is not None and k - 1 - failed_at >= after_failure:
+            k = None  # the run had ended
+    while k is not None:
         eps = k * strain_step
         if eps > max_strain + 1e-12:
             break
@@ -546,15 +570,20 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
         dmax.append(float(tube.damage.max()))
         nbroken.append(int((~tube.intact).sum()))
         sim.state.step = k
+        if failed_at is None and s < 0.95 * max(stresses) and max(stresses) > 0:
+            failed_at = k
         if checkpoint is not None:
-            checkpoint.write(sim.state, {"scene": "tube quasi-static tension", "load_step": k,
-                                         "strain": eps, "cell_length_A": Lz})
+            checkpoint.write(sim.state, {
+                "scene": "tube quasi-static tension", "load_step": k, "strain": eps,
+                "cell_length_A": Lz, "L0_A": float(L0), "radius_relaxed_A": R,
+                "failed_at": failed_at, "iterations": n_it, "force_evaluations": n_f,
+                "unconverged": unconverged,
+                "curve": {"strain": strains, "stress_GPa": stresses, "energy_eV": energies,
+                          "Lz_A": lzs, "damage_max": dmax, "broken_links": nbroken}})
         if output is not None:
             output.write(sim)
         if progress is not None:
             progress(eps, s)
-        if failed_at is None and s < 0.95 * max(stresses) and max(stresses) > 0:
-            failed_at = k
         if failed_at is not None and k - failed_at >= after_failure:
             break
         k += 1
