@@ -115,3 +115,20 @@ def test_engine_driver_resumes_bit_for_bit(tmp_path):
                                     resume=True)
     assert b["curve"] == a["curve"]
     assert np.array_equal(b["positions"], a["positions"]) and np.array_equal(b["delta"], a["delta"])
+
+
+def test_experiments_tension_api(tmp_path):
+    """``tension(...)`` returns a result with the headline figures, a plot and a JSON; the
+    engine and the tube's own driver agree; an unknown model is a one-line error."""
+    import json
+
+    from upscale.experiments.tube_tension import tension
+
+    a = tension(6, 6, 20.0, coarsening=2, max_strain=0.02)
+    b = tension(6, 6, 20.0, coarsening=2, max_strain=0.02, engine=True)
+    assert b.modulus_tpa == pytest.approx(a.modulus_tpa, rel=1e-6) and a.modulus_tpa > 0.5
+    assert a.plot(tmp_path / "c.png").stat().st_size > 1000
+    r = json.loads(a.to_json(tmp_path / "r.json").read_text())["result"]
+    assert r["strength_GPa"] == a.strength_gpa and "positions" not in r
+    with pytest.raises(ValueError, match="model='md'; valid"):
+        tension(6, 6, 20.0, model="md")
