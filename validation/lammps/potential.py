@@ -135,7 +135,7 @@ def _write_step_tersoff(src: Path, dst: Path, D: float = STEP_D) -> Path:
 
 def _step_file(src: Path) -> Path:
     dst = cache_dir() / "potentials" / f"{src.stem}.step{src.suffix}"
-    try:  # helper A1's writer, when present, so both sides use the identical file
+    try:  # the project's writer, when present, so both sides use the identical file
         from potentials.tersoff import write_step_cutoff_file  # noqa: PLC0415
     except ImportError:
         write_step_cutoff_file = None
