@@ -305,8 +305,8 @@ class LatticeStability:
     The smallest periodic piece of the ideal (n, m) tube whose length is at least twice the
     potential's outer cutoff (no atom meets its own image twice) is mapped by the
     cylindrical map of q = (lam_t, gam, lam_z, d_rho, d_s, d_z) (gam is set to 0: a twist is
-    not periodic); its Hessian at fixed cell (central differences of the Tersoff forces of
-    the Tersoff kernel of potentials.tersoff, step 1e-4 Å) is projected off the four zero modes (three
+    not periodic); its Hessian at fixed cell (central differences of the forces of
+    :mod:`potentials.tersoff`, step 1e-4 Å) is projected off the four zero modes (three
     translations, rotation about the axis). The lattice is unstable when the smallest
     eigenvalue is negative (below -1e-3 eV/Å^2, far above the finite-difference noise).
     This is the phonon (lattice) instability by which a perfect lattice fails under load,
