@@ -32,13 +32,15 @@ from potentials import tersoff_kernels as tk
 from potentials.calculator import PotentialCalculator
 
 __all__ = ["TersoffParameters", "Tersoff", "read_tersoff_file", "resolve_potential_file",
-           "write_step_cutoff_file", "STEP_CUTOFF_D"]
+           "write_step_cutoff_file", "STEP_CUTOFF_D", "NAMES", "INDEX"]
 
 #: the switching width written into LAMMPS files for the step cutoff (Angstrom)
 STEP_CUTOFF_D = 1.0e-5
 
 NAMES = ("m", "gamma", "lambda3", "c", "d", "costheta0", "n", "beta", "lambda2", "B", "R",
          "D", "lambda1", "A")
+#: column of each parameter in a parameter row (``INDEX["R"] == 10``)
+INDEX = {name: i for i, name in enumerate(NAMES)}
 
 
 class TersoffFileError(ValueError):
@@ -264,6 +266,16 @@ class Tersoff(PotentialCalculator):
         self._e2p = np.ascontiguousarray(parameters.e2p, dtype=np.int64)
         self._symbol_to_type = {s: t for t, s in enumerate(parameters.elements)}
         self._types = self._numbers = None
+
+    @property
+    def table(self) -> np.ndarray:
+        """Parameter table (rows of :data:`NAMES`) the kernels take as ``P``."""
+        return self._P
+
+    @property
+    def e2p(self) -> np.ndarray:
+        """Element-triplet to parameter-row map the kernels take as ``e2p``."""
+        return self._e2p
 
     @classmethod
     def from_lammps(cls, name_or_path, elements=None, step_cutoff: bool = False, **kwargs):

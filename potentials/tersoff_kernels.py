@@ -158,10 +158,15 @@ def ters_exp(rij, rik, m, lam3, lam3cube):
 
 # -- the driver -----------------------------------------------------------------------------
 @njit(cache=True)
-def _chunk(lo, hi, x_nc, cell, first_n, j_b, shift_bc, type_n, e2p, P, cutmaxsq,
-           f_nc, e_n, W_cc):
+def tersoff_range(lo, hi, x_nc, cell, first_n, j_b, shift_bc, type_n, e2p, P, cutmaxsq,
+                  f_nc, e_n, W_cc):
     """Add the energy, forces, per-atom energies and virial of atoms lo..hi-1 (their
-    bonds and triplets) into f_nc, e_n, W_cc. Returns the energy."""
+    bonds and triplets) into f_nc, e_n, W_cc. Returns the energy.
+
+    ``P``: the parameter table (:attr:`potentials.tersoff.Tersoff.table`), ``e2p`` the
+    element-triplet to row map (:attr:`potentials.tersoff.Tersoff.e2p`), ``type_n`` (N,)
+    element indices, ``cutmaxsq`` the largest squared cutoff; the neighbour list is the
+    full CSR list of :func:`potentials.neighbours.neighbour_list`."""
     maxn = 0
     for i in range(lo, hi):
         maxn = max(maxn, first_n[i + 1] - first_n[i])
@@ -410,7 +415,7 @@ def tersoff(x_nc, cell, first_n, j_b, shift_bc, type_n, e2p, P, cutmax, nchunks)
     for t in prange(nchunks):
         lo = t * n // nchunks
         hi = (t + 1) * n // nchunks
-        en_t[t] = _chunk(lo, hi, x_nc, cell, first_n, j_b, shift_bc, type_n, e2p, P,
+        en_t[t] = tersoff_range(lo, hi, x_nc, cell, first_n, j_b, shift_bc, type_n, e2p, P,
                          cutmaxsq, f_tnc[t], e_tn[t], W_tcc[t])
     if nchunks == 1:
         return en_t[0], e_tn[0], f_tnc[0], W_tcc[0]

@@ -140,7 +140,7 @@ def test_bad_input():
 
 
 def test_lattice_stability_hessian_matches_project_tersoff_forces():
-    """Columns of the piece Hessian vs central differences of helper A1's Tersoff forces."""
+    """Columns of the piece Hessian vs central differences of the Tersoff forces of potentials.tersoff."""
     from ase import Atoms
 
     from potentials.tersoff import Tersoff

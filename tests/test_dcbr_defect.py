@@ -316,7 +316,7 @@ def test_static_grip_stiffness_does_not_count_the_setup_reaction():
 def test_clamped_grips_stiffness_is_lammps_at_every_coarsening():
     """The tube held by clamped grips, with the ghost forces of a twin opened and clamped
     alike (DCBRDefectTube.clamp_grips, prepare_step), taking hold where LAMMPS's grips do
-    (validation.cases.dcbr.dynamic_scene: its innermost held atoms, and its planes for the
+    (upscale.experiments.tube_tension.dynamic_scene: its innermost held atoms, and its planes for the
     gauge): the static stiffness between the grips (150 Å (10,10) with the vacancy, 50 Å
     grips, 0.25 %) is LAMMPS's within 1.5 % at coarsening 2 and 4
     (data/reference/grip_stiffness.json, LAMMPS's own run), and so is the gauge (the strain's
@@ -328,12 +328,12 @@ def test_clamped_grips_stiffness_is_lammps_at_every_coarsening():
     from pathlib import Path
 
     from upscale.models.dcbr_dynamic import static_grip_stiffness
-    from validation.cases.dcbr import _lammps_reference, dynamic_scene
+    from upscale.experiments.tube_tension import dynamic_scene, lammps_reference
 
     ref = json.loads((Path(__file__).resolve().parents[1] / "data" / "reference" /
                       "grip_stiffness.json").read_text())["tubes"]["10,10"]
     assert ref["strain"] == 0.0025 and ref["grip_A"] == 50.0
-    dref = _lammps_reference(10, 10, 150.0, protocol="dynamic", vacancy=True, progress=False)
+    dref = lammps_reference(10, 10, 150.0, protocol="dynamic", vacancy=True, progress=False)
     for K in (2.0, 4.0):
         m, dyn = dynamic_scene(10, 10, 150.0, K, dref, hourglass=0.1)
         assert dyn["grips"] == "clamped" and dyn["planes"][0] < dyn["gauge_planes"][0]
@@ -344,16 +344,16 @@ def test_clamped_grips_stiffness_is_lammps_at_every_coarsening():
         assert m._twin.clamp is not None and not m._twin.periodic
 
 
-def test_reference_held_planes():
+def testreference_held_planes():
     """The clamp of a coarse grip goes to LAMMPS's innermost held atoms: the nearest atom
     below (above) each plane, of a lattice given by its axial coordinates; a plane past
     the tube's end is a one-line error naming the planes."""
-    from validation.cases.dcbr import _reference_held_planes
+    from upscale.experiments.tube_tension import reference_held_planes
 
     z = np.array([0.0, 0.71, 2.13, 2.84, 4.26, 4.97, 6.39])
-    assert _reference_held_planes(z, (1.0, 4.5)) == (0.71, 4.97)
+    assert reference_held_planes(z, (1.0, 4.5)) == (0.71, 4.97)
     with pytest.raises(ValueError, match="planes="):
-        _reference_held_planes(z, (-1.0, 4.5))
+        reference_held_planes(z, (-1.0, 4.5))
 
 
 def test_clamped_twin_patch_test():
@@ -395,26 +395,26 @@ def test_tube_extent_ignores_particles_that_left():
     """The crack fit and the damage map take the tube's axial extent from its living carrying
     particles: a failed particle flown 1,300 Å away (a (50,50) K = 4 run) neither stretches
     the map nor lets the atoms it carried into the crack fit (which then read 3 deg)."""
-    from validation.cases.dcbr import _tube_z_range
+    from upscale.experiments.tube_tension import tube_z_range
 
     m = DCBRDefectTube(6, 6, 30.0, vacancy=4, **KW)
     lt, lz, sh = m.uniform_lattice(1.0)
     y, d, Lz = m.uniform_state(lt, lz, sh)
-    z0, z1 = _tube_z_range(m, y)
+    z0, z1 = tube_z_range(m, y)
     k = 0
     c = m.dof_idx[k]
     y[k, 2] -= 1300.0
     alive = m.alive.copy()
     try:
         m.alive[c] = False
-        lo, hi = _tube_z_range(m, y)
+        lo, hi = tube_z_range(m, y)
         assert z0 <= lo and hi <= z1
     finally:
         m.alive[:] = alive
-    assert _tube_z_range(m, y)[0] < -1000.0  # alive, it would count
+    assert tube_z_range(m, y)[0] < -1000.0  # alive, it would count
     try:  # every particle failed (a pristine periodic tube fails everywhere at once)
         m.alive[:] = False
-        assert _tube_z_range(m, y)[0] < -1000.0
+        assert tube_z_range(m, y)[0] < -1000.0
     finally:
         m.alive[:] = alive
 

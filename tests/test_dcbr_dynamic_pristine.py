@@ -74,7 +74,7 @@ def test_pristine_dynamic_vs_lammps_12_6():
     """One full comparison with the stored reference (data/reference/dyn_12-6_pristine.json),
     at coarsening 2, against the issue's targets; LAMMPS's tube fails at a grip plane, so
     the coarse one must too (its first damage within 5 Å of a plane)."""
-    from validation.cases.dcbr import run_tension_comparison
+    from upscale.experiments.tube_tension import run_tension_comparison
 
     o = run_tension_comparison(12, 6, 150.0, 2.0, dynamic=True, verbose=False, plot=False)
     assert o["strength_err_pct"] < 5 and o["modulus_err_pct"] < 3

@@ -52,9 +52,9 @@ def test_consistent_force_is_minus_energy_gradient(make):
             for sgn in (1, -1):
                 v = vals.copy()
                 v[p] += sgn * h
-                fields._set(st, key, v)
+                fields.set_dof(st, key, v)
                 e.append(sim.energy())
-            fields._set(st, key, vals)
+            fields.set_dof(st, key, vals)
             fd = -(e[0] - e[1]) / (2 * h)
             assert fd == pytest.approx(G[p, a], rel=1e-6, abs=1e-9 * np.abs(G).max())
 
@@ -231,9 +231,9 @@ def test_plate_force_is_minus_energy_gradient():
             for sgn in (1, -1):
                 v = vals.copy()
                 v[p] += sgn * h
-                fields._set(st, key, v)
+                fields.set_dof(st, key, v)
                 e.append(sim.energy())
-            fields._set(st, key, vals)
+            fields.set_dof(st, key, vals)
             assert -(e[0] - e[1]) / (2 * h) == pytest.approx(G[p, a], rel=1e-5,
                                                               abs=1e-8 * np.abs(G).max())
 

@@ -35,12 +35,14 @@ import numpy as np
 from ase import Atoms
 from ase.build import nanotube
 
-__all__ = ["Chirality", "chirality", "swcnt", "bundle", "vacancy", "graphene",
+from upscale.constants import WALL_THICKNESS_A
+
+__all__ = ["Chirality", "chirality", "cells_for_length", "swcnt", "bundle", "vacancy", "graphene",
            "WALL_THICKNESS", "VDW_GAP"]
 
 #: Wall thickness of a graphitic shell used to convert forces to stresses, Å (interlayer
 #: spacing of graphite; Yakobson et al., PRL 76, 2511 (1996) discuss the choice).
-WALL_THICKNESS = 3.4
+WALL_THICKNESS = WALL_THICKNESS_A
 #: Default wall-to-wall gap between neighbouring tubes of a bundle, Å (graphite interlayer
 #: spacing, ~ the equilibrium of the carbon Lennard-Jones pair sigma 2^(1/6) * 3.4 / 2^(1/6)).
 VDW_GAP = 3.4
@@ -121,7 +123,7 @@ def chirality(n: int, m: int, bond: float = 1.42) -> Chirality:
         d_R=dR, atoms_per_cell=4 * q // dR, cell_length=math.sqrt(3.0) * Ch / dR)
 
 
-def _ncells(ch: Chirality, length: float) -> int:
+def cells_for_length(ch: Chirality, length: float) -> int:
     _check_positive("length", length)
     if length < 2.0 * ch.cell_length - 1e-9:
         raise ValueError(
@@ -156,7 +158,7 @@ def swcnt(n: int, m: int, length: float, bond: float = 1.42, vacuum: float = 10.
     """
     ch = chirality(n, m, bond)
     _check_positive("vacuum", vacuum)
-    nc = _ncells(ch, length)
+    nc = cells_for_length(ch, length)
     tube = nanotube(ch.n, ch.m, length=nc, bond=bond, symbol=symbol)
     Lz = nc * ch.cell_length
     if abs(tube.cell[2, 2] - Lz) > 1e-6 * Lz or len(tube) != nc * ch.atoms_per_cell:

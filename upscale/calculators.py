@@ -20,9 +20,11 @@ from ase import Atoms
 from ase.calculators.calculator import Calculator, all_changes
 from scipy.optimize import minimize
 
+from upscale.constants import CARBON_MASS_AMU
+
 __all__ = ["DCBRCalculator", "dcbr_atoms"]
 
-CARBON_MASS = 12.011  # amu
+CARBON_MASS = CARBON_MASS_AMU  # amu
 
 
 def dcbr_atoms(model, vacuum: float = 10.0) -> Atoms:

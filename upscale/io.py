@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["atomic_write_bytes", "atomic_write_text", "write_json", "versions", "NumpyJSON"]
+__all__ = ["atomic_write_bytes", "atomic_write_text", "write_json", "versions", "NumpyJSON",
+           "text_table"]
 
 
 def atomic_write_bytes(path, data: bytes) -> Path:
@@ -76,3 +77,22 @@ def versions() -> dict:
         except PackageNotFoundError:
             pass
     return out
+
+
+def text_table(rows: list[dict], columns: list[str] | None = None, floatfmt: str = ".6g") -> str:
+    """Format rows of dicts as a plain aligned text table (floats with ``floatfmt``)."""
+    if not rows:
+        return "(no rows)"
+    columns = columns or list(rows[0])
+
+    def fmt(v):
+        if isinstance(v, float):
+            return format(v, floatfmt)
+        return str(v)
+
+    cells = [[fmt(r.get(c, "")) for c in columns] for r in rows]
+    widths = [max(len(c), *(len(row[i]) for row in cells)) for i, c in enumerate(columns)]
+    line = "  ".join(c.rjust(w) for c, w in zip(columns, widths))
+    sep = "  ".join("-" * w for w in widths)
+    body = ["  ".join(v.rjust(w) for v, w in zip(row, widths)) for row in cells]
+    return "\n".join([line, sep, *body])

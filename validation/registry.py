@@ -14,6 +14,8 @@ import importlib
 import pkgutil
 from typing import Callable
 
+from upscale.io import text_table
+
 __all__ = ["case", "CASES", "Case", "table", "discover"]
 
 
@@ -50,20 +52,4 @@ def discover() -> dict[str, Case]:
     return CASES
 
 
-def table(rows: list[dict], columns: list[str] | None = None, floatfmt: str = ".6g") -> str:
-    """Format rows of dicts as a plain aligned text table."""
-    if not rows:
-        return "(no rows)"
-    columns = columns or list(rows[0])
-
-    def fmt(v):
-        if isinstance(v, float):
-            return format(v, floatfmt)
-        return str(v)
-
-    cells = [[fmt(r.get(c, "")) for c in columns] for r in rows]
-    widths = [max(len(c), *(len(row[i]) for row in cells)) for i, c in enumerate(columns)]
-    line = "  ".join(c.rjust(w) for c, w in zip(columns, widths))
-    sep = "  ".join("-" * w for w in widths)
-    body = ["  ".join(v.rjust(w) for v, w in zip(row, widths)) for row in cells]
-    return "\n".join([line, sep, *body])
+table = text_table  # one formatter for the cases and the commands (upscale.io)

@@ -24,12 +24,13 @@ import math
 
 import numpy as np
 
+from upscale.constants import EV_PER_A3_IN_GPA, WALL_THICKNESS_A
+
 __all__ = ["WALL_THICKNESS", "EV_PER_A3_IN_GPA", "BAR_IN_GPA", "wall_area",
            "stress_from_pressure", "stress_from_force", "curve_metrics", "Extensometer",
            "EXTENSOMETER_MARGIN", "extensometer_metrics"]
 
-WALL_THICKNESS = 3.4           # Å
-EV_PER_A3_IN_GPA = 160.21766208
+WALL_THICKNESS = WALL_THICKNESS_A   # Å (upscale.constants)
 BAR_IN_GPA = 1e-4
 
 

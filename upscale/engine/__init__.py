@@ -30,7 +30,7 @@ Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bon
     volume=None) -> mu (N,)``, mu = 1 - R/T (seed 004 eq. 5.16).
     ``bonds_crossing_segment(x0, a, b)`` -> an ``exclude`` callable for straight cracks.
     Higher families (triplets, quadruplets) are built from the pair CSR by
-    ``upscale.engine.multibody`` (helper D) when a model's ``needs`` asks for them.
+    ``upscale.engine.multibody`` when a model's ``needs`` asks for them.
 
 ``upscale.engine.bondlist``
     ``BondList(family, volume)``: the pair loops' layout, derived from a family once in a
@@ -68,14 +68,55 @@ Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bon
     ``Velocity(region, value, components)``, ``Force(region, value)`` (N per particle),
     ``BodyForce(region, value)`` (N/m^3); ``value`` is a 3-vector, an (n_region, 3)
     array, or a callable ``f(t) -> either``, so any condition may depend on time.
+    ``Grip(region, velocity=None, displacement=None, u0=0, components, record_every=1)``:
+    the region moved rigidly (``u0 + velocity t``) or held; after every force evaluation
+    ``grip.reaction_now`` (3,) = ``-sum_{region} F_i`` (the force it exerts on the body)
+    and ``grip.history`` [(t, reaction)].
 
 ``upscale.engine.integrators``
     ``VelocityVerlet(dt=None, safety=0.8, force=False)`` (dt None: safety x estimate; a
     dt above the estimate is refused unless ``force=True``);
     ``AdaptiveDynamicRelaxation(dt=1.0, tol=..., max_steps=...)`` (Underwood/Kilic-Madenci
     ADR for quasi-static loading); ``stable_time_step(system, models) -> float``.
-    Newton-Raphson lives in ``upscale.engine.newton`` (helper D) on the models'
-    ``residual`` / ``tangent`` hooks.
+    Newton-Raphson lives in ``upscale.engine.newton`` on the models'
+    ``residual`` / ``tangent`` hooks; ``solve(..., checkpoint=path, resume=False)``
+    checkpoints after every converged load step and resumes bit for bit.
+    ``VelocityVerlet(..., thermostat=None)``; an integrator may provide
+    ``checkpoint_arrays() -> dict`` / ``restore_arrays(dict)`` for its own variables.
+
+``upscale.engine.thermostats``
+    ``Langevin(temperature, damping, region=None, seed=0, k_B=None)`` (Ornstein-Uhlenbeck
+    step after the second half-kick) and ``NoseHooverChain(temperature, tau, region=None,
+    chain=3, k_B=None)`` (MTK Trotter half-steps around the step); pass one as
+    ``VelocityVerlet(..., thermostat=...)``. ``region``: a Region or (N,) bool (default
+    all); only its free dofs are thermostatted. ``k_B`` in the scene's energy per K
+    (default SI; ``upscale.constants.K_B_EV`` for eV). ``kinetic_temperature(sim, region,
+    k_B)``. Their variables and random state are part of the checkpoint.
+
+``upscale.engine.minimisers`` (peers of the integrators)
+    ``FIRE(ftol, max_iter, dt=None, ...)``, ``QuickMin(ftol, max_iter, dt=None)``,
+    ``LBFGS(ftol, max_iter, memory=10, bounds=(lo, hi))`` (scipy L-BFGS-B); each has
+    ``minimise(sim, raise_on_fail=True, checkpoint=None, resume=False) -> MinimiseResult``
+    (``method, converged, iterations, fmax, energy, n_force, wall_s, message, history``),
+    also as ``sim.minimise(minimiser)``. They relax the free dofs of ``sim.state.y`` on
+    the total potential ``sum E_models - F_ext . u`` (forces: ``sim.forces()``), bonds do
+    not break. Not converged in ``max_iter``: ``NotConverged`` (one line: method, fmax vs
+    ftol, iterations; ``.result``), the state left at the last finite iterate. FIRE and
+    QuickMin resume bit for bit from their checkpoint; L-BFGS-B resumes from its iterate
+    with a new curvature history. Massless internal fields (per-particle arrays in
+    ``state.extra`` a model relaxes at every configuration, e.g. the tube's sublattice
+    shifts): a model declares ``internal_fields = {name: (lo, hi)}`` and provides
+    ``internal_gradient(state) -> {name: dE/dfield}`` and ``hold_internal(flag)``; L-BFGS-B
+    then minimises them together with the positions (the model holds them meanwhile).
+
+``upscale.engine.bodies``
+    ``Body(system, family, models, name)``; ``assemble(bodies, interactions=()) ->
+    Assembly`` stacks them into one system (``system.body_n`` (N,) body index) and wraps
+    each body model (``BodyModel``: the model sees its own rows, bonds and extras);
+    ``interactions`` are models on the whole system acting between bodies (e.g.
+    ``upscale.models.lennard_jones.LennardJonesBetweenBodies``). ``Assembly.rows(name)``,
+    ``.mask(name)``, ``.simulation(conditions, integrator)``. Mismatched bodies (dim,
+    plane, thickness) or repeated names -> ``ValueError``.
 
 ``upscale.engine.simulation``
     ``Simulation(system, family, models, conditions=(), integrator=None, state=None,
@@ -84,7 +125,14 @@ Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bon
     ``sim.reactions``), ``sim.energy()``, ``sim.kinetic_energy()``, ``sim.damage()``,
     ``sim.constrained (N,3) bool``, ``sim.run(steps, output=None, checkpoint=None,
     progress=False, callback=None, meta=None)`` (``steps`` more steps; raises
-    ``integrators.BlowUp`` with a diagnosis), ``sim.resume(path)``, ``sim.relax(adr)``.
+    ``integrators.BlowUp`` with a diagnosis), ``sim.resume(path)``, ``sim.relax(adr)``,
+    ``sim.minimise(minimiser)``, ``sim.external_forces()``; ``sim.damage()`` also takes a
+    model's own ``particle_damage(state) -> (N,)`` (a model with its own links).
+    ``sim.resume`` continues bit for bit: a checkpoint holds, besides the state,
+    ``sim.checkpoint_arrays()`` (the last step's forces, reactions, counters, the time
+    step, the integrator's and thermostat's variables), and no force is recomputed on
+    resume (a recomputation would apply the failure criterion again at the same positions
+    and drop the forces of the bonds broken in the last evaluation).
     The engine does only what the models' ``needs`` and the outputs ask for.
 
 ``upscale.engine.fields`` (generalised degrees of freedom)
@@ -111,9 +159,10 @@ Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bon
     ``Output(outdir, every, formats=("extxyz", "vtk", "json"), energy=False)``: extxyz via
     ase.io with ``displacement``, ``velocity``, ``damage``, ``volume`` arrays (lengths in
     the unit ``length_unit_m`` of the frame info, because ASE writes ``%16.8f``), VTK via
-    meshio, JSON summary. ``save_checkpoint(path, state, meta)`` /
-    ``load_checkpoint(path, x0=None, nb=None) -> (state, meta)``, ``Checkpoint(path,
-    every)``: npz written atomically; a killed run resumes from it.
+    meshio, JSON summary. ``save_checkpoint(path, state, meta, engine=None)`` /
+    ``load_checkpoint(path, x0=None, nb=None, engine=False) -> (state, meta[, engine])``,
+    ``Checkpoint(path, every)``: npz written atomically; a killed run resumes from it.
+    ``engine`` holds the driver's arrays (see ``Simulation.resume``).
 
 ``upscale.engine.kernels``
     generic numba kernels (damage, stretch, breaking, VV kick/drift) and
@@ -121,7 +170,12 @@ Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bon
 
 ``upscale.engine.lammps_peri``
     LAMMPS PERI (peri/pmb, peri/lps) as a reference: every convention and how the engine
-    matches it; ``compare(style, ...)`` runs both.
+    matches it (``LammpsPeri``); ``upscale.experiments.peri_lammps.compare(style, ...)``
+    runs both.
+
+Layering: ``upscale.engine`` imports neither ``upscale.models`` nor
+``upscale.experiments`` (it knows models only by this contract); ``tests/test_layering.py``
+walks the imports.
 """
 from __future__ import annotations
 

@@ -1,7 +1,11 @@
 """Checkpoint / restart: the state as one ``.npz`` written atomically.
 
 A checkpoint holds ``y, v, intact, t, step`` and the models' ``extra`` arrays, plus a
-JSON ``meta`` (particle and bond counts, models, anything the scene adds). It is written to
+JSON ``meta`` (particle and bond counts, models, anything the scene adds) and the arrays a
+driver needs to continue exactly where it stopped (``engine``: e.g. the
+:class:`~upscale.engine.simulation.Simulation`'s forces of the last step, which the first
+half-kick of the next step uses and which cannot be recomputed once that step's bonds have
+broken, or a random generator's state). It is written to
 a temporary file and moved into place (:func:`upscale.io.atomic_write_bytes`), so a run
 killed at any moment leaves the previous checkpoint intact, and a restart resumes there.
 """
@@ -19,8 +23,10 @@ from upscale.io import NumpyJSON, atomic_write_bytes
 __all__ = ["save_checkpoint", "load_checkpoint", "Checkpoint"]
 
 
-def save_checkpoint(path, state: State, meta: dict | None = None) -> Path:
-    """Atomically write ``state`` (and ``meta``) to ``path`` (.npz)."""
+def save_checkpoint(path, state: State, meta: dict | None = None, *,
+                    engine: dict | None = None) -> Path:
+    """Atomically write ``state`` (and ``meta``, and the driver's ``engine`` arrays) to
+    ``path`` (.npz)."""
     arrays = {"y": state.y, "v": state.v, "intact": state.intact,
               "t": np.float64(state.t), "step": np.int64(state.step)}
     for k, v in state.extra.items():
@@ -28,6 +34,8 @@ def save_checkpoint(path, state: State, meta: dict | None = None) -> Path:
     for k, v in state.fields.items():
         arrays[f"field__{k}"] = np.asarray(v)
         arrays[f"fieldv__{k}"] = np.asarray(state.field_v[k])
+    for k, v in (engine or {}).items():
+        arrays[f"engine__{k}"] = np.asarray(v)
     m = dict(meta or {})
     m.setdefault("n", int(state.y.shape[0]))
     m.setdefault("nb", int(state.intact.shape[0]))
@@ -37,8 +45,10 @@ def save_checkpoint(path, state: State, meta: dict | None = None) -> Path:
     return atomic_write_bytes(path, buf.getvalue())
 
 
-def load_checkpoint(path, x0: np.ndarray | None = None, *, nb: int | None = None) -> tuple[State, dict]:
-    """Read a checkpoint; returns ``(state, meta)``.
+def load_checkpoint(path, x0: np.ndarray | None = None, *, nb: int | None = None,
+                    engine: bool = False):
+    """Read a checkpoint; returns ``(state, meta)``, or ``(state, meta, engine_arrays)``
+    with ``engine=True``.
 
     With ``x0`` (and ``nb``) the checkpoint is checked against the body it is loaded for.
     """
@@ -49,6 +59,7 @@ def load_checkpoint(path, x0: np.ndarray | None = None, *, nb: int | None = None
         meta = json.loads(bytes(z["meta"]).decode())
         y, v, intact = z["y"].copy(), z["v"].copy(), z["intact"].copy()
         extra = {k[len("extra__"):]: z[k].copy() for k in z.files if k.startswith("extra__")}
+        eng = {k[len("engine__"):]: z[k].copy() for k in z.files if k.startswith("engine__")}
         t, step = float(z["t"]), int(z["step"])
         fields = {k[len("field__"):]: z[k].copy() for k in z.files if k.startswith("field__")}
         field_v = {k[len("fieldv__"):]: z[k].copy() for k in z.files if k.startswith("fieldv__")}
@@ -58,7 +69,8 @@ def load_checkpoint(path, x0: np.ndarray | None = None, *, nb: int | None = None
     if nb is not None and intact.shape[0] != nb:
         raise ValueError(f"checkpoint {path} holds {intact.shape[0]} bonds, the family has {nb}")
     ref = np.asarray(x0, dtype=np.float64) if x0 is not None else y.copy()
-    return State(ref, y, v, intact, t, step, extra, fields, field_v), meta
+    st = State(ref, y, v, intact, t, step, extra, fields, field_v)
+    return (st, meta, eng) if engine else (st, meta)
 
 
 class Checkpoint:
@@ -71,7 +83,7 @@ class Checkpoint:
         self.every = int(every)
         self.last_step: int | None = None
 
-    def write(self, state: State, meta: dict | None = None) -> Path:
-        p = save_checkpoint(self.path, state, meta)
+    def write(self, state: State, meta: dict | None = None, *, engine: dict | None = None) -> Path:
+        p = save_checkpoint(self.path, state, meta, engine=engine)
         self.last_step = state.step
         return p

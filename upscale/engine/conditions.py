@@ -9,6 +9,12 @@ Kinematic conditions (:class:`Fixed`, :class:`Displacement`, :class:`Velocity`) 
 degrees of freedom: the integrators overwrite them and give them zero acceleration.
 Load conditions (:class:`Force` in N per particle, :class:`BodyForce` in N/m^3) add to the
 particle forces.
+
+A :class:`Grip` is a region moved rigidly (``u(t) = u0 + velocity t``) or held at a
+displacement, on some components; it records its reaction, the force it exerts on the
+body, ``R = -sum_{i in region} F_i`` on its components (``F_i`` the internal plus external
+force on particle i: the grip supplies what holds the region on its prescribed path, inertia
+aside, which is zero for a rigid motion at constant velocity).
 """
 from __future__ import annotations
 
@@ -18,7 +24,7 @@ from typing import Callable
 import numpy as np
 
 __all__ = ["Region", "region", "Condition", "Fixed", "Displacement", "Velocity", "Force",
-           "BodyForce", "constrained_dofs"]
+           "BodyForce", "Grip", "constrained_dofs"]
 
 
 @dataclasses.dataclass(eq=False)
@@ -127,6 +133,65 @@ class BodyForce(Condition):
     def add(self, F: np.ndarray, system, t: float) -> None:
         idx = self.region.index
         np.add.at(F, idx, self.evaluate(t) * _mask(self.components) * system.volume[idx, None])
+
+
+class Grip(Displacement):
+    """A region moved rigidly at ``velocity`` from displacement ``u0``, or held at
+    ``displacement`` (a 3-vector, or a callable of t), on ``components``; records its
+    reaction (module docstring) after every force evaluation in :attr:`history`.
+
+    Parameters
+    ----------
+    region : Region
+    velocity : 3-vector, optional
+        Grip speed (length / time), the prescribed displacement is ``u0 + velocity t``.
+    displacement : 3-vector or callable f(t), optional
+        A held (or prescribed) displacement instead of ``velocity``.
+    u0 : 3-vector
+        Displacement at t = 0 with ``velocity``.
+    components : subset of (0, 1, 2)
+    record_every : int
+        Keep every n-th reaction in :attr:`history` (0: none).
+    """
+
+    def __init__(self, region: Region, velocity=None, displacement=None, *, u0=(0.0, 0.0, 0.0),
+                 components=(0, 1, 2), record_every: int = 1):
+        if (velocity is None) == (displacement is None):
+            raise ValueError("a grip needs exactly one of velocity= or displacement=")
+        if velocity is not None:
+            vel = np.asarray(velocity, dtype=np.float64).reshape(3)
+            start = np.asarray(u0, dtype=np.float64).reshape(3)
+            if not (np.isfinite(vel).all() and np.isfinite(start).all()):
+                raise ValueError(f"grip {region.name!r}: velocity {velocity!r} / u0 {u0!r} "
+                                 "must be finite")
+            value = lambda t, _v=vel, _u=start: _u + _v * t  # noqa: E731
+        else:
+            value = displacement
+        super().__init__(region, value, components)
+        self.velocity = velocity
+        self.record_every = int(record_every)
+        self.reaction_now = np.zeros(3)
+        self.history: list[tuple[float, np.ndarray]] = []
+        self._calls = 0
+
+    def reaction(self, F: np.ndarray) -> np.ndarray:
+        """``-sum_{i in region} F_i`` on the grip's components (3,) from forces ``F`` (N, 3)."""
+        r = -F[self.region.index].sum(axis=0)
+        out = np.zeros(3)
+        out[self.components] = r[self.components]
+        return out
+
+    def record(self, F: np.ndarray, t: float) -> None:
+        """Mutates :attr:`reaction_now` (and :attr:`history`) from the unconstrained forces."""
+        self.reaction_now = self.reaction(F)
+        self._calls += 1
+        if self.record_every and self._calls % self.record_every == 0:
+            self.history.append((float(t), self.reaction_now.copy()))
+
+    def describe(self) -> dict:
+        d = super().describe()
+        d["velocity"] = None if self.velocity is None else np.asarray(self.velocity).tolist()
+        return d
 
 
 def _mask(components) -> np.ndarray:

@@ -20,8 +20,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from upscale.engine.fields import _set, dof_layout, generalised_forces, influence_radius, \
-    mass_vector
+from upscale.engine.fields import dof_layout, generalised_forces, influence_radius, \
+    mass_vector, set_dof
 
 __all__ = ["dynamical_matrix", "dispersion", "centre_particle"]
 
@@ -62,18 +62,18 @@ def dynamical_matrix(sim, k, centre: int | None = None, *, amplitude: float = 1.
     D = np.zeros((nd, nd), complex)
     try:
         for key in full:
-            _set(st, key, 0.0)
+            set_dof(st, key, 0.0)
         F0 = generalised_forces(sim)[c, rows]
         for b, key in enumerate(lay):
             # cos = (cos - 1) + 1: the long-wave differences of cos - 1 = -2 sin^2(phase/2)
             # carry no cancellation; the uniform field's response is evaluated on its own
-            _set(st, key, -2.0 * amplitude * np.sin(0.5 * phase) ** 2)
+            set_dof(st, key, -2.0 * amplitude * np.sin(0.5 * phase) ** 2)
             Fc = generalised_forces(sim)[c, rows] - F0
-            _set(st, key, np.full(phase.shape, amplitude))
+            set_dof(st, key, np.full(phase.shape, amplitude))
             F1 = generalised_forces(sim)[c, rows] - F0
-            _set(st, key, amplitude * np.sin(phase))
+            set_dof(st, key, amplitude * np.sin(phase))
             Fs = generalised_forces(sim)[c, rows] - F0
-            _set(st, key, 0.0)
+            set_dof(st, key, 0.0)
             D[:, b] = -((Fc + F1) + 1j * Fs) / amplitude
     finally:
         st.y[...] = saved.y

@@ -40,7 +40,7 @@ import numpy as np
 
 from upscale.engine.conditions import Displacement, Region
 
-__all__ = ["FieldSpec", "collect_fields", "FixedField", "Tie", "init_fields", "dof_layout",
+__all__ = ["FieldSpec", "collect_fields", "FixedField", "Tie", "init_fields", "dof_layout", "set_dof",
            "generalised_forces", "operator", "reduction", "solve_static", "critical_dt",
            "field_stiffness_over_inertia", "kinetic_energy"]
 
@@ -245,7 +245,10 @@ def _get(st, key):
     return (st.y[:, c] - st.x0[:, c]) if kind == "y" else st.fields[kind][:, c]
 
 
-def _set(st, key, values):
+def set_dof(st, key, values) -> None:
+    """Set one degree of freedom ``key = (kind, component)`` of every particle (mutates
+    ``st``): a displacement component (``kind == "y"``: ``y = x0 + values``) or a field
+    component."""
     kind, c = key
     if kind == "y":
         st.y[:, c] = st.x0[:, c] + values
@@ -320,7 +323,7 @@ def operator(sim):
     rows, cols, vals = [], [], []
     try:
         for a in lay:
-            _set(st, a, 0.0)
+            set_dof(st, a, 0.0)
         st.fields.update({k: np.zeros_like(v) for k, v in st.fields.items()})
         F0 = generalised_forces(sim)
         for col in np.unique(colour):
@@ -332,9 +335,9 @@ def operator(sim):
             for a, key in enumerate(lay):
                 e = np.zeros(n)
                 e[probe] = 1.0
-                _set(st, key, e)
+                set_dof(st, key, e)
                 dF = generalised_forces(sim) - F0
-                _set(st, key, 0.0)
+                set_dof(st, key, 0.0)
                 blk = -dF[resp]
                 r_i, r_a = np.nonzero(blk)
                 rows.append(resp[r_i] * nd + r_a)
@@ -438,7 +441,7 @@ def solve_static(sim, K=None) -> dict:
     st = sim.state
     Q = full.reshape(n, nd)
     for a, key in enumerate(lay):
-        _set(st, key, Q[:, a])
+        set_dof(st, key, Q[:, a])
     st.v[...] = 0.0
     Fint = generalised_forces(sim).ravel()
     res = Fint[free] + f[free]

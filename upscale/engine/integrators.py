@@ -99,11 +99,15 @@ class VelocityVerlet:
     force : bool
         Allow a ``dt`` above the stable estimate (otherwise refused with a ValueError
         that gives the estimate).
+    thermostat : Langevin or NoseHooverChain, optional
+        :mod:`upscale.engine.thermostats`, on a region (NVE without).
     """
 
     name = "velocity-verlet"
 
-    def __init__(self, dt: float | None = None, *, safety: float = 0.8, force: bool = False):
+    def __init__(self, dt: float | None = None, *, safety: float = 0.8, force: bool = False,
+                 thermostat=None):
+        self.thermostat = thermostat
         if dt is not None and not (np.isfinite(dt) and dt > 0):
             raise ValueError(f"time step must be positive, got {dt!r}")
         if not (0 < safety <= 1):
@@ -124,6 +128,18 @@ class VelocityVerlet:
             raise ValueError(f"time step {self.dt:.6g} s exceeds the stable estimate "
                              f"{self.estimate:.6g} s (Silling-Askari/Gershgorin bound); use "
                              f"dt <= {self.estimate:.6g} or pass force=True (--force-dt)")
+        if self.thermostat is not None:
+            self.thermostat.prepare(sim)
+
+    def checkpoint_arrays(self) -> dict:
+        """The thermostat's variables (and random state), for an exact restart."""
+        th = self.thermostat
+        return {} if th is None else {f"thermostat_{k}": v for k, v in th.checkpoint_arrays().items()}
+
+    def restore_arrays(self, d: dict) -> None:
+        if self.thermostat is not None:
+            self.thermostat.restore_arrays({k[len("thermostat_"):]: v for k, v in d.items()
+                                            if k.startswith("thermostat_")})
 
     def step(self, sim) -> int:
         """Advance ``sim.state`` by one step; returns the number of bonds broken."""
@@ -132,6 +148,8 @@ class VelocityVerlet:
         st, dt = sim.state, self.dt
         inv_m = sim.inv_mass_n
         fields = getattr(sim, "field_specs", None)
+        if self.thermostat is not None:
+            self.thermostat.begin(sim, dt)
         kick(st.v, sim.F, inv_m, 0.5 * dt)
         if fields:
             _kick_fields(sim, 0.5 * dt)
@@ -148,6 +166,8 @@ class VelocityVerlet:
         if fields:
             _kick_fields(sim, 0.5 * dt)
         sim.apply_velocity(st.t)
+        if self.thermostat is not None:
+            self.thermostat.end(sim, dt)
         return broken
 
 
@@ -163,6 +183,9 @@ class AdaptiveDynamicRelaxation:
 
     ``sim.relax(adr)`` iterates until the out-of-balance force on the free degrees of
     freedom, relative to the largest of the reaction and applied forces, is below ``tol``.
+    ``run(sim, checkpoint=Checkpoint(path, every))`` writes the iterate, its fictitious
+    velocity and last force every ``every`` iterations; ``resume=True`` continues from
+    there bit for bit.
     """
 
     name = "adr"
@@ -172,7 +195,7 @@ class AdaptiveDynamicRelaxation:
         self.max_steps = int(max_steps)
         self.dt = float(dt)
 
-    def run(self, sim, progress: bool = False) -> dict:
+    def run(self, sim, progress: bool = False, checkpoint=None, resume: bool = False) -> dict:
         if getattr(sim, "field_specs", None):
             raise ValueError(f"adaptive dynamic relaxation moves translations only; fields "
                              f"{sorted(sim.field_specs)} need upscale.engine.fields.solve_static "
@@ -194,8 +217,20 @@ class AdaptiveDynamicRelaxation:
         v_half = 0.5 * dt * F / lam
         F_prev = F.copy()
         res = np.inf
-        it = 0
-        for it in range(1, self.max_steps + 1):
+        it = start = 0
+        if resume and checkpoint is not None and checkpoint.path.is_file():
+            from upscale.engine.checkpoint import load_checkpoint
+
+            s2, meta, eng = load_checkpoint(checkpoint.path, sim.system.x0,
+                                            nb=st.intact.shape[0], engine=True)
+            if meta.get("solver") != "adr":
+                raise ValueError(f"checkpoint {checkpoint.path} is not of an ADR run "
+                                 f"({meta.get('solver')!r}); valid: the run it interrupted")
+            st.y[...], st.intact[...] = s2.y, s2.intact
+            v_half, F_prev = eng["v_half"], eng["F_prev"]
+            start = it = int(eng["iteration"])
+            checkpoint.last_step = it
+        for it in range(start + 1, self.max_steps + 1):
             st.y += dt * v_half
             sim.apply_displacement(st.t, None)
             sim.update_forces()
@@ -214,5 +249,9 @@ class AdaptiveDynamicRelaxation:
             res = float(np.linalg.norm(F)) / scale
             if res < self.tol:
                 break
+            if checkpoint is not None and it % checkpoint.every == 0:
+                checkpoint.write(st, {"solver": "adr"},
+                                 engine={"v_half": v_half, "F_prev": F_prev,
+                                         "iteration": np.int64(it)})
         st.v[...] = 0.0
         return {"iterations": it, "residual": res, "converged": bool(res < self.tol)}

@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from upscale.engine.checkpoint import Checkpoint, load_checkpoint
-from upscale.engine.conditions import BodyForce, Displacement, Force, Velocity, constrained_dofs
+from upscale.engine.conditions import (BodyForce, Displacement, Force, Grip, Velocity,
+                                       constrained_dofs)
 from upscale.engine.families import damage
 from upscale.engine.integrators import BlowUp, VelocityVerlet
 from upscale.engine.state import State
@@ -42,9 +43,7 @@ class Simulation:
 
     def __init__(self, system, family=None, models=(), conditions=(), integrator=None,
                  state: State | None = None, *, damage_weights: str = "count"):
-        from upscale.models.base import Model
-
-        if isinstance(models, Model):
+        if hasattr(models, "step_force"):  # one model (the engine knows models by contract)
             models = [models]
         self.system = system
         self.family = family
@@ -83,6 +82,7 @@ class Simulation:
         self._disp = [c for c in self.conditions if isinstance(c, Displacement)]
         self._vel = [c for c in self.conditions if isinstance(c, Velocity)]
         self._loads = [c for c in self.conditions if isinstance(c, (Force, BodyForce))]
+        self._grips = [c for c in self.conditions if isinstance(c, Grip)]
         self._density_models = [m for m in self.models if m.force_kind == "density"]
         self._particle_models = [m for m in self.models if m.force_kind != "density"]
         self._b = np.zeros((system.n, 3))
@@ -91,6 +91,8 @@ class Simulation:
         self.reactions = np.zeros((system.n, 3))  # forces on the prescribed dofs
         self._prepared = False
         self.broken_total = 0
+        self._ke_hist: list[float] = []  # kinetic energies of the last steps (blow-up guard)
+        self._restored: dict | None = None  # driver arrays of a checkpoint being resumed
 
     def _init_fields(self) -> None:
         """Generalised degrees of freedom (``upscale.engine.fields``): the models' field
@@ -148,6 +150,8 @@ class Simulation:
             for c in self._loads:
                 c.add(self.F_ext, self.system, st.t)
             F += self.F_ext
+        for g in self._grips:  # before the prescribed dofs are zeroed
+            g.record(F, st.t)
         if self._any_constrained:
             np.multiply(F, self.constrained, out=self.reactions)
             F[self.constrained] = 0.0
@@ -157,11 +161,14 @@ class Simulation:
 
     def forces(self) -> np.ndarray:
         """Internal + external particle forces (N, 3) on the current state, no failure."""
-        F = self.internal_forces(failure=False)
-        ext = np.zeros_like(F)
+        return self.internal_forces(failure=False) + self.external_forces()
+
+    def external_forces(self) -> np.ndarray:
+        """The load conditions' particle forces (N, 3) at the current time (a new array)."""
+        ext = np.zeros_like(self.state.y)
         for c in self._loads:
             c.add(ext, self.system, self.state.t)
-        return F + ext
+        return ext
 
     # ------------------------------------------------------------------ conditions
     def apply_displacement(self, t: float, dt: float | None) -> None:
@@ -183,11 +190,18 @@ class Simulation:
         return float(sum(m.energy(self.state) for m in self.models))
 
     def damage(self) -> np.ndarray:
-        """Damage index mu (N,) (0 without a family)."""
-        if self.family is None:
-            return np.zeros(self.system.n)
-        return damage(self.family, self.state.intact, weights=self.damage_weights,
-                      volume=self.system.volume)
+        """Damage index mu (N,): of the pair family's bonds, or, for models that keep their
+        own links (``model.particle_damage(state) -> (N,)``, e.g. the coarse tube), the largest of
+        theirs; 0 with neither."""
+        mu = np.zeros(self.system.n)
+        if self.family is not None:
+            mu = damage(self.family, self.state.intact, weights=self.damage_weights,
+                        volume=self.system.volume)
+        for m in self.models:
+            own = getattr(m, "particle_damage", None)
+            if callable(own):
+                mu = np.maximum(mu, own(self.state))
+        return mu
 
     def describe(self) -> dict:
         s = self.system
@@ -205,29 +219,91 @@ class Simulation:
 
     # ------------------------------------------------------------------ running
     def prepare(self) -> None:
-        """Check the step, apply the conditions and compute the initial forces."""
+        """Check the step, apply the conditions and compute the initial forces (on a
+        resumed state: take the forces the checkpoint saved, see :meth:`resume`)."""
         if self._prepared:
             return
         self.integrator.prepare(self)
+        if self._restored is not None:
+            eng, self._restored = self._restored, None
+            dt = eng.get("dt")
+            if dt is not None and getattr(self.integrator, "dt", None) != float(dt):
+                raise ValueError(f"the checkpoint was written with time step {float(dt)!r}, "
+                                 f"this run has {self.integrator.dt!r}; valid: the same step "
+                                 "(a resumed run continues the one it interrupted)")
+            for k in ("F", "F_ext", "reactions"):
+                getattr(self, k)[...] = eng[k]
+            for k in getattr(self, "G", {}):
+                if f"field_force__{k}" in eng:
+                    self.G[k][...] = eng[f"field_force__{k}"]
+            self.broken_total = int(eng["broken_total"])
+            self._ke_hist = [float(x) for x in eng["ke_hist"]]
+            restore = getattr(self.integrator, "restore_arrays", None)
+            ia = {k[len("integrator__"):]: v for k, v in eng.items() if k.startswith("integrator__")}
+            if restore is not None:
+                restore(ia)
+            self._prepared = True
+            return
         if self.state.step == 0:
             self.apply_velocity(self.state.t)
             self.apply_displacement(self.state.t, None)
         self.update_forces()
         self._prepared = True
 
+    def checkpoint_arrays(self) -> dict:
+        """What a resumed run needs beyond the state to continue bit for bit: the forces of
+        the last step (the next half-kick uses them; recomputed after the resume they would
+        miss the bonds that broke in that evaluation), the external forces and reactions,
+        the generalised forces on the fields, the broken-bond counter, the blow-up guard's
+        history, the time step and the integrator's own arrays (e.g. a thermostat's
+        variables and random state)."""
+        eng = {"F": self.F, "F_ext": self.F_ext, "reactions": self.reactions,
+               "broken_total": np.int64(self.broken_total),
+               "ke_hist": np.asarray(self._ke_hist, dtype=np.float64)}
+        eng.update({f"field_force__{k}": g for k, g in getattr(self, "G", {}).items()})
+        dt = getattr(self.integrator, "dt", None)
+        if dt is not None:
+            eng["dt"] = np.float64(dt)
+        arrays = getattr(self.integrator, "checkpoint_arrays", None)
+        if arrays is not None:
+            eng.update({f"integrator__{k}": v for k, v in arrays().items()})
+        return eng
+
     def resume(self, path) -> bool:
-        """Load the checkpoint at ``path`` if it exists (returns True if it did)."""
+        """Load the checkpoint at ``path`` if it exists (returns True if it did).
+
+        The run then continues exactly as the one that wrote it would have: the state, the
+        forces of its last step and the integrator's arrays come from the checkpoint, and
+        no force is recomputed (a recomputation would apply the failure criterion again and
+        lose the forces of the bonds that broke in the last evaluation). A checkpoint
+        without these arrays resumes from forces recomputed without failure."""
         p = Path(path)
         if not p.is_file():
             return False
-        st, _ = load_checkpoint(p, self.system.x0, nb=self.family.nb if self.family else 0)
+        st, _, eng = load_checkpoint(p, self.system.x0, nb=self.state.intact.shape[0],
+                                     engine=True)
         self.state = st
         if self.field_specs:
             from upscale.engine.fields import init_fields
 
             init_fields(st, self.field_specs)
         self._prepared = False
+        if "F" in eng:
+            self._restored = eng
+        else:
+            self._restored = None
+            self.integrator.prepare(self)
+            self.update_forces_without_failure()
+            self._prepared = True
         return True
+
+    def update_forces_without_failure(self) -> None:
+        """Like :meth:`update_forces` but the models' failure criteria are not applied."""
+        failure, self.failure = self.failure, False
+        try:
+            self.update_forces()
+        finally:
+            self.failure = failure
 
     def _healthy(self, health, ke_hist: list, spacing: float, dt: float) -> str | None:
         st = self.state
@@ -271,8 +347,9 @@ class Simulation:
             if st.step == 0 or not output.rows:
                 output.write(self)
         if checkpoint is not None and checkpoint.last_step is None:
-            checkpoint.write(st, {**(meta or {}), "dt_s": dt})  # a good state to fall back on
-        ke_hist: list[float] = []
+            # a good state to fall back on
+            checkpoint.write(st, {**(meta or {}), "dt_s": dt}, engine=self.checkpoint_arrays())
+        ke_hist = self._ke_hist
         t0 = time.perf_counter()
         target = st.step + int(steps)
         bar = tqdm(total=int(steps), disable=not progress, unit="step", mininterval=0.5,
@@ -301,7 +378,8 @@ class Simulation:
                     growing = len(ke_hist) >= 5 and all(
                         b > 1.5 * a > 0 for a, b in zip(ke_hist[-5:-1], ke_hist[-4:]))
                     if not growing:
-                        checkpoint.write(st, {**(meta or {}), "dt_s": dt})
+                        checkpoint.write(st, {**(meta or {}), "dt_s": dt},
+                                         engine=self.checkpoint_arrays())
                 if output is not None and st.step % output.every == 0:
                     output.write(self)
                 if callback is not None and callback(self):
@@ -312,14 +390,22 @@ class Simulation:
         if output is not None and (not output.rows or output.rows[-1]["step"] != st.step):
             output.write(self)
         if checkpoint is not None and checkpoint.last_step != st.step:
-            checkpoint.write(st, {**(meta or {}), "dt_s": dt})
+            checkpoint.write(st, {**(meta or {}), "dt_s": dt}, engine=self.checkpoint_arrays())
         broken = int(st.intact.size - np.count_nonzero(st.intact))
         return {"steps": int(st.step), "time_s": float(st.t), "dt_s": dt, "wall_s": wall,
                 "broken_bonds": broken, "broken_this_run": broken - broken0}
 
-    def relax(self, adr=None, progress: bool = False) -> dict:
-        """Quasi-static equilibrium by adaptive dynamic relaxation (see integrators)."""
+    def minimise(self, minimiser=None, **kw):
+        """Static equilibrium by a minimiser of :mod:`upscale.engine.minimisers` (default
+        FIRE); returns its :class:`~upscale.engine.minimisers.MinimiseResult`."""
+        from upscale.engine.minimisers import FIRE
+
+        return (minimiser or FIRE()).minimise(self, **kw)
+
+    def relax(self, adr=None, progress: bool = False, **kw) -> dict:
+        """Quasi-static equilibrium by adaptive dynamic relaxation (see integrators);
+        ``kw``: ``checkpoint``, ``resume``."""
         from upscale.engine.integrators import AdaptiveDynamicRelaxation
 
         adr = adr or AdaptiveDynamicRelaxation()
-        return adr.run(self, progress=progress)
+        return adr.run(self, progress=progress, **kw)

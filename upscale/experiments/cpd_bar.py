@@ -46,11 +46,13 @@ def bar_tension(*, dim: int = 2, E: float = 1e9, nu: float = 0.4, length: float 
                 width: float = 10e-3, dx: float = 1e-3, ratio: float = 3.0,
                 strain: float = 1e-4, mode: str = "auto", quadrature: str = "volume",
                 calibration: str = "discrete", partial_volume: str | None = "linear",
-                surface_correction: bool = False, steps: int = 1, tol: float = 1e-10) -> dict:
+                surface_correction: bool = False, steps: int = 1, tol: float = 1e-10,
+                checkpoint=None, resume: bool = False) -> dict:
     """Bar in uniaxial tension (force controlled). Returns a dict of results (SI units).
 
     ``ratio`` = delta/dx; ``strain`` sets the load ``F = strain E A``. In 3D the section is
-    ``width x width``; in 2D the thickness is ``dx``.
+    ``width x width``; in 2D the thickness is ``dx``. ``checkpoint`` / ``resume``: see
+    :func:`upscale.engine.newton.solve`.
     """
     nx = int(round(length / dx)) + 1
     ny = int(round(width / dx)) + 1
@@ -80,7 +82,8 @@ def bar_tension(*, dim: int = 2, E: float = 1e9, nu: float = 0.4, length: float 
     f = np.zeros((s.n, 3))
     f[right, 0] = F / right.sum()
     st = State.reference(x, fam.nb)
-    res = newton.solve(model, st, fixed=fixed, f_ext=f, steps=steps, tol=tol)
+    res = newton.solve(model, st, fixed=fixed, f_ext=f, steps=steps, tol=tol,
+                       checkpoint=checkpoint, resume=resume)
     u = st.y - x
     L_bar = xmax - xmin
     gauge = (x[:, 0] > xmin + 0.3 * L_bar) & (x[:, 0] < xmin + 0.7 * L_bar)

@@ -5,8 +5,10 @@ DCBR model (:mod:`upscale.models.dcbr`), optionally beside its LAMMPS reference.
 
 Writes ``tension_N_M_K.json`` (curve, modulus, strength, strain at peak, damage, wall time,
 versions) and, with ``--compare lammps``, the overlay plot with the damage map, and prints the
-comparison table. The LAMMPS side is helper C's runner (:mod:`validation.lammps.tension`,
-same potential file, same tube, same protocol), taken from ``data/reference/`` when stored.
+comparison table. The LAMMPS side is a LAMMPS run of the same tube, potential file and
+protocol, read from ``data/reference/`` (or from ``validation/out/lammps-cache/``, where the
+validation cases cache the references they compute); the scene is
+:func:`upscale.experiments.tube_tension.run_tension_comparison`.
 """
 from __future__ import annotations
 
@@ -27,32 +29,34 @@ def register(subparsers):
     p.add_argument("--max-strain", type=float, default=0.40)
     p.add_argument("--potential", default="tersoff:BNC.tersoff")
     p.add_argument("--compare", choices=["lammps"], default=None,
-                   help="run (or load) the LAMMPS reference and print the comparison")
+                   help="load the stored LAMMPS reference and print the comparison")
     p.add_argument("--outdir", type=Path, default=Path("out/tension"))
+    p.add_argument("--engine", action="store_true",
+                   help="run the load steps on the particle engine (L-BFGS-B on the positions, "
+                   "shifts relaxed at every configuration): a checkpoint and an extxyz/VTK "
+                   "frame with damage per load step in OUTDIR/engine_N_M_K/")
     p.set_defaults(func=run)
-
-
-def _chirality(text):
-    try:
-        n, m = (int(v) for v in str(text).split(","))
-    except ValueError:
-        raise ValueError(f"--chirality {text!r}; valid: two integers 'N,M', e.g. 10,10") from None
-    return n, m
 
 
 def run(args) -> int:
     from upscale.io import versions, write_json
     from upscale.models.dcbr import DCBRTube, quasi_static_tension
 
-    n, m = _chirality(args.chirality)
+    from upscale.experiments.tube_tension import parse_chirality
+
+    n, m = parse_chirality(args.chirality)
     out = Path(args.outdir)
     tag = f"{n}_{m}_K{args.coarsening:g}"
     if args.compare == "lammps":
-        from validation.cases.dcbr import run_tension_comparison  # installed with upscale
-        from validation.registry import table
+        from upscale.experiments.tube_tension import ROOT, run_tension_comparison
+        from upscale.io import text_table as table
 
-        res = run_tension_comparison(n, m, args.length, args.coarsening, args.strain_step,
-                                     outdir=out)
+        try:
+            res = run_tension_comparison(n, m, args.length, args.coarsening, args.strain_step,
+                                         outdir=out,
+                                         cache_dir=ROOT / "validation" / "out" / "lammps-cache")
+        except LookupError as exc:  # no stored reference: say how to compute it
+            raise ValueError(str(exc)) from None
         curve = res.pop("_curve")
         rows = [
             {"quantity": "Young's modulus (TPa)", "DCBR": res["modulus_TPa"],
@@ -76,9 +80,20 @@ def run(args) -> int:
         return 0
     t0 = time.perf_counter()
     model = DCBRTube(n, m, args.length, coarsening=args.coarsening, potential=args.potential)
-    res = quasi_static_tension(model, strain_step=args.strain_step, max_strain=args.max_strain,
-                               progress=lambda e, s: print(f"strain {e:.4f}  stress {s:9.3f} GPa",
-                                                           flush=True))
+    show = lambda e, s: print(f"strain {e:.4f}  stress {s:9.3f} GPa", flush=True)  # noqa: E731
+    if args.engine:
+        from upscale.engine.checkpoint import Checkpoint
+        from upscale.engine.output import Output
+        from upscale.experiments.tube_tension import quasi_static_tension_engine
+
+        frames = out / f"engine_{tag}"
+        res = quasi_static_tension_engine(
+            model, strain_step=args.strain_step, max_strain=args.max_strain, progress=show,
+            checkpoint=Checkpoint(frames / "checkpoint.npz", every=1),
+            output=Output(frames, every=1, length_unit=1e-10))
+    else:
+        res = quasi_static_tension(model, strain_step=args.strain_step,
+                                   max_strain=args.max_strain, progress=show)
     res["wall_s"] = time.perf_counter() - t0
     write_json(out / f"tension_{tag}.json", {"result": res, "versions": versions()})
     print(f"({n},{m}) coarsening {args.coarsening:g}: {model.N} particles for {model.n_atoms} atoms; "

@@ -28,7 +28,15 @@ import dataclasses
 
 import numpy as np
 
-__all__ = ["Needs", "Model", "numerical_tangent"]
+__all__ = ["Needs", "Model", "numerical_tangent", "check_positive"]
+
+
+def check_positive(**kw) -> None:
+    """One-line ValueError for the first given parameter that is not a finite positive
+    number (None = not given, skipped)."""
+    for k, v in kw.items():
+        if v is not None and not (np.isfinite(v) and v > 0):
+            raise ValueError(f"{k} must be positive, got {v!r}")
 
 
 @dataclasses.dataclass(frozen=True)

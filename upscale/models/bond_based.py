@@ -51,7 +51,7 @@ import numpy as np
 from upscale.engine.bondlist import BondList
 from upscale.engine.kernels import bond_length, bond_vector
 from upscale.models import register
-from upscale.models.base import Model, Needs
+from upscale.models.base import Model, Needs, check_positive
 
 __all__ = ["PMB", "LammpsContact", "pmb_micromodulus", "pmb_critical_stretch"]
 
@@ -224,10 +224,7 @@ def _natural_nu(dim, plane):
     return {3: 0.25, 1: None}.get(dim, 1.0 / 3.0 if plane == "stress" else 0.25)
 
 
-def _check_positive(**kw):
-    for k, v in kw.items():
-        if v is not None and not (np.isfinite(v) and v > 0):
-            raise ValueError(f"{k} must be positive, got {v!r}")
+_check_positive = check_positive
 
 
 class PMB(Model):

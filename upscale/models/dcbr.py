@@ -109,14 +109,16 @@ import math
 import numpy as np
 from scipy.optimize import Bounds, minimize
 
+from potentials.tersoff import INDEX as TI
+from upscale.constants import EV_PER_A3_IN_GPA, WALL_THICKNESS_A
+
 from upscale.models import dcbr_coupling_kernels as CK
 from upscale.models import dcbr_kernels as K
 from upscale.models.gain import GainOperator, build_gain
 
 __all__ = ["tersoff_params", "TubeLattice", "LatticeStability", "DCBRTube",
-           "quasi_static_tension", "EV_PER_A3_IN_GPA", "WALL_THICKNESS"]
+           "quasi_static_tension", "DCBRTubeModel", "EV_PER_A3_IN_GPA", "WALL_THICKNESS"]
 
-EV_PER_A3_IN_GPA = 160.21766208
 _BLAS_CONTROLLER = None
 
 
@@ -146,7 +148,9 @@ def _one_blas_thread():
     if _BLAS_CONTROLLER is None:
         _BLAS_CONTROLLER = ThreadpoolController()
     return _BLAS_CONTROLLER.limit(limits=1, user_api="blas")
-WALL_THICKNESS = 3.4
+
+
+WALL_THICKNESS = WALL_THICKNESS_A
 
 
 def tersoff_params(potential: str = "tersoff:BNC.tersoff", cutoff: str = "step",
@@ -154,7 +158,8 @@ def tersoff_params(potential: str = "tersoff:BNC.tersoff", cutoff: str = "step",
     """Parameters of the ``element element element`` entry of a LAMMPS tersoff file.
 
     Returns the 14 numbers m, gamma, lambda3, c, d, costheta0 (h), n, beta, lambda2, B, R, D,
-    lambda1, A, read by helper A1's :func:`potentials.tersoff.read_tersoff_file`. With
+    lambda1, A (:data:`potentials.tersoff.NAMES`; ``p[INDEX[name]]``), read by
+    :func:`potentials.tersoff.read_tersoff_file`. With
     ``cutoff="step"`` they are those of the file LAMMPS is given
     (:func:`potentials.tersoff.write_step_cutoff_file`): R' = R + D - 1e-5, D' = 1e-5 Å.
     """
@@ -166,8 +171,8 @@ def tersoff_params(potential: str = "tersoff:BNC.tersoff", cutoff: str = "step",
     entry = read_tersoff_file(name, [element]).entry(element, element, element)
     v = np.array([entry[k] for k in NAMES], dtype=float)
     if cutoff == "step":
-        outer = v[10] + v[11]
-        v[10], v[11] = outer - STEP_CUTOFF_D, STEP_CUTOFF_D
+        outer = v[TI["R"]] + v[TI["D"]]
+        v[TI["R"]], v[TI["D"]] = outer - STEP_CUTOFF_D, STEP_CUTOFF_D
     return v
 
 
@@ -300,8 +305,8 @@ class LatticeStability:
     The smallest periodic piece of the ideal (n, m) tube whose length is at least twice the
     potential's outer cutoff (no atom meets its own image twice) is mapped by the
     cylindrical map of q = (lam_t, gam, lam_z, d_rho, d_s, d_z) (gam is set to 0: a twist is
-    not periodic); its Hessian at fixed cell (central differences of the Tersoff forces of
-    helper A1's kernel, step 1e-4 Å) is projected off the four zero modes (three
+    not periodic); its Hessian at fixed cell (central differences of the forces of
+    :mod:`potentials.tersoff`, step 1e-4 Å) is projected off the four zero modes (three
     translations, rotation about the axis). The lattice is unstable when the smallest
     eigenvalue is negative (below -1e-3 eV/Å^2, far above the finite-difference noise).
     This is the phonon (lattice) instability by which a perfect lattice fails under load,
@@ -314,7 +319,7 @@ class LatticeStability:
         from upscale.build import chirality  # noqa: PLC0415
 
         self.p = tersoff_params(potential, cutoff)
-        self.cut = float(self.p[10] + self.p[11])
+        self.cut = float(self.p[TI['R']] + self.p[TI['D']])
         ch = chirality(n, m, bond)
         ncell = max(1, int(math.ceil(2 * self.cut / ch.cell_length)))
         t = nanotube(n, m, length=ncell, bond=bond)
@@ -461,7 +466,7 @@ class DCBRTube:
                  cutoff: str = "step", bond: float = 1.42, kind: str = "quartic",
                  relax_shift: bool = True, stability: bool = True, hourglass: float = 0.1,
                  method: str = "numba"):
-        from upscale.build import _ncells, chirality  # noqa: PLC0415
+        from upscale.build import cells_for_length, chirality  # noqa: PLC0415
 
         if not (coarsening >= 1.0 and np.isfinite(coarsening)):
             raise ValueError(f"coarsening factor {coarsening!r} is below 1; valid: a number >= 1 "
@@ -476,7 +481,7 @@ class DCBRTube:
         self.potential, self.cutoff = potential, cutoff
         self.lattice = TubeLattice.build(n, m, bond)
         ch = chirality(n, m, bond)
-        nc = _ncells(ch, length)
+        nc = cells_for_length(ch, length)
         self.L = nc * ch.cell_length
         self.n_atoms = nc * ch.atoms_per_cell
         R0 = self.lattice.R0
@@ -844,7 +849,7 @@ class DCBRTube:
         lat = self.lattice
         L = K.mapped_bond_lengths(np.ascontiguousarray(q), lat.s, lat.z, lat.sub, lat.R0,
                                   lat.iA, lat.bondsA)
-        rcut = self.p_standard[10] + self.p_standard[11]  # outer cutoff R + D
+        rcut = self.p_standard[TI['R']] + self.p_standard[TI['D']]  # outer cutoff R + D
         g = self.gain
         over = np.zeros(len(g.pair_i), dtype=bool)
         li = L[g.pair_i, self.link_bond]
@@ -904,8 +909,8 @@ def quasi_static_tension(model: DCBRTube, strain_step: float = 0.005, max_strain
     rule and the minimisation repeated until no link breaks. Stress sigma = (dE/dLz) /
     (2 pi R t), t = 3.4 Å. Stops ``after_failure`` steps after the first drop of more than 5 %
     below the running maximum (1, as the references' runner, so the last state, which the
-    damage map and crack line are read from, is the step of LAMMPS's last frame; until
-    2026-11-22 it was 2), or at ``max_strain``.
+    damage map and crack line are read from, is the step of LAMMPS's last frame), or at
+    ``max_strain``.
 
     Returns
     -------
@@ -980,3 +985,210 @@ def quasi_static_tension(model: DCBRTube, strain_step: float = 0.005, max_strain
     res["delta"] = d
     res["wall_s"] = time.perf_counter() - t0
     return res
+
+
+class DCBRTubeModel:
+    """The periodic coarse tube (:class:`DCBRTube`) as an engine model, by composition.
+
+    The engine's state holds the particle positions ``y`` (Å); the model holds the cell
+    length ``Lz`` (Å, set by the scene with :meth:`set_cell`: the load of a tension scene)
+    and relaxes the massless sublattice shifts delta at every configuration,
+
+        E*(y) = min_{|delta_c| <= b} E(y, delta; Lz),     F = -dE*/dy = -dE/dy |_{delta*},
+
+    (the envelope theorem; ``b`` = :data:`SHIFT_BOUND_FRACTION` a_cc, as
+    :meth:`DCBRTube.minimise`), by L-BFGS-B on the shifts alone at fixed gains (the shift
+    energy is local to each particle's lattice, eq. 5.13, so the gains F_c stay fixed), warm
+    started from the last shifts, which live in ``state.extra["dcbr.delta"]`` (N, 3) and so
+    are checkpointed. Forces are per particle (eV/Å, ``force_kind = "particle"``); masses
+    are the scene's (``natoms_n`` x the carbon mass, amu). The failure rules
+    (:meth:`DCBRTube.update_links`, then :meth:`DCBRTube.check_stability` if no link broke)
+    are :meth:`break_bonds`; the links live in the tube (``tube.intact``), not in the
+    engine's pair family (``needs.pairs`` is False).
+
+    Parameters
+    ----------
+    tube : DCBRTube
+        Periodic (``tube.periodic``); the model mutates its links on failure.
+    shift_gtol : float
+        Tolerance of the shift relaxation (max |dE/d delta| component, eV/Å).
+    failure : bool
+        Apply the failure rules in the engine's force evaluations (False: links never
+        break, e.g. for an NVE stability run).
+    cell : callable, optional
+        ``cell(t) -> Lz`` (Å): a cell length prescribed in time (dynamic tension of the
+        periodic tube, strain controlled); else the length of :meth:`set_cell`.
+
+    The tube's link state (``tube.intact``, ``tube.alive``) is mirrored in
+    ``state.extra["dcbr.intact"]`` / ``["dcbr.alive"]``, so a checkpoint carries it; a
+    state whose links differ from the tube's (a resumed one) is given to the tube, and its
+    gains rebuilt, at the next evaluation.
+    """
+
+    name = "dcbr-tube"
+    force_kind = "particle"
+
+    def __init__(self, tube: DCBRTube, *, shift_gtol: float = 1e-10, failure: bool = True,
+                 cell=None):
+        from upscale.models.base import Needs
+
+        if not isinstance(tube, DCBRTube) or not getattr(tube, "periodic", True):
+            raise ValueError(f"DCBRTubeModel takes a periodic DCBRTube, got {type(tube).__name__}")
+        if not (np.isfinite(shift_gtol) and shift_gtol > 0):
+            raise ValueError(f"shift_gtol must be positive, got {shift_gtol!r}")
+        self.tube = tube
+        self.Lz = float(tube.L)
+        self.shift_gtol = float(shift_gtol)
+        if cell is not None and not callable(cell):
+            raise ValueError(f"cell must be a callable cell(t) -> Lz, got {cell!r}")
+        self.cell = cell
+        self.needs = Needs(pairs=False, failure=bool(failure), energy=True)
+        self._cache = None
+        self._held = False
+        self.system = None
+
+    def prepare(self, system, family=None, **kw) -> None:
+        if system.n != self.tube.N:
+            raise ValueError(f"the body has {system.n} particles, the tube {self.tube.N}; valid: "
+                             "the tube's own particles (DCBRTube.x0)")
+        if system.dim != 3:
+            raise ValueError(f"the tube model needs a 3D body, got dim={system.dim}")
+        self.system = system
+
+    def init_state(self, state) -> None:
+        state.extra.setdefault("dcbr.delta", np.array(self.tube.delta, dtype=np.float64))
+        state.extra.setdefault("dcbr.intact", self.tube.intact.copy())
+        state.extra.setdefault("dcbr.alive", self.tube.alive.copy())
+
+    def _sync_links(self, state) -> None:
+        """Give the tube the state's links if they differ (a resumed state)."""
+        t = self.tube
+        li, la = state.extra.get("dcbr.intact"), state.extra.get("dcbr.alive")
+        if li is None:
+            return
+        if not (np.array_equal(li, t.intact) and np.array_equal(la, t.alive)):
+            t.intact[...] = li
+            t._build_gain(t.intact)
+            t.alive &= la  # particles failed by the stability rule keep no link either
+            self._cache = None
+
+    def set_cell(self, Lz: float) -> None:
+        """The periodic cell length (Å), the load of a tension scene."""
+        if not (np.isfinite(Lz) and Lz > 0):
+            raise ValueError(f"cell length must be positive, got {Lz!r}")
+        self.Lz = float(Lz)
+        self._cache = None
+
+    def relax_shifts(self, y, delta) -> np.ndarray:
+        """Mutates ``delta`` (N, 3) to the shifts minimising the energy at positions ``y``."""
+        t = self.tube
+        if not t.relax_shift:
+            return delta
+        Fg = t.gain.deformation(y, np.array([0.0, 0.0, self.Lz]))
+        lat = t.lattice
+        P = np.empty_like(Fg)
+        e_n = np.empty(t.N)
+        q_n = np.zeros((t.N, 6))
+        gd = np.empty((t.N, 3))
+
+        def fun(dv):
+            dd = dv.reshape(t.N, 3)
+            E = K.coarse_energy(Fg, t.S, np.ascontiguousarray(dd), t.natoms_n, t.alive, lat.s,
+                                lat.z, lat.sub, lat.R0, lat.iA, lat.iB, lat.candA, lat.candB,
+                                t.p, t.e0, P, gd, e_n, q_n)
+            if not (np.isfinite(E) and np.all(np.isfinite(gd))):
+                return np.inf, np.zeros_like(dv)
+            return E, gd.ravel().copy()
+
+        b = t.shift_bound
+        x0 = np.clip(delta.ravel(), -b, b)
+        with _one_blas_thread():
+            r = minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=Bounds(-b, b),
+                         options={"maxiter": 1000, "gtol": self.shift_gtol, "ftol": 1e-15,
+                                  "maxcor": 10})
+        delta[...] = r.x.reshape(t.N, 3)
+        return delta
+
+    # the shifts as a massless internal field minimised with the positions (engine L-BFGS-B)
+    @property
+    def internal_fields(self) -> dict:
+        """``{"dcbr.delta": (-b, b)}`` (the shifts and their bounds), empty without shift
+        relaxation."""
+        b = self.tube.shift_bound
+        return {"dcbr.delta": (-b, b)} if self.tube.relax_shift else {}
+
+    def hold_internal(self, flag: bool) -> None:
+        """While held, the shifts are taken as they are in ``state.extra`` (a minimiser
+        moves them); else they are relaxed at every configuration."""
+        self._held = bool(flag)
+        self._cache = None
+
+    def internal_gradient(self, state) -> dict:
+        """``{"dcbr.delta": dE/d delta (N, 3)}`` (eV/Å) at the state's shifts."""
+        return {"dcbr.delta": self._evaluate(state)[3]}
+
+    def _evaluate(self, state):
+        self._sync_links(state)
+        if self.cell is not None:
+            Lz = float(self.cell(state.t))
+            if Lz != self.Lz:
+                self.set_cell(Lz)
+        y = np.ascontiguousarray(state.y)
+        d = state.extra["dcbr.delta"]
+        c = self._cache
+        if c is not None and c[0] == self.Lz and np.array_equal(c[1], y) and \
+                (not self._held or np.array_equal(c[6], d)):
+            return c[2], c[3], c[4], c[5]
+        if not self._held:
+            self.relax_shifts(y, d)
+        E, gy, gd, gL = self.tube.energy_and_gradient(y, d, self.Lz)
+        self._cache = (self.Lz, y.copy(), E, gy, gL, gd, d.copy())
+        return E, gy, gL, gd
+
+    # ------------------------------------------------------------------ the contract
+    def add_force(self, state, out) -> None:
+        out -= self._evaluate(state)[1]
+
+    def step_force(self, state, out, *, failure=True) -> int:
+        self.add_force(state, out)
+        return self.break_bonds(state) if failure else 0
+
+    def break_bonds(self, state) -> int:
+        """The tube's failure rules at the current state (links first, then stability)."""
+        self._evaluate(state)  # the rules read the lattice state of this configuration
+        nb = self.tube.update_links()
+        if nb == 0:
+            nb = self.tube.check_stability(all_equal=True)
+        if nb:
+            self._cache = None
+            if "dcbr.intact" in state.extra:
+                state.extra["dcbr.intact"][...] = self.tube.intact
+                state.extra["dcbr.alive"][...] = self.tube.alive
+        return int(nb)
+
+    def force(self, state):
+        out = np.zeros_like(state.y)
+        self.add_force(state, out)
+        return out
+
+    def energy(self, state) -> float:
+        return float(self._evaluate(state)[0])
+
+    def particle_damage(self, state) -> np.ndarray:
+        """mu = 1 - R/T of the tube's links per particle (seed 004 eq. 5.16)."""
+        self._sync_links(state)
+        return self.tube.damage
+
+    def cell_force(self, state) -> float:
+        """dE/dLz (eV/Å): the axial force the periodic tube carries."""
+        return float(self._evaluate(state)[2])
+
+    def stiffness_bound(self):
+        return None
+
+    def describe(self) -> dict:
+        t = self.tube
+        return {"model": self.name, "chirality": [t.lattice.n, t.lattice.m],
+                "coarsening": t.coarsening, "particles": t.N, "atoms": t.n_atoms,
+                "potential": t.potential, "cutoff": t.cutoff, "hourglass": t.hourglass,
+                "cell_length_A": self.Lz}

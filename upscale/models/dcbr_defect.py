@@ -10,7 +10,7 @@ It is an energy-based concurrent coupling (in the spirit of the quasicontinuum m
     E = sum_{a free} (E_a - e0) + sum_c w_c (e(C_c, delta_c) - e0) + W_stab
 
 * **Free atoms**: E_a is the LAMMPS-form Tersoff site energy of atom a (the terms of its own
-  bonds, :func:`potentials.tersoff_kernels._chunk` on the free atoms only), so the free
+  bonds, :func:`potentials.tersoff_kernels.tersoff_range` on the free atoms only), so the free
   region is the atomistic model itself. With ``whole_cells`` (default) the region is made of
   whole particle cells: every particle whose cell (its Voronoi share of the atoms) has an
   atom within ``r_atomistic`` of the vacancy, or a removed atom, gives all its atoms to the
@@ -84,11 +84,13 @@ import math
 
 import numpy as np
 
+from potentials.tersoff import INDEX as TI
+from upscale.constants import ACC_EV_A_AMU_IN_A_FS2, CARBON_MASS_AMU
 from upscale.models import dcbr_coupling_kernels as CK
 from upscale.models.dcbr import DCBRTube, uniform_map_frame
 
-CARBON_MASS = 12.011  # amu
-ACC_UNIT = 1.602176634e-19 / (1e-10 * 1.66053906660e-27) * 1e-20  # eV/(Å amu) in Å/fs^2
+CARBON_MASS = CARBON_MASS_AMU  # amu
+ACC_UNIT = ACC_EV_A_AMU_IN_A_FS2  # eV/(Å amu) in Å/fs^2
 
 __all__ = ["DCBRDefectTube"]
 
@@ -156,7 +158,7 @@ class DCBRDefectTube(DCBRTube):
                              "valid: one or more band centres (with vacancy=0: region='band')")
         if not (r_atomistic > 0 and np.isfinite(r_atomistic)):
             raise ValueError(f"r_atomistic={r_atomistic!r}; valid: a radius > 0 Å")
-        cut = float(self.p_standard[10] + self.p_standard[11])
+        cut = float(self.p_standard[TI['R']] + self.p_standard[TI['D']])
         if not pad > cut:
             raise ValueError(f"pad={pad!r} Å; valid: wider than the potential cutoff {cut:g} Å")
         atoms = swcnt(n, m, length, bond=self.lattice.bond)
@@ -343,7 +345,7 @@ class DCBRDefectTube(DCBRTube):
         name = self.potential.split(":", 1)[1] if self.potential.startswith("tersoff:") \
             else self.potential
         tf = Tersoff.from_lammps(name, ["C"], step_cutoff=step)
-        self._tP, self._te2p, self._tcut = tf._P, tf._e2p, float(tf.cutoff)
+        self._tP, self._te2p, self._tcut = tf.table, tf.e2p, float(tf.cutoff)
         self._types = np.zeros(self.nf + npad, np.int64)
         self._cell0 = np.zeros((3, 3))
         self._nl = None  # Verlet list of the atomistic region (:meth:`_neighbours`)
@@ -477,7 +479,7 @@ class DCBRDefectTube(DCBRTube):
         f = np.zeros_like(x)
         e_n = np.zeros(len(x))
         W = np.zeros((3, 3))
-        E = tk._chunk(0, self.nf, x, self._cell0, nl["fl"], nl["jl"], nl["sh"], self._types,
+        E = tk.tersoff_range(0, self.nf, x, self._cell0, nl["fl"], nl["jl"], nl["sh"], self._types,
                       self._te2p, self._tP, self._tcut ** 2, f, e_n, W)
         self._e_atoms = e_n[:self.nf]
         return float(E), -f
@@ -505,7 +507,7 @@ class DCBRDefectTube(DCBRTube):
         f = np.zeros_like(x)
         e_n = np.zeros(len(x))
         W = np.zeros((3, 3))
-        E = tk._chunk(0, self.nf, np.ascontiguousarray(x), cell, fl, jl, sh, self._types,
+        E = tk.tersoff_range(0, self.nf, np.ascontiguousarray(x), cell, fl, jl, sh, self._types,
                       self._te2p, self._tP, self._tcut ** 2, f, e_n, W)
         self._e_atoms = e_n[:self.nf]
         return float(E), -f

@@ -179,6 +179,7 @@ import time
 
 import numpy as np
 
+from upscale.constants import K_B_EV
 from upscale.models.dcbr import EV_PER_A3_IN_GPA, WALL_THICKNESS, uniform_map_frame
 from upscale.models.dcbr_defect import ACC_UNIT, CARBON_MASS
 
@@ -346,10 +347,9 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | N
     R = model.radius(y, d)
     z = y[:, 2]
     # the gauge is LAMMPS's: the initial distance between its grip planes (gauge_planes), so
-    # that strain(t) = 2 v t / gauge is the same function of time in both runs. (Until
-    # 2026-11-22 it was the distance between the innermost grip rows, 0 to 2 h longer; that
-    # lowered the strain at a given grip separation by up to 19 % at coarsening 4 and hid the
-    # plain grips' extra compliance, module docstring.)
+    # that strain(t) = 2 v t / gauge is the same function of time in both runs (the distance
+    # between the innermost grip rows is 0 to 2 h longer and would lower the strain at a
+    # given grip separation, by up to 19 % at coarsening 4).
     gb, gt = zb + db, zt + dt_
     return {"y": y, "delta": d, "L0": float(L0), "R": R, "area": 2 * math.pi * R * WALL_THICKNESS,
             "bottom": bottom, "top": top, "zb": zb, "zt": zt, "gb": gb, "gt": gt,
@@ -452,8 +452,7 @@ def run_metrics(strains, stresses, exts, first, fit_max_strain: float = 0.02,
     ``strength_first_drop_GPa``, ``strain_at_peak_first_drop``. Last, the extensometer
     metrics (:func:`upscale.analysis.stress.extensometer_metrics`) of the final strength
     sample, so that ``strain_at_peak_ext`` always belongs to the same sample as
-    ``strain_at_peak`` (before 2026-11-22 they were taken before the correction and gave the
-    first drop's sample: (10,10) pristine coarsening 3, seed 1000, 0.162 against 0.193).
+    ``strain_at_peak`` (taken before the correction they would be the first drop's sample's).
     The extensometer's fit takes the samples up to the peak only: its window selects by the
     extensometer strain, and after a break next to a grip (the pristine tubes) the unloaded
     gauge springs back below ``fit_max_strain`` (a (10,10) fit through those samples gave
@@ -548,7 +547,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     movable = ~grips
     # thermal start and Nose-Hoover thermostat on the x, y velocities of the free part (and
     # the sublattice shifts), as LAMMPS's fix nvt with compute temp/partial 1 1 0
-    kB = 8.617333262e-5  # eV/K
+    kB = K_B_EV
     rng = np.random.default_rng(seed)
     thermo = temperature > 0
     if thermo:

@@ -38,7 +38,7 @@ from upscale.engine.bondlist import BondList
 from upscale.engine.kernels import bond_extension, bond_length, bond_vector
 from upscale.models import register
 from upscale.models.base import Model, Needs
-from upscale.models.bond_based import _check_positive
+from upscale.models.base import check_positive as _check_positive
 
 __all__ = ["LPS"]
 

@@ -34,7 +34,7 @@ def _args(p):
       add_arguments=_args)
 def _bench(args):
     from upscale.models.dcbr_dynamic import dynamic_tension as coarse_dynamic
-    from validation.cases.dcbr import _chirality, _lammps_reference, dynamic_scene
+    from validation.cases.dcbr import _chirality, lammps_reference_or_run, dynamic_scene
     from validation.cases.references import DYN_LENGTH, _spec, build_structure
     from validation.lammps.tension import dynamic_tension as lammps_dynamic
 
@@ -48,7 +48,7 @@ def _bench(args):
     ks = ks * len(tubes) if len(ks) == 1 else ks
     rows = []
     for (n, m), K in zip(tubes, ks):
-        ref = _lammps_reference(n, m, DYN_LENGTH, vacancy=True, protocol="dynamic")
+        ref = lammps_reference_or_run(n, m, DYN_LENGTH, vacancy=True, protocol="dynamic")
         print(f"({n},{m}) K={K:g}: coarse run (build, set-up relaxation, dynamics)...", flush=True)
         t0 = time.perf_counter()
         model, dyn = dynamic_scene(n, m, DYN_LENGTH, K, ref, grips=args.grips)

@@ -1,95 +1,65 @@
 """Gain matrix and DCBR tube cases: gain-affine, dcbr-energy, dcbr-tension, dcbr-table.
 
-References: closed-form affine fields (gain-affine) and LAMMPS through helper C's runners
-(:mod:`validation.lammps.tension`, same potential file, same tube, same protocol). A LAMMPS
+The scenes are :mod:`upscale.experiments.tube_tension`'s; these cases compare them. References:
+closed-form affine fields (gain-affine) and LAMMPS through the runners of
+:mod:`validation.lammps.tension` (same potential file, same tube, same protocol). A LAMMPS
 result is taken from ``data/reference/*.json`` when a record matches (chirality, atoms,
 protocol, strain step, cutoff, vacancy), else computed on the fly and cached in
 ``validation/out/lammps-cache/`` (ignored by git), keyed by the runner's source checksum.
 """
 from __future__ import annotations
 
-import json
 import math
 import time
 from pathlib import Path
 
 import numpy as np
 
+from upscale.constants import ACC_EV_A_AMU_IN_A_FS2, ASE_TIME_FS, CARBON_MASS_AMU, K_B_EV
+from upscale.experiments.tube_tension import (GRIPS, dynamic_scene, lammps_reference,
+                                              parse_chirality)
+from upscale.experiments.tube_tension import run_tension_comparison as _run_tension
 from validation.registry import case, table
 
 ROOT = Path(__file__).resolve().parents[2]
 CACHE = ROOT / "validation" / "out" / "lammps-cache"
+RUNNER = ROOT / "validation" / "lammps" / "tension.py"
+
+__all__ = ["run_tension_comparison", "dynamic_scene", "GRIPS"]
 
 
 # ---------------------------------------------------------------------------- helpers
-def _chirality(text: str) -> tuple[int, int]:
-    try:
-        n, m = (int(v) for v in str(text).split(","))
-    except ValueError:
-        raise ValueError(f"--chirality {text!r}; valid: two integers 'N,M', e.g. 10,10") from None
-    return n, m
+_chirality = parse_chirality
 
 
-def _lammps_reference(n, m, length, *, protocol="quasi-static", strain_step=0.005,
-                      vacancy=False, cutoff="step", potential="tersoff:BNC.tersoff",
-                      progress=True) -> dict:
-    """LAMMPS tension record of the (n, m) tube: stored, cached or computed now."""
-    from upscale.build import swcnt, vacancy as make_vacancy
+def _run_lammps(protocol, atoms, potential, cutoff, strain_step, progress):
+    """The LAMMPS tension runner (:mod:`validation.lammps.tension`) for a missing reference."""
+    from validation.lammps.tension import dynamic_tension, quasi_static_tension
 
-    atoms = swcnt(n, m, length=length)
-    if vacancy:
-        atoms = make_vacancy(atoms, n=4)
-    natoms = len(atoms)
-    want_vac = 4 if vacancy else None
+    if protocol == "quasi-static":
+        return quasi_static_tension(atoms, potential, cutoff=cutoff, strain_step=strain_step,
+                                    progress=progress)
+    return dynamic_tension(atoms, potential, cutoff=cutoff, progress=progress)
 
-    def matches(r):
-        st = r.get("structure", {})
-        pd = r.get("protocol_detail", {})
-        vac = st.get("vacancy")
-        nvac = (vac.get("n") if isinstance(vac, dict) else vac) if vac else None
-        return (r.get("kind") == "lammps-tension" and r.get("protocol") == protocol
-                and list(st.get("chirality") or []) == [n, m] and st.get("n_atoms") == natoms
-                and r.get("potential", {}).get("cutoff") == cutoff
-                and (protocol != "quasi-static"
-                     or abs(pd.get("strain_step", -1) - strain_step) < 1e-12)
-                and ((nvac or None) == want_vac))
 
-    for f in sorted((ROOT / "data" / "reference").glob("*.json")):
-        try:
-            r = json.loads(f.read_text())
-        except (OSError, json.JSONDecodeError):
-            continue
-        r = r.get("result", r)
-        if isinstance(r, dict) and matches(r):
-            r["_source"] = str(f.relative_to(ROOT))
-            return r
+def _runner_tag() -> str:
     import hashlib
 
-    runner = ROOT / "validation" / "lammps" / "tension.py"
-    fp = hashlib.sha256(runner.read_bytes()).hexdigest()[:10]  # a changed runner = new run
-    key = (f"{protocol}_{n}_{m}_{natoms}_{'vac4' if vacancy else 'pristine'}_{cutoff}_"
-           f"{strain_step:g}_{fp}")
-    cf = CACHE / f"{key}.json"
-    if cf.exists():
-        r = json.loads(cf.read_text())
-        if matches(r):
-            r["_source"] = str(cf.relative_to(ROOT)) + " (cache)"
-            return r
-    from validation.lammps.tension import dynamic_tension, quasi_static_tension
-    from upscale.io import write_json
+    return hashlib.sha256(RUNNER.read_bytes()).hexdigest()[:10]  # a changed runner = new run
 
-    print(f"LAMMPS reference ({protocol}, ({n},{m}), {natoms} atoms) not stored: running it now",
-          flush=True)
-    cb = (lambda e, s: print(f"  lammps  strain {e:.4f}  stress {s:9.3f} GPa", flush=True)) \
-        if progress else None
-    if protocol == "quasi-static":
-        r = quasi_static_tension(atoms, potential, cutoff=cutoff, strain_step=strain_step,
-                                 progress=cb)
-    else:
-        r = dynamic_tension(atoms, potential, cutoff=cutoff, progress=cb)
-    write_json(cf, r)
-    r["_source"] = "computed now"
-    return r
+
+def lammps_reference_or_run(n, m, length, **kw) -> dict:
+    """:func:`upscale.experiments.tube_tension.lammps_reference`, computing a missing record
+    with the LAMMPS runner and caching it in ``validation/out/lammps-cache/`` (ignored by
+    git), keyed by the runner's source checksum."""
+    return lammps_reference(n, m, length, cache_dir=CACHE, cache_tag=_runner_tag(),
+                            runner=_run_lammps, **kw)
+
+
+def run_tension_comparison(*args, **kw) -> dict:
+    """:func:`upscale.experiments.tube_tension.run_tension_comparison` with references
+    stored, cached or computed now (see :func:`lammps_reference_or_run`)."""
+    return _run_tension(*args, cache_dir=CACHE, runner=_run_lammps, **kw)
 
 
 def _err_pct(a, b):
@@ -189,7 +159,7 @@ def _dcbr_energy(args):
     rows, worst, worst_ns = [], 0.0, 0.0
     for n, m in chis:
         length = args.length or max(10.0, 2 * chirality(n, m).cell_length)
-        ref = _lammps_reference(n, m, length, strain_step=step, progress=False)
+        ref = lammps_reference_or_run(n, m, length, strain_step=step, progress=False)
         eps_peak = ref["strain_at_peak"]
         e_ref = np.array(ref["curve"]["energy_eV"])
         s_ref = np.array(ref["curve"]["strain"])
@@ -252,309 +222,6 @@ def _tension_args(p):
                    help="dynamic: thermostat K (default 10, as LAMMPS; 0 = NVE from rest)")
     p.add_argument("--hourglass", type=float, default=0.1,
                    help="zero-energy-mode control, fraction of the lattice stiffness (0 = off)")
-
-
-GRIPS = ("bands", "clamped")
-
-
-def dynamic_scene(n, m, length, coarsening, ref, vacancy=True, grips=None,
-                  r_atomistic=8.0, **kw):
-    """The coarse model of the dynamic protocol and the keywords of its
-    :func:`upscale.models.dcbr_dynamic.dynamic_tension` call, as every case builds it.
-
-    ``grips``: ``None`` (default) picks ``"clamped"`` with the vacancy, ``"bands"`` without.
-    ``"bands"``: atomistic bands of ``r_atomistic`` across both grip planes
-    (:func:`upscale.models.dcbr_dynamic.grip_band_tube`), the grips holding the band atoms
-    beyond them as LAMMPS's hold its atoms, on LAMMPS's own planes when the reference
-    ``ref`` records them (its extensometer window; the seed-scale references predate it and
-    the planes are then ``grip`` inside the lattice's end atoms, 0.2-1 Å off). With the
-    vacancy its own region is kept. ``grips="clamped"`` (vacancy only): coarse rows up to the
-    planes, held rigid in G (:meth:`~upscale.models.dcbr_defect.DCBRDefectTube.clamp_grips`);
-    where the reference records its planes, they are the gauge (``dyn["gauge_planes"]``) and
-    each clamp takes hold at LAMMPS's innermost held atoms (``dyn["planes"]``,
-    :func:`_reference_held_planes`). Why the default differs: a pristine tube breaks at a grip plane (LAMMPS's do: the held
-    radius stretches the first free bonds), a concentration of a few atoms that the
-    atomistic band carries and a clamped coarse row does not (``upscale.models.dcbr_dynamic``
-    docstring); its bands leave 62 % of the 50 Å gauge's atoms coarse. With the vacancy, its
-    own region and the two bands (rounded out to whole cells) cover 80 % of the gauge's
-    atoms at coarsening 2 and all of them at 4 on these tubes ((10,10); the (50,50)
-    likewise), so the gauge would no longer be coarse at all; measured that way (4 seeds)
-    the small tubes were within 3.5 % (strength), 1.9 % (modulus) and 4.3 % (strain at
-    peak) of LAMMPS, but that tests the atoms, not the coarse model. ``kw`` goes to the
-    model (hourglass, step_crossing, ...). ``dyn["grips"]`` records the grips chosen."""
-    from upscale.models.dcbr_defect import DCBRDefectTube  # noqa: PLC0415
-    from upscale.models.dcbr_dynamic import grip_band_tube  # noqa: PLC0415
-
-    if grips is None:
-        grips = "clamped" if vacancy else "bands"
-    if grips not in GRIPS or (grips == "clamped" and not vacancy):
-        raise ValueError(f"grips={grips!r} (vacancy={vacancy}); valid: 'bands', or 'clamped' "
-                         "with the vacancy")
-    pd = ref.get("protocol_detail", {})
-    grip = pd.get("grip_A", 50.0)
-    dyn = {"grip": grip, "speed": pd.get("speed_A_per_ps_each_grip", 1.0)}
-    if grips == "bands":
-        model = grip_band_tube(n, m, length, coarsening, grip=grip, r_atomistic=r_atomistic,
-                               vacancy=4 if vacancy else 0, **kw)
-        planes = _reference_grip_planes(ref) if "extensometer" in pd else None
-        dyn.update(clamp=False, planes=planes)
-    else:
-        model = DCBRDefectTube(n, m, length, coarsening=coarsening, vacancy=4,
-                               r_atomistic=r_atomistic, **kw)
-        dyn.update(clamp=True)
-        if "extensometer" in pd:  # LAMMPS's planes, and its held atoms (_reference_held_planes)
-            dyn["gauge_planes"] = _reference_grip_planes(ref)
-            dyn["planes"] = _reference_held_planes(model.X_atoms[:, 2], dyn["gauge_planes"])
-    return model, dyn | {"grips": grips}
-
-
-def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=False,
-                           dynamic=False, outdir=None, plot=True, verbose=True,
-                           hourglass=0.1, r_atomistic=8.0, region="band",
-                           step_crossing="damped", temperature=10.0, grips=None) -> dict:
-    """Coarse (DCBR) and LAMMPS quasi-static tension of one tube, with errors and speed-up.
-
-    With ``vacancy`` the coarse model is :class:`upscale.models.dcbr_defect.DCBRDefectTube`
-    (atomistic region of ``r_atomistic`` Å around the 4-atom vacancy) and the crack angles
-    of both are compared. ``dynamic``: the open tube with grips of :func:`dynamic_scene`
-    (``grips``; by default clamped coarse grips with the vacancy and, pristine, an atomistic
-    band of ``r_atomistic`` Å across each grip plane: LAMMPS's pristine tubes fail next to a
-    grip plane, where the held atoms keep the radius)."""
-    from upscale.models.dcbr import DCBRTube, quasi_static_tension
-
-    ref = _lammps_reference(n, m, length, strain_step=strain_step, vacancy=vacancy,
-                            protocol="dynamic" if dynamic else "quasi-static",
-                            progress=verbose)
-    t0 = time.perf_counter()
-    banded = False  # atomistic bands across the grip planes (dynamic_scene's choice)
-    if dynamic:
-        kw = {"region": region} if vacancy else {}
-        model, dyn = dynamic_scene(n, m, length, coarsening, ref, vacancy=vacancy, grips=grips,
-                                   r_atomistic=r_atomistic, hourglass=hourglass,
-                                   step_crossing=step_crossing, **kw)
-        grips = dyn.pop("grips")
-        banded = grips == "bands"
-    elif vacancy:
-        from upscale.models.dcbr_defect import DCBRDefectTube
-
-        model = DCBRDefectTube(n, m, length, coarsening=coarsening, hourglass=hourglass,
-                               vacancy=4, r_atomistic=r_atomistic, region=region,
-                               step_crossing=step_crossing)
-    else:
-        model = DCBRTube(n, m, length, coarsening=coarsening, hourglass=hourglass)
-    cb = (lambda e, s: print(f"  dcbr    strain {e:.4f}  stress {s:9.3f} GPa", flush=True)) \
-        if verbose else None
-    if dynamic:
-        from upscale.models.dcbr_dynamic import dynamic_tension
-
-        res = dynamic_tension(model, progress=cb, temperature=temperature, **dyn)
-        res["curve"]["Lz_A"] = [res["L0_A"]] * len(res["curve"]["strain"])
-    else:
-        res = quasi_static_tension(model, strain_step=strain_step, progress=cb)
-    wall = time.perf_counter() - t0
-    out = {"chirality": f"{n},{m}", "coarsening": coarsening, "hourglass": hourglass,
-           "atoms": model.n_atoms,
-           "particles": model.N, "dof": res["dof"], "internal_dof": res.get("internal_dof", 3 * model.N),
-           "dof_atoms": 3 * model.n_atoms,
-           "modulus_TPa": res["youngs_modulus_TPa"], "modulus_lammps_TPa": ref["youngs_modulus_TPa"],
-           "strength_GPa": res["strength_GPa"], "strength_lammps_GPa": ref["strength_GPa"],
-           "strain_at_peak": res["strain_at_peak"], "strain_at_peak_lammps": ref["strain_at_peak"],
-           "modulus_err_pct": _err_pct(res["youngs_modulus_TPa"], ref["youngs_modulus_TPa"]),
-           "strength_err_pct": _err_pct(res["strength_GPa"], ref["strength_GPa"]),
-           "strain_at_peak_err_pct": _err_pct(res["strain_at_peak"], ref["strain_at_peak"]),
-           "wall_s": wall, "lammps_wall_s": ref.get("wall_s"),
-           "lammps_source": ref.get("_source"),
-           "L0_A": res["L0_A"], "L0_lammps_A": ref["relaxation"]["L0_A"],
-           "radius_A": res["radius_relaxed_A"], "radius_lammps_A": ref["relaxation"]["radius_relaxed_A"],
-           "protocol": "dynamic" if dynamic else "quasi-static",
-           "grips": grips if dynamic else None,
-           "temperature_K": temperature if dynamic else None}
-    out["speedup"] = (out["lammps_wall_s"] / wall) if out["lammps_wall_s"] else None
-    if dynamic and ref.get("youngs_modulus_ext_TPa") is not None:  # the same extensometer
-        for k, ko in (("youngs_modulus_ext_TPa", "modulus_ext"), ("strain_at_peak_ext",
-                                                                   "strain_at_peak_ext")):
-            out[ko], out[f"{ko}_lammps"] = res.get(k), ref[k]
-            out[f"{ko}_err_pct"] = _err_pct(res[k], ref[k]) if res.get(k) is not None else None
-    if vacancy or banded:
-        out.update({k: res[k] for k in ("setup_relax_s", "dynamics_s", "steps") if k in res})
-        if res.get("first_damage"):
-            out["first_damage_strain"] = res["first_damage"]["strain"]
-            out["crack_start_to_vacancy_A"] = res["first_damage"]["distance_to_vacancy_A"]
-            if banded and not vacancy:  # [min, median, max] distance into the gauge
-                fd = res["first_damage"]
-                out["first_damage_to_grip_plane_A"] = fd["distance_to_grip_plane_A"]
-                out["first_damage_halves"] = [fd["n_bottom_half"], fd["n_top_half"]]
-            dref = ref.get("damage", {})
-            out["crack_start_to_vacancy_lammps_A"] = dref.get("crack_start_distance_to_vacancy_A")
-        out.update({f"model_{k}": v for k, v in model.summary().items()})
-        out.update({"region": region, "r_atomistic_A": r_atomistic,
-                    "step_crossing": step_crossing, "dof": model.dof})
-        out.update(_crack(model, res))
-        dref = ref.get("damage", {})
-        out["crack_angle_lammps_deg"] = dref.get("crack_angle_to_axis_deg")
-        out["first_damage_strain_lammps"] = dref.get("first_damage_strain")
-        res["_atom_damage"] = out.pop("_atom_damage")
-    if outdir is not None and plot:
-        outdir = Path(outdir)
-        outdir.mkdir(parents=True, exist_ok=True)
-        name = f"dcbr_{'dynamic' if dynamic else 'tension'}_{n}_{m}" \
-            f"{'_vac4' if vacancy else ('_pristine' if dynamic else '')}"
-        _plot(res, ref, out, outdir / f"{name}_K{coarsening:g}.png", model)
-    out["_curve"] = res["curve"]
-    return out
-
-
-def _reference_grip_planes(ref) -> tuple[float, float]:
-    """The LAMMPS run's grip planes on the built tube's lattice (reference z, Å).
-
-    LAMMPS's planes lie 50 Å inside its end atoms after the open-tube minimisation; which
-    atoms end its tube depends on the periodic wrap after its zero-stress relaxation (the
-    builder's layer at z = 0 sits on the cell boundary: it went to the top of the (10,10) and
-    (17,0) tubes, not of the (12,6) one) and on the end atoms' relaxation (0.2-0.3 Å), so
-    where the planes cut the lattice (for (17,0): across the inclined or the axial bonds)
-    is an accident of the set-up that the coarse ends do not carry. The coarse scene holds
-    the same atoms: its planes are LAMMPS's, recovered from the stored extensometer window
-    (marks a quarter of the gauge inside the planes) and mapped back by the relaxed axial
-    stretch L0 / built length (relaxation scales z about z = 0; the fit of the dumps' first
-    frame to the built positions gives an offset of < 1e-3 Å)."""
-    from upscale.analysis.stress import EXTENSOMETER_MARGIN
-
-    pd = ref["protocol_detail"]
-    lo, hi = pd["extensometer"]["window_A"]
-    mg = pd["extensometer"].get("margin_of_gauge", EXTENSOMETER_MARGIN)
-    g = (hi - lo) / (1.0 - 2.0 * mg)
-    zb, zt = lo - mg * g, hi + mg * g
-    if abs(g - pd["gauge_length_A"]) > 1e-6:
-        raise ValueError(f"reference gauge {pd['gauge_length_A']} Å vs {g} Å from its "
-                         "extensometer window; valid: a reference with a consistent record")
-    s = ref["structure"]["length_built_A"] / ref["relaxation"]["L0_A"]
-    return zb * s, zt * s
-
-
-def _reference_held_planes(z, planes) -> tuple[float, float]:
-    """Where LAMMPS's grips take hold, for clamped coarse grips (reference z, Å).
-
-    ``z``: the built lattice's atoms' axial coordinates; ``planes``: LAMMPS's grip planes on
-    it (:func:`_reference_grip_planes`). A grip holds the atoms beyond its plane, and the free
-    part begins at the innermost of them: a lattice stretched uniformly between two held
-    layers strains every bond across them as the rest, so the held layers' distance is the
-    free length (in one dimension exactly the chain between its held atoms). A clamped
-    coarse grip counts its held rows as sitting at its plane
-    (:meth:`~upscale.models.dcbr_defect.DCBRDefectTube.clamp_grips`), so its plane goes there.
-    How far LAMMPS's planes lie inside those atoms depends on where they cut the lattice:
-    (17,0) 0.54 Å at each end, which with the coarse tube's own planes (50 Å inside its own
-    end atoms, whose bottom layer LAMMPS's periodic wrap had put at the top) made the coarse
-    gauge 2.3 % longer than LAMMPS's and the modulus by grip separation 2.3 % higher at the
-    same grip stiffness."""
-    z = np.asarray(z, dtype=float)
-    lo, hi = z[z < planes[0]], z[z > planes[1]]
-    if not (len(lo) and len(hi)):
-        raise ValueError(f"planes={planes!r} hold no atom of a tube spanning "
-                         f"{z.min():.2f}..{z.max():.2f} Å; valid: planes inside the tube")
-    return float(lo.max()), float(hi.min())
-
-
-def _tube_z_range(model, y):
-    """Axial extent of the tube: its living, carrying particles (a failed or slave particle
-    can leave with the atoms it follows after the break)."""
-    yp = model.particle_positions(y) if hasattr(model, "particle_positions") else y
-    keep = model.alive & ~getattr(model, "is_slave", np.zeros(model.N, bool))
-    if not keep.any():  # a pristine periodic tube fails everywhere at once: all of them
-        keep = np.ones(model.N, bool)
-    return float(yp[keep, 2].min()), float(yp[keep, 2].max())
-
-
-def _crack(model, res) -> dict:
-    """Damage of the free atoms at the last step and the crack line through the damaged ones
-    (unrolled wall, the references' convention: 90 deg = across the axis)."""
-    from upscale.analysis.damage import crack_line, split_along_axis
-
-    Lz = res["curve"]["Lz_A"][-1]
-    mu = model.atom_damage(res["positions"], res["delta"], Lz)
-    xf, _ = model.atom_positions(res["positions"], res["delta"], Lz)
-    # the axis through the particles' centroid (an atom thrown off moves the free atoms' one)
-    c = model.particle_positions(res["positions"])[:, :2].mean(axis=0)
-    th = np.unwrap(np.arctan2(xf[:, 1] - c[1], xf[:, 0] - c[0]))
-    R = res["radius_relaxed_A"]
-    s_, z_ = R * ((th - model.vacancy_theta_z[0] + np.pi) % (2 * np.pi) - np.pi), xf[:, 2]
-    # atoms thrown off the wall after fracture are left out (the references' rule)
-    on_wall = np.abs(np.hypot(xf[:, 0] - c[0], xf[:, 1] - c[1]) - R) < 3.0
-    # and those beyond the tube's ends
-    z0, z1 = _tube_z_range(model, res["positions"])
-    on_wall &= (xf[:, 2] > z0) & (xf[:, 2] < z1)
-    dmg = (mu > 0) & on_wall
-    out = {"_atom_damage": mu, "damaged_atoms": int(dmg.sum()),
-           "ejected_atoms": int((~on_wall).sum())}
-    # the references' rule (validation.cases.references): damaged atoms separated by axial
-    # gaps > 5 Å are separate cracks (or the two faces of an opened one), each fitted by its
-    # own line; the one nearest the vacancy is reported
-    zv = model.vacancy_theta_z[1] * Lz / model.L
-    groups = [g for g in split_along_axis(z_[dmg], gap=5.0) if len(g) >= 2]
-    if groups:
-        lines = [crack_line(s_[dmg][g], z_[dmg][g], weights=mu[dmg][g]) for g in groups]
-        line = lines[int(np.argmin([abs(ln["centre_z_A"] - zv) for ln in lines]))]
-        out["crack_angle_deg"] = line["angle_to_axis_deg"]
-        out["n_cracks"] = len(lines)
-        out["crack_centre_to_vacancy_A"] = float(np.hypot(line["centre_s_A"],
-                                                          line["centre_z_A"] - zv))
-    else:
-        out["crack_angle_deg"] = None
-    return out
-
-
-def _plot(res, ref, out, path, model):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    ref_png = (ref.get("damage") or {}).get("damage_map_png")
-    ref_png = (ROOT / ref_png) if ref_png else None
-    side = ref_png is not None and ref_png.exists()  # LAMMPS's damage map beside ours
-    fig, ax = plt.subplots(1, 3 if side else 2, figsize=(17 if side else 11, 4.2),
-                           gridspec_kw={"width_ratios": [1, 1, 1.2]} if side else None)
-    ax[0].plot(ref["curve"]["strain"], ref["curve"]["stress_GPa"], "k-o", ms=3, label="LAMMPS")
-    ax[0].plot(res["curve"]["strain"], res["curve"]["stress_GPa"], "b-s", ms=3,
-               label=f"DCBR, coarsening {out['coarsening']:g} ({out['particles']} particles)")
-    ax[0].set_xlabel("axial strain")
-    ax[0].set_ylabel("stress (GPa, t = 3.4 Å)")
-    ax[0].set_title(f"({out['chirality']}) {out['protocol']} tension, {out['atoms']} atoms")
-    ax[0].legend()
-    yp = model.particle_positions(res["positions"]) if hasattr(model, "particle_positions") \
-        else res["positions"]
-    c = yp[:, :2].mean(axis=0)
-    th = np.degrees(np.arctan2(yp[:, 1] - c[1], yp[:, 0] - c[0]))
-    z0, z1 = _tube_z_range(model, res["positions"])
-    inside = (yp[:, 2] >= z0) & (yp[:, 2] <= z1)  # particles that left the tube not shown
-    sc = ax[1].scatter(yp[inside, 2], th[inside], c=np.asarray(res["damage"])[inside], vmin=0,
-                       vmax=1, cmap="viridis", s=18)
-    if "_atom_damage" in res:  # the free atoms of the atomistic region
-        xf, _ = model.atom_positions(res["positions"], res["delta"], res["curve"]["Lz_A"][-1])
-        tha = np.degrees(np.arctan2(xf[:, 1] - c[1], xf[:, 0] - c[0]))
-        keep = (np.abs(np.hypot(xf[:, 0] - c[0], xf[:, 1] - c[1]) - out["radius_A"]) < 3.0) \
-            & (xf[:, 2] > z0) & (xf[:, 2] < z1)  # not thrown off
-        ax[1].scatter(xf[keep, 2], tha[keep], c=res["_atom_damage"][keep], vmin=0, vmax=1,
-                      cmap="viridis", s=6, marker=".")
-        if out.get("crack_angle_deg") is not None:
-            ax[1].set_title(f"damage at the last step; crack {out['crack_angle_deg']:.0f}° to the "
-                            f"axis (LAMMPS {out.get('crack_angle_lammps_deg') or float('nan'):.0f}°)")
-    fig.colorbar(sc, ax=ax[1], label="damage mu = 1 - R/T (eq. 5.16)")
-    if side:
-        ax[2].imshow(plt.imread(ref_png))
-        ax[2].set_axis_off()
-        ax[2].set_title(f"LAMMPS damage map ({ref_png.name})")
-    ax[1].set_xlabel("z (Å)")
-    ax[1].set_ylabel("theta (deg)")
-    if "_atom_damage" not in res or out.get("crack_angle_deg") is None:
-        ax[1].set_title("DCBR damage at the last step")
-    fig.tight_layout()
-    from upscale.io import atomic_write_bytes
-    import io
-
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    plt.close(fig)
-    atomic_write_bytes(path, buf.getvalue())
 
 
 def _dcbr_tension(args):
@@ -660,7 +327,6 @@ case("dcbr-table", "run-time vs error table of the DCBR tube against LAMMPS (coa
 
 
 # ---------------------------------------------------------------------------- dcbr-stability
-ASE_TIME_FS = 10.1805055  # Å sqrt(amu/eV) in fs
 
 
 def _stability_args(p):
@@ -677,9 +343,10 @@ def _stability_args(p):
 def _dcbr_stability(args):
     """Critical time step (velocity Verlet: dt_c = 2 / omega_max) of the coarse tube and of
     the atomistic lattice, and the NVE energy drift of the coarse tube."""
-    from scipy.optimize import minimize
-
-    from upscale.models.dcbr import DCBRTube
+    from upscale.engine.integrators import VelocityVerlet
+    from upscale.engine.simulation import Simulation
+    from upscale.engine.system import ParticleSystem
+    from upscale.models.dcbr import DCBRTube, DCBRTubeModel
 
     n, m = _chirality(args.chirality)
     steps = args.steps or (500 if args.quick else 10000)
@@ -687,7 +354,7 @@ def _dcbr_stability(args):
     y, d, L0, *_ = t.minimise(t.x0, t.delta, t.L, relax_box=True, gtol=1e-9)
     N = t.N
     Keff = t.condensed_hessian(y, d, L0)  # shifts condensed (Schur complement)
-    mass = np.repeat(t.natoms_n * 12.011, 3)
+    mass = np.repeat(t.natoms_n * CARBON_MASS_AMU, 3)
     wk = np.linalg.eigvalsh(Keff)
     # zero-energy modes beyond the 4 rigid ones (3 translations, rotation about the axis)
     spurious = int((np.abs(wk) < 1e-6 * wk.max()).sum()) - 4
@@ -697,46 +364,41 @@ def _dcbr_stability(args):
     # atomistic: the relaxed lattice on the periodic piece, carbon mass
     q = t._q_n[0].copy()
     H, U = t.stability.hessian(q)
-    wa = np.linalg.eigvalsh(H / 12.011)
+    wa = np.linalg.eigvalsh(H / CARBON_MASS_AMU)
     dt_c_atom = 2.0 / math.sqrt(wa.max()) * ASE_TIME_FS
     print(table([{"model": f"DCBR ({n},{m}) K={args.coarsening:g}", "particles/atoms": N,
                   "omega_max_1/fs": math.sqrt(w2.max()) / ASE_TIME_FS, "dt_crit_fs": dt_c_coarse},
                  {"model": "atomistic lattice", "particles/atoms": t.stability.natoms,
                   "omega_max_1/fs": math.sqrt(wa.max()) / ASE_TIME_FS, "dt_crit_fs": dt_c_atom}]))
-    # NVE: velocity Verlet on the particles, shifts relaxed at every step
+    # NVE on the engine: velocity Verlet on the particles, shifts relaxed at every step
+    # (upscale.models.dcbr.DCBRTubeModel), links held (no failure in a 10 K run)
     rng = np.random.default_rng(1)
-    kB = 8.617333262e-5
-    v = rng.standard_normal((N, 3)) * np.sqrt(kB * args.temperature / (t.natoms_n * 12.011))[:, None]
+    mass_n = t.natoms_n * CARBON_MASS_AMU
+    v = rng.standard_normal((N, 3)) * np.sqrt(K_B_EV * args.temperature / mass_n)[:, None]
     v -= (v * t.natoms_n[:, None]).sum(0) / t.natoms_n.sum()
-    dt = args.dt_fs / ASE_TIME_FS
-    minv = 1.0 / (t.natoms_n * 12.011)[:, None]
-
-    def relaxed(yy, dd):
-        def fun(dv):
-            E, gy, gd, _ = t.energy_and_gradient(yy, dv.reshape(N, 3), L0)
-            return E, gd.ravel()
-
-        r = minimize(fun, dd.ravel(), jac=True, method="L-BFGS-B",
-                     options={"gtol": 1e-10, "ftol": 1e-16, "maxiter": 500})
-        dd = r.x.reshape(N, 3)
-        E, gy, _, _ = t.energy_and_gradient(yy, dd, L0)
-        return E, -gy, dd
-
-    E, f, d = relaxed(y, d)
-    Etot0 = E + 0.5 * np.sum(v * v / minv)
-    ke0 = 0.5 * np.sum(v * v / minv)
+    t.delta = d
+    model = DCBRTubeModel(t, failure=False)
+    model.set_cell(L0)
+    sim = Simulation(ParticleSystem(t.x0, t.natoms_n, CARBON_MASS_AMU,
+                                    spacing=float(min(t.spacing))), None, model,
+                     integrator=VelocityVerlet(dt=args.dt_fs / ASE_TIME_FS))
+    sim.state.y[...] = y
+    sim.state.v[...] = v
+    sim.prepare()
+    ke0 = sim.kinetic_energy()
+    Etot0 = sim.energy() + ke0
     drift = []
+    every = max(1, steps // 20)
     t0 = time.perf_counter()
-    for k in range(steps):
-        v += 0.5 * dt * f * minv
-        y = y + dt * v
-        E, f, d = relaxed(y, d)
-        v += 0.5 * dt * f * minv
-        if (k + 1) % max(1, steps // 20) == 0:
-            Et = E + 0.5 * np.sum(v * v / minv)
-            drift.append((k + 1, Et - Etot0))
+    done = 0
+    while done < steps:
+        k = min(every, steps - done)
+        sim.run(k)
+        done += k
+        if done % every == 0:
+            drift.append((done, sim.energy() + sim.kinetic_energy() - Etot0))
     wall = time.perf_counter() - t0
-    Et = E + 0.5 * np.sum(v * v / minv)
+    Et = sim.energy() + sim.kinetic_energy()
     rel = (Et - Etot0) / ke0
     maxdev = max(abs(e) for _, e in drift) / ke0
     print(table([{"steps": s, "E - E0 (eV)": e, "(E - E0)/KE0": e / ke0} for s, e in drift], floatfmt=".3e"))
@@ -766,7 +428,7 @@ def _defect_nve_args(p):
 def _dcbr_defect_nve(args):
     """NVE of the periodic coupled tube with the vacancy (atomistic band, pads, slaves, ghost
     correction at the zero-stress state) from Gaussian velocities: total energy drift."""
-    from upscale.models.dcbr_defect import ACC_UNIT, DCBRDefectTube
+    from upscale.models.dcbr_defect import DCBRDefectTube
 
     n, m = _chirality(args.chirality)
     steps = args.steps or (1000 if args.quick else 10000)
@@ -775,7 +437,7 @@ def _dcbr_defect_nve(args):
                          f"{args.temperature}; valid: steps >= 10, dt > 0, temperature > 0")
     model = DCBRDefectTube(n, m, args.length, coarsening=args.coarsening)
     y, d, Lz, _, _, _ = model.minimise(None, None, None, relax_box=True, gtol=1e-6)
-    nd, acc, kB, dt = len(model.dof_idx), ACC_UNIT, 8.617333262e-5, args.dt_fs
+    nd, acc, kB, dt = len(model.dof_idx), ACC_EV_A_AMU_IN_A_FS2, K_B_EV, args.dt_fs
     mass, mass_d = model.masses()
     rng = np.random.default_rng(7)
     v = rng.standard_normal(y.shape) * np.sqrt(kB * args.temperature * acc / mass)[:, None]
@@ -812,3 +474,74 @@ def _dcbr_defect_nve(args):
 
 case("dcbr-defect-nve", "NVE energy drift of the coupled vacancy tube (periodic, 10 K start)",
      add_arguments=_defect_nve_args)(_dcbr_defect_nve)
+
+
+# ---------------------------------------------------------------------------- dcbr-regression
+def _regression_args(p):
+    p.add_argument("--chirality", action="append", default=None,
+                   help="N,M (repeatable; default 10,10 17,0 12,6; --quick: 10,10)")
+    p.add_argument("--length", type=float, default=None, help="Å (default 100; --quick 25)")
+    p.add_argument("--coarsening", type=float, action="append", default=None,
+                   help="repeatable (default 2)")
+
+
+def _dcbr_regression(args):
+    """The quasi-static pristine tension of each tube by the model's own driver
+    (:func:`upscale.models.dcbr.quasi_static_tension`, its joint L-BFGS over positions and
+    shifts: the code before the port) and on the engine
+    (:func:`upscale.experiments.tube_tension.quasi_static_tension_engine`), one after the
+    other in this process, on the same machine: the change of every figure, and the ratio of
+    wall and of CPU times (this process's; CPU time is what a loaded machine does not
+    change). The dynamic runs are not on the engine yet: their step-time ratio is null."""
+    from upscale.experiments.tube_tension import quasi_static_tension_engine
+    from upscale.models.dcbr import DCBRTube, quasi_static_tension
+
+    chis = [_chirality(c) for c in (args.chirality or (["10,10"] if args.quick else
+                                                         ["10,10", "17,0", "12,6"]))]
+    length = args.length or (25.0 if args.quick else 100.0)
+    rows = []
+    for n, m in chis:
+        for k in args.coarsening or [2.0]:
+            c0 = time.process_time()
+            a = quasi_static_tension(DCBRTube(n, m, length, coarsening=k))
+            c1 = time.process_time()
+            b = quasi_static_tension_engine(DCBRTube(n, m, length, coarsening=k))
+            c2 = time.process_time()
+            sa, sb = np.array(a["curve"]["stress_GPa"]), np.array(b["curve"]["stress_GPa"])
+            nn = min(len(sa), len(sb))
+            rows.append({"tube": f"({n},{m})", "K": k, "strength_before_GPa": a["strength_GPa"],
+                         "strength_after_GPa": b["strength_GPa"],
+                         "strength_change_%": 100 * (b["strength_GPa"] / a["strength_GPa"] - 1),
+                         "modulus_before_TPa": a["youngs_modulus_TPa"],
+                         "modulus_after_TPa": b["youngs_modulus_TPa"],
+                         "modulus_change_%": 100 * (b["youngs_modulus_TPa"]
+                                                    / a["youngs_modulus_TPa"] - 1),
+                         "strain_at_peak_before": a["strain_at_peak"],
+                         "strain_at_peak_after": b["strain_at_peak"],
+                         "curve_max_abs_diff_GPa": float(np.abs(sb[:nn] - sa[:nn]).max()),
+                         "points_before": len(sa), "points_after": len(sb),
+                         "wall_before_s": a["wall_s"], "wall_after_s": b["wall_s"],
+                         "cpu_before_s": c1 - c0, "cpu_after_s": c2 - c1,
+                         "minimisations_above_tolerance_after":
+                             b["minimiser"]["minimisations_above_tolerance"]})
+            print(f"({n},{m}) K={k:g}: before {a['wall_s']:.1f} s, after {b['wall_s']:.1f} s",
+                  flush=True)
+    print(table(rows, floatfmt=".6g"))
+    wall_b = sum(r["wall_before_s"] for r in rows)
+    wall_a = sum(r["wall_after_s"] for r in rows)
+    ms = max(abs(r["strength_change_%"]) for r in rows)
+    mm = max(abs(r["modulus_change_%"]) for r in rows)
+    return {"rows": rows, "max_strength_change_pct": ms, "max_modulus_change_pct": mm,
+            "max_strain_at_peak_change": max(abs(r["strain_at_peak_after"]
+                                                 - r["strain_at_peak_before"]) for r in rows),
+            "qs_wall_ratio_after_over_before": wall_a / wall_b,
+            "qs_cpu_ratio_after_over_before": sum(r["cpu_after_s"] for r in rows)
+            / sum(r["cpu_before_s"] for r in rows),
+            "step_time_ratio_after_over_before": None,
+            "note": "quasi-static pristine tubes only: the vacancy tubes (DCBRDefectTube) and "
+                    "the dynamic runs (dcbr_dynamic.dynamic_tension) still run their own loops",
+            "pass": bool(ms < 1e-4 and mm < 1e-4)}
+
+
+case("dcbr-regression", "DCBR quasi-static tension: the model's own driver against the engine's "
+     "minimiser, same process (figures and wall time)", add_arguments=_regression_args)(_dcbr_regression)

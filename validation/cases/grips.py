@@ -58,7 +58,7 @@ def _lammps(n, m, stored):
 def _grip_stiffness(args):
     from upscale.io import write_json
     from upscale.models.dcbr_dynamic import static_grip_stiffness
-    from validation.cases.dcbr import _chirality, _lammps_reference, dynamic_scene
+    from validation.cases.dcbr import _chirality, lammps_reference_or_run, dynamic_scene
     from validation.cases.references import DYN_LENGTH, REF_DIR
 
     chis = [_chirality(c) for c in (args.chirality or ["10,10", "17,0", "12,6"])]
@@ -75,7 +75,7 @@ def _grip_stiffness(args):
             new_refs[f"{n},{m}"] = ref
         print(f"({n},{m}) LAMMPS: k = {ref['k_eV_per_A2']:.4f} eV/Å^2 (gauge "
               f"{ref['gauge_length_A']:.2f} Å, {'computed' if fresh else 'stored'})", flush=True)
-        dref = _lammps_reference(n, m, DYN_LENGTH, protocol="dynamic", vacancy=True,
+        dref = lammps_reference_or_run(n, m, DYN_LENGTH, protocol="dynamic", vacancy=True,
                                  progress=False)
         for K in ks:
             t0 = time.perf_counter()

@@ -148,14 +148,14 @@ def _dcbr_seeds(args):
     """The coarse scene of ``dcbr-tension --dynamic`` (with ``--vacancy`` unless
     ``--pristine``; :func:`validation.cases.dcbr.dynamic_scene`), seeds 1000, 1001, ..."""
     from upscale.models.dcbr_dynamic import dynamic_tension
-    from validation.cases.dcbr import _lammps_reference, dynamic_scene
+    from validation.cases.dcbr import lammps_reference_or_run, dynamic_scene
 
     if not args.coarsening >= 1.0:
         raise SystemExit(f"--coarsening {args.coarsening}; valid: >= 1")
     result, grips = {}, None
     for n, m in _chis(args):
         rows = []
-        ref = _lammps_reference(n, m, 150.0, protocol="dynamic", vacancy=not args.pristine,
+        ref = lammps_reference_or_run(n, m, 150.0, protocol="dynamic", vacancy=not args.pristine,
                                 progress=False)
         for s in range(args.seeds):
             t0 = time.perf_counter()

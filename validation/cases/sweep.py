@@ -46,15 +46,16 @@ def coarse_vacancy_seed(n: int = 10, m: int = 10, coarsening: float = 2.0, seed:
                         temperature: float = 10.0) -> dict:
     """One thermal seed of the coarse dynamic tension of the (n, m) 4-atom-vacancy tube.
 
-    The single-seed run of ``dcbr-seeds`` (its scene, :func:`validation.cases.dcbr.
-    dynamic_scene`, and protocol, LAMMPS's grips and gauge from the dynamic reference),
+    The single-seed run of ``dcbr-seeds`` (its scene, :func:`upscale.experiments.
+    tube_tension.dynamic_scene`, and protocol, LAMMPS's grips and gauge from the dynamic reference),
     reached through this one function so that the sweep follows the scene wherever it is
     kept. Returns the five figures ``dcbr-seeds`` stores, the grips and the DOF.
     """
+    from upscale.experiments.tube_tension import dynamic_scene
     from upscale.models.dcbr_dynamic import dynamic_tension
-    from validation.cases.dcbr import _lammps_reference, dynamic_scene
+    from validation.cases.dcbr import lammps_reference_or_run
 
-    ref = _lammps_reference(n, m, 150.0, protocol="dynamic", vacancy=True, progress=False)
+    ref = lammps_reference_or_run(n, m, 150.0, protocol="dynamic", vacancy=True, progress=False)
     model, dyn = dynamic_scene(n, m, 150.0, coarsening, ref, vacancy=True)
     grips = dyn.pop("grips")
     r = dynamic_tension(model, seed=seed, temperature=temperature, **dyn)

@@ -265,7 +265,7 @@ class _OursTimer:
         nl = self.calc.neighbour_list
         c = self.calc
         self.args = (np.ascontiguousarray(self.atoms.positions), self.atoms.cell.array.copy(),
-                     nl.first_n, nl.j_b, nl.shift_bc, c._types, c._e2p, c._P, float(c.cutoff),
+                     nl.first_n, nl.j_b, nl.shift_bc, c._types, c.e2p, c.table, float(c.cutoff),
                      nthreads)
 
     def time(self, nsteps: int) -> tuple[float, float]:

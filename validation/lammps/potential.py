@@ -13,7 +13,7 @@ by a step at the outer cutoff R + D (2.1 Å for C–C in BNC.tersoff): every ent
 ``[R + D - 2e-5, R + D]`` Å. With the standard switching function, stretched bonds that
 enter ``[R - D, R + D]`` stiffen spuriously (issue #3/#4), and the "strength" then
 measures the cutoff, not the bond. The modified file is written by
-``potentials.tersoff.write_step_cutoff_file`` when that function exists (helper A1's; the
+``potentials.tersoff.write_step_cutoff_file`` when that function exists (the
 same file feeds the project calculator and LAMMPS) and by :func:`_write_step_tersoff`
 below otherwise. REBO/AIREBO are run with their standard cutoffs (the step option is
 refused with a clear message), so their "strength" entries carry ``cutoff: standard``.
@@ -135,7 +135,7 @@ def _write_step_tersoff(src: Path, dst: Path, D: float = STEP_D) -> Path:
 
 def _step_file(src: Path) -> Path:
     dst = cache_dir() / "potentials" / f"{src.stem}.step{src.suffix}"
-    try:  # helper A1's writer, when present, so both sides use the identical file
+    try:  # the project's writer, when present, so both sides use the identical file
         from potentials.tersoff import write_step_cutoff_file  # noqa: PLC0415
     except ImportError:
         write_step_cutoff_file = None

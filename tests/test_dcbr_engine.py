@@ -1,0 +1,134 @@
+"""The periodic coarse tube as an engine model (upscale.models.dcbr.DCBRTubeModel).
+
+Its force is minus the gradient of the energy with the shifts relaxed (envelope theorem,
+central differences), and one load step minimised by the engine's L-BFGS-B reaches the
+equilibrium of the tube's own joint minimiser (positions and shifts together)."""
+import numpy as np
+import pytest
+
+from upscale.constants import CARBON_MASS_AMU
+from upscale.engine.minimisers import LBFGS
+from upscale.engine.simulation import Simulation
+from upscale.engine.system import ParticleSystem
+from upscale.models.dcbr import DCBRTube, DCBRTubeModel
+
+
+def _sim(tube):
+    s = ParticleSystem(tube.x0, tube.natoms_n, CARBON_MASS_AMU, spacing=float(min(tube.spacing)))
+    model = DCBRTubeModel(tube)
+    return Simulation(s, None, model), model
+
+
+def test_force_is_minus_the_gradient_of_the_relaxed_energy():
+    tube = DCBRTube(6, 6, 20.0, coarsening=2)
+    sim, model = _sim(tube)
+    model.set_cell(1.03 * tube.L)
+    rng = np.random.default_rng(2)
+    sim.state.y[:, 2] *= 1.03
+    sim.state.y += 0.01 * rng.standard_normal(sim.state.y.shape)
+    F = sim.internal_forces()
+    h = 1e-5
+    for i, c in [(0, 0), (3, 2), (7, 1)]:
+        st = sim.state
+        st.y[i, c] += h
+        ep = model.energy(st)
+        st.y[i, c] -= 2 * h
+        em = model.energy(st)
+        st.y[i, c] += h
+        assert -(ep - em) / (2 * h) == pytest.approx(F[i, c], rel=1e-5, abs=1e-7)
+
+
+def test_one_load_step_matches_the_tubes_own_minimiser():
+    tube = DCBRTube(6, 6, 20.0, coarsening=2)
+    y, d, L0, *_ = tube.minimise(tube.x0, tube.delta, tube.L, relax_box=True, gtol=1e-8)
+    Lz = 1.04 * L0
+    ya = y.copy()
+    ya[:, 2] *= 1.04
+    ya, da, _, Ea, _, gLa = tube.minimise(ya, d, Lz, gtol=1e-8)
+    sim, model = _sim(tube)
+    sim.state.y[...] = y
+    sim.state.y[:, 2] *= 1.04
+    sim.state.extra["dcbr.delta"][...] = d
+    model.set_cell(Lz)
+    r = sim.minimise(LBFGS(ftol=1e-6, memory=30), raise_on_fail=False)
+    assert r.fmax < 1e-5
+    assert model.energy(sim.state) == pytest.approx(Ea, rel=1e-11)
+    assert model.cell_force(sim.state) == pytest.approx(gLa, rel=1e-7)
+
+
+def test_bad_bodies_are_one_line_errors():
+    tube = DCBRTube(6, 6, 20.0, coarsening=2)
+    with pytest.raises(ValueError, match="particles, the tube"):
+        Simulation(ParticleSystem(tube.x0[:-1], 1.0, 1.0), None, DCBRTubeModel(tube))
+    with pytest.raises(ValueError, match="periodic DCBRTube"):
+        DCBRTubeModel(object())
+    with pytest.raises(ValueError, match="cell length must be positive"):
+        DCBRTubeModel(tube).set_cell(-1.0)
+    with pytest.raises(ValueError, match="needs a 3D body, got dim=2"):
+        Simulation(ParticleSystem(tube.x0[:, :2], 1.0, 1.0, dim=2), None, DCBRTubeModel(tube))
+    with pytest.raises(ValueError, match="shorter than two unit cells"):
+        DCBRTube(7, 3, 40.0)
+
+
+def test_engine_driver_reproduces_the_tubes_own_driver(tmp_path):
+    """The first load steps of the quasi-static tension by the engine's L-BFGS-B give the
+    stresses of the tube's own joint minimiser to 1e-6 relative; the engine run writes a
+    checkpoint and a frame (with damage) per load step."""
+    from upscale.engine.checkpoint import Checkpoint, load_checkpoint
+    from upscale.engine.output import Output
+    from upscale.experiments.tube_tension import quasi_static_tension_engine
+    from upscale.models.dcbr import quasi_static_tension
+
+    a = quasi_static_tension(DCBRTube(6, 6, 20.0, coarsening=2), max_strain=0.02)
+    b = quasi_static_tension_engine(DCBRTube(6, 6, 20.0, coarsening=2), max_strain=0.02,
+                                    checkpoint=Checkpoint(tmp_path / "ck.npz", every=1),
+                                    output=Output(tmp_path, every=1))
+    sa, sb = np.array(a["curve"]["stress_GPa"]), np.array(b["curve"]["stress_GPa"])
+    assert len(sa) == len(sb) == 5
+    assert np.abs(sb[1:] / sa[1:] - 1).max() < 1e-6
+    assert b["youngs_modulus_TPa"] == pytest.approx(a["youngs_modulus_TPa"], rel=1e-6)
+    st, meta = load_checkpoint(tmp_path / "ck.npz")
+    assert meta["load_step"] == 4 and "dcbr.delta" in st.extra and "dcbr.intact" in st.extra
+    assert (tmp_path / "traj.extxyz").is_file() and (tmp_path / "vtk").is_dir()
+
+
+def test_engine_driver_resumes_bit_for_bit(tmp_path):
+    """Interrupted after its third load step (an exception out of the progress callback, as
+    a kill) and resumed from the checkpoint: the curve and the final state are the
+    uninterrupted run's, bit for bit."""
+    from upscale.engine.checkpoint import Checkpoint
+    from upscale.experiments.tube_tension import quasi_static_tension_engine
+
+    a = quasi_static_tension_engine(DCBRTube(6, 6, 20.0, coarsening=2), max_strain=0.03)
+
+    def die(eps, s):
+        if eps > 0.0125:
+            raise KeyboardInterrupt("killed")
+
+    ck = tmp_path / "ck.npz"
+    with pytest.raises(KeyboardInterrupt):
+        quasi_static_tension_engine(DCBRTube(6, 6, 20.0, coarsening=2), max_strain=0.03,
+                                    checkpoint=Checkpoint(ck, 1), progress=die)
+    tube = DCBRTube(6, 6, 20.0, coarsening=2)
+    tube.minimise = None  # a resumed run does not relax the zero-stress state again
+    b = quasi_static_tension_engine(tube, max_strain=0.03, checkpoint=Checkpoint(ck, 1),
+                                    resume=True)
+    assert b["curve"] == a["curve"]
+    assert np.array_equal(b["positions"], a["positions"]) and np.array_equal(b["delta"], a["delta"])
+
+
+def test_experiments_tension_api(tmp_path):
+    """``tension(...)`` returns a result with the headline figures, a plot and a JSON; the
+    engine and the tube's own driver agree; an unknown model is a one-line error."""
+    import json
+
+    from upscale.experiments.tube_tension import tension
+
+    a = tension(6, 6, 20.0, coarsening=2, max_strain=0.02)
+    b = tension(6, 6, 20.0, coarsening=2, max_strain=0.02, engine=True)
+    assert b.modulus_tpa == pytest.approx(a.modulus_tpa, rel=1e-6) and a.modulus_tpa > 0.5
+    assert a.plot(tmp_path / "c.png").stat().st_size > 1000
+    r = json.loads(a.to_json(tmp_path / "r.json").read_text())["result"]
+    assert r["strength_GPa"] == a.strength_gpa and "positions" not in r
+    with pytest.raises(ValueError, match="model='md'; valid"):
+        tension(6, 6, 20.0, model="md")

@@ -1,0 +1,125 @@
+"""The layering of the code base, read from the import statements of every module (AST).
+
+    potentials  <-  upscale.engine  <-  upscale.models  <-  upscale.experiments  <-  validation
+
+A module may import from its own layer and the layers to its left, never to its right;
+``upscale`` as a whole never imports ``validation``. Imports inside functions count the
+same as module-level ones (a lazy import is still a dependency). Across modules only public
+names are imported: no ``from a.b import _private`` and no ``a._private`` module, so a
+module's private names can change without breaking another.
+"""
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("potentials", "upscale", "validation")
+
+# (importing module prefix, forbidden imported prefixes)
+RULES = [
+    ("potentials", ("upscale", "validation")),
+    ("upscale.engine", ("upscale.models", "upscale.experiments", "validation")),
+    ("upscale.models", ("upscale.experiments", "validation")),
+    ("upscale", ("validation",)),
+]
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    if parts[-1] == "__init__":
+        parts = parts[:-1]
+    return ".".join(parts)
+
+
+def _modules():
+    for pkg in PACKAGES:
+        for p in sorted((ROOT / pkg).rglob("*.py")):
+            yield _module_name(p), p
+
+
+def imports(path: Path, module: str):
+    """``(line, imported module, imported names)`` of every import in the file, relative
+    imports resolved against ``module``."""
+    tree = ast.parse(path.read_text(), filename=str(path))
+    is_pkg = path.name == "__init__.py"
+    out = []
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                out.append((node.lineno, a.name, ()))
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = module.split(".")
+                if not is_pkg:
+                    base = base[:-1]
+                base = base[:len(base) - (node.level - 1)]
+                name = ".".join(base + ([node.module] if node.module else []))
+            else:
+                name = node.module or ""
+            out.append((node.lineno, name, tuple(a.name for a in node.names)))
+    return out
+
+
+def _under(name: str, prefix: str) -> bool:
+    return name == prefix or name.startswith(prefix + ".")
+
+
+def layer_violations():
+    bad = []
+    for mod, path in _modules():
+        for line, name, _ in imports(path, mod):
+            for who, forbidden in RULES:
+                if _under(mod, who) and any(_under(name, f) for f in forbidden):
+                    bad.append(f"{path.relative_to(ROOT)}:{line}: {mod} imports {name}")
+                    break
+    return bad
+
+
+def private_name_violations():
+    """Imports of another module's private names (or private modules) of the project."""
+    bad = []
+    for mod, path in _modules():
+        for line, name, names in imports(path, mod):
+            if not any(_under(name, p) for p in PACKAGES):
+                continue
+            if name == mod:
+                continue
+            private_mod = [p for p in name.split(".") if p.startswith("_") and p != "__init__"]
+            private_names = [n for n in names if n.startswith("_") and n != "__version__"]
+            if private_mod or private_names:
+                bad.append(f"{path.relative_to(ROOT)}:{line}: {mod} imports "
+                           f"{name}{' ' + ', '.join(private_names) if private_names else ''}")
+    return bad
+
+
+def test_the_walker_sees_every_kind_of_import(tmp_path):
+    """The walker itself: absolute, from-, relative and function-level imports are found."""
+    pkg = tmp_path / "upscale" / "engine"
+    pkg.mkdir(parents=True)
+    (tmp_path / "upscale" / "__init__.py").write_text("")
+    (pkg / "__init__.py").write_text("")
+    f = pkg / "x.py"
+    f.write_text("import upscale.models.base\nfrom ..models import dcbr\n"
+                 "def g():\n    from validation.cases.dcbr import _crack\n")
+    found = imports(f, "upscale.engine.x")
+    assert [n for _, n, _ in found] == ["upscale.models.base", "upscale.models",
+                                        "validation.cases.dcbr"]
+    assert found[2][2] == ("_crack",)
+
+
+def test_layers():
+    """No module imports a layer to its right (the list names file:line and the import)."""
+    bad = layer_violations()
+    assert not bad, "layering violated:\n" + "\n".join(bad)
+
+
+@pytest.mark.parametrize("pkg", ["validation", "upscale", "potentials"])
+def test_only_public_names_across_modules(pkg):
+    """Every module imports only public names of ``upscale`` and ``potentials``; within
+    ``upscale`` and ``potentials`` no module takes another's private names either."""
+    bad = [b for b in private_name_violations() if b.startswith(pkg + "/")
+           and (pkg != "validation" or " imports upscale" in b or " imports potentials" in b)]
+    assert not bad, "private names imported across modules:\n" + "\n".join(bad)

@@ -1,0 +1,204 @@
+"""Several bodies in one :class:`~upscale.engine.simulation.Simulation`.
+
+Each :class:`Body` is a :class:`~upscale.engine.system.ParticleSystem` with its own pair
+family and its own models. :func:`assemble` stacks the bodies into one system (particles
+of body k at rows ``offsets[k]:offsets[k+1]``, their bonds at ``bond_offsets[k]:...`` of
+the state's ``intact``) and wraps every body model in a :class:`BodyModel`, which hands
+the model views of its rows (positions, velocities, forces, bonds) so the model computes
+on its own body exactly as it would alone. Models that act *between* bodies (e.g. a
+Lennard-Jones pair across tubes) act on the whole assembled system and find each
+particle's body in ``system.body_n`` (N,) int32.
+
+    scene = assemble([Body(sys_a, fam_a, [PMB(...)], name="a"),
+                      Body(sys_b, fam_b, [PMB(...)], name="b")],
+                     interactions=[LennardJonesBetweenBodies(...)])
+    sim = scene.simulation(conditions=..., integrator=...)
+
+Every body must have the same dimension (and, in 2D, thickness and plane). A body model's
+history arrays in ``state.extra`` are stored under ``"<body name>/<key>"`` (so two bodies
+with the same model keep theirs apart); models update them in place.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from upscale.engine.state import State
+from upscale.engine.system import ParticleSystem
+
+__all__ = ["Body", "BodyModel", "Assembly", "assemble"]
+
+
+@dataclasses.dataclass(eq=False)
+class Body:
+    """One body: its system, its pair family (None if no model needs one), its models."""
+
+    system: ParticleSystem
+    family: object = None
+    models: list = dataclasses.field(default_factory=list)
+    name: str = "body"
+
+    def __post_init__(self):
+        if hasattr(self.models, "step_force"):
+            self.models = [self.models]
+        self.models = list(self.models)
+        if not self.models:
+            raise ValueError(f"body {self.name!r} has no model")
+
+
+class _ExtraView(dict):
+    """The body's slice of ``state.extra`` (keys without the body prefix)."""
+
+
+class BodyModel:
+    """A model of one body, acting on that body's rows of the assembled state.
+
+    Presents the engine's model contract (``needs``, ``force_kind``, ``prepare``,
+    ``init_state``, ``add_force``, ``step_force``, ``break_bonds``, ``energy``,
+    ``energy_density``, ``stiffness_bound``, ``describe``) and forwards each call to the
+    wrapped model with the body's views.
+    """
+
+    def __init__(self, model, body: Body, rows: slice, bonds: slice):
+        from dataclasses import replace
+
+        self.model, self.body, self.rows, self.bonds = model, body, rows, bonds
+        self.name = f"{body.name}:{model.name}"
+        self.force_kind = model.force_kind
+        self.needs = replace(model.needs, pairs=False, triplets=False, quadruplets=False)
+        self._prefix = f"{body.name}/"
+
+    # the engine's calls --------------------------------------------------------------
+    def prepare(self, system, family=None, **kw) -> None:
+        self._n = system.n
+        b = self.body
+        trip = quad = None
+        if self.model.needs.triplets or self.model.needs.quadruplets:
+            from upscale.engine import multibody
+
+            if self.model.needs.triplets:
+                trip = multibody.build_triplets(b.system.x0, b.family)
+            if self.model.needs.quadruplets:
+                quad = multibody.build_quadruplets(b.system.x0, b.family)
+        self.model.prepare(b.system, b.family, triplets=trip, quadruplets=quad)
+
+    def sub(self, state: State) -> State:
+        """The body's view of ``state`` (rows and bonds are views: writes go through)."""
+        r, k = self.rows, self.bonds
+        p = self._prefix
+        extra = _ExtraView({key[len(p):]: v for key, v in state.extra.items() if key.startswith(p)})
+        return State(self.body.system.x0, state.y[r], state.v[r], state.intact[k], state.t,
+                     state.step, extra)
+
+    def init_state(self, state) -> None:
+        s = self.sub(state)
+        self.model.init_state(s)
+        for key, v in s.extra.items():
+            state.extra[self._prefix + key] = v
+
+    def add_force(self, state, out) -> None:
+        self.model.add_force(self.sub(state), out[self.rows])
+
+    def step_force(self, state, out, *, failure=True) -> int:
+        return self.model.step_force(self.sub(state), out[self.rows], failure=failure)
+
+    def break_bonds(self, state) -> int:
+        return self.model.break_bonds(self.sub(state))
+
+    def force(self, state):
+        out = np.zeros_like(state.y)
+        self.add_force(state, out)
+        return out
+
+    def energy(self, state) -> float:
+        return float(self.model.energy(self.sub(state)))
+
+    def energy_density(self, state):
+        w = np.zeros(state.y.shape[0])
+        w[self.rows] = self.model.energy_density(self.sub(state))
+        return w
+
+    def stiffness_bound(self):
+        r = self.model.stiffness_bound()
+        if r is None:
+            return None
+        out = np.zeros(self._n)
+        out[self.rows] = r
+        return out
+
+    def describe(self) -> dict:
+        return {"body": self.body.name, **self.model.describe()}
+
+
+@dataclasses.dataclass(eq=False)
+class Assembly:
+    """Bodies stacked into one system: ``system`` (with ``body_n``), ``models`` (the body
+    models wrapped, then the interactions), ``offsets`` (B+1,) particle rows,
+    ``bond_offsets`` (B+1,) bond rows, ``bodies``."""
+
+    system: ParticleSystem
+    models: list
+    offsets: np.ndarray
+    bond_offsets: np.ndarray
+    bodies: list
+
+    def rows(self, name: str) -> slice:
+        """The particle rows of body ``name``."""
+        for k, b in enumerate(self.bodies):
+            if b.name == name:
+                return slice(int(self.offsets[k]), int(self.offsets[k + 1]))
+        raise ValueError(f"no body {name!r}; valid: {[b.name for b in self.bodies]}")
+
+    def mask(self, name: str) -> np.ndarray:
+        """(N,) bool of body ``name``'s particles (for regions and thermostats)."""
+        m = np.zeros(self.system.n, bool)
+        m[self.rows(name)] = True
+        return m
+
+    def reference_state(self) -> State:
+        return State.reference(self.system.x0, int(self.bond_offsets[-1]))
+
+    def simulation(self, conditions=(), integrator=None, **kw):
+        """A :class:`~upscale.engine.simulation.Simulation` of the assembly."""
+        from upscale.engine.simulation import Simulation
+
+        return Simulation(self.system, None, self.models, conditions, integrator,
+                          state=self.reference_state(), **kw)
+
+
+def assemble(bodies, interactions=()) -> Assembly:
+    """Stack ``bodies`` (sequence of :class:`Body`) into one :class:`Assembly`.
+
+    Raises ValueError on an empty list, repeated body names, or bodies of different
+    dimension / thickness / plane.
+    """
+    bodies = list(bodies)
+    if not bodies:
+        raise ValueError("assemble needs at least one body")
+    names = [b.name for b in bodies]
+    if len(set(names)) != len(names):
+        raise ValueError(f"body names must differ, got {names}")
+    s0 = bodies[0].system
+    for b in bodies[1:]:
+        s = b.system
+        if s.dim != s0.dim or s.plane != s0.plane or s.thickness != s0.thickness:
+            raise ValueError(f"body {b.name!r} has dim {s.dim}, plane {s.plane!r}, thickness "
+                             f"{s.thickness}; body {bodies[0].name!r} has dim {s0.dim}, plane "
+                             f"{s0.plane!r}, thickness {s0.thickness}: all bodies must agree")
+    n = np.cumsum([0] + [b.system.n for b in bodies])
+    nb = np.cumsum([0] + [(b.family.nb if b.family is not None else 0) for b in bodies])
+    system = ParticleSystem(np.concatenate([b.system.x0 for b in bodies]),
+                            np.concatenate([b.system.volume for b in bodies]),
+                            np.concatenate([b.system.density for b in bodies]),
+                            np.concatenate([b.system.material for b in bodies]),
+                            dim=s0.dim, thickness=s0.thickness, plane=s0.plane,
+                            spacing=min(b.system.spacing for b in bodies))
+    system.body_n = np.repeat(np.arange(len(bodies), dtype=np.int32), np.diff(n))
+    models = []
+    for k, b in enumerate(bodies):
+        rows, bonds = slice(int(n[k]), int(n[k + 1])), slice(int(nb[k]), int(nb[k + 1]))
+        models += [BodyModel(m, b, rows, bonds) for m in b.models]
+    for m in interactions:
+        models.append(m)
+    return Assembly(system, models, n, nb, bodies)

@@ -1,0 +1,217 @@
+"""Thermostats for velocity Verlet, each acting on a region (default: every particle).
+
+``VelocityVerlet(dt, thermostat=...)`` calls ``thermostat.begin(sim, dt)`` before its first
+half-kick and ``thermostat.end(sim, dt)`` after its second one. Only the free degrees of
+freedom of the region are thermostatted (a prescribed velocity stays prescribed); their
+number is ``N_f``. The kinetic temperature of the region is
+
+    T_kin = 2 K / (N_f k_B),     K = sum_{i in region, free c} m_i v_ic^2 / 2.          (1)
+
+Units: ``k_B`` in the scene's energy per kelvin: :data:`upscale.constants.K_B_SI` (J/K) for
+SI scenes, :data:`upscale.constants.K_B_EV` (eV/K) for atomistic ones (eV, Å, amu and the
+matching time unit, in which ``m v^2`` is an energy).
+
+:class:`Langevin`
+    After the second half-kick the Ornstein-Uhlenbeck step, exact for the friction and the
+    noise over dt: ``v <- c v + sqrt((1 - c^2) k_B T / m) xi``, ``c = exp(-gamma dt)``,
+    ``xi ~ N(0, 1)`` (the "O" of the splitting B A B O; Leimkuhler & Matthews,
+    *Molecular Dynamics*, Springer 2015, sec. 7.3). The generator (PCG64 from ``seed``)
+    is part of the checkpoint, so a resumed run draws the same numbers.
+:class:`NoseHooverChain`
+    Nose-Hoover chain of length M (G. J. Martyna, M. L. Klein, M. Tuckerman, J. Chem. Phys.
+    97, 2635 (1992)), integrated by the Trotter factorisation of Martyna, Tuckerman, Tobias,
+    Klein, Mol. Phys. 87, 1117 (1996): a half step of the chain before and after the
+    velocity Verlet step, thermostat masses ``Q_1 = N_f k_B T tau^2``,
+    ``Q_j = k_B T tau^2``. Conserved:
+
+        H' = E_kin + E_pot + sum_j Q_j p_j^2 / 2 + N_f k_B T eta_1 + k_B T sum_{j>1} eta_j  (2)
+
+    (:meth:`NoseHooverChain.conserved_extra` gives the thermostat's part).
+"""
+from __future__ import annotations
+
+import json
+
+import numpy as np
+
+__all__ = ["Langevin", "NoseHooverChain", "kinetic_temperature"]
+
+
+def _region_dofs(sim, region):
+    """(N, 3) bool: the free dofs of ``region`` (a Region, an (N,) bool mask or None)."""
+    n = sim.system.n
+    if region is None:
+        mask = np.ones(n, bool)
+    else:
+        mask = np.asarray(getattr(region, "mask", region), dtype=bool)
+        if mask.shape != (n,):
+            raise ValueError(f"thermostat region has shape {mask.shape}; valid: ({n},) or a Region "
+                             "of this body")
+        if not mask.any():
+            raise ValueError("thermostat region selects no particle")
+    dof = np.repeat(mask[:, None], 3, axis=1) & ~sim.constrained
+    if sim.system.dim < 3:
+        dof[:, sim.system.dim:] = False
+    if not dof.any():
+        raise ValueError("thermostat region has no free degree of freedom")
+    return dof
+
+
+def kinetic_temperature(sim, region=None, k_B: float | None = None) -> float:
+    """Eq. (1) of the region's free dofs (K); ``k_B`` default SI."""
+    from upscale.constants import K_B_SI
+
+    dof = _region_dofs(sim, region)
+    K = 0.5 * float(np.sum(sim.system.mass[:, None] * sim.state.v ** 2 * dof))
+    return 2.0 * K / (dof.sum() * (K_B_SI if k_B is None else k_B))
+
+
+def _check(temperature, name, value):
+    if not (np.isfinite(temperature) and temperature >= 0):
+        raise ValueError(f"temperature must be >= 0 K, got {temperature!r}")
+    if not (np.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be positive, got {value!r}")
+
+
+class Langevin:
+    """Langevin thermostat on a region (module docstring).
+
+    Parameters
+    ----------
+    temperature : float
+        K.
+    damping : float
+        Friction rate gamma (1 / time unit of the scene).
+    region : Region or (N,) bool, optional
+    seed : int
+    k_B : float, optional
+        Boltzmann constant in the scene's units (default SI, J/K).
+    """
+
+    name = "langevin"
+
+    def __init__(self, temperature: float, damping: float, *, region=None, seed: int = 0,
+                 k_B: float | None = None):
+        from upscale.constants import K_B_SI
+
+        _check(temperature, "damping", damping)
+        self.T, self.gamma, self.region = float(temperature), float(damping), region
+        self.k_B = K_B_SI if k_B is None else float(k_B)
+        self.seed = int(seed)
+        self.rng = np.random.default_rng(self.seed)
+
+    def prepare(self, sim) -> None:
+        self.dof = _region_dofs(sim, self.region)
+        self.idx = np.flatnonzero(self.dof.ravel())
+        self.m = np.repeat(sim.system.mass, 3)[self.idx]
+
+    def begin(self, sim, dt) -> None:
+        pass
+
+    def end(self, sim, dt) -> None:
+        """Mutates ``sim.state.v``: the Ornstein-Uhlenbeck step on the region's free dofs."""
+        c = np.exp(-self.gamma * dt)
+        v = sim.state.v.reshape(-1)
+        xi = self.rng.standard_normal(self.idx.size)
+        v[self.idx] = c * v[self.idx] + np.sqrt((1.0 - c * c) * self.k_B * self.T / self.m) * xi
+
+    def checkpoint_arrays(self) -> dict:
+        s = json.dumps(self.rng.bit_generator.state).encode()
+        return {"rng": np.frombuffer(s, dtype=np.uint8)}
+
+    def restore_arrays(self, d: dict) -> None:
+        if "rng" in d:
+            self.rng.bit_generator.state = json.loads(bytes(d["rng"]).decode())
+
+    def describe(self) -> dict:
+        return {"thermostat": self.name, "temperature_K": self.T, "damping": self.gamma,
+                "seed": self.seed, "dofs": int(self.idx.size) if hasattr(self, "idx") else None}
+
+
+class NoseHooverChain:
+    """Nose-Hoover chain on a region (module docstring).
+
+    Parameters
+    ----------
+    temperature : float
+        K (> 0).
+    tau : float
+        Relaxation time (time unit of the scene).
+    region : Region or (N,) bool, optional
+    chain : int
+        Chain length M (1 = plain Nose-Hoover).
+    k_B : float, optional
+        Boltzmann constant in the scene's units (default SI, J/K).
+    """
+
+    name = "nose-hoover-chain"
+
+    def __init__(self, temperature: float, tau: float, *, region=None, chain: int = 3,
+                 k_B: float | None = None):
+        from upscale.constants import K_B_SI
+
+        _check(temperature, "tau", tau)
+        if not temperature > 0:
+            raise ValueError(f"Nose-Hoover needs temperature > 0 K, got {temperature!r}")
+        if int(chain) < 1:
+            raise ValueError(f"chain length must be >= 1, got {chain!r}")
+        self.T, self.tau, self.region, self.M = float(temperature), float(tau), region, int(chain)
+        self.k_B = K_B_SI if k_B is None else float(k_B)
+        self.eta = np.zeros(self.M)
+        self.p = np.zeros(self.M)   # thermostat velocities d eta / dt
+
+    def prepare(self, sim) -> None:
+        self.dof = _region_dofs(sim, self.region)
+        self.nf = int(self.dof.sum())
+        kT = self.k_B * self.T
+        self.Q = np.full(self.M, kT * self.tau ** 2)
+        self.Q[0] *= self.nf
+        self.m = sim.system.mass[:, None]
+
+    def _half(self, sim, h) -> None:
+        """Mutates the chain and ``sim.state.v`` (region dofs): a chain step of h = dt/2."""
+        v = sim.state.v
+        kT = self.k_B * self.T
+        K2 = float(np.sum(self.m * v * v * self.dof))   # 2 x kinetic energy
+        M, p, Q = self.M, self.p, self.Q
+        h2, h4 = 0.5 * h, 0.25 * h
+
+        def G(j, K2):
+            return ((K2 - self.nf * kT) if j == 0 else (Q[j - 1] * p[j - 1] ** 2 - kT)) / Q[j]
+
+        p[M - 1] += h2 * G(M - 1, K2)
+        for j in range(M - 2, -1, -1):
+            e = np.exp(-h4 * p[j + 1])
+            p[j] = (p[j] * e + h2 * G(j, K2)) * e
+        s = np.exp(-h * p[0])
+        v[self.dof] *= s
+        K2 *= s * s
+        self.eta += h * p
+        for j in range(M - 1):
+            e = np.exp(-h4 * p[j + 1])
+            p[j] = (p[j] * e + h2 * G(j, K2)) * e
+        p[M - 1] += h2 * G(M - 1, K2)
+
+    def begin(self, sim, dt) -> None:
+        self._half(sim, 0.5 * dt)
+
+    def end(self, sim, dt) -> None:
+        self._half(sim, 0.5 * dt)
+
+    def conserved_extra(self) -> float:
+        """The thermostat's part of eq. (2) (energy units of the scene)."""
+        kT = self.k_B * self.T
+        return float(0.5 * np.sum(self.Q * self.p ** 2) + self.nf * kT * self.eta[0]
+                     + kT * np.sum(self.eta[1:]))
+
+    def checkpoint_arrays(self) -> dict:
+        return {"eta": self.eta.copy(), "p": self.p.copy()}
+
+    def restore_arrays(self, d: dict) -> None:
+        if "eta" in d:
+            self.eta[...] = d["eta"]
+            self.p[...] = d["p"]
+
+    def describe(self) -> dict:
+        return {"thermostat": self.name, "temperature_K": self.T, "tau": self.tau,
+                "chain": self.M}
