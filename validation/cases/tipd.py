@@ -1,0 +1,332 @@
+"""Tensor-involved PD (seed 003) and correspondence PD (seed 001) against references nobody
+here wrote: the paper's own matrices (47), Remark 5 and Appendix A, closed-form
+manufactured solutions, the input elastic constants, an FE solution (scikit-fem) and the
+Kirsch / Lekhnitskii stress concentrations.
+
+``tipd-kernel``
+    Induced tensor against (47) (2D, anisotropic) and Remark 5 (3D isotropic); lattice
+    moment of the discrete calibration; forces against the project's PMB at D12 = D66;
+    zero interior force of a linear field; assembled stiffness symmetric, = -dF/du and =
+    Appendix A corrected (and how far the printed Appendix A is off).
+``tipd-mms``
+    Manufactured solutions 5.1.1 / 5.1.2: relative L2 error against spacing for Ti-PD
+    (discrete and continuum calibration), NOSB and stabilised NOSB; convergence orders;
+    NOSB's oscillation index.
+``tipd-poisson``
+    Free-contraction tension: apparent Poisson ratio and modulus of a free strip for
+    nu = 0.1, 0.25, 1/3 and the orthotropic material of 5.2.2, Ti-PD, LPS, NOSB;
+    free-body eigenvalue signs (2D, 3D); angular momentum of a free rotating body.
+"""
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+
+from validation.registry import case, table
+
+
+def _threads():
+    from upscale.engine.kernels import set_threads
+
+    set_threads(1)
+
+
+# ---------------------------------------------------------------------------- kernel
+def _remark5_3d(E, nu):
+    """The paper's isotropic 3D induced matrix (Remark 5), rows (p, q) and columns (a, b)
+    in the order 11, 12, 13, 21, 22, 23, 31, 32, 33, without the 1/(pi delta^4)."""
+    a, b, c = 12 * (3 - 2 * nu), 6 * (1 - 4 * nu), 15.0
+    M = np.zeros((9, 9))
+    diag = [0, 4, 8]
+    for r in diag:
+        for k in diag:
+            M[r, k] = a if r == k else b
+    for (r, k) in [(1, 1), (1, 3), (3, 1), (3, 3), (2, 2), (2, 6), (6, 2), (6, 6),
+                   (5, 5), (5, 7), (7, 5), (7, 7)]:
+        M[r, k] = c
+    return M * E / (4 * (1 + nu) * (1 - 2 * nu))
+
+
+@case("tipd-kernel", "Ti-PD kernel: (47)/Remark 5, lattice moment, = PMB at D12 = D66, linear field, stiffness vs Appendix A")
+def tipd_kernel(args):
+    from upscale.engine import State, build_family, cubic_lattice, square_lattice
+    from upscale.models.bond_based import PMB
+    from upscale.models.tipd import (TiPD, appendix_a_stiffness, induced_tensor, isotropic_voigt,
+                                     paper_induced_voigt_2d, voigt_to_tensor)
+
+    _threads()
+    rows = []
+    D = np.array([[5.0, 3.0, 0.7], [3.0, 5.0, -0.4], [0.7, -0.4, 6.0]]) * 1e9
+    Dh = induced_tensor(voigt_to_tensor(D))
+    V = np.array([[Dh[0, 0, 0, 0], Dh[0, 0, 1, 1], Dh[0, 0, 0, 1]],
+                  [Dh[1, 1, 0, 0], Dh[1, 1, 1, 1], Dh[1, 1, 0, 1]],
+                  [Dh[0, 1, 0, 0], Dh[0, 1, 1, 1], Dh[0, 1, 0, 1]]])
+    P47 = paper_induced_voigt_2d(D)
+    e47 = float(np.abs(V - P47).max() / np.abs(P47).max())
+    rows.append({"check": "compact induced tensor vs (47), 2D anisotropic", "value": e47, "target": "<= 1e-14"})
+    E, nu = 200e9, 0.3
+    D3 = induced_tensor(voigt_to_tensor(isotropic_voigt(E, nu, 3))).reshape(9, 9)
+    R5 = _remark5_3d(E, nu)
+    e5 = float(np.abs(D3 - R5).max() / np.abs(R5).max())
+    rows.append({"check": "compact induced tensor vs Remark 5, 3D isotropic nu=0.3", "value": e5, "target": "<= 1e-14"})
+
+    n2, n3 = (12, 7) if args.quick else (20, 9)
+    s2 = square_lattice(n2, n2, 1e-3)
+    f2 = build_family(s2, 3.015e-3)
+    s3 = cubic_lattice(n3, n3, n3, 1e-3)
+    f3 = build_family(s3, 3.015e-3)
+    lm = []
+    for (s, f, C, lab) in ((s2, f2, D, "2D anisotropic, angle 0.3"),
+                           (s3, f3, isotropic_voigt(E, nu, 3), "3D nu=0.3")):
+        for cal in ("discrete", "continuum"):
+            m = TiPD(C, calibration=cal, angle=0.3, warn=False)
+            m.prepare(s, f)
+            err = float(np.abs(m.lattice_moment() - m.S).max() / np.abs(m.S).max())
+            if cal == "discrete":
+                lm.append(err)
+            rows.append({"check": f"lattice moment (1/2) sum M xi xi V vs S, {lab}, {cal}",
+                         "value": err, "target": "<= 1e-12" if cal == "discrete" else "reported"})
+
+    pm = []
+    rng = np.random.default_rng(0)
+    for dim, plane, nuv in ((2, "stress", 1 / 3), (2, "strain", 0.25), (3, "stress", 0.25)):
+        s = square_lattice(n2, n2, 1e-3, plane=plane) if dim == 2 else s3
+        f = build_family(s, 3.015e-3) if dim == 2 else f3
+        t = TiPD(E=70e9, nu=nuv)
+        t.prepare(s, f)
+        p = PMB(E=70e9, nu=nuv)
+        p.prepare(s, f)
+        u = rng.normal(size=s.x0.shape) * 1e-6
+        if dim == 2:
+            u[:, 2] = 0
+        st = State.reference(s.x0, f.nb)
+        st.y += u
+        eta = u[f.neighbors] - u[f.owner]
+        fb = (p.c * p.w_b / f.length ** 3 * np.einsum("kc,kc->k", f.xi, eta))[:, None] * f.xi
+        Fp = np.zeros_like(u)
+        np.add.at(Fp, f.owner, fb)
+        Ft = t.force(st)
+        e_lin = float(np.abs(Ft - Fp).max() / np.abs(Fp).max())
+        st.y[...] = s.x0 + 1e-2 * u
+        fp = p.force(st)
+        st.y[...] = s.x0 - 1e-2 * u
+        fm = p.force(st)
+        e_nl = float(np.abs(Ft - 50 * (fp - fm)).max() / np.abs(Ft).max())
+        pm.append(e_lin)
+        rows.append({"check": f"Ti-PD vs PMB linearised force (same c, weights), {dim}D {plane} nu={nuv:.4g}",
+                     "value": e_lin, "target": "<= 1e-12"})
+        rows.append({"check": f"Ti-PD vs PMB kernel, central difference at strain 1e-5, {dim}D {plane}",
+                     "value": e_nl, "target": "reported (truncation ~1e-10)"})
+
+    m = TiPD(D, calibration="discrete", angle=0.7, warn=False)
+    m.prepare(s2, f2)
+    H = np.array([[1.0, -0.4, 0], [0.7, -0.2, 0], [0, 0, 0]]) * 1e-3
+    st = State.reference(s2.x0, f2.nb)
+    st.y += s2.x0 @ H.T
+    F = m.force(st)
+    full = f2.counts == f2.counts.max()
+    # against the size of the summands: sum_j |M_b eta_b| of each particle
+    eta = (st.y - s2.x0)[f2.neighbors] - (st.y - s2.x0)[f2.owner]
+    mag = np.bincount(f2.owner, weights=np.linalg.norm(np.einsum("kpq,kq->kp", m.bond_matrices(),
+                                                                  eta[:, :2]), axis=1), minlength=s2.n)
+    elin = float((np.linalg.norm(F[full], axis=1) / mag[full]).max())
+    rows.append({"check": "linear field: interior |b_i| / sum_j |M eta| (max)", "value": elin,
+                 "target": "<= 1e-12"})
+    rows.append({"check": "linear field: surface |b| / sum_j |M eta| (max), for scale",
+                 "value": float((np.linalg.norm(F[~full], axis=1) / mag[~full]).max()), "target": "reported"})
+    K = m.tangent()
+    esym = float(abs(K - K.T).max() / abs(K).max())
+    rows.append({"check": "assembled stiffness |K - K^T| / |K|", "value": esym, "target": "<= 1e-14"})
+    st = State.reference(s2.x0, f2.nb)
+    st.y[:, :2] += rng.normal(size=(s2.n, 2)) * 1e-6
+    Fi = m.particle_force(st).ravel()
+    eKu = float(np.abs(Fi + K @ (st.y - s2.x0).ravel()).max() / np.abs(Fi).max())
+    rows.append({"check": "F_int + K u (stiffness = -dF/du)", "value": eKu, "target": "<= 1e-12"})
+    mc = TiPD(D)
+    mc.prepare(s2, f2)
+    K = mc.tangent()
+    perm = np.empty(2 * s2.n, dtype=int)
+    perm[0::2] = 3 * np.arange(s2.n)
+    perm[1::2] = 3 * np.arange(s2.n) + 1
+    K2 = K.tocsr()[perm][:, perm]
+    Vv = s2.volume[0]
+    eA = float(abs(K2 + Vv * appendix_a_stiffness(s2, f2, D)).max() / abs(K2).max())
+    eAl = float(abs(K2 + Vv * appendix_a_stiffness(s2, f2, D, literal=True)).max() / abs(K2).max())
+    rows.append({"check": "stiffness vs Appendix A corrected", "value": eA, "target": "<= 1e-13"})
+    rows.append({"check": "stiffness vs Appendix A as printed", "value": eAl, "target": "reported (typos)"})
+    print(table(rows, ["check", "value", "target"], floatfmt=".3e"))
+    res = {"lattice_moment_rel_err": max(lm), "pmb_equiv_rel_err": max(pm),
+           "induced_vs_47_rel_err": e47, "induced_vs_remark5_rel_err": e5,
+           "linear_field_interior_force_rel": elin, "stiffness_asymmetry_rel": esym,
+           "stiffness_vs_appendix_a_corrected_rel": eA, "stiffness_vs_appendix_a_printed_rel": eAl,
+           "stiffness_vs_minus_dF_du_rel": eKu}
+    res["pass"] = bool(max(lm) <= 1e-12 and max(pm) <= 1e-12 and elin <= 1e-12 and esym <= 1e-14
+                       and eA <= 1e-13 and e47 <= 1e-14 and e5 <= 1e-14 and eKu <= 1e-12)
+    return res
+
+
+# ---------------------------------------------------------------------------- MMS
+def _order(rows):
+    h = np.log([r["dx_m"] for r in rows])
+    e = np.log([r["rel_l2"] for r in rows])
+    return float(np.polyfit(h, e, 1)[0])
+
+
+@case("tipd-mms", "manufactured solutions 5.1.1/5.1.2: L2 error vs spacing, Ti-PD (discrete/continuum), NOSB, stabilised NOSB")
+def tipd_mms(args):
+    from tqdm import tqdm
+
+    from upscale.experiments.tipd import mms
+
+    _threads()
+    if args.quick:
+        dx2 = [0.025, 0.0125, 0.00625]
+        dx2_nosb = [0.025, 0.0125]
+        dx3 = [0.05, 0.03125]
+        dx3_nosb = [0.05]
+    else:
+        dx2 = [0.025, 0.0125, 0.01, 0.00625, 0.005]
+        dx2_nosb = [0.025, 0.0125, 0.01, 0.00625, 0.005]
+        dx3 = [0.05, 0.03125, 0.025, 0.02]
+        dx3_nosb = [0.05, 0.03125]
+    variants = [("tipd", "discrete", None), ("tipd", "continuum", None), ("nosb", None, None),
+                ("nosb", None, "silling"), ("nosb", None, "wan")]
+    runs = []
+    jobs = []
+    for dim, dxs, dxn in ((2, dx2, dx2_nosb), (3, dx3, dx3_nosb)):
+        for (mod, cal, stab) in variants:
+            for dx in (dxs if mod == "tipd" else dxn):
+                jobs.append((dim, mod, cal, stab, dx))
+    for dim, mod, cal, stab, dx in tqdm(jobs, desc="tipd-mms solves"):
+        r = mms(mod, dim=dim, dx=dx, calibration=cal or "discrete", stabilisation=stab)
+        r["label"] = mod if mod == "tipd" else ("nosb" if stab is None else f"nosb-{stab}")
+        if mod == "tipd":
+            r["label"] += f"-{cal}"
+        runs.append(r)
+    rows = [{"dim": r["dim"], "model": r["label"], "dx": r["dx_m"], "particles": r["particles"],
+             "rel_L2": r["rel_l2"], "oscillation": r["oscillation"], "wall_s": r["wall_time_s"]}
+            for r in runs]
+    print(table(rows, ["dim", "model", "dx", "particles", "rel_L2", "oscillation", "wall_s"], floatfmt=".4g"))
+    orders = {}
+    for dim in (2, 3):
+        for lab in sorted({r["label"] for r in runs}):
+            sel = [r for r in runs if r["dim"] == dim and r["label"] == lab]
+            if len(sel) >= 2:
+                orders[f"{lab}_{dim}d"] = _order(sel)
+    print(table([{"model_dim": k, "order": v} for k, v in orders.items()], ["model_dim", "order"], ".3f"))
+    _plot_mms(runs, args.outdir)
+
+    def get(dim, lab, dx):
+        for r in runs:
+            if r["dim"] == dim and r["label"] == lab and np.isclose(r["dx_m"], dx):
+                return r
+        return None
+
+    fin2 = min(dx2)
+    d2 = [r for r in runs if r["dim"] == 2 and r["label"] == "tipd-discrete"]
+    cont = get(2, "tipd-continuum", 0.005) or get(2, "tipd-continuum", fin2)
+    fin_n = min(dx2_nosb)
+    osc = {lab: get(2, lab, fin_n)["oscillation"] for lab in ("nosb", "nosb-silling", "nosb-wan")}
+    res = {"order_discrete_2d": orders["tipd-discrete_2d"],
+           "rel_l2_discrete_2d_finest": min(r["rel_l2"] for r in d2),
+           "dx_finest_2d_m": fin2,
+           "rel_l2_continuum_2d": cont["rel_l2"], "rel_l2_continuum_2d_dx_m": cont["dx_m"],
+           "order_discrete_3d": orders["tipd-discrete_3d"],
+           "orders": orders,
+           "oscillation_2d_at_dx": {"dx_m": fin_n, **osc},
+           "rel_l2_2d_at_dx": {"dx_m": fin_n, **{lab: get(2, lab, fin_n)["rel_l2"]
+                                                 for lab in ("tipd-discrete", "tipd-continuum", "nosb",
+                                                             "nosb-silling", "nosb-wan")}},
+           "runs": [{k: v for k, v in r.items() if k != "solve"} for r in runs]}
+    res["pass"] = bool(res["order_discrete_2d"] >= 1.9 and res["order_discrete_3d"] >= 1.9
+                       and osc["nosb-wan"] < 0.1 * osc["nosb"] and osc["nosb-silling"] < 0.1 * osc["nosb"])
+    return res
+
+
+def _plot_mms(runs, outdir):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.8))
+    for ax, dim in zip(axes, (2, 3)):
+        for lab in sorted({r["label"] for r in runs}):
+            sel = sorted([r for r in runs if r["dim"] == dim and r["label"] == lab], key=lambda r: r["dx_m"])
+            if sel:
+                ax.loglog([r["dx_m"] for r in sel], [r["rel_l2"] for r in sel], "o-", label=lab)
+        ax.set_title(f"{dim}D manufactured solution (delta = 3 dx)")
+        ax.set_xlabel("dx")
+        ax.set_ylabel("relative L2 error")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(outdir / "tipd_mms_error.png", dpi=130)
+    plt.close(fig)
+
+
+# ---------------------------------------------------------------------------- Poisson
+@case("tipd-poisson", "free strip: apparent nu and E (Ti-PD, LPS, NOSB); free-body eigenvalue signs; angular momentum")
+def tipd_poisson(args):
+    from upscale.experiments.tipd import eigen_counts, rotation, strip
+    from upscale.models.tipd import orthotropic_voigt_2d
+
+    _threads()
+    E = 70e9
+    nx, ny = (45, 15) if args.quick else (60, 20)
+    inputs = {"0.1": 0.1, "0.25": 0.25, "1/3": 1 / 3}
+    ortho = orthotropic_voigt_2d(144.8e9, 11.7e9, 9.66e9, 0.21)
+    rows = []
+    app = {"tipd": {}, "lps": {}, "nosb": {}, "nosb-wan": {}}
+    appE = {k: {} for k in app}
+    for key, nu in list(inputs.items()) + [("orthotropic", None)]:
+        for lab, mod, stab in (("tipd", "tipd", None), ("lps", "lps", None), ("nosb", "nosb", None),
+                               ("nosb-wan", "nosb", "wan")):
+            if key == "orthotropic" and mod == "lps":
+                app[lab][key] = None
+                appE[lab][key] = None
+                continue
+            kw = {"C": ortho} if key == "orthotropic" else {"E": E, "nu": nu}
+            r = strip(mod, nx=nx, ny=ny, stabilisation=stab, **kw)
+            app[lab][key] = r["nu_apparent"]
+            Ein = 144.8e9 if key == "orthotropic" else E
+            appE[lab][key] = r["E_apparent_Pa"] / Ein
+            rows.append({"input": key, "model": lab, "nu_in": 0.21 if nu is None else nu,
+                         "nu_apparent": r["nu_apparent"], "E_app/E_in": r["E_apparent_Pa"] / Ein})
+    print(f"free strip {nx} x {ny} particles, dx = 1 mm, delta = 3.015 dx, plane stress, "
+          "grips of width delta prescribe u_x only")
+    print(table(rows, ["input", "model", "nu_in", "nu_apparent", "E_app/E_in"], ".4f"))
+    erows = []
+    neg3 = None
+    for dim, nus in ((2, (0.1, 0.25, 1 / 3, 0.4)), (3, (0.1, 0.2, 0.25, 0.3))):
+        for nu in nus:
+            for mod in ("tipd",):
+                r = eigen_counts(mod, dim=dim, nu=nu, n=(8 if dim == 2 else 4) if args.quick else None)
+                erows.append({"dim": dim, "model": mod, "nu": nu, "zero": r["zero"], "negative": r["negative"],
+                              "rigid": r["rigid_modes"], "min/max": r["min_over_max"]})
+                if dim == 3 and abs(nu - 0.3) < 1e-12:
+                    neg3 = r["negative"]
+    r = eigen_counts("tipd", dim=2, C=ortho, n=8 if args.quick else None)
+    erows.append({"dim": 2, "model": "tipd ortho", "nu": 0.21, "zero": r["zero"], "negative": r["negative"],
+                  "rigid": 3, "min/max": r["min_over_max"]})
+    for stab in (None, "wan"):
+        r = eigen_counts("nosb", dim=2, nu=0.25, stabilisation=stab, n=8 if args.quick else None)
+        erows.append({"dim": 2, "model": f"nosb {stab}", "nu": 0.25, "zero": r["zero"],
+                      "negative": r["negative"], "rigid": 3, "min/max": r["min_over_max"]})
+    print("free-body stiffness eigenvalues (threshold 1e-10 of the largest)")
+    print(table(erows, ["dim", "model", "nu", "zero", "negative", "rigid", "min/max"], ".3g"))
+    rrows = []
+    for mod, nu in (("tipd", 1 / 3), ("tipd", 0.2), ("pmb", None), ("lps", 0.2)):
+        r = rotation(mod, nu=nu)
+        rrows.append({"model": mod, "nu": nu, "dL/L": r["dL_over_L"],
+                      "strain energy / kinetic": r["strain_energy_over_kinetic"], "steps": r["steps"]})
+    print("free body spun at 1000 rad/s through 0.2 rad (velocity Verlet)")
+    print(table(rrows, ["model", "nu", "dL/L", "strain energy / kinetic", "steps"], ".3e"))
+    lps_err = max(abs(app["lps"][k] - v) for k, v in inputs.items())
+    res = {"apparent_nu_tipd": app["tipd"], "apparent_nu_lps": app["lps"],
+           "apparent_nu_nosb": app["nosb"], "apparent_nu_nosb_wan": app["nosb-wan"],
+           "apparent_E_over_input": appE, "negative_eigs_3d_nu0.3": neg3,
+           "eigen": erows, "rotation": rrows, "lps_max_nu_err": lps_err}
+    res["pass"] = bool(lps_err <= 0.02)
+    return res
