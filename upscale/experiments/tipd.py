@@ -231,7 +231,8 @@ def eigen_counts(model: str = "tipd", *, dim: int = 2, E: float = 70e9, nu: floa
 
 # ---------------------------------------------------------------------------- rotation
 def rotation(model: str = "tipd", *, E: float = 70e9, nu: float = 0.25, n: int = 10,
-             angle: float = 0.2, omega: float = 1e3, rho: float = 2440.0, m: float = 3.015) -> dict:
+             angle: float = 0.2, omega: float = 1e3, rho: float = 2440.0, m: float = 3.015,
+             calibration: str = "discrete") -> dict:
     """Free 2D body spun rigidly about its centre at ``omega`` (rad/s), velocity Verlet until
     it has turned by ``angle`` (rad): relative change of the angular momentum L_z and strain
     energy over the initial kinetic energy."""
@@ -240,7 +241,7 @@ def rotation(model: str = "tipd", *, E: float = 70e9, nu: float = 0.25, n: int =
 
     s = square_lattice(n, n, 1e-3, density=rho, plane="stress", centered=True)
     fam = build_family(s, m * 1e-3)
-    mdl = make_model(model, E=E, nu=nu)
+    mdl = make_model(model, E=E, nu=nu, **({"calibration": calibration} if model == "tipd" else {}))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         sim = Simulation(s, fam, [mdl], integrator=VelocityVerlet(safety=0.5))
@@ -256,8 +257,9 @@ def rotation(model: str = "tipd", *, E: float = 70e9, nu: float = 0.25, n: int =
     sim.prepare()
     steps = int(np.ceil(angle / omega / sim.integrator.dt))
     sim.run(steps)
-    return {"model": model, "nu": nu, "angle_rad": angle, "omega_rad_per_s": omega,
-            "steps": steps, "dL_over_L": float((Lz() - L0) / L0),
+    return {"model": model, "nu": nu, "calibration": calibration if model == "tipd" else None,
+            "angle_rad": angle, "omega_rad_per_s": omega,
+            "steps": steps, "L0": L0, "L1": Lz(), "dL_over_L": float((Lz() - L0) / L0),
             "strain_energy_over_kinetic": float(sim.energy() / K0)}
 
 
