@@ -339,3 +339,188 @@ def tipd_poisson(args):
            "eigen": erows, "rotation": rrows, "lps_max_nu_err": lps_err}
     res["pass"] = bool(lps_err <= 0.02)
     return res
+
+
+# ---------------------------------------------------------------------------- hole
+def _load_fem(args):
+    import json
+
+    from validation.fem_plate import REFERENCE, generate
+
+    if getattr(args, "refresh_fem", False) or not REFERENCE.is_file():
+        generate()
+    return json.loads(REFERENCE.read_text())
+
+
+def _match(xy_pd, u_pd, sample):
+    """FE values at the particle positions (both lists keyed by rounded coordinates)."""
+    ref = {(round(x, 9), round(y, 9)): u for (x, y), u in zip(sample["xy_m"], sample["u_m"])}
+    keys = [(round(x, 9), round(y, 9)) for x, y in xy_pd]
+    keep = [k in ref for k in keys]
+    if not all(keep):
+        raise ValueError("FE reference lacks some particle positions; regenerate with --refresh-fem")
+    return np.asarray(u_pd), np.asarray([ref[k] for k in keys])
+
+
+def _hole_args(p):
+    p.add_argument("--refresh-fem", action="store_true", help="regenerate the stored FE reference")
+
+
+@case("tipd-hole", "plate with a hole vs FE (scikit-fem P2, same clamped grips): u_x on y = 0, u_y at free edges, Kt",
+      _hole_args)
+def tipd_hole(args):
+    from upscale.experiments.tipd_hole import hole
+
+    _threads()
+    fem = _load_fem(args)
+    dx_cmp = 1e-3 if args.quick else 5e-4
+    dxs = [2e-3, 1e-3] if args.quick else [2e-3, 1e-3, 5e-4]
+    rows, res = [], {}
+    kt_pd = {"iso": [], "ortho": []}
+    curves = {}
+    for mat in ("iso", "ortho"):
+        F = fem["materials"][mat]
+        for dx in dxs:
+            r = hole("tipd", material=mat, dx=dx)
+            smp = F["samples"][f"{dx:g}"]
+            up, uf = _match(r["mid_xy_m"], r["mid_u_m"], smp["mid"])
+            ex = float(100 * np.linalg.norm(up[:, 0] - uf[:, 0]) / np.linalg.norm(uf[:, 0]))
+            ue, ufe = _match(r["edge_xy_m"], r["edge_u_m"], smp["edge"])
+            ey = float(100 * np.linalg.norm(ue[:, 1] - ufe[:, 1]) / np.linalg.norm(ufe[:, 1]))
+            line = F["sigma_xx_over_gross_on_x0"]
+            kt_fe_pt = float(np.interp(r["Kt_point_m"][1], line["y_m"], line["value"]))
+            kt_pd[mat].append(r["Kt"])
+            rows.append({"material": mat, "model": "tipd", "dx_mm": dx * 1e3, "ux_L2_err_%": ex,
+                         "uy_edges_L2_err_%": ey, "Kt_pd": r["Kt"], "Kt_fe_same_point": kt_fe_pt,
+                         "reaction_pd/fe": r["reaction_N"] / F["reaction_N"][-1], "wall_s": r["wall_time_s"]})
+            if np.isclose(dx, dx_cmp):
+                res[f"ux_l2_err_pct_{mat}"] = ex
+                res[f"uy_edges_l2_err_pct_{mat}"] = ey
+                curves[mat] = (up, uf, np.asarray(r["mid_xy_m"]))
+        if mat == "ortho":
+            for stab in (None, "silling", "wan"):
+                r = hole("nosb", material=mat, dx=1e-3, stabilisation=stab)
+                up, uf = _match(r["mid_xy_m"], r["mid_u_m"], F["samples"]["0.001"]["mid"])
+                ex = float(100 * np.linalg.norm(up[:, 0] - uf[:, 0]) / np.linalg.norm(uf[:, 0]))
+                rows.append({"material": mat, "model": f"nosb-{stab}", "dx_mm": 1.0, "ux_L2_err_%": ex,
+                             "Kt_pd": r["Kt"], "reaction_pd/fe": r["reaction_N"] / F["reaction_N"][-1],
+                             "wall_s": r["wall_time_s"]})
+                res[f"ux_l2_err_pct_ortho_nosb_{stab}_dx1mm"] = ex
+    print("plate 150 x 50 x 1 mm, hole 20 mm, clamped grips, U = 0.4 mm; FE on the finest graded mesh")
+    print(table(rows, ["material", "model", "dx_mm", "ux_L2_err_%", "uy_edges_L2_err_%", "Kt_pd",
+                       "Kt_fe_same_point", "reaction_pd/fe", "wall_s"], ".4g"))
+    from validation.fem_plate import kirsch_kt, lekhnitskii_kt
+
+    fe_rows = []
+    for mat, ref, lab in (("iso", kirsch_kt(), "Kirsch"), ("ortho", lekhnitskii_kt(), "Lekhnitskii")):
+        F = fem["materials"][mat]
+        fe_rows.append({"material": mat, "Kt_fe_by_mesh": " ".join(f"{k:.4f}" for k in F["Kt"]),
+                        "Kt_fe_large_plate": F["Kt_large_plate_1200x600mm"], "closed_form": ref,
+                        "which": lab, "large/closed-1_%": 100 * (F["Kt_large_plate_1200x600mm"] / ref - 1)})
+    print("FE stress concentration (gross section) by mesh refinement, and on a large plate")
+    print(table(fe_rows, ["material", "Kt_fe_by_mesh", "Kt_fe_large_plate", "closed_form", "which",
+                          "large/closed-1_%"], ".4f"))
+    _plot_hole(curves, args.outdir)
+    res.update({"Kt_fem_iso": fem["materials"]["iso"]["Kt"][-1], "Kt_fem_ortho": fem["materials"]["ortho"]["Kt"][-1],
+                "Kt_pd_iso": kt_pd["iso"], "Kt_pd_ortho": kt_pd["ortho"], "Kt_pd_dx_m": dxs,
+                "Kt_fem_large_iso": fem["materials"]["iso"]["Kt_large_plate_1200x600mm"],
+                "Kt_fem_large_ortho": fem["materials"]["ortho"]["Kt_large_plate_1200x600mm"],
+                "Kt_kirsch": kirsch_kt(), "Kt_lekhnitskii": lekhnitskii_kt(),
+                "ux_compare_dx_m": dx_cmp, "rows": rows,
+                "fem_rel_change_last_refinement": {m: fem["materials"][m]["rel_change_last_refinement"]
+                                                   for m in ("iso", "ortho")}})
+    res["pass"] = bool(res["ux_l2_err_pct_iso"] <= 2 and res["ux_l2_err_pct_ortho"] <= 2)
+    return res
+
+
+def _plot_hole(curves, outdir):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(curves), figsize=(10, 3.6))
+    for ax, (mat, (up, uf, xy)) in zip(np.atleast_1d(axes), curves.items()):
+        sel = xy[:, 1] > 0
+        o = np.argsort(xy[sel, 0])
+        ax.plot(xy[sel, 0][o] * 1e3, uf[sel, 0][o] * 1e3, "k-", label="FE (P2, graded)")
+        ax.plot(xy[sel, 0][o] * 1e3, up[sel, 0][o] * 1e3, "r.", ms=2, label="Ti-PD")
+        ax.set_title(f"{mat}: u_x next to y = 0")
+        ax.set_xlabel("x (mm)")
+        ax.set_ylabel("u_x (mm)")
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(outdir / "tipd_hole_ux.png", dpi=130)
+    plt.close(fig)
+
+
+# ---------------------------------------------------------------------------- bench
+#: seed 003 Table 1 (MATLAB, Xeon Gold 6240), seconds
+PAPER_TABLE1_S = {300: {"nosb": 397, "nosb-silling": 1190, "tipd": 264},
+                  600: {"nosb": 2440, "nosb-silling": 5160, "tipd": 1249},
+                  1200: {"nosb": 12000, "nosb-silling": 22740, "tipd": 5100}}
+
+
+@case("bench-tipd", "Table 1: 4000 ADR steps of Ti-PD, NOSB, stabilised NOSB on 300x100..1200x400 vs the paper's times; Ti-PD / PMB step")
+def bench_tipd(args):
+    import os
+    import time
+
+    from tqdm import tqdm
+
+    from upscale.engine import State, build_family
+    from upscale.experiments.tipd import make_model
+    from upscale.experiments.tipd_hole import hole_adr, hole_body, material_voigt
+    from upscale.models.bond_based import PMB
+
+    _threads()
+    load0 = os.getloadavg()[0]
+    grids = [300] if args.quick else [300, 600, 1200]
+    steps_run = {300: 200 if args.quick else 1000, 600: 100, 1200: 40}
+    rows, speed = [], []
+    jobs = [(nx, lab) for nx in grids for lab in ("tipd", "nosb", "nosb-silling")]
+    for nx, lab in tqdm(jobs, desc="bench-tipd"):
+        stab = "silling" if lab == "nosb-silling" else None
+        r = hole_adr("nosb" if lab.startswith("nosb") else "tipd", nx=nx, steps=steps_run[nx],
+                     stabilisation=stab)
+        per_step = r["adr_cpu_s"] / r["steps"]
+        t4000 = 4000 * per_step
+        paper = PAPER_TABLE1_S[nx][lab]
+        speed.append(paper / t4000)
+        rows.append({"grid": f"{nx}x{nx // 3}", "model": lab, "particles": r["particles"],
+                     "steps_run": r["steps"], "cpu_per_step_s": per_step, "4000_steps_s": t4000,
+                     "paper_s": paper, "speedup": paper / t4000,
+                     "wall/cpu": r["adr_wall_s"] / r["adr_cpu_s"]})
+    print("ADR on the orthotropic plate with a hole (grips clamped), one thread; 4000-step time = "
+          "4000 x the measured CPU time per step")
+    print(table(rows, ["grid", "model", "particles", "steps_run", "cpu_per_step_s", "4000_steps_s",
+                       "paper_s", "speedup", "wall/cpu"], ".4g"))
+    # Ti-PD step against a PMB step on the same body (CPU time, interleaved repeats)
+    s, _, _ = hole_body(0.5e-3)
+    fam = build_family(s, 1.5e-3 * (1 + 1e-9))
+    st = State.reference(s.x0, fam.nb)
+    st.y += 1e-7
+    t = make_model("tipd", material_voigt("ortho"))
+    t.prepare(s, fam)
+    p = PMB(E=210e9)
+    p.prepare(s, fam)
+    out = np.zeros_like(st.y)
+    times = {"tipd": [], "pmb": []}
+    for m in (t, p):
+        m.step_force(st, out, failure=False)
+    for _ in range(7):
+        for lab, m in (("tipd", t), ("pmb", p)):
+            c0 = time.process_time()
+            for _ in range(5):
+                m.step_force(st, out, failure=False)
+            times[lab].append((time.process_time() - c0) / 5)
+    ratio = float(np.median(times["tipd"]) / np.median(times["pmb"]))
+    print(f"force evaluation, 300 x 100 plate ({fam.nb} bonds): Ti-PD {np.median(times['tipd']):.4g} s, "
+          f"PMB {np.median(times['pmb']):.4g} s, ratio {ratio:.3f} (median of 7 interleaved CPU-time repeats)")
+    load1 = os.getloadavg()[0]
+    print(f"load average {load0:.1f} -> {load1:.1f} on {os.cpu_count()} cores")
+    res = {"speedup_vs_paper_min": float(min(speed)), "tipd_step_over_pmb": ratio, "rows": rows,
+           "load_average": [load0, load1], "cpu_count": os.cpu_count(),
+           "note": "4000-step times extrapolated from the measured CPU time per ADR step"}
+    res["pass"] = bool(min(speed) >= 10 and ratio <= 1.5)
+    return res
