@@ -524,3 +524,74 @@ def bench_tipd(args):
            "note": "4000-step times extrapolated from the measured CPU time per ADR step"}
     res["pass"] = bool(min(speed) >= 10 and ratio <= 1.5)
     return res
+
+
+# ---------------------------------------------------------------------------- branching
+@case("tipd-branching", "crack branching in glass (5.3): Ti-PD (60)/(62), LPS, PMB at 12 and 24 MPa; tip speed, branching, angle, dx vs dx/2")
+def tipd_branching(args):
+    from tqdm import tqdm
+
+    from upscale.experiments.tipd_branching import branching
+
+    _threads()
+    dx = 1e-3 if args.quick else 5e-4
+    variants = [("tipd", "tipd"), ("tipd", "osb"), ("lps", None), ("pmb", None)]
+    jobs = [(mod, crit, sig, dx) for sig in (12e6, 24e6) for mod, crit in variants]
+    if not args.quick:   # the convergence pair at 12 MPa for the default model
+        jobs += [("tipd", "tipd", 12e6, dx / 2)]
+    runs = []
+    for mod, crit, sig, h in tqdm(jobs, desc="tipd-branching runs"):
+        runs.append(branching(mod, stress=sig, dx=h, critical=crit or "tipd", outdir=args.outdir))
+    rows = []
+    for r in runs:
+        lab = r["model"] + (f"({r['critical']})" if r["critical"] else "")
+        rows.append({"model": lab, "MPa": r["stress_Pa"] / 1e6, "dx_mm": r["dx_m"] * 1e3, "s0": r["s0"],
+                     "v_max/cR": r["v_max_over_cR"], "branch_t_us": None if r["branching_t_s"] is None
+                     else r["branching_t_s"] * 1e6,
+                     "branch_x_mm": None if r["branching_x_m"] is None else r["branching_x_m"] * 1e3,
+                     "angle_deg": r["branch_angle_deg"], "asym": r["asymmetry_fraction"],
+                     "steps": r["steps"], "wall_s": r["wall_time_s"]})
+    print(f"Ha & Bobaru plate 100 x 40 mm, pre-crack to the centre, delta = 3 dx, cR = {runs[0]['cR_m_per_s']:.1f} m/s")
+    print(table(rows, ["model", "MPa", "dx_mm", "s0", "v_max/cR", "branch_t_us", "branch_x_mm", "angle_deg",
+                       "asym", "steps", "wall_s"], ".4g"))
+    _plot_tips(runs, args.outdir)
+    out = {"v_max_over_cR": {}, "branching_x_m": {}, "branching_t_s": {}, "branch_angle_deg": {}}
+    for r in runs:
+        if not np.isclose(r["dx_m"], dx):
+            continue
+        key = f"{r['model']}{'_' + r['critical'] if r['critical'] else ''}_{r['stress_Pa'] / 1e6:g}MPa"
+        out["v_max_over_cR"][key] = r["v_max_over_cR"]
+        out["branching_x_m"][key] = r["branching_x_m"]
+        out["branching_t_s"][key] = r["branching_t_s"]
+        out["branch_angle_deg"][key] = r["branch_angle_deg"]
+    res = {**out, "dx_m": dx, "rows": rows}
+    if not args.quick:
+        a = [r for r in runs if r["model"] == "tipd" and r["critical"] == "tipd" and r["stress_Pa"] == 12e6]
+        coarse, fine = sorted(a, key=lambda r: -r["dx_m"])
+        res["convergence_12MPa_tipd"] = {
+            "branching_x_diff_over_delta": None if None in (coarse["branching_x_m"], fine["branching_x_m"])
+            else abs(coarse["branching_x_m"] - fine["branching_x_m"]) / coarse["horizon_m"],
+            "v_max_rel_diff": abs(coarse["v_max_m_per_s"] - fine["v_max_m_per_s"]) / fine["v_max_m_per_s"]}
+    res["pass"] = bool(all(v < 1 for v in out["v_max_over_cR"].values()))
+    return res
+
+
+def _plot_tips(runs, outdir):
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
+    for ax, sig in zip(axes, (12e6, 24e6)):
+        for r in runs:
+            if r["stress_Pa"] == sig:
+                lab = r["model"] + (f"({r['critical']})" if r["critical"] else "") + f" dx={r['dx_m'] * 1e3:g}mm"
+                ax.plot(np.array(r["tip_t_s"]) * 1e6, np.array(r["tip_x_m"]) * 1e3, label=lab)
+        ax.set_title(f"crack-tip position, {sig / 1e6:g} MPa")
+        ax.set_xlabel("t (us)")
+        ax.set_ylabel("tip x (mm)")
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(outdir / "tipd_branching_tip.png", dpi=130)
+    plt.close(fig)
