@@ -550,10 +550,11 @@ def tipd_branching(args):
                      else r["branching_t_s"] * 1e6,
                      "branch_x_mm": None if r["branching_x_m"] is None else r["branching_x_m"] * 1e3,
                      "angle_deg": r["branch_angle_deg"], "asym": r["asymmetry_fraction"],
+                     "off_crack": r["damaged_off_crack"],
                      "steps": r["steps"], "wall_s": r["wall_time_s"]})
     print(f"Ha & Bobaru plate 100 x 40 mm, pre-crack to the centre, delta = 3 dx, cR = {runs[0]['cR_m_per_s']:.1f} m/s")
     print(table(rows, ["model", "MPa", "dx_mm", "s0", "v_max/cR", "branch_t_us", "branch_x_mm", "angle_deg",
-                       "asym", "steps", "wall_s"], ".4g"))
+                       "asym", "off_crack", "steps", "wall_s"], ".4g"))
     _plot_tips(runs, args.outdir)
     out = {"v_max_over_cR": {}, "branching_x_m": {}, "branching_t_s": {}, "branch_angle_deg": {}}
     for r in runs:
