@@ -227,9 +227,10 @@ def sample_points(dx: float) -> dict:
     """Points where the particle model of spacing dx has particles next to y = 0 and next
     to the free edges: cell centres ``x = -L/2 + (i + 1/2) dx`` at ``y = +-dx/2`` (outside
     the hole) and ``y = +-(W/2 - dx/2)``."""
-    nx = int(round(L_PLATE / dx))
+    nx, ny = int(round(L_PLATE / dx)), int(round(W_PLATE / dx))
     x = -L_PLATE / 2 + (np.arange(nx) + 0.5) * dx
-    mid = np.concatenate([np.stack([x, np.full(nx, s * dx / 2)], 1) for s in (1, -1)])
+    rows = (0.0,) if ny % 2 else (dx / 2, -dx / 2)       # an odd count has a row on y = 0
+    mid = np.concatenate([np.stack([x, np.full(nx, y)], 1) for y in rows])
     mid = mid[np.hypot(mid[:, 0], mid[:, 1]) > R_HOLE]
     edge = np.concatenate([np.stack([x, np.full(nx, s * (W_PLATE / 2 - dx / 2))], 1) for s in (1, -1)])
     return {"mid": mid, "edge": edge}

@@ -16,7 +16,7 @@ models             Ti-PD with s0 from (60) or (62); LPS (s0 of (62)); PMB (bond-
 =================  ==========================================================================
 
 Crack tip: the largest x of a particle with damage >= 0.35 in the damaged cluster
-(8-connected on the lattice) that holds the notch tip (every ``record_dt``; damage that
+(8-connected on the lattice) that reaches within delta of the notch tip (every ``record_dt``; damage that
 starts elsewhere, e.g. at the loaded edges, is reported apart as ``edge_damage``);
 speed from a least-squares slope over a sliding window of 2 us. Branching: the first record
 at which the damaged particles within 2 delta behind the tip split into two groups, one
@@ -103,7 +103,7 @@ def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
     # lattice indices of the particles (regular grid, x slowest) for cluster labelling
     ix = np.rint((x0[:, 0] - x0[:, 0].min()) / dx).astype(int)
     iy = np.rint((x0[:, 1] - x0[:, 1].min()) / dx).astype(int)
-    notch = np.flatnonzero((np.abs(x0[:, 0]) < 0.6 * dx) & (np.abs(x0[:, 1]) < 0.6 * dx))
+    notch = np.flatnonzero((np.abs(x0[:, 0]) < delta) & (np.abs(x0[:, 1]) < delta))
 
     def crack_cluster(dam):
         """Damaged particles 8-connected to the notch tip (damage elsewhere, e.g. at the

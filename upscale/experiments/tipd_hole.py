@@ -96,7 +96,8 @@ def hole(model: str = "tipd", *, material: str = "iso", dx: float = 1e-3, m: flo
     top = np.flatnonzero((np.abs(x[:, 0]) < 0.51 * dx) & (x[:, 1] > 0))
     k = top[np.argmin(x[top, 1])]
     sigma_gross = reaction / (W * THICK)
-    mid = (np.abs(np.abs(x[:, 1]) - dx / 2) < 1e-9 * dx) & ~grips
+    ymid = 0.0 if int(round(W / dx)) % 2 else dx / 2      # the rows next to y = 0
+    mid = (np.abs(np.abs(x[:, 1]) - ymid) < 1e-9 * dx) & ~grips
     edge = (np.abs(np.abs(x[:, 1]) - (W / 2 - dx / 2)) < 1e-9 * dx) & ~grips
     return {"model": model, "material": material, "dx_m": dx, "horizon_m": fam.horizon,
             "calibration": calibration if model == "tipd" else None,
