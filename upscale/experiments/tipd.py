@@ -182,12 +182,11 @@ def strip(model: str = "tipd", *, E: float = 70e9, nu: float | None = 0.25, C=No
     ubar = np.zeros((s.n, 3))
     ubar[right, 0] = strain * Lx
     st = State.reference(s.x0, fam.nb)
-    if model in ("tipd", "nosb"):
+    if model in ("tipd", "nosb"):          # linear: one solve
         solve_linear(mdl, st, fixed=fixed, u_prescribed=ubar, method="direct")
-        F = mdl.residual(st).reshape(s.n, 3)
-    else:
+    else:                                  # geometrically nonlinear LPS / PMB: Newton
         solve(mdl, st, fixed=fixed, u_prescribed=ubar, tol=1e-10)
-        F = mdl.residual(st).reshape(s.n, 3)
+    F = mdl.residual(st).reshape(s.n, 3)
     u = st.y - s.x0
     mid = (x[:, 0] > Lx / 3) & (x[:, 0] < 2 * Lx / 3)
     exx = np.polyfit(x[mid, 0], u[mid, 0], 1)[0]
@@ -205,7 +204,7 @@ def eigen_counts(model: str = "tipd", *, dim: int = 2, E: float = 70e9, nu: floa
                  plane: str = "stress", n: int | None = None, m: float = 3.015,
                  calibration: str = "discrete", stabilisation=None) -> dict:
     """Zero and negative eigenvalues of the free-body stiffness (module docstring)."""
-    from upscale.engine import build_family, cubic_lattice, square_lattice
+    from upscale.engine import State, build_family, cubic_lattice, square_lattice
 
     n = n or (10 if dim == 2 else 5)
     s = square_lattice(n, n, 1e-3, plane=plane) if dim == 2 else cubic_lattice(n, n, n, 1e-3)
@@ -215,8 +214,7 @@ def eigen_counts(model: str = "tipd", *, dim: int = 2, E: float = 70e9, nu: floa
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         mdl.prepare(s, fam)
-    K = mdl.tangent(None).toarray() if model in ("tipd", "nosb") else mdl.tangent(
-        __import__("upscale.engine", fromlist=["State"]).State.reference(s.x0, fam.nb)).toarray()
+    K = mdl.tangent(State.reference(s.x0, fam.nb)).toarray()
     free = np.zeros((s.n, 3), dtype=bool)
     free[:, :dim] = True
     Kf = K[free.ravel()][:, free.ravel()]
