@@ -19,10 +19,11 @@ Crack tip: the largest x of a particle with damage >= 0.35 in the damaged cluste
 (8-connected on the lattice) that reaches within delta of the notch tip (every ``record_dt``; damage that
 starts elsewhere, e.g. at the loaded edges, is reported apart as ``edge_damage``);
 speed from a least-squares slope over a sliding window of 2 us. Branching: the first record
-at which the damaged particles within 2 delta behind the tip split into two groups, one
-with y > delta and one with y < -delta; branching position is the tip's x then. Branch
-angle: the mean over the records after branching of atan(|y| / (x - x_b)) of the upper
-branch's tip. Symmetry: the fraction of damaged particles (>= 0.35) whose mirror image about
+at which the crack holds particles farther than 2 delta from the notch line on both sides
+(the main crack may go on between the branches); branching position x_b: the smallest x
+of those off-line particles then (where the branches leave the line). Branch angle (half the
+angle between the branches): atan(y / (x - x_b)) of the crack's particle farthest above the
+line at the end of the run. Symmetry: the fraction of damaged particles (>= 0.35) whose mirror image about
 y = 0 is not damaged.
 """
 from __future__ import annotations
@@ -129,13 +130,14 @@ def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
             tip = float(x0[xi, 0].max())
             u = xi[x0[xi, 1] > 0]
             lw = xi[x0[xi, 1] < 0]
-            up = (float(x0[u, 0].max()), float(x0[u[np.argmax(x0[u, 0])], 1])) if u.size else (0.0, 0.0)
-            lo = (float(x0[lw, 0].max()), float(x0[lw[np.argmax(x0[lw, 0])], 1])) if lw.size else (0.0, 0.0)
+            # branch tips: the cluster's particles farthest from the notch line
+            up = (float(x0[u[np.argmax(x0[u, 1])], 0]), float(x0[u, 1].max())) if u.size else (0.0, 0.0)
+            lo = (float(x0[lw[np.argmin(x0[lw, 1])], 0]), float(x0[lw, 1].min())) if lw.size else (0.0, 0.0)
             if state["branch"] is None:
-                near = xi[x0[xi, 0] > tip - 2 * delta]
-                yy = x0[near, 1]
-                if (yy > delta).any() and (yy < -delta).any() and not (np.abs(yy) <= 0.5 * delta).any():
-                    state["branch"] = (float(st.t), tip)
+                yy = x0[xi, 1]
+                off = np.abs(yy) > 2 * delta
+                if (yy > 2 * delta).any() and (yy < -2 * delta).any():
+                    state["branch"] = (float(st.t), float(x0[xi[off], 0].min()))
         rec_t.append(float(st.t))
         rec_tip.append(tip)
         rec_up.append(up)
@@ -157,9 +159,9 @@ def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
     br = state["branch"]
     angle = None
     if br is not None:
-        after = [(x, y) for t, (x, y) in zip(rec_t, rec_up) if t > br[0] and x > br[1] + delta]
-        if after:
-            angle = float(np.degrees(np.mean([np.arctan2(abs(y), x - br[1]) for x, y in after])))
+        x_end, y_end = rec_up[-1]
+        if x_end > br[1]:
+            angle = float(np.degrees(np.arctan2(abs(y_end), x_end - br[1])))
     d = sim.damage()
     dam = d >= 0.35
     # symmetry about y = 0: lattice rows are mirror images (ny even, centred)
