@@ -27,6 +27,15 @@ Each scene is a plain function of its parameters returning a JSON-able dict (SI 
 ``rotation``
     A free body spun rigidly about z (velocity Verlet, no loads): relative change of the
     angular momentum and the strain energy picked up over a given rotation angle.
+``hole`` (:mod:`upscale.experiments.tipd_hole`)
+    The plate with a hole 5.2.1 / 5.2.2 with clamped grips; ``hole_adr`` the Table 1 ADR run.
+``branching`` (:mod:`upscale.experiments.tipd_branching`)
+    Crack branching in glass 5.3 (Ha & Bobaru geometry).
+
+Command line: ``upscale tipd mms --dx 0.025 0.0125 [--dim 3] [--model nosb
+--stabilisation wan]``, ``upscale tipd strip --nu 0.1``, ``upscale tipd hole --material
+ortho --dx 0.0005``, ``upscale tipd branching --stress 24e6 --dx 0.0005 [--model lps]``;
+each writes ``OUT/tipd_SCENE.json`` (and plots).
 """
 from __future__ import annotations
 
