@@ -172,7 +172,6 @@ def solve_plate(C, h_hole: float = 5e-4, h_far: float | None = None, U: float = 
     """Solve the clamped plate with stiffness ``C`` (Voigt, Pa) on a mesh of size
     ``h_hole`` at the hole (``h_far`` default 8 h_hole, at most 5 mm); ``L``, ``W`` the
     plate's length and width (m; the hole stays R = 10 mm)."""
-    import skfem
     from dataclasses import replace
 
     from skfem import Basis, BilinearForm, ElementTriP2, ElementVector, MeshTri, MeshTri2, condense, solve
@@ -215,7 +214,6 @@ def solve_plate(C, h_hole: float = 5e-4, h_far: float | None = None, U: float = 
     D = np.concatenate([left.all(), right.all()])
     u = solve(*condense(K, np.zeros(basis.N), x=u, D=D))
     reaction = float((K @ u)[rdofs_x].sum())
-    del skfem
     probe_basis = Basis(m1, ElementVector(ElementTriP2()))
     far = np.hypot(*probe_basis.doflocs) > 1.5 * R_HOLE
     if not np.allclose(probe_basis.doflocs[:, far], basis.doflocs[:, far]):
