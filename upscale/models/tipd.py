@@ -273,12 +273,13 @@ def tipd_critical_stretch(G0: float, E: float, nu: float, horizon: float, dim: i
 
 # ---------------------------------------------------------------------------- kernels
 @nb.njit(parallel=True, cache=True)
-def tipd_force_kernel_2d(offsets, neighbors, q_bc, A, x_nc, y_nc, intact_b, rc2_b, fail, out_nc):
-    """Adds Ti-PD force densities (2D) to ``out_nc``: ``b_i = sum_j M_b eta_b``,
-    ``M_pq = A[p,q,a,b] q_a q_b`` with ``q_b = xi sqrt(V_j beta / |xi|^3)`` and
-    ``A`` the normalised induced tensor (4, 4) flattened ``[2p+q, 2a+b]``. If ``fail``,
-    mutates ``intact_b``: a bond with squared current length above ``rc2_b`` breaks after
-    its force is counted. Returns the number of directed bonds broken."""
+def tipd_force_kernel_2d(offsets, neighbors, q_bc, A, u_nc, y_nc, intact_b, rc2_b, fail, out_nc):
+    """Adds Ti-PD force densities (2D) to ``out_nc``: ``b_i = sum_j M_b eta_b`` with
+    ``eta_b = u_j - u_i`` (``u_nc = y - x0``), ``M_pq = A[p,q,a,b] q_a q_b``,
+    ``q_b = xi sqrt(V_j beta / |xi|^3)`` and ``A`` the normalised induced tensor (4, 4)
+    flattened ``[2p+q, 2a+b]``. If ``fail``, mutates ``intact_b``: a bond whose squared
+    current length (from ``y_nc``) exceeds ``rc2_b`` breaks after its force is counted.
+    Returns the number of directed bonds broken."""
     n = offsets.shape[0] - 1
     broke = np.zeros(n, dtype=np.int64)
     # M11 = A00 qx^2 + 2 A01 qx qy + A03 qy^2, etc. (A[pq, ab], symmetric in ab)
@@ -288,15 +289,15 @@ def tipd_force_kernel_2d(offsets, neighbors, q_bc, A, x_nc, y_nc, intact_b, rc2_
     for i in nb.prange(n):
         f0 = 0.0
         f1 = 0.0
+        ui0 = u_nc[i, 0]
+        ui1 = u_nc[i, 1]
         k = 0
         for b in range(offsets[i], offsets[i + 1]):
             if not intact_b[b]:
                 continue
             j = neighbors[b]
-            d0 = y_nc[j, 0] - y_nc[i, 0]
-            d1 = y_nc[j, 1] - y_nc[i, 1]
-            e0 = d0 - (x_nc[j, 0] - x_nc[i, 0])
-            e1 = d1 - (x_nc[j, 1] - x_nc[i, 1])
+            e0 = u_nc[j, 0] - ui0
+            e1 = u_nc[j, 1] - ui1
             qx = q_bc[b, 0]
             qy = q_bc[b, 1]
             xx = qx * qx
@@ -307,16 +308,20 @@ def tipd_force_kernel_2d(offsets, neighbors, q_bc, A, x_nc, y_nc, intact_b, rc2_
             M22 = m22a * xx + m22b * xy + m22c * yy
             f0 += M11 * e0 + M12 * e1
             f1 += M12 * e0 + M22 * e1
-            if fail and d0 * d0 + d1 * d1 + (y_nc[j, 2] - y_nc[i, 2]) ** 2 > rc2_b[b]:
-                intact_b[b] = False
-                k += 1
+            if fail:
+                d0 = y_nc[j, 0] - y_nc[i, 0]
+                d1 = y_nc[j, 1] - y_nc[i, 1]
+                d2 = y_nc[j, 2] - y_nc[i, 2]
+                if d0 * d0 + d1 * d1 + d2 * d2 > rc2_b[b]:
+                    intact_b[b] = False
+                    k += 1
         add_to_row(out_nc, i, f0, f1, 0.0)
         broke[i] = k
     return broke.sum()
 
 
 @nb.njit(parallel=True, cache=True)
-def tipd_force_kernel_3d(offsets, neighbors, q_bc, A, x_nc, y_nc, intact_b, rc2_b, fail, out_nc):
+def tipd_force_kernel_3d(offsets, neighbors, q_bc, A, u_nc, y_nc, intact_b, rc2_b, fail, out_nc):
     """3D analogue of :func:`tipd_force_kernel_2d`; ``A`` (9, 9) flattened
     ``[3p+q, 3a+b]``."""
     n = offsets.shape[0] - 1
@@ -332,9 +337,10 @@ def tipd_force_kernel_3d(offsets, neighbors, q_bc, A, x_nc, y_nc, intact_b, rc2_
             j = neighbors[b]
             rsq = 0.0
             for c in range(3):
-                dc = y_nc[j, c] - y_nc[i, c]
-                rsq += dc * dc
-                e[c] = dc - (x_nc[j, c] - x_nc[i, c])
+                e[c] = u_nc[j, c] - u_nc[i, c]
+                if fail:
+                    dc = y_nc[j, c] - y_nc[i, c]
+                    rsq += dc * dc
             for a in range(3):
                 for c in range(3):
                     qq[3 * a + c] = q_bc[b, a] * q_bc[b, c]
@@ -543,6 +549,7 @@ class TiPD(Model):
             self.s0 = self._critical_stretch()
         self.rc2_b = np.ascontiguousarray((L * (1.0 + self.s0)) ** 2) if self.needs.failure \
             else np.zeros(1)
+        self._u = np.zeros((system.n, 3))
 
     def _critical_stretch(self) -> float:
         d, fam, sysm = self.dim, self.family, self.system
@@ -590,7 +597,9 @@ class TiPD(Model):
     def _force(self, state, out, fail):
         f = self.family
         kern = tipd_force_kernel_2d if self.dim == 2 else tipd_force_kernel_3d
-        return int(kern(f.offsets, f.neighbors, self.q_bc, self.A, self.system.x0, state.y,
+        u = self._u
+        np.subtract(state.y, self.system.x0, out=u)
+        return int(kern(f.offsets, f.neighbors, self.q_bc, self.A, u, state.y,
                         state.intact, self.rc2_b, fail, out))
 
     def add_force(self, state, out):
