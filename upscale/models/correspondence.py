@@ -55,22 +55,35 @@ STABILISATIONS = (None, "silling", "wan")
 # ---------------------------------------------------------------------------- kernels
 @nb.njit(parallel=True, cache=True)
 def defgrad_kernel(offsets, neighbors, xi_bc, wv_b, Kinv_n, y_nc, d, F_n):
-    """Mutates ``F_n`` (N, 3, 3): F_i = (sum_j w Y (x) xi) K_i^-1 (first d x d block)."""
+    """Mutates ``F_n`` (N, 3, 3): F_i = (sum_j w Y (x) xi) K_i^-1 (first d x d block; the
+    xi and Kinv components beyond d are zero)."""
     n = offsets.shape[0] - 1
     for i in nb.prange(n):
-        acc = np.zeros((3, 3))
+        a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
         for b in range(offsets[i], offsets[i + 1]):
             j = neighbors[b]
-            for p in range(d):
-                Yp = (y_nc[j, p] - y_nc[i, p]) * wv_b[b]
-                for a in range(d):
-                    acc[p, a] += Yp * xi_bc[b, a]
-        for p in range(d):
-            for a in range(d):
-                s = 0.0
-                for c in range(d):
-                    s += acc[p, c] * Kinv_n[i, c, a]
-                F_n[i, p, a] = s
+            w = wv_b[b]
+            Y0 = (y_nc[j, 0] - y_nc[i, 0]) * w
+            Y1 = (y_nc[j, 1] - y_nc[i, 1]) * w
+            Y2 = (y_nc[j, 2] - y_nc[i, 2]) * w if d == 3 else 0.0
+            x0 = xi_bc[b, 0]
+            x1 = xi_bc[b, 1]
+            x2 = xi_bc[b, 2]
+            a00 += Y0 * x0
+            a01 += Y0 * x1
+            a02 += Y0 * x2
+            a10 += Y1 * x0
+            a11 += Y1 * x1
+            a12 += Y1 * x2
+            a20 += Y2 * x0
+            a21 += Y2 * x1
+            a22 += Y2 * x2
+        K = Kinv_n[i]
+        for a in range(d):
+            F_n[i, 0, a] = a00 * K[0, a] + a01 * K[1, a] + a02 * K[2, a]
+            F_n[i, 1, a] = a10 * K[0, a] + a11 * K[1, a] + a12 * K[2, a]
+            if d == 3:
+                F_n[i, 2, a] = a20 * K[0, a] + a21 * K[1, a] + a22 * K[2, a]
 
 
 @nb.njit(cache=True)
@@ -157,37 +170,50 @@ def stress_kernel(F_n, Kinv_n, C, law, lam, mu, d, PK_n, psi_n):
 @nb.njit(parallel=True, cache=True)
 def nosb_force_kernel(offsets, neighbors, xi_bc, wv_b, PK_n, F_n, B_n, y_nc, d, stab, out_nc):
     """Adds b_i = sum_j w (PK_i + PK_j) xi + [stab] sum_j w (B_i z_ij - B_j z_ji) to
-    ``out_nc``, ``z_ij = Y - F_i xi``, ``z_ji = -Y + F_j xi``; ``B_n`` (N, 3, 3)."""
+    ``out_nc``, ``z_ij = Y - F_i xi``, ``z_ji = -Y + F_j xi``; ``B_n`` (N, 3, 3). Scalar
+    accumulators (no allocation per particle); the z components beyond d are zero."""
     n = offsets.shape[0] - 1
     for i in nb.prange(n):
-        f = np.zeros(3)
-        zi = np.zeros(3)
-        zj = np.zeros(3)
+        f0 = 0.0
+        f1 = 0.0
+        f2 = 0.0
         for b in range(offsets[i], offsets[i + 1]):
             j = neighbors[b]
             w = wv_b[b]
-            for p in range(d):
-                s = 0.0
-                for a in range(d):
-                    s += (PK_n[i, p, a] + PK_n[j, p, a]) * xi_bc[b, a]
-                f[p] += w * s
+            x0 = xi_bc[b, 0]
+            x1 = xi_bc[b, 1]
+            x2 = xi_bc[b, 2]
+            # (PK_i + PK_j) xi (PK rows/cols beyond d are zero)
+            f0 += w * ((PK_n[i, 0, 0] + PK_n[j, 0, 0]) * x0 + (PK_n[i, 0, 1] + PK_n[j, 0, 1]) * x1
+                       + (PK_n[i, 0, 2] + PK_n[j, 0, 2]) * x2)
+            f1 += w * ((PK_n[i, 1, 0] + PK_n[j, 1, 0]) * x0 + (PK_n[i, 1, 1] + PK_n[j, 1, 1]) * x1
+                       + (PK_n[i, 1, 2] + PK_n[j, 1, 2]) * x2)
+            if d == 3:
+                f2 += w * ((PK_n[i, 2, 0] + PK_n[j, 2, 0]) * x0 + (PK_n[i, 2, 1] + PK_n[j, 2, 1]) * x1
+                           + (PK_n[i, 2, 2] + PK_n[j, 2, 2]) * x2)
             if stab:
-                for p in range(d):
-                    Y = y_nc[j, p] - y_nc[i, p]
-                    fi = 0.0
-                    fj = 0.0
-                    for a in range(d):
-                        fi += F_n[i, p, a] * xi_bc[b, a]
-                        fj += F_n[j, p, a] * xi_bc[b, a]
-                    zi[p] = Y - fi
-                    zj[p] = -Y + fj
-                for p in range(d):
-                    s = 0.0
-                    for q in range(d):
-                        s += B_n[i, p, q] * zi[q] - B_n[j, p, q] * zj[q]
-                    f[p] += w * s
-        for p in range(d):
-            out_nc[i, p] += f[p]
+                Y0 = y_nc[j, 0] - y_nc[i, 0]
+                Y1 = y_nc[j, 1] - y_nc[i, 1]
+                Y2 = y_nc[j, 2] - y_nc[i, 2] if d == 3 else 0.0
+                zi0 = Y0 - (F_n[i, 0, 0] * x0 + F_n[i, 0, 1] * x1 + F_n[i, 0, 2] * x2)
+                zi1 = Y1 - (F_n[i, 1, 0] * x0 + F_n[i, 1, 1] * x1 + F_n[i, 1, 2] * x2)
+                zj0 = -Y0 + (F_n[j, 0, 0] * x0 + F_n[j, 0, 1] * x1 + F_n[j, 0, 2] * x2)
+                zj1 = -Y1 + (F_n[j, 1, 0] * x0 + F_n[j, 1, 1] * x1 + F_n[j, 1, 2] * x2)
+                zi2 = 0.0
+                zj2 = 0.0
+                if d == 3:
+                    zi2 = Y2 - (F_n[i, 2, 0] * x0 + F_n[i, 2, 1] * x1 + F_n[i, 2, 2] * x2)
+                    zj2 = -Y2 + (F_n[j, 2, 0] * x0 + F_n[j, 2, 1] * x1 + F_n[j, 2, 2] * x2)
+                f0 += w * (B_n[i, 0, 0] * zi0 + B_n[i, 0, 1] * zi1 + B_n[i, 0, 2] * zi2
+                           - B_n[j, 0, 0] * zj0 - B_n[j, 0, 1] * zj1 - B_n[j, 0, 2] * zj2)
+                f1 += w * (B_n[i, 1, 0] * zi0 + B_n[i, 1, 1] * zi1 + B_n[i, 1, 2] * zi2
+                           - B_n[j, 1, 0] * zj0 - B_n[j, 1, 1] * zj1 - B_n[j, 1, 2] * zj2)
+                if d == 3:
+                    f2 += w * (B_n[i, 2, 0] * zi0 + B_n[i, 2, 1] * zi1 + B_n[i, 2, 2] * zi2
+                               - B_n[j, 2, 0] * zj0 - B_n[j, 2, 1] * zj1 - B_n[j, 2, 2] * zj2)
+        out_nc[i, 0] += f0
+        out_nc[i, 1] += f1
+        out_nc[i, 2] += f2
 
 
 @nb.njit(parallel=True, cache=True)
