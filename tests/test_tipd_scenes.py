@@ -47,3 +47,22 @@ def test_free_body_eigen_signs():
     assert eigen_counts("tipd", dim=2, nu=0.4, calibration="continuum", n=7)["negative"] > 0
     r = eigen_counts("tipd", dim=2, nu=1 / 3, calibration="continuum", n=7)
     assert r["zero"] == 3 and r["negative"] == 0     # PMB-equivalent: rotation costs nothing
+
+
+def test_newton_solver_on_tipd_and_nosb_matches_linear_solve():
+    from upscale.engine.newton import solve
+    from upscale.models.correspondence import Correspondence
+
+    s = square_lattice(10, 6, 1e-3)
+    f = build_family(s, 3.015e-3)
+    fixed = (s.x0[:, 0] < 0.5e-3) | (s.x0[:, 0] > 8.5e-3)
+    ub = np.zeros((s.n, 3))
+    ub[s.x0[:, 0] > 8.5e-3, 0] = 1e-6
+    for m in (TiPD(E=70e9, nu=0.2), Correspondence(E=70e9, nu=0.2, stabilisation="wan")):
+        m.prepare(s, f)
+        a = State.reference(s.x0, f.nb)
+        solve_linear(m, a, fixed=fixed, u_prescribed=ub)
+        b = State.reference(s.x0, f.nb)
+        r = solve(m, b, fixed=fixed, u_prescribed=ub)
+        assert r.converged
+        assert np.abs(a.y - b.y).max() < 1e-9 * np.abs(a.y - s.x0).max()
