@@ -545,6 +545,8 @@ class TiPD(Model):
         q = np.zeros((family.nb, 3))
         q[:, :d] = xi * np.sqrt(w / L ** 3)[:, None]
         self.q_bc = np.ascontiguousarray(q)
+        # the 2D kernel reads only (q_x, q_y): a contiguous (nb, 2) copy halves its traffic
+        self._q_kernel = np.ascontiguousarray(q[:, :2]) if d == 2 else self.q_bc
         if self.G0 is not None:
             self.s0 = self._critical_stretch()
         self.rc2_b = np.ascontiguousarray((L * (1.0 + self.s0)) ** 2) if self.needs.failure \
@@ -599,7 +601,7 @@ class TiPD(Model):
         kern = tipd_force_kernel_2d if self.dim == 2 else tipd_force_kernel_3d
         u = self._u
         np.subtract(state.y, self.system.x0, out=u)
-        return int(kern(f.offsets, f.neighbors, self.q_bc, self.A, u, state.y,
+        return int(kern(f.offsets, f.neighbors, self._q_kernel, self.A, u, state.y,
                         state.intact, self.rc2_b, fail, out))
 
     def add_force(self, state, out):
