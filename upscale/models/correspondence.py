@@ -1,0 +1,484 @@
+"""Correspondence (non-ordinary state-based, NOSB) peridynamics with zero-energy-mode
+stabilisation (seed 001; Silling et al., J. Elasticity 88 (2007) 151).
+
+Array suffixes: ``_n`` per particle, ``_b`` per directed bond, ``_c`` Cartesian component.
+With the bond weight ``w_b = omega(|xi|) V_j beta_ij`` of bond i->j (omega = 1 or
+delta/|xi|), reference bond ``xi`` and current bond ``Y = y_j - y_i``::
+
+    K_i = sum_j w xi (x) xi                       (shape tensor, fixed at prepare)
+    F_i = (sum_j w Y (x) xi) K_i^-1               (deformation gradient)
+    P_i = dPsi/dF (F_i)                           (first Piola-Kirchhoff stress, Pa)
+    t_ij = omega P_i K_i^-1 xi_ij                 (force state)
+    b_i  = sum_j (t_ij - t_ji) V_j = sum_j w (P_i K_i^-1 + P_j K_j^-1) xi_ij
+
+Material laws (``law``): ``"linear"`` (geometrically linear: P = C : sym(F - I)),
+``"svk"`` (Saint Venant-Kirchhoff: P = F (C : E), E = (F^T F - I)/2) and
+``"neo-hookean"`` (isotropic, compressible: Psi = mu/2 (tr F^T F - d) - mu ln J +
+lambda/2 (ln J)^2, P = mu (F - F^-T) + lambda ln J F^-T, with the Lame constants of C in
+the body's dimension). Every law has an energy ``sum_i V_i Psi(F_i)`` whose negative
+gradient is the force.
+
+Zero-energy modes (seed 001 eq. (30)): any non-affine ``z_ij = Y - F_i xi`` with
+``sum_j w z (x) xi = 0`` leaves F unchanged and costs no energy. Stabilisations
+(``stabilisation``), both adding ``t_ij += omega B_i z_ij`` with an energy
+``(1/2) sum_i V_i sum_j w z_ij . B_i z_ij`` (its derivative through F vanishes because
+``sum_j w z (x) xi = 0``):
+
+* ``"silling"`` (Silling 2017, "Stability of peridynamic correspondence material models
+  and their particle discretizations", CMAME 322, 42): ``B_i = C_s c_b / (delta omega0_i) I``
+  with ``omega0_i = sum_j omega_ij`` and the bond-based micromodulus of the material's bulk
+  modulus, ``c_b = 18 K / (pi delta^4)`` (3D) or ``12 k / (pi h delta^3)`` (2D, k the 2D
+  bulk modulus). The leading Julia PD package uses ``C_s c_b omega / omega0`` (default
+  ``C_s = 100``), which lacks a length to be a force density; the ``1/delta`` restores
+  it. ``C_s = 100`` here too.
+* ``"wan"`` (Wan et al. 2019, Acta Mech. Sin. 35, 1021; parameter-free):
+  ``B_i = C1_i``, ``(C1_i)_pq = C_pqab (K_i^-1)_ab``.
+
+Bond failure is not modelled here. A particle whose shape tensor is singular (a family
+that does not span the dimension) is refused at ``prepare`` with its index.
+"""
+from __future__ import annotations
+
+import numba as nb
+import numpy as np
+
+from upscale.models import register
+from upscale.models.base import Model, Needs
+from upscale.models.tipd import isotropic_voigt, rotate_tensor, rotation_matrix, voigt_to_tensor
+
+__all__ = ["Correspondence", "LAWS", "STABILISATIONS"]
+
+LAWS = {"linear": 0, "svk": 1, "neo-hookean": 2}
+STABILISATIONS = (None, "silling", "wan")
+
+
+# ---------------------------------------------------------------------------- kernels
+@nb.njit(parallel=True, cache=True)
+def defgrad_kernel(offsets, neighbors, xi_bc, wv_b, Kinv_n, y_nc, d, F_n):
+    """Mutates ``F_n`` (N, 3, 3): F_i = (sum_j w Y (x) xi) K_i^-1 (first d x d block; the
+    xi and Kinv components beyond d are zero)."""
+    n = offsets.shape[0] - 1
+    for i in nb.prange(n):
+        a00 = a01 = a02 = a10 = a11 = a12 = a20 = a21 = a22 = 0.0
+        for b in range(offsets[i], offsets[i + 1]):
+            j = neighbors[b]
+            w = wv_b[b]
+            Y0 = (y_nc[j, 0] - y_nc[i, 0]) * w
+            Y1 = (y_nc[j, 1] - y_nc[i, 1]) * w
+            Y2 = (y_nc[j, 2] - y_nc[i, 2]) * w if d == 3 else 0.0
+            x0 = xi_bc[b, 0]
+            x1 = xi_bc[b, 1]
+            x2 = xi_bc[b, 2]
+            a00 += Y0 * x0
+            a01 += Y0 * x1
+            a02 += Y0 * x2
+            a10 += Y1 * x0
+            a11 += Y1 * x1
+            a12 += Y1 * x2
+            a20 += Y2 * x0
+            a21 += Y2 * x1
+            a22 += Y2 * x2
+        K = Kinv_n[i]
+        for a in range(d):
+            F_n[i, 0, a] = a00 * K[0, a] + a01 * K[1, a] + a02 * K[2, a]
+            F_n[i, 1, a] = a10 * K[0, a] + a11 * K[1, a] + a12 * K[2, a]
+            if d == 3:
+                F_n[i, 2, a] = a20 * K[0, a] + a21 * K[1, a] + a22 * K[2, a]
+
+
+@nb.njit(cache=True)
+def _inv_det(F, d):
+    """Inverse and determinant of the d x d block of F (3, 3)."""
+    G = np.zeros((3, 3))
+    if d == 2:
+        J = F[0, 0] * F[1, 1] - F[0, 1] * F[1, 0]
+        G[0, 0] = F[1, 1] / J
+        G[1, 1] = F[0, 0] / J
+        G[0, 1] = -F[0, 1] / J
+        G[1, 0] = -F[1, 0] / J
+        return G, J
+    J = (F[0, 0] * (F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1])
+         - F[0, 1] * (F[1, 0] * F[2, 2] - F[1, 2] * F[2, 0])
+         + F[0, 2] * (F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0]))
+    G[0, 0] = (F[1, 1] * F[2, 2] - F[1, 2] * F[2, 1]) / J
+    G[0, 1] = (F[0, 2] * F[2, 1] - F[0, 1] * F[2, 2]) / J
+    G[0, 2] = (F[0, 1] * F[1, 2] - F[0, 2] * F[1, 1]) / J
+    G[1, 0] = (F[1, 2] * F[2, 0] - F[1, 0] * F[2, 2]) / J
+    G[1, 1] = (F[0, 0] * F[2, 2] - F[0, 2] * F[2, 0]) / J
+    G[1, 2] = (F[0, 2] * F[1, 0] - F[0, 0] * F[1, 2]) / J
+    G[2, 0] = (F[1, 0] * F[2, 1] - F[1, 1] * F[2, 0]) / J
+    G[2, 1] = (F[0, 1] * F[2, 0] - F[0, 0] * F[2, 1]) / J
+    G[2, 2] = (F[0, 0] * F[1, 1] - F[0, 1] * F[1, 0]) / J
+    return G, J
+
+
+@nb.njit(parallel=True, cache=True)
+def stress_kernel(F_n, Kinv_n, C, law, lam, mu, d, PK_n, psi_n):
+    """Mutates ``PK_n`` (N, 3, 3) = P(F_i) K_i^-1 and ``psi_n`` (N,) = Psi(F_i) (J/m^3)."""
+    n = F_n.shape[0]
+    for i in nb.prange(n):
+        F = F_n[i]
+        P = np.zeros((3, 3))
+        psi = 0.0
+        if law == 0 or law == 1:
+            E = np.zeros((3, 3))
+            for p in range(d):
+                for q in range(d):
+                    if law == 0:
+                        E[p, q] = 0.5 * (F[p, q] + F[q, p]) - (1.0 if p == q else 0.0)
+                    else:
+                        s = 0.0
+                        for k in range(d):
+                            s += F[k, p] * F[k, q]
+                        E[p, q] = 0.5 * (s - (1.0 if p == q else 0.0))
+            S = np.zeros((3, 3))
+            for p in range(d):
+                for q in range(d):
+                    s = 0.0
+                    for a in range(d):
+                        for b in range(d):
+                            s += C[p, q, a, b] * E[a, b]
+                    S[p, q] = s
+                    psi += 0.5 * s * E[p, q]
+            if law == 0:
+                P = S
+            else:
+                for p in range(d):
+                    for q in range(d):
+                        s = 0.0
+                        for k in range(d):
+                            s += F[p, k] * S[k, q]
+                        P[p, q] = s
+        else:
+            G, J = _inv_det(F, d)
+            lnJ = np.log(J) if J > 0 else np.nan
+            tr = 0.0
+            for p in range(d):
+                for q in range(d):
+                    tr += F[p, q] * F[p, q]
+                    P[p, q] = mu * (F[p, q] - G[q, p]) + lam * lnJ * G[q, p]
+            psi = 0.5 * mu * (tr - d) - mu * lnJ + 0.5 * lam * lnJ * lnJ
+        psi_n[i] = psi
+        for p in range(d):
+            for a in range(d):
+                s = 0.0
+                for c in range(d):
+                    s += P[p, c] * Kinv_n[i, c, a]
+                PK_n[i, p, a] = s
+
+
+@nb.njit(parallel=True, cache=True)
+def nosb_force_kernel(offsets, neighbors, xi_bc, wv_b, PK_n, F_n, B_n, y_nc, d, stab, out_nc):
+    """Adds b_i = sum_j w (PK_i + PK_j) xi + [stab] sum_j w (B_i z_ij - B_j z_ji) to
+    ``out_nc``, ``z_ij = Y - F_i xi``, ``z_ji = -Y + F_j xi``; ``B_n`` (N, 3, 3). Scalar
+    accumulators (no allocation per particle); the z components beyond d are zero."""
+    n = offsets.shape[0] - 1
+    for i in nb.prange(n):
+        f0 = 0.0
+        f1 = 0.0
+        f2 = 0.0
+        for b in range(offsets[i], offsets[i + 1]):
+            j = neighbors[b]
+            w = wv_b[b]
+            x0 = xi_bc[b, 0]
+            x1 = xi_bc[b, 1]
+            x2 = xi_bc[b, 2]
+            # (PK_i + PK_j) xi (PK rows/cols beyond d are zero)
+            f0 += w * ((PK_n[i, 0, 0] + PK_n[j, 0, 0]) * x0 + (PK_n[i, 0, 1] + PK_n[j, 0, 1]) * x1
+                       + (PK_n[i, 0, 2] + PK_n[j, 0, 2]) * x2)
+            f1 += w * ((PK_n[i, 1, 0] + PK_n[j, 1, 0]) * x0 + (PK_n[i, 1, 1] + PK_n[j, 1, 1]) * x1
+                       + (PK_n[i, 1, 2] + PK_n[j, 1, 2]) * x2)
+            if d == 3:
+                f2 += w * ((PK_n[i, 2, 0] + PK_n[j, 2, 0]) * x0 + (PK_n[i, 2, 1] + PK_n[j, 2, 1]) * x1
+                           + (PK_n[i, 2, 2] + PK_n[j, 2, 2]) * x2)
+            if stab:
+                Y0 = y_nc[j, 0] - y_nc[i, 0]
+                Y1 = y_nc[j, 1] - y_nc[i, 1]
+                Y2 = y_nc[j, 2] - y_nc[i, 2] if d == 3 else 0.0
+                zi0 = Y0 - (F_n[i, 0, 0] * x0 + F_n[i, 0, 1] * x1 + F_n[i, 0, 2] * x2)
+                zi1 = Y1 - (F_n[i, 1, 0] * x0 + F_n[i, 1, 1] * x1 + F_n[i, 1, 2] * x2)
+                zj0 = -Y0 + (F_n[j, 0, 0] * x0 + F_n[j, 0, 1] * x1 + F_n[j, 0, 2] * x2)
+                zj1 = -Y1 + (F_n[j, 1, 0] * x0 + F_n[j, 1, 1] * x1 + F_n[j, 1, 2] * x2)
+                zi2 = 0.0
+                zj2 = 0.0
+                if d == 3:
+                    zi2 = Y2 - (F_n[i, 2, 0] * x0 + F_n[i, 2, 1] * x1 + F_n[i, 2, 2] * x2)
+                    zj2 = -Y2 + (F_n[j, 2, 0] * x0 + F_n[j, 2, 1] * x1 + F_n[j, 2, 2] * x2)
+                f0 += w * (B_n[i, 0, 0] * zi0 + B_n[i, 0, 1] * zi1 + B_n[i, 0, 2] * zi2
+                           - B_n[j, 0, 0] * zj0 - B_n[j, 0, 1] * zj1 - B_n[j, 0, 2] * zj2)
+                f1 += w * (B_n[i, 1, 0] * zi0 + B_n[i, 1, 1] * zi1 + B_n[i, 1, 2] * zi2
+                           - B_n[j, 1, 0] * zj0 - B_n[j, 1, 1] * zj1 - B_n[j, 1, 2] * zj2)
+                if d == 3:
+                    f2 += w * (B_n[i, 2, 0] * zi0 + B_n[i, 2, 1] * zi1 + B_n[i, 2, 2] * zi2
+                               - B_n[j, 2, 0] * zj0 - B_n[j, 2, 1] * zj1 - B_n[j, 2, 2] * zj2)
+        out_nc[i, 0] += f0
+        out_nc[i, 1] += f1
+        out_nc[i, 2] += f2
+
+
+@nb.njit(parallel=True, cache=True)
+def stab_energy_kernel(offsets, neighbors, xi_bc, wv_b, F_n, B_n, y_nc, d, W_n):
+    """Adds (1/2) sum_j w z_ij . B_i z_ij to ``W_n`` (J/m^3)."""
+    n = offsets.shape[0] - 1
+    for i in nb.prange(n):
+        acc = 0.0
+        z = np.zeros(3)
+        for b in range(offsets[i], offsets[i + 1]):
+            j = neighbors[b]
+            for p in range(d):
+                s = 0.0
+                for a in range(d):
+                    s += F_n[i, p, a] * xi_bc[b, a]
+                z[p] = (y_nc[j, p] - y_nc[i, p]) - s
+            e = 0.0
+            for p in range(d):
+                for q in range(d):
+                    e += z[p] * B_n[i, p, q] * z[q]
+            acc += wv_b[b] * e
+        W_n[i] += 0.5 * acc
+
+
+# ---------------------------------------------------------------------------- model
+class Correspondence(Model):
+    """Correspondence (NOSB) peridynamics, 2D and 3D; see the module docstring.
+
+    Parameters
+    ----------
+    C : Voigt matrix (3, 3)/(6, 6) or tensor (d, d, d, d), optional
+        Elastic stiffness in the material axes (Pa); or ``E``, ``nu`` (isotropic).
+    order : {"standard", "tian"}
+        3D Voigt order of ``C`` (see :mod:`upscale.models.tipd`).
+    angle, axes
+        Material axes (as :class:`~upscale.models.tipd.TiPD`).
+    law : {"linear", "svk", "neo-hookean"}
+    stabilisation : {None, "silling", "wan"}
+    Cs : float
+        Silling's stabilisation factor (dimensionless).
+    influence : {"constant", "inverse"}
+        omega = 1 or delta/|xi|.
+    """
+
+    name = "nosb"
+    force_kind = "density"
+
+    def __init__(self, C=None, *, E: float | None = None, nu: float | None = None,
+                 order: str = "standard", angle: float | None = None, axes=None,
+                 law: str = "linear", stabilisation: str | None = None, Cs: float = 100.0,
+                 influence: str = "constant"):
+        if (C is None) == (E is None):
+            raise ValueError("Correspondence needs exactly one of C (elastic stiffness) or E, nu")
+        if E is not None and nu is None:
+            raise ValueError("isotropic Correspondence needs nu with E")
+        if law not in LAWS:
+            raise ValueError(f"unknown material law {law!r}; valid: {', '.join(repr(k) for k in LAWS)}")
+        if stabilisation not in STABILISATIONS:
+            raise ValueError(f"unknown stabilisation {stabilisation!r}; valid: None, 'silling', 'wan'")
+        if influence not in ("constant", "inverse"):
+            raise ValueError(f"unknown influence function {influence!r}; valid: 'constant', 'inverse'")
+        if not (np.isfinite(Cs) and Cs >= 0):
+            raise ValueError(f"stabilisation factor Cs must be >= 0, got {Cs!r}")
+        if angle is not None and not np.isfinite(angle):
+            raise ValueError(f"material-axis angle must be finite (radians), got {angle!r}")
+        if C is not None and np.asarray(C).ndim == 2:
+            voigt_to_tensor(np.asarray(C, dtype=np.float64), order)
+        self.C_in, self.E, self.nu, self.order = C, E, nu, order
+        self.angle, self.axes = angle, axes
+        self.law, self.stabilisation, self.Cs, self.influence = law, stabilisation, float(Cs), influence
+        self.needs = Needs(pairs=True, energy=True, tangent=(law == "linear"))
+
+    def prepare(self, system, family, **kw) -> None:
+        super().prepare(system, family, **kw)
+        d = system.dim
+        if d not in (2, 3):
+            raise ValueError(f"correspondence is implemented in 2D and 3D, not dim={d}")
+        self.dim = d
+        if self.E is not None:
+            Cm = voigt_to_tensor(isotropic_voigt(self.E, self.nu, d, system.plane))
+        else:
+            Ca = np.asarray(self.C_in, dtype=np.float64)
+            Cm = voigt_to_tensor(Ca, self.order) if Ca.ndim == 2 else Ca
+            if Cm.shape != (d,) * 4:
+                raise ValueError(f"elastic stiffness is for dim {Cm.shape[0]}, body has dim {d}")
+        Cm = rotate_tensor(Cm, rotation_matrix(self.angle, self.axes, d))
+        self.C = Cm
+        C3 = np.zeros((3, 3, 3, 3))
+        C3[:d, :d, :d, :d] = Cm
+        self.C3 = C3
+        self.lam, self.mu = float(Cm[0, 0, 1, 1]), float(Cm[0, 1, 0, 1])
+        if self.law == "neo-hookean":
+            iso = (self.lam * np.einsum("ij,kl->ijkl", np.eye(d), np.eye(d))
+                   + self.mu * (np.einsum("ik,jl->ijkl", np.eye(d), np.eye(d))
+                                + np.einsum("il,jk->ijkl", np.eye(d), np.eye(d))))
+            if not np.allclose(iso, Cm, rtol=1e-10, atol=1e-10 * np.abs(Cm).max()):
+                raise ValueError("the neo-Hookean law needs an isotropic material (E, nu)")
+        L = family.length
+        om = np.ones_like(L) if self.influence == "constant" else family.horizon / L
+        self.omega_b = om
+        wv = om * system.volume[family.neighbors] * family.volume_factor
+        self.wv_b = np.ascontiguousarray(wv)
+        self.xi_bc = np.ascontiguousarray(family.xi)
+        xi = family.xi[:, :d]
+        K = np.zeros((family.n, d, d))
+        np.add.at(K, family.owner, wv[:, None, None] * np.einsum("ka,kb->kab", xi, xi))
+        det = np.linalg.det(K)
+        scale = np.einsum("kab,kab->k", K, K) ** (d / 2.0)
+        bad = ~(np.abs(det) > 1e-10 * np.maximum(scale, 1e-300))
+        if bad.any():
+            p = int(np.flatnonzero(bad)[0])
+            raise ValueError(f"shape tensor of particle {p} is singular (its {int(family.counts[p])} "
+                             f"bonds do not span {d}D); use a horizon larger than "
+                             f"{family.horizon:.6g} m so that every family spans the body")
+        Kinv = np.zeros((family.n, 3, 3))
+        Kinv[:, :d, :d] = np.linalg.inv(K)
+        self.K_n = K
+        self.Kinv_n = np.ascontiguousarray(Kinv)
+        B = np.zeros((family.n, 3, 3))
+        if self.stabilisation == "silling":
+            if d == 3:
+                Kb = np.einsum("iijj->", Cm) / 9.0
+                cb = 18.0 * Kb / (np.pi * family.horizon ** 4)
+            else:
+                kb = np.einsum("iijj->", Cm) / 4.0
+                cb = 12.0 * kb / (np.pi * system.thickness * family.horizon ** 3)
+            omega0 = np.bincount(family.owner, weights=om, minlength=family.n)
+            self.beta = self.Cs * cb / (family.horizon * omega0)
+            B[:, :d, :d] = self.beta[:, None, None] * np.eye(d)
+        elif self.stabilisation == "wan":
+            B[:, :d, :d] = np.einsum("pqab,nab->npq", Cm, Kinv[:, :d, :d])
+        self.B_n = np.ascontiguousarray(B)
+        self._F = np.zeros((family.n, 3, 3))
+        self._PK = np.zeros((family.n, 3, 3))
+        self._psi = np.zeros(family.n)
+
+    # ------------------------------------------------------------------ forces
+    def deformation_gradient(self, state) -> np.ndarray:
+        """F (N, d, d) on the current state (a new array)."""
+        self._update(state)
+        return self._F[:, :self.dim, :self.dim].copy()
+
+    def _update(self, state):
+        f = self.family
+        defgrad_kernel(f.offsets, f.neighbors, self.xi_bc, self.wv_b, self.Kinv_n, state.y,
+                       self.dim, self._F)
+        stress_kernel(self._F, self.Kinv_n, self.C3, LAWS[self.law], self.lam, self.mu,
+                      self.dim, self._PK, self._psi)
+
+    def add_force(self, state, out):
+        self._update(state)
+        f = self.family
+        nosb_force_kernel(f.offsets, f.neighbors, self.xi_bc, self.wv_b, self._PK, self._F,
+                          self.B_n, state.y, self.dim, self.stabilisation is not None, out)
+
+    def energy_density(self, state):
+        self._update(state)
+        W = self._psi.copy()
+        if self.stabilisation is not None:
+            f = self.family
+            stab_energy_kernel(f.offsets, f.neighbors, self.xi_bc, self.wv_b, self._F, self.B_n,
+                               state.y, self.dim, W)
+        return W
+
+    # ------------------------------------------------------------------ stiffness
+    def linear_stiffness(self):
+        """Stiffness ``K = -dF_int/dy`` (scipy.sparse CSR (3N, 3N), N/m) of the linear law
+        (exact for ``law="linear"``, the small-displacement tangent of the others):
+        ``F_int = V (B_sig C G + stabilisation) u`` assembled from sparse factors
+        (H = G u the displacement gradients, sigma = C : H, b = B_sig sigma)."""
+        import scipy.sparse as sp
+
+        fam, d, n = self.family, self.dim, self.system.n
+        i, j = fam.owner, fam.neighbors
+        xi = fam.xi[:, :d]
+        wv = self.wv_b
+        Kinv = self.Kinv_n[:, :d, :d]
+        g = wv[:, None] * np.einsum("kab,kb->ka", Kinv[i], xi)     # w K_i^-1 xi
+        gp = wv[:, None] * np.einsum("kab,kb->ka", Kinv[j], xi)    # w K_j^-1 xi
+        dd = d * d
+        # G: H_i[p, a] = sum_b (u_j[p] - u_i[p]) g_b[a];  H index (i, p, a) -> i*dd + p*d + a
+        r, c, v = [], [], []
+        for p in range(d):
+            for a in range(d):
+                r += [i * dd + p * d + a] * 2
+                c += [3 * j + p, 3 * i + p]
+                v += [g[:, a], -g[:, a]]
+        G = sp.csr_matrix((np.concatenate(v), (np.concatenate(r), np.concatenate(c))),
+                          shape=(n * dd, 3 * n))
+        Cb = sp.kron(sp.identity(n, format="csr"), sp.csr_matrix(self.C.reshape(dd, dd)), format="csr")
+        # B_sig: b_i[p] = sum_b sum_a sigma_i[p, a] g_b[a] + sigma_j[p, a] g'_b[a]
+        r, c, v = [], [], []
+        for p in range(d):
+            for a in range(d):
+                r += [3 * i + p] * 2
+                c += [i * dd + p * d + a, j * dd + p * d + a]
+                v += [g[:, a], gp[:, a]]
+        Bs = sp.csr_matrix((np.concatenate(v), (np.concatenate(r), np.concatenate(c))),
+                           shape=(3 * n, n * dd))
+        A = Bs @ Cb @ G
+        if self.stabilisation is not None:
+            Bn = self.B_n[:, :d, :d]
+            Bsum = Bn[i] + Bn[j]                                    # (nb, d, d)
+            r, c, v = [], [], []
+            for p in range(d):
+                for q in range(d):
+                    val = wv * Bsum[:, p, q]
+                    r += [3 * i + p] * 2
+                    c += [3 * j + q, 3 * i + q]
+                    v += [val, -val]
+            Eta = sp.csr_matrix((np.concatenate(v), (np.concatenate(r), np.concatenate(c))),
+                                shape=(3 * n, 3 * n))
+            # -sum_b w (B_i H_i xi + B_j H_j xi): row (i, p), col (k, q, a): -w B_k[p, q] xi[a]
+            r, c, v = [], [], []
+            for p in range(d):
+                for q in range(d):
+                    for a in range(d):
+                        r += [3 * i + p] * 2
+                        c += [i * dd + q * d + a, j * dd + q * d + a]
+                        v += [-wv * Bn[i][:, p, q] * xi[:, a], -wv * Bn[j][:, p, q] * xi[:, a]]
+            Hz = sp.csr_matrix((np.concatenate(v), (np.concatenate(r), np.concatenate(c))),
+                               shape=(3 * n, n * dd))
+            A = A + Eta + Hz @ G
+        Vd = sp.diags(np.repeat(self.system.volume, 3))
+        return (-(Vd @ A)).tocsr()
+
+    def tangent(self, state=None):
+        """The assembled stiffness for the linear law; the base class's finite differences
+        for the others."""
+        if self.law == "linear":
+            return self.linear_stiffness()
+        return super().tangent(state)
+
+    def stiffness_bound(self):
+        """Gershgorin row bound (N/m^4) of the small-displacement stiffness, from per-bond
+        weights without assembling it: with ``g_b = w K_i^-1 xi`` and
+        ``G_k = sum_{b of k} |g_b|_1`` (so that ``|H_k| <= 2 G_k max|u|``),
+        ``R_i = c sum_b (|g_b|_1 2 G_i + |g'_b|_1 2 G_j)`` plus the stabilisation's
+        ``sum_b w (|B_i| + |B_j|)(2 + |xi|_1 2 G)``; ``c = max_p sum |C_p...|``."""
+        fam, d = self.family, self.dim
+        i, j = fam.owner, fam.neighbors
+        xi = np.abs(fam.xi[:, :d])
+        Kinv = self.Kinv_n[:, :d, :d]
+        wv = self.wv_b
+        g = np.abs(wv[:, None] * np.einsum("kab,kb->ka", Kinv[i], fam.xi[:, :d])).sum(1)
+        gp = np.abs(wv[:, None] * np.einsum("kab,kb->ka", Kinv[j], fam.xi[:, :d])).sum(1)
+        G = np.bincount(i, weights=g, minlength=fam.n)
+        c = np.abs(self.C).reshape(d, -1).sum(1).max()
+        R = c * np.bincount(i, weights=g * 2 * G[i] + gp * 2 * G[j], minlength=fam.n)
+        if self.stabilisation is not None:
+            Bn = np.abs(self.B_n[:, :d, :d]).sum(2).max(1)
+            xs = xi.sum(1)
+            R = R + np.bincount(i, weights=wv * (Bn[i] * (2 + xs * 2 * G[i]) + Bn[j] * (2 + xs * 2 * G[j])),
+                                minlength=fam.n)
+        return R
+
+    def describe(self):
+        d = {"model": self.name, "law": self.law, "stabilisation": self.stabilisation,
+             "influence": self.influence}
+        if self.stabilisation == "silling":
+            d["Cs"] = self.Cs
+        if self.E is not None:
+            d.update(E_Pa=self.E, nu=self.nu)
+        return d
+
+
+register("nosb", Correspondence)
+register("correspondence", Correspondence)

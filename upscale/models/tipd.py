@@ -1,0 +1,668 @@
+"""Tensor-involved peridynamics (Ti-PD): a bond-based model whose micromodulus carries the
+full elastic tensor (seed 003, Tian; 2D eqs. (33)-(48), 3D eqs. (79)-(83)).
+
+Array suffixes: ``_n`` per particle, ``_b`` per directed bond, ``_c`` Cartesian component.
+
+Bond force
+----------
+For a bond i->j with reference vector ``xi`` and relative displacement
+``eta = u_j - u_i`` the force density is linear in eta (eqs. (33), (79))::
+
+    f_ij = M(xi) eta,   M_pq(xi) = Dhat_pq,ab xi_a xi_b / |xi|^3        (d x d, symmetric)
+    b_i  = sum_j f_ij V_j beta_ij                                        (N/m^3)
+
+so the assembled stiffness is symmetric and a static solve is one sparse symmetric solve.
+The induced tensor ``Dhat`` is built from the symmetrised elastic tensor
+``S_paqb = (C_paqb + C_pbqa)/2`` (C the fourth-order elastic tensor, Pa) in the compact
+form that reproduces the paper's Voigt matrix (47) and its 3D analogue::
+
+    2D:  Dhat_pq,ab = (12 S_paqb - 3 delta_ab S_pcqc) / (pi delta^3 h)
+    3D:  Dhat_pq,ab = (15 S_paqb - 3 delta_ab S_pcqc) / (pi delta^4)
+
+It makes the second moment exact in the continuum: ``(1/2) int M xi_a xi_b dV = S_paqb``
+over the horizon, hence the local limit (55)/(92) ``L u -> div(C : eps)``.
+
+Calibration
+-----------
+``calibration="continuum"`` uses the integral above (the paper's). ``"discrete"`` solves
+``(1/2) sum_j M(xi_j) xi_a xi_b V_j beta_j = S`` on the family of the most complete (bulk)
+particle: with the discrete fourth moment ``Q_abcd = sum_j xi_a xi_b xi_c xi_d / |xi|^3
+V_j beta_j`` (inverted on symmetric pairs) ``Dhat_pq = 2 S_p.q. Q^-1``. At a fixed ratio
+delta/dx the continuum calibration carries the quadrature bias of the lattice (several per
+cent at delta = 3 dx) and the error stops decreasing with dx; the discrete one does not.
+
+What a user must know (not in the paper)
+----------------------------------------
+In the local limit the Ti-PD energy is the elastic energy of C plus
+``(D66 - D12)/2 det(grad u)`` (2D; an analogous null Lagrangian in 3D). The bulk
+equations are right but free boundaries are not: a free strip in tension shows an apparent
+Poisson ratio different from the input unless D12 = D66. Rigid rotations store energy
+unless D12 = D66, bond forces are not along the bond, and the free-body stiffness is
+indefinite when ``S`` (as a quadratic form on all d x d displacement gradients) has a
+negative eigenvalue: isotropic 2D plane stress for nu > 1/3, plane strain and 3D for
+nu > 1/4. :class:`TiPD` warns (:class:`IndefiniteWarning`) when that happens.
+Ti-PD equals bond-based PD (PMB) when D12 = D66 (nu = 1/3 plane stress, 1/4 plane strain
+and 3D; eqs. (50)-(51)).
+
+Failure
+-------
+Damage (56)-(58): a bond breaks for good when its stretch ``s = (|y_j - y_i| - |xi|)/|xi|``
+exceeds s0; ``phi_i = 1 - (sum_intact V_j)/(sum V_j)``. Critical stretch from the
+fracture energy G0 (J/m^2), isotropic materials:
+
+=====================  =============================================  ==============================================
+``critical``           2D                                             3D
+=====================  =============================================  ==============================================
+``"tipd"`` (default)   (60) s0 = sqrt(8 pi G0 (1-nu^2)/(3 E delta (5+nu)))  (94) s0 = sqrt(10 G0 (1-2nu)(1+nu)/(3 E delta (3-2nu)))
+``"osb"``              (62) s0 = sqrt(G0/((6G/pi + 16/(9pi^2)(k-2G)) delta))  (96) s0 = sqrt(G0/((3G + (3/4)^4 (K-5G/3)) delta))
+=====================  =============================================  ==============================================
+
+(61)/(95) are the bond-based limits of (60)/(94). For an anisotropic material (Remark 4:
+no criterion in the paper) ``"tipd"`` uses the direction mean of the bond stiffness
+``xi.M xi / |xi|`` in the bond-based relation ``G0 = c s0^2 h delta^4 / 4`` (2D) or
+``G0 = pi c s0^2 delta^5 / 10`` (3D), which is (60)/(94) for isotropic materials.
+
+Voigt order: 2D ``(11, 22, 12)``; 3D ``(11, 22, 33, 23, 13, 12)`` (``order="standard"``) or
+the paper's ``(11, 22, 33, 12, 23, 13)`` (``order="tian"``, its eqs. (8)-(9) and (98)).
+"""
+from __future__ import annotations
+
+import itertools
+import warnings
+
+import numba as nb
+import numpy as np
+
+from upscale.engine.kernels import add_to_row
+from upscale.models import register
+from upscale.models.base import Model, Needs
+
+__all__ = ["TiPD", "IndefiniteWarning", "voigt_to_tensor", "tensor_to_voigt", "isotropic_voigt",
+           "orthotropic_voigt_2d", "rotate_tensor", "symmetrised_tensor", "induced_tensor",
+           "paper_induced_voigt_2d", "appendix_a_stiffness", "indefiniteness",
+           "tipd_critical_stretch"]
+
+
+class IndefiniteWarning(UserWarning):
+    """The material makes the Ti-PD free-body stiffness indefinite."""
+
+
+# ---------------------------------------------------------------------------- tensors
+_VOIGT = {2: {"standard": [(0, 0), (1, 1), (0, 1)]},
+          3: {"standard": [(0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)],
+              "tian": [(0, 0), (1, 1), (2, 2), (0, 1), (1, 2), (0, 2)]}}
+_VOIGT[2]["tian"] = _VOIGT[2]["standard"]
+
+
+def voigt_to_tensor(D, order: str = "standard") -> np.ndarray:
+    """Fourth-order elastic tensor C (d, d, d, d) (Pa) from a Voigt stiffness matrix.
+
+    Parameters
+    ----------
+    D : array (3, 3) (2D) or (6, 6) (3D)
+        Voigt stiffness ``sigma = D eps`` with engineering shear strains.
+    order : {"standard", "tian"}
+        3D Voigt order: (11, 22, 33, 23, 13, 12) or the paper's (11, 22, 33, 12, 23, 13).
+
+    Raises
+    ------
+    ValueError
+        wrong shape, not symmetric, not positive definite, unknown order.
+    """
+    D = np.asarray(D, dtype=np.float64)
+    if D.shape not in ((3, 3), (6, 6)):
+        raise ValueError(f"Voigt stiffness must be 3x3 (2D) or 6x6 (3D), got shape {D.shape}")
+    d = 2 if D.shape == (3, 3) else 3
+    if order not in _VOIGT[d]:
+        raise ValueError(f"unknown Voigt order {order!r}; valid: 'standard', 'tian'")
+    if not np.all(np.isfinite(D)):
+        raise ValueError("Voigt stiffness has non-finite entries")
+    if not np.allclose(D, D.T, rtol=1e-12, atol=1e-12 * np.abs(D).max()):
+        raise ValueError("Voigt stiffness must be symmetric (D_ij = D_ji)")
+    ev = np.linalg.eigvalsh(D)
+    if ev.min() <= 0:
+        raise ValueError(f"elastic stiffness matrix is not positive definite (smallest eigenvalue "
+                         f"{ev.min():.6g} Pa); a stable material needs all eigenvalues > 0")
+    pairs = _VOIGT[d][order]
+    C = np.zeros((d,) * 4)
+    for I, (i, j) in enumerate(pairs):
+        for J, (k, l) in enumerate(pairs):
+            for a, b in {(i, j), (j, i)}:
+                for c, e in {(k, l), (l, k)}:
+                    C[a, b, c, e] = D[I, J]
+    return C
+
+
+def tensor_to_voigt(C, order: str = "standard") -> np.ndarray:
+    """Voigt stiffness (3, 3) or (6, 6) of a fourth-order tensor with minor symmetries."""
+    C = np.asarray(C, dtype=np.float64)
+    d = C.shape[0]
+    pairs = _VOIGT[d][order]
+    return np.array([[C[i, j, k, l] for (k, l) in pairs] for (i, j) in pairs])
+
+
+def isotropic_voigt(E: float, nu: float, dim: int, plane: str = "stress") -> np.ndarray:
+    """Isotropic Voigt stiffness (Pa): 2D plane stress/strain (3, 3) or 3D (6, 6).
+
+    Raises ``ValueError`` for E <= 0 or nu outside (-1, 1/2) (plane stress: (-1, 1))."""
+    if not (np.isfinite(E) and E > 0):
+        raise ValueError(f"Young's modulus must be positive, got {E!r}")
+    hi = 1.0 if (dim == 2 and plane == "stress") else 0.5
+    if not (np.isfinite(nu) and -1.0 < nu < hi):
+        raise ValueError(f"Poisson ratio {nu!r} outside the isotropic range (-1, {hi:g})"
+                         + ("" if hi == 1.0 else " for plane strain / 3D"))
+    G = E / (2 * (1 + nu))
+    if dim == 2:
+        if plane == "stress":
+            a, b = E / (1 - nu * nu), E * nu / (1 - nu * nu)
+        else:
+            a = E * (1 - nu) / ((1 + nu) * (1 - 2 * nu))
+            b = E * nu / ((1 + nu) * (1 - 2 * nu))
+        return np.array([[a, b, 0], [b, a, 0], [0, 0, G]])
+    lam = E * nu / ((1 + nu) * (1 - 2 * nu))
+    D = np.zeros((6, 6))
+    D[:3, :3] = lam
+    D[[0, 1, 2], [0, 1, 2]] = lam + 2 * G
+    D[[3, 4, 5], [3, 4, 5]] = G
+    return D
+
+
+def orthotropic_voigt_2d(E1: float, E2: float, G12: float, nu12: float) -> np.ndarray:
+    """Plane-stress orthotropic Voigt stiffness (eq. (99)), fibre axis 1 (Pa).
+
+    The reciprocity relation is read the standard way, ``nu21 = nu12 E2 / E1``, so
+    ``Q11 = E1/(1 - nu12 nu21)``, ``Q12 = nu12 E2/(1 - nu12 nu21)``, ``Q22 = E2/(1 - nu12
+    nu21)``, ``Q66 = G12``. Raises ``ValueError`` when ``nu12^2 >= E1/E2`` (not positive
+    definite)."""
+    for k, v in (("E1", E1), ("E2", E2), ("G12", G12)):
+        if not (np.isfinite(v) and v > 0):
+            raise ValueError(f"{k} must be positive, got {v!r}")
+    nu21 = nu12 * E2 / E1
+    den = 1.0 - nu12 * nu21
+    if not den > 0:
+        raise ValueError(f"Poisson ratio nu12 = {nu12!r} outside the material's range: "
+                         f"|nu12| < sqrt(E1/E2) = {np.sqrt(E1 / E2):.6g}")
+    return np.array([[E1 / den, nu12 * E2 / den, 0], [nu12 * E2 / den, E2 / den, 0], [0, 0, G12]])
+
+
+def rotation_matrix(angle=None, axes=None, dim: int = 2) -> np.ndarray:
+    """Rotation R (d, d) from material to global axes: 2D ``angle`` (rad, counter-clockwise
+    from x to the material axis 1), 3D ``axes`` (3, 3) with the material axes as columns
+    (orthonormalised check) or ``angle`` about z. Raises ``ValueError`` for a non-finite
+    angle or axes that are not a rotation."""
+    if axes is not None:
+        R = np.asarray(axes, dtype=np.float64)
+        if R.shape != (dim, dim) or not np.all(np.isfinite(R)):
+            raise ValueError(f"material axes must be a finite ({dim}, {dim}) matrix, got {R.shape}")
+        if not np.allclose(R.T @ R, np.eye(dim), atol=1e-10) or np.linalg.det(R) < 0:
+            raise ValueError("material axes must be orthonormal and right-handed (a rotation)")
+        return R
+    a = 0.0 if angle is None else angle
+    if not np.isfinite(a):
+        raise ValueError(f"material-axis angle must be finite (radians), got {angle!r}")
+    c, s = np.cos(a), np.sin(a)
+    if dim == 2:
+        return np.array([[c, -s], [s, c]])
+    return np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+
+
+def rotate_tensor(C, R) -> np.ndarray:
+    """C'_ijkl = R_ia R_jb R_kc R_ld C_abcd (material -> global axes)."""
+    return np.einsum("ia,jb,kc,ld,abcd->ijkl", R, R, R, R, C)
+
+
+def symmetrised_tensor(C) -> np.ndarray:
+    """S_paqb = (C_paqb + C_pbqa)/2 (the part of C that a pair potential can carry)."""
+    return 0.5 * (C + C.transpose(0, 3, 2, 1))
+
+
+def induced_tensor(C) -> np.ndarray:
+    """Continuum-calibrated induced tensor without its normalisation (Pa):
+    ``12 S_paqb - 3 delta_ab S_pcqc`` (2D) or ``15 S - 3 delta S_pcqc`` (3D), shape
+    (d, d, d, d) indexed ``[p, q, a, b]``; divide by ``pi delta^3 h`` (2D) or
+    ``pi delta^4`` (3D)."""
+    d = C.shape[0]
+    S = symmetrised_tensor(C)
+    Sqq = np.einsum("pcqc->pq", S)
+    k = 12.0 if d == 2 else 15.0
+    return k * S.transpose(0, 2, 1, 3) - 3.0 * np.einsum("ab,pq->pqab", np.eye(d), Sqq)
+
+
+def paper_induced_voigt_2d(D) -> np.ndarray:
+    """The paper's Voigt form (47) of the 2D induced tensor, rows kappa_11, kappa_22,
+    kappa_12 and columns lambda_11, lambda_22, 2 lambda_12 (as printed; Pa)."""
+    D11, D12, D16 = D[0, 0], D[0, 1], D[0, 2]
+    D22, D26, D66 = D[1, 1], D[1, 2], D[2, 2]
+    return np.array([[9 * D11 - 3 * D66, 9 * D66 - 3 * D11, 12 * D16],
+                     [9 * D66 - 3 * D22, 9 * D22 - 3 * D66, 12 * D26],
+                     [9 * D16 - 3 * D26, 9 * D26 - 3 * D16, 6 * (D12 + D66)]])
+
+
+def indefiniteness(C) -> dict:
+    """Eigenvalues of the symmetrised tensor S as a quadratic form on all d x d
+    displacement gradients H (``W = H_pa S_paqb H_qb / 2``, the local-limit Ti-PD energy
+    density of a homogeneous body). A negative eigenvalue makes the free-body stiffness
+    indefinite; zero ones are modes that store no energy (rigid rotation when
+    D12 = D66). Returns ``{"eigenvalues": ..., "min": ..., "indefinite": bool}``."""
+    d = C.shape[0]
+    S = symmetrised_tensor(C).reshape(d * d, d * d)
+    ev = np.linalg.eigvalsh(0.5 * (S + S.T))
+    scale = np.abs(ev).max()
+    return {"eigenvalues": ev, "min": float(ev.min()),
+            "indefinite": bool(ev.min() < -1e-12 * scale)}
+
+
+def tipd_critical_stretch(G0: float, E: float, nu: float, horizon: float, dim: int, *,
+                          rule: str = "tipd", plane: str = "stress") -> float:
+    """Critical stretch of an isotropic material: (60)/(94) (``rule="tipd"``) or the
+    ordinary state-based (62)/(96) (``"osb"``); G0 in J/m^2, E in Pa, horizon in m."""
+    d = float(horizon)
+    if rule == "tipd":
+        if dim == 2:
+            return float(np.sqrt(8 * np.pi * G0 * (1 - nu * nu) / (3 * E * d * (5 + nu))))
+        return float(np.sqrt(10 * G0 * (1 - 2 * nu) * (1 + nu) / (3 * E * d * (3 - 2 * nu))))
+    if rule == "osb":
+        G = E / (2 * (1 + nu))
+        if dim == 2:
+            k = E / (2 * (1 - nu)) if plane == "stress" else E / (2 * (1 + nu) * (1 - 2 * nu))
+            return float(np.sqrt(G0 / ((6 * G / np.pi + 16 / (9 * np.pi ** 2) * (k - 2 * G)) * d)))
+        K = E / (3 * (1 - 2 * nu))
+        return float(np.sqrt(G0 / ((3 * G + 0.75 ** 4 * (K - 5 * G / 3)) * d)))
+    raise ValueError(f"unknown critical-stretch rule {rule!r}; valid: 'tipd', 'osb'")
+
+
+# ---------------------------------------------------------------------------- kernels
+@nb.njit(parallel=True, cache=True)
+def tipd_force_kernel_2d(offsets, neighbors, q_bc, A, u_nc, y_nc, intact_b, rc2_b, fail, out_nc):
+    """Adds Ti-PD force densities (2D) to ``out_nc``: ``b_i = sum_j M_b eta_b`` with
+    ``eta_b = u_j - u_i`` (``u_nc = y - x0``), ``M_pq = A[p,q,a,b] q_a q_b``,
+    ``q_b = xi sqrt(V_j beta / |xi|^3)`` and ``A`` the normalised induced tensor (4, 4)
+    flattened ``[2p+q, 2a+b]``. If ``fail``, mutates ``intact_b``: a bond whose squared
+    current length (from ``y_nc``) exceeds ``rc2_b`` breaks after its force is counted.
+    Returns the number of directed bonds broken."""
+    n = offsets.shape[0] - 1
+    broke = np.zeros(n, dtype=np.int64)
+    # M11 = A00 qx^2 + 2 A01 qx qy + A03 qy^2, etc. (A[pq, ab], symmetric in ab)
+    m11a, m11b, m11c = A[0, 0], 2.0 * A[0, 1], A[0, 3]
+    m12a, m12b, m12c = A[1, 0], 2.0 * A[1, 1], A[1, 3]
+    m22a, m22b, m22c = A[3, 0], 2.0 * A[3, 1], A[3, 3]
+    for i in nb.prange(n):
+        f0 = 0.0
+        f1 = 0.0
+        ui0 = u_nc[i, 0]
+        ui1 = u_nc[i, 1]
+        k = 0
+        for b in range(offsets[i], offsets[i + 1]):
+            if not intact_b[b]:
+                continue
+            j = neighbors[b]
+            e0 = u_nc[j, 0] - ui0
+            e1 = u_nc[j, 1] - ui1
+            qx = q_bc[b, 0]
+            qy = q_bc[b, 1]
+            xx = qx * qx
+            xy = qx * qy
+            yy = qy * qy
+            M11 = m11a * xx + m11b * xy + m11c * yy
+            M12 = m12a * xx + m12b * xy + m12c * yy
+            M22 = m22a * xx + m22b * xy + m22c * yy
+            f0 += M11 * e0 + M12 * e1
+            f1 += M12 * e0 + M22 * e1
+            if fail:
+                d0 = y_nc[j, 0] - y_nc[i, 0]
+                d1 = y_nc[j, 1] - y_nc[i, 1]
+                d2 = y_nc[j, 2] - y_nc[i, 2]
+                if d0 * d0 + d1 * d1 + d2 * d2 > rc2_b[b]:
+                    intact_b[b] = False
+                    k += 1
+        add_to_row(out_nc, i, f0, f1, 0.0)
+        broke[i] = k
+    return broke.sum()
+
+
+@nb.njit(parallel=True, cache=True)
+def tipd_force_kernel_3d(offsets, neighbors, q_bc, A, u_nc, y_nc, intact_b, rc2_b, fail, out_nc):
+    """3D analogue of :func:`tipd_force_kernel_2d`; ``A`` (9, 9) flattened
+    ``[3p+q, 3a+b]``."""
+    n = offsets.shape[0] - 1
+    broke = np.zeros(n, dtype=np.int64)
+    for i in nb.prange(n):
+        f = np.zeros(3)
+        e = np.zeros(3)
+        qq = np.zeros(9)
+        k = 0
+        for b in range(offsets[i], offsets[i + 1]):
+            if not intact_b[b]:
+                continue
+            j = neighbors[b]
+            rsq = 0.0
+            for c in range(3):
+                e[c] = u_nc[j, c] - u_nc[i, c]
+                if fail:
+                    dc = y_nc[j, c] - y_nc[i, c]
+                    rsq += dc * dc
+            for a in range(3):
+                for c in range(3):
+                    qq[3 * a + c] = q_bc[b, a] * q_bc[b, c]
+            for p in range(3):
+                acc = 0.0
+                for r in range(3):
+                    m = 0.0
+                    row = 3 * p + r
+                    for ab in range(9):
+                        m += A[row, ab] * qq[ab]
+                    acc += m * e[r]
+                f[p] += acc
+            if fail and rsq > rc2_b[b]:
+                intact_b[b] = False
+                k += 1
+        add_to_row(out_nc, i, f[0], f[1], f[2])
+        broke[i] = k
+    return broke.sum()
+
+
+@nb.njit(parallel=True, cache=True)
+def tipd_energy_kernel(offsets, neighbors, q_bc, A, x_nc, y_nc, intact_b, d):
+    """W_i = (1/4) sum_j eta.M eta (J/m^3), half of each bond's energy to each end."""
+    n = offsets.shape[0] - 1
+    W = np.zeros(n)
+    for i in nb.prange(n):
+        acc = 0.0
+        e = np.zeros(3)
+        for b in range(offsets[i], offsets[i + 1]):
+            if not intact_b[b]:
+                continue
+            j = neighbors[b]
+            for c in range(d):
+                e[c] = (y_nc[j, c] - y_nc[i, c]) - (x_nc[j, c] - x_nc[i, c])
+            for p in range(d):
+                for r in range(d):
+                    m = 0.0
+                    for a in range(d):
+                        for c in range(d):
+                            m += A[d * p + r, d * a + c] * q_bc[b, a] * q_bc[b, c]
+                    acc += e[p] * m * e[r]
+        W[i] = 0.25 * acc
+    return W
+
+
+# ---------------------------------------------------------------------------- appendix A
+def appendix_a_stiffness(system, family, D, *, literal: bool = False):
+    """The 2D stiffness ``A`` of Appendix A (``rho u'' = A u``, (48)) entry by entry as
+    printed (``literal=True``) or with its typos corrected (``False``): the coefficients
+    of A_{2p-1,2q} are ``3(3 D16 - D26)`` (dx^2) and ``3(3 D26 - D16)`` (dy^2), and of
+    A_{2p,2q} ``3(3 D66 - D22)`` (dx^2); the paper prints ``3(D11 - 3 D26)``,
+    ``3(D26 - 3 D16)`` and ``3(3 D66 - D26)``. Rows are force densities (N/m^3) per
+    displacement (m), dofs (x, y) per particle: scipy.sparse (2N, 2N). For comparison with
+    :meth:`TiPD.tangent` (``K = -V A``)."""
+    import scipy.sparse as sp
+
+    D = np.asarray(D, dtype=np.float64)
+    D11, D12, D16 = D[0, 0], D[0, 1], D[0, 2]
+    D22, D26, D66 = D[1, 1], D[1, 2], D[2, 2]
+    h = system.thickness
+    dx, dy = family.xi[:, 0], family.xi[:, 1]
+    w = system.volume[family.neighbors] * family.volume_factor
+    den = np.pi * family.horizon ** 3 * h * family.length ** 3
+    a11 = (3 * (3 * D11 - D66) * dx ** 2 + 3 * (3 * D66 - D11) * dy ** 2 + 24 * D16 * dx * dy)
+    if literal:
+        a12 = 3 * (D11 - 3 * D26) * dx ** 2 + 12 * (D12 + D66) * dx * dy + 3 * (D26 - 3 * D16) * dy ** 2
+        a22 = 3 * (3 * D66 - D26) * dx ** 2 + 3 * (3 * D22 - D66) * dy ** 2 + 24 * D26 * dx * dy
+    else:
+        a12 = 3 * (3 * D16 - D26) * dx ** 2 + 12 * (D12 + D66) * dx * dy + 3 * (3 * D26 - D16) * dy ** 2
+        a22 = 3 * (3 * D66 - D22) * dx ** 2 + 3 * (3 * D22 - D66) * dy ** 2 + 24 * D26 * dx * dy
+    i, j = family.owner, family.neighbors
+    n = system.n
+    rows, cols, vals = [], [], []
+    for (r, c, a) in ((0, 0, a11), (0, 1, a12), (1, 0, a12), (1, 1, a22)):
+        v = a * w / den
+        rows += [2 * i + r, 2 * i + r]
+        cols += [2 * j + c, 2 * i + c]
+        vals += [v, -v]
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                         shape=(2 * n, 2 * n))
+
+
+# ---------------------------------------------------------------------------- model
+def _sym_pairs_inverse(Q, d):
+    """Inverse of the fully symmetric fourth moment Q (d,d,d,d) on symmetric pairs:
+    returns P (d,d,d,d) with ``Q_abcd P_cdef = sym_abef`` (identity on symmetric pairs)."""
+    Qm = Q.reshape(d * d, d * d)
+    return np.linalg.pinv(Qm, rcond=1e-12, hermitian=True).reshape(d, d, d, d)
+
+
+class TiPD(Model):
+    """Tensor-involved peridynamics (seed 003), 2D (plane stress/strain) and 3D; see the
+    module docstring for the equations.
+
+    Parameters
+    ----------
+    C : array (3, 3) / (6, 6) Voigt, or (d, d, d, d) tensor, optional
+        Elastic stiffness in the material axes (Pa). Or give ``E`` and ``nu`` (isotropic).
+    E, nu : float, optional
+        Isotropic Young's modulus (Pa) and Poisson ratio (the plane of the body decides
+        plane stress / strain).
+    order : {"standard", "tian"}
+        3D Voigt order of ``C`` (module docstring).
+    angle : float, optional
+        Material axis 1 relative to x (rad, about z). ``axes`` (3, 3): material axes as
+        columns (3D).
+    calibration : {"continuum", "discrete"}
+        Induced tensor from the continuum integral (the paper's) or from the family's own
+        fourth moments (second-order convergent at fixed delta/dx).
+    s0 : float, optional
+        Critical stretch; or ``G0`` (J/m^2) with ``critical`` = "tipd" ((60)/(94)) or "osb"
+        ((62)/(96)). Neither: no failure.
+    warn : bool
+        Emit :class:`IndefiniteWarning` when the material makes the free-body stiffness
+        indefinite.
+    """
+
+    name = "tipd"
+    force_kind = "density"
+
+    def __init__(self, C=None, *, E: float | None = None, nu: float | None = None,
+                 order: str = "standard", angle: float | None = None, axes=None,
+                 calibration: str = "continuum", s0: float | None = None,
+                 G0: float | None = None, critical: str = "tipd", warn: bool = True):
+        if (C is None) == (E is None):
+            raise ValueError("TiPD needs exactly one of C (elastic stiffness) or E, nu (isotropic)")
+        if E is not None and nu is None:
+            raise ValueError("isotropic TiPD needs nu with E")
+        if calibration not in ("continuum", "discrete"):
+            raise ValueError(f"unknown calibration {calibration!r}; valid: 'continuum', 'discrete'")
+        if critical not in ("tipd", "osb"):
+            raise ValueError(f"unknown critical-stretch rule {critical!r}; valid: 'tipd', 'osb'")
+        if s0 is not None and G0 is not None:
+            raise ValueError("give the critical stretch s0 or the fracture energy G0, not both")
+        for k, v in (("s0", s0), ("G0", G0)):
+            if v is not None and not (np.isfinite(v) and v > 0):
+                raise ValueError(f"{k} must be positive, got {v!r}")
+        if angle is not None and not np.isfinite(angle):
+            raise ValueError(f"material-axis angle must be finite (radians), got {angle!r}")
+        self.C_in, self.E, self.nu, self.order = C, E, nu, order
+        self.angle, self.axes = angle, axes
+        self.calibration, self.critical = calibration, critical
+        self.s0_given, self.G0, self.warn = s0, G0, bool(warn)
+        self.s0 = s0 if s0 is not None else np.inf
+        self.needs = Needs(pairs=True, failure=(s0 is not None or G0 is not None), energy=True,
+                           tangent=True)
+        if C is not None:
+            Ca = np.asarray(C, dtype=np.float64)
+            if Ca.ndim == 2:
+                voigt_to_tensor(Ca, order)     # validates shape, symmetry, definiteness
+
+    # ------------------------------------------------------------------ set-up
+    def material_tensor(self, dim: int, plane: str = "stress") -> np.ndarray:
+        """The elastic tensor C (d, d, d, d) in the global axes (Pa)."""
+        if self.E is not None:
+            Cm = voigt_to_tensor(isotropic_voigt(self.E, self.nu, dim, plane))
+        else:
+            Ca = np.asarray(self.C_in, dtype=np.float64)
+            Cm = voigt_to_tensor(Ca, self.order) if Ca.ndim == 2 else Ca
+            if Cm.shape != (dim,) * 4:
+                raise ValueError(f"elastic stiffness is for dim {Cm.shape[0]}, body has dim {dim}")
+        R = rotation_matrix(self.angle, self.axes, dim)
+        return rotate_tensor(Cm, R)
+
+    def prepare(self, system, family, **kw) -> None:
+        super().prepare(system, family, **kw)
+        d = system.dim
+        if d not in (2, 3):
+            raise ValueError(f"Ti-PD is implemented in 2D and 3D, not dim={d}")
+        self.dim = d
+        C = self.material_tensor(d, system.plane)
+        self.C = C
+        self.S = symmetrised_tensor(C)
+        info = indefiniteness(C)
+        self.indefinite = info
+        if info["indefinite"] and self.warn:
+            Dv = tensor_to_voigt(C)
+            cond = ("D12 > D66 (isotropic: nu > 1/3 plane stress, nu > 1/4 plane strain)"
+                    if d == 2 else "nu > 1/4 for isotropic materials")
+            warnings.warn(f"Ti-PD free-body stiffness is indefinite for this material "
+                          f"(D12 = {Dv[0, 1]:.6g} Pa, D66 = {Dv[-1, -1]:.6g} Pa; smallest "
+                          f"eigenvalue of S {info['min']:.6g} Pa; condition {cond}): free "
+                          "surfaces and rigid rotations are not represented correctly",
+                          IndefiniteWarning, stacklevel=2)
+        xi = family.xi[:, :d]
+        L = family.length
+        w = system.volume[family.neighbors] * family.volume_factor
+        self.w_b = np.ascontiguousarray(w)
+        if self.calibration == "continuum":
+            norm = np.pi * family.horizon ** 3 * system.thickness if d == 2 else np.pi * family.horizon ** 4
+            A = induced_tensor(C) / norm                       # [p, q, a, b]
+        else:
+            bulk = int(np.argmax(np.bincount(family.owner, weights=w, minlength=family.n)))
+            sl = slice(family.offsets[bulk], family.offsets[bulk + 1])
+            xb, Lb, wb = xi[sl], L[sl], w[sl]
+            Q = np.einsum("ka,kb,kc,kd,k->abcd", xb, xb, xb, xb, wb / Lb ** 3)
+            P = _sym_pairs_inverse(Q, d)
+            A = 2.0 * np.einsum("paqb,abcd->pqcd", self.S, P)
+            self.bulk_particle = bulk
+        self.A4 = A
+        self.A = np.ascontiguousarray(A.reshape(d * d, d * d))
+        q = np.zeros((family.nb, 3))
+        q[:, :d] = xi * np.sqrt(w / L ** 3)[:, None]
+        self.q_bc = np.ascontiguousarray(q)
+        # the 2D kernel reads only (q_x, q_y): a contiguous (nb, 2) copy halves its traffic
+        self._q_kernel = np.ascontiguousarray(q[:, :2]) if d == 2 else self.q_bc
+        if self.G0 is not None:
+            self.s0 = self._critical_stretch()
+        self.rc2_b = np.ascontiguousarray((L * (1.0 + self.s0)) ** 2) if self.needs.failure \
+            else np.zeros(1)
+        self._u = np.zeros((system.n, 3))
+
+    def _critical_stretch(self) -> float:
+        d, fam, sysm = self.dim, self.family, self.system
+        if self.E is not None:
+            return tipd_critical_stretch(self.G0, self.E, self.nu, fam.horizon, d,
+                                         rule=self.critical, plane=sysm.plane)
+        if self.critical == "osb":
+            raise ValueError("critical='osb' needs an isotropic material (E, nu)")
+        # direction mean of c(n) = n.M n |xi| (N/m^6 at |xi| = 1 and unit weight)
+        Ac = induced_tensor(self.C)
+        norm = np.pi * fam.horizon ** 3 * sysm.thickness if d == 2 else np.pi * fam.horizon ** 4
+        if d == 2:
+            th = np.linspace(0, 2 * np.pi, 720, endpoint=False)
+            n = np.stack([np.cos(th), np.sin(th)], 1)
+        else:
+            rng = np.random.default_rng(0)
+            n = rng.normal(size=(20000, 3))
+            n /= np.linalg.norm(n, axis=1)[:, None]
+        c = np.einsum("kp,kq,ka,kb,pqab->k", n, n, n, n, Ac).mean() / norm
+        if d == 2:
+            return float(np.sqrt(4 * self.G0 / (c * sysm.thickness * fam.horizon ** 4)))
+        return float(np.sqrt(10 * self.G0 / (np.pi * c * fam.horizon ** 5)))
+
+    # ------------------------------------------------------------------ checks
+    def bond_matrices(self) -> np.ndarray:
+        """M_b V_j beta (nb, d, d) of every directed bond (N/m^5 per unit volume weight;
+        ``b_i = sum_b M_b eta_b``)."""
+        d = self.dim
+        q = self.q_bc[:, :d]
+        return np.einsum("pqab,ka,kb->kpq", self.A4, q, q)
+
+    def lattice_moment(self, particle: int | None = None) -> np.ndarray:
+        """(1/2) sum_j M(xi_j) xi_a xi_b V_j beta_j (d, d, d, d) ``[p, a, q, b]`` (Pa) at
+        ``particle`` (default: the bulk particle); equals S for the discrete calibration."""
+        fam = self.family
+        if particle is None:
+            w = self.w_b
+            particle = int(np.argmax(np.bincount(fam.owner, weights=w, minlength=fam.n)))
+        sl = slice(fam.offsets[particle], fam.offsets[particle + 1])
+        M = self.bond_matrices()[sl]
+        xi = fam.xi[sl, :self.dim]
+        return 0.5 * np.einsum("kpq,ka,kb->paqb", M, xi, xi)
+
+    # ------------------------------------------------------------------ forces
+    def _force(self, state, out, fail):
+        f = self.family
+        kern = tipd_force_kernel_2d if self.dim == 2 else tipd_force_kernel_3d
+        u = self._u
+        np.subtract(state.y, self.system.x0, out=u)
+        return int(kern(f.offsets, f.neighbors, self._q_kernel, self.A, u, state.y,
+                        state.intact, self.rc2_b, fail, out))
+
+    def add_force(self, state, out):
+        self._force(state, out, False)
+
+    def step_force(self, state, out, *, failure=True):
+        return self._force(state, out, bool(failure and self.needs.failure))
+
+    def break_bonds(self, state):
+        from upscale.engine.kernels import break_by_stretch
+
+        if not self.needs.failure:
+            return 0
+        f = self.family
+        return int(break_by_stretch(f.offsets, f.neighbors, f.length, state.y, state.intact,
+                                    np.full(f.n, self.s0)))
+
+    def energy_density(self, state):
+        f = self.family
+        return tipd_energy_kernel(f.offsets, f.neighbors, self.q_bc, self.A, self.system.x0,
+                                  state.y, state.intact, self.dim)
+
+    def tangent(self, state=None):
+        """Assembled stiffness ``K = -dF_int/dy`` (scipy.sparse CSR (3N, 3N), N/m); the
+        model is linear, so K does not depend on the displacement, only on the intact
+        bonds. Symmetric: ``V_i M_ij = V_j M_ji``."""
+        import scipy.sparse as sp
+
+        fam, d, n = self.family, self.dim, self.system.n
+        intact = np.ones(fam.nb, dtype=bool) if state is None else np.asarray(state.intact, bool)
+        M = self.bond_matrices() * (self.system.volume[fam.owner] * intact)[:, None, None]
+        i, j = fam.owner, fam.neighbors
+        rows, cols, vals = [], [], []
+        for p in range(d):
+            for r in range(d):
+                v = M[:, p, r]
+                rows += [3 * i + p, 3 * i + p]
+                cols += [3 * j + r, 3 * i + r]
+                vals += [-v, v]
+        return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                             shape=(3 * n, 3 * n))
+
+    def stiffness_bound(self):
+        """Gershgorin row bound (N/m^4): ``2 sum_j max_p sum_r |M_b,pr|``."""
+        f = self.family
+        M = np.abs(self.bond_matrices()).sum(axis=2).max(axis=1)
+        return 2.0 * np.bincount(f.owner, weights=M, minlength=f.n)
+
+    def describe(self):
+        d = {"model": self.name, "calibration": self.calibration, "critical": self.critical,
+             "s0": None if np.isinf(self.s0) else self.s0}
+        if self.E is not None:
+            d.update(E_Pa=self.E, nu=self.nu)
+        if self.system is not None:
+            d["C_voigt_Pa"] = tensor_to_voigt(self.C).tolist()
+            d["indefinite"] = self.indefinite["indefinite"]
+        if self.angle is not None:
+            d["angle_rad"] = self.angle
+        if self.G0 is not None:
+            d["G0_J_per_m2"] = self.G0
+        return d
+
+
+register("tipd", TiPD)
