@@ -36,14 +36,15 @@ class Equilibrium:
     """Static equilibrium on the free dofs by modified Newton with a preconditioned
     conjugate-gradient inner solve (for symmetric positive definite tangents).
 
-    Each call assembles the model's tangent K once at the start state and iterates
-    y <- y + K^-1 R on the free dofs until |R_free| <= tol max(|R_0|, |F_int|) (modified
-    Newton: the tangent is not reassembled, which costs O(strain) in the convergence
-    factor, i.e. a few iterations at small strain). The inner solve is CG preconditioned
-    by a sparse LU of an earlier tangent (``scipy.sparse.linalg.splu``), refactored when CG
-    needs more than ``refactor_after`` iterations: after a few bonds break the old factor
-    is an excellent preconditioner (the change is of low rank). ``preconditioner="jacobi"``
-    never factorises (large elastic solves).
+    Newton iterations y <- y + K^-1 R on the free dofs until |R_free| <= tol max(|R_0|,
+    |F_int|). The inner solve is CG on the current tangent, applied matrix-free by central
+    differences of the residual (``matvec="matrix-free"``: bonds may break between
+    solves without reassembly) or assembled (``"assembled"``, reassembled when the bonds
+    change), preconditioned by a sparse LU of an earlier tangent
+    (``scipy.sparse.linalg.splu``), refactored when CG needs more than ``refactor_after``
+    iterations: after a few bonds break the old factor is still an excellent
+    preconditioner (the change is of low rank). ``preconditioner="jacobi"`` never
+    factorises (large elastic solves).
 
     Parameters
     ----------
@@ -54,7 +55,8 @@ class Equilibrium:
     """
 
     def __init__(self, model, fixed, *, tol=1e-9, max_iter=30, cg_tol=1e-10,
-                 refactor_after=40, preconditioner="lu", permc_spec="COLAMD"):
+                 refactor_after=40, preconditioner="lu", permc_spec="COLAMD",
+                 matvec="matrix-free"):
         if preconditioner not in ("lu", "jacobi"):
             raise ValueError(f"preconditioner={preconditioner!r}; valid: 'lu', 'jacobi'")
         n = model.system.n
@@ -65,13 +67,47 @@ class Equilibrium:
         self.tol, self.max_iter, self.cg_tol = tol, max_iter, cg_tol
         self.refactor_after, self.kind, self.permc_spec = refactor_after, preconditioner, permc_spec
         self._lu = None
-        self.stats = {"factorisations": 0, "cg_iterations": 0, "outer_iterations": 0,
+        self._K = None
+        self._K_intact = None
+        if matvec not in ("matrix-free", "assembled"):
+            raise ValueError(f"matvec={matvec!r}; valid: 'matrix-free', 'assembled'")
+        self.matvec = matvec
+        self.stats = {"matvecs": 0, "assemblies": 0, "factorisations": 0, "cg_iterations": 0, "outer_iterations": 0,
                       "assembly_s": 0.0, "factor_s": 0.0, "cg_s": 0.0, "residual_s": 0.0}
         self.n = n
 
+    def _assemble(self, state):
+        K = self.model.tangent(state).tocsr()
+        self._K = K[self.free][:, self.free]
+        self._K_intact = state.intact.copy()
+        self.stats["assemblies"] += 1
+
+    def _jv(self, state, v):
+        """Tangent times v on the free dofs by central differences of the residual,
+        K v = (F(y - h v) - F(y + h v)) / 2h (exact for a quadratic energy)."""
+        y = state.y.reshape(-1)
+        base = y[self.free].copy()
+        nv = float(np.linalg.norm(v))
+        if nv == 0:
+            return np.zeros_like(v)
+        h = 1e-6 * self.model.system.spacing * np.sqrt(v.size) / nv
+        try:
+            y[self.free] = base + h * v
+            fp = self.model.residual(state)[self.free]
+            y[self.free] = base - h * v
+            fm = self.model.residual(state)[self.free]
+        finally:
+            y[self.free] = base
+        self.stats["matvecs"] += 1
+        return (fm - fp) / (2 * h)
+
     def _factor(self, Kff):
         t = time.perf_counter()
-        self._lu = spla.splu(sp.csc_matrix(Kff), permc_spec=self.permc_spec)
+        # a small shift keeps the factor regular when broken bonds leave a particle loose
+        # (a zero row: the operator is singular there but its residual is zero too)
+        d = Kff.diagonal()
+        shift = 1e-8 * float(np.mean(np.abs(d))) + np.where(d == 0, float(np.mean(np.abs(d))), 0.0)
+        self._lu = spla.splu(sp.csc_matrix(Kff + sp.diags(shift)), permc_spec=self.permc_spec)
         self.stats["factor_s"] += time.perf_counter() - t
         self.stats["factorisations"] += 1
 
@@ -84,16 +120,21 @@ class Equilibrium:
         state.y[self.mask] = x0[self.mask] + u_prescribed[self.mask]
         free = self.free
         t = time.perf_counter()
-        K = m.tangent(state).tocsr()
-        Kff = K[free][:, free]
+        need = self._lu is None if self.kind == "lu" else self._K is None
+        if need or (self.matvec == "assembled" and not np.array_equal(self._K_intact, state.intact)):
+            self._assemble(state)
         st["assembly_s"] += time.perf_counter() - t
         if self.kind == "lu" and self._lu is None:
-            self._factor(Kff)
-        if self.kind == "jacobi":
-            dinv = 1.0 / Kff.diagonal()
-            M = spla.LinearOperator(Kff.shape, matvec=lambda v: dinv * v)
+            self._factor(self._K)
+        if self.matvec == "assembled":
+            A = self._K
         else:
-            M = spla.LinearOperator(Kff.shape, matvec=lambda v: self._lu.solve(v))
+            A = spla.LinearOperator((free.size, free.size), matvec=lambda v: self._jv(state, v))
+        if self.kind == "jacobi":
+            dinv = 1.0 / self._K.diagonal()
+            M = spla.LinearOperator(A.shape, matvec=lambda v: dinv * v)
+        else:
+            M = spla.LinearOperator(A.shape, matvec=lambda v: self._lu.solve(v))
         it = 0
         r0 = None
         while True:
@@ -112,12 +153,16 @@ class Equilibrium:
             def cb(_):
                 count[0] += 1
 
-            du, info = spla.cg(Kff, R, rtol=self.cg_tol, maxiter=20000, M=M, callback=cb)
+            du, info = spla.cg(A, R, rtol=self.cg_tol, maxiter=20000, M=M, callback=cb)
             st["cg_s"] += time.perf_counter() - t
             st["cg_iterations"] += count[0]
             if self.kind == "lu" and count[0] > self.refactor_after:
-                self._factor(Kff)
-                M = spla.LinearOperator(Kff.shape, matvec=lambda v: self._lu.solve(v))
+                t = time.perf_counter()
+                self._assemble(state)
+                st["assembly_s"] += time.perf_counter() - t
+                self._factor(self._K)
+                if self.matvec == "assembled":
+                    A = self._K
             state.y.reshape(-1)[free] += du
             it += 1
             st["outer_iterations"] += 1
@@ -248,6 +293,10 @@ def quasi_static_fracture(model, state, *, fixed, u_dir, u_max: float, d_lambda:
         if order > 0 and phi_max > 0 and lam > 0:
             dl = min(dl, lam * (phi_max ** (-1.0 / order) * (1 + overshoot) - 1.0))
             dl = max(dl, 1e-6 * d_lambda)
+        if lam > 0:   # linear predictor: scale the last displacement field to the new load
+            free = ~eq.mask
+            u = state.y - model.system.x0
+            state.y[free] = model.system.x0[free] + u[free] * ((lam + dl) / lam)
         lam += dl
         P, phi = equilibrate(dl, 0)
         rounds = 0
@@ -263,6 +312,8 @@ def quasi_static_fracture(model, state, *, fixed, u_dir, u_max: float, d_lambda:
             round_b.append(np.full(newly.size, len(rec["d"])))
             P, phi = equilibrate(0.0, k)
             rounds += 1
+            if P < stop_fraction * max(rec["P"]):
+                break
         phi_max = float(phi.max()) if phi.size else 0.0
         pk = max(rec["P"])
         if pk > 0 and rec["P"][-1] < stop_fraction * pk:

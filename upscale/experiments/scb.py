@@ -64,15 +64,17 @@ class SCBScene:
         Length of the failure criterion (m); None: elastic only.
     supports : {"rollers", "pinned"}
     stabilisation : float
-        Bond penalty c_s of the model.
+        Bond penalty c_s of the model (default 0.1: without it the elastic field shows
+        the near-zero-energy modes of the gain operator).
+    failure_energy : {"tensile", "total"}
     no_fail : float
         Bonds with an end within this many dx of a patch box never break.
     force : {"energy", "printed"}
     """
 
     def __init__(self, alpha_deg=0.0, *, dx=1e-3, m=3.0, a_over_R=0.3, S_over_R=0.43,
-                 R=R_DEFAULT, t=5e-3, r_s=None, supports="rollers", stabilisation=0.0,
-                 no_fail=3.0, force="energy", E=PMMA["E"], nu=PMMA["nu"], K_Ic=PMMA["K_Ic"],
+                 R=R_DEFAULT, t=5e-3, r_s=None, supports="rollers", stabilisation=0.1,
+                 no_fail=3.0, force="energy", failure_energy="tensile", E=PMMA["E"], nu=PMMA["nu"], K_Ic=PMMA["K_Ic"],
                  rho=PMMA["rho"]):
         from upscale.engine import ParticleSystem, bonds_crossing_segment, build_family
         from upscale.models.unified import UnifiedModel
@@ -119,7 +121,7 @@ class SCBScene:
         self.no_fail = near
         self.model = UnifiedModel(E=E, nu=nu, dim=2, plane="stress", stabilisation=stabilisation,
                                   K_Ic=K_Ic if r_s is not None else None, r_s=r_s,
-                                  no_fail=near, force=force)
+                                  no_fail=near, force=force, failure_energy=failure_energy)
         self.model.prepare(self.system, self.family)
         self.fixed = np.zeros((self.system.n, 3), bool)
         self.fixed[self.load, :2] = True
@@ -181,7 +183,7 @@ class SCBScene:
 
         st = self.state()
         u_max = 2e-3 if u_max is None else u_max
-        d_lambda = 2e-5 if d_lambda is None else d_lambda
+        d_lambda = 2e-4 if d_lambda is None else d_lambda
         curve = quasi_static_fracture(self.model, st, fixed=self.fixed, u_dir=self.u_dir,
                                       u_max=u_max, d_lambda=d_lambda, progress=progress,
                                       stop_fraction=stop_fraction, max_equilibria=max_equilibria)
@@ -231,12 +233,13 @@ def damage_png(path, scene, mu, title, path_pts=None):
 
     x = scene.system.x0
     fig, ax = plt.subplots(figsize=(7, 3.8))
-    sc = ax.scatter(x[:, 0] * 1e3, x[:, 1] * 1e3, c=mu, s=max(0.3, 4e-3 / scene.dx * 0.4), cmap="jet",
+    sc = ax.scatter(x[:, 0] * 1e3, x[:, 1] * 1e3, c=mu, s=(2.2e-3 / scene.dx) ** 2, cmap="jet",
                     vmin=0, vmax=1, marker="s", linewidths=0)
     ax.plot([0, scene.tip[0] * 1e3], [0, scene.tip[1] * 1e3], "w-", lw=1)
     if path_pts is not None and len(path_pts):
         ax.plot(path_pts[:, 0] * 1e3, path_pts[:, 1] * 1e3, "k.", ms=1.5)
     ax.set_aspect("equal")
+    ax.set_facecolor("0.85")
     ax.set_xlabel("x (mm)")
     ax.set_ylabel("y (mm)")
     ax.set_title(title)
@@ -247,15 +250,18 @@ def damage_png(path, scene, mu, title, path_pts=None):
     return Path(path)
 
 
-def run_scb(alpha_deg=30.0, *, dx=1e-3, m=3.0, r_s=1e-3, supports="rollers", stabilisation=0.0,
-            no_fail=3.0, force="energy", progress=False, outdir=None, a_over_R=0.3, S_over_R=0.43,
-            u_max=None, d_lambda=None) -> dict:
+def run_scb(alpha_deg=30.0, *, dx=1e-3, m=3.0, r_s=1e-3, supports="rollers", stabilisation=0.1,
+            no_fail=3.0, force="energy", failure_energy="tensile", progress=False, outdir=None,
+            a_over_R=0.3, S_over_R=0.43, u_max=None, d_lambda=None, stop_fraction=0.2,
+            keep: bool = False) -> dict:
     """Build and run the SCB fracture scene; returns a JSON-able result (and writes files
-    under ``outdir`` when given)."""
+    under ``outdir`` when given); ``keep`` adds the scene, final state and damage under
+    the keys ``_scene``, ``_state``, ``_damage`` (not JSON-able)."""
     t0 = time.perf_counter()
     sc = SCBScene(alpha_deg, dx=dx, m=m, r_s=r_s, supports=supports, stabilisation=stabilisation,
-                  no_fail=no_fail, force=force, a_over_R=a_over_R, S_over_R=S_over_R)
-    st, curve = sc.fracture(progress=progress, u_max=u_max, d_lambda=d_lambda)
+                  no_fail=no_fail, force=force, failure_energy=failure_energy, a_over_R=a_over_R,
+                  S_over_R=S_over_R)
+    st, curve = sc.fracture(progress=progress, u_max=u_max, d_lambda=d_lambda, stop_fraction=stop_fraction)
     pts, mu = sc.crack_path(st)
     P_c, d_c = curve.peak
     res = {"scene": sc.describe(), "P_c_N": P_c, "P_c_kN": P_c / 1e3, "displacement_at_P_c_m": d_c,
@@ -283,6 +289,8 @@ def run_scb(alpha_deg=30.0, *, dx=1e-3, m=3.0, r_s=1e-3, supports="rollers", sta
         fig.tight_layout()
         fig.savefig(out / "scb_curve.png", dpi=150)
         plt.close(fig)
+    if keep:
+        res.update(_scene=sc, _state=st, _damage=mu)
     return res
 
 
@@ -293,7 +301,7 @@ def register(sub) -> None:
     p.add_argument("--m", type=float, default=3.0, help="horizon / spacing (default %(default)s)")
     p.add_argument("--r-s", type=float, default=None, help="failure length r_s in m (default: calibrated value of data/reference/scb_calibration.json, else 1e-3)")
     p.add_argument("--supports", default="rollers", choices=("rollers", "pinned"))
-    p.add_argument("--stabilisation", type=float, default=0.0, help="bond penalty c_s (default %(default)s)")
+    p.add_argument("--stabilisation", type=float, default=0.1, help="bond penalty c_s (default %(default)s)")
     p.add_argument("--force", default="energy", choices=("energy", "printed"))
     p.add_argument("--out", default="out/scb", help="output directory (default: %(default)s)")
     p.add_argument("--quiet", action="store_true")

@@ -57,10 +57,12 @@ among its interactions over the disc of radius r_s, so w_c = e_c / (pi r_s^2) an
     G^{nc} = 2 r_s e_c / (3 pi),      G_b = G^{nc} + G^{cn} = 2 r_s (e_c + e_n) / (3 pi)
 
 (6.29 with f_1 = f_2 = 1). A bond breaks when G_b >= G_c, with G_c = K_Ic^2 / E (plane
-stress) or K_Ic^2 (1 - nu^2) / E (plane strain, 3D). As in the chapter only the
-tensile part counts: e is positive in compression too, so a bond breaks only when it is
-stretched (|y_j - y_c| > |xi|), and bonds with an end in ``no_fail`` (load and support
-patches) never break. The failure index G_b / G_c is quadratic in the load of a linear
+stress) or K_Ic^2 (1 - nu^2) / E (plane strain, 3D). e is positive in compression too,
+which would break bonds under the load: by default e is the tensile part of the energy
+(principal-stress split, :meth:`UnifiedModel.failure_energy_density`; the chapter's total
+phi:xi/2 with ``failure_energy="total"``), a bond breaks only when it is stretched
+(|y_j - y_c| > |xi|), and bonds with an end in ``no_fail`` (load and support patches)
+never break. The failure index G_b / G_c is quadratic in the load of a linear
 elastic body, which the quasi-static driver uses to step to the next failure.
 
 After bonds break, the Upsilon and the centring of every particle are recomputed from
@@ -347,6 +349,8 @@ class UnifiedModel(Model):
         Critical energy release rate (J/m^2) instead of K_Ic.
     no_fail : (N,) bool, optional
         Particles whose bonds never break (load and support patches).
+    failure_energy : {"tensile", "total"}
+        Energy density of the criterion (:meth:`failure_energy_density`).
     rcond : float
         Regularity threshold of Upsilon (see :func:`gain_coefficients`).
     """
@@ -357,7 +361,8 @@ class UnifiedModel(Model):
     def __init__(self, E: float = 3.75e9, nu: float = 0.35, *, C=None, dim: int = 2,
                  plane: str = "stress", force: str = "energy", stabilisation: float = 0.0,
                  K_Ic: float | None = None, r_s: float | None = None, G_c: float | None = None,
-                 no_fail=None, rcond: float = 1e-6, kernel: str = "quartic"):
+                 no_fail=None, rcond: float = 1e-6, kernel: str = "quartic",
+                 failure_energy: str = "tensile"):
         if dim not in (2, 3):
             raise ValueError(f"dim={dim!r}; valid: 2, 3")
         if force not in ("energy", "printed"):
@@ -373,6 +378,9 @@ class UnifiedModel(Model):
         self.C = _check_pd(C, "stiffness matrix C")
         self.E, self.nu, self.dim, self.plane = float(E), float(nu), dim, plane
         self.force_form = force
+        if failure_energy not in ("tensile", "total"):
+            raise ValueError(f"failure_energy={failure_energy!r}; valid: 'tensile', 'total'")
+        self.failure_energy = failure_energy
         self.stabilisation = float(stabilisation)
         self.kernel = kernel
         self.rcond = float(rcond)
@@ -547,11 +555,24 @@ class UnifiedModel(Model):
         out = np.zeros(self.family.nb)
         if not self.needs.failure:
             return out
-        W = self.energy_density(state)
+        W = self.failure_energy_density(state)
         factor = 2.0 * self.r_s / (3.0 * np.pi * self.G_c)
         failure_index_kernel(np.ascontiguousarray(state.y), self.system.x0, self.family.offsets,
                              self.family.neighbors, W, state.intact, self._no_fail, factor, out)
         return out
+
+    def failure_energy_density(self, state) -> np.ndarray:
+        """Energy density e (J/m^3) that enters the criterion: the total W
+        (``failure_energy="total"``, the chapter's phi:xi/2) or its tensile part
+        (default ``"tensile"``) e+ = sum_i <s_i> (n_i . E n_i) / 2 over the principal
+        stresses s_i and directions n_i of S (e+ = W in uniaxial tension, 0 in any
+        compressive state)."""
+        F, E, S, P, W = self.fields(state)
+        if self.failure_energy == "total":
+            return W
+        s, n = np.linalg.eigh(S)
+        en = np.einsum("nki,nkl,nli->ni", n, E, n)
+        return 0.5 * np.sum(np.maximum(s, 0.0) * en, axis=1)
 
     def break_bonds(self, state, threshold: float = 1.0) -> int:
         """Mutates ``state.intact``: breaks (both directions of) every bond whose failure
@@ -582,7 +603,7 @@ class UnifiedModel(Model):
     def describe(self) -> dict:
         d = {"model": self.name, "dim": self.dim, "plane": self.plane, "E_Pa": self.E, "nu": self.nu,
              "C_voigt_Pa": self.C.tolist(), "force": self.force_form,
-             "stabilisation": self.stabilisation, "r_s_m": self.r_s, "G_c_J_per_m2": self.G_c,
+             "stabilisation": self.stabilisation, "failure_energy": self.failure_energy, "r_s_m": self.r_s, "G_c_J_per_m2": self.G_c,
              "K_Ic_Pa_sqrt_m": self.K_Ic}
         if self.system is not None:
             d["particles_without_stress"] = int((~self.alive).sum())
