@@ -54,7 +54,7 @@ class Equilibrium:
         Constrained dofs (the z dofs of a 2D body are added).
     """
 
-    def __init__(self, model, fixed, *, tol=1e-9, max_iter=30, cg_tol=1e-10,
+    def __init__(self, model, fixed, *, tol=1e-9, max_iter=30, cg_tol=1e-6,
                  refactor_after=40, preconditioner="lu", permc_spec="COLAMD",
                  matvec="matrix-free"):
         if preconditioner not in ("lu", "jacobi"):

@@ -320,6 +320,50 @@ def failure_index_kernel(y_nc, x_nc, offsets, neighbors, W_n, intact_b, no_fail_
     return out_b
 
 
+@numba.njit(parallel=True, cache=True)
+def penalty_kernel(y_nc, xi_bc, offsets, neighbors, reverse_b, coef_bk, F_nij, kv_n, w_b, ok_b, dim,
+                   g_bc, Q_nij, out_nc):
+    """Adds the force of the bond penalty U_s = sum_c kv_c sum_b w_b |z_b|^2 / 2,
+    z_b = (y_j - y_c) - F_c xi_b (kv_c = c_s E V_c / sum_b w_b |xi_b|^2), to ``out_nc``:
+
+        f_i = sum_{b in row i} [g_b - g_b' + Q_j a_b'],  g_b = kv_c w_b z_b,
+        Q_c = sum_b g_b (x) xi_b,
+
+    (b' the reverse bond, j its owner); two passes over particles, no races.
+    Returns the penalty energy (J). Mutates the work arrays ``g_bc``, ``Q_nij``."""
+    n = offsets.shape[0] - 1
+    en = np.zeros(n)
+    for c in numba.prange(n):
+        for i in range(dim):
+            for a in range(dim):
+                Q_nij[c, i, a] = 0.0
+        for b in range(offsets[c], offsets[c + 1]):
+            for i in range(dim):
+                g_bc[b, i] = 0.0
+            if not ok_b[b]:
+                continue
+            j = neighbors[b]
+            for i in range(dim):
+                z = y_nc[j, i] - y_nc[c, i]
+                for a in range(dim):
+                    z -= F_nij[c, i, a] * xi_bc[b, a]
+                g = kv_n[c] * w_b[b] * z
+                g_bc[b, i] = g
+                en[c] += 0.5 * g * z
+                for a in range(dim):
+                    Q_nij[c, i, a] += g * xi_bc[b, a]
+    for i in numba.prange(n):
+        for b in range(offsets[i], offsets[i + 1]):
+            j = neighbors[b]
+            r = reverse_b[b]
+            for k in range(dim):
+                s = g_bc[b, k] - g_bc[r, k]
+                for a in range(dim):
+                    s += Q_nij[j, k, a] * coef_bk[r, a]
+                out_nc[i, k] += s
+    return en.sum()
+
+
 # ---------------------------------------------------------------------------- model
 class UnifiedModel(Model):
     """Gain-matrix nonlocal continuum with body-based forces (seed 004 ch. 6).
@@ -428,6 +472,7 @@ class UnifiedModel(Model):
         self._intact_key = intact.copy()
         self._B = None
         self._Kpen = None
+        self._pen = None
 
     def _sync(self, state):
         if not np.array_equal(state.intact, self._intact_key):
@@ -459,8 +504,23 @@ class UnifiedModel(Model):
         force_kernel(P, self.system.volume, self.family.offsets, self.family.neighbors,
                      self._reverse, self.coef, self.dim, out)
         if self.stabilisation > 0:
-            u = (state.y - self.system.x0).ravel()
-            out -= (self._penalty() @ u).reshape(-1, 3)
+            self._penalty_force(state, F, out)
+
+    def _penalty_force(self, state, F, out):
+        """Adds the penalty force to ``out``; returns the penalty energy (J)."""
+        fam = self.family
+        if self._pen is None:
+            c = fam.owner
+            ok = self._intact_key & self.alive[c]
+            m = np.zeros(self.system.n)
+            np.add.at(m, c[ok], self._w[ok] * np.einsum("bk,bk->b", self._xi[ok, :self.dim], self._xi[ok, :self.dim]))
+            kv = np.where(m > 0, self.stabilisation * self.E * self.system.volume / np.where(m > 0, m, 1.0), 0.0)
+            self._pen = (kv, np.ascontiguousarray(ok))
+        kv, ok = self._pen
+        g = np.empty((fam.nb, self.dim))
+        Q = np.empty((self.system.n, self.dim, self.dim))
+        return penalty_kernel(np.ascontiguousarray(state.y), self._xi, fam.offsets, fam.neighbors,
+                              self._reverse, self.coef, F, kv, self._w, ok, self.dim, g, Q, out)
 
     def energy_density(self, state) -> np.ndarray:
         """Strain energy density W_c = S:E/2 (J/m^3) of the gain model (penalty excluded)."""
@@ -468,10 +528,10 @@ class UnifiedModel(Model):
 
     def energy(self, state) -> float:
         """Stored energy (J): sum_c V_c W_c plus the stabilisation energy."""
-        e = float(np.dot(self.energy_density(state), self.system.volume))
+        F, E, S, P, W = self.fields(state)
+        e = float(np.dot(W, self.system.volume))
         if self.stabilisation > 0:
-            u = (state.y - self.system.x0).ravel()
-            e += 0.5 * float(u @ (self._penalty() @ u))
+            e += self._penalty_force(state, F, np.zeros((self.system.n, 3)))
         return e
 
     # ------------------------------------------------------------------ sparse operators
@@ -496,7 +556,8 @@ class UnifiedModel(Model):
         return B
 
     def _penalty(self):
-        """Stabilisation stiffness K_s (3N, 3N): U_s = u^T K_s u / 2 (module docstring)."""
+        """Stabilisation stiffness K_s (3N, 3N): U_s = u^T K_s u / 2 (module docstring);
+        forces use :func:`penalty_kernel`, this matrix only the tangent."""
         if self._Kpen is not None:
             return self._Kpen
         fam, d, n = self.family, self.dim, self.system.n
