@@ -67,6 +67,14 @@ class SCBScene:
         Bond penalty c_s of the model (default 0.1: without it the elastic field shows
         the near-zero-energy modes of the gain operator).
     failure_energy : {"tensile", "total"}
+    rcond : float
+        Regularity threshold of a particle's Upsilon (``gain_coefficients``): a particle
+        left with a nearly collinear family carries no stress (default 1e-2: such a
+        sliver would otherwise be far stiffer than the reference and unstable in
+        explicit runs).
+    min_bonds : int
+        A particle with fewer intact bonds carries no stress (default 6, a fifth of a
+        full family at m = 3).
     no_fail : float
         Bonds with an end within this many dx of a patch box never break.
     force : {"energy", "printed"}
@@ -74,7 +82,7 @@ class SCBScene:
 
     def __init__(self, alpha_deg=0.0, *, dx=1e-3, m=3.0, a_over_R=0.3, S_over_R=0.43,
                  R=R_DEFAULT, t=5e-3, r_s=None, supports="rollers", stabilisation=0.1,
-                 no_fail=3.0, force="energy", failure_energy="tensile", E=PMMA["E"], nu=PMMA["nu"], K_Ic=PMMA["K_Ic"],
+                 no_fail=3.0, force="energy", failure_energy="tensile", rcond=1e-2, min_bonds=6, E=PMMA["E"], nu=PMMA["nu"], K_Ic=PMMA["K_Ic"],
                  rho=PMMA["rho"]):
         from upscale.engine import ParticleSystem, bonds_crossing_segment, build_family
         from upscale.models.unified import UnifiedModel
@@ -121,7 +129,8 @@ class SCBScene:
         self.no_fail = near
         self.model = UnifiedModel(E=E, nu=nu, dim=2, plane="stress", stabilisation=stabilisation,
                                   K_Ic=K_Ic if r_s is not None else None, r_s=r_s,
-                                  no_fail=near, force=force, failure_energy=failure_energy)
+                                  no_fail=near, force=force, failure_energy=failure_energy,
+                                  rcond=rcond, min_bonds=min_bonds)
         self.model.prepare(self.system, self.family)
         self.fixed = np.zeros((self.system.n, 3), bool)
         self.fixed[self.load, :2] = True
@@ -188,6 +197,42 @@ class SCBScene:
                                       u_max=u_max, d_lambda=d_lambda, progress=progress,
                                       stop_fraction=stop_fraction, max_equilibria=max_equilibria)
         return st, curve
+
+    def explicit(self, loading_time, u_end, *, every=10, stop_fraction=0.5, progress=False,
+                 safety=0.4):
+        """Explicit dynamics (velocity Verlet, the engine's stable step) with the load patch
+        driven as u_y = -u_end t / loading_time: (times (k,), displacement (k,), load (k,) N,
+        state, run info). The load is the internal force on the load patch (along +y); the run
+        stops when it falls below ``stop_fraction`` of its peak or at ``loading_time``."""
+        from upscale.engine import Simulation
+        from upscale.engine.conditions import Displacement, Fixed, Region
+        from upscale.engine.integrators import VelocityVerlet
+
+        T = float(loading_time)
+        if not T > 0:
+            raise ValueError(f"loading_time={loading_time!r} s; valid: > 0")
+        load = Region("load", self.load)
+        conds = [Displacement(load, value=lambda t: np.array([0.0, -u_end * min(t / T, 1.0), 0.0]),
+                              components=(0, 1)),
+                 Fixed(Region("support", self.support), components=(1,) if self.supports == "rollers" else (0, 1))]
+        # breaking bonds shrinks a particle's family and stiffens its G: a step below the
+        # reference estimate (``safety``) keeps the damaged state stable
+        sim = Simulation(self.system, self.family, [self.model], conds, VelocityVerlet(safety=safety))
+        rec_t, rec_d, rec_P = [], [], []
+
+        def cb(s):
+            if s.state.step % every:
+                return False
+            P = float(s.reactions[self.load, 1].sum())   # the body pushes the patch up
+            rec_t.append(s.state.t)
+            rec_d.append(u_end * min(s.state.t / T, 1.0))
+            rec_P.append(P)
+            return max(rec_P) > 0 and P < stop_fraction * max(rec_P) and s.state.t > 0.1 * T
+
+        sim.prepare()
+        steps = int(np.ceil(T / sim.integrator.dt))
+        info = sim.run(steps, callback=cb, progress=progress)
+        return np.array(rec_t), np.array(rec_d), np.array(rec_P), sim.state, info
 
     def initiation_angle(self, curve, n_first=None):
         """Kink angle (deg) in the tip frame (positive toward +y', away from the load line)

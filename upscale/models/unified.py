@@ -397,6 +397,9 @@ class UnifiedModel(Model):
         Energy density of the criterion (:meth:`failure_energy_density`).
     rcond : float
         Regularity threshold of Upsilon (see :func:`gain_coefficients`).
+    min_bonds : int
+        A particle with fewer intact bonds carries no stress (default: dim + 1, the
+        least that gives a regular Upsilon).
     """
 
     name = "unified"
@@ -406,7 +409,7 @@ class UnifiedModel(Model):
                  plane: str = "stress", force: str = "energy", stabilisation: float = 0.0,
                  K_Ic: float | None = None, r_s: float | None = None, G_c: float | None = None,
                  no_fail=None, rcond: float = 1e-6, kernel: str = "quartic",
-                 failure_energy: str = "tensile"):
+                 failure_energy: str = "tensile", min_bonds: int = 0):
         if dim not in (2, 3):
             raise ValueError(f"dim={dim!r}; valid: 2, 3")
         if force not in ("energy", "printed"):
@@ -428,6 +431,7 @@ class UnifiedModel(Model):
         self.stabilisation = float(stabilisation)
         self.kernel = kernel
         self.rcond = float(rcond)
+        self.min_bonds = int(min_bonds)
         if r_s is not None and not (np.isfinite(r_s) and r_s > 0):
             raise ValueError(f"r_s={r_s!r} m; valid: r_s > 0")
         self.r_s = None if r_s is None else float(r_s)
@@ -469,6 +473,13 @@ class UnifiedModel(Model):
         intact = np.ascontiguousarray(intact, dtype=np.bool_)
         gain_coefficients(self._xi, self.family.offsets, self._w, intact, self.dim, self.rcond,
                           self.coef, self.alive)
+        if self.min_bonds > self.dim + 1:
+            cnt = np.add.reduceat(intact.astype(np.int64), self.family.offsets[:-1]) if intact.size else 0
+            cnt = np.where(np.diff(self.family.offsets) > 0, cnt, 0)
+            few = self.alive & (cnt < self.min_bonds)
+            if few.any():
+                self.alive[few] = False
+                self.coef[np.isin(self.family.owner, np.flatnonzero(few))] = 0.0
         self._intact_key = intact.copy()
         self._B = None
         self._Kpen = None

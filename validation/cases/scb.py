@@ -294,3 +294,47 @@ def run_convergence(args):
             "P_c_change_pct_max": float(max(fixed_ratio)),
             "P_c_change_pct_max_fixed_r_s": float(max(abs(c["change_pct"]) for c in ch if c["mode"] == "fixed m")),
             "pass": bool(max(fixed_ratio) < 5 and dxs[-1] <= 0.25e-3)}
+
+
+# ---------------------------------------------------------------------------- scb-rate
+def _rate_args(p):
+    p.add_argument("--dx", type=float, default=2e-3)
+    p.add_argument("--r-s", type=float, default=0.075, help="r_s in m (default %(default)s)")
+    p.add_argument("--times", default=None, help="comma list of loading times in s to 1 mm "
+                   "(default 2e-3,5e-3,1.5e-2; quick 1e-3,2e-3,4e-3)")
+
+
+@case("scb-rate", "SCB: explicit dynamics at three loading times against the quasi-static P_c", _rate_args)
+def run_rate(args):
+    from upscale.experiments.scb import SCBScene, run_scb
+
+    quick = getattr(args, "quick", False)
+    dx, r_s = getattr(args, "dx", 2e-3), getattr(args, "r_s", 0.075)
+    times = [float(v) for v in (getattr(args, "times", None) or ("1e-3,2e-3,4e-3" if quick else "2e-3,5e-3,1.5e-2")).split(",")]
+    qs = run_scb(0.0, dx=dx, r_s=r_s, stop_fraction=0.5, keep=True)
+    P_qs = qs["P_c_N"]
+    mu_qs = qs.pop("_damage")
+    qs.pop("_scene"), qs.pop("_state")
+    print(f"quasi-static: P_c = {P_qs / 1e3:.4f} kN at {qs['displacement_at_P_c_m'] * 1e3:.4f} mm")
+    rows = []
+    u_end = 1e-3
+    for T in times:
+        sc = SCBScene(0.0, dx=dx, r_s=r_s)
+        t, d, P, st, info = sc.explicit(T, u_end)
+        from upscale.engine import damage
+
+        mu = damage(sc.family, st.intact)
+        k = int(np.argmax(P))
+        overlap = float(np.sum((mu > 0.35) & (mu_qs > 0.35)) / max(1, np.sum(mu_qs > 0.35)))
+        rows.append({"loading time to 1 mm (s)": T, "rate mm/s": u_end / T * 1e3, "P_c kN": P[k] / 1e3,
+                     "err %": 100 * (P[k] / P_qs - 1), "d at P_c mm": d[k] * 1e3,
+                     "damaged overlap with QS": overlap, "steps": info["steps"], "wall s": info["wall_s"]})
+        print(rows[-1], flush=True)
+    print(table(rows, floatfmt=".4f"))
+    errs = [r["err %"] for r in rows]
+    mono = all(abs(b) <= abs(a) + 1e-9 for a, b in zip(errs, errs[1:]))
+    return {"dx_m": dx, "r_s_m": r_s, "P_c_quasi_static_kN": P_qs / 1e3, "loading_times_s": times,
+            "P_c_kN": [r["P_c kN"] for r in rows], "P_c_rate_err_pct": errs,
+            "P_c_rate_err_pct_slowest": float(errs[-1]), "monotone": bool(mono),
+            "damaged_overlap": [r["damaged overlap with QS"] for r in rows],
+            "pass": bool(abs(errs[-1]) < 2 and mono)}
