@@ -278,7 +278,7 @@ def damage_png(path, scene, mu, title, path_pts=None):
 
     x = scene.system.x0
     fig, ax = plt.subplots(figsize=(7, 3.8))
-    sc = ax.scatter(x[:, 0] * 1e3, x[:, 1] * 1e3, c=mu, s=(2.2e-3 / scene.dx) ** 2, cmap="jet",
+    sc = ax.scatter(x[:, 0] * 1e3, x[:, 1] * 1e3, c=mu, s=(scene.dx * 2.6e3) ** 2, cmap="jet",
                     vmin=0, vmax=1, marker="s", linewidths=0)
     ax.plot([0, scene.tip[0] * 1e3], [0, scene.tip[1] * 1e3], "w-", lw=1)
     if path_pts is not None and len(path_pts):

@@ -144,6 +144,8 @@ def _table_args(p):
     p.add_argument("--alphas", default=None, help="comma list of angles (default the eight; quick 0,30,50)")
     p.add_argument("--r-s", type=float, default=None, help="use this r_s (m) instead of calibrating")
     p.add_argument("--stabilisation", type=float, default=0.1)
+    p.add_argument("--stop-fraction", type=float, default=0.5,
+                   help="a run ends when the load falls below this fraction of its peak")
 
 
 def calibrate_r_s(dx, P_target, stab=0.1, r0=None, iters=4, tol=0.005, log=print):
@@ -211,7 +213,7 @@ def run_table(args):
     out = _outdir(args)
     rows, res_all, curves = [], [], []
     for al in alphas:
-        res = run_scb(al, dx=dx, r_s=r_s, stabilisation=stab, stop_fraction=0.2 if not quick else 0.5,
+        res = run_scb(al, dx=dx, r_s=r_s, stabilisation=stab, stop_fraction=getattr(args, "stop_fraction", 0.5),
                       keep=True)
         fe = _fe(al, 3 * dx, quick=True)
         f = np.sqrt(np.pi * A_CRACK) / (2 * R * T_THICK)
@@ -247,7 +249,8 @@ def run_table(args):
            "MTS_angle_deg": [r["MTS deg"] for r in rows], "GMTS_angle_deg": [r["GMTS deg"] for r in rows],
            "GMTS_r_c_m": R_C_GMTS, "wall_s": time.perf_counter() - t0}
     res["pass"] = bool(len(alphas) == 8 and e.mean() < pe.mean() and e.max() <= pe.max())
-    (out / "scb_table.json").write_text(json.dumps({"rows": rows, "summary": res}, indent=1, default=float))
+    tag = "_".join(f"{a:g}" for a in alphas)
+    (out / f"scb_table_{tag}.json").write_text(json.dumps({"rows": rows, "summary": res}, indent=1, default=float))
     return res
 
 
