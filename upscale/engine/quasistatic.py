@@ -13,7 +13,8 @@ For a model with a failure criterion (``model.needs.failure``) and the hooks
    index reaches 1 if the index scales as lambda^order (``order = 2`` for an energy
    criterion of a linear elastic body: the first failure of every loading branch is then
    hit exactly, to the small geometric nonlinearity, which the solve at the predicted load
-   corrects and the next prediction absorbs).
+   corrects and the next prediction absorbs); the first load is a probe of
+   d_lambda / 100.
 
 The load P is the reaction of the driven dofs along ``u_dir`` (N), the critical load the
 peak of the curve. The run stops when P falls below ``stop_fraction`` of the peak, when
@@ -290,6 +291,8 @@ def quasi_static_fracture(model, state, *, fixed, u_dir, u_max: float, d_lambda:
     phi_max = 0.0
     while lam < u_max and len(rec["d"]) < max_equilibria:
         dl = d_lambda
+        if order > 0 and lam == 0:
+            dl = 1e-2 * d_lambda      # a probe load: the prediction needs one equilibrium
         if order > 0 and phi_max > 0 and lam > 0:
             dl = min(dl, lam * (phi_max ** (-1.0 / order) * (1 + overshoot) - 1.0))
             dl = max(dl, 1e-6 * d_lambda)

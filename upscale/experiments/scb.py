@@ -298,7 +298,7 @@ def damage_png(path, scene, mu, title, path_pts=None):
 def run_scb(alpha_deg=30.0, *, dx=1e-3, m=3.0, r_s=1e-3, supports="rollers", stabilisation=0.1,
             no_fail=3.0, force="energy", failure_energy="tensile", progress=False, outdir=None,
             a_over_R=0.3, S_over_R=0.43, u_max=None, d_lambda=None, stop_fraction=0.2,
-            keep: bool = False) -> dict:
+            keep: bool = False, max_equilibria: int = 3000) -> dict:
     """Build and run the SCB fracture scene; returns a JSON-able result (and writes files
     under ``outdir`` when given); ``keep`` adds the scene, final state and damage under
     the keys ``_scene``, ``_state``, ``_damage`` (not JSON-able)."""
@@ -306,7 +306,8 @@ def run_scb(alpha_deg=30.0, *, dx=1e-3, m=3.0, r_s=1e-3, supports="rollers", sta
     sc = SCBScene(alpha_deg, dx=dx, m=m, r_s=r_s, supports=supports, stabilisation=stabilisation,
                   no_fail=no_fail, force=force, failure_energy=failure_energy, a_over_R=a_over_R,
                   S_over_R=S_over_R)
-    st, curve = sc.fracture(progress=progress, u_max=u_max, d_lambda=d_lambda, stop_fraction=stop_fraction)
+    st, curve = sc.fracture(progress=progress, u_max=u_max, d_lambda=d_lambda, stop_fraction=stop_fraction,
+                            max_equilibria=max_equilibria)
     pts, mu = sc.crack_path(st)
     P_c, d_c = curve.peak
     res = {"scene": sc.describe(), "P_c_N": P_c, "P_c_kN": P_c / 1e3, "displacement_at_P_c_m": d_c,

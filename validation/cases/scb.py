@@ -146,6 +146,7 @@ def _table_args(p):
     p.add_argument("--stabilisation", type=float, default=0.1)
     p.add_argument("--stop-fraction", type=float, default=0.5,
                    help="a run ends when the load falls below this fraction of its peak")
+    p.add_argument("--max-equilibria", type=int, default=3000, help="cap on the solves of one run")
 
 
 def calibrate_r_s(dx, P_target, stab=0.1, r0=None, iters=4, tol=0.005, log=print):
@@ -214,7 +215,7 @@ def run_table(args):
     rows, res_all, curves = [], [], []
     for al in alphas:
         res = run_scb(al, dx=dx, r_s=r_s, stabilisation=stab, stop_fraction=getattr(args, "stop_fraction", 0.5),
-                      keep=True)
+                      keep=True, max_equilibria=getattr(args, "max_equilibria", 3000))
         fe = _fe(al, 3 * dx, quick=True)
         f = np.sqrt(np.pi * A_CRACK) / (2 * R * T_THICK)
         P = res["P_c_N"]
@@ -225,7 +226,11 @@ def run_table(args):
         row = {"alpha": al, "P_c kN": res["P_c_kN"], "exp kN": exP[al], "err %": err, "paper kN": thP[al],
                "paper err %": perr, "K_I": KI / 1e6, "K_II": KII / 1e6,
                "init deg": res["initiation_angle_deg"], "MTS deg": _mts_angle(KI, KII),
-               "GMTS deg": _gmts_angle(KI, KII, T), "wall s": res["wall_s"]}
+               "GMTS deg": _gmts_angle(KI, KII, T), "wall s": res["wall_s"],
+               "equilibria": len(res["curve"]["load_N"]), "stop": res["curve"]["stop_reason"],
+               "final/peak": res["curve"]["load_N"][-1] / res["P_c_N"],
+               "solver s": res["curve"]["time_split_s"]["newton"],
+               "failure s": res["curve"]["time_split_s"]["failure"]}
         rows.append(row)
         res_all.append(res)
         print(f"alpha {al:4.1f}: P_c {res['P_c_kN']:.4f} kN (exp {exP[al]}, err {err:+.2f} %), "
@@ -341,3 +346,69 @@ def run_rate(args):
             "P_c_rate_err_pct_slowest": float(errs[-1]), "monotone": bool(mono),
             "damaged_overlap": [r["damaged overlap with QS"] for r in rows],
             "pass": bool(abs(errs[-1]) < 2 and mono)}
+
+
+# ---------------------------------------------------------------------------- merged table, envelope
+def _mts_load(YI, YII, K_Ic=2.13e6, T_star=None, rc=R_C_GMTS):
+    """Critical load (N) by MTS (T_star None) or GMTS: the maximum over theta of the
+    tangential stress criterion sqrt(2 pi r_c) sigma_tt = K_Ic at unit load, scaled."""
+    f = np.sqrt(np.pi * A_CRACK) / (2 * R * T_THICK)
+    KI, KII = YI * f, YII * f                 # per newton
+    th = np.linspace(-np.pi * 0.999, np.pi * 0.999, 20001)
+    s = np.cos(th / 2) * (KI * np.cos(th / 2) ** 2 - 1.5 * KII * np.sin(th))
+    if T_star is not None:
+        s = s + np.sqrt(2 * np.pi * rc) * T_star / (2 * R * T_THICK) * np.sin(th) ** 2
+    return K_Ic / s.max()
+
+
+def merge_tables(paths, out_png=None):
+    """Merge ``scb_table_*.json`` parts of one r_s into the eight-angle summary (the keys of
+    ``scb-table``), with MTS and GMTS critical loads from the FE factors; optionally the
+    K_I/K_Ic - K_II/K_Ic envelope plot."""
+    rows = []
+    for p in paths:
+        rows += json.loads(Path(p).read_text())["rows"]
+    rows.sort(key=lambda r: r["alpha"])
+    ex = _exp()
+    fe = json.loads((ROOT / "data" / "reference" / "scb_fem.json").read_text())["rollers"]
+    fe = {r["alpha_deg"]: r for r in fe}
+    thP = dict(zip(ex["alpha_deg"], ex["theo_P_c_kN"]))
+    exP = dict(zip(ex["alpha_deg"], ex["exp_P_c_kN"]))
+    for r in rows:
+        f = fe[r["alpha"]]
+        r["MTS P_c kN"] = _mts_load(f["Y_I"], f["Y_II"]) / 1e3
+        r["GMTS P_c kN"] = _mts_load(f["Y_I"], f["Y_II"], T_star=f["T_star"]) / 1e3
+    e = np.array([abs(r["err %"]) for r in rows])
+    pe = np.array([abs(100 * (thP[a] / exP[a] - 1)) for a in ALPHAS])
+    summary = {"alpha_deg": [r["alpha"] for r in rows], "P_c_kN": [r["P_c kN"] for r in rows],
+               "P_c_err_pct": [r["err %"] for r in rows],
+               "P_c_err_pct_mean": float(e.mean()), "P_c_err_pct_max": float(e.max()),
+               "paper_P_c_err_pct_mean": float(pe.mean()), "paper_P_c_err_pct_max": float(pe.max()),
+               "initiation_angle_deg": [r["init deg"] for r in rows],
+               "MTS_angle_deg": [r["MTS deg"] for r in rows], "GMTS_angle_deg": [r["GMTS deg"] for r in rows],
+               "MTS_P_c_kN": [r["MTS P_c kN"] for r in rows], "GMTS_P_c_kN": [r["GMTS P_c kN"] for r in rows],
+               "MTS_P_c_err_pct_mean": float(np.mean([abs(100 * (r["MTS P_c kN"] / exP[r["alpha"]] - 1)) for r in rows])),
+               "GMTS_P_c_err_pct_mean": float(np.mean([abs(100 * (r["GMTS P_c kN"] / exP[r["alpha"]] - 1)) for r in rows]))}
+    summary["pass"] = bool(len(rows) == 8 and e.mean() < pe.mean() and e.max() <= pe.max())
+    if out_png is not None:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        fs = np.sqrt(np.pi * A_CRACK) / (2 * R * T_THICK) / 2.13e6
+        fig, ax = plt.subplots(figsize=(5, 4.2))
+        ax.plot(np.array(ex["exp_K_II"]) / 2.13, np.array(ex["exp_K_I"]) / 2.13, "ro", label="experiment [112]")
+        ax.plot(np.array(ex["theo_K_II"]) / 2.13, np.array(ex["theo_K_I"]) / 2.13, "gs", mfc="none", label="seed ch. 6")
+        for key, mk, lab in (("P_c kN", "b^", "this model"), ("MTS P_c kN", "k--", "MTS"),
+                             ("GMTS P_c kN", "m-.", f"GMTS r_c = {R_C_GMTS * 1e3:g} mm")):
+            kii = [fe[r["alpha"]]["Y_II"] * r[key] * 1e3 * fs for r in rows]
+            ki = [fe[r["alpha"]]["Y_I"] * r[key] * 1e3 * fs for r in rows]
+            ax.plot(kii, ki, mk, label=lab)
+        ax.set_xlabel("K_II / K_Ic")
+        ax.set_ylabel("K_I / K_Ic")
+        ax.legend(fontsize=7)
+        fig.tight_layout()
+        fig.savefig(out_png, dpi=150)
+        plt.close(fig)
+    return rows, summary
