@@ -343,9 +343,10 @@ def run_scb(alpha_deg=30.0, *, dx=1e-3, m=3.0, r_s=1e-3, supports="rollers", sta
 def register(sub) -> None:
     p = sub.add_parser("scb", help="mixed-mode fracture of a PMMA semi-circular bend specimen (seed 004 6.6)")
     p.add_argument("--alpha", type=float, default=30.0, help="crack angle in degrees, [0, 90) (default %(default)s)")
-    p.add_argument("--dx", type=float, default=1e-3, help="particle spacing in m (default %(default)s)")
+    p.add_argument("--dx", type=float, default=2e-3, help="particle spacing in m (default %(default)s, the calibrated one)")
     p.add_argument("--m", type=float, default=3.0, help="horizon / spacing (default %(default)s)")
-    p.add_argument("--r-s", type=float, default=None, help="failure length r_s in m (default: calibrated value of data/reference/scb_calibration.json, else 1e-3)")
+    p.add_argument("--r-s", type=float, default=None, help="failure length r_s in m (default: r_s / dx of "
+                   "data/reference/scb_calibration.json times --dx)")
     p.add_argument("--supports", default="rollers", choices=("rollers", "pinned"))
     p.add_argument("--stabilisation", type=float, default=0.1, help="bond penalty c_s (default %(default)s)")
     p.add_argument("--force", default="energy", choices=("energy", "printed"))
@@ -360,7 +361,9 @@ def _main(args) -> int:
     r_s = args.r_s
     if r_s is None:
         cal = Path(__file__).resolve().parents[2] / "data" / "reference" / "scb_calibration.json"
-        r_s = json.loads(cal.read_text())["r_s_m"] if cal.exists() else 1e-3
+        if not cal.exists():
+            raise FileNotFoundError(f"{cal} is missing; pass --r-s")
+        r_s = json.loads(cal.read_text())["r_s_over_dx"] * args.dx
     res = run_scb(args.alpha, dx=args.dx, m=args.m, r_s=r_s, supports=args.supports,
                   stabilisation=args.stabilisation, force=args.force, progress=not args.quiet,
                   outdir=args.out)
