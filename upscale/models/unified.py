@@ -474,8 +474,7 @@ class UnifiedModel(Model):
         gain_coefficients(self._xi, self.family.offsets, self._w, intact, self.dim, self.rcond,
                           self.coef, self.alive)
         if self.min_bonds > self.dim + 1:
-            cnt = np.add.reduceat(intact.astype(np.int64), self.family.offsets[:-1]) if intact.size else 0
-            cnt = np.where(np.diff(self.family.offsets) > 0, cnt, 0)
+            cnt = np.bincount(self.family.owner[intact], minlength=self.system.n)
             few = self.alive & (cnt < self.min_bonds)
             if few.any():
                 self.alive[few] = False
