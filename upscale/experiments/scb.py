@@ -351,6 +351,9 @@ def register(sub) -> None:
     p.add_argument("--stabilisation", type=float, default=0.1, help="bond penalty c_s (default %(default)s)")
     p.add_argument("--force", default="energy", choices=("energy", "printed"))
     p.add_argument("--out", default="out/scb", help="output directory (default: %(default)s)")
+    p.add_argument("--stop-fraction", type=float, default=0.5,
+                   help="stop when the load falls below this fraction of its peak (default %(default)s: "
+                        "P_c is the load at the crack's first instability)")
     p.add_argument("--quiet", action="store_true")
     p.set_defaults(func=_main)
 
@@ -366,7 +369,7 @@ def _main(args) -> int:
         r_s = json.loads(cal.read_text())["r_s_over_dx"] * args.dx
     res = run_scb(args.alpha, dx=args.dx, m=args.m, r_s=r_s, supports=args.supports,
                   stabilisation=args.stabilisation, force=args.force, progress=not args.quiet,
-                  outdir=args.out)
+                  outdir=args.out, stop_fraction=args.stop_fraction)
     print(f"alpha = {args.alpha:g} deg, dx = {args.dx:g} m, r_s = {r_s:g} m: P_c = {res['P_c_kN']:.4f} kN, "
           f"initiation angle {res['initiation_angle_deg']} deg, {res['broken_bonds']} bonds broken, "
           f"{res['wall_s']:.1f} s -> {args.out}/scb.json")
