@@ -11,6 +11,10 @@
                      through the FE factors, errors against the experiment, the paper's errors
                      recomputed from its own values; initiation angles against MTS and GMTS
 ``scb-convergence``  P_c at several spacings with r_s fixed in metres and with r_s / dx fixed
+``scb-rate``         explicit dynamics at three loading times against the quasi-static P_c
+
+P_c is the peak before the load first falls below ``--stop-fraction`` (0.5) of it: the load
+of the crack's first instability.
 """
 from __future__ import annotations
 
