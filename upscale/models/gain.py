@@ -56,7 +56,7 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["kappa", "GainOperator", "build_gain"]
+__all__ = ["kappa", "GainOperator", "build_gain", "gain_coefficients"]
 
 
 def kappa(r, horizon, kind: str = "quartic"):
@@ -550,3 +550,101 @@ def build_gain(x, horizon, volume=None, *, surface: bool = False, axis=None, axi
             op.F0[t] = F0_std[t]
     op.fit_beta = beta_fit  # the reference link vectors G was fitted against (by family)
     return op
+
+
+# ---------------------------------------------------------------------------- flat CSR form
+@numba.njit(parallel=True, cache=True)
+def gain_coefficients(xi_bc, offsets, weight_b, intact_b, dim, rcond, coef_bk, alive_n):
+    """Centred gain coefficients a_b of every particle on an engine pair family (CSR).
+
+    The same G as :func:`build_gain` without smoothing (eqs. 6.1-6.5, centred Upsilon),
+    for volumes (``dim = 3``) or in-plane bodies (``dim = 2``: the in-plane components
+    of the bond vectors, frame ``[e_x, e_y]``), evaluated on the family's flat arrays so
+    that it can be recomputed cheaply whenever bonds break:
+
+        beta_bar_c = sum_b w_b beta_b / sum_b w_b,    M_c = sum_b w_b d_b d_b^T,
+        d_b = beta_b - beta_bar_c,  Upsilon_c = M_c^-1,  a_b = w_b Upsilon_c d_b,
+
+    sums over the intact bonds b of row c. Then G_c = sum_b (u_j(b) - u_c) (x) a_b and,
+    since sum_b a_b = 0, F_c = sum_b (y_j(b) - y_c) (x) a_b.
+
+    Parameters
+    ----------
+    xi_bc : (nb, 3) float64
+        Reference bond vectors x_j - x_c.
+    offsets : (N+1,) int64
+        CSR row pointers of the family (``Family.offsets``).
+    weight_b : (nb,) float64
+        w_b = kappa(|xi_b|) V_j (any positive unit; it cancels in G).
+    intact_b : (nb,) bool
+        Bonds that take part.
+    dim : int
+        2 or 3.
+    rcond : float
+        A row whose M has ``det(M) <= rcond * (tr(M)/dim)^dim`` (nearly singular, e.g.
+        fewer than dim + 1 non-collinear/coplanar intact bonds) gets ``alive = False``
+        and zero coefficients.
+    coef_bk : (nb, dim) float64
+        Output, mutated: a_b (unit 1/length); zero for broken bonds and dead rows.
+    alive_n : (N,) bool
+        Output, mutated: rows with a regular Upsilon.
+    """
+    n = offsets.shape[0] - 1
+    for c in numba.prange(n):
+        s0 = offsets[c]
+        s1 = offsets[c + 1]
+        W = 0.0
+        bb = np.zeros(3)
+        cnt = 0
+        for b in range(s0, s1):
+            for a in range(dim):
+                coef_bk[b, a] = 0.0
+            if intact_b[b]:
+                W += weight_b[b]
+                cnt += 1
+                for a in range(dim):
+                    bb[a] += weight_b[b] * xi_bc[b, a]
+        alive_n[c] = False
+        if cnt < dim + 1 or W <= 0.0:
+            continue
+        for a in range(dim):
+            bb[a] /= W
+        M = np.zeros((3, 3))
+        for b in range(s0, s1):
+            if intact_b[b]:
+                for p in range(dim):
+                    dp = xi_bc[b, p] - bb[p]
+                    for q in range(dim):
+                        M[p, q] += weight_b[b] * dp * (xi_bc[b, q] - bb[q])
+        U = np.zeros((3, 3))
+        tr = 0.0
+        for a in range(dim):
+            tr += M[a, a]
+        if dim == 2:
+            det = M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]
+            if not det > rcond * (tr / 2.0) ** 2:
+                continue
+            U[0, 0] = M[1, 1] / det
+            U[1, 1] = M[0, 0] / det
+            U[0, 1] = -M[0, 1] / det
+            U[1, 0] = -M[1, 0] / det
+        else:
+            det = (M[0, 0] * (M[1, 1] * M[2, 2] - M[1, 2] * M[2, 1])
+                   - M[0, 1] * (M[1, 0] * M[2, 2] - M[1, 2] * M[2, 0])
+                   + M[0, 2] * (M[1, 0] * M[2, 1] - M[1, 1] * M[2, 0]))
+            if not det > rcond * (tr / 3.0) ** 3:
+                continue
+            for p in range(3):
+                for q in range(3):
+                    p1, p2 = (p + 1) % 3, (p + 2) % 3
+                    q1, q2 = (q + 1) % 3, (q + 2) % 3
+                    U[q, p] = (M[p1, q1] * M[p2, q2] - M[p1, q2] * M[p2, q1]) / det
+        alive_n[c] = True
+        for b in range(s0, s1):
+            if intact_b[b]:
+                for a in range(dim):
+                    s = 0.0
+                    for q in range(dim):
+                        s += U[a, q] * (xi_bc[b, q] - bb[q])
+                    coef_bk[b, a] = weight_b[b] * s
+    return coef_bk, alive_n

@@ -1,0 +1,335 @@
+"""Quasi-static fracture under displacement control: load step, equilibrate, break,
+re-equilibrate at the same load until no bond breaks.
+
+For a model with a failure criterion (``model.needs.failure``) and the hooks
+``failure_index(state) -> (nb,)`` (>= 1: the bond breaks) and ``break_bonds(state)``:
+
+1. equilibrium at the prescribed displacement lambda u_dir of the driven degrees of
+   freedom by modified Newton on the model's residual and sparse tangent
+   (:class:`Equilibrium`: CG preconditioned by a reused sparse LU);
+2. break every bond whose index is >= 1 and solve again at the same lambda, until none
+   breaks (each such equilibrium is a point of the load-displacement curve);
+3. the next load: lambda + d_lambda, but no further than the load at which the largest
+   index reaches 1 if the index scales as lambda^order (``order = 2`` for an energy
+   criterion of a linear elastic body: the first failure of every loading branch is then
+   hit exactly, to the small geometric nonlinearity, which the solve at the predicted load
+   corrects and the next prediction absorbs); the first load is a probe of
+   d_lambda / 100.
+
+The load P is the reaction of the driven dofs along ``u_dir`` (N), the critical load the
+peak of the curve. The run stops when P falls below ``stop_fraction`` of the peak, when
+lambda exceeds ``u_max``, or after ``max_equilibria`` solves.
+"""
+from __future__ import annotations
+
+import dataclasses
+import time
+
+import numpy as np
+
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+__all__ = ["FractureCurve", "quasi_static_fracture", "Equilibrium"]
+
+
+class Equilibrium:
+    """Static equilibrium on the free dofs by modified Newton with a preconditioned
+    conjugate-gradient inner solve (for symmetric positive definite tangents).
+
+    Newton iterations y <- y + K^-1 R on the free dofs until |R_free| <= tol max(|R_0|,
+    |F_int|). The inner solve is CG on the current tangent, applied matrix-free by central
+    differences of the residual (``matvec="matrix-free"``: bonds may break between
+    solves without reassembly) or assembled (``"assembled"``, reassembled when the bonds
+    change), preconditioned by a sparse LU of an earlier tangent
+    (``scipy.sparse.linalg.splu``), refactored when CG needs more than ``refactor_after``
+    iterations: after a few bonds break the old factor is still an excellent
+    preconditioner (the change is of low rank). ``preconditioner="jacobi"`` never
+    factorises (large elastic solves).
+
+    Parameters
+    ----------
+    model : Model
+        With ``residual`` and ``tangent``.
+    fixed : (N, 3) bool
+        Constrained dofs (the z dofs of a 2D body are added).
+    """
+
+    def __init__(self, model, fixed, *, tol=1e-9, max_iter=30, cg_tol=1e-6,
+                 refactor_after=40, preconditioner="lu", permc_spec="COLAMD",
+                 matvec="matrix-free"):
+        if preconditioner not in ("lu", "jacobi"):
+            raise ValueError(f"preconditioner={preconditioner!r}; valid: 'lu', 'jacobi'")
+        n = model.system.n
+        mask = np.asarray(fixed, dtype=bool).copy()
+        mask[:, model.system.dim:] = True
+        self.model, self.mask = model, mask
+        self.free = np.flatnonzero(~mask.ravel())
+        self.tol, self.max_iter, self.cg_tol = tol, max_iter, cg_tol
+        self.refactor_after, self.kind, self.permc_spec = refactor_after, preconditioner, permc_spec
+        self._lu = None
+        self._K = None
+        self._K_intact = None
+        if matvec not in ("matrix-free", "assembled"):
+            raise ValueError(f"matvec={matvec!r}; valid: 'matrix-free', 'assembled'")
+        self.matvec = matvec
+        self.stats = {"matvecs": 0, "assemblies": 0, "factorisations": 0, "cg_iterations": 0, "outer_iterations": 0,
+                      "assembly_s": 0.0, "factor_s": 0.0, "cg_s": 0.0, "residual_s": 0.0}
+        self.n = n
+
+    def _assemble(self, state):
+        K = self.model.tangent(state).tocsr()
+        self._K = K[self.free][:, self.free]
+        self._K_intact = state.intact.copy()
+        self.stats["assemblies"] += 1
+
+    def _jv(self, state, v):
+        """Tangent times v on the free dofs by central differences of the residual,
+        K v = (F(y - h v) - F(y + h v)) / 2h (exact for a quadratic energy)."""
+        y = state.y.reshape(-1)
+        base = y[self.free].copy()
+        nv = float(np.linalg.norm(v))
+        if nv == 0:
+            return np.zeros_like(v)
+        h = 1e-6 * self.model.system.spacing * np.sqrt(v.size) / nv
+        try:
+            y[self.free] = base + h * v
+            fp = self.model.residual(state)[self.free]
+            y[self.free] = base - h * v
+            fm = self.model.residual(state)[self.free]
+        finally:
+            y[self.free] = base
+        self.stats["matvecs"] += 1
+        return (fm - fp) / (2 * h)
+
+    def _factor(self, Kff):
+        t = time.perf_counter()
+        # a small shift keeps the factor regular when broken bonds leave a particle loose
+        # (a zero row: the operator is singular there but its residual is zero too)
+        d = Kff.diagonal()
+        shift = 1e-8 * float(np.mean(np.abs(d))) + np.where(d == 0, float(np.mean(np.abs(d))), 0.0)
+        self._lu = spla.splu(sp.csc_matrix(Kff + sp.diags(shift)), permc_spec=self.permc_spec)
+        self.stats["factor_s"] += time.perf_counter() - t
+        self.stats["factorisations"] += 1
+
+    def solve(self, state, u_prescribed):
+        """Mutates ``state.y``: sets the constrained dofs to x0 + ``u_prescribed`` (N, 3)
+        there, relaxes the free dofs. Returns the reaction (N, 3) (N) on constrained dofs
+        (force the constraints exert on the body) and the outer iteration count."""
+        m, st = self.model, self.stats
+        x0 = m.system.x0
+        state.y[self.mask] = x0[self.mask] + u_prescribed[self.mask]
+        free = self.free
+        t = time.perf_counter()
+        need = self._lu is None if self.kind == "lu" else self._K is None
+        if need or (self.matvec == "assembled" and not np.array_equal(self._K_intact, state.intact)):
+            self._assemble(state)
+        st["assembly_s"] += time.perf_counter() - t
+        if self.kind == "lu" and self._lu is None:
+            self._factor(self._K)
+        if self.matvec == "assembled":
+            A = self._K
+        else:
+            A = spla.LinearOperator((free.size, free.size), matvec=lambda v: self._jv(state, v))
+        if self.kind == "jacobi":
+            dinv = 1.0 / self._K.diagonal()
+            M = spla.LinearOperator(A.shape, matvec=lambda v: dinv * v)
+        else:
+            M = spla.LinearOperator(A.shape, matvec=lambda v: self._lu.solve(v))
+        it = 0
+        r0 = None
+        while True:
+            t = time.perf_counter()
+            F = m.residual(state)
+            st["residual_s"] += time.perf_counter() - t
+            R = F[free]
+            r = float(np.linalg.norm(R))
+            if r0 is None:
+                r0 = max(r, float(np.linalg.norm(F)), 1e-300)
+            if r <= self.tol * r0 or it >= self.max_iter:
+                break
+            t = time.perf_counter()
+            count = [0]
+
+            def cb(_):
+                count[0] += 1
+
+            du, info = spla.cg(A, R, rtol=self.cg_tol, maxiter=20000, M=M, callback=cb)
+            st["cg_s"] += time.perf_counter() - t
+            st["cg_iterations"] += count[0]
+            if self.kind == "lu" and count[0] > self.refactor_after:
+                t = time.perf_counter()
+                self._assemble(state)
+                st["assembly_s"] += time.perf_counter() - t
+                self._factor(self._K)
+                if self.matvec == "assembled":
+                    A = self._K
+            state.y.reshape(-1)[free] += du
+            it += 1
+            st["outer_iterations"] += 1
+        if it >= self.max_iter and r > self.tol * r0:
+            raise RuntimeError(f"no equilibrium after {it} iterations (|R| = {r:.3e} N of {r0:.3e} N)")
+        F = m.residual(state).reshape(-1, 3)
+        return np.where(self.mask, -F, 0.0), it
+
+
+@dataclasses.dataclass
+class FractureCurve:
+    """Load-displacement record of :func:`quasi_static_fracture`.
+
+    Attributes
+    ----------
+    displacement : (k,) float
+        lambda of every equilibrium (m).
+    load : (k,) float
+        Reaction along the loading direction (N).
+    broken : (k,) int
+        Directed bonds broken before that equilibrium (0 for a new load step).
+    newton_iterations : (k,) int
+    index_max : (k,) float
+        Largest failure index after the equilibrium.
+    first_broken : (m,) int64
+        Directed bonds in the order they broke (``first_broken_round`` gives the
+        equilibrium index at which each broke).
+    wall_s : float
+    time_split_s : dict
+        Where the time went: ``newton`` (assembly + factorisation + residuals),
+        ``failure`` (index evaluation, breaking, Upsilon recomputation).
+    """
+
+    displacement: np.ndarray
+    load: np.ndarray
+    broken: np.ndarray
+    newton_iterations: np.ndarray
+    index_max: np.ndarray
+    first_broken: np.ndarray
+    first_broken_round: np.ndarray
+    wall_s: float
+    time_split_s: dict
+    stop_reason: str
+
+    @property
+    def peak(self) -> tuple[float, float]:
+        """(P_c, displacement at P_c): the peak of the curve (N, m)."""
+        k = int(np.argmax(self.load))
+        return float(self.load[k]), float(self.displacement[k])
+
+    def as_dict(self) -> dict:
+        return {"displacement_m": self.displacement.tolist(), "load_N": self.load.tolist(),
+                "broken": self.broken.tolist(), "newton_iterations": self.newton_iterations.tolist(),
+                "index_max": self.index_max.tolist(), "P_c_N": self.peak[0],
+                "displacement_at_P_c_m": self.peak[1], "wall_s": self.wall_s,
+                "time_split_s": self.time_split_s, "stop_reason": self.stop_reason}
+
+
+def quasi_static_fracture(model, state, *, fixed, u_dir, u_max: float, d_lambda: float,
+                          order: float = 2.0, stop_fraction: float = 0.2,
+                          max_equilibria: int = 2000, max_rounds: int = 1000,
+                          overshoot: float = 1e-6, progress: bool = False,
+                          tol: float = 1e-9) -> FractureCurve:
+    """Displacement-controlled quasi-static fracture (module docstring); mutates ``state``.
+
+    Parameters
+    ----------
+    model : Model
+        Prepared, with ``residual``, ``tangent``, ``failure_index`` and ``break_bonds``.
+    state : State
+        Start state (reference); ``y`` and ``intact`` are updated.
+    fixed : (N, 3) bool
+        Constrained dofs (driven and held).
+    u_dir : (N, 3) float
+        Displacement of the constrained dofs per unit lambda (zero on held dofs).
+    u_max : float
+        Largest lambda (m).
+    d_lambda : float
+        Largest load increment (m).
+    order : float
+        Exponent of the failure index in lambda used to step to the next failure
+        (0 disables the prediction).
+    stop_fraction : float
+        Stop once the load has fallen below this fraction of the peak.
+    """
+    if not (u_max > 0 and d_lambda > 0):
+        raise ValueError(f"u_max={u_max!r}, d_lambda={d_lambda!r}; valid: both > 0")
+    fixed = np.asarray(fixed, dtype=bool)
+    u_dir = np.asarray(u_dir, dtype=float)
+    norm = np.linalg.norm(u_dir[fixed])
+    if norm == 0:
+        raise ValueError("u_dir is zero on every constrained dof: nothing drives the body")
+    t0 = time.perf_counter()
+    tsplit = {"newton": 0.0, "failure": 0.0}
+    lam = 0.0
+    rec = {k: [] for k in ("d", "P", "b", "it", "phi")}
+    order_b, round_b = [], []
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=max_equilibria, desc="equilibria", unit="solve")
+
+    eq = Equilibrium(model, fixed, tol=tol)
+
+    def equilibrate(dl, broken):
+        ts = time.perf_counter()
+        reaction, its = eq.solve(state, lam * u_dir)
+        tsplit["newton"] += time.perf_counter() - ts
+        P = float(np.sum(reaction * u_dir)) / float(np.max(np.abs(u_dir)))
+        ts = time.perf_counter()
+        phi = model.failure_index(state)
+        tsplit["failure"] += time.perf_counter() - ts
+        rec["d"].append(lam)
+        rec["P"].append(P)
+        rec["b"].append(broken)
+        rec["it"].append(its)
+        rec["phi"].append(float(phi.max()) if phi.size else 0.0)
+        if bar is not None:
+            bar.update(1)
+            bar.set_postfix(P=f"{P:.4g}", lam=f"{lam:.4g}")
+        return P, phi
+
+    stop = "u_max"
+    phi_max = 0.0
+    while lam < u_max and len(rec["d"]) < max_equilibria:
+        dl = d_lambda
+        if order > 0 and lam == 0:
+            dl = 1e-2 * d_lambda      # a probe load: the prediction needs one equilibrium
+        if order > 0 and phi_max > 0 and lam > 0:
+            dl = min(dl, lam * (phi_max ** (-1.0 / order) * (1 + overshoot) - 1.0))
+            dl = max(dl, 1e-6 * d_lambda)
+        if lam > 0:   # linear predictor: scale the last displacement field to the new load
+            free = ~eq.mask
+            u = state.y - model.system.x0
+            state.y[free] = model.system.x0[free] + u[free] * ((lam + dl) / lam)
+        lam += dl
+        P, phi = equilibrate(dl, 0)
+        rounds = 0
+        while rounds < max_rounds and len(rec["d"]) < max_equilibria:
+            ts = time.perf_counter()
+            before = state.intact.copy()
+            k = model.break_bonds(state)
+            tsplit["failure"] += time.perf_counter() - ts
+            if k == 0:
+                break
+            newly = np.flatnonzero(before & ~state.intact)
+            order_b.append(newly)
+            round_b.append(np.full(newly.size, len(rec["d"])))
+            P, phi = equilibrate(0.0, k)
+            rounds += 1
+            if P < stop_fraction * max(rec["P"]):
+                break
+        phi_max = float(phi.max()) if phi.size else 0.0
+        pk = max(rec["P"])
+        if pk > 0 and rec["P"][-1] < stop_fraction * pk:
+            stop = "load dropped"
+            break
+    else:
+        if len(rec["d"]) >= max_equilibria:
+            stop = "max_equilibria"
+    if bar is not None:
+        bar.close()
+    fb = np.concatenate(order_b) if order_b else np.zeros(0, np.int64)
+    fr = np.concatenate(round_b) if round_b else np.zeros(0, np.int64)
+    tsplit["solver"] = dict(eq.stats)
+    return FractureCurve(np.array(rec["d"]), np.array(rec["P"]), np.array(rec["b"], int),
+                         np.array(rec["it"], int), np.array(rec["phi"]), fb, fr,
+                         time.perf_counter() - t0, tsplit, stop)

@@ -1,0 +1,684 @@
+"""The unified gain-matrix model: nonlocal strain, stress and body-based forces (seed 004 ch. 6).
+
+Kinematics (eqs. 6.1-6.6, 6.19, 6.24). For particle c with intact bonds b to neighbours
+j(b) within the horizon, the gain coefficients a_b (:func:`upscale.models.gain.
+gain_coefficients`, the centred Upsilon of eq. 6.5; weights w_b = kappa(|xi_b|) V_j, quartic
+kappa) give the nonlocal deformation gradient
+
+    F_c = I + G_c = sum_b (y_j(b) - y_c) (x) a_b                       (6.1, 6.19)
+
+exact for every affine field at interior and boundary particles. The Green strain and the
+second Piola-Kirchhoff stress (symbol phi in the seed, ``S`` here) are
+
+    E_c = (F_c^T F_c - I) / 2                                          (6.24)
+    S_c = C : E_c      (Voigt order, tensor shear components, 6.23)
+
+with the stored energy W_c = S_c : E_c / 2 per unit volume (6.26). The chapter writes
+xi = (G^T G - I)/2 with G built from displacements; that is -I/2 at rest, so the gain is
+used as G = F - I.
+
+Forces (6.16-6.22, 6.32-6.35). The stored energy is U = sum_c V_c W_c(F_c); since F_c is
+linear in the positions, the force that is exactly -dU/dy is
+
+    f_i = sum_{b in row i} [ V_i P_i a_b  -  V_j P_j a_b' ],   P = F S     (default)
+
+(b' the reverse bond j -> i): the correspondence-type body-based force kappa F phi
+Upsilon gamma. The printed form 6.22, phi F^T Upsilon gamma, replaces P = F S by S F^T
+(``force="printed"``); it equals the default to first order in strain and differs at
+order strain x stress. It is not the derivative of any energy.
+
+Plane stress / plane strain (``dim = 2``) use the in-plane components only; the z
+displacement is not a degree of freedom.
+
+Stabilisation (``stabilisation``, dimensionless c_s, default 0). The gain operator has
+the zero-energy modes of correspondence models: in the interior of a regular lattice
+the symbol of G vanishes at the lattice wave vectors (pi/h, pi/h), ... . A bond-level
+penalty on the non-affine part of every bond (Silling 2017, in its energy form)
+
+    U_s = sum_c V_c (c_s E / 2) sum_b w_b |z_b|^2 / sum_b w_b |xi_b|^2,
+    z_b = (y_j - y_c) - F_c xi_b
+
+removes them. z_b vanishes for every affine field (F_c is exact there), so the penalty
+changes neither the patch test nor a homogeneous solution; U_s is quadratic in y, so
+its force and tangent are a constant sparse matrix (rebuilt when bonds break).
+
+Failure (sec. 6.5, a dimensionally consistent form of 6.27-6.29). Silling and Askari's
+fracture energy of a straight crack in 2D is the work to break every bond crossing a unit
+length of it, per unit thickness:
+
+    G = int_0^{r_s} dy int int_{r > y / cos theta, r < r_s} w r dr dtheta = (2/3) r_s^3 w
+
+for a uniform bond energy w (J/m^5: energy per unit thickness, per unit area of each end),
+which is the integral of 6.27-6.28 (its r_s^3/3 for each half-plane side). The chapter
+puts the particle energy density phi:xi/2 times the thickness in place of w, which gives
+J m, not J/m^2. The energy density e_c (J/m^3 = J/m per m^2) of a particle is shared
+among its interactions over the disc of radius r_s, so w_c = e_c / (pi r_s^2) and
+
+    G^{nc} = 2 r_s e_c / (3 pi),      G_b = G^{nc} + G^{cn} = 2 r_s (e_c + e_n) / (3 pi)
+
+(6.29 with f_1 = f_2 = 1). A bond breaks when G_b >= G_c, with G_c = K_Ic^2 / E (plane
+stress) or K_Ic^2 (1 - nu^2) / E (plane strain, 3D). e is positive in compression too,
+which would break bonds under the load: by default e is the tensile part of the energy
+(principal-stress split, :meth:`UnifiedModel.failure_energy_density`; the chapter's total
+phi:xi/2 with ``failure_energy="total"``), a bond breaks only when it is stretched
+(|y_j - y_c| > |xi|), and bonds with an end in ``no_fail`` (load and support patches)
+never break. The failure index G_b / G_c is quadratic in the load of a linear
+elastic body, which the quasi-static driver uses to step to the next failure.
+
+After bonds break, the Upsilon and the centring of every particle are recomputed from
+its remaining bonds; a particle whose remaining bonds do not give a regular Upsilon
+(fewer than dim + 1, or collinear) carries no stress (``alive`` False; counted in
+:meth:`UnifiedModel.describe`). Damage is eq. 6.41, mu = 1 - R/T.
+
+Array suffixes: ``_n`` per particle, ``_b`` per directed bond, ``_c`` Cartesian.
+Units: SI (m, N, Pa, J).
+"""
+from __future__ import annotations
+
+import numba
+import numpy as np
+import scipy.sparse as sp
+
+from upscale.models import register
+from upscale.models.base import Model, Needs
+from upscale.models.gain import gain_coefficients, kappa
+
+__all__ = ["UnifiedModel", "elastic_tensor", "orthotropic_tensor", "critical_energy_release_rate"]
+
+
+# ---------------------------------------------------------------------------- material
+def _voigt_pairs(dim):
+    return [(0, 0), (1, 1), (0, 1)] if dim == 2 else [(0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)]
+
+
+def _check_pd(C, what):
+    C = np.asarray(C, dtype=float)
+    if not np.allclose(C, C.T, rtol=1e-10, atol=1e-12 * np.abs(C).max()):
+        raise ValueError(f"{what} is not symmetric; valid: a symmetric positive definite Voigt matrix")
+    ev = np.linalg.eigvalsh(C)
+    if ev[0] <= 0:
+        raise ValueError(f"{what} is not positive definite (smallest eigenvalue {ev[0]:.4g} Pa); "
+                         "valid: a positive definite Voigt matrix")
+    return C
+
+
+def elastic_tensor(E: float, nu: float, *, dim: int = 2, plane: str = "stress") -> np.ndarray:
+    """Isotropic Voigt stiffness (Pa), engineering shear strain order.
+
+    ``dim = 2``: (3, 3) in order (11, 22, 12), plane stress ``E/(1-nu^2) [[1, nu, 0], [nu,
+    1, 0], [0, 0, (1-nu)/2]]`` or plane strain (lambda, mu). ``dim = 3``: (6, 6) in order
+    (11, 22, 33, 23, 13, 12).
+
+    Raises
+    ------
+    ValueError
+        E <= 0, or nu outside (-1, 1/2) (the isotropic solid's range).
+    """
+    if not (np.isfinite(E) and E > 0):
+        raise ValueError(f"Young's modulus E={E!r} Pa; valid: E > 0")
+    if not (-1.0 < nu < 0.5):
+        raise ValueError(f"Poisson ratio nu={nu!r}; valid for an isotropic solid: -1 < nu < 0.5")
+    lam = E * nu / ((1 + nu) * (1 - 2 * nu))
+    mu = E / (2 * (1 + nu))
+    if dim == 2:
+        if plane == "stress":
+            f = E / (1 - nu * nu)
+            return f * np.array([[1, nu, 0], [nu, 1, 0], [0, 0, (1 - nu) / 2]])
+        if plane == "strain":
+            return np.array([[lam + 2 * mu, lam, 0], [lam, lam + 2 * mu, 0], [0, 0, mu]])
+        raise ValueError(f"plane={plane!r}; valid: 'stress', 'strain'")
+    if dim != 3:
+        raise ValueError(f"dim={dim!r}; valid: 2, 3")
+    C = np.zeros((6, 6))
+    C[:3, :3] = lam
+    C[np.arange(3), np.arange(3)] = lam + 2 * mu
+    C[np.arange(3, 6), np.arange(3, 6)] = mu
+    return C
+
+
+def _rotation_voigt(R, dim):
+    """Voigt (engineering shear) transformation of a stiffness: C' = T C T^T."""
+    pairs = _voigt_pairs(dim)
+    m = len(pairs)
+    T = np.zeros((m, m))
+    for I, (i, j) in enumerate(pairs):
+        for J, (k, l) in enumerate(pairs):
+            v = R[i, k] * R[j, l]
+            if k != l:
+                v += R[i, l] * R[j, k]
+            T[I, J] = v
+    return T
+
+
+def orthotropic_tensor(E1, E2, nu12, G12, *, E3=None, nu13=None, nu23=None, G13=None, G23=None,
+                       dim: int = 2, plane: str = "stress", angle_deg: float = 0.0,
+                       rotation=None) -> np.ndarray:
+    """Orthotropic Voigt stiffness (Pa) with material axes rotated.
+
+    Compliance in material axes (order 11, 22, [33, 23, 13,] 12), inverted; plane stress
+    takes the in-plane block of the compliance, plane strain the in-plane block of the
+    stiffness. The material axes are rotated by ``angle_deg`` about z (2D/3D) or by the
+    3x3 ``rotation`` (3D): C_global = T C_material T^T (engineering shear order).
+
+    Raises
+    ------
+    ValueError
+        A non-positive modulus, or constants whose stiffness is not positive definite.
+    """
+    for name, v in (("E1", E1), ("E2", E2), ("G12", G12)):
+        if not (np.isfinite(v) and v > 0):
+            raise ValueError(f"{name}={v!r} Pa; valid: > 0")
+    E3 = E2 if E3 is None else E3
+    nu13 = nu12 if nu13 is None else nu13
+    nu23 = nu12 if nu23 is None else nu23
+    G13 = G12 if G13 is None else G13
+    G23 = E2 / (2 * (1 + nu23)) if G23 is None else G23
+    S = np.zeros((6, 6))
+    S[0, 0], S[1, 1], S[2, 2] = 1 / E1, 1 / E2, 1 / E3
+    S[0, 1] = S[1, 0] = -nu12 / E1
+    S[0, 2] = S[2, 0] = -nu13 / E1
+    S[1, 2] = S[2, 1] = -nu23 / E2
+    S[3, 3], S[4, 4], S[5, 5] = 1 / G23, 1 / G13, 1 / G12
+    _check_pd(S, f"orthotropic compliance (E1={E1}, E2={E2}, nu12={nu12}, G12={G12})")
+    C3 = np.linalg.inv(S)
+    if dim == 2:
+        idx = [0, 1, 5]
+        if plane == "stress":
+            C = np.linalg.inv(S[np.ix_(idx, idx)])
+        elif plane == "strain":
+            C = C3[np.ix_(idx, idx)]
+        else:
+            raise ValueError(f"plane={plane!r}; valid: 'stress', 'strain'")
+        t = np.radians(angle_deg)
+        R = np.array([[np.cos(t), -np.sin(t)], [np.sin(t), np.cos(t)]])
+        T = _rotation_voigt(R, 2)
+        return T @ C @ T.T
+    if rotation is None:
+        t = np.radians(angle_deg)
+        rotation = np.array([[np.cos(t), -np.sin(t), 0], [np.sin(t), np.cos(t), 0], [0, 0, 1]])
+    T = _rotation_voigt(np.asarray(rotation, float), 3)
+    return T @ C3 @ T.T
+
+
+def critical_energy_release_rate(K_Ic: float, E: float, nu: float = 0.0, plane: str = "stress") -> float:
+    """G_c = K_Ic^2 / E (plane stress) or K_Ic^2 (1 - nu^2) / E (plane strain, 3D), J/m^2."""
+    if not (K_Ic > 0):
+        raise ValueError(f"K_Ic={K_Ic!r} Pa m^0.5; valid: > 0")
+    return K_Ic ** 2 / E if plane == "stress" else K_Ic ** 2 * (1 - nu * nu) / E
+
+
+def _tensor4(Cv, dim):
+    """Full C_ijkl (tensor shear) from the Voigt matrix (engineering shear)."""
+    pairs = _voigt_pairs(dim)
+    C4 = np.zeros((dim,) * 4)
+    for I, (i, j) in enumerate(pairs):
+        for J, (k, l) in enumerate(pairs):
+            for a, b in {(i, j), (j, i)}:
+                for c, d in {(k, l), (l, k)}:
+                    C4[a, b, c, d] = Cv[I, J]
+    return C4
+
+
+# ---------------------------------------------------------------------------- kernels
+@numba.njit(parallel=True, cache=True)
+def deformation_kernel(y_nc, offsets, neighbors, coef_bk, dim, F_nij):
+    """F_c = sum_b (y_j - y_c) (x) a_b (eq. 6.19 with G = F - I); mutates ``F_nij``."""
+    n = offsets.shape[0] - 1
+    for c in numba.prange(n):
+        for i in range(dim):
+            for a in range(dim):
+                F_nij[c, i, a] = 0.0
+        for b in range(offsets[c], offsets[c + 1]):
+            j = neighbors[b]
+            for i in range(dim):
+                d = y_nc[j, i] - y_nc[c, i]
+                for a in range(dim):
+                    F_nij[c, i, a] += d * coef_bk[b, a]
+    return F_nij
+
+
+@numba.njit(parallel=True, cache=True)
+def stress_kernel(F_nij, C4, alive_n, printed, dim, E_nij, S_nij, P_nij, W_n):
+    """Green strain (6.24), PK2 stress S = C:E (6.23), energy density W = S:E/2 (6.26) and
+    the force stress P (F S, or S F^T for the printed 6.22); dead particles get zeros."""
+    n = F_nij.shape[0]
+    for c in numba.prange(n):
+        for i in range(dim):
+            for a in range(dim):
+                E_nij[c, i, a] = 0.0
+                S_nij[c, i, a] = 0.0
+                P_nij[c, i, a] = 0.0
+        W_n[c] = 0.0
+        if not alive_n[c]:
+            continue
+        for a in range(dim):
+            for b in range(dim):
+                s = 0.0
+                for k in range(dim):
+                    s += F_nij[c, k, a] * F_nij[c, k, b]
+                E_nij[c, a, b] = 0.5 * (s - (1.0 if a == b else 0.0))
+        w = 0.0
+        for a in range(dim):
+            for b in range(dim):
+                s = 0.0
+                for k in range(dim):
+                    for m in range(dim):
+                        s += C4[a, b, k, m] * E_nij[c, k, m]
+                S_nij[c, a, b] = s
+                w += s * E_nij[c, a, b]
+        W_n[c] = 0.5 * w
+        for i in range(dim):
+            for a in range(dim):
+                s = 0.0
+                for k in range(dim):
+                    if printed:
+                        s += S_nij[c, i, k] * F_nij[c, a, k]
+                    else:
+                        s += F_nij[c, i, k] * S_nij[c, k, a]
+                P_nij[c, i, a] = s
+    return W_n
+
+
+@numba.njit(parallel=True, cache=True)
+def force_kernel(P_nij, volume_n, offsets, neighbors, reverse_b, coef_bk, dim, out_nc):
+    """Adds f_i = sum_{b in row i} [V_i P_i a_b - V_j P_j a_b'] to ``out_nc`` (N, 3), N.
+    Each particle sums only its own row (b' = reverse bond, in row j): no races."""
+    n = offsets.shape[0] - 1
+    for i in numba.prange(n):
+        for b in range(offsets[i], offsets[i + 1]):
+            j = neighbors[b]
+            r = reverse_b[b]
+            for k in range(dim):
+                s = 0.0
+                for a in range(dim):
+                    s += volume_n[i] * P_nij[i, k, a] * coef_bk[b, a] - volume_n[j] * P_nij[j, k, a] * coef_bk[r, a]
+                out_nc[i, k] += s
+    return out_nc
+
+
+@numba.njit(parallel=True, cache=True)
+def failure_index_kernel(y_nc, x_nc, offsets, neighbors, W_n, intact_b, no_fail_n, factor, out_b):
+    """Failure index G_b / G_c = factor (e_c + e_n) per directed bond, 0 for broken bonds,
+    bonds in compression and bonds touching ``no_fail``; ``factor = 2 r_s / (3 pi G_c)``."""
+    n = offsets.shape[0] - 1
+    for c in numba.prange(n):
+        for b in range(offsets[c], offsets[c + 1]):
+            j = neighbors[b]
+            out_b[b] = 0.0
+            if not intact_b[b] or no_fail_n[c] or no_fail_n[j]:
+                continue
+            l2 = 0.0
+            l02 = 0.0
+            for k in range(3):
+                d = y_nc[j, k] - y_nc[c, k]
+                d0 = x_nc[j, k] - x_nc[c, k]
+                l2 += d * d
+                l02 += d0 * d0
+            if l2 <= l02:
+                continue
+            out_b[b] = factor * (W_n[c] + W_n[j])
+    return out_b
+
+
+@numba.njit(parallel=True, cache=True)
+def penalty_kernel(y_nc, xi_bc, offsets, neighbors, reverse_b, coef_bk, F_nij, kv_n, w_b, ok_b, dim,
+                   g_bc, Q_nij, out_nc):
+    """Adds the force of the bond penalty U_s = sum_c kv_c sum_b w_b |z_b|^2 / 2,
+    z_b = (y_j - y_c) - F_c xi_b (kv_c = c_s E V_c / sum_b w_b |xi_b|^2), to ``out_nc``:
+
+        f_i = sum_{b in row i} [g_b - g_b' + Q_j a_b'],  g_b = kv_c w_b z_b,
+        Q_c = sum_b g_b (x) xi_b,
+
+    (b' the reverse bond, j its owner); two passes over particles, no races.
+    Returns the penalty energy (J). Mutates the work arrays ``g_bc``, ``Q_nij``."""
+    n = offsets.shape[0] - 1
+    en = np.zeros(n)
+    for c in numba.prange(n):
+        for i in range(dim):
+            for a in range(dim):
+                Q_nij[c, i, a] = 0.0
+        for b in range(offsets[c], offsets[c + 1]):
+            for i in range(dim):
+                g_bc[b, i] = 0.0
+            if not ok_b[b]:
+                continue
+            j = neighbors[b]
+            for i in range(dim):
+                z = y_nc[j, i] - y_nc[c, i]
+                for a in range(dim):
+                    z -= F_nij[c, i, a] * xi_bc[b, a]
+                g = kv_n[c] * w_b[b] * z
+                g_bc[b, i] = g
+                en[c] += 0.5 * g * z
+                for a in range(dim):
+                    Q_nij[c, i, a] += g * xi_bc[b, a]
+    for i in numba.prange(n):
+        for b in range(offsets[i], offsets[i + 1]):
+            j = neighbors[b]
+            r = reverse_b[b]
+            for k in range(dim):
+                s = g_bc[b, k] - g_bc[r, k]
+                for a in range(dim):
+                    s += Q_nij[j, k, a] * coef_bk[r, a]
+                out_nc[i, k] += s
+    return en.sum()
+
+
+# ---------------------------------------------------------------------------- model
+class UnifiedModel(Model):
+    """Gain-matrix nonlocal continuum with body-based forces (seed 004 ch. 6).
+
+    See the module docstring for the equations. ``force_kind = "particle"`` (N).
+
+    Parameters
+    ----------
+    E, nu : float
+        Isotropic Young's modulus (Pa) and Poisson ratio (used when ``C`` is None; E is
+        also the scale of the stabilisation and of G_c).
+    C : array, optional
+        Voigt stiffness (Pa), (3, 3) for 2D, (6, 6) for 3D, e.g. from
+        :func:`orthotropic_tensor`; must be symmetric positive definite.
+    dim : {2, 3}
+    plane : {"stress", "strain"}
+        2D only.
+    force : {"energy", "printed"}
+        Energy-consistent body-based force (default) or the printed eq. 6.22.
+    stabilisation : float
+        c_s >= 0 of the bond-level penalty (module docstring); 0 switches it off.
+    K_Ic : float, optional
+        Mode-I toughness (Pa m^0.5); with ``r_s`` turns failure on.
+    r_s : float, optional
+        Length of the failure criterion (m), > 0.
+    G_c : float, optional
+        Critical energy release rate (J/m^2) instead of K_Ic.
+    no_fail : (N,) bool, optional
+        Particles whose bonds never break (load and support patches).
+    failure_energy : {"tensile", "total"}
+        Energy density of the criterion (:meth:`failure_energy_density`).
+    rcond : float
+        Regularity threshold of Upsilon (see :func:`gain_coefficients`).
+    min_bonds : int
+        A particle with fewer intact bonds carries no stress (default: dim + 1, the
+        least that gives a regular Upsilon).
+    """
+
+    name = "unified"
+    force_kind = "particle"
+
+    def __init__(self, E: float = 3.75e9, nu: float = 0.35, *, C=None, dim: int = 2,
+                 plane: str = "stress", force: str = "energy", stabilisation: float = 0.0,
+                 K_Ic: float | None = None, r_s: float | None = None, G_c: float | None = None,
+                 no_fail=None, rcond: float = 1e-6, kernel: str = "quartic",
+                 failure_energy: str = "tensile", min_bonds: int = 0):
+        if dim not in (2, 3):
+            raise ValueError(f"dim={dim!r}; valid: 2, 3")
+        if force not in ("energy", "printed"):
+            raise ValueError(f"force={force!r}; valid: 'energy', 'printed'")
+        if not (stabilisation >= 0):
+            raise ValueError(f"stabilisation={stabilisation!r}; valid: >= 0")
+        if C is None:
+            C = elastic_tensor(E, nu, dim=dim, plane=plane)
+        C = np.asarray(C, dtype=float)
+        m = 3 if dim == 2 else 6
+        if C.shape != (m, m):
+            raise ValueError(f"C has shape {C.shape}; valid: ({m}, {m}) Voigt matrix for dim={dim}")
+        self.C = _check_pd(C, "stiffness matrix C")
+        self.E, self.nu, self.dim, self.plane = float(E), float(nu), dim, plane
+        self.force_form = force
+        if failure_energy not in ("tensile", "total"):
+            raise ValueError(f"failure_energy={failure_energy!r}; valid: 'tensile', 'total'")
+        self.failure_energy = failure_energy
+        self.stabilisation = float(stabilisation)
+        self.kernel = kernel
+        self.rcond = float(rcond)
+        self.min_bonds = int(min_bonds)
+        if r_s is not None and not (np.isfinite(r_s) and r_s > 0):
+            raise ValueError(f"r_s={r_s!r} m; valid: r_s > 0")
+        self.r_s = None if r_s is None else float(r_s)
+        if G_c is None and K_Ic is not None:
+            G_c = critical_energy_release_rate(K_Ic, E, nu, "stress" if (dim == 2 and plane == "stress") else "strain")
+        if G_c is not None and not (G_c > 0):
+            raise ValueError(f"G_c={G_c!r} J/m^2; valid: > 0")
+        self.K_Ic = K_Ic
+        self.G_c = G_c
+        self.no_fail = None if no_fail is None else np.asarray(no_fail, dtype=bool)
+        failure = self.r_s is not None and self.G_c is not None
+        self.needs = Needs(pairs=True, failure=failure, energy=True, tangent=True)
+        self._C4 = _tensor4(self.C, dim)
+
+    # ------------------------------------------------------------------ set-up
+    def prepare(self, system, family, *, triplets=None, quadruplets=None) -> None:
+        super().prepare(system, family)
+        if system.dim != self.dim:
+            raise ValueError(f"system has dim={system.dim}, model dim={self.dim}")
+        n = system.n
+        self._xi = np.ascontiguousarray(family.xi)
+        self._w = np.ascontiguousarray(kappa(family.length, family.horizon, self.kernel)
+                                       * system.volume[family.neighbors])
+        self._reverse = np.ascontiguousarray(family.reverse)
+        self.coef = np.zeros((family.nb, self.dim))
+        self.alive = np.zeros(n, dtype=bool)
+        if self.no_fail is None:
+            self._no_fail = np.zeros(n, dtype=bool)
+        else:
+            if self.no_fail.shape != (n,):
+                raise ValueError(f"no_fail has shape {self.no_fail.shape}; valid: ({n},)")
+            self._no_fail = self.no_fail
+        self._topology = None
+        self.update_bonds(np.ones(family.nb, dtype=bool))
+
+    def update_bonds(self, intact) -> None:
+        """Recompute Upsilon, the centring and the gain coefficients of every particle from
+        the intact bonds (mutates ``coef``, ``alive``, the cached operators)."""
+        intact = np.ascontiguousarray(intact, dtype=np.bool_)
+        gain_coefficients(self._xi, self.family.offsets, self._w, intact, self.dim, self.rcond,
+                          self.coef, self.alive)
+        if self.min_bonds > self.dim + 1:
+            cnt = np.bincount(self.family.owner[intact], minlength=self.system.n)
+            few = self.alive & (cnt < self.min_bonds)
+            if few.any():
+                self.alive[few] = False
+                self.coef[np.isin(self.family.owner, np.flatnonzero(few))] = 0.0
+        self._intact_key = intact.copy()
+        self._B = None
+        self._Kpen = None
+        self._pen = None
+
+    def _sync(self, state):
+        if not np.array_equal(state.intact, self._intact_key):
+            self.update_bonds(state.intact)
+
+    # ------------------------------------------------------------------ continuum fields
+    def fields(self, state):
+        """(F, E, S, P, W): deformation gradient, Green strain, PK2 stress (Pa), force
+        stress (Pa) as (N, dim, dim) and energy density W (N,) J/m^3."""
+        self._sync(state)
+        n, d = self.system.n, self.dim
+        y = np.ascontiguousarray(state.y)
+        F = np.empty((n, d, d))
+        deformation_kernel(y, self.family.offsets, self.family.neighbors, self.coef, d, F)
+        E = np.empty_like(F)
+        S = np.empty_like(F)
+        P = np.empty_like(F)
+        W = np.empty(n)
+        stress_kernel(F, self._C4, self.alive, self.force_form == "printed", d, E, S, P, W)
+        return F, E, S, P, W
+
+    def deformation_gradient(self, state) -> np.ndarray:
+        """F = I + G per particle (N, dim, dim)."""
+        return self.fields(state)[0]
+
+    # ------------------------------------------------------------------ forces and energy
+    def add_force(self, state, out) -> None:
+        F, E, S, P, W = self.fields(state)
+        force_kernel(P, self.system.volume, self.family.offsets, self.family.neighbors,
+                     self._reverse, self.coef, self.dim, out)
+        if self.stabilisation > 0:
+            self._penalty_force(state, F, out)
+
+    def _penalty_force(self, state, F, out):
+        """Adds the penalty force to ``out``; returns the penalty energy (J)."""
+        fam = self.family
+        if self._pen is None:
+            c = fam.owner
+            ok = self._intact_key & self.alive[c]
+            m = np.zeros(self.system.n)
+            np.add.at(m, c[ok], self._w[ok] * np.einsum("bk,bk->b", self._xi[ok, :self.dim], self._xi[ok, :self.dim]))
+            kv = np.where(m > 0, self.stabilisation * self.E * self.system.volume / np.where(m > 0, m, 1.0), 0.0)
+            self._pen = (kv, np.ascontiguousarray(ok))
+        kv, ok = self._pen
+        g = np.empty((fam.nb, self.dim))
+        Q = np.empty((self.system.n, self.dim, self.dim))
+        return penalty_kernel(np.ascontiguousarray(state.y), self._xi, fam.offsets, fam.neighbors,
+                              self._reverse, self.coef, F, kv, self._w, ok, self.dim, g, Q, out)
+
+    def energy_density(self, state) -> np.ndarray:
+        """Strain energy density W_c = S:E/2 (J/m^3) of the gain model (penalty excluded)."""
+        return self.fields(state)[4]
+
+    def energy(self, state) -> float:
+        """Stored energy (J): sum_c V_c W_c plus the stabilisation energy."""
+        F, E, S, P, W = self.fields(state)
+        e = float(np.dot(W, self.system.volume))
+        if self.stabilisation > 0:
+            e += self._penalty_force(state, F, np.zeros((self.system.n, 3)))
+        return e
+
+    # ------------------------------------------------------------------ sparse operators
+    def _gradient_operator(self):
+        """B: positions (3N,) -> F components (N d^2,), F_c[i, a] = sum_b (y_j - y_c)_i a_b."""
+        if self._B is not None:
+            return self._B
+        fam, d, n = self.family, self.dim, self.system.n
+        c = fam.owner
+        j = fam.neighbors
+        rows, cols, vals = [], [], []
+        for i in range(d):
+            for a in range(d):
+                r = c * d * d + i * d + a
+                rows += [r, r]
+                cols += [3 * j + i, 3 * c + i]
+                vals += [self.coef[:, a], -self.coef[:, a]]
+        B = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(n * d * d, 3 * n))
+        B.sum_duplicates()
+        self._B = B
+        return B
+
+    def _penalty(self):
+        """Stabilisation stiffness K_s (3N, 3N): U_s = u^T K_s u / 2 (module docstring);
+        forces use :func:`penalty_kernel`, this matrix only the tangent."""
+        if self._Kpen is not None:
+            return self._Kpen
+        fam, d, n = self.family, self.dim, self.system.n
+        B = self._gradient_operator()
+        c, j = fam.owner, fam.neighbors
+        ok = self._intact_key & self.alive[c]
+        idx = np.flatnonzero(ok)
+        nbk = idx.size
+        # z_b = (y_j - y_c) - F_c xi_b on rows (b, i)
+        rows, cols, vals = [], [], []
+        prow, pcol, pval = [], [], []
+        for i in range(d):
+            r = np.arange(nbk) * d + i
+            rows += [r, r]
+            cols += [3 * j[idx] + i, 3 * c[idx] + i]
+            vals += [np.ones(nbk), -np.ones(nbk)]
+            for a in range(d):
+                prow.append(r)
+                pcol.append(c[idx] * d * d + i * d + a)
+                pval.append(self._xi[idx, a])
+        D = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(nbk * d, 3 * n))
+        Pb = sp.csr_matrix((np.concatenate(pval), (np.concatenate(prow), np.concatenate(pcol))),
+                           shape=(nbk * d, n * d * d))
+        Z = D - Pb @ B
+        m = np.zeros(n)
+        np.add.at(m, c[idx], self._w[idx] * np.einsum("bk,bk->b", self._xi[idx, :d], self._xi[idx, :d]))
+        wt = self.stabilisation * self.E * self.system.volume[c[idx]] * self._w[idx] / m[c[idx]]
+        Wd = sp.diags(np.repeat(wt, d))
+        self._Kpen = (Z.T @ Wd @ Z).tocsr()
+        return self._Kpen
+
+    def tangent(self, state):
+        """Consistent stiffness K = -dF_int/dy = B^T blockdiag(V_c dP_c/dF_c) B (+ K_s),
+        dP_iA/dF_jB = delta_ij S_AB + F_iC C_CAKB F_jK (energy form; scipy.sparse (3N, 3N))."""
+        F, E, S, P, W = self.fields(state)
+        d, n = self.dim, self.system.n
+        dPdF = np.einsum("ij,nab->niajb", np.eye(d), S) + np.einsum("nic,cakb,njk->niajb", F, self._C4, F)
+        dPdF[~self.alive] = 0.0
+        dPdF *= self.system.volume[:, None, None, None, None]
+        blocks = dPdF.reshape(n, d * d, d * d)
+        Dm = sp.block_diag(list(blocks), format="csr") if n < 50 else sp.bsr_matrix(
+            (blocks, np.arange(n), np.arange(n + 1)), shape=(n * d * d, n * d * d)).tocsr()
+        B = self._gradient_operator()
+        K = (B.T @ Dm @ B).tocsr()
+        if self.stabilisation > 0:
+            K = K + self._penalty()
+        return K
+
+    def residual(self, state) -> np.ndarray:
+        return self.particle_force(state).ravel()
+
+    # ------------------------------------------------------------------ failure
+    def failure_index(self, state) -> np.ndarray:
+        """G_b / G_c per directed bond (nb,) (module docstring); zeros without failure."""
+        out = np.zeros(self.family.nb)
+        if not self.needs.failure:
+            return out
+        W = self.failure_energy_density(state)
+        factor = 2.0 * self.r_s / (3.0 * np.pi * self.G_c)
+        failure_index_kernel(np.ascontiguousarray(state.y), self.system.x0, self.family.offsets,
+                             self.family.neighbors, W, state.intact, self._no_fail, factor, out)
+        return out
+
+    def failure_energy_density(self, state) -> np.ndarray:
+        """Energy density e (J/m^3) that enters the criterion: the total W
+        (``failure_energy="total"``, the chapter's phi:xi/2) or its tensile part
+        (default ``"tensile"``) e+ = sum_i <s_i> (n_i . E n_i) / 2 over the principal
+        stresses s_i and directions n_i of S (e+ = W in uniaxial tension, 0 in any
+        compressive state)."""
+        F, E, S, P, W = self.fields(state)
+        if self.failure_energy == "total":
+            return W
+        s, n = np.linalg.eigh(S)
+        en = np.einsum("nki,nkl,nli->ni", n, E, n)
+        return 0.5 * np.sum(np.maximum(s, 0.0) * en, axis=1)
+
+    def break_bonds(self, state, threshold: float = 1.0) -> int:
+        """Mutates ``state.intact``: breaks (both directions of) every bond whose failure
+        index is >= ``threshold``, then recomputes Upsilon and the centring. Returns the
+        number of directed bonds broken."""
+        if not self.needs.failure:
+            return 0
+        idx = self.failure_index(state)
+        hit = idx >= threshold
+        hit |= hit[self._reverse]
+        hit &= state.intact
+        k = int(hit.sum())
+        if k:
+            state.intact[hit] = False
+            self.update_bonds(state.intact)
+        return k
+
+    def stiffness_bound(self):
+        """Gershgorin row bound of the reference tangent (N/m per particle)."""
+        from upscale.engine.state import State
+
+        st = State.reference(self.system.x0, self.family.nb)
+        st.intact[:] = self._intact_key
+        K = self.tangent(st)
+        r = np.asarray(abs(K).sum(axis=1)).reshape(-1, 3)
+        return r.max(axis=1)
+
+    def describe(self) -> dict:
+        d = {"model": self.name, "dim": self.dim, "plane": self.plane, "E_Pa": self.E, "nu": self.nu,
+             "C_voigt_Pa": self.C.tolist(), "force": self.force_form,
+             "stabilisation": self.stabilisation, "failure_energy": self.failure_energy, "r_s_m": self.r_s, "G_c_J_per_m2": self.G_c,
+             "K_Ic_Pa_sqrt_m": self.K_Ic}
+        if self.system is not None:
+            d["particles_without_stress"] = int((~self.alive).sum())
+        return d
+
+
+register("unified", UnifiedModel)

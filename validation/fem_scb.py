@@ -1,0 +1,258 @@
+"""FE reference for the semi-circular bend (SCB) specimen: geometry factors, T-stress,
+compliance (scikit-fem, plane stress, gmsh mesh refined at the crack tip).
+
+Geometry (seed 004 sec. 6.6, Fig. 6.5): a half disc of radius R on the flat edge y = 0,
+centre at the origin; an edge crack of length a from the middle of the flat edge at angle
+alpha to the symmetry line (tip at a (sin alpha, cos alpha)); supports at x = +-S on the
+flat edge, the load at (0, R). Loads and supports act on boundary segments of width w
+(the particle model's 3 dx patches): the load segment moves rigidly by (0, -d), the
+supports hold u_y = 0 (rollers, default) or u = 0 (``supports="pinned"``, the literal
+u_x(+-S, 0) = 0 of eq. 6.40).
+
+The crack is a slit of mouth width ``mouth`` (a wedge of negligible angle, so that the
+two faces are distinct boundary curves). Quadratic triangles (P2); K_I, K_II from the
+crack-face displacement jump (displacement correlation, plane stress kappa = (3 - nu)/
+(1 + nu)), Delta u_{y'} = (kappa + 1) K_I sqrt(r / 2 pi) / mu and Delta u_{x'} =
+(kappa + 1) K_II sqrt(r / 2 pi) / mu, evaluated over 0.01 a < r < 0.1 a and extrapolated
+to r = 0 by a fit K(r) = K + c r (tip frame: x' along the crack from mouth to tip,
+y' = (cos alpha, -sin alpha), the side away from the load line for alpha > 0, so that
+K_II > 0 for 0 < alpha < 90 deg; this frame is mirrored, and kink angles are measured in
+it, positive toward +y', i.e. away from the load line); the T-stress from sigma_{x'x'} - sigma_{y'y'} ahead of
+the tip (singular terms cancel there for both modes), fitted as T + c1 sqrt(r) + c2 r over
+0.01 a < r < 0.15 a. Geometry factors (eqs. 6.30-6.31)
+
+    Y_{I,II} = K_{I,II} 2 R t / (P sqrt(pi a)),   T* = T 2 R t / P.
+
+``python -m validation.fem_scb`` writes ``data/reference/scb_fem.json``.
+"""
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["scb_mesh", "solve_scb", "ALPHAS_DEG", "PMMA", "GEOMETRY"]
+
+ALPHAS_DEG = (0.0, 10.0, 20.0, 30.0, 40.0, 43.0, 47.0, 50.0)
+PMMA = {"E_Pa": 3.75e9, "nu": 0.35}
+GEOMETRY = {"R_m": 0.05, "a_over_R": 0.3, "S_over_R": 0.43, "t_m": 0.005}
+
+
+def scb_mesh(alpha_deg, *, R=0.05, a_over_R=0.3, S_over_R=0.43, w=1.5e-3, h_far=2.5e-3,
+             h_tip=2e-5, h_patch=None, mouth=2e-5):
+    """gmsh triangulation of the SCB (linear triangles): points (2, n), triangles (3, m)."""
+    import gmsh
+
+    a, S = a_over_R * R, S_over_R * R
+    al = np.radians(alpha_deg)
+    tip = (a * np.sin(al), a * np.cos(al))
+    hp = w / 6 if h_patch is None else h_patch
+    hm = 0.5 * mouth
+    gmsh.initialize(["-v", "0"]) if not gmsh.isInitialized() else None
+    gmsh.option.setNumber("General.Terminal", 0)
+    gmsh.model.add("scb")
+    g = gmsh.model.geo
+    pts_xy = [(hm, 0), (S - w / 2, 0), (S + w / 2, 0), (R, 0)]
+    yt = np.sqrt(R * R - (w / 2) ** 2)
+    pts_xy += [(w / 2, yt), (-w / 2, yt), (-R, 0), (-S - w / 2, 0), (-S + w / 2, 0), (-hm, 0), tip]
+    sizes = [h_tip * 4, hp, hp, h_far, hp, hp, h_far, hp, hp, h_tip * 4, h_tip]
+    P = [g.addPoint(x, y, 0, s) for (x, y), s in zip(pts_xy, sizes)]
+    c0 = g.addPoint(0, 0, 0, h_far)
+    L = [g.addLine(P[0], P[1]), g.addLine(P[1], P[2]), g.addLine(P[2], P[3]),
+         g.addCircleArc(P[3], c0, P[4]), g.addLine(P[4], P[5]) if False else g.addCircleArc(P[4], c0, P[5]),
+         g.addCircleArc(P[5], c0, P[6]), g.addLine(P[6], P[7]), g.addLine(P[7], P[8]),
+         g.addLine(P[8], P[9]), g.addLine(P[9], P[10]), g.addLine(P[10], P[0])]
+    loop = g.addCurveLoop(L)
+    g.addPlaneSurface([loop])
+    g.synchronize()
+    f = gmsh.model.mesh.field
+    d = f.add("Distance")
+    f.setNumbers(d, "PointsList", [P[10]])
+    th = f.add("Threshold")
+    f.setNumber(th, "InField", d)
+    f.setNumber(th, "SizeMin", h_tip)
+    f.setNumber(th, "SizeMax", h_far)
+    f.setNumber(th, "DistMin", 10 * h_tip)
+    f.setNumber(th, "DistMax", 0.5 * a)
+    d2 = f.add("Distance")
+    f.setNumbers(d2, "CurvesList", [L[9], L[10]])
+    f.setNumber(d2, "Sampling", 400)
+    th2 = f.add("Threshold")
+    f.setNumber(th2, "InField", d2)
+    f.setNumber(th2, "SizeMin", 0.02 * a)
+    f.setNumber(th2, "SizeMax", h_far)
+    f.setNumber(th2, "DistMin", 0.02 * a)
+    f.setNumber(th2, "DistMax", 0.3 * a)
+    d3 = f.add("Distance")
+    f.setNumbers(d3, "PointsList", [P[1], P[2], P[4], P[5], P[7], P[8]])
+    th3 = f.add("Threshold")
+    f.setNumber(th3, "InField", d3)
+    f.setNumber(th3, "SizeMin", hp)
+    f.setNumber(th3, "SizeMax", h_far)
+    f.setNumber(th3, "DistMin", w)
+    f.setNumber(th3, "DistMax", 10 * w)
+    mn = f.add("Min")
+    f.setNumbers(mn, "FieldsList", [th, th2, th3])
+    f.setAsBackgroundMesh(mn)
+    gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
+    gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 1)
+    gmsh.option.setNumber("Mesh.Algorithm", 6)
+    gmsh.model.mesh.generate(2)
+    tags, xyz, _ = gmsh.model.mesh.getNodes()
+    etypes, etags, enodes = gmsh.model.mesh.getElements(2)
+    gmsh.model.remove()
+    idx = np.zeros(int(tags.max()) + 1, dtype=np.int64)
+    idx[tags.astype(np.int64)] = np.arange(len(tags))
+    p = xyz.reshape(-1, 3)[:, :2].T.copy()
+    t = idx[enodes[0].astype(np.int64)].reshape(-1, 3).T.copy()
+    used = np.unique(t)                          # drop geometry-only nodes (the arc centre)
+    remap = np.full(p.shape[1], -1, np.int64)
+    remap[used] = np.arange(used.size)
+    p, t = p[:, used], remap[t]
+    return p, t, np.array(tip)
+
+
+def solve_scb(alpha_deg, *, E=3.75e9, nu=0.35, R=0.05, a_over_R=0.3, S_over_R=0.43, t=0.005,
+              w=1.5e-3, supports="rollers", h_tip=2e-5, h_far=2.5e-3, mouth=2e-5, probe=None):
+    """Plane-stress P2 solve of the SCB under a unit load-segment displacement.
+
+    ``probe`` (k, 2) points (m): also return the FE displacement there per newton of load
+    (key ``probe_u_m_per_N``, (k, 2)), e.g. to apply a particle estimator to the FE field.
+
+    Returns a dict: ``Y_I, Y_II, T_star`` (dimensionless), ``K_I_Pa_sqrt_m, K_II_Pa_sqrt_m,
+    T_Pa`` per newton of load (load P = 1 N), ``compliance_m_per_N`` (load-segment
+    displacement over P), ``n_nodes``, ``n_dofs``, ``wall_s``.
+    """
+    from skfem import Basis, ElementTriP2, ElementVector, MeshTri, asm, condense, solve
+    from skfem.helpers import ddot, sym_grad
+    from skfem.models.elasticity import linear_elasticity, plane_stress
+
+    if supports not in ("rollers", "pinned"):
+        raise ValueError(f"supports={supports!r}; valid: 'rollers', 'pinned'")
+    t0 = time.perf_counter()
+    a, S = a_over_R * R, S_over_R * R
+    p, tri, tip = scb_mesh(alpha_deg, R=R, a_over_R=a_over_R, S_over_R=S_over_R, w=w,
+                           h_tip=h_tip, h_far=h_far, mouth=mouth)
+    m = MeshTri(p, tri)
+    e = ElementVector(ElementTriP2())
+    ib = Basis(m, e, intorder=4)
+    lam, mu = plane_stress(E, nu)
+    K = asm(linear_elasticity(lam, mu), ib)
+    tol = 1e-9
+    yt = np.sqrt(R * R - (w / 2) ** 2)
+    top = m.facets_satisfying(lambda x: (np.abs(x[0]) < w / 2 + tol) & (x[1] > yt - 1e-6), boundaries_only=True)
+    sup = m.facets_satisfying(lambda x: (np.abs(np.abs(x[0]) - S) < w / 2 + tol) & (np.abs(x[1]) < tol),
+                              boundaries_only=True)
+    dt = ib.get_dofs(top)
+    ds = ib.get_dofs(sup)
+    top_x, top_y = dt.all("u^1"), dt.all("u^2")
+    sup_y = ds.all("u^2")
+    fixed = [top_x, top_y, sup_y] + ([ds.all("u^1")] if supports == "pinned" else [])
+    D = np.unique(np.concatenate(fixed))
+    d = 1e-5
+    u = np.zeros(K.shape[0])
+    u[top_y] = -d
+    u = solve(*condense(K, np.zeros(K.shape[0]), x=u, D=D))
+    r = K @ u
+    P = -r[top_y].sum() * t                      # N (per-unit-thickness reaction x t)
+    # crack-face displacement jump
+    al = np.radians(alpha_deg)
+    ex = np.array([np.sin(al), np.cos(al)])      # crack direction x'
+    ey = np.array([np.cos(al), -np.sin(al)])     # normal y' (toward +x: K_II > 0 for alpha > 0)
+    nodes = m.p
+    rel = nodes - tip[:, None]
+    along = ex @ rel
+    across = ey @ rel
+    on_face = (along < 0) & (np.abs(across) < 1e-3 * a + mouth) & (-along < a)
+    # faces: the wedge's two sides are at +-(mouth/2)(|along|/a) across
+    ux = u[ib.nodal_dofs[0]]
+    uy = u[ib.nodal_dofs[1]]
+    up = across > 0
+    rr = np.geomspace(0.005 * a, 0.2 * a, 60)
+    jump = []
+    for sgn in (True, False):
+        sel = on_face & (up == sgn)
+        bnd = np.zeros(nodes.shape[1], bool)
+        bnd[m.boundary_nodes()] = True
+        sel &= bnd
+        rs = -along[sel]
+        o = np.argsort(rs)
+        rs = rs[o]
+        ux_s, uy_s = ux[sel][o], uy[sel][o]
+        jump.append(np.vstack([np.interp(rr, rs, ux_s), np.interp(rr, rs, uy_s)]))
+    du = jump[0] - jump[1]                       # upper minus lower face
+    du_x, du_y = ex @ du, ey @ du
+    kappa = (3 - nu) / (1 + nu)
+    fac = mu / (kappa + 1) * np.sqrt(2 * np.pi / rr)
+    KI_r, KII_r = fac * du_y, fac * du_x        # per unit thickness load -> scale to P
+    win = (rr > 0.01 * a) & (rr < 0.1 * a)
+    KI = np.polyfit(rr[win], KI_r[win], 1)[1]
+    KII = np.polyfit(rr[win], KII_r[win], 1)[1]
+    # T-stress ahead of the tip
+    sb = ib.with_element(ElementTriP2())
+    grad = ib.interpolate(u).grad
+    eps = 0.5 * (grad + np.swapaxes(grad, 0, 1))
+    tr = eps[0, 0] + eps[1, 1]
+    sig = {k: 2 * mu * eps[i, j] + (lam * tr if i == j else 0.0)
+           for k, (i, j) in {"xx": (0, 0), "yy": (1, 1), "xy": (0, 1)}.items()}
+    proj = {k: sb.project(v) for k, v in sig.items()}
+    ra = np.linspace(0.005 * a, 0.2 * a, 80)
+    pts = tip[:, None] + ex[:, None] * ra[None, :]
+    Pm = sb.probes(pts)
+    sxx, syy, sxy = (Pm @ proj[k] for k in ("xx", "yy", "xy"))
+    s_xx = ex[0] ** 2 * sxx + ex[1] ** 2 * syy + 2 * ex[0] * ex[1] * sxy
+    s_yy = ey[0] ** 2 * sxx + ey[1] ** 2 * syy + 2 * ey[0] * ey[1] * sxy
+    Tr = s_xx - s_yy
+    win = (ra > 0.01 * a) & (ra < 0.15 * a)
+    A = np.column_stack([np.ones(win.sum()), np.sqrt(ra[win]), ra[win]])
+    T = np.linalg.lstsq(A, Tr[win], rcond=None)[0][0]
+    Pu = P / t                                    # load per unit thickness for the 2D fields
+    KI, KII, T = KI / Pu / t, KII / Pu / t, T / Pu / t   # per newton of total load
+    Y = lambda k: k * 2 * R * t / np.sqrt(np.pi * a)
+    extra = {}
+    if probe is not None:
+        from skfem import ElementTriP2 as _P2
+
+        pb = ib.with_element(_P2()).probes(np.asarray(probe, float).T)
+        extra["probe_u_m_per_N"] = np.column_stack([pb @ u[0::2],
+                                                    pb @ u[1::2]]) / P
+    return {**extra,"alpha_deg": float(alpha_deg), "Y_I": float(Y(KI)), "Y_II": float(Y(KII)),
+            "T_star": float(T * 2 * R * t), "K_I_Pa_sqrt_m_per_N": float(KI),
+            "K_II_Pa_sqrt_m_per_N": float(KII), "T_Pa_per_N": float(T),
+            "compliance_m_per_N": float(d / P), "supports": supports, "w_m": w,
+            "n_nodes": int(m.p.shape[1]), "n_dofs": int(K.shape[0]), "h_tip_m": h_tip,
+            "wall_s": time.perf_counter() - t0}
+
+
+def main(argv=None):
+    import argparse
+    import datetime
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default="data/reference/scb_fem.json")
+    args = ap.parse_args(argv)
+    rows = {}
+    for sup in ("rollers", "pinned"):
+        rows[sup] = [solve_scb(al, supports=sup) for al in ALPHAS_DEG]
+    conv = [solve_scb(al, h_tip=h) for al in (0.0, 50.0) for h in (8e-5, 4e-5, 2e-5, 1e-5)]
+    doc = {"provenance": {"made_by": "python -m validation.fem_scb (validation/fem_scb.py)",
+                          "date": datetime.date.today().isoformat(),
+                          "method": "scikit-fem P2 plane stress, gmsh tip-refined mesh; K from "
+                                    "crack-face displacement jump, T from sigma_x'x' - sigma_y'y' ahead of the tip",
+                          "geometry": GEOMETRY, "material": PMMA,
+                          "load_and_support_width_m": 1.5e-3},
+           "rollers": rows["rollers"], "pinned": rows["pinned"], "tip_convergence": conv}
+    Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+    Path(args.out).write_text(json.dumps(doc, indent=1))
+    for sup in ("rollers", "pinned"):
+        for r in rows[sup]:
+            print(sup, f"{r['alpha_deg']:5.1f}  Y_I {r['Y_I']:.4f}  Y_II {r['Y_II']:.4f}  "
+                       f"T* {r['T_star']:.4f}  C {r['compliance_m_per_N'] * 1e6:.4f} um/N")
+    for r in conv:
+        print("conv", r["alpha_deg"], r["h_tip_m"], r["n_dofs"], f"{r['Y_I']:.4f} {r['Y_II']:.4f} {r['T_star']:.4f}")
+
+
+if __name__ == "__main__":
+    main()
