@@ -413,6 +413,150 @@ def eb_text_force_kernel(off_t, mem_t, inv_a_t, inv_b_t, g_t, theta_n, out_n):
         out_n[i] += acc
 
 
+@nb.njit(cache=True)
+def _find_col(indices, a, b, col):
+    """Position of ``col`` in the sorted ``indices[a:b]`` (binary search)."""
+    lo, hi = a, b - 1
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if indices[mid] < col:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@nb.njit(cache=True)
+def assemble_block_csr(mem_t, coef, w_tm, centre_only, indptr, indices, slot_of, val):
+    """Values of the assembled operator ``K = -sum_t sum_m W C_m C_m^T``: for every
+    triplet t, measure m, row member a (only the centre if ``centre_only``: the printed,
+    centre-only EOM), column member b and dofs (d, e)::
+
+        val[pos(mem[t, a], mem[t, b]), slot_of[d, e]] -= W[t, m] C[t, m, a, d] C[t, m, b, e]
+
+    ``pos`` is the CSR position of the particle pair (row, column). Serial (members of a
+    triplet share rows), run once."""
+    nt, nm = coef.shape[0], coef.shape[1]
+    nd = coef.shape[3]
+    na = 1 if centre_only else 3
+    for t in range(nt):
+        for m in range(nm):
+            w = w_tm[t, m]
+            for a in range(na):
+                r = mem_t[t, a]
+                for d in range(nd):
+                    cad = coef[t, m, a, d]
+                    if cad == 0.0:
+                        continue
+                    for b in range(3):
+                        pos = _find_col(indices, indptr[r], indptr[r + 1], mem_t[t, b])
+                        for e in range(nd):
+                            cbe = coef[t, m, b, e]
+                            if cbe == 0.0:
+                                continue
+                            val[pos, slot_of[d, e]] -= w * cad * cbe
+
+
+@nb.njit(parallel=True, cache=True)
+def gather_dofs(y, x0, fld, kind_a, comp_a, q):
+    """``q[i, a] = y[i, c] - x0[i, c]`` (kind 0) or ``fld[i, c]`` (kind 1), c = comp[a]."""
+    n, nd = q.shape
+    for i in nb.prange(n):
+        for a in range(nd):
+            c = comp_a[a]
+            if kind_a[a] == 0:
+                q[i, a] = y[i, c] - x0[i, c]
+            else:
+                q[i, a] = fld[i, c]
+
+
+@nb.njit(parallel=True, cache=True)
+def block_csr_spmv(indptr, indices, val, slot_r, slot_c, q, row_on, dest_kind, dest_comp,
+                   inv_v, out0, out1):
+    """Row-parallel ``f = K q`` over the slots (row dof, column dof) of a block CSR with
+    per-particle rows: ``f[i, r] = sum_p val[p, s] q[indices[p], c]`` for the slots
+    s = (r, c) with ``row_on[r]``, written as ``out[i, comp] += f[i, r] inv_v[i]`` into
+    ``out0`` (dest kind 0) or ``out1`` (kind 1). Each i writes only its own row: race-free."""
+    n = indptr.shape[0] - 1
+    ns = slot_r.shape[0]
+    for i in nb.prange(n):
+        a, b = indptr[i], indptr[i + 1]
+        for s in range(ns):
+            r = slot_r[s]
+            if not row_on[r]:
+                continue
+            c = slot_c[s]
+            acc = 0.0
+            for p in range(a, b):
+                acc += val[p, s] * q[indices[p], c]
+            if dest_kind[r] == 0:
+                out0[i, dest_comp[r]] += acc * inv_v[i]
+            else:
+                out1[i, dest_comp[r]] += acc * inv_v[i]
+
+
+@nb.njit(parallel=True, cache=True)
+def timo_csr_spmv(indptr, indices, val, q, do_t, do_r, inv_v, out_y, out_rot):
+    """Block CSR SpMV of the beam (slots u-u, w-w, w-phi, phi-w, phi-phi; q columns u, w,
+    phi): translation rows ``out_y[i, (0, 2)] += (K q)_i[u, w] / V_i`` if ``do_t``, the
+    rotation row ``out_rot[i, 0] += (K q)_i[phi] / V_i`` if ``do_r``. One accumulator per
+    row dof (independent chains); each i writes only its own row: race-free."""
+    n = indptr.shape[0] - 1
+    for i in nb.prange(n):
+        a, b = indptr[i], indptr[i + 1]
+        if do_t:
+            fu = 0.0
+            fw = 0.0
+            for p in range(a, b):
+                c = indices[p]
+                fu += val[p, 0] * q[c, 0]
+                fw += val[p, 1] * q[c, 1] + val[p, 2] * q[c, 2]
+            out_y[i, 0] += fu * inv_v[i]
+            out_y[i, 2] += fw * inv_v[i]
+        if do_r:
+            fp = 0.0
+            for p in range(a, b):
+                c = indices[p]
+                fp += val[p, 3] * q[c, 1] + val[p, 4] * q[c, 2]
+            out_rot[i, 0] += fp * inv_v[i]
+
+
+@nb.njit(parallel=True, cache=True)
+def plate_csr_spmv(indptr, indices, val, q, do_t, do_r, inv_v, out_y, out_rot):
+    """Block CSR SpMV of the plate (q columns u, v, w, phi_x, phi_y; slots u-u, u-v, v-u,
+    v-v, then w, phi_x, phi_y each against w, phi_x, phi_y): translation rows into
+    ``out_y[i, 0:3]`` if ``do_t``, rotation rows into ``out_rot[i, 0:2]`` if ``do_r``,
+    divided by V_i; race-free (row i only)."""
+    n = indptr.shape[0] - 1
+    for i in nb.prange(n):
+        a, b = indptr[i], indptr[i + 1]
+        if do_t:
+            fu = 0.0
+            fv = 0.0
+            fw = 0.0
+            for p in range(a, b):
+                c = indices[p]
+                qu, qv = q[c, 0], q[c, 1]
+                fu += val[p, 0] * qu + val[p, 1] * qv
+                fv += val[p, 2] * qu + val[p, 3] * qv
+                fw += val[p, 4] * q[c, 2] + val[p, 5] * q[c, 3] + val[p, 6] * q[c, 4]
+            s = inv_v[i]
+            out_y[i, 0] += fu * s
+            out_y[i, 1] += fv * s
+            out_y[i, 2] += fw * s
+        if do_r:
+            fa = 0.0
+            fb = 0.0
+            for p in range(a, b):
+                c = indices[p]
+                qw, qa, qb = q[c, 2], q[c, 3], q[c, 4]
+                fa += val[p, 7] * qw + val[p, 8] * qa + val[p, 9] * qb
+                fb += val[p, 10] * qw + val[p, 11] * qa + val[p, 12] * qb
+            s = inv_v[i]
+            out_rot[i, 0] += fa * s
+            out_rot[i, 1] += fb * s
+
+
 def _nchunks(n):
     return max(1, min(int(nb.get_num_threads()), n))
 
@@ -463,16 +607,109 @@ class _TripletModel(Model):
             q[:, a] = (state.y[:, c] - state.x0[:, c]) if kind == "y" else state.fields[kind][:, c]
         return q
 
-    kernel = "fast"
+    kernel = "operator"
 
     def _fast_force(self, q):
         return None
 
+    def _has_operator(self):
+        return self.kernel == "operator" and getattr(self, "coef", None) is not None
+
+    def _operator(self):
+        """The model's linear force operator ``K`` ((N nd) x (N nd), ``f = K q``) assembled
+        once from the measure tables: a block CSR with one row per particle, int32 column
+        indices (the particles sharing a triplet with it, sorted) and float64 values
+        ``(nnz, n_slots)``, one slot per structurally nonzero (row dof, column dof) pair of
+        the blocks (Timoshenko: u-u, w-w, w-phi, phi-w, phi-phi; plate: 13 of 25).
+        ``K = -sum_t sum_m W_tm C_tm C_tm^T`` (the exact gradient of the energy, so
+        ``K`` is symmetric) for "consistent"; for "text" only the centre's rows
+        ``-sum_t sum_m W_tm C_tm[0] C_tm^T`` (the printed EOM, not symmetric). Because
+        the models are linear (small deformation), the triplet sums are a fixed operator
+        of the dofs and one SpMV per step replaces them: a row costs (number of coupled
+        particles) x (slots) multiply-adds instead of a centre's m(2m-1) (beam) or 4 m^2
+        (plate) triplets of eight or nine measures over three particles."""
+        op = getattr(self, "_op", None)
+        if op is not None and op[0] is self.coef:
+            return op[1]
+        n = self.system.n
+        coef, mem = self.coef, self.mem_t
+        nd = self.nd
+        centre_only = self.variant == "text"
+        # structurally coupled (d, e) pairs: dofs that share a measure
+        used = np.abs(coef).max(axis=(0, 2)) > 0            # (M, nd)
+        cpl = np.zeros((nd, nd), bool)
+        for um in used:
+            cpl |= np.outer(um, um)
+        slot_r, slot_c = np.nonzero(cpl)
+        slot_of = np.full((nd, nd), -1, np.int64)
+        slot_of[slot_r, slot_c] = np.arange(slot_r.size)
+        rows_a = (0,) if centre_only else (0, 1, 2)
+        rows = np.concatenate([np.repeat(mem[:, a], 3) for a in rows_a])
+        cols = np.concatenate([mem.reshape(-1) for _ in rows_a])
+        key = np.unique(rows.astype(np.int64) * n + cols)
+        r_u, c_u = key // n, key % n
+        indptr = np.zeros(n + 1, np.int64)
+        indptr[1:] = np.cumsum(np.bincount(r_u, minlength=n))
+        indices = np.ascontiguousarray(c_u.astype(np.int32))
+        val = np.zeros((key.size, slot_r.size))
+        assemble_block_csr(mem, coef, self.w_tm, centre_only, indptr, indices, slot_of, val)
+        kinds = np.array([0 if kind == "y" else 1 for kind, _ in self.dof_map], np.int64)
+        comps = np.array([c for _, c in self.dof_map], np.int64)
+        fld = next((kind for kind, _ in self.dof_map if kind != "y"), None)
+        res = {"indptr": indptr, "indices": indices, "val": val,
+               "slot_r": slot_r.astype(np.int64), "slot_c": slot_c.astype(np.int64),
+               "slots": tuple(zip(slot_r.tolist(), slot_c.tolist())),
+               "kind": kinds, "comp": comps, "field": fld,
+               "trans": kinds == 0, "rot": kinds == 1,
+               "inv_v": np.ascontiguousarray(1.0 / self.system.volume)}
+        self._op = (self.coef, res)
+        return res
+
+    def _op_gather(self, state, op):
+        q = np.empty((state.y.shape[0], self.nd))
+        fld = state.fields[op["field"]] if op["field"] is not None else np.zeros((1, 1))
+        gather_dofs(state.y, state.x0, fld, op["kind"], op["comp"], q)
+        return q
+
+    _op_kernel = None       # specialised SpMV (beam, plate) and the slot layout it assumes
+    _op_slots = None
+
+    def _op_rows(self, op, q, do_t, do_r, out_y, out_rot):
+        """Translation rows (``do_t``) and/or rotation rows (``do_r``) of ``K q / V`` added
+        into the engine's force arrays: the model's specialised kernel when the assembled
+        slots are the ones it assumes, else the generic block SpMV."""
+        if self._op_kernel is not None and op["slots"] == self._op_slots:
+            type(self)._op_kernel(op["indptr"], op["indices"], op["val"], q, do_t, do_r,
+                                  op["inv_v"], out_y, out_rot)
+            return
+        on = (op["trans"] if do_t else np.zeros(self.nd, bool)) | \
+             (op["rot"] if do_r else np.zeros(self.nd, bool))
+        self._op_apply(op, q, on, out_y, out_rot)
+
+    def _op_apply(self, op, q, row_on, out0, out1, inv_v=None, dest_kind=None, dest_comp=None):
+        block_csr_spmv(op["indptr"], op["indices"], op["val"], op["slot_r"], op["slot_c"], q,
+                       row_on, op["kind"] if dest_kind is None else dest_kind,
+                       op["comp"] if dest_comp is None else dest_comp,
+                       op["inv_v"] if inv_v is None else inv_v, out0, out1)
+
     def _operator_force(self, q):
-        """Generalised particle forces (N, nd) (N; N m for rotations): the model's own
-        kernel (``kernel="fast"``, geometry on the fly) or the generic measure-table
-        kernels (``kernel="table"``; the same operator, used to cross-check)."""
+        """Generalised particle forces (N, nd) (N; N m for rotations) of the dofs q.
+
+        The model attribute ``kernel`` selects the path, all the same linear operator:
+        ``"operator"`` (default) the block CSR assembled once (:meth:`_operator`) and one
+        row-parallel SpMV; ``"fast"`` the model's triplet kernel (geometry on the fly;
+        the reference the operator is checked against); ``"table"`` the generic
+        measure-table kernels. The energy is always the triplet sum
+        ``sum_t sum_m W s^2 / 2``, which equals ``-q.K q / 2`` to round-off."""
         n = q.shape[0]
+        if self._has_operator():
+            op = self._operator()
+            f = np.zeros((n, self.nd))
+            nd_ = np.arange(self.nd, dtype=np.int64)
+            self._op_apply(op, np.ascontiguousarray(q, dtype=np.float64),
+                           np.ones(self.nd, bool), f, f, np.ones(n),
+                           np.zeros(self.nd, np.int64), nd_)
+            return f
         if self.kernel == "fast":
             f = self._fast_force(q)
             if f is not None:
@@ -489,6 +726,11 @@ class _TripletModel(Model):
         return self._operator_force(self._gather(state) if q is None else q)
 
     def add_force(self, state, out):
+        if self._has_operator():
+            op = self._operator()
+            q = self._op_gather(state, op)
+            self._op_rows(op, q, True, False, out, np.zeros((1, 2)))
+            return
         q = self._gather(state)
         f = self._generalised(state, q)
         inv_v = 1.0 / self.system.volume
@@ -501,6 +743,14 @@ class _TripletModel(Model):
             self._cache = (q, f)
 
     def add_field_force(self, state, out):
+        if self._has_operator():
+            # the rotation rows only: with add_force's translation rows, one SpMV per step
+            op = self._operator()
+            if op["field"] is None:
+                return
+            q = self._op_gather(state, op)
+            self._op_rows(op, q, False, True, np.zeros((1, 3)), out[op["field"]])
+            return
         cache = getattr(self, "_cache", None)
         if cache is not None and np.array_equal(cache[0], self._gather(state)):
             f = cache[1]
@@ -600,6 +850,8 @@ class TridynTimoshenko(_TripletModel):
     name = "tridyn-timoshenko"
     needs = Needs(pairs=True, energy=True)
     nd = 3
+    _op_kernel = timo_csr_spmv
+    _op_slots = ((0, 0), (1, 1), (1, 2), (2, 1), (2, 2))
     dof_map = (("y", 0), ("y", 2), ("rot", 0))
 
     def __init__(self, E, nu=0.3, *, area, second_moment, shear_factor=5.0 / 6.0,
@@ -1021,6 +1273,9 @@ class TridynPlate(_TripletModel):
     name = "tridyn-plate"
     needs = Needs(pairs=True, energy=True)
     nd = 5
+    _op_kernel = plate_csr_spmv
+    _op_slots = ((0, 0), (0, 1), (1, 0), (1, 1), (2, 2), (2, 3), (2, 4), (3, 2), (3, 3),
+                 (3, 4), (4, 2), (4, 3), (4, 4))
     dof_map = (("y", 0), ("y", 1), ("y", 2), ("rot", 0), ("rot", 1))
     variant = "consistent"
 
