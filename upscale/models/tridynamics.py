@@ -471,16 +471,17 @@ def gather_dofs(y, x0, fld, kind_a, comp_a, q):
 
 
 @nb.njit(parallel=True, cache=True)
-def block_csr_spmv(indptr, indices, val, slot_r, slot_c, q, row_on, dest_kind, dest_comp,
+def block_csr_spmv(row_pat, indptr, indices, val, slot_r, slot_c, q, row_on, dest_kind, dest_comp,
                    inv_v, out0, out1):
-    """Row-parallel ``f = K q`` over the slots (row dof, column dof) of a block CSR with
-    per-particle rows: ``f[i, r] = sum_p val[p, s] q[indices[p], c]`` for the slots
-    s = (r, c) with ``row_on[r]``, written as ``out[i, comp] += f[i, r] inv_v[i]`` into
+    """Row-parallel ``f = K q`` over the slots (row dof, column dof) of the block
+    operator: row i uses stencil ``row_pat[i]``, whose entries ``indptr[p]:indptr[p + 1]``
+    hold column offsets ``indices`` relative to i and values ``val``:
+    ``f[i, r] = sum val[., s] q[i + indices[.], c]`` for the slots s = (r, c) with ``row_on[r]``, written as ``out[i, comp] += f[i, r] inv_v[i]`` into
     ``out0`` (dest kind 0) or ``out1`` (kind 1). Each i writes only its own row: race-free."""
-    n = indptr.shape[0] - 1
+    n = row_pat.shape[0]
     ns = slot_r.shape[0]
     for i in nb.prange(n):
-        a, b = indptr[i], indptr[i + 1]
+        a, b = indptr[row_pat[i]], indptr[row_pat[i] + 1]
         for s in range(ns):
             r = slot_r[s]
             if not row_on[r]:
@@ -488,7 +489,7 @@ def block_csr_spmv(indptr, indices, val, slot_r, slot_c, q, row_on, dest_kind, d
             c = slot_c[s]
             acc = 0.0
             for p in range(a, b):
-                acc += val[p, s] * q[indices[p], c]
+                acc += val[p, s] * q[i + indices[p], c]
             if dest_kind[r] == 0:
                 out0[i, dest_comp[r]] += acc * inv_v[i]
             else:
@@ -496,19 +497,19 @@ def block_csr_spmv(indptr, indices, val, slot_r, slot_c, q, row_on, dest_kind, d
 
 
 @nb.njit(parallel=True, cache=True)
-def timo_csr_spmv(indptr, indices, val, q, do_t, do_r, inv_v, out_y, out_rot):
+def timo_csr_spmv(row_pat, indptr, indices, val, q, do_t, do_r, inv_v, out_y, out_rot):
     """Block CSR SpMV of the beam (slots u-u, w-w, w-phi, phi-w, phi-phi; q columns u, w,
     phi): translation rows ``out_y[i, (0, 2)] += (K q)_i[u, w] / V_i`` if ``do_t``, the
     rotation row ``out_rot[i, 0] += (K q)_i[phi] / V_i`` if ``do_r``. One accumulator per
     row dof (independent chains); each i writes only its own row: race-free."""
-    n = indptr.shape[0] - 1
+    n = row_pat.shape[0]
     for i in nb.prange(n):
-        a, b = indptr[i], indptr[i + 1]
+        a, b = indptr[row_pat[i]], indptr[row_pat[i] + 1]
         if do_t:
             fu = 0.0
             fw = 0.0
             for p in range(a, b):
-                c = indices[p]
+                c = nb.uint64(i + indices[p])  # >= 0: no wraparound test
                 fu += val[p, 0] * q[c, 0]
                 fw += val[p, 1] * q[c, 1] + val[p, 2] * q[c, 2]
             out_y[i, 0] += fu * inv_v[i]
@@ -516,26 +517,26 @@ def timo_csr_spmv(indptr, indices, val, q, do_t, do_r, inv_v, out_y, out_rot):
         if do_r:
             fp = 0.0
             for p in range(a, b):
-                c = indices[p]
+                c = nb.uint64(i + indices[p])  # >= 0: no wraparound test
                 fp += val[p, 3] * q[c, 1] + val[p, 4] * q[c, 2]
             out_rot[i, 0] += fp * inv_v[i]
 
 
 @nb.njit(parallel=True, cache=True)
-def plate_csr_spmv(indptr, indices, val, q, do_t, do_r, inv_v, out_y, out_rot):
+def plate_csr_spmv(row_pat, indptr, indices, val, q, do_t, do_r, inv_v, out_y, out_rot):
     """Block CSR SpMV of the plate (q columns u, v, w, phi_x, phi_y; slots u-u, u-v, v-u,
     v-v, then w, phi_x, phi_y each against w, phi_x, phi_y): translation rows into
     ``out_y[i, 0:3]`` if ``do_t``, rotation rows into ``out_rot[i, 0:2]`` if ``do_r``,
     divided by V_i; race-free (row i only)."""
-    n = indptr.shape[0] - 1
+    n = row_pat.shape[0]
     for i in nb.prange(n):
-        a, b = indptr[i], indptr[i + 1]
+        a, b = indptr[row_pat[i]], indptr[row_pat[i] + 1]
         if do_t:
             fu = 0.0
             fv = 0.0
             fw = 0.0
             for p in range(a, b):
-                c = indices[p]
+                c = nb.uint64(i + indices[p])  # >= 0: no wraparound test
                 qu, qv = q[c, 0], q[c, 1]
                 fu += val[p, 0] * qu + val[p, 1] * qv
                 fv += val[p, 2] * qu + val[p, 3] * qv
@@ -548,13 +549,57 @@ def plate_csr_spmv(indptr, indices, val, q, do_t, do_r, inv_v, out_y, out_rot):
             fa = 0.0
             fb = 0.0
             for p in range(a, b):
-                c = indices[p]
+                c = nb.uint64(i + indices[p])  # >= 0: no wraparound test
                 qw, qa, qb = q[c, 2], q[c, 3], q[c, 4]
                 fa += val[p, 7] * qw + val[p, 8] * qa + val[p, 9] * qb
                 fb += val[p, 10] * qw + val[p, 11] * qa + val[p, 12] * qb
             s = inv_v[i]
             out_rot[i, 0] += fa * s
             out_rot[i, 1] += fb * s
+
+
+def _share_stencils(indptr, indices, val, tol):
+    """Rows of the assembled operator that are the same stencil share one stored copy.
+
+    Row i is the list of (column offset ``indices - i``, values); two rows are the same
+    stencil when the offsets are equal and every value agrees on the grid
+    ``tol x (largest |value| of its slot)`` (``np.rint``). On a uniform lattice the bulk
+    rows differ only by the round-off of the reference coordinates in ``1/xi``
+    (relative ``eps |x| / dx``, 1e-11 on a 1e5-particle chain), so they collapse to one
+    stencil and the SpMV streams one int32 per row instead of its values and columns; a
+    row is stored with the values of the first row of its class. ``tol = 0`` (the
+    models' default ``stencil_tol``) keeps every row (plain CSR with relative columns):
+    sharing replaces a row by a neighbour's round-off, which breaks the exact symmetry of
+    ``K``, and the long-wave dispersion (flexural frequencies ~ (k dx)^2 (k h)^2 / 12 of
+    the entries) is sensitive to exactly that. Returns ``(row_pat (N,) int32, indptr
+    (P+1,) int64, offsets int32, values (nnz_P, n_slots))``."""
+    n = indptr.shape[0] - 1
+    lens = np.diff(indptr)
+    rel = (indices.astype(np.int64) - np.repeat(np.arange(n), lens)).astype(np.int32)
+    if tol <= 0:
+        return np.arange(n, dtype=np.int32), indptr, rel, val
+    scale = np.abs(val).max(axis=0) if val.size else np.ones(val.shape[1])
+    scale[scale == 0] = 1.0
+    grid = np.rint(val / (scale * tol)).astype(np.int64)
+    seen = {}
+    row_pat = np.empty(n, np.int32)
+    reps = []
+    for i in range(n):
+        a, b = indptr[i], indptr[i + 1]
+        k = (rel[a:b].tobytes(), grid[a:b].tobytes())
+        pid = seen.get(k)
+        if pid is None:
+            pid = seen[k] = len(reps)
+            reps.append(i)
+        row_pat[i] = pid
+    reps = np.array(reps, np.int64)
+    plen = lens[reps]
+    pptr = np.zeros(reps.size + 1, np.int64)
+    pptr[1:] = np.cumsum(plen)
+    take = np.concatenate([np.arange(indptr[r], indptr[r + 1]) for r in reps]) if reps.size \
+        else np.zeros(0, np.int64)
+    return (row_pat, pptr, np.ascontiguousarray(rel[take]),
+            np.ascontiguousarray(val[take]))
 
 
 def _nchunks(n):
@@ -608,6 +653,7 @@ class _TripletModel(Model):
         return q
 
     kernel = "operator"
+    stencil_tol = 0.0       # > 0: rows equal on that grid share one stored stencil
 
     def _fast_force(self, q):
         return None
@@ -653,10 +699,11 @@ class _TripletModel(Model):
         indices = np.ascontiguousarray(c_u.astype(np.int32))
         val = np.zeros((key.size, slot_r.size))
         assemble_block_csr(mem, coef, self.w_tm, centre_only, indptr, indices, slot_of, val)
+        row_pat, indptr, rel, val = _share_stencils(indptr, indices, val, self.stencil_tol)
         kinds = np.array([0 if kind == "y" else 1 for kind, _ in self.dof_map], np.int64)
         comps = np.array([c for _, c in self.dof_map], np.int64)
         fld = next((kind for kind, _ in self.dof_map if kind != "y"), None)
-        res = {"indptr": indptr, "indices": indices, "val": val,
+        res = {"row_pat": row_pat, "indptr": indptr, "indices": rel, "val": val,
                "slot_r": slot_r.astype(np.int64), "slot_c": slot_c.astype(np.int64),
                "slots": tuple(zip(slot_r.tolist(), slot_c.tolist())),
                "kind": kinds, "comp": comps, "field": fld,
@@ -679,7 +726,7 @@ class _TripletModel(Model):
         into the engine's force arrays: the model's specialised kernel when the assembled
         slots are the ones it assumes, else the generic block SpMV."""
         if self._op_kernel is not None and op["slots"] == self._op_slots:
-            type(self)._op_kernel(op["indptr"], op["indices"], op["val"], q, do_t, do_r,
+            type(self)._op_kernel(op["row_pat"], op["indptr"], op["indices"], op["val"], q, do_t, do_r,
                                   op["inv_v"], out_y, out_rot)
             return
         on = (op["trans"] if do_t else np.zeros(self.nd, bool)) | \
@@ -687,7 +734,7 @@ class _TripletModel(Model):
         self._op_apply(op, q, on, out_y, out_rot)
 
     def _op_apply(self, op, q, row_on, out0, out1, inv_v=None, dest_kind=None, dest_comp=None):
-        block_csr_spmv(op["indptr"], op["indices"], op["val"], op["slot_r"], op["slot_c"], q,
+        block_csr_spmv(op["row_pat"], op["indptr"], op["indices"], op["val"], op["slot_r"], op["slot_c"], q,
                        row_on, op["kind"] if dest_kind is None else dest_kind,
                        op["comp"] if dest_comp is None else dest_comp,
                        op["inv_v"] if inv_v is None else inv_v, out0, out1)
