@@ -476,7 +476,8 @@ def block_csr_spmv(row_pat, indptr, indices, val, slot_r, slot_c, q, row_on, des
     """Row-parallel ``f = K q`` over the slots (row dof, column dof) of the block
     operator: row i uses stencil ``row_pat[i]``, whose entries ``indptr[p]:indptr[p + 1]``
     hold column offsets ``indices`` relative to i and values ``val``:
-    ``f[i, r] = sum val[., s] q[i + indices[.], c]`` for the slots s = (r, c) with ``row_on[r]``, written as ``out[i, comp] += f[i, r] inv_v[i]`` into
+    ``f[i, r] = R[i, s] q[i, c] + sum val[., s] (q[i + indices[.], c] - q[i, c])`` (entry
+    ``a`` of a stencil is i itself and holds the row sum R) for the slots s = (r, c) with ``row_on[r]``, written as ``out[i, comp] += f[i, r] inv_v[i]`` into
     ``out0`` (dest kind 0) or ``out1`` (kind 1). Each i writes only its own row: race-free."""
     n = row_pat.shape[0]
     ns = slot_r.shape[0]
@@ -487,9 +488,10 @@ def block_csr_spmv(row_pat, indptr, indices, val, slot_r, slot_c, q, row_on, des
             if not row_on[r]:
                 continue
             c = slot_c[s]
-            acc = 0.0
-            for p in range(a, b):
-                acc += val[p, s] * q[i + indices[p], c]
+            qi = q[i, c]
+            acc = val[a, s] * qi
+            for p in range(a + 1, b):
+                acc += val[p, s] * (q[i + indices[p], c] - qi)
             if dest_kind[r] == 0:
                 out0[i, dest_comp[r]] += acc * inv_v[i]
             else:
@@ -498,64 +500,100 @@ def block_csr_spmv(row_pat, indptr, indices, val, slot_r, slot_c, q, row_on, des
 
 @nb.njit(parallel=True, cache=True)
 def timo_csr_spmv(row_pat, indptr, indices, val, q, do_t, do_r, inv_v, out_y, out_rot):
-    """Block CSR SpMV of the beam (slots u-u, w-w, w-phi, phi-w, phi-phi; q columns u, w,
-    phi): translation rows ``out_y[i, (0, 2)] += (K q)_i[u, w] / V_i`` if ``do_t``, the
-    rotation row ``out_rot[i, 0] += (K q)_i[phi] / V_i`` if ``do_r``. One accumulator per
-    row dof (independent chains); each i writes only its own row: race-free."""
+    """Block SpMV of the beam (slots u-u, w-w, w-phi, phi-w, phi-phi; q columns u, w,
+    phi) in difference form (see :meth:`_TripletModel._operator`; entry ``a`` of a
+    stencil is the particle itself and holds the row sums R):
+    ``f_i = R_i q_i + sum_{c != i} K_ic (q_c - q_i)``. Translation rows
+    ``out_y[i, (0, 2)] += f_i[u, w] / V_i`` if ``do_t``, the rotation row
+    ``out_rot[i, 0] += f_i[phi] / V_i`` if ``do_r``. One accumulator per row dof; each i
+    writes only its own row: race-free."""
     n = row_pat.shape[0]
     for i in nb.prange(n):
         a, b = indptr[row_pat[i]], indptr[row_pat[i] + 1]
+        qu, qw, qp = q[i, 0], q[i, 1], q[i, 2]
         if do_t:
-            fu = 0.0
-            fw = 0.0
-            for p in range(a, b):
+            fu = val[a, 0] * qu
+            fw = val[a, 1] * qw + val[a, 2] * qp
+            for p in range(a + 1, b):
                 c = nb.uint64(i + indices[p])  # >= 0: no wraparound test
-                fu += val[p, 0] * q[c, 0]
-                fw += val[p, 1] * q[c, 1] + val[p, 2] * q[c, 2]
+                fu += val[p, 0] * (q[c, 0] - qu)
+                fw += val[p, 1] * (q[c, 1] - qw) + val[p, 2] * (q[c, 2] - qp)
             out_y[i, 0] += fu * inv_v[i]
             out_y[i, 2] += fw * inv_v[i]
         if do_r:
-            fp = 0.0
-            for p in range(a, b):
+            fp = val[a, 3] * qw + val[a, 4] * qp
+            for p in range(a + 1, b):
                 c = nb.uint64(i + indices[p])  # >= 0: no wraparound test
-                fp += val[p, 3] * q[c, 1] + val[p, 4] * q[c, 2]
+                fp += val[p, 3] * (q[c, 1] - qw) + val[p, 4] * (q[c, 2] - qp)
             out_rot[i, 0] += fp * inv_v[i]
 
 
 @nb.njit(parallel=True, cache=True)
 def plate_csr_spmv(row_pat, indptr, indices, val, q, do_t, do_r, inv_v, out_y, out_rot):
-    """Block CSR SpMV of the plate (q columns u, v, w, phi_x, phi_y; slots u-u, u-v, v-u,
-    v-v, then w, phi_x, phi_y each against w, phi_x, phi_y): translation rows into
-    ``out_y[i, 0:3]`` if ``do_t``, rotation rows into ``out_rot[i, 0:2]`` if ``do_r``,
-    divided by V_i; race-free (row i only)."""
+    """Block SpMV of the plate (q columns u, v, w, phi_x, phi_y; slots u-u, u-v, v-u,
+    v-v, then w, phi_x, phi_y each against w, phi_x, phi_y) in the difference form of
+    :func:`timo_csr_spmv`: translation rows into ``out_y[i, 0:3]`` if ``do_t``, rotation
+    rows into ``out_rot[i, 0:2]`` if ``do_r``, divided by V_i; race-free (row i only)."""
     n = row_pat.shape[0]
     for i in nb.prange(n):
         a, b = indptr[row_pat[i]], indptr[row_pat[i] + 1]
+        q0, q1, q2, q3, q4 = q[i, 0], q[i, 1], q[i, 2], q[i, 3], q[i, 4]
         if do_t:
-            fu = 0.0
-            fv = 0.0
-            fw = 0.0
-            for p in range(a, b):
+            fu = val[a, 0] * q0 + val[a, 1] * q1
+            fv = val[a, 2] * q0 + val[a, 3] * q1
+            fw = val[a, 4] * q2 + val[a, 5] * q3 + val[a, 6] * q4
+            for p in range(a + 1, b):
                 c = nb.uint64(i + indices[p])  # >= 0: no wraparound test
-                qu, qv = q[c, 0], q[c, 1]
-                fu += val[p, 0] * qu + val[p, 1] * qv
-                fv += val[p, 2] * qu + val[p, 3] * qv
-                fw += val[p, 4] * q[c, 2] + val[p, 5] * q[c, 3] + val[p, 6] * q[c, 4]
+                du, dv = q[c, 0] - q0, q[c, 1] - q1
+                fu += val[p, 0] * du + val[p, 1] * dv
+                fv += val[p, 2] * du + val[p, 3] * dv
+                fw += val[p, 4] * (q[c, 2] - q2) + val[p, 5] * (q[c, 3] - q3) \
+                    + val[p, 6] * (q[c, 4] - q4)
             s = inv_v[i]
             out_y[i, 0] += fu * s
             out_y[i, 1] += fv * s
             out_y[i, 2] += fw * s
         if do_r:
-            fa = 0.0
-            fb = 0.0
-            for p in range(a, b):
+            fa = val[a, 7] * q2 + val[a, 8] * q3 + val[a, 9] * q4
+            fb = val[a, 10] * q2 + val[a, 11] * q3 + val[a, 12] * q4
+            for p in range(a + 1, b):
                 c = nb.uint64(i + indices[p])  # >= 0: no wraparound test
-                qw, qa, qb = q[c, 2], q[c, 3], q[c, 4]
-                fa += val[p, 7] * qw + val[p, 8] * qa + val[p, 9] * qb
-                fb += val[p, 10] * qw + val[p, 11] * qa + val[p, 12] * qb
+                dw, da, db = q[c, 2] - q2, q[c, 3] - q3, q[c, 4] - q4
+                fa += val[p, 7] * dw + val[p, 8] * da + val[p, 9] * db
+                fb += val[p, 10] * dw + val[p, 11] * da + val[p, 12] * db
             s = inv_v[i]
             out_rot[i, 0] += fa * s
             out_rot[i, 1] += fb * s
+
+
+@nb.njit(cache=True)
+def assemble_row_sums(mem_t, coef, w_tm, centre_only, slot_of, rsum):
+    """Row sums ``R[i, slot(d, e)] = sum_c K[(i, d), (c, e)]``, the force on dof d of i
+    under a uniform unit field in dof e, assembled per triplet as
+    ``-W C[a, d] mu_e`` with ``mu_e = sum_b C[t, m, b, e]`` the measure of that uniform
+    field, snapped to zero where it is a cancelling difference
+    (``|mu_e| <= 1e-12 sum_b |C|``): derivative measures of a uniform field vanish
+    exactly, so translation-invariant rows get R = 0 exactly, not round-off."""
+    nt, nm = coef.shape[0], coef.shape[1]
+    nd = coef.shape[3]
+    na = 1 if centre_only else 3
+    for t in range(nt):
+        for m in range(nm):
+            w = w_tm[t, m]
+            for e in range(nd):
+                mu = 0.0
+                mabs = 0.0
+                for b in range(3):
+                    mu += coef[t, m, b, e]
+                    mabs += abs(coef[t, m, b, e])
+                if abs(mu) <= 1e-12 * mabs:
+                    continue
+                for a in range(na):
+                    r = mem_t[t, a]
+                    for d in range(nd):
+                        cad = coef[t, m, a, d]
+                        if cad != 0.0:
+                            rsum[r, slot_of[d, e]] -= w * cad * mu
 
 
 def _share_stencils(indptr, indices, val, tol):
@@ -673,7 +711,14 @@ class _TripletModel(Model):
         the models are linear (small deformation), the triplet sums are a fixed operator
         of the dofs and one SpMV per step replaces them: a row costs (number of coupled
         particles) x (slots) multiply-adds instead of a centre's m(2m-1) (beam) or 4 m^2
-        (plate) triplets of eight or nine measures over three particles."""
+        (plate) triplets of eight or nine measures over three particles.
+
+        The product is taken in difference form, ``f_i = R_i q_i + sum_{c != i} K_ic
+        (q_c - q_i)`` with the row sums ``R`` (exactly zero for the translation-invariant
+        rows) in the diagonal entry, which is stored first: like the triplet kernel, it
+        differences the field before multiplying by the large ``1/xi^2`` entries, so a
+        long wave keeps its digits (the flexural frequency is ~ (k dx)^2 (k h)^2 of the
+        entries and the plain ``sum_c K_ic q_c`` loses it to cancellation)."""
         op = getattr(self, "_op", None)
         if op is not None and op[0] is self.coef:
             return op[1]
@@ -692,13 +737,23 @@ class _TripletModel(Model):
         rows_a = (0,) if centre_only else (0, 1, 2)
         rows = np.concatenate([np.repeat(mem[:, a], 3) for a in rows_a])
         cols = np.concatenate([mem.reshape(-1) for _ in rows_a])
-        key = np.unique(rows.astype(np.int64) * n + cols)
+        ar = np.arange(n, dtype=np.int64)
+        key = np.unique(np.concatenate([rows.astype(np.int64) * n + cols, ar * n + ar]))
         r_u, c_u = key // n, key % n
         indptr = np.zeros(n + 1, np.int64)
         indptr[1:] = np.cumsum(np.bincount(r_u, minlength=n))
         indices = np.ascontiguousarray(c_u.astype(np.int32))
         val = np.zeros((key.size, slot_r.size))
         assemble_block_csr(mem, coef, self.w_tm, centre_only, indptr, indices, slot_of, val)
+        # difference form: the diagonal entry (first in its row) holds the row sums
+        rid = np.repeat(np.arange(n), np.diff(indptr))
+        order = np.lexsort((indices, indices != rid, rid))
+        indices, val = np.ascontiguousarray(indices[order]), np.ascontiguousarray(val[order])
+        rsum = np.zeros((n, slot_r.size))
+        assemble_row_sums(mem, coef, self.w_tm, centre_only, slot_of, rsum)
+        if np.any(indices[indptr[:-1]] != np.arange(n)):
+            raise RuntimeError("operator row without its diagonal entry")
+        val[indptr[:-1]] = rsum
         row_pat, indptr, rel, val = _share_stencils(indptr, indices, val, self.stencil_tol)
         kinds = np.array([0 if kind == "y" else 1 for kind, _ in self.dof_map], np.int64)
         comps = np.array([c for _, c in self.dof_map], np.int64)
