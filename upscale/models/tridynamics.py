@@ -691,7 +691,7 @@ class _TripletModel(Model):
         return q
 
     kernel = "operator"
-    stencil_tol = 0.0       # > 0: rows equal on that grid share one stored stencil
+    stencil_tol = 1e-12     # rows equal on that grid share one stored stencil (0: none)
 
     def _fast_force(self, q):
         return None

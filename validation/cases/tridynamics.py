@@ -6,8 +6,10 @@ from the printed formulas, (ii) the classical Timoshenko branches C.16-C.17 and 
 (iii) the peridynamic bar's lattice sum and ``(4E/delta^2) Cin(k delta)``, 3.55.
 ``tridyn-beam``: static beams against the EB/Timoshenko closed forms, convergence order,
 the literal calibration's stiffening, stable step and NVE drift.
-``bench-tridyn``: time per particle-step of the beam kernels against the PMB kernel,
-same particle count and horizon, one run.
+``bench-tridyn``: time per particle-step of the beam and plate force evaluations against
+the PMB kernel, same particle count and horizon, one run: the default path (the assembled
+operator and its SpMV), the triplet kernel it replaces, and the operator with shared
+stencils.
 """
 from __future__ import annotations
 
