@@ -65,6 +65,16 @@ a uniform curvature stores ``EI/A kappa^2 / 2`` per unit volume. (The printed en
 2.9-2.11 in terms of the differences of the slope jumps is of higher order: its gradient
 is a sixth-order operator, not EB.)
 
+Force paths
+-----------
+The models are linear (small deformation), so the force is a fixed operator ``K`` of the
+degrees of freedom. ``kernel="operator"`` (default) assembles it once from the measure
+tables and applies it by a row-parallel SpMV in difference form
+(:meth:`_TripletModel._operator`, :func:`_share_stencils`); ``kernel="fast"`` is the
+triplet kernel (geometry on the fly, the reference), ``kernel="table"`` the generic
+measure-table kernel. The energy is always the triplet sum. The text EB variant (slope
+jumps) has no measure tables and always uses its own kernel.
+
 Supports (:func:`beam`): ``"ss"`` (w = 0, mirror ghosts w odd, phi even), ``"cc"`` (EB:
 w = 0 with even mirror ghosts, i.e. zero slope; Timoshenko: u = w = phi = 0 at the
 support node, extrapolated ghosts) and ``"free"``; a cantilever is ``("cc", "free")``. Ghost layers are
@@ -605,12 +615,14 @@ def _share_stencils(indptr, indices, val, tol):
     rows differ only by the round-off of the reference coordinates in ``1/xi``
     (relative ``eps |x| / dx``, 1e-11 on a 1e5-particle chain), so they collapse to one
     stencil and the SpMV streams one int32 per row instead of its values and columns; a
-    row is stored with the values of the first row of its class. ``tol = 0`` (the
-    models' default ``stencil_tol``) keeps every row (plain CSR with relative columns):
-    sharing replaces a row by a neighbour's round-off, which breaks the exact symmetry of
-    ``K``, and the long-wave dispersion (flexural frequencies ~ (k dx)^2 (k h)^2 / 12 of
-    the entries) is sensitive to exactly that. Returns ``(row_pat (N,) int32, indptr
-    (P+1,) int64, offsets int32, values (nnz_P, n_slots))``."""
+    row is stored with the values of the first row of its class, so a row changes by at
+    most ``tol`` x (slot maximum) per entry (the models' default ``stencil_tol = 1e-12``,
+    the size of that coordinate round-off; ``K`` is then symmetric to the same level, not
+    bit for bit). A coarse grid is not harmless: the long-wave dispersion (flexural
+    frequencies ~ (k dx)^2 (k h)^2 / 12 of the entries) feels the mismatch between
+    shared rows first. ``tol = 0`` keeps every row (plain CSR with relative columns,
+    memory-bound). Returns ``(row_pat (N,) int32, indptr (P+1,) int64, offsets int32,
+    values (nnz_P, n_slots))``."""
     n = indptr.shape[0] - 1
     lens = np.diff(indptr)
     rel = (indices.astype(np.int64) - np.repeat(np.arange(n), lens)).astype(np.int32)
@@ -691,7 +703,7 @@ class _TripletModel(Model):
         return q
 
     kernel = "operator"
-    stencil_tol = 1e-12     # rows equal on that grid share one stored stencil (0: none)
+    stencil_tol = 1e-12     # rows equal on this grid share one stored stencil (0: none)
 
     def _fast_force(self, q):
         return None
