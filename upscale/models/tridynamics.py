@@ -732,7 +732,7 @@ class _TripletModel(Model):
         long wave keeps its digits (the flexural frequency is ~ (k dx)^2 (k h)^2 of the
         entries and the plain ``sum_c K_ic q_c`` loses it to cancellation)."""
         op = getattr(self, "_op", None)
-        if op is not None and op[0] is self.coef:
+        if op is not None and op[0] is self.coef and op[2] == self.stencil_tol:
             return op[1]
         n = self.system.n
         coef, mem = self.coef, self.mem_t
@@ -776,7 +776,7 @@ class _TripletModel(Model):
                "kind": kinds, "comp": comps, "field": fld,
                "trans": kinds == 0, "rot": kinds == 1,
                "inv_v": np.ascontiguousarray(1.0 / self.system.volume)}
-        self._op = (self.coef, res)
+        self._op = (self.coef, res, self.stencil_tol)
         return res
 
     def _op_gather(self, state, op):
