@@ -65,6 +65,16 @@ a uniform curvature stores ``EI/A kappa^2 / 2`` per unit volume. (The printed en
 2.9-2.11 in terms of the differences of the slope jumps is of higher order: its gradient
 is a sixth-order operator, not EB.)
 
+Force paths
+-----------
+The models are linear (small deformation), so the force is a fixed operator ``K`` of the
+degrees of freedom. ``kernel="operator"`` (default) assembles it once from the measure
+tables and applies it by a row-parallel SpMV in difference form
+(:meth:`_TripletModel._operator`, :func:`_share_stencils`); ``kernel="fast"`` is the
+triplet kernel (geometry on the fly, the reference), ``kernel="table"`` the generic
+measure-table kernel. The energy is always the triplet sum. The text EB variant (slope
+jumps) has no measure tables and always uses its own kernel.
+
 Supports (:func:`beam`): ``"ss"`` (w = 0, mirror ghosts w odd, phi even), ``"cc"`` (EB:
 w = 0 with even mirror ghosts, i.e. zero slope; Timoshenko: u = w = phi = 0 at the
 support node, extrapolated ghosts) and ``"free"``; a cantilever is ``("cc", "free")``. Ghost layers are
@@ -413,6 +423,235 @@ def eb_text_force_kernel(off_t, mem_t, inv_a_t, inv_b_t, g_t, theta_n, out_n):
         out_n[i] += acc
 
 
+@nb.njit(cache=True)
+def _find_col(indices, a, b, col):
+    """Position of ``col`` in the sorted ``indices[a:b]`` (binary search)."""
+    lo, hi = a, b - 1
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if indices[mid] < col:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@nb.njit(cache=True)
+def assemble_block_csr(mem_t, coef, w_tm, centre_only, indptr, indices, slot_of, val):
+    """Values of the assembled operator ``K = -sum_t sum_m W C_m C_m^T``: for every
+    triplet t, measure m, row member a (only the centre if ``centre_only``: the printed,
+    centre-only EOM), column member b and dofs (d, e)::
+
+        val[pos(mem[t, a], mem[t, b]), slot_of[d, e]] -= W[t, m] C[t, m, a, d] C[t, m, b, e]
+
+    ``pos`` is the CSR position of the particle pair (row, column). Serial (members of a
+    triplet share rows), run once."""
+    nt, nm = coef.shape[0], coef.shape[1]
+    nd = coef.shape[3]
+    na = 1 if centre_only else 3
+    for t in range(nt):
+        for m in range(nm):
+            w = w_tm[t, m]
+            for a in range(na):
+                r = mem_t[t, a]
+                for d in range(nd):
+                    cad = coef[t, m, a, d]
+                    if cad == 0.0:
+                        continue
+                    for b in range(3):
+                        pos = _find_col(indices, indptr[r], indptr[r + 1], mem_t[t, b])
+                        for e in range(nd):
+                            cbe = coef[t, m, b, e]
+                            if cbe == 0.0:
+                                continue
+                            val[pos, slot_of[d, e]] -= w * cad * cbe
+
+
+@nb.njit(parallel=True, cache=True)
+def gather_dofs(y, x0, fld, kind_a, comp_a, q):
+    """``q[i, a] = y[i, c] - x0[i, c]`` (kind 0) or ``fld[i, c]`` (kind 1), c = comp[a]."""
+    n, nd = q.shape
+    for i in nb.prange(n):
+        for a in range(nd):
+            c = comp_a[a]
+            if kind_a[a] == 0:
+                q[i, a] = y[i, c] - x0[i, c]
+            else:
+                q[i, a] = fld[i, c]
+
+
+@nb.njit(parallel=True, cache=True)
+def block_csr_spmv(row_pat, indptr, indices, val, slot_r, slot_c, q, row_on, dest_kind, dest_comp,
+                   inv_v, out0, out1):
+    """Row-parallel ``f = K q`` over the slots (row dof, column dof) of the block
+    operator: row i uses stencil ``row_pat[i]``, whose entries ``indptr[p]:indptr[p + 1]``
+    hold column offsets ``indices`` relative to i and values ``val``:
+    ``f[i, r] = R[i, s] q[i, c] + sum val[., s] (q[i + indices[.], c] - q[i, c])`` (entry
+    ``a`` of a stencil is i itself and holds the row sum R) for the slots s = (r, c) with ``row_on[r]``, written as ``out[i, comp] += f[i, r] inv_v[i]`` into
+    ``out0`` (dest kind 0) or ``out1`` (kind 1). Each i writes only its own row: race-free."""
+    n = row_pat.shape[0]
+    ns = slot_r.shape[0]
+    for i in nb.prange(n):
+        a, b = indptr[row_pat[i]], indptr[row_pat[i] + 1]
+        for s in range(ns):
+            r = slot_r[s]
+            if not row_on[r]:
+                continue
+            c = slot_c[s]
+            qi = q[i, c]
+            acc = val[a, s] * qi
+            for p in range(a + 1, b):
+                acc += val[p, s] * (q[i + indices[p], c] - qi)
+            if dest_kind[r] == 0:
+                out0[i, dest_comp[r]] += acc * inv_v[i]
+            else:
+                out1[i, dest_comp[r]] += acc * inv_v[i]
+
+
+@nb.njit(parallel=True, cache=True)
+def timo_csr_spmv(row_pat, indptr, indices, val, q, do_t, do_r, inv_v, out_y, out_rot):
+    """Block SpMV of the beam (slots u-u, w-w, w-phi, phi-w, phi-phi; q columns u, w,
+    phi) in difference form (see :meth:`_TripletModel._operator`; entry ``a`` of a
+    stencil is the particle itself and holds the row sums R):
+    ``f_i = R_i q_i + sum_{c != i} K_ic (q_c - q_i)``. Translation rows
+    ``out_y[i, (0, 2)] += f_i[u, w] / V_i`` if ``do_t``, the rotation row
+    ``out_rot[i, 0] += f_i[phi] / V_i`` if ``do_r``. One accumulator per row dof; each i
+    writes only its own row: race-free."""
+    n = row_pat.shape[0]
+    for i in nb.prange(n):
+        a, b = indptr[row_pat[i]], indptr[row_pat[i] + 1]
+        qu, qw, qp = q[i, 0], q[i, 1], q[i, 2]
+        if do_t:
+            fu = val[a, 0] * qu
+            fw = val[a, 1] * qw + val[a, 2] * qp
+            for p in range(a + 1, b):
+                c = nb.uint64(i + indices[p])  # >= 0: no wraparound test
+                fu += val[p, 0] * (q[c, 0] - qu)
+                fw += val[p, 1] * (q[c, 1] - qw) + val[p, 2] * (q[c, 2] - qp)
+            out_y[i, 0] += fu * inv_v[i]
+            out_y[i, 2] += fw * inv_v[i]
+        if do_r:
+            fp = val[a, 3] * qw + val[a, 4] * qp
+            for p in range(a + 1, b):
+                c = nb.uint64(i + indices[p])  # >= 0: no wraparound test
+                fp += val[p, 3] * (q[c, 1] - qw) + val[p, 4] * (q[c, 2] - qp)
+            out_rot[i, 0] += fp * inv_v[i]
+
+
+@nb.njit(parallel=True, cache=True)
+def plate_csr_spmv(row_pat, indptr, indices, val, q, do_t, do_r, inv_v, out_y, out_rot):
+    """Block SpMV of the plate (q columns u, v, w, phi_x, phi_y; slots u-u, u-v, v-u,
+    v-v, then w, phi_x, phi_y each against w, phi_x, phi_y) in the difference form of
+    :func:`timo_csr_spmv`: translation rows into ``out_y[i, 0:3]`` if ``do_t``, rotation
+    rows into ``out_rot[i, 0:2]`` if ``do_r``, divided by V_i; race-free (row i only)."""
+    n = row_pat.shape[0]
+    for i in nb.prange(n):
+        a, b = indptr[row_pat[i]], indptr[row_pat[i] + 1]
+        q0, q1, q2, q3, q4 = q[i, 0], q[i, 1], q[i, 2], q[i, 3], q[i, 4]
+        if do_t:
+            fu = val[a, 0] * q0 + val[a, 1] * q1
+            fv = val[a, 2] * q0 + val[a, 3] * q1
+            fw = val[a, 4] * q2 + val[a, 5] * q3 + val[a, 6] * q4
+            for p in range(a + 1, b):
+                c = nb.uint64(i + indices[p])  # >= 0: no wraparound test
+                du, dv = q[c, 0] - q0, q[c, 1] - q1
+                fu += val[p, 0] * du + val[p, 1] * dv
+                fv += val[p, 2] * du + val[p, 3] * dv
+                fw += val[p, 4] * (q[c, 2] - q2) + val[p, 5] * (q[c, 3] - q3) \
+                    + val[p, 6] * (q[c, 4] - q4)
+            s = inv_v[i]
+            out_y[i, 0] += fu * s
+            out_y[i, 1] += fv * s
+            out_y[i, 2] += fw * s
+        if do_r:
+            fa = val[a, 7] * q2 + val[a, 8] * q3 + val[a, 9] * q4
+            fb = val[a, 10] * q2 + val[a, 11] * q3 + val[a, 12] * q4
+            for p in range(a + 1, b):
+                c = nb.uint64(i + indices[p])  # >= 0: no wraparound test
+                dw, da, db = q[c, 2] - q2, q[c, 3] - q3, q[c, 4] - q4
+                fa += val[p, 7] * dw + val[p, 8] * da + val[p, 9] * db
+                fb += val[p, 10] * dw + val[p, 11] * da + val[p, 12] * db
+            s = inv_v[i]
+            out_rot[i, 0] += fa * s
+            out_rot[i, 1] += fb * s
+
+
+@nb.njit(cache=True)
+def assemble_row_sums(mem_t, coef, w_tm, centre_only, slot_of, rsum):
+    """Row sums ``R[i, slot(d, e)] = sum_c K[(i, d), (c, e)]``, the force on dof d of i
+    under a uniform unit field in dof e, assembled per triplet as
+    ``-W C[a, d] mu_e`` with ``mu_e = sum_b C[t, m, b, e]`` the measure of that uniform
+    field, snapped to zero where it is a cancelling difference
+    (``|mu_e| <= 1e-12 sum_b |C|``): derivative measures of a uniform field vanish
+    exactly, so translation-invariant rows get R = 0 exactly, not round-off."""
+    nt, nm = coef.shape[0], coef.shape[1]
+    nd = coef.shape[3]
+    na = 1 if centre_only else 3
+    for t in range(nt):
+        for m in range(nm):
+            w = w_tm[t, m]
+            for e in range(nd):
+                mu = 0.0
+                mabs = 0.0
+                for b in range(3):
+                    mu += coef[t, m, b, e]
+                    mabs += abs(coef[t, m, b, e])
+                if abs(mu) <= 1e-12 * mabs:
+                    continue
+                for a in range(na):
+                    r = mem_t[t, a]
+                    for d in range(nd):
+                        cad = coef[t, m, a, d]
+                        if cad != 0.0:
+                            rsum[r, slot_of[d, e]] -= w * cad * mu
+
+
+def _share_stencils(indptr, indices, val, tol):
+    """Rows of the assembled operator that are the same stencil share one stored copy.
+
+    Row i is the list of (column offset ``indices - i``, values); two rows are the same
+    stencil when the offsets are equal and every value agrees on the grid
+    ``tol x (largest |value| of its slot)`` (``np.rint``). On a uniform lattice the bulk
+    rows differ only by the round-off of the reference coordinates in ``1/xi``
+    (relative ``eps |x| / dx``, 1e-11 on a 1e5-particle chain), so they collapse to one
+    stencil and the SpMV streams one int32 per row instead of its values and columns; a
+    row is stored with the values of the first row of its class, so a row changes by at
+    most ``tol`` x (slot maximum) per entry (the models' default ``stencil_tol = 1e-12``,
+    the size of that coordinate round-off; ``K`` is then symmetric to the same level, not
+    bit for bit). A coarse grid is not harmless: the long-wave dispersion (flexural
+    frequencies ~ (k dx)^2 (k h)^2 / 12 of the entries) feels the mismatch between
+    shared rows first. ``tol = 0`` keeps every row (plain CSR with relative columns,
+    memory-bound). Returns ``(row_pat (N,) int32, indptr (P+1,) int64, offsets int32,
+    values (nnz_P, n_slots))``."""
+    n = indptr.shape[0] - 1
+    lens = np.diff(indptr)
+    rel = (indices.astype(np.int64) - np.repeat(np.arange(n), lens)).astype(np.int32)
+    if tol <= 0:
+        return np.arange(n, dtype=np.int32), indptr, rel, val
+    scale = np.abs(val).max(axis=0) if val.size else np.ones(val.shape[1])
+    scale[scale == 0] = 1.0
+    grid = np.rint(val / (scale * tol)).astype(np.int64)
+    seen = {}
+    row_pat = np.empty(n, np.int32)
+    reps = []
+    for i in range(n):
+        a, b = indptr[i], indptr[i + 1]
+        k = (rel[a:b].tobytes(), grid[a:b].tobytes())
+        pid = seen.get(k)
+        if pid is None:
+            pid = seen[k] = len(reps)
+            reps.append(i)
+        row_pat[i] = pid
+    reps = np.array(reps, np.int64)
+    plen = lens[reps]
+    pptr = np.zeros(reps.size + 1, np.int64)
+    pptr[1:] = np.cumsum(plen)
+    take = np.concatenate([np.arange(indptr[r], indptr[r + 1]) for r in reps]) if reps.size \
+        else np.zeros(0, np.int64)
+    return (row_pat, pptr, np.ascontiguousarray(rel[take]),
+            np.ascontiguousarray(val[take]))
+
+
 def _nchunks(n):
     return max(1, min(int(nb.get_num_threads()), n))
 
@@ -463,16 +702,128 @@ class _TripletModel(Model):
             q[:, a] = (state.y[:, c] - state.x0[:, c]) if kind == "y" else state.fields[kind][:, c]
         return q
 
-    kernel = "fast"
+    kernel = "operator"
+    stencil_tol = 1e-12     # rows equal on this grid share one stored stencil (0: none)
 
     def _fast_force(self, q):
         return None
 
+    def _has_operator(self):
+        return self.kernel == "operator" and getattr(self, "coef", None) is not None
+
+    def _operator(self):
+        """The model's linear force operator ``K`` ((N nd) x (N nd), ``f = K q``) assembled
+        once from the measure tables: a block CSR with one row per particle, int32 column
+        indices (the particles sharing a triplet with it, sorted) and float64 values
+        ``(nnz, n_slots)``, one slot per structurally nonzero (row dof, column dof) pair of
+        the blocks (Timoshenko: u-u, w-w, w-phi, phi-w, phi-phi; plate: 13 of 25).
+        ``K = -sum_t sum_m W_tm C_tm C_tm^T`` (the exact gradient of the energy, so
+        ``K`` is symmetric) for "consistent"; for "text" only the centre's rows
+        ``-sum_t sum_m W_tm C_tm[0] C_tm^T`` (the printed EOM, not symmetric). Because
+        the models are linear (small deformation), the triplet sums are a fixed operator
+        of the dofs and one SpMV per step replaces them: a row costs (number of coupled
+        particles) x (slots) multiply-adds instead of a centre's m(2m-1) (beam) or 4 m^2
+        (plate) triplets of eight or nine measures over three particles.
+
+        The product is taken in difference form, ``f_i = R_i q_i + sum_{c != i} K_ic
+        (q_c - q_i)`` with the row sums ``R`` (exactly zero for the translation-invariant
+        rows) in the diagonal entry, which is stored first: like the triplet kernel, it
+        differences the field before multiplying by the large ``1/xi^2`` entries, so a
+        long wave keeps its digits (the flexural frequency is ~ (k dx)^2 (k h)^2 of the
+        entries and the plain ``sum_c K_ic q_c`` loses it to cancellation)."""
+        op = getattr(self, "_op", None)
+        if op is not None and op[0] is self.coef and op[2] == self.stencil_tol:
+            return op[1]
+        n = self.system.n
+        coef, mem = self.coef, self.mem_t
+        nd = self.nd
+        centre_only = self.variant == "text"
+        # structurally coupled (d, e) pairs: dofs that share a measure
+        used = np.abs(coef).max(axis=(0, 2)) > 0            # (M, nd)
+        cpl = np.zeros((nd, nd), bool)
+        for um in used:
+            cpl |= np.outer(um, um)
+        slot_r, slot_c = np.nonzero(cpl)
+        slot_of = np.full((nd, nd), -1, np.int64)
+        slot_of[slot_r, slot_c] = np.arange(slot_r.size)
+        rows_a = (0,) if centre_only else (0, 1, 2)
+        rows = np.concatenate([np.repeat(mem[:, a], 3) for a in rows_a])
+        cols = np.concatenate([mem.reshape(-1) for _ in rows_a])
+        ar = np.arange(n, dtype=np.int64)
+        key = np.unique(np.concatenate([rows.astype(np.int64) * n + cols, ar * n + ar]))
+        r_u, c_u = key // n, key % n
+        indptr = np.zeros(n + 1, np.int64)
+        indptr[1:] = np.cumsum(np.bincount(r_u, minlength=n))
+        indices = np.ascontiguousarray(c_u.astype(np.int32))
+        val = np.zeros((key.size, slot_r.size))
+        assemble_block_csr(mem, coef, self.w_tm, centre_only, indptr, indices, slot_of, val)
+        # difference form: the diagonal entry (first in its row) holds the row sums
+        rid = np.repeat(np.arange(n), np.diff(indptr))
+        order = np.lexsort((indices, indices != rid, rid))
+        indices, val = np.ascontiguousarray(indices[order]), np.ascontiguousarray(val[order])
+        rsum = np.zeros((n, slot_r.size))
+        assemble_row_sums(mem, coef, self.w_tm, centre_only, slot_of, rsum)
+        if np.any(indices[indptr[:-1]] != np.arange(n)):
+            raise RuntimeError("operator row without its diagonal entry")
+        val[indptr[:-1]] = rsum
+        row_pat, indptr, rel, val = _share_stencils(indptr, indices, val, self.stencil_tol)
+        kinds = np.array([0 if kind == "y" else 1 for kind, _ in self.dof_map], np.int64)
+        comps = np.array([c for _, c in self.dof_map], np.int64)
+        fld = next((kind for kind, _ in self.dof_map if kind != "y"), None)
+        res = {"row_pat": row_pat, "indptr": indptr, "indices": rel, "val": val,
+               "slot_r": slot_r.astype(np.int64), "slot_c": slot_c.astype(np.int64),
+               "slots": tuple(zip(slot_r.tolist(), slot_c.tolist())),
+               "kind": kinds, "comp": comps, "field": fld,
+               "trans": kinds == 0, "rot": kinds == 1,
+               "inv_v": np.ascontiguousarray(1.0 / self.system.volume)}
+        self._op = (self.coef, res, self.stencil_tol)
+        return res
+
+    def _op_gather(self, state, op):
+        q = np.empty((state.y.shape[0], self.nd))
+        fld = state.fields[op["field"]] if op["field"] is not None else np.zeros((1, 1))
+        gather_dofs(state.y, state.x0, fld, op["kind"], op["comp"], q)
+        return q
+
+    _op_kernel = None       # specialised SpMV (beam, plate) and the slot layout it assumes
+    _op_slots = None
+
+    def _op_rows(self, op, q, do_t, do_r, out_y, out_rot):
+        """Translation rows (``do_t``) and/or rotation rows (``do_r``) of ``K q / V`` added
+        into the engine's force arrays: the model's specialised kernel when the assembled
+        slots are the ones it assumes, else the generic block SpMV."""
+        if self._op_kernel is not None and op["slots"] == self._op_slots:
+            type(self)._op_kernel(op["row_pat"], op["indptr"], op["indices"], op["val"], q, do_t, do_r,
+                                  op["inv_v"], out_y, out_rot)
+            return
+        on = (op["trans"] if do_t else np.zeros(self.nd, bool)) | \
+             (op["rot"] if do_r else np.zeros(self.nd, bool))
+        self._op_apply(op, q, on, out_y, out_rot)
+
+    def _op_apply(self, op, q, row_on, out0, out1, inv_v=None, dest_kind=None, dest_comp=None):
+        block_csr_spmv(op["row_pat"], op["indptr"], op["indices"], op["val"], op["slot_r"], op["slot_c"], q,
+                       row_on, op["kind"] if dest_kind is None else dest_kind,
+                       op["comp"] if dest_comp is None else dest_comp,
+                       op["inv_v"] if inv_v is None else inv_v, out0, out1)
+
     def _operator_force(self, q):
-        """Generalised particle forces (N, nd) (N; N m for rotations): the model's own
-        kernel (``kernel="fast"``, geometry on the fly) or the generic measure-table
-        kernels (``kernel="table"``; the same operator, used to cross-check)."""
+        """Generalised particle forces (N, nd) (N; N m for rotations) of the dofs q.
+
+        The model attribute ``kernel`` selects the path, all the same linear operator:
+        ``"operator"`` (default) the block CSR assembled once (:meth:`_operator`) and one
+        row-parallel SpMV; ``"fast"`` the model's triplet kernel (geometry on the fly;
+        the reference the operator is checked against); ``"table"`` the generic
+        measure-table kernels. The energy is always the triplet sum
+        ``sum_t sum_m W s^2 / 2``, which equals ``-q.K q / 2`` to round-off."""
         n = q.shape[0]
+        if self._has_operator():
+            op = self._operator()
+            f = np.zeros((n, self.nd))
+            nd_ = np.arange(self.nd, dtype=np.int64)
+            self._op_apply(op, np.ascontiguousarray(q, dtype=np.float64),
+                           np.ones(self.nd, bool), f, f, np.ones(n),
+                           np.zeros(self.nd, np.int64), nd_)
+            return f
         if self.kernel == "fast":
             f = self._fast_force(q)
             if f is not None:
@@ -489,6 +840,11 @@ class _TripletModel(Model):
         return self._operator_force(self._gather(state) if q is None else q)
 
     def add_force(self, state, out):
+        if self._has_operator():
+            op = self._operator()
+            q = self._op_gather(state, op)
+            self._op_rows(op, q, True, False, out, np.zeros((1, 2)))
+            return
         q = self._gather(state)
         f = self._generalised(state, q)
         inv_v = 1.0 / self.system.volume
@@ -501,6 +857,14 @@ class _TripletModel(Model):
             self._cache = (q, f)
 
     def add_field_force(self, state, out):
+        if self._has_operator():
+            # the rotation rows only: with add_force's translation rows, one SpMV per step
+            op = self._operator()
+            if op["field"] is None:
+                return
+            q = self._op_gather(state, op)
+            self._op_rows(op, q, False, True, np.zeros((1, 3)), out[op["field"]])
+            return
         cache = getattr(self, "_cache", None)
         if cache is not None and np.array_equal(cache[0], self._gather(state)):
             f = cache[1]
@@ -600,6 +964,8 @@ class TridynTimoshenko(_TripletModel):
     name = "tridyn-timoshenko"
     needs = Needs(pairs=True, energy=True)
     nd = 3
+    _op_kernel = timo_csr_spmv
+    _op_slots = ((0, 0), (1, 1), (1, 2), (2, 1), (2, 2))
     dof_map = (("y", 0), ("y", 2), ("rot", 0))
 
     def __init__(self, E, nu=0.3, *, area, second_moment, shear_factor=5.0 / 6.0,
@@ -1021,6 +1387,9 @@ class TridynPlate(_TripletModel):
     name = "tridyn-plate"
     needs = Needs(pairs=True, energy=True)
     nd = 5
+    _op_kernel = plate_csr_spmv
+    _op_slots = ((0, 0), (0, 1), (1, 0), (1, 1), (2, 2), (2, 3), (2, 4), (3, 2), (3, 3),
+                 (3, 4), (4, 2), (4, 3), (4, 4))
     dof_map = (("y", 0), ("y", 1), ("y", 2), ("rot", 0), ("rot", 1))
     variant = "consistent"
 

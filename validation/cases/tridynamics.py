@@ -6,8 +6,10 @@ from the printed formulas, (ii) the classical Timoshenko branches C.16-C.17 and 
 (iii) the peridynamic bar's lattice sum and ``(4E/delta^2) Cin(k delta)``, 3.55.
 ``tridyn-beam``: static beams against the EB/Timoshenko closed forms, convergence order,
 the literal calibration's stiffening, stable step and NVE drift.
-``bench-tridyn``: time per particle-step of the beam kernels against the PMB kernel,
-same particle count and horizon, one run.
+``bench-tridyn``: time per particle-step of the beam and plate force evaluations against
+the PMB kernel, same particle count and horizon, one run: the default path (the assembled
+operator and its SpMV, rows shared as stencils), the triplet kernel it replaces, and the
+operator with every row stored.
 """
 from __future__ import annotations
 
@@ -300,6 +302,12 @@ def _best(fn, reps):
     return best
 
 
+# (column suffix, model kernel, stencil_tol; None: the model's default): the default path
+# (the assembled operator, rows shared as stencils), the triplet kernel it replaces, and
+# the operator with every row stored (plain CSR)
+PATHS = (("", "operator", None), (" triplet", "fast", None), (" csr", "operator", 0.0))
+
+
 @case("bench-tridyn", "time per particle-step of the tridynamic beam and plate kernels vs the PMB kernel "
       "(same particles, same horizon, one run)", )
 def run_bench(args):
@@ -324,12 +332,18 @@ def run_bench(args):
         st.y[:, 0] += 1e-9 * rng.normal(size=n)
         st.y[:, 2] += 1e-9 * rng.normal(size=n)
         st.fields["rot"][:, 0] = 1e-6 * rng.normal(size=n)
-        models = {"pmb": PMB(E=200e9),
-                  "eb": TridynEB(200e9, area=1e-6, second_moment=1e-13),
-                  "timoshenko": TridynTimoshenko(200e9, 0.3, area=1e-6, second_moment=1e-13)}
+        models = {"pmb": (PMB(E=200e9), None, 0.0)}
+        for path, kern, tol in PATHS:
+            models["eb" + path] = (TridynEB(200e9, area=1e-6, second_moment=1e-13), kern, tol)
+            models["timoshenko" + path] = (TridynTimoshenko(200e9, 0.3, area=1e-6,
+                                                            second_moment=1e-13), kern, tol)
         t = {}
-        for name, mod in models.items():
+        for name, (mod, kern, tol) in models.items():
             mod.prepare(s, fam)
+            if kern is not None:
+                mod.kernel = kern
+            if tol is not None:
+                mod.stencil_tol = tol
             out = np.zeros((n, 3))
             fo = {"rot": np.zeros((n, 1))}
 
@@ -342,9 +356,13 @@ def run_bench(args):
 
             step()  # compile
             t[name] = _best(step, reps) / n
-        rows.append({"delta/dx": m, "particles": n, "PMB s/particle-step": t["pmb"],
-                     "EB / PMB": t["eb"] / t["pmb"], "Timoshenko / PMB": t["timoshenko"] / t["pmb"]})
-        res[m] = (t["eb"] / t["pmb"], t["timoshenko"] / t["pmb"])
+        row = {"delta/dx": m, "particles": n, "PMB s/particle-step": t["pmb"]}
+        for path, _, _ in PATHS:
+            row["EB" + path + " / PMB"] = t["eb" + path] / t["pmb"]
+            row["Timoshenko" + path + " / PMB"] = t["timoshenko" + path] / t["pmb"]
+            res.setdefault(path, {})[m] = (t["eb" + path] / t["pmb"],
+                                           t["timoshenko" + path] / t["pmb"])
+        rows.append(row)
     print(table(rows))
     # plate: 2D square lattice, same horizon for PMB (plane stress) and the plate
     from upscale.engine.system import square_lattice
@@ -362,8 +380,15 @@ def run_bench(args):
         st.fields["rot"] = 1e-6 * rng.normal(size=(n2, 2))
         st.field_v["rot"] = np.zeros((n2, 2))
         t = {}
-        for name, mod in (("pmb", PMB(E=200e9)), ("plate", TridynPlate(200e9, 0.3, thickness=1e-3))):
+        pm = [("pmb", PMB(E=200e9), None, 0.0)] + [
+            ("plate" + path, TridynPlate(200e9, 0.3, thickness=1e-3), kern, tol)
+            for path, kern, tol in PATHS]
+        for name, mod, kern, tol in pm:
             mod.prepare(s, fam)
+            if kern is not None:
+                mod.kernel = kern
+            if tol is not None:
+                mod.stencil_tol = tol
             out = np.zeros((n2, 3))
             fo = {"rot": np.zeros((n2, 2))}
 
@@ -376,15 +401,25 @@ def run_bench(args):
 
             step()
             t[name] = _best(step, reps) / n2
-        prow.append({"delta/dx": m, "particles": n2, "PMB s/particle-step": t["pmb"],
-                     "plate / PMB": t["plate"] / t["pmb"]})
-        pres[m] = t["plate"] / t["pmb"]
+        row = {"delta/dx": m, "particles": n2, "PMB s/particle-step": t["pmb"]}
+        for path, _, _ in PATHS:
+            row["plate" + path + " / PMB"] = t["plate" + path] / t["pmb"]
+            pres.setdefault(path, {})[m] = t["plate" + path] / t["pmb"]
+        prow.append(row)
     print(table(prow))
-    out = {"beam_step_over_pmb": float(max(max(v) for v in res.values())),
-           "eb_step_over_pmb": {str(m): v[0] for m, v in res.items()},
-           "timoshenko_step_over_pmb": {str(m): v[1] for m, v in res.items()},
-           "plate_step_over_pmb": float(max(pres.values())),
-           "plate_step_over_pmb_by_ratio": {str(m): v for m, v in pres.items()}}
+    op, tr, sh = res[""], res[" triplet"], res[" csr"]
+    out = {"beam_step_over_pmb": float(max(max(v) for v in op.values())),
+           "eb_step_over_pmb": {str(m): v[0] for m, v in op.items()},
+           "timoshenko_step_over_pmb": {str(m): v[1] for m, v in op.items()},
+           "plate_step_over_pmb": float(max(pres[""].values())),
+           "plate_step_over_pmb_by_ratio": {str(m): v for m, v in pres[""].items()},
+           "triplet_kernel": {"beam_step_over_pmb": float(max(max(v) for v in tr.values())),
+                              "eb_step_over_pmb": {str(m): v[0] for m, v in tr.items()},
+                              "timoshenko_step_over_pmb": {str(m): v[1] for m, v in tr.items()},
+                              "plate_step_over_pmb": {str(m): v for m, v in pres[" triplet"].items()}},
+           "plain_csr": {"beam_step_over_pmb": float(max(max(v) for v in sh.values())),
+                         "timoshenko_step_over_pmb": {str(m): v[1] for m, v in sh.items()},
+                         "plate_step_over_pmb": {str(m): v for m, v in pres[" csr"].items()}}}
     out["pass"] = bool(out["beam_step_over_pmb"] <= 3.0 and out["plate_step_over_pmb"] <= 3.0)
     return out
 
