@@ -204,3 +204,24 @@ def test_overlap_error_names_atoms():
     a.calc = _Morse()
     with pytest.raises(OverlappingAtomsError, match=r"atoms 1 and 2 overlap: distance 0.07071"):
         a.get_potential_energy()
+
+
+def test_exclusion_is_symmetric_whatever_the_callable_returns():
+    """An ``exclude`` callable that drops only one direction of a bond (as a segment test
+    can, for a bond through the segment's end point, where the crossing parameter is exactly
+    0 or 1 from one end only) still gives a symmetric family: both directions go. It used to
+    raise 'family is not symmetric'."""
+    from upscale.engine import bonds_crossing_segment, build_family, square_lattice
+
+    sysm = square_lattice(12, 12, 1.0)
+    x = sysm.x0
+    cut = bonds_crossing_segment(x, (x[:, 0].min() - 0.5, 0.0), (0.0, 0.0))
+
+    def one_way(i, j, xi):
+        return cut(i, j, xi) & (i < j)
+
+    fam = build_family(sysm, 3.015, exclude=one_way)
+    ref = build_family(sysm, 3.015, exclude=cut)
+    assert np.array_equal(fam.owner[fam.reverse], fam.neighbors)
+    assert np.array_equal(fam.offsets, ref.offsets) and np.array_equal(fam.neighbors, ref.neighbors)
+    assert fam.nb < build_family(sysm, 3.015).nb

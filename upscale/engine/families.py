@@ -200,7 +200,11 @@ def build_family(system: ParticleSystem, horizon: float, *, partial_volume: str 
         ex = np.asarray(exclude(i, j, d), dtype=bool)
         if ex.shape != i.shape:
             raise ValueError(f"exclude returned shape {ex.shape}, expected {i.shape}")
-        keep &= ~ex
+        # symmetric whatever the callable did (a bond through a segment's end point can test
+        # differently from its two ends): candidate k and k + P are the two directions
+        P = pairs.shape[0]
+        ex_pair = ex[:P] | ex[P:]
+        keep &= ~np.concatenate([ex_pair, ex_pair])
     i, j, d, rsq = i[keep], j[keep], d[keep], rsq[keep]
     order = np.lexsort((j, i))
     i, j, d, rsq = i[order], j[order], d[order], rsq[order]
@@ -215,8 +219,6 @@ def build_family(system: ParticleSystem, horizon: float, *, partial_volume: str 
     fam = Family(offsets, np.ascontiguousarray(j), np.ascontiguousarray(d),
                  np.ascontiguousarray(length), np.ascontiguousarray(beta), delta, h,
                  partial_volume)
-    if exclude is not None:  # make the exclusion symmetric whatever the callable did
-        fam = fam.remove_bonds(np.zeros(fam.nb, dtype=bool))
     return fam
 
 
