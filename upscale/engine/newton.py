@@ -39,7 +39,7 @@ import scipy.sparse.linalg as spla
 from upscale.engine.checkpoint import load_checkpoint, save_checkpoint
 from upscale.engine.state import State
 
-__all__ = ["NewtonStep", "NewtonResult", "solve", "convergence_order", "NewtonError"]
+__all__ = ["NewtonStep", "NewtonResult", "solve", "convergence_order", "NewtonError", "dirichlet"]
 
 
 ROUNDOFF = 1e-8   # a step whose |R| fell below this fraction of its first |R| and cannot
@@ -138,6 +138,27 @@ def _as_mask(n, fixed, dim):
     return m
 
 
+def dirichlet(system, fixed=None, u_prescribed=None, f_ext=None):
+    """The constrained degrees of freedom and loads of a static solve.
+
+    Returns ``(mask (N, 3) bool, ubar (N, 3), fbar (N, 3), free (n_free,) int)``: the
+    prescribed components (``fixed`` (N,) or (N, 3) bool, plus every component beyond the
+    body's dimension), the prescribed displacements and external forces (zero if None),
+    and the flat indices of the free components. Bad shapes or nothing free -> ValueError.
+    """
+    n = system.n
+    mask = _as_mask(n, fixed, system.dim)
+    ubar = np.zeros((n, 3)) if u_prescribed is None else np.asarray(u_prescribed, dtype=np.float64)
+    fbar = np.zeros((n, 3)) if f_ext is None else np.asarray(f_ext, dtype=np.float64)
+    for name, a in (("u_prescribed", ubar), ("f_ext", fbar)):
+        if a.shape != (n, 3):
+            raise ValueError(f"{name} must have shape ({n}, 3), got {a.shape}")
+    free = np.flatnonzero(~mask.ravel())
+    if free.size == 0:
+        raise ValueError("every degree of freedom is constrained: nothing to solve")
+    return mask, ubar, fbar, free
+
+
 def solve(model, state, *, fixed=None, u_prescribed=None, f_ext=None, steps: int = 1,
           tol: float = 1e-10, max_iter: int = 25, line_search: bool = True,
           max_cuts: int = 6, progress: bool = False,
@@ -192,15 +213,7 @@ def solve(model, state, *, fixed=None, u_prescribed=None, f_ext=None, steps: int
     n = system.n
     if steps < 1:
         raise ValueError(f"steps must be >= 1, got {steps!r}")
-    mask = _as_mask(n, fixed, system.dim)
-    ubar = np.zeros((n, 3)) if u_prescribed is None else np.asarray(u_prescribed, dtype=np.float64)
-    fbar = np.zeros((n, 3)) if f_ext is None else np.asarray(f_ext, dtype=np.float64)
-    for name, a in (("u_prescribed", ubar), ("f_ext", fbar)):
-        if a.shape != (n, 3):
-            raise ValueError(f"{name} must have shape ({n}, 3), got {a.shape}")
-    free = np.flatnonzero(~mask.ravel())
-    if free.size == 0:
-        raise ValueError("every degree of freedom is constrained: nothing to solve")
+    mask, ubar, fbar, free = dirichlet(system, fixed, u_prescribed, f_ext)
     x0 = system.x0
     y_start = state.y.copy()
     u_fixed0 = (y_start - x0)[mask]

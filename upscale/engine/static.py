@@ -17,6 +17,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from upscale.engine.newton import dirichlet
+
 __all__ = ["solve_linear", "LinearSolveError"]
 
 
@@ -61,24 +63,8 @@ def solve_linear(model, state, *, fixed, u_prescribed=None, f_ext=None,
         raise ValueError(f"unknown method {method!r}; valid: 'direct', 'cg', 'matrix-free'")
     t0 = time.perf_counter()
     sysm = model.system
-    n, d = sysm.n, sysm.dim
-    mask = np.zeros((n, 3), dtype=bool)
-    fx = np.asarray(fixed, dtype=bool)
-    if fx.shape == (n,):
-        mask[fx] = True
-    elif fx.shape == (n, 3):
-        mask |= fx
-    else:
-        raise ValueError(f"fixed must have shape ({n},) or ({n}, 3), got {fx.shape}")
-    mask[:, d:] = True
-    ubar = np.zeros((n, 3)) if u_prescribed is None else np.asarray(u_prescribed, dtype=np.float64)
-    fbar = np.zeros((n, 3)) if f_ext is None else np.asarray(f_ext, dtype=np.float64)
-    for name, a in (("u_prescribed", ubar), ("f_ext", fbar)):
-        if a.shape != (n, 3):
-            raise ValueError(f"{name} must have shape ({n}, 3), got {a.shape}")
-    free = np.flatnonzero(~mask.ravel())
-    if free.size == 0:
-        raise ValueError("every degree of freedom is constrained: nothing to solve")
+    n = sysm.n
+    mask, ubar, fbar, free = dirichlet(sysm, fixed, u_prescribed, f_ext)
     uc = np.where(mask, ubar, 0.0)
     state.y[...] = sysm.x0 + uc
     rhs = fbar.ravel()[free] + model.residual(state)[free]    # f - K_fc u_c
