@@ -386,3 +386,37 @@ def test_assembled_operator_equals_triplet_kernel(kind, ratio):
     ref = model._operator_force(q)
     model.kernel = "operator"
     assert np.abs(model._operator_force(q) - ref).max() <= 1e-12 * np.abs(ref).max()
+
+
+@pytest.mark.parametrize("ratio", [1, 2])
+def test_plate_pair_stencil_and_fused_rows(ratio):
+    """The plate's bulk rows taken in pairs of opposite offsets give the stored entries'
+    forces; the rotation rows kept from add_force are not reused once the dofs change."""
+    from upscale.engine.state import State
+    from upscale.engine.system import square_lattice
+    from upscale.models.tridynamics import TridynPlate
+
+    rng = np.random.default_rng(3)
+    s = square_lattice(14, 12, 1e-3, thickness=1e-3, density=7850.0)
+    f = build_family(s, ratio * 1e-3 * (1 + 1e-9))
+    paired, plain = TridynPlate(200e9, 0.3, thickness=1e-3), TridynPlate(200e9, 0.3, thickness=1e-3)
+    plain.pair_stencil = False
+    st = State.reference(s.x0, f.nb)
+    st.y[:, :3] += 1e-6 * rng.normal(size=(s.n, 3))
+    st.fields["rot"] = 1e-3 * rng.normal(size=(s.n, 2))
+    st.field_v["rot"] = np.zeros((s.n, 2))
+    for m in (paired, plain):
+        m.prepare(s, f)
+    assert paired._operator()["bulk"] >= 0 and paired._operator()["h_off"].size == 2 * ratio * (ratio + 1)
+    assert plain._operator()["bulk"] == -1
+    (y1, r1), (y0, r0) = _force_pair(paired, st, s.n), _force_pair(plain, st, s.n)
+    assert np.abs(y1 - y0).max() <= 1e-13 * np.abs(y0).max()
+    assert np.abs(r1["rot"] - r0["rot"]).max() <= 1e-13 * np.abs(r0["rot"]).max()
+    # dofs changed between the two calls: the rotation rows are recomputed
+    out = np.zeros((s.n, 3))
+    paired.add_force(st, out)
+    st.fields["rot"][5, 1] += 1e-3
+    fo = {"rot": np.zeros((s.n, 2))}
+    paired.add_field_force(st, fo)
+    ref = _force_pair(plain, st, s.n)[1]["rot"]
+    assert np.abs(fo["rot"] - ref).max() <= 1e-13 * np.abs(ref).max()

@@ -480,6 +480,22 @@ def gather_dofs(y, x0, fld, kind_a, comp_a, q):
                 q[i, a] = fld[i, c]
 
 
+@nb.njit(cache=True)
+def dofs_equal(y, x0, fld, kind_a, comp_a, q):
+    """True if :func:`gather_dofs` of (y, x0, fld) would give exactly ``q`` (stops at the
+    first difference)."""
+    n, nd = q.shape
+    if y.shape[0] != n or fld.shape[0] != n:
+        return False
+    for i in range(n):
+        for a in range(nd):
+            c = comp_a[a]
+            v = y[i, c] - x0[i, c] if kind_a[a] == 0 else fld[i, c]
+            if v != q[i, a]:
+                return False
+    return True
+
+
 @nb.njit(parallel=True, cache=True)
 def block_csr_spmv(row_pat, indptr, indices, val, slot_r, slot_c, q, row_on, dest_kind, dest_comp,
                    inv_v, out0, out1):
@@ -539,41 +555,110 @@ def timo_csr_spmv(row_pat, indptr, indices, val, q, do_t, do_r, inv_v, out_y, ou
 
 
 @nb.njit(parallel=True, cache=True)
-def plate_csr_spmv(row_pat, indptr, indices, val, q, do_t, do_r, inv_v, out_y, out_rot):
+def plate_csr_spmv(row_pat, indptr, indices, val, bulk, h_off, h_val, q, do_t, do_r, inv_v, out_y,
+                   out_rot):
     """Block SpMV of the plate (q columns u, v, w, phi_x, phi_y; slots u-u, u-v, v-u,
     v-v, then w, phi_x, phi_y each against w, phi_x, phi_y) in the difference form of
     :func:`timo_csr_spmv`: translation rows into ``out_y[i, 0:3]`` if ``do_t``, rotation
-    rows into ``out_rot[i, 0:2]`` if ``do_r``, divided by V_i; race-free (row i only)."""
+    rows into ``out_rot[i, 0:2]`` if ``do_r``, divided by V_i; race-free (row i only).
+
+    Rows of the bulk stencil (``row_pat[i] == bulk``; ``bulk = -1``: none) are taken in
+    pairs of opposite offsets ``+-o`` (``h_off``, o > 0): a symmetric translation-invariant
+    operator has ``K_{-o} = K_o^T``, and the point symmetry of the lattice makes the
+    in-plane and rotation-rotation blocks even and the w-phi coupling odd, so
+    ``K_o d_+ + K_o^T d_- = S_o (d_+ + d_-) + A_o (d_+ - d_-)`` with the 7 values of the
+    even part ``S_o`` (u-u, u-v = v-u, v-v, w-w, phi_x-phi_x, phi_x-phi_y = phi_y-phi_x,
+    phi_y-phi_y) and the 2 of the odd part ``A_o`` (w-phi_x = -phi_x-w, w-phi_y =
+    -phi_y-w), ``h_val[h] = (uu, uv, vv, ww, xx, xy, yy, wx, wy)``: 9 values and 13
+    multiply-adds per pair of neighbours instead of 26 of each (:func:`plate_half_stencil`
+    checks the symmetries). The diagonal entry (row sums) is applied in full."""
     n = row_pat.shape[0]
+    nh = h_off.shape[0]
     for i in nb.prange(n):
-        a, b = indptr[row_pat[i]], indptr[row_pat[i] + 1]
+        pat = row_pat[i]
+        a, b = indptr[pat], indptr[pat + 1]
         q0, q1, q2, q3, q4 = q[i, 0], q[i, 1], q[i, 2], q[i, 3], q[i, 4]
-        if do_t:
-            fu = val[a, 0] * q0 + val[a, 1] * q1
-            fv = val[a, 2] * q0 + val[a, 3] * q1
-            fw = val[a, 4] * q2 + val[a, 5] * q3 + val[a, 6] * q4
+        fu = val[a, 0] * q0 + val[a, 1] * q1
+        fv = val[a, 2] * q0 + val[a, 3] * q1
+        fw = val[a, 4] * q2 + val[a, 5] * q3 + val[a, 6] * q4
+        fa = val[a, 7] * q2 + val[a, 8] * q3 + val[a, 9] * q4
+        fb = val[a, 10] * q2 + val[a, 11] * q3 + val[a, 12] * q4
+        if pat == bulk:
+            for h in range(nh):
+                cp = nb.uint64(i + h_off[h])  # both >= 0 on a bulk row: no wraparound test
+                cm = nb.uint64(i - h_off[h])
+                su = q[cp, 0] + q[cm, 0] - 2.0 * q0
+                sv = q[cp, 1] + q[cm, 1] - 2.0 * q1
+                sw = q[cp, 2] + q[cm, 2] - 2.0 * q2
+                sa = q[cp, 3] + q[cm, 3] - 2.0 * q3
+                sb = q[cp, 4] + q[cm, 4] - 2.0 * q4
+                aw = q[cp, 2] - q[cm, 2]
+                aa = q[cp, 3] - q[cm, 3]
+                ab = q[cp, 4] - q[cm, 4]
+                fu += h_val[h, 0] * su + h_val[h, 1] * sv
+                fv += h_val[h, 1] * su + h_val[h, 2] * sv
+                fw += h_val[h, 3] * sw + h_val[h, 7] * aa + h_val[h, 8] * ab
+                fa += h_val[h, 4] * sa + h_val[h, 5] * sb - h_val[h, 7] * aw
+                fb += h_val[h, 5] * sa + h_val[h, 6] * sb - h_val[h, 8] * aw
+        else:
             for p in range(a + 1, b):
                 c = nb.uint64(i + indices[p])  # >= 0: no wraparound test
                 du, dv = q[c, 0] - q0, q[c, 1] - q1
+                dw, da, db = q[c, 2] - q2, q[c, 3] - q3, q[c, 4] - q4
                 fu += val[p, 0] * du + val[p, 1] * dv
                 fv += val[p, 2] * du + val[p, 3] * dv
-                fw += val[p, 4] * (q[c, 2] - q2) + val[p, 5] * (q[c, 3] - q3) \
-                    + val[p, 6] * (q[c, 4] - q4)
-            s = inv_v[i]
+                fw += val[p, 4] * dw + val[p, 5] * da + val[p, 6] * db
+                fa += val[p, 7] * dw + val[p, 8] * da + val[p, 9] * db
+                fb += val[p, 10] * dw + val[p, 11] * da + val[p, 12] * db
+        s = inv_v[i]
+        if do_t:
             out_y[i, 0] += fu * s
             out_y[i, 1] += fv * s
             out_y[i, 2] += fw * s
         if do_r:
-            fa = val[a, 7] * q2 + val[a, 8] * q3 + val[a, 9] * q4
-            fb = val[a, 10] * q2 + val[a, 11] * q3 + val[a, 12] * q4
-            for p in range(a + 1, b):
-                c = nb.uint64(i + indices[p])  # >= 0: no wraparound test
-                dw, da, db = q[c, 2] - q2, q[c, 3] - q3, q[c, 4] - q4
-                fa += val[p, 7] * dw + val[p, 8] * da + val[p, 9] * db
-                fb += val[p, 10] * dw + val[p, 11] * da + val[p, 12] * db
-            s = inv_v[i]
             out_rot[i, 0] += fa * s
             out_rot[i, 1] += fb * s
+
+
+# slot of the transposed block entry, plate slot order (see plate_csr_spmv)
+_PLATE_T = np.array([0, 2, 1, 3, 4, 7, 10, 5, 8, 11, 6, 9, 12])
+
+
+def plate_half_stencil(op, tol=1e-12):
+    """The plate's bulk stencil as pairs of opposite offsets for :func:`plate_csr_spmv`:
+    ``(bulk pattern, h_off (H,) int64, h_val (H, 9))``, or ``(-1, empty, empty)`` when the
+    most frequent stencil is not symmetric under ``o -> -o`` with ``K_{-o} = K_o^T`` and
+    the parities of :func:`plate_csr_spmv`, each to ``tol`` x (largest |value| of its
+    slot); the pair form then is not used and every row goes through the stored entries.
+    Offsets of a bulk row must be in-range for every row of that stencil (they are: it is
+    the same set of particles shifted)."""
+    none = (-1, np.zeros(0, np.int64), np.zeros((0, 9)))
+    rp = op["row_pat"]
+    if rp.size == 0:
+        return none
+    bulk = int(np.bincount(rp).argmax())
+    a, b = op["indptr"][bulk], op["indptr"][bulk + 1]
+    off, V = op["indices"][a:b].astype(np.int64), op["val"][a:b]
+    scale = np.abs(op["val"]).max(axis=0)
+    scale[scale == 0] = 1.0
+    pos = {int(o): r for r, o in enumerate(off)}
+    hs, hv = [], []
+    for r, o in enumerate(off):
+        if o <= 0:
+            continue
+        m = pos.get(-int(o))
+        if m is None:
+            return none
+        Kp = V[r]
+        sl = np.arange(13)
+        bad = np.abs(V[m] - Kp[_PLATE_T]) > tol * scale                        # K_{-o} = K_o^T
+        bad |= np.isin(sl, (1, 9)) & (np.abs(Kp - Kp[_PLATE_T]) > tol * scale)  # even
+        bad |= np.isin(sl, (5, 6)) & (np.abs(Kp + Kp[_PLATE_T]) > tol * scale)  # odd
+        if bad.any():
+            return none
+        hs.append(o)
+        hv.append([Kp[0], Kp[1], Kp[3], Kp[4], Kp[8], Kp[9], Kp[12], Kp[5], Kp[6]])
+    return bulk, np.array(hs, np.int64), np.ascontiguousarray(np.array(hv).reshape(-1, 9))
 
 
 @nb.njit(cache=True)
@@ -732,7 +817,8 @@ class _TripletModel(Model):
         long wave keeps its digits (the flexural frequency is ~ (k dx)^2 (k h)^2 of the
         entries and the plain ``sum_c K_ic q_c`` loses it to cancellation)."""
         op = getattr(self, "_op", None)
-        if op is not None and op[0] is self.coef and op[2] == self.stencil_tol:
+        if op is not None and op[0] is self.coef and op[2] == self.stencil_tol \
+                and op[3] == getattr(self, "pair_stencil", None):
             return op[1]
         n = self.system.n
         coef, mem = self.coef, self.mem_t
@@ -776,7 +862,8 @@ class _TripletModel(Model):
                "kind": kinds, "comp": comps, "field": fld,
                "trans": kinds == 0, "rot": kinds == 1,
                "inv_v": np.ascontiguousarray(1.0 / self.system.volume)}
-        self._op = (self.coef, res, self.stencil_tol)
+        self._op_finish(res)
+        self._op = (self.coef, res, self.stencil_tol, getattr(self, "pair_stencil", None))
         return res
 
     def _op_gather(self, state, op):
@@ -787,13 +874,18 @@ class _TripletModel(Model):
 
     _op_kernel = None       # specialised SpMV (beam, plate) and the slot layout it assumes
     _op_slots = None
+    _op_extra = ()          # keys of the operator dict passed to _op_kernel before q
+
+    def _op_finish(self, op):
+        """Model-specific additions to the assembled operator ``op`` (in place)."""
 
     def _op_rows(self, op, q, do_t, do_r, out_y, out_rot):
         """Translation rows (``do_t``) and/or rotation rows (``do_r``) of ``K q / V`` added
         into the engine's force arrays: the model's specialised kernel when the assembled
         slots are the ones it assumes, else the generic block SpMV."""
         if self._op_kernel is not None and op["slots"] == self._op_slots:
-            type(self)._op_kernel(op["row_pat"], op["indptr"], op["indices"], op["val"], q, do_t, do_r,
+            type(self)._op_kernel(op["row_pat"], op["indptr"], op["indices"], op["val"],
+                                  *(op[k] for k in self._op_extra), q, do_t, do_r,
                                   op["inv_v"], out_y, out_rot)
             return
         on = (op["trans"] if do_t else np.zeros(self.nd, bool)) | \
@@ -843,7 +935,17 @@ class _TripletModel(Model):
         if self._has_operator():
             op = self._operator()
             q = self._op_gather(state, op)
-            self._op_rows(op, q, True, False, out, np.zeros((1, 2)))
+            if op["field"] is None:
+                self._op_rows(op, q, True, False, out, np.zeros((1, 2)))
+                return
+            # translation and rotation rows in one pass; the rotation rows are kept for
+            # add_field_force, which uses them if the dofs are still those of q
+            buf = getattr(self, "_rot_buf", None)
+            if buf is None or buf.shape != state.fields[op["field"]].shape:
+                buf = self._rot_buf = np.zeros_like(state.fields[op["field"]])
+            buf[...] = 0.0
+            self._op_rows(op, q, True, True, out, buf)
+            self._rot_q = q
             return
         q = self._gather(state)
         f = self._generalised(state, q)
@@ -861,6 +963,12 @@ class _TripletModel(Model):
             # the rotation rows only: with add_force's translation rows, one SpMV per step
             op = self._operator()
             if op["field"] is None:
+                return
+            q0 = getattr(self, "_rot_q", None)
+            self._rot_q = None
+            fld = state.fields[op["field"]]
+            if q0 is not None and dofs_equal(state.y, state.x0, fld, op["kind"], op["comp"], q0):
+                out[op["field"]] += self._rot_buf
                 return
             q = self._op_gather(state, op)
             self._op_rows(op, q, False, True, np.zeros((1, 3)), out[op["field"]])
@@ -1388,6 +1496,13 @@ class TridynPlate(_TripletModel):
     needs = Needs(pairs=True, energy=True)
     nd = 5
     _op_kernel = plate_csr_spmv
+    _op_extra = ("bulk", "h_off", "h_val")
+    pair_stencil = True     # bulk rows in pairs of opposite offsets (False: stored entries)
+
+    def _op_finish(self, op):
+        half = plate_half_stencil(op) if self.pair_stencil else \
+            (-1, np.zeros(0, np.int64), np.zeros((0, 9)))
+        op.update(zip(self._op_extra, half))
     _op_slots = ((0, 0), (0, 1), (1, 0), (1, 1), (2, 2), (2, 3), (2, 4), (3, 2), (3, 3),
                  (3, 4), (4, 2), (4, 3), (4, 4))
     dof_map = (("y", 0), ("y", 1), ("y", 2), ("rot", 0), ("rot", 1))
