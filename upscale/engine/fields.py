@@ -42,7 +42,7 @@ from upscale.engine.conditions import Displacement, Region
 
 __all__ = ["FieldSpec", "collect_fields", "FixedField", "Tie", "init_fields", "dof_layout", "set_dof",
            "generalised_forces", "operator", "reduction", "solve_static", "critical_dt",
-           "field_stiffness_over_inertia", "kinetic_energy"]
+           "field_stiffness_over_inertia", "kinetic_energy", "field_kinetic_energy"]
 
 
 @dataclasses.dataclass
@@ -220,7 +220,14 @@ def kinetic_energy(sim, mask=None) -> float:
     st = sim.state
     m = sim.system.mass if mask is None else sim.system.mass[mask]
     v = st.v if mask is None else st.v[mask]
-    ke = 0.5 * float(np.sum(m[:, None] * v * v))
+    return 0.5 * float(np.sum(m[:, None] * v * v)) + field_kinetic_energy(sim, mask)
+
+
+def field_kinetic_energy(sim, mask=None) -> float:
+    """Kinetic energy (J) of the fields alone, ``sum_i I_i V_i |dphi_i/dt|^2 / 2`` over the
+    particles in ``mask`` (all if None)."""
+    st = sim.state
+    ke = 0.0
     for name, spec in getattr(sim, "field_specs", {}).items():
         fv = st.field_v[name] if mask is None else st.field_v[name][mask]
         inert = spec.inertia * sim.system.volume

@@ -2,7 +2,10 @@
 
 * ``traj.extxyz``: one frame per output step, written through :func:`ase.io.write`, with
   per-particle arrays ``displacement`` (3), ``velocity`` (3, m/s), ``damage`` and
-  ``volume``, and ``time``/``step`` in the frame info: ASE and OVITO read it. ASE writes
+  ``volume``, for every field of the generalised degrees of freedom
+  (:mod:`upscale.engine.fields`, e.g. rotations ``rot``) its values ``<name>`` and rates
+  ``<name>_rate`` (the field's unit, per second), and ``time``/``step`` in the frame info:
+  ASE and OVITO read it. ASE writes
   real columns with a fixed ``%16.8f``, which would round SI lengths of a millimetre-sized
   body to 1e-8 m; positions, displacements and volumes are therefore written in a length
   unit ``length_unit_m`` (a power of ten putting the spacing in [1000, 10000): 1e-8 of a
@@ -10,7 +13,8 @@
   0.1 mm spacing.
 * ``vtk/frame_NNNNNN.vtu``: points with the same point data, through meshio (ParaView).
 * ``summary.json``: the run's description and one row per output step (time, kinetic
-  energy, strain energy if asked, broken bonds, max damage), rewritten atomically.
+  energy of translations and fields, the fields' part of it, strain energy if asked,
+  broken bonds, max damage), rewritten atomically.
 """
 from __future__ import annotations
 
@@ -76,6 +80,7 @@ class Output:
         mu = sim.damage()
         row = {"step": int(st.step), "time_s": float(st.t),
                "kinetic_energy_J": float(sim.kinetic_energy()),
+               "field_kinetic_energy_J": _field_ke(sim),
                "broken_bonds": int(st.intact.size - np.count_nonzero(st.intact)),
                "max_damage": float(mu.max()) if mu.size else 0.0}
         if self.energy:
@@ -101,6 +106,9 @@ class Output:
         atoms.new_array("velocity", st.v.copy())
         atoms.new_array("damage", mu)
         atoms.new_array("volume", sim.system.volume * k ** 3)
+        for name, val, rate in _fields(st):
+            atoms.new_array(name, val)
+            atoms.new_array(name + "_rate", rate)
         atoms.info["length_unit_m"] = self.length_unit
         atoms.info["time"] = float(st.t)
         atoms.info["step"] = int(st.step)
@@ -111,7 +119,21 @@ class Output:
 
         st = sim.state
         n = st.y.shape[0]
-        mesh = meshio.Mesh(st.y, [("vertex", np.arange(n).reshape(-1, 1))],
-                           point_data={"displacement": u, "velocity": st.v, "damage": mu,
-                                       "volume": sim.system.volume})
+        pdata = {"displacement": u, "velocity": st.v, "damage": mu, "volume": sim.system.volume}
+        for name, val, rate in _fields(st):
+            pdata[name], pdata[name + "_rate"] = val, rate
+        mesh = meshio.Mesh(st.y, [("vertex", np.arange(n).reshape(-1, 1))], point_data=pdata)
         mesh.write(self.outdir / "vtk" / f"frame_{st.step:06d}.vtu")
+
+
+def _fields(st):
+    """(name, values (N, k), rates (N, k)) of the state's fields, copies."""
+    fv = getattr(st, "field_v", {}) or {}
+    return [(k, np.array(v, dtype=float), np.array(fv.get(k, np.zeros_like(v)), dtype=float))
+            for k, v in (getattr(st, "fields", {}) or {}).items()]
+
+
+def _field_ke(sim) -> float:
+    from upscale.engine.fields import field_kinetic_energy
+
+    return float(field_kinetic_energy(sim))

@@ -181,9 +181,15 @@ class Simulation:
 
     # ------------------------------------------------------------------ diagnostics
     def kinetic_energy(self) -> float:
+        """Translational plus field (e.g. rotation) kinetic energy (J)."""
         from upscale.engine.kernels import health
 
-        return float(health(self.state.y, self.state.v, self._mass_n)[0])
+        ke = float(health(self.state.y, self.state.v, self._mass_n)[0])
+        if getattr(self, "field_specs", None):
+            from upscale.engine.fields import field_kinetic_energy
+
+            ke += field_kinetic_energy(self)
+        return ke
 
     def energy(self) -> float:
         """Total stored (strain) energy of all models (J)."""
