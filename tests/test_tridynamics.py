@@ -447,3 +447,17 @@ def test_kinetic_energy_and_output_include_rotations(tmp_path):
     assert np.allclose(np.ravel(a.arrays["rot_rate"]), sim.state.field_v["rot"][:, 0], rtol=1e-7)
     m = meshio.read(next((tmp_path / "vtk").glob("*.vtu")))
     assert np.array_equal(np.ravel(m.point_data["rot"]), sim.state.fields["rot"][:, 0])
+
+
+def test_text_eb_cantilever_free_end_ghosts():
+    """Text EB cantilever: the second-order free-end ghosts converge at order 2 to
+    qL^4/8EI; the linear extrapolation (option) stays first order; a bad name is refused."""
+    from upscale.experiments.tridyn import beam_static
+
+    e = [beam_static(theory="eb", support="cantilever", n=n, variant="text")["wmax_err_pct"]
+         for n in (50, 100)]
+    assert abs(e[1]) < 0.03 and 3.5 < e[0] / e[1] < 4.5
+    lin = beam_static(theory="eb", support="cantilever", n=100, variant="text", free_end="linear")
+    assert lin["wmax_err_pct"] > 1.0
+    with pytest.raises(ValueError, match="free_end"):
+        beam(length=1.0, n=10, supports=("cc", "free"), variant="text", free_end="cubic")

@@ -96,6 +96,7 @@ __all__ = ["TridynEB", "TridynTimoshenko", "TridynPlate", "line_triplets", "beam
 
 VARIANTS = ("text", "consistent")
 SUPPORTS = ("ss", "cc", "free")
+FREE_ENDS = ("second-order", "linear")
 
 
 # =========================================================================== triplets
@@ -1319,13 +1320,22 @@ register("tridyn-timoshenko", TridynTimoshenko)
 # =========================================================================== beam bodies
 def beam(*, length, n, horizon_ratio=1.0, theory="eb", supports=("ss", "ss"), E=200e9,
          nu=0.3, width=0.05, height=0.001, density=7850.0, shear_factor=5.0 / 6.0,
-         variant="consistent", load=0.0, **model_kw):
+         variant="consistent", load=0.0, free_end="second-order", **model_kw):
     """A beam of ``n`` spacings on [0, length] with supports, ghost layers, a uniform load.
 
-    Nodes at ``x_i = i dx`` (dx = length/n), free end nodes with half volume; ghosts beyond
-    a supported end. ``supports`` = (left, right), each in ``SUPPORTS``; ``load`` q (N/m,
+    Nodes at ``x_i = i dx`` (dx = length/n), free end nodes with half volume (full where
+    ghosts continue the chain, see ``free_end``); ghosts beyond a supported end. ``supports`` = (left, right), each in ``SUPPORTS``; ``load`` q (N/m,
     in +z). Returns ``(system, family, model, conditions, body_mask)`` (``body_mask``: the
-    particles of [0, length])."""
+    particles of [0, length]).
+
+    ``free_end`` sets the ghosts beyond a free end of the text EB beam (whose slope jump
+    2.16 needs neighbours on both sides; the other beams need no ghosts there), from the
+    end conditions ``w'' = w''' = 0``: ``"second-order"`` (default) the polynomial
+    ``w(L + s) = a0 + a1 s + a4 s^4 + a5 s^5`` through the end node and the next three
+    (:func:`free_end_weights`; ghost error O(dx^6 w^(6)), O(dx^2) in the fourth-order
+    operator at the end), ``"linear"`` the linear extrapolation ``w_{end+g} = w_end +
+    g (w_end - w_{end-1})`` (exact only for a straight end: error O(dx^4 w'''') in the
+    ghosts, O(1) in the end node's equation)."""
     from upscale.engine import conditions as cnd
     from upscale.engine.families import build_family
     from upscale.engine.fields import FixedField, Tie
@@ -1339,6 +1349,8 @@ def beam(*, length, n, horizon_ratio=1.0, theory="eb", supports=("ss", "ss"), E=
     _positive(length=length, width=width, height=height, E=E, density=density)
     if int(n) < 4:
         raise ValueError(f"a beam needs at least 4 spacings, got n={n!r}")
+    if free_end not in FREE_ENDS:
+        raise ValueError(f"unknown free_end {free_end!r}; valid: {', '.join(FREE_ENDS)}")
     if not horizon_ratio >= 1.0:
         raise ValueError(f"horizon_ratio delta/dx must be >= 1, got {horizon_ratio!r}")
     n = int(n)
@@ -1358,9 +1370,13 @@ def beam(*, length, n, horizon_ratio=1.0, theory="eb", supports=("ss", "ss"), E=
     A = width * height
     I = width * height ** 3 / 12.0
     V = np.full(x.size, A * dx)
-    if supports[0] == "free":
+    # a free end node has half volume, unless ghosts continue the chain beyond it (text EB):
+    # then it is an inner node of the extended chain, weighted in its neighbours' triplet
+    # sums like one (a half weight there changes the operator at the node before it by
+    # O(1): half the load in the residual of a quartic)
+    if supports[0] == "free" and not gl:
         V[idx == 0] *= 0.5
-    if supports[1] == "free":
+    if supports[1] == "free" and not gr:
         V[idx == n] *= 0.5
     system = ParticleSystem(x[:, None], V, density, dim=1, spacing=dx)
     family = build_family(system, delta)
@@ -1390,11 +1406,13 @@ def beam(*, length, n, horizon_ratio=1.0, theory="eb", supports=("ss", "ss"), E=
             masters = np.array([image[g] for g in reg_g.index.tolist()])  # region order
         if s == "free":
             if (gl, gr)[side]:
-                # w'' = w''' = 0 at the end: linear extrapolation
-                # w_{end+g} = w_end + g (w_end - w_{end-1})
+                # w'' = w''' = 0 at the end (see free_end above)
                 gdep = np.array([depth[g] for g in reg_g.index.tolist()], float)
-                ms = np.stack([np.full(ng, pos[end]), np.full(ng, pos[end - sgn])], axis=1)
-                conds.append(Tie(reg_g, ms, np.stack([1 + gdep, -gdep], axis=1), ("y", 2)))
+                nm = 2 if free_end == "linear" else 4
+                ms = np.repeat(np.array([pos[end - sgn * t] for t in range(nm)])[None, :], ng, axis=0)
+                wts = np.stack([1 + gdep, -gdep], axis=1) if free_end == "linear" \
+                    else free_end_weights(gdep)
+                conds.append(Tie(reg_g, ms, wts, ("y", 2)))
             continue
         if theory == "eb":
             conds.append(cnd.Fixed(reg_e, components=(2,)))
@@ -1420,6 +1438,18 @@ def beam(*, length, n, horizon_ratio=1.0, theory="eb", supports=("ss", "ss"), E=
     if load:
         conds.append(cnd.BodyForce(cnd.Region("beam", body), (0.0, 0.0, load / A)))
     return system, family, model, conds, body
+
+
+def free_end_weights(depths):
+    """Weights (len(depths), 4) of the ghost at ``g`` spacings beyond a free end on the end
+    node and the three before it, from the polynomial ``p(s) = a0 + a1 s + a4 s^4 + a5 s^5``
+    (``p'' = p''' = 0`` at s = 0: no moment, no shear force) through ``s = 0, -1, -2, -3``
+    spacings: exact for every quintic satisfying the two end conditions."""
+    def basis(s):
+        return np.stack([np.ones_like(s), s, s ** 4, s ** 5], axis=-1)
+
+    coef = np.linalg.inv(basis(-np.arange(4.0)))          # a = coef @ w_nodes
+    return basis(np.asarray(depths, float)) @ coef
 
 
 def _lagrange_weights(t, at):

@@ -230,6 +230,26 @@ def run_beam(args):
     print(table(rows))
     print("convergence order of |w_max error| in dx: " +
           ", ".join(f"{k} {v:.2f}" for k, v in orders.items()))
+    # text EB at delta/dx = 1: the free end's ghosts (w'' = w''' = 0)
+    rows_t, tcant = [], {}
+    for fe in ("second-order", "linear"):
+        e_n = []
+        for n in ns[:3]:
+            r = beam_static(theory="eb", support="cantilever", n=n, ratio=1, variant="text",
+                            free_end=fe)
+            e_n.append(r["wmax_err_pct"])
+            rows_t.append({"free_end": fe, "N": n, "err %": r["wmax_err_pct"],
+                           "residual": r["residual"]})
+        tcant[fe] = {"err_pct_by_n": dict(zip(map(str, ns[:3]), e_n)),
+                     "order": float(-np.polyfit(np.log(ns[:3]), np.log(np.abs(e_n)), 1)[0])}
+    for sup in ("ss", "cc"):
+        r = beam_static(theory="eb", support=sup, n=100, ratio=1, variant="text")
+        rows_t.append({"free_end": f"({sup})", "N": 100, "err %": r["wmax_err_pct"],
+                       "residual": r["residual"]})
+    print("\ntext EB beam (2.15-2.19), delta/dx = 1: cantilever with the second-order and the "
+          "linear free-end ghosts, ss and cc")
+    print(table(rows_t))
+    print("order: " + ", ".join(f"{k} {v['order']:.2f}" for k, v in tcant.items()))
     # literal vs consistent calibration against delta/L
     rows2 = []
     for var, xi in (("text", "spacing"), ("text", "horizon"), ("consistent", None)):
@@ -275,6 +295,9 @@ def run_beam(args):
     out = {"eb_wmax_err_pct_max": float(max(errs)), "eb_order": float(min(orders.values())),
            "eb_order_by_support": orders,
            "timoshenko_wmax_err_pct": float(max(terr)),
+           "text_cantilever_err_pct": tcant["second-order"]["err_pct_by_n"]["100"],
+           "text_cantilever_linear_ghost_err_pct": tcant["linear"]["err_pct_by_n"]["100"],
+           "text_cantilever": tcant,
            "text_stiffening_ratio_by_delta_over_dx": {
                str(r["delta/dx"]): 1 / r["w_max / EB"] for r in rows2
                if r["variant"] == "text xi=spacing"},
