@@ -280,7 +280,9 @@ def test_plate_bad_input():
         s = line_lattice(10, 1e-3)
         Simulation(s, build_family(s, 1.5e-3), TridynPlate(200e9, thickness=1e-3), [])
     with pytest.raises(ValueError, match="variant"):
-        TridynPlate(200e9, thickness=1e-3, variant="text")
+        TridynPlate(200e9, thickness=1e-3, variant="printed")
+    with pytest.raises(ValueError, match="text_triplets"):
+        TridynPlate(200e9, thickness=1e-3, variant="text", text_triplets="diagonal")
     with pytest.raises(ValueError, match="thickness"):
         TridynPlate(200e9, thickness=0.0)
     with pytest.raises(ValueError, match="support"):
@@ -461,3 +463,25 @@ def test_text_eb_cantilever_free_end_ghosts():
     assert lin["wmax_err_pct"] > 1.0
     with pytest.raises(ValueError, match="free_end"):
         beam(length=1.0, n=10, supports=("cc", "free"), variant="text", free_end="cubic")
+
+
+def test_text_plate_long_wave_departs_from_printed_limit():
+    """The printed plate built on the engine: its force routine's long-wave coefficients
+    (lines reading) are a quarter of the printed local limit 4.60 (only the pairs on one
+    line enter each measure, V_T^2 counts all), its u-v coupling vanishes, its thickness
+    shear is k_s/4 of Mindlin's (the 5/6 of the beam's missing edge factor); the operator
+    is not symmetric; the cross reading has negative omega^2 at long waves."""
+    from upscale.experiments.tridyn import plate_long_wave
+
+    r = plate_long_wave(variant="text", text_triplets="lines")
+    t = r["terms"]
+    assert t["u: u,xx"][0] / t["u: u,xx"][1] == pytest.approx(0.25, rel=1e-6)
+    assert t["v: v,xx"][0] / t["v: v,xx"][1] == pytest.approx(0.25, rel=1e-6)
+    assert abs(t["u: v,xy"][0]) < 1e-9 * t["u: v,xy"][2]
+    assert t["phi_x: k_s mu (w,x - phi_x)"][0] / t["phi_x: k_s mu (w,x - phi_x)"][2] == \
+        pytest.approx(0.25 * 5 / 6, rel=1e-9)
+    assert r["asymmetry"] > 1e-3 and r["min_over_max_omega2"] > 0
+    c = plate_long_wave(variant="text", text_triplets="cross")
+    assert c["min_over_max_omega2"] < 0
+    ok = plate_long_wave(variant="consistent")["terms"]
+    assert ok["u: u,xx"][0] / ok["u: u,xx"][2] == pytest.approx(1.0, rel=1e-6)

@@ -695,3 +695,68 @@ def step_scan(*, theory="eb", factors=(0.98, 1.02), n=60, steps=400, seed=0) -> 
                     "estimate_s": sim.integrator.estimate, "max_rel_energy_change": worst,
                     "blew_up": blew or worst > 1e3})
     return out
+
+
+def plate_long_wave(*, variant="text", text_triplets="lines", ratio=1, kdx=1e-3, h_over_dx=10.0,
+                    E=200e9, nu=0.3, rho=7850.0, ks=5.0 / 6.0, dx=1e-3) -> dict:
+    """Long-wave coefficients of the plate model, read off its dynamical matrix (from its
+    force routine, :func:`upscale.engine.dispersion.dynamical_matrix`) at ``k dx = kdx``
+    along x, y and 45 degrees: for a term ``C f,ab`` in the equation of dof g,
+    ``D_gf(k) / V = C k_a k_b``; the shear term ``k_s mu (w,x - phi_x)`` of the phi_x row
+    is ``D_phix,phix(0) / V``. Returns ``{term: (model, printed local limit 4.60 with 4.63,
+    Mindlin 4.62)}`` (phi terms with I/A = h^2/12), the spurious ``v: u`` coupling of a wave
+    along x (Mindlin: 0), the lowest ``omega^2`` over the three directions relative to the
+    largest (negative: the model is unstable) and the operator's asymmetry."""
+    from upscale.engine.dispersion import centre_particle, dynamical_matrix
+    from upscale.engine.families import build_family
+    from upscale.engine.fields import mass_vector
+    from upscale.engine.simulation import Simulation
+    from upscale.engine.system import square_lattice
+    from upscale.models.tridynamics import TridynPlate, literal_local_coefficients
+
+    h = h_over_dx * dx
+    m = int(np.ceil(ratio))
+    nside = 2 * (2 * m + 3) + 1
+    system = square_lattice(nside, nside, dx, thickness=h, density=rho, centered=True)
+    family = build_family(system, ratio * dx * (1 + 1e-9))
+    model = TridynPlate(E, nu, thickness=h, shear_factor=ks, variant=variant,
+                        text_triplets=text_triplets)
+    sim = Simulation(system, family, model, [])
+    c = centre_particle(sim)
+    V = float(system.volume[c])
+    k = kdx / dx
+    s2 = np.sqrt(0.5)
+    Dx, Dy, Dd, D0 = (dynamical_matrix(sim, kv, c).real / V for kv in
+                      (np.array([k, 0.0]), np.array([0.0, k]), np.array([k * s2, k * s2]),
+                       np.zeros(2)))
+    k2 = k * k
+    u, v, w, px, py = range(5)
+    val = {"u: u,xx": Dx[u, u] / k2, "u: u,yy": Dy[u, u] / k2, "u: v,xy": Dd[u, v] / (k2 / 2),
+           "v: v,yy": Dy[v, v] / k2, "v: v,xx": Dx[v, v] / k2, "v: u,xy": Dd[v, u] / (k2 / 2),
+           "w: w,xx - phi_x,x": Dx[w, w] / k2,
+           "phi_x: phi_x,xx": (Dx[px, px] - D0[px, px]) / k2,
+           "phi_x: phi_x,yy": (Dy[px, px] - D0[px, px]) / k2,
+           "phi_x: phi_y,xy": Dd[px, py] / (k2 / 2),
+           "phi_y: phi_y,yy": (Dy[py, py] - D0[py, py]) / k2,
+           "phi_y: phi_y,xx": (Dx[py, py] - D0[py, py]) / k2,
+           "phi_y: phi_x,xy": Dd[py, px] / (k2 / 2),
+           "phi_x: k_s mu (w,x - phi_x)": D0[px, px]}
+    lit = literal_local_coefficients(E, nu, ks, I_over_A=h * h / 12.0)
+    lit["phi_x: k_s mu (w,x - phi_x)"] = (ks * E / (2 * (1 + nu)),) * 2
+    out = {"terms": {t: (float(val[t]), float(lit[t][0]), float(lit[t][1])) for t in val}}
+    out["spurious_v_u_along_x"] = float(abs(Dx[v, u]) / k2)
+    M = mass_vector(sim).reshape(system.n, 5)[c] / V
+    scan = {}
+    for kq in (kdx, 0.01, 0.1, 1.0, np.pi):
+        lo, hi = np.inf, 0.0
+        for th in (0.0, 0.5 * np.pi, 0.25 * np.pi):
+            kv = kq / dx * np.array([np.cos(th), np.sin(th)])
+            ev = np.linalg.eigvals(dynamical_matrix(sim, kv, c) / V / M[:, None])
+            lo, hi = min(lo, ev.real.min()), max(hi, ev.real.max())
+        scan[float(kq)] = float(lo / hi)
+    out["min_over_max_omega2_by_kdx"] = scan
+    out["min_over_max_omega2"] = float(min(scan.values()))
+    Dfull = dynamical_matrix(sim, np.array([k, 0.0]), c)
+    out["asymmetry"] = float(np.abs(Dfull - Dfull.conj().T).max() / np.abs(Dfull).max())
+    out["model"] = model.describe()
+    return out

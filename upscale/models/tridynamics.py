@@ -1,7 +1,7 @@
 """Tridynamic beams and plates (seed 004, ch. 2-4): three-particle interactions on the engine.
 
 Beams (:class:`TridynEB`, :class:`TridynTimoshenko`) below; the FSDT plate
-(:class:`TridynPlate`) has its own docstring.
+(:class:`TridynPlate`, variants "consistent" and "text") has its own docstring.
 
 Bodies are 1D chains of particles on the x axis (``line_lattice``); the transverse
 displacement w is the z translation, the axial displacement u the x translation and the
@@ -97,6 +97,7 @@ __all__ = ["TridynEB", "TridynTimoshenko", "TridynPlate", "line_triplets", "beam
 VARIANTS = ("text", "consistent")
 SUPPORTS = ("ss", "cc", "free")
 FREE_ENDS = ("second-order", "linear")
+TEXT_PLATE_TRIPLETS = ("lines", "cross")
 
 
 # =========================================================================== triplets
@@ -1512,6 +1513,23 @@ class TridynPlate(_TripletModel):
     ``U_t`` is a positive semi-definite form, so the energy is non-negative. Forces are
     its exact gradient (symmetric tangent).
 
+    Variant ``"text"``: the printed plate. Measures 4.1-4.14 (difference quotients of u, v,
+    w, phi_x, phi_y over the x or y separation ``xi^x = |x_b - x_a|``, ``xi^y``), the
+    printed EOM 4.48-4.52 (the centre-only derivative ``-(1/3) sum_jk K s ds/dq_i V_j V_k``,
+    as for the beam) with the constants 4.53/4.63 and ``V_T = sum_j V_j`` over the x and y
+    lines (4.61, 4V at delta = dx). In the in-plane and twisting shear the EOM couples the
+    two halves ``1eps = u over y``, ``2eps = v over x`` by the matrix
+    ``[[2 1K, 1K + 2K], [1K + 2K, 2 2K]]`` (4.48-4.49), indefinite for 1K != 2K; it is
+    diagonalised into two measures with weights of both signs. A term whose separation
+    in its direction is zero (``xi^x_ab = 0`` for a pair on the y line, the 0/0 of the
+    printed measures) is dropped: the limit does not exist (``q_b - q_a`` stays finite as
+    the separation goes to zero) and dropping it is the chapter's own convention for a
+    zero-length edge (j = k in 3.6-3.9). The prescribed triangles ("all edges on the x or
+    y axis") are read as ``text_triplets="lines"`` (default: j and k both on the x line
+    or both on the y line of i, j = k included) or ``"cross"`` (j and k anywhere on the
+    two lines, right triangles included). The text variant has no energy (its operator is
+    not symmetric).
+
     Parameters
     ----------
     E, nu : float
@@ -1520,6 +1538,9 @@ class TridynPlate(_TripletModel):
         Plate thickness h (m); must equal the body's ``thickness``.
     shear_factor : float
         k_s in (0, 1].
+    variant : {"consistent", "text"}
+    text_triplets : {"lines", "cross"}
+        The triplets of the text variant (above).
     """
 
     name = "tridyn-plate"
@@ -1538,22 +1559,18 @@ class TridynPlate(_TripletModel):
     dof_map = (("y", 0), ("y", 1), ("y", 2), ("rot", 0), ("rot", 1))
     variant = "consistent"
 
-    def _fast_force(self, q):
-        n = q.shape[0]
-        nc = _nchunks(n)
-        buf = np.zeros((nc, n, 5))
-        plate_grad_kernel(self.off_t, self.mem_t, self._wt, self.system.x0, q, self.K, buf)
-        return buf[0] if nc == 1 else buf.sum(axis=0)
-
-    def __init__(self, E, nu=0.3, *, thickness, shear_factor=5.0 / 6.0, variant="consistent"):
+    def __init__(self, E, nu=0.3, *, thickness, shear_factor=5.0 / 6.0, variant="consistent",
+                 text_triplets="lines"):
         _positive(E=E, thickness=thickness)
         if not (-1.0 < nu < 0.5):
             raise ValueError(f"Poisson ratio must be in (-1, 0.5), got {nu!r}")
         if not (0.0 < shear_factor <= 1.0):
             raise ValueError(f"shear correction factor must be in (0, 1], got {shear_factor!r}")
-        if variant != "consistent":
-            raise ValueError(f"unknown plate variant {variant!r}; valid: 'consistent' (the printed "
-                             f"plate cannot be built: see literal_local_coefficients)")
+        self.variant = _variant(variant)
+        if text_triplets not in TEXT_PLATE_TRIPLETS:
+            raise ValueError(f"unknown text_triplets {text_triplets!r}; valid: "
+                             f"{', '.join(TEXT_PLATE_TRIPLETS)}")
+        self.text_triplets = text_triplets
         self.E, self.nu, self.h = float(E), float(nu), float(thickness)
         self.mu = self.E / (2 * (1 + self.nu))
         self.ks = float(shear_factor)
@@ -1579,6 +1596,9 @@ class TridynPlate(_TripletModel):
         if not np.isclose(system.thickness, self.h, rtol=1e-12):
             raise ValueError(f"plate thickness {self.h!r} m differs from the body's "
                              f"{system.thickness!r} m; valid: the same value")
+        if self.variant == "text":
+            self._prepare_text(system, family)
+            return
         tri = build_triplets(system.x0, family)
         mem = tri.members(family)
         x0 = system.x0
@@ -1647,12 +1667,135 @@ class TridynPlate(_TripletModel):
         self.w0_tm = np.repeat(w[:, None], 8, axis=1)
         self.w_tm = np.ascontiguousarray(self.w0_tm * K[None, :])
 
+    def _prepare_text(self, system, family):
+        """Measure tables of the printed plate (4.1-4.14) for the printed EOM 4.48-4.52
+        with the constants 4.53/4.63 (see :class:`TridynPlate`, variant "text")."""
+        x0 = system.x0
+        V = system.volume
+        tol = 1e-9 * system.spacing
+        rows = []
+        for i in range(system.n):
+            nb_ = family.neighbors[family.offsets[i]:family.offsets[i + 1]]
+            d = x0[nb_, :2] - x0[i, :2]
+            onx, ony = nb_[np.abs(d[:, 1]) < tol], nb_[np.abs(d[:, 0]) < tol]
+            sets = ((onx, onx), (ony, ony)) if self.text_triplets == "lines" else \
+                ((np.concatenate([onx, ony]),) * 2,)
+            for a_, b_ in sets:
+                if a_.size and b_.size:
+                    jj, kk = np.meshgrid(a_, b_, indexing="ij")
+                    rows.append(np.stack([np.full(jj.size, i), jj.ravel(), kk.ravel()], axis=1))
+        mem = np.concatenate(rows).astype(np.int64) if rows else np.zeros((0, 3), np.int64)
+        if np.unique(mem[:, 0]).size < system.n:
+            raise ValueError(f"horizon {family.horizon:.6g} m leaves a particle without "
+                             f"neighbours on its x or y line; valid: delta/dx >= 1")
+        mem = mem[np.argsort(mem[:, 0], kind="stable")]
+        counts = np.bincount(mem[:, 0], minlength=system.n)
+        self.off_t = np.zeros(system.n + 1, np.int64)
+        self.off_t[1:] = np.cumsum(counts)
+        self.mem_t = np.ascontiguousarray(mem)
+        i, j, k = mem.T
+        nt = i.size
+
+        def inv(a, b, c):
+            """1/xi^c_ab, zero where xi^c_ab = 0 (the term is dropped) and its sign n^c_ab."""
+            dd = x0[b, c] - x0[a, c]
+            z = np.abs(dd) < tol
+            return np.where(z, 0.0, 1.0 / np.where(z, 1.0, np.abs(dd))), np.where(z, 0.0, np.sign(dd))
+
+        # the three permutations (centre, first, second) = (i, j, k), (j, k, i), (k, i, j) as
+        # member slots (0, 1, 2): s_abc = (q_b - q_a)/xi_ab + (q_c - q_a)/xi_ac
+        perms = ((0, 1, 2), (1, 2, 0), (2, 0, 1))
+        members = (i, j, k)
+
+        def diff_measure(C, m, dof, c, f=1.0):
+            for p, (a, b, cc) in enumerate(perms):
+                ib, _ = inv(members[a], members[b], c)
+                ic, _ = inv(members[a], members[cc], c)
+                C[:, m + p, a, dof] += -f * (ib + ic)
+                C[:, m + p, b, dof] += f * ib
+                C[:, m + p, cc, dof] += f * ic
+
+        def shear_measure(C, m, wdof, pdof, c):
+            diff_measure(C, m, wdof, c)
+            for p, (a, b, cc) in enumerate(perms):
+                for o in (b, cc):
+                    _, n_ = inv(members[a], members[o], c)
+                    C[:, m + p, a, pdof] += -n_ / 2
+                    C[:, m + p, o, pdof] += -n_ / 2
+
+        mu, Cm = self.mu, self.E / (1 - self.nu ** 2)
+        r = self.h ** 2 / 12.0
+        i0 = self._text_bulk(family, x0, tol)
+        nb0 = family.neighbors[family.offsets[i0]:family.offsets[i0 + 1]]
+        d0 = x0[nb0, :2] - x0[i0, :2]
+        VT = float(np.sum(V[nb0[(np.abs(d0[:, 0]) < tol) | (np.abs(d0[:, 1]) < tol)]]))  # 4.61
+        K1e, K2e = mu / 2, Cm * self.nu + mu / 2                 # 4.63 times V_T^2
+        K1p, K2p = r * mu / 2, r * (Cm * self.nu + mu / 2)
+        Kex = np.array([[2 * K1e, K1e + K2e], [K1e + K2e, 2 * K2e]])
+        Kpx = np.array([[2 * K1p, K1p + K2p], [K1p + K2p, 2 * K2p]])
+        C = np.zeros((nt, 30, 3, 5))
+        lam = np.zeros(30)
+        diff_measure(C, 0, 0, 0)                 # eps^xx: u over x
+        diff_measure(C, 3, 1, 1)                 # eps^yy: v over y
+        diff_measure(C, 12, 3, 0)                # kappa^xx: phi_x over x
+        diff_measure(C, 15, 4, 1)                # kappa^yy: phi_y over y
+        shear_measure(C, 24, 2, 3, 0)            # psi^x: w over x, phi_x
+        shear_measure(C, 27, 2, 4, 1)            # psi^y: w over y, phi_y
+        lam[0:6] = Cm
+        lam[12:18] = r * Cm
+        lam[24:30] = self.ks * mu
+        # eps^xy = 1eps (u over y) + 2eps (v over x), coupled by the printed EOM's matrix
+        # [[2 1K, 1K + 2K], [1K + 2K, 2 2K]]: diagonalised, one measure per eigenvector
+        for base, (dofa, dofb), Kmat in ((6, (0, 1), Kex), (18, (3, 4), Kpx)):
+            ev, Q = np.linalg.eigh(Kmat)
+            one = np.zeros((nt, 3, 3, 5))
+            two = np.zeros((nt, 3, 3, 5))
+            diff_measure(one, 0, dofa, 1)
+            diff_measure(two, 0, dofb, 0)
+            for e in range(2):
+                C[:, base + 3 * e:base + 3 * e + 3] = Q[0, e] * one + Q[1, e] * two
+                lam[base + 3 * e:base + 3 * e + 3] = ev[e]
+        self.coef = np.ascontiguousarray(C)
+        self.K = lam / VT ** 2
+        w = V[i] * V[j] * V[k] / 3.0             # (1/3) sum_jk ... V_j V_k (4.48-4.52), per particle
+        self.w0_tm = np.repeat(w[:, None], 30, axis=1)
+        self.w_tm = np.ascontiguousarray(self.w0_tm * self.K[None, :])
+        self.VT = VT
+
+    @staticmethod
+    def _text_bulk(family, x0, tol):
+        counts = family.counts
+        cand = np.flatnonzero(counts == counts.max())
+        mid = 0.5 * (x0.min(axis=0) + x0.max(axis=0))
+        return int(cand[np.argmin(np.sum((x0[cand] - mid) ** 2, axis=1))])
+
+    def _fast_force(self, q):
+        if self.variant == "text":
+            return None
+        n = q.shape[0]
+        nc = _nchunks(n)
+        buf = np.zeros((nc, n, 5))
+        plate_grad_kernel(self.off_t, self.mem_t, self._wt, self.system.x0, q, self.K, buf)
+        return buf[0] if nc == 1 else buf.sum(axis=0)
+
+    def _bounds(self):
+        if self.variant != "text":
+            return super()._bounds()
+        n = self.system.n
+        buf = np.zeros((_nchunks(n), n, self.nd))
+        bound_kernel(self.off_t, self.mem_t, self.coef, np.abs(self.w_tm),
+                     1.0 / np.sqrt(self._inertia_d()), True, buf)
+        return buf.sum(axis=0) / self.system.volume[:, None]
+
     def influence_radius(self):
         return 2.0 * self.family.horizon + 2.0 * self.system.spacing
 
     def describe(self):
-        return {"model": self.name, "variant": self.variant, "E_Pa": self.E, "nu": self.nu,
-                "thickness_m": self.h, "shear_factor": self.ks}
+        d = {"model": self.name, "variant": self.variant, "E_Pa": self.E, "nu": self.nu,
+             "thickness_m": self.h, "shear_factor": self.ks}
+        if self.variant == "text":
+            d["text_triplets"] = self.text_triplets
+        return d
 
 
 register("tridyn-plate", TridynPlate)

@@ -459,7 +459,7 @@ def run_bench(args):
       "of the corrected plate along x, y, 45 deg, positivity, Navier-Mindlin square plate, NVE")
 def run_plate(args):
     from upscale.experiments.tridyn import (plate_bending, plate_dispersion, plate_energy_random,
-                                            plate_nve)
+                                            plate_long_wave, plate_nve)
     from upscale.models.tridynamics import literal_local_coefficients
 
     quick = getattr(args, "quick", False)
@@ -470,6 +470,25 @@ def run_plate(args):
     print("printed local limit with the printed constants vs Mindlin (E = 200 GPa, nu = 0.3, "
           "I/A = 1)")
     print(table(rows))
+    # the printed plate on the engine (variant "text"): its long-wave coefficients from its
+    # force routine, for the two readings of the prescribed triangles
+    tp, trows = {}, []
+    for reading in ("lines", "cross"):
+        r = plate_long_wave(variant="text", text_triplets=reading)
+        tp[reading] = {"over_mindlin": {t: v[0] / v[2] for t, v in r["terms"].items()},
+                       "spurious_v_u_along_x_over_mu": r["spurious_v_u_along_x"] / (E / (2 * (1 + nu))),
+                       "min_over_max_omega2_by_kdx": r["min_over_max_omega2_by_kdx"],
+                       "asymmetry": r["asymmetry"]}
+        for t, v in r["terms"].items():
+            trows.append({"triplets": reading, "term": t, "model / Mindlin": v[0] / v[2],
+                          "printed 4.60 / Mindlin": v[1] / v[2]})
+    print("\nprinted plate (4.1-4.14, EOM 4.48-4.52, constants 4.63; terms with xi^e = 0 dropped), "
+          "delta/dx = 1, h = 10 dx, long-wave coefficients at k dx = 1e-3")
+    print(table(trows))
+    for reading, v in tp.items():
+        print(f"{reading}: spurious v-u coupling along x / mu = {v['spurious_v_u_along_x_over_mu']:.4g}, "
+              f"asymmetry {v['asymmetry']:.3g}, min/max omega^2 by k dx: "
+              + ", ".join(f"{k:.3g}: {w:.3g}" for k, w in v["min_over_max_omega2_by_kdx"].items()))
     drow, derr = [], {}
     for m in ((1,) if quick else (1, 2)):
         r = plate_dispersion(ratio=m)
@@ -503,6 +522,10 @@ def run_plate(args):
            "navier_err_pct": float(perr),
            "min_energy_random": en["min_energy_J"], "negative_eigenvalues": en["negative_eigs"],
            "literal_v_xx_over_mindlin": float(lit["v: v,xx"][0] / lit["v: v,xx"][1]),
+           "text_plate": tp,
+           "text_plate_u_xx_over_mindlin": {k: v["over_mindlin"]["u: u,xx"] for k, v in tp.items()},
+           "text_plate_min_omega2_ratio": {k: min(v["min_over_max_omega2_by_kdx"].values())
+                                           for k, v in tp.items()},
            "nve_rel_drift": nve["rel_drift"],
            "dt_estimate_over_critical": nve["estimate_over_critical"]}
     out["pass"] = bool(out["mindlin_rel_err_max"] < 1e-3 and abs(perr) < 1.0
