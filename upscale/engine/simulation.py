@@ -181,7 +181,8 @@ class Simulation:
 
     # ------------------------------------------------------------------ diagnostics
     def kinetic_energy(self) -> float:
-        """Translational plus field (e.g. rotation) kinetic energy (J)."""
+        """Translational plus field (e.g. rotation) kinetic energy (J), with the coupling
+        part of a non-diagonal mass (:mod:`upscale.engine.mass`)."""
         from upscale.engine.kernels import health
 
         ke = float(health(self.state.y, self.state.v, self._mass_n)[0])
@@ -189,7 +190,8 @@ class Simulation:
             from upscale.engine.fields import field_kinetic_energy
 
             ke += field_kinetic_energy(self)
-        return ke
+        extra = getattr(self.integrator, "extra_kinetic_energy", None)  # non-diagonal mass
+        return ke + extra(self) if extra is not None else ke
 
     def energy(self) -> float:
         """Total stored (strain) energy of all models (J)."""

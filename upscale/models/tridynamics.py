@@ -1304,6 +1304,25 @@ class TridynEB(_TripletModel):
     def influence_radius(self):
         return 2.0 * self.family.horizon + 2.0 * self.system.spacing
 
+    def rotary_mass(self, mask=None):
+        """Rotary inertia of the sections (Rayleigh beam): the coupling ``B`` (N x N, kg,
+        sparse) of the kinetic energy ``(1/2) int rho I (dw'/dt)^2 dx`` on the chain,
+        ``(1/2) sum_edges rho I (v_b - v_a)^2 / xi_ab`` over the edges between consecutive
+        particles both in ``mask`` (all if None; ghosts, whose velocities are not
+        integrated, are left out). With the lumped masses it is the mass matrix of w for
+        :class:`upscale.engine.mass.MassMatrixVerlet`; the plane-wave symbol is
+        ``rho A dx + rho I (2 - 2 cos k dx)/dx``, i.e. ``rho (A + I k^2) dx`` at long
+        waves (Rayleigh)."""
+        from upscale.engine.mass import edge_coupling
+
+        x = self.system.x0[:, 0]
+        order = np.argsort(x)
+        a, b = order[:-1], order[1:]
+        keep = np.ones(a.size, bool) if mask is None else (mask[a] & mask[b])
+        rho = np.broadcast_to(np.asarray(self.system.density, float), x.shape)
+        coef = 0.5 * (rho[a] + rho[b]) * self.I / np.abs(x[b] - x[a])
+        return edge_coupling(x, np.stack([a[keep], b[keep]], axis=1), coef[keep])
+
     def describe(self):
         d = {"model": self.name, "variant": self.variant, "E_Pa": self.E, "area_m2": self.A,
              "second_moment_m4": self.I}

@@ -173,8 +173,23 @@ def run_dispersion(args):
     print(table(brow))
     print(f"convergence to the continuum relation: order {-p:.3f} in dx/delta; "
           f"3.55 vs Cin form for k delta <= 0.5: {e355:.3e}")
+    # (iv) EB with the sections' rotary inertia (mass matrix) vs the Rayleigh beam
+    from upscale.experiments.tridyn import rayleigh_dispersion
+
+    rrow, ray = [], {}
+    for m in ratios:
+        r = rayleigh_dispersion(ratio=m, kh=kh)
+        ray[m] = r["rel_err_max"]
+        for kk, e, f in zip(kh, r["rel_err"], r["eb_over_rayleigh"]):
+            rrow.append({"delta/dx": m, "k h": kk, "rel. err vs Rayleigh": e,
+                         "EB (no rotary) / Rayleigh": f})
+    print("\nEB beam with rotary inertia (mass matrix), omega^2 = D(k)/M(k) vs Rayleigh "
+          "EI k^4/(rho (A + I k^2)), dx/h = 0.01")
+    print(table(rrow))
     m1 = tim_err[1]
     out = {
+        "rayleigh_rel_err_max": ray[1],
+        "rayleigh_rel_err_by_ratio": {str(m): v for m, v in ray.items()},
         "coeff_rel_err_max": coeff_err,
         "timoshenko_rel_err_max": m1[0],
         "timoshenko_rel_err_by_ratio": {str(m): v[0] for m, v in tim_err.items()},
@@ -188,7 +203,7 @@ def run_dispersion(args):
         "tf_long_wave_ratios_by_ratio": tf_by,
     }
     out["pass"] = bool(coeff_err < 1e-10 and m1[0] < 1e-4 and m1[1] < 1e-6 and lat < 1e-12
-                       and e355 < 1e-4)
+                       and e355 < 1e-4 and ray[1] < 1e-4)
     return out
 
 
@@ -287,6 +302,13 @@ def run_beam(args):
         nve.append(r)
     from upscale.experiments.tridyn import step_scan
 
+    nve.append(beam_nve(theory="eb", rotary=True, steps=2000 if quick else 10000))
+    from upscale.experiments.tridyn import rayleigh_mode
+
+    modes = [rayleigh_mode(rotary=rot) for rot in (True, False)]
+    print("\nsimply supported EB beam (N = 100, h/L = 0.05) released in mode 4: angular "
+          "frequency from velocity Verlet with the rotary mass matrix and with lumped mass")
+    print(table([{k: v for k, v in r.items()} for r in modes]))
     scan = step_scan(theory="eb") + step_scan(theory="timoshenko")
     print("\nvelocity Verlet at 0.98 and 1.02 x the sharp critical step, random initial state")
     print(table(scan))
@@ -305,10 +327,15 @@ def run_beam(args):
                str(r["delta/dx"]): 1 / r["w_max / EB"] for r in rows2
                if r["variant"] == "text xi=horizon"},
            "nve_rel_drift_max": float(max(r["rel_drift"] for r in nve)),
-           "dt_estimate_over_critical": {r["theory"]: r["estimate_over_critical"] for r in nve},
+           "nve_rel_drift_eb_rotary": float(nve[-1]["rel_drift"]),
+           "rayleigh_mode_measured_over_discrete": modes[0]["measured_over_discrete"],
+           "rayleigh_mode_discrete_over_closed_form": modes[0]["omega_discrete"] / modes[0]["omega_rayleigh"],
+           "rayleigh_mode_shift_vs_lumped": modes[0]["omega_measured"] / modes[1]["omega_measured"],
+           "dt_estimate_over_critical": {r["theory"] + ("+rotary" if r.get("rotary") else ""): r["estimate_over_critical"] for r in nve},
            "critical_step_confirmed": bool(all(r["blew_up"] == (r["dt_over_critical"] > 1)
                                                for r in scan))}
     out["pass"] = bool(out["eb_wmax_err_pct_max"] < 0.5 and out["timoshenko_wmax_err_pct"] < 1.0
+                       and abs(out["rayleigh_mode_measured_over_discrete"] - 1) < 1e-4
                        and out["nve_rel_drift_max"] < 1e-4
                        and all(r["estimate_over_critical"] <= 1.0 for r in nve)
                        and out["critical_step_confirmed"])
