@@ -98,6 +98,7 @@ VARIANTS = ("text", "consistent")
 SUPPORTS = ("ss", "cc", "free")
 FREE_ENDS = ("second-order", "linear")
 TEXT_PLATE_TRIPLETS = ("lines", "cross")
+SHEAR_INTEGRATIONS = ("ends", "bond")
 
 
 # =========================================================================== triplets
@@ -1069,6 +1070,21 @@ class TridynTimoshenko(_TripletModel):
     self_pairs : bool, optional
         Include j = k in the double sums (default: True for "text", as in C.1; False for
         "consistent").
+    shear_integration : {"ends", "bond"}
+        Rotation in the shear measure of a pair (consistent variant). ``"ends"``
+        (default; 3.6-3.9): the mean of the two ends' rotations, ``psi_ab = (w_b -
+        w_a)/xi_ab - n_ab (phi_a + phi_b)/2``. ``"bond"``: the mean of phi over the bond
+        by the trapezoidal rule over every particle between a and b, ``psi_ab = (chi_b -
+        chi_a)/xi_ab`` with ``chi = w - Phi`` and ``Phi(x) = int phi dx`` (cumulative
+        trapezoid along the chain), i.e. the mean of the nearest-neighbour shear strains
+        along the bond. With "ends", a pair longer than one spacing sees the shear
+        ``-xi^2 w'''/12`` of a bending field with ``phi = w'`` exactly, and asking every
+        pair within the horizon to vanish over-constrains the Kirchhoff limit (2 N
+        conditions on 2 N dofs for delta = 2 dx): thin beams lock. With "bond" every
+        psi_ab is an average of the nearest-neighbour ones, so they all vanish together
+        and the thin limit is free. The "bond" option has no assembled operator and no
+        stiffness bound (its force goes through the triplet kernel on (u, chi, phi); give
+        dt explicitly for dynamics).
     """
 
     name = "tridyn-timoshenko"
@@ -1079,8 +1095,14 @@ class TridynTimoshenko(_TripletModel):
     dof_map = (("y", 0), ("y", 2), ("rot", 0))
 
     def __init__(self, E, nu=0.3, *, area, second_moment, shear_factor=5.0 / 6.0,
-                 variant="consistent", edge_factor=1.0, self_pairs=None):
+                 variant="consistent", edge_factor=1.0, self_pairs=None, shear_integration="ends"):
         _positive(E=E, area=area, second_moment=second_moment)
+        if shear_integration not in SHEAR_INTEGRATIONS:
+            raise ValueError(f"unknown shear_integration {shear_integration!r}; valid: "
+                             f"{', '.join(SHEAR_INTEGRATIONS)}")
+        if shear_integration == "bond" and variant != "consistent":
+            raise ValueError("shear_integration 'bond' is for variant 'consistent'")
+        self.shear_integration = shear_integration
         if not (-1.0 < nu < 0.5):
             raise ValueError(f"Poisson ratio must be in (-1, 0.5), got {nu!r}")
         if not (0.0 < shear_factor <= 1.0):
@@ -1174,6 +1196,60 @@ class TridynTimoshenko(_TripletModel):
         self._x = np.ascontiguousarray(x)
         self._g6 = np.ascontiguousarray(np.stack([ia, ib, ic, nij, nik, njk], axis=1))
         self.w_tm = np.ascontiguousarray(self.w0_tm * np.repeat(K, 3)[None, :])
+        if self.shear_integration == "bond":
+            # the shear measures on (u, chi, phi): the w column reads chi, no phi terms
+            Cb = C.copy()
+            Cb[:, 6:9, :, 2] = 0.0
+            self._coef_bond = np.ascontiguousarray(Cb)
+            self._order = np.argsort(x, kind="stable")
+            self._dxo = np.diff(x[self._order])
+
+    def _has_operator(self):
+        return self.shear_integration != "bond" and super()._has_operator()
+
+    def _to_bond(self, q):
+        """(u, w, phi) -> (u, chi = w - Phi, phi), Phi the cumulative trapezoid of phi."""
+        o, d = self._order, self._dxo
+        p = q[o, 2]
+        Phi = np.zeros(q.shape[0])
+        Phi[1:] = np.cumsum(d * 0.5 * (p[:-1] + p[1:]))
+        qb = q.copy()
+        qb[o, 1] -= Phi
+        return qb
+
+    def _generalised(self, state, q=None):
+        if self.shear_integration != "bond":
+            return super()._generalised(state, q)
+        q = self._gather(state) if q is None else q
+        n = q.shape[0]
+        buf = np.zeros((_nchunks(n), n, 3))
+        grad_force_kernel(self.off_t, self.mem_t, self._coef_bond, self.w_tm, self._to_bond(q), buf)
+        g = buf.sum(axis=0)
+        # chain rule through Phi: f_phi[o_s] -= (d_s/2) S_{s+1} + (d_{s-1}/2) S_s, with
+        # S_s = sum_{r >= s} g_chi[o_r] (Phi_{o_r} = sum_{t < r} d_t (phi_t + phi_{t+1})/2)
+        o, d = self._order, self._dxo
+        G = g[o, 1]
+        S = np.cumsum(G[::-1])[::-1]
+        S_next = np.append(S[1:], 0.0)
+        f_phi = np.zeros(n)
+        f_phi[:-1] -= 0.5 * d * S_next[:-1]
+        f_phi[1:] -= 0.5 * d * S[1:]
+        g[o, 2] += f_phi
+        return g
+
+    def energy_density(self, state):
+        if self.shear_integration != "bond":
+            return super().energy_density(state)
+        e = np.zeros(self.system.n)
+        energy_kernel(self.off_t, self.mem_t, self._coef_bond, self.w_tm,
+                      self._to_bond(self._gather(state)), e)
+        return e / self.system.volume
+
+    def stiffness_bound(self):
+        return None if self.shear_integration == "bond" else super().stiffness_bound()
+
+    def field_stiffness_bound(self):
+        return None if self.shear_integration == "bond" else super().field_stiffness_bound()
 
     def _fast_force(self, q):
         n = q.shape[0]
@@ -1192,7 +1268,8 @@ class TridynTimoshenko(_TripletModel):
     def describe(self):
         d = {"model": self.name, "variant": self.variant, "E_Pa": self.E, "nu": self.nu,
              "area_m2": self.A, "second_moment_m4": self.I, "shear_factor": self.ks,
-             "edge_factor": self.edge_factor, "self_pairs": self.self_pairs}
+             "edge_factor": self.edge_factor, "self_pairs": self.self_pairs,
+             "shear_integration": self.shear_integration}
         if hasattr(self, "K"):
             d.update(K_eps=float(self.K[0]), K_phi=float(self.K[1]), K_psi=float(self.K[2]))
         return d

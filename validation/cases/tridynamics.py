@@ -106,14 +106,15 @@ def run_dispersion(args):
     print(table(crow))
     # (ii) consistent Timoshenko vs C.16-C.17, dx/h = 0.01
     kh = np.array([0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0])
-    trow, tim_err = [], {}
-    for m in ratios:
-        r = beam_dispersion(theory="timoshenko", variant="consistent", ratio=m, kh=kh)
+    trow, tim_err, bond_err = [], {}, {}
+    for si, m in [("ends", m) for m in ratios] + [("bond", m) for m in ratios]:
+        r = beam_dispersion(theory="timoshenko", variant="consistent", ratio=m, kh=kh,
+                            shear_integration=si)
         ef = np.abs(r["flexural"] / r["flexural_ref"] - 1)
         es = np.abs(r["shear"] / r["shear_ref"] - 1)
         ea = np.abs(r["axial"] / r["axial_ref"] - 1)
-        tim_err[m] = (float(max(ef.max(), es.max())), float(ea[0]))
-        trow.append({"delta/dx": m, "flexural max": float(ef.max()),
+        (tim_err if si == "ends" else bond_err)[m] = (float(max(ef.max(), es.max())), float(ea[0]))
+        trow.append({"shear integration": si, "delta/dx": m, "flexural max": float(ef.max()),
                      "thickness-shear max": float(es.max()),
                      "axial at kh=0.01": float(ea[0])})
     print("\nconsistent Timoshenko beam vs C.16-C.17 (k h in [0.01, 1], dx/h = 0.01)")
@@ -193,6 +194,7 @@ def run_dispersion(args):
         "coeff_rel_err_max": coeff_err,
         "timoshenko_rel_err_max": m1[0],
         "timoshenko_rel_err_by_ratio": {str(m): v[0] for m, v in tim_err.items()},
+        "timoshenko_bond_rel_err_by_ratio": {str(m): v[0] for m, v in bond_err.items()},
         "flexural_rel_err_kh_1e-3": small,
         "axial_long_wave_rel_err": m1[1],
         "pd_bar_lattice_rel_err": lat,
@@ -288,12 +290,20 @@ def run_beam(args):
         terr.append(abs(r["wmax_err_pct"]))
     print("\nconsistent Timoshenko beam, h/L = 0.1, N = 100, delta/dx = 1")
     print(table(rows3))
-    # thin Timoshenko beams lock for delta > dx
-    rows4 = []
-    for m in (1, 2, 3):
-        r = beam_static(theory="timoshenko", support="ss", n=100, ratio=m, height=0.001)
-        rows4.append({"delta/dx": m, "h/L": 0.001, "err %": r["wmax_err_pct"]})
-    print("\nconsistent Timoshenko, thin (h/L = 0.001), ss: shear locking beyond delta = dx")
+    # thin Timoshenko beams lock for delta > dx with the end-rotation shear measure; the
+    # bond-integrated measure does not
+    rows4, thin = [], {}
+    for si in ("ends", "bond"):
+        for sup in ("ss", "cc", "cantilever"):
+            for hh in (0.001, 0.1):
+                for m in (1, 2, 3):
+                    r = beam_static(theory="timoshenko", support=sup, n=100, ratio=m, height=hh,
+                                    shear_integration=si)
+                    rows4.append({"shear integration": si, "support": sup, "h/L": hh,
+                                  "delta/dx": m, "err %": r["wmax_err_pct"]})
+                    thin.setdefault(si, {}).setdefault(f"{sup} h/L={hh}", {})[str(m)] = r["wmax_err_pct"]
+    print("\nconsistent Timoshenko, N = 100, vs EB + shear: shear measure with the end rotations "
+          "(3.6-3.9) and integrated along the bond")
     print(table(rows4))
     # stability and NVE
     nve = []
@@ -320,6 +330,9 @@ def run_beam(args):
            "text_cantilever_err_pct": tcant["second-order"]["err_pct_by_n"]["100"],
            "text_cantilever_linear_ghost_err_pct": tcant["linear"]["err_pct_by_n"]["100"],
            "text_cantilever": tcant,
+           "timoshenko_thin_err_pct": thin,
+           "thin_ss_locking_err_pct_ends": thin["ends"]["ss h/L=0.001"],
+           "thin_ss_err_pct_bond": thin["bond"]["ss h/L=0.001"],
            "text_stiffening_ratio_by_delta_over_dx": {
                str(r["delta/dx"]): 1 / r["w_max / EB"] for r in rows2
                if r["variant"] == "text xi=spacing"},
