@@ -72,7 +72,11 @@ degrees of freedom. ``kernel="operator"`` (default) assembles it once from the m
 tables and applies it by a row-parallel SpMV in difference form
 (:meth:`_TripletModel._operator`, :func:`_share_stencils`); ``kernel="fast"`` is the
 triplet kernel (geometry on the fly, the reference), ``kernel="table"`` the generic
-measure-table kernel. The energy is always the triplet sum. The text EB variant (slope
+measure-table kernel. The energy is always the triplet sum. One SpMV pass gives the
+translation and the rotation rows; ``add_force`` keeps the rotation rows for
+``add_field_force``, which uses them when the degrees of freedom are unchanged
+(:func:`dofs_equal`). The plate's bulk rows go in pairs of opposite offsets
+(:func:`plate_csr_spmv`). The text EB variant (slope
 jumps) has no measure tables and always uses its own kernel.
 
 Supports (:func:`beam`): ``"ss"`` (w = 0, mirror ghosts w odd, phi even), ``"cc"`` (EB:
@@ -81,6 +85,11 @@ support node, extrapolated ghosts) and ``"free"``; a cantilever is ``("cc", "fre
 2 horizons + 1 spacing deep, so a support particle's force sees an unbroken family. A
 Timoshenko clamp cannot be a mirror (w = phi = 0 with w' != 0 has no parity): its ghosts
 carry the cubic extrapolation of u, w, phi from the support node and the next three.
+The text EB beam needs ghosts beyond a free end too (its slope jump 2.16 is two-sided):
+they carry ``w'' = w''' = 0`` to second order (``free_end`` of :func:`beam`).
+
+Rotary inertia of the EB beam (Rayleigh beam): :meth:`TridynEB.rotary_mass` gives the
+mass coupling for :class:`upscale.engine.mass.MassMatrixVerlet`.
 """
 from __future__ import annotations
 
@@ -792,6 +801,7 @@ class _TripletModel(Model):
 
     kernel = "operator"
     stencil_tol = 1e-12     # rows equal on this grid share one stored stencil (0: none)
+    fuse_rows = True        # add_force also computes the rotation rows (False: two passes)
 
     def _fast_force(self, q):
         return None
@@ -938,7 +948,7 @@ class _TripletModel(Model):
         if self._has_operator():
             op = self._operator()
             q = self._op_gather(state, op)
-            if op["field"] is None:
+            if op["field"] is None or not self.fuse_rows:
                 self._op_rows(op, q, True, False, out, np.zeros((1, 2)))
                 return
             # translation and rotation rows in one pass; the rotation rows are kept for
