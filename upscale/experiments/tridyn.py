@@ -15,6 +15,12 @@ Command line::
     upscale beam --theory eb --support ss --n 100 --ratios 1,2,3 --plot beam.png
     upscale plate-bending --n 20,40 --plot plate.png
     upscale dispersion --model tridyn-timoshenko --variant consistent --ratio 1
+    upscale dispersion --model tridyn-plate --variant text --text-triplets lines
+    upscale dispersion --model tridyn-eb --rotary
+    upscale beam --theory timoshenko --height 0.001 --ratios 1,2,3 --shear-integration bond
+
+The EB beam with the rotary inertia of its sections (Rayleigh beam, mass matrix of
+:mod:`upscale.engine.mass`) is compared with ``omega^2 = EI k^4/(rho (A + I k^2))``.
 """
 from __future__ import annotations
 
@@ -23,7 +29,8 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["beam_static", "timoshenko_branches", "beam_dispersion", "pd_bar_dispersion",
-           "cin", "register", "SUPPORT_PAIRS"]
+           "cin", "register", "SUPPORT_PAIRS", "plate_long_wave", "rayleigh_branch",
+           "rayleigh_dispersion", "rayleigh_mode"]
 
 SUPPORT_PAIRS = {"ss": ("ss", "ss"), "cc": ("cc", "cc"), "cantilever": ("cc", "free")}
 
@@ -278,6 +285,24 @@ def _run_dispersion(args) -> int:
     from upscale.io import write_json
 
     kh = np.geomspace(0.01, 3.0, 25)
+    if args.model == "tridyn-plate" and args.variant == "text":
+        r = plate_long_wave(variant="text", text_triplets=args.text_triplets, ratio=args.ratio)
+        print(f"printed plate ({args.text_triplets}), long-wave coefficients / Mindlin "
+              f"(printed local limit 4.60 / Mindlin):")
+        for t, (mv, lit, ref) in r["terms"].items():
+            print(f"  {t:30s} {mv / ref:9.4f}   ({lit / ref:.4f})")
+        print(f"  min/max omega^2 by k dx: {r['min_over_max_omega2_by_kdx']}")
+        if args.json:
+            write_json(args.json, r)
+        return 0
+    if args.model == "tridyn-eb" and args.rotary:
+        r = rayleigh_dispersion(ratio=args.ratio, kh=kh)
+        for i in range(0, kh.size, 4):
+            print(f"k h={kh[i]:8.3g} omega^2={r['omega2'][i]:.8e} Rayleigh={r['rayleigh'][i]:.8e} "
+                  f"rel. err={r['rel_err'][i]:.2e} EB/Rayleigh={r['eb_over_rayleigh'][i]:.6f}")
+        if args.json:
+            write_json(args.json, r)
+        return 0
     if args.model == "tridyn-plate":
         r = plate_dispersion(ratio=args.ratio, kdx=np.geomspace(0.005, 0.5, 12))
         names = ("flexural", "SH", "P", "twist-shear", "thickness-shear")
@@ -409,6 +434,10 @@ def register(subparsers) -> None:
     p.add_argument("--variant", choices=("text", "consistent"), default="consistent")
     p.add_argument("--ratio", type=float, default=1.0, help="delta/dx")
     p.add_argument("--edge-factor", type=float, default=1.0, help="Appendix C factor (1 or 2)")
+    p.add_argument("--text-triplets", choices=("lines", "cross"), default="lines",
+                   help="triangles of the printed plate (--model tridyn-plate --variant text)")
+    p.add_argument("--rotary", action="store_true",
+                   help="tridyn-eb with the sections' rotary inertia (Rayleigh beam)")
     p.add_argument("--brillouin", action="store_true", help="wavenumbers up to the zone edge")
     p.add_argument("--compare-text", action="store_true",
                    help="add the text-faithful beam without and with the appendix factor")
