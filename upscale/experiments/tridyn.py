@@ -267,7 +267,7 @@ def _run_beam(args) -> int:
 
     ratios = [float(v) for v in str(args.ratios).split(",")]
     kw = {"free_end": args.free_end}
-    if args.theory == "timoshenko":
+    if args.theory == "timoshenko" and args.shear_integration is not None:
         kw["shear_integration"] = args.shear_integration
     res = [beam_static(theory=args.theory, support=args.support, n=args.n, ratio=m,
                        variant=args.variant, height=args.height, **kw) for m in ratios]
@@ -422,9 +422,10 @@ def register(subparsers) -> None:
     p.add_argument("--height", type=float, default=0.001, help="beam depth h (m)")
     p.add_argument("--free-end", choices=("second-order", "linear"), default="second-order",
                    help="ghosts beyond a free end of the text EB beam (no moment, no shear)")
-    p.add_argument("--shear-integration", choices=("ends", "bond"), default="ends",
-                   help="rotation in a pair's shear measure (Timoshenko, consistent): mean of "
-                        "the two ends (3.6-3.9) or integrated along the bond (no thin-beam locking)")
+    p.add_argument("--shear-integration", choices=("bond", "ends"), default=None,
+                   help="rotation in a pair's shear measure (Timoshenko): the mean of the two "
+                        "ends (3.6-3.9, default) or integrated along the bond (consistent "
+                        "variant: no thin-beam locking)")
     p.add_argument("--plot", type=Path, default=None)
     p.add_argument("--json", type=Path, default=None)
     p.set_defaults(func=_run_beam)
@@ -448,7 +449,8 @@ def register(subparsers) -> None:
 
 # =========================================================================== dynamics
 def beam_nve(*, theory="eb", n=100, ratio=1.0, length=1.0, height=0.01, width=0.01,
-             E=200e9, nu=0.3, density=7850.0, steps=10_000, safety=0.8, rotary=False) -> dict:
+             E=200e9, nu=0.3, density=7850.0, steps=10_000, safety=0.8, rotary=False,
+             **model_kw) -> dict:
     """Free vibration of a beam held by clamped walls (zero displacements and rotations
     on a layer one influence radius deep beyond each end), released from a smooth bump
     ``w = w0 sin^4(pi x/L)`` (w to w''' vanish at the walls; phi = w' for Timoshenko):
@@ -474,9 +476,9 @@ def beam_nve(*, theory="eb", n=100, ratio=1.0, length=1.0, height=0.01, width=0.
     system = ParticleSystem(x[:, None], A * dx, density, dim=1, spacing=dx)
     family = build_family(system, ratio * dx * (1 + 1e-9))
     if theory == "eb":
-        model = TridynEB(E, area=A, second_moment=I)
+        model = TridynEB(E, area=A, second_moment=I, **model_kw)
     else:
-        model = TridynTimoshenko(E, nu, area=A, second_moment=I)
+        model = TridynTimoshenko(E, nu, area=A, second_moment=I, **model_kw)
     wall = cnd.Region("walls", (idx <= 0) | (idx >= n))
     conds = [cnd.Fixed(wall)]
     if theory == "timoshenko":
@@ -510,7 +512,8 @@ def beam_nve(*, theory="eb", n=100, ratio=1.0, length=1.0, height=0.01, width=0.
         sim.run(every)
         hist.append(total())
     hist = np.array(hist)
-    return {"theory": theory, "rotary": bool(rotary), "steps": int(sim.state.step), "dt_s": sim.integrator.dt,
+    return {"theory": theory + "".join(f" {k}={v}" for k, v in model_kw.items()),
+            "rotary": bool(rotary), "steps": int(sim.state.step), "dt_s": sim.integrator.dt,
             "estimate_s": est, "critical_s": crit, "estimate_over_critical": est / crit,
             "rel_drift": float(np.max(np.abs(hist - E0)) / E0),
             "final_rel_change": float((hist[-1] - E0) / E0)}

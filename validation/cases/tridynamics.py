@@ -318,6 +318,8 @@ def run_beam(args):
     from upscale.experiments.tridyn import step_scan
 
     nve.append(beam_nve(theory="eb", rotary=True, steps=2000 if quick else 10000))
+    bond_nve = [beam_nve(theory="timoshenko", shear_integration="bond", safety=sf,
+                         steps=2000 if quick else 10000) for sf in (0.8, 0.5)]
     from upscale.experiments.tridyn import rayleigh_mode
 
     modes = [rayleigh_mode(rotary=rot) for rot in (True, False)]
@@ -328,7 +330,8 @@ def run_beam(args):
     print("\nvelocity Verlet at 0.98 and 1.02 x the sharp critical step, random initial state")
     print(table(scan))
     print("\nexplicit dynamics (velocity Verlet, 0.8 x the Gershgorin estimate)")
-    print(table([{k: v for k, v in r.items() if not isinstance(v, (list, np.ndarray))} for r in nve]))
+    print(table([{k: v for k, v in r.items() if not isinstance(v, (list, np.ndarray))}
+                 for r in nve + bond_nve]))
     out = {"eb_wmax_err_pct_max": float(max(errs)), "eb_order": float(min(orders.values())),
            "eb_order_by_support": orders,
            "timoshenko_wmax_err_pct": float(max(terr)),
@@ -346,6 +349,9 @@ def run_beam(args):
                if r["variant"] == "text xi=horizon"},
            "nve_rel_drift_max": float(max(r["rel_drift"] for r in nve)),
            "nve_rel_drift_eb_rotary": float(nve[-1]["rel_drift"]),
+           "nve_rel_drift_timoshenko_bond": {"0.8": bond_nve[0]["rel_drift"],
+                                             "0.5": bond_nve[1]["rel_drift"]},
+           "dt_estimate_over_critical_timoshenko_bond": bond_nve[0]["estimate_over_critical"],
            "rayleigh_mode_measured_over_discrete": modes[0]["measured_over_discrete"],
            "rayleigh_mode_discrete_over_closed_form": modes[0]["omega_discrete"] / modes[0]["omega_rayleigh"],
            "rayleigh_mode_shift_vs_lumped": modes[0]["omega_measured"] / modes[1]["omega_measured"],
