@@ -69,7 +69,7 @@ def make_model(name: str, C=None, *, E=None, nu=None, order="standard", angle=No
                              calibration=calibration, **kw)
     if name == "nosb":
         return models.create("nosb", C=C, E=E, nu=nu, order=order, angle=angle,
-                             stabilisation=stabilisation, Cs=Cs)
+                             stabilisation=stabilisation, Cs=Cs, **kw)
     if name in ("lps", "pmb"):
         if E is None:
             raise ValueError(f"model {name!r} is isotropic: give E and nu, not C")

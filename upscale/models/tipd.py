@@ -361,6 +361,89 @@ def tipd_force_kernel_3d(offsets, neighbors, q_bc, A, u_nc, y_nc, intact_b, rc2_
     return broke.sum()
 
 
+@nb.njit(cache=True)
+def _tipd_pair_chunk(i0, i1, poff, pj, pb, prb, K_p, u_nc, y_nc, intact_b, rc2_p, fail, buf, d):
+    """Pairs of the particles i0 <= i < i1 (as first end) of :func:`tipd_pair_force` into
+    one thread's buffer (zeroed here; i's sum kept in registers, j's scattered); returns
+    the bonds broken."""
+    buf[:, :] = 0.0
+    k = 0
+    for i in range(i0, i1):
+        ui0 = u_nc[i, 0]
+        ui1 = u_nc[i, 1]
+        ui2 = u_nc[i, 2]
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        for p in range(poff[i], poff[i + 1]):
+            b = pb[p]
+            rb = prb[p]
+            fi = intact_b[b]
+            fj = intact_b[rb]
+            if not (fi or fj):
+                continue
+            j = pj[p]
+            e0 = u_nc[j, 0] - ui0
+            e1 = u_nc[j, 1] - ui1
+            if d == 2:
+                k12 = K_p[p, 1]
+                g0 = K_p[p, 0] * e0 + k12 * e1
+                g1 = k12 * e0 + K_p[p, 2] * e1
+                g2 = 0.0
+            else:
+                e2 = u_nc[j, 2] - ui2
+                k23 = K_p[p, 3]
+                k13 = K_p[p, 4]
+                k12 = K_p[p, 5]
+                g0 = K_p[p, 0] * e0 + k12 * e1 + k13 * e2
+                g1 = k12 * e0 + K_p[p, 1] * e1 + k23 * e2
+                g2 = k13 * e0 + k23 * e1 + K_p[p, 2] * e2
+            if fi:
+                s0 += g0
+                s1 += g1
+                s2 += g2
+            if fj:
+                buf[j, 0] -= g0
+                buf[j, 1] -= g1
+                if d == 3:
+                    buf[j, 2] -= g2
+            if fail:
+                d0 = y_nc[j, 0] - y_nc[i, 0]
+                d1 = y_nc[j, 1] - y_nc[i, 1]
+                d2 = y_nc[j, 2] - y_nc[i, 2]
+                if d0 * d0 + d1 * d1 + d2 * d2 > rc2_p[p]:
+                    if fi:
+                        intact_b[b] = False
+                        k += 1
+                    if fj:
+                        intact_b[rb] = False
+                        k += 1
+        buf[i, 0] += s0
+        buf[i, 1] += s1
+        if d == 3:
+            buf[i, 2] += s2
+    return k
+
+
+@nb.njit(parallel=True, cache=True)
+def tipd_pair_force(bounds, poff, pj, pb, prb, K_p, u_nc, y_nc, intact_b, rc2_p, fail, buf_tnc, d):
+    """Pair form of the Ti-PD force: for each pair i < j with ``eta = u_j - u_i``,
+    ``g = K_p eta`` (``K_p = V_i M_ij = V_j M_ji``, N/m, symmetric d x d stored as
+    (K11, K12, K22) in 2D, (K11, K22, K33, K23, K13, K12) in 3D) is added to ``buf[t, i]``
+    if the bond i->j is intact and subtracted from ``buf[t, j]`` if j->i is; thread t takes
+    the particles ``bounds[t] <= i < bounds[t+1]`` into its private buffer ``buf_tnc[t]``
+    (T, N, d), zeroed here (sum them with :func:`upscale.engine.pairs.reduce_buffers`, scale
+    1/V for densities). If ``fail``, mutates ``intact_b``: both directions break when the
+    squared current length exceeds ``rc2_p``, after the force is counted. Returns the number
+    of directed bonds broken."""
+    nt = buf_tnc.shape[0]
+    broke = np.zeros(nt, dtype=np.int64)
+    for t in nb.prange(nt):
+        broke[t] = _tipd_pair_chunk(bounds[t], bounds[t + 1], poff, pj, pb, prb, K_p, u_nc,
+                                    y_nc, intact_b, rc2_p, fail, buf_tnc[t], d)
+    return broke.sum()
+
+
 @nb.njit(parallel=True, cache=True)
 def tipd_energy_kernel(offsets, neighbors, q_bc, A, x_nc, y_nc, intact_b, d):
     """W_i = (1/4) sum_j eta.M eta (J/m^3), half of each bond's energy to each end."""
@@ -456,6 +539,10 @@ class TiPD(Model):
     warn : bool
         Emit :class:`IndefiniteWarning` when the material makes the free-body stiffness
         indefinite.
+    kernel : {"pair", "bond"}
+        Force loop over the half-pair list (each pair once, :mod:`upscale.engine.pairs`;
+        needs symmetric pair stiffnesses, else falls back to "bond") or over the directed
+        bonds (each pair twice). Same forces to round-off.
     """
 
     name = "tipd"
@@ -464,7 +551,8 @@ class TiPD(Model):
     def __init__(self, C=None, *, E: float | None = None, nu: float | None = None,
                  order: str = "standard", angle: float | None = None, axes=None,
                  calibration: str = "continuum", s0: float | None = None,
-                 G0: float | None = None, critical: str = "tipd", warn: bool = True):
+                 G0: float | None = None, critical: str = "tipd", warn: bool = True,
+                 kernel: str = "pair"):
         if (C is None) == (E is None):
             raise ValueError("TiPD needs exactly one of C (elastic stiffness) or E, nu (isotropic)")
         if E is not None and nu is None:
@@ -473,6 +561,9 @@ class TiPD(Model):
             raise ValueError(f"unknown calibration {calibration!r}; valid: 'continuum', 'discrete'")
         if critical not in ("tipd", "osb"):
             raise ValueError(f"unknown critical-stretch rule {critical!r}; valid: 'tipd', 'osb'")
+        if kernel not in ("pair", "bond"):
+            raise ValueError(f"unknown force kernel {kernel!r}; valid: 'pair', 'bond'")
+        self.kernel = kernel
         if s0 is not None and G0 is not None:
             raise ValueError("give the critical stretch s0 or the fracture energy G0, not both")
         for k, v in (("s0", s0), ("G0", G0)):
@@ -552,6 +643,31 @@ class TiPD(Model):
         self.rc2_b = np.ascontiguousarray((L * (1.0 + self.s0)) ** 2) if self.needs.failure \
             else np.zeros(1)
         self._u = np.zeros((system.n, 3))
+        self._set_pair_stiffness(self.bond_matrices())
+
+    def _set_pair_stiffness(self, M_b) -> None:
+        """The pair form of the force from the bond matrices ``M_b`` (nb, d, d): on the
+        half-pair list (:mod:`upscale.engine.pairs`) ``K_p = V_i M_ij``, which equals
+        ``V_j M_ji`` when the bond weights are symmetric (then each pair is computed once);
+        otherwise the directed-bond kernel is used."""
+        from upscale.engine.pairs import half_pairs
+
+        fam, d, V = self.family, self.dim, self.system.volume
+        pr = half_pairs(fam)
+        Ki = M_b[pr.b] * V[pr.i][:, None, None]
+        Kj = M_b[pr.rb] * V[pr.j][:, None, None]
+        scale = max(np.abs(Ki).max(), 1e-300)
+        self._pair = self.kernel == "pair" and bool(np.abs(Ki - Kj).max() <= 1e-12 * scale)
+        if not self._pair:
+            self.pairs = None
+            return
+        self.pairs = pr
+        comp = [(0, 0), (0, 1), (1, 1)] if d == 2 else [(0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)]
+        self.K_p = np.ascontiguousarray(np.stack([0.5 * (Ki[:, a, b] + Kj[:, a, b]) for a, b in comp], 1))
+        self.rc2_p = np.ascontiguousarray(self.rc2_b[pr.b]) if self.needs.failure else np.zeros(1)
+        self._inv_vol = np.ascontiguousarray(1.0 / V)
+        self._buf = pr.buffers(self.system.n, d)
+        self._bounds = pr.thread_bounds(self._buf.shape[0])
 
     def _critical_stretch(self) -> float:
         d, fam, sysm = self.dim, self.family, self.system
@@ -598,9 +714,20 @@ class TiPD(Model):
     # ------------------------------------------------------------------ forces
     def _force(self, state, out, fail):
         f = self.family
-        kern = tipd_force_kernel_2d if self.dim == 2 else tipd_force_kernel_3d
         u = self._u
         np.subtract(state.y, self.system.x0, out=u)
+        if self._pair:
+            from upscale.engine.pairs import reduce_buffers
+
+            pr, buf = self.pairs, self._buf
+            if buf.shape[0] != nb.get_num_threads():
+                buf = self._buf = pr.buffers(self.system.n, self.dim)
+                self._bounds = pr.thread_bounds(buf.shape[0])
+            k = int(tipd_pair_force(self._bounds, pr.offsets, pr.j, pr.b, pr.rb, self.K_p, u,
+                                    state.y, state.intact, self.rc2_p, fail, buf, self.dim))
+            reduce_buffers(buf, self._inv_vol, out, self.dim)
+            return k
+        kern = tipd_force_kernel_2d if self.dim == 2 else tipd_force_kernel_3d
         return int(kern(f.offsets, f.neighbors, self._q_kernel, self.A, u, state.y,
                         state.intact, self.rc2_b, fail, out))
 
@@ -652,6 +779,7 @@ class TiPD(Model):
 
     def describe(self):
         d = {"model": self.name, "calibration": self.calibration, "critical": self.critical,
+             "kernel": "pair" if getattr(self, "_pair", self.kernel == "pair") else "bond",
              "s0": None if np.isinf(self.s0) else self.s0}
         if self.E is not None:
             d.update(E_Pa=self.E, nu=self.nu)
