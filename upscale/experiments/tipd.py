@@ -77,6 +77,15 @@ def make_model(name: str, C=None, *, E=None, nu=None, order="standard", angle=No
     raise ValueError(f"unknown model {name!r}; valid: 'tipd', 'nosb', 'lps', 'pmb'")
 
 
+def _surface_kw(model: str, surface: str) -> dict:
+    """The surface-correction keyword for Ti-PD (other models have none)."""
+    if model == "tipd":
+        return {"surface": surface}
+    if surface != "none":
+        raise ValueError(f"surface correction {surface!r} is a Ti-PD option, not one of {model!r}")
+    return {}
+
+
 # ---------------------------------------------------------------------------- MMS
 def _mms_field(x, dim):
     s = np.pi * x[:, :dim].sum(axis=1)
@@ -109,8 +118,9 @@ def mms_body(dx: float, dim: int, m: float = 3.0):
 
 def mms(model: str = "tipd", *, dim: int = 2, dx: float = 0.005, m: float = 3.0,
         calibration: str = "discrete", stabilisation=None, Cs: float = 100.0,
-        method: str | None = None, return_fields: bool = False) -> dict:
-    """Manufactured solution 5.1.1 (2D) / 5.1.2 (3D) with one model (module docstring).
+        method: str | None = None, return_fields: bool = False, surface: str = "none") -> dict:
+    """Manufactured solution 5.1.1 (2D) / 5.1.2 (3D) with one model (module docstring);
+    ``surface``: Ti-PD's surface correction (:class:`~upscale.models.tipd.TiPD`).
 
     Returns ``{"rel_l2": ..., "oscillation": ..., "dx_m", "horizon_m", "particles",
     "solve": {...}, "wall_time_s"}`` (and the fields with ``return_fields``)."""
@@ -125,7 +135,7 @@ def mms(model: str = "tipd", *, dim: int = 2, dx: float = 0.005, m: float = 3.0,
     fam = build_family(s, m * dx * (1 + 1e-9))
     Cv, order = (MMS_2D_C, "standard") if dim == 2 else (MMS_3D_C, "tian")
     mdl = make_model(model, Cv, order=order, calibration=calibration,
-                     stabilisation=stabilisation, Cs=Cs)
+                     stabilisation=stabilisation, Cs=Cs, **_surface_kw(model, surface))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         mdl.prepare(s, fam)
@@ -152,6 +162,7 @@ def mms(model: str = "tipd", *, dim: int = 2, dx: float = 0.005, m: float = 3.0,
     out = {"model": model, "dim": dim, "dx_m": dx, "horizon_m": fam.horizon, "m": m,
            "calibration": calibration if model == "tipd" else None,
            "stabilisation": stabilisation if model == "nosb" else None,
+           "surface": surface if model == "tipd" else None,
            "particles": s.n, "bonds": fam.nb, "rel_l2": rel, "oscillation": osc,
            "max_abs_err": float(np.abs(e).max()), "solve": info,
            "wall_time_s": time.perf_counter() - t0}
@@ -165,7 +176,7 @@ def mms(model: str = "tipd", *, dim: int = 2, dx: float = 0.005, m: float = 3.0,
 # ---------------------------------------------------------------------------- strip
 def strip(model: str = "tipd", *, E: float = 70e9, nu: float | None = 0.25, C=None,
           nx: int = 60, ny: int = 20, dx: float = 1e-3, m: float = 3.015, strain: float = 1e-4,
-          calibration: str = "discrete", stabilisation=None) -> dict:
+          calibration: str = "discrete", stabilisation=None, surface: str = "none") -> dict:
     """Free-contraction tension of a plane-stress strip (module docstring). ``C`` (Voigt,
     axis 1 along x) instead of ``E``/``nu`` for an anisotropic material. Returns the
     apparent Poisson ratio and modulus."""
@@ -176,7 +187,8 @@ def strip(model: str = "tipd", *, E: float = 70e9, nu: float | None = 0.25, C=No
     s = square_lattice(nx, ny, dx, plane="stress")
     fam = build_family(s, m * dx)
     mdl = make_model(model, C, E=None if C is not None else E, nu=None if C is not None else nu,
-                     calibration=calibration, stabilisation=stabilisation)
+                     calibration=calibration, stabilisation=stabilisation,
+                     **_surface_kw(model, surface))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         mdl.prepare(s, fam)
@@ -211,7 +223,7 @@ def strip(model: str = "tipd", *, E: float = 70e9, nu: float | None = 0.25, C=No
 # ---------------------------------------------------------------------------- eigen
 def eigen_counts(model: str = "tipd", *, dim: int = 2, E: float = 70e9, nu: float = 0.25, C=None,
                  plane: str = "stress", n: int | None = None, m: float = 3.015,
-                 calibration: str = "discrete", stabilisation=None) -> dict:
+                 calibration: str = "discrete", stabilisation=None, surface: str = "none") -> dict:
     """Zero and negative eigenvalues of the free-body stiffness (module docstring)."""
     from upscale.engine import State, build_family, cubic_lattice, square_lattice
 
@@ -219,7 +231,8 @@ def eigen_counts(model: str = "tipd", *, dim: int = 2, E: float = 70e9, nu: floa
     s = square_lattice(n, n, 1e-3, plane=plane) if dim == 2 else cubic_lattice(n, n, n, 1e-3)
     fam = build_family(s, m * 1e-3)
     mdl = make_model(model, C, E=None if C is not None else E, nu=None if C is not None else nu,
-                     calibration=calibration, stabilisation=stabilisation)
+                     calibration=calibration, stabilisation=stabilisation,
+                     **_surface_kw(model, surface))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         mdl.prepare(s, fam)
@@ -239,7 +252,7 @@ def eigen_counts(model: str = "tipd", *, dim: int = 2, E: float = 70e9, nu: floa
 # ---------------------------------------------------------------------------- rotation
 def rotation(model: str = "tipd", *, E: float = 70e9, nu: float = 0.25, n: int = 10,
              angle: float = 0.2, omega: float = 1e3, rho: float = 2440.0, m: float = 3.015,
-             calibration: str = "discrete") -> dict:
+             calibration: str = "discrete", surface: str = "none") -> dict:
     """Free 2D body spun rigidly about its centre at ``omega`` (rad/s), velocity Verlet until
     it has turned by ``angle`` (rad): relative change of the angular momentum L_z and strain
     energy over the initial kinetic energy."""
@@ -248,7 +261,8 @@ def rotation(model: str = "tipd", *, E: float = 70e9, nu: float = 0.25, n: int =
 
     s = square_lattice(n, n, 1e-3, density=rho, plane="stress", centered=True)
     fam = build_family(s, m * 1e-3)
-    mdl = make_model(model, E=E, nu=nu, **({"calibration": calibration} if model == "tipd" else {}))
+    mdl = make_model(model, E=E, nu=nu, **({"calibration": calibration, "surface": surface}
+                                           if model == "tipd" else {}))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         sim = Simulation(s, fam, [mdl], integrator=VelocityVerlet(safety=0.5))

@@ -61,7 +61,7 @@ def hole_body(dx: float, m: float = 3.0, *, L=L_PLATE, W=W_PLATE, R=R_HOLE, dens
 
 def hole(model: str = "tipd", *, material: str = "iso", dx: float = 1e-3, m: float = 3.0,
          calibration: str = "continuum", stabilisation=None, U: float = U_GRIP,
-         L: float = L_PLATE, W: float = W_PLATE) -> dict:
+         L: float = L_PLATE, W: float = W_PLATE, surface: str = "none") -> dict:
     """Solve the clamped plate (module docstring). Returns positions and displacements of
     the rows next to y = 0 and to the free edges, the grip reaction (N), ``Kt`` and the
     stress at the particle next to the hole's top."""
@@ -74,7 +74,8 @@ def hole(model: str = "tipd", *, material: str = "iso", dx: float = 1e-3, m: flo
     C = material_voigt(material)
     s, lg, rg = hole_body(dx, m, L=L, W=W)
     fam = build_family(s, m * dx * (1 + 1e-9))
-    mdl = make_model(model, C, calibration=calibration, stabilisation=stabilisation)
+    mdl = make_model(model, C, calibration=calibration, stabilisation=stabilisation,
+                     **({"surface": surface} if model == "tipd" else {}))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         mdl.prepare(s, fam)
@@ -102,6 +103,7 @@ def hole(model: str = "tipd", *, material: str = "iso", dx: float = 1e-3, m: flo
     return {"model": model, "material": material, "dx_m": dx, "horizon_m": fam.horizon,
             "calibration": calibration if model == "tipd" else None,
             "stabilisation": stabilisation if model == "nosb" else None,
+            "surface": surface if model == "tipd" else None,
             "particles": s.n, "reaction_N": reaction, "sigma_gross_Pa": sigma_gross,
             "Kt": float(sig[k, 0] / sigma_gross), "Kt_point_m": x[k, :2].tolist(),
             "mid_xy_m": x[mid, :2].tolist(), "mid_u_m": u[mid, :2].tolist(),

@@ -46,7 +46,7 @@ from upscale.models import register
 from upscale.models.base import Model, Needs
 from upscale.models.tipd import isotropic_voigt, rotate_tensor, rotation_matrix, voigt_to_tensor
 
-__all__ = ["Correspondence", "LAWS", "STABILISATIONS"]
+__all__ = ["Correspondence", "LAWS", "STABILISATIONS", "gradient_operators", "shape_tensors"]
 
 LAWS = {"linear": 0, "svk": 1, "neo-hookean": 2}
 STABILISATIONS = (None, "silling", "wan")
@@ -567,6 +567,60 @@ def stab_energy_kernel(offsets, neighbors, xi_bc, wv_b, F_n, B_n, y_nc, d, W_n):
         W_n[i] += 0.5 * acc
 
 
+def gradient_operators(family, wv_b, Kinv_n, d):
+    """Sparse factors of the linear correspondence force: ``G`` (N d^2, 3N) with
+    ``H = G u`` (``H_i[p, a] = sum_j w (u_j - u_i)_p (K_i^-1 xi)_a``, row ``i d^2 + p d + a``)
+    and ``Bs`` (3N, N d^2) with ``b = Bs sigma`` (``b_i = sum_j w (sigma_i K_i^-1 +
+    sigma_j K_j^-1) xi``). ``wv_b`` the bond weights ``omega V_j beta``, ``Kinv_n``
+    (N, 3, 3) the inverse shape tensors."""
+    import scipy.sparse as sp
+
+    n = family.n
+    i, j = family.owner, family.neighbors
+    xi = family.xi[:, :d]
+    Kinv = Kinv_n[:, :d, :d]
+    g = wv_b[:, None] * np.einsum("kab,kb->ka", Kinv[i], xi)     # w K_i^-1 xi
+    gp = wv_b[:, None] * np.einsum("kab,kb->ka", Kinv[j], xi)    # w K_j^-1 xi
+    dd = d * d
+    r, c, v = [], [], []
+    for p in range(d):
+        for a in range(d):
+            r += [i * dd + p * d + a] * 2
+            c += [3 * j + p, 3 * i + p]
+            v += [g[:, a], -g[:, a]]
+    G = sp.csr_matrix((np.concatenate(v), (np.concatenate(r), np.concatenate(c))),
+                      shape=(n * dd, 3 * n))
+    r, c, v = [], [], []
+    for p in range(d):
+        for a in range(d):
+            r += [3 * i + p] * 2
+            c += [i * dd + p * d + a, j * dd + p * d + a]
+            v += [g[:, a], gp[:, a]]
+    Bs = sp.csr_matrix((np.concatenate(v), (np.concatenate(r), np.concatenate(c))),
+                       shape=(3 * n, n * dd))
+    return G, Bs
+
+
+def shape_tensors(family, wv_b, d, horizon):
+    """Shape tensors ``K_i = sum_j w xi (x) xi`` (N, d, d) and their inverses padded to
+    (N, 3, 3). Raises ``ValueError`` naming the first particle whose family does not span
+    d dimensions."""
+    xi = family.xi[:, :d]
+    K = np.zeros((family.n, d, d))
+    np.add.at(K, family.owner, wv_b[:, None, None] * np.einsum("ka,kb->kab", xi, xi))
+    det = np.linalg.det(K)
+    scale = np.einsum("kab,kab->k", K, K) ** (d / 2.0)
+    bad = ~(np.abs(det) > 1e-10 * np.maximum(scale, 1e-300))
+    if bad.any():
+        p = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"shape tensor of particle {p} is singular (its {int(family.counts[p])} "
+                         f"bonds do not span {d}D); use a horizon larger than "
+                         f"{horizon:.6g} m so that every family spans the body")
+    Kinv = np.zeros((family.n, 3, 3))
+    Kinv[:, :d, :d] = np.linalg.inv(K)
+    return K, np.ascontiguousarray(Kinv)
+
+
 # ---------------------------------------------------------------------------- model
 class Correspondence(Model):
     """Correspondence (NOSB) peridynamics, 2D and 3D; see the module docstring.
@@ -653,21 +707,9 @@ class Correspondence(Model):
         wv = om * system.volume[family.neighbors] * family.volume_factor
         self.wv_b = np.ascontiguousarray(wv)
         self.xi_bc = np.ascontiguousarray(family.xi)
-        xi = family.xi[:, :d]
-        K = np.zeros((family.n, d, d))
-        np.add.at(K, family.owner, wv[:, None, None] * np.einsum("ka,kb->kab", xi, xi))
-        det = np.linalg.det(K)
-        scale = np.einsum("kab,kab->k", K, K) ** (d / 2.0)
-        bad = ~(np.abs(det) > 1e-10 * np.maximum(scale, 1e-300))
-        if bad.any():
-            p = int(np.flatnonzero(bad)[0])
-            raise ValueError(f"shape tensor of particle {p} is singular (its {int(family.counts[p])} "
-                             f"bonds do not span {d}D); use a horizon larger than "
-                             f"{family.horizon:.6g} m so that every family spans the body")
-        Kinv = np.zeros((family.n, 3, 3))
-        Kinv[:, :d, :d] = np.linalg.inv(K)
+        K, Kinv = shape_tensors(family, wv, d, family.horizon)
         self.K_n = K
-        self.Kinv_n = np.ascontiguousarray(Kinv)
+        self.Kinv_n = Kinv
         B = np.zeros((family.n, 3, 3))
         if self.stabilisation == "silling":
             if d == 3:
@@ -783,29 +825,9 @@ class Correspondence(Model):
         i, j = fam.owner, fam.neighbors
         xi = fam.xi[:, :d]
         wv = self.wv_b
-        Kinv = self.Kinv_n[:, :d, :d]
-        g = wv[:, None] * np.einsum("kab,kb->ka", Kinv[i], xi)     # w K_i^-1 xi
-        gp = wv[:, None] * np.einsum("kab,kb->ka", Kinv[j], xi)    # w K_j^-1 xi
         dd = d * d
-        # G: H_i[p, a] = sum_b (u_j[p] - u_i[p]) g_b[a];  H index (i, p, a) -> i*dd + p*d + a
-        r, c, v = [], [], []
-        for p in range(d):
-            for a in range(d):
-                r += [i * dd + p * d + a] * 2
-                c += [3 * j + p, 3 * i + p]
-                v += [g[:, a], -g[:, a]]
-        G = sp.csr_matrix((np.concatenate(v), (np.concatenate(r), np.concatenate(c))),
-                          shape=(n * dd, 3 * n))
+        G, Bs = gradient_operators(fam, wv, self.Kinv_n, d)
         Cb = sp.kron(sp.identity(n, format="csr"), sp.csr_matrix(self.C.reshape(dd, dd)), format="csr")
-        # B_sig: b_i[p] = sum_b sum_a sigma_i[p, a] g_b[a] + sigma_j[p, a] g'_b[a]
-        r, c, v = [], [], []
-        for p in range(d):
-            for a in range(d):
-                r += [3 * i + p] * 2
-                c += [i * dd + p * d + a, j * dd + p * d + a]
-                v += [g[:, a], gp[:, a]]
-        Bs = sp.csr_matrix((np.concatenate(v), (np.concatenate(r), np.concatenate(c))),
-                           shape=(3 * n, n * dd))
         A = Bs @ Cb @ G
         if self.stabilisation is not None:
             Bn = self.B_n[:, :d, :d]
