@@ -134,8 +134,11 @@ def mms(model: str = "tipd", *, dim: int = 2, dx: float = 0.005, m: float = 3.0,
     s, dom, shape = mms_body(dx, dim, m)
     fam = build_family(s, m * dx * (1 + 1e-9))
     Cv, order = (MMS_2D_C, "standard") if dim == 2 else (MMS_3D_C, "tian")
+    skw = _surface_kw(model, surface)
+    if surface != "none":      # the layer of exact displacement extends the body: no free surface
+        skw["surface_bulk"] = lambda x: ~np.all(np.abs(x[:, :dim]) < 0.25, axis=1)
     mdl = make_model(model, Cv, order=order, calibration=calibration,
-                     stabilisation=stabilisation, Cs=Cs, **_surface_kw(model, surface))
+                     stabilisation=stabilisation, Cs=Cs, **skw)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         mdl.prepare(s, fam)
@@ -292,7 +295,7 @@ def _run(args) -> int:
         rows = []
         for dx in args.dx:
             r = mms(args.model, dim=args.dim, dx=dx, calibration=args.calibration,
-                    stabilisation=args.stabilisation)
+                    stabilisation=args.stabilisation, surface=args.surface)
             print(f"{args.model} dim={args.dim} dx={dx:g}: rel L2 {r['rel_l2']:.4e}, "
                   f"oscillation {r['oscillation']:.3e} ({r['wall_time_s']:.1f} s)")
             rows.append(r)
@@ -316,13 +319,15 @@ def _run(args) -> int:
             fig.savefig(out / "mms_error.png", dpi=120)
             plt.close(fig)
     elif args.scene_tipd == "strip":
-        res = strip(args.model, nu=args.nu)
+        res = strip(args.model, nu=args.nu, calibration=args.calibration, surface=args.surface)
         print(f"{args.model} nu={args.nu}: apparent nu {res['nu_apparent']:.4f}, "
               f"E {res['E_apparent_Pa']:.4e} Pa")
     elif args.scene_tipd == "hole":
         from upscale.experiments.tipd_hole import hole
 
-        res = hole(args.model, material=args.material, dx=args.dx[0] if args.dx else 1e-3)
+        res = hole(args.model, material=args.material, dx=args.dx[0] if args.dx else 1e-3,
+                   surface=args.surface,
+                   **({"calibration": args.calibration} if args.calibration else {}))
         print(json.dumps({k: v for k, v in res.items() if not isinstance(v, list)}, default=float))
     else:
         from upscale.experiments.tipd_branching import branching
@@ -343,7 +348,10 @@ def register(sub) -> None:
     p.add_argument("--model", default="tipd", help="tipd (default), nosb, lps, pmb")
     p.add_argument("--dim", type=int, default=2)
     p.add_argument("--dx", type=float, nargs="*", default=None, help="spacing(s) in m")
-    p.add_argument("--calibration", default="discrete", help="Ti-PD: discrete (default) or continuum")
+    p.add_argument("--calibration", default=None,
+                   help="Ti-PD: discrete or continuum (default: discrete; hole: continuum)")
+    p.add_argument("--surface", default="none",
+                   help="Ti-PD surface correction: none (default) or correspondence")
     p.add_argument("--stabilisation", default=None, help="NOSB: silling or wan (default none)")
     p.add_argument("--nu", type=float, default=0.25)
     p.add_argument("--material", default="iso", help="hole: iso or ortho")
@@ -353,6 +361,8 @@ def register(sub) -> None:
     p.add_argument("--quiet", action="store_true")
 
     def run(a):
+        if a.calibration is None and a.scene_tipd != "hole":
+            a.calibration = "discrete"
         if a.dx is None:
             a.dx = [0.025, 0.0125, 0.00625] if a.scene_tipd == "mms" else None
         return _run(a)

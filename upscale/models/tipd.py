@@ -44,6 +44,29 @@ nu > 1/4. :class:`TiPD` warns (:class:`IndefiniteWarning`) when that happens.
 Ti-PD equals bond-based PD (PMB) when D12 = D66 (nu = 1/3 plane stress, 1/4 plane strain
 and 3D; eqs. (50)-(51)).
 
+Surface correction (``surface="correspondence"``, not in the paper)
+-------------------------------------------------------------------
+The traction a pair model carries across any cut is ``S : H n``, not ``C : H n``: no
+micromodulus, however position-dependent, fixes the free-surface error, because a pair
+force cannot carry the part ``(C - S)`` of C that breaks the Cauchy relation. The correction
+adds that part as a correspondence energy on the nonlocal gradient
+``H_i = sum_j w (u_j - u_i) (x) xi K_i^-1`` (w = V_j beta, ``K_i = sum_j w xi (x) xi``)::
+
+    E = E_TiPD + sum_i V_i (1/2) H_i : Delta_i : H_i,   Delta_i = C - S_i^lat,
+    S_i^lat = (1/2) sum_j M_ij xi (x) xi V_j beta      (indexed [p, a, q, b])
+
+``S_i^lat`` is the tensor particle i's own (possibly truncated) family carries, so for
+every homogeneous gradient the energy density of every particle, surface ones included,
+is exactly ``(1/2) eps : C : eps`` (and a rigid rotation costs none). In the bulk ``Delta``
+is uniform and (for the discrete calibration) the null-Lagrangian part ``C - S``, whose
+energy vanishes on every plane wave: the bulk equations are Ti-PD's; with the continuum
+calibration Delta also removes its lattice bias. Forces are the linear correspondence
+force ``b_i = sum_j w (Q_i + Q_j) xi``, ``Q_i = (Delta_i : H_i) K_i^-1``, coupling
+particles 2 delta apart; the stiffness stays symmetric. Costs: a correspondence pass per
+force evaluation and a denser stiffness. Caveats: the free body is slightly indefinite
+(a rotation costs no energy but is not force-free), and the correction is elastic
+(refused with a failure criterion, since H is built on all bonds).
+
 Failure
 -------
 Damage (56)-(58): a bond breaks for good when its stretch ``s = (|y_j - y_i| - |xi|)/|xi|``
@@ -553,6 +576,11 @@ class TiPD(Model):
         "correspondence" adds the per-particle correction energy
         ``sum_i V_i (1/2) H_i : (C - S_i^lat) : H_i`` (module docstring, "Surface
         correction"); elastic only (refused together with a failure criterion).
+    surface_bulk : callable, optional
+        ``surface_bulk(x0) -> bool (N,)``: particles whose correction uses the bulk tensor
+        ``C - S^lat`` of the most complete family instead of their own, for layers whose
+        outer edge is not a free surface (prescribed-displacement layers that extend the
+        body).
     """
 
     name = "tipd"
@@ -562,7 +590,7 @@ class TiPD(Model):
                  order: str = "standard", angle: float | None = None, axes=None,
                  calibration: str = "continuum", s0: float | None = None,
                  G0: float | None = None, critical: str = "tipd", warn: bool = True,
-                 kernel: str = "pair", surface: str = "none"):
+                 kernel: str = "pair", surface: str = "none", surface_bulk=None):
         if (C is None) == (E is None):
             raise ValueError("TiPD needs exactly one of C (elastic stiffness) or E, nu (isotropic)")
         if E is not None and nu is None:
@@ -580,6 +608,9 @@ class TiPD(Model):
             raise ValueError("the surface correction is elastic only: give no s0/G0 with "
                              f"surface={surface!r} (valid: surface='none' with failure)")
         self.surface = surface
+        if surface_bulk is not None and not callable(surface_bulk):
+            raise ValueError(f"surface_bulk must be a callable x0 -> bool mask, got {surface_bulk!r}")
+        self.surface_bulk = surface_bulk
         if s0 is not None and G0 is not None:
             raise ValueError("give the critical stretch s0 or the fracture energy G0, not both")
         for k, v in (("s0", s0), ("G0", G0)):
@@ -681,7 +712,16 @@ class TiPD(Model):
         from upscale.models.correspondence import shape_tensors
 
         fam, d = self.family, self.dim
-        self.Delta_n = np.ascontiguousarray(self.C[None] - self.lattice_moments())
+        Sl = self.lattice_moments()
+        if self.surface_bulk is not None:
+            mask = np.asarray(self.surface_bulk(self.system.x0), dtype=bool)
+            if mask.shape != (fam.n,):
+                raise ValueError(f"surface_bulk must return a bool mask of shape ({fam.n},), "
+                                 f"got {mask.shape}")
+            w = self.w_b
+            bulk = int(np.argmax(np.bincount(fam.owner, weights=w, minlength=fam.n)))
+            Sl[mask] = Sl[bulk]
+        self.Delta_n = np.ascontiguousarray(self.C[None] - Sl)
         wv = np.ascontiguousarray(self.system.volume[fam.neighbors] * fam.volume_factor)
         self._cw_b = wv
         self._cK, self._cKinv = shape_tensors(fam, wv, d, fam.horizon)
