@@ -118,7 +118,8 @@ def mms_body(dx: float, dim: int, m: float = 3.0):
 
 def mms(model: str = "tipd", *, dim: int = 2, dx: float = 0.005, m: float = 3.0,
         calibration: str = "discrete", stabilisation=None, Cs: float = 100.0,
-        method: str | None = None, return_fields: bool = False, surface: str = "none") -> dict:
+        method: str | None = None, return_fields: bool = False, surface: str = "none",
+        bond_associated: bool = False) -> dict:
     """Manufactured solution 5.1.1 (2D) / 5.1.2 (3D) with one model (module docstring);
     ``surface``: Ti-PD's surface correction (:class:`~upscale.models.tipd.TiPD`).
 
@@ -135,6 +136,10 @@ def mms(model: str = "tipd", *, dim: int = 2, dx: float = 0.005, m: float = 3.0,
     fam = build_family(s, m * dx * (1 + 1e-9))
     Cv, order = (MMS_2D_C, "standard") if dim == 2 else (MMS_3D_C, "tian")
     skw = _surface_kw(model, surface)
+    if bond_associated:
+        if model != "nosb":
+            raise ValueError(f"bond_associated is a NOSB option, not one of {model!r}")
+        skw["bond_associated"] = True
     if surface != "none":      # the layer of exact displacement extends the body: no free surface
         skw["surface_bulk"] = lambda x: ~np.all(np.abs(x[:, :dim]) < 0.25, axis=1)
     mdl = make_model(model, Cv, order=order, calibration=calibration,
@@ -152,7 +157,7 @@ def mms(model: str = "tipd", *, dim: int = 2, dx: float = 0.005, m: float = 3.0,
     st = State.reference(s.x0, fam.nb)
     if method is None:
         method = "direct" if model == "tipd" and dim == 2 else ("cg" if model == "tipd" or dim == 2
-                                                                else "matrix-free")
+                                                                or bond_associated else "matrix-free")
     info = solve_linear(mdl, st, fixed=~dom, u_prescribed=u_ex, f_ext=f_ext, method=method,
                         tol=1e-12)
     u = st.y - s.x0
@@ -166,6 +171,7 @@ def mms(model: str = "tipd", *, dim: int = 2, dx: float = 0.005, m: float = 3.0,
            "calibration": calibration if model == "tipd" else None,
            "stabilisation": stabilisation if model == "nosb" else None,
            "surface": surface if model == "tipd" else None,
+           "bond_associated": bool(bond_associated),
            "particles": s.n, "bonds": fam.nb, "rel_l2": rel, "oscillation": osc,
            "max_abs_err": float(np.abs(e).max()), "solve": info,
            "wall_time_s": time.perf_counter() - t0}

@@ -34,6 +34,16 @@ Zero-energy modes (seed 001 eq. (30)): any non-affine ``z_ij = Y - F_i xi`` with
 * ``"wan"`` (Wan et al. 2019, Acta Mech. Sin. 35, 1021; parameter-free):
   ``B_i = C1_i``, ``(C1_i)_pq = C_pqab (K_i^-1)_ab``.
 
+Bond-associated correspondence (``bond_associated=True``; Chen & Spencer, IJNME 120
+(2019) 1099; Breitzman & Dayal, JMPS 110 (2018) 192): every bond b = i->j gets its own
+gradient over the bond-associated family ``h_b = {k in H_i : |x_k - x_j| <= r}`` (r =
+``ba_radius`` delta), ``H_b = sum_{k in h_b} w (u_k - u_i) (x) K_b^-1 xi_ik``, and the
+energy density of i is the average ``sum_j (w_j / sum w) (1/2) H_b : C : H_b``. A
+non-affine mode that leaves every bond-level gradient unchanged would have to be affine
+on every lens h_b, so the zero-energy modes of the particle-level gradient disappear
+without a stabilisation parameter. Implemented for the linear law through its assembled
+stiffness ``K = G^T D G`` (symmetric, positive semi-definite).
+
 Bond failure is not modelled here. A particle whose shape tensor is singular (a family
 that does not span the dimension) is refused at ``prepare`` with its index.
 """
@@ -46,7 +56,8 @@ from upscale.models import register
 from upscale.models.base import Model, Needs
 from upscale.models.tipd import isotropic_voigt, rotate_tensor, rotation_matrix, voigt_to_tensor
 
-__all__ = ["Correspondence", "LAWS", "STABILISATIONS", "gradient_operators", "shape_tensors"]
+__all__ = ["Correspondence", "LAWS", "STABILISATIONS", "gradient_operators", "shape_tensors",
+           "bond_associated_operator"]
 
 LAWS = {"linear": 0, "svk": 1, "neo-hookean": 2}
 STABILISATIONS = (None, "silling", "wan")
@@ -621,6 +632,73 @@ def shape_tensors(family, wv_b, d, horizon):
     return K, np.ascontiguousarray(Kinv)
 
 
+@nb.njit(cache=True)
+def _ba_members(offsets, neighbors, x_nc, r2, count_only, bond_b, member_b):
+    """Bond-associated families: for each bond b = i->j the bonds c = i->k of i's family
+    with ``|x_k - x_j|^2 <= r2`` (k = j included). First call (``count_only``) returns the
+    number of (b, c) entries; the second fills ``bond_b``, ``member_b``."""
+    n = offsets.shape[0] - 1
+    m = 0
+    for i in range(n):
+        for b in range(offsets[i], offsets[i + 1]):
+            j = neighbors[b]
+            for c in range(offsets[i], offsets[i + 1]):
+                k = neighbors[c]
+                d0 = x_nc[k, 0] - x_nc[j, 0]
+                d1 = x_nc[k, 1] - x_nc[j, 1]
+                d2 = x_nc[k, 2] - x_nc[j, 2]
+                if d0 * d0 + d1 * d1 + d2 * d2 <= r2:
+                    if not count_only:
+                        bond_b[m] = b
+                        member_b[m] = c
+                    m += 1
+    return m
+
+
+def bond_associated_operator(family, x_nc, wv_b, radius, d):
+    """The bond-associated gradient operator (Chen & Spencer 2019; Breitzman & Dayal
+    2018): for each bond b = i->j the gradient over its bond-associated family
+    ``h_b = {k in H_i : |x_k - x_j| <= radius}``::
+
+        K_b = sum_{c in h_b} w_c xi_c (x) xi_c,   H_b = sum_{c in h_b} w_c (u_k - u_i) (x) K_b^-1 xi_c
+
+    Returns ``G`` (nb d^2, 3N) with ``H = G u`` (row ``b d^2 + p d + a``). Raises
+    ``ValueError`` naming the first bond (and its particle) whose bond-associated family
+    does not span d dimensions."""
+    import scipy.sparse as sp
+
+    off, nbr = family.offsets, family.neighbors
+    r2 = float(radius) ** 2
+    dummy = np.zeros(1, dtype=np.int64)
+    m = _ba_members(off, nbr, x_nc, r2, True, dummy, dummy)
+    bb = np.zeros(m, dtype=np.int64)
+    cc = np.zeros(m, dtype=np.int64)
+    _ba_members(off, nbr, x_nc, r2, False, bb, cc)
+    xi = family.xi[:, :d]
+    wc = wv_b[cc]
+    K = np.zeros((family.nb, d, d))
+    np.add.at(K, bb, wc[:, None, None] * np.einsum("ka,kb->kab", xi[cc], xi[cc]))
+    det = np.linalg.det(K)
+    scale = np.einsum("kab,kab->k", K, K) ** (d / 2.0)
+    bad = ~(np.abs(det) > 1e-10 * np.maximum(scale, 1e-300))
+    if bad.any():
+        b = int(np.flatnonzero(bad)[0])
+        raise ValueError(f"bond-associated shape tensor of bond {b} (particle {int(family.owner[b])}) "
+                         f"is singular; use a bond-associated radius larger than {radius:.6g} m")
+    Kinv = np.linalg.inv(K)
+    g = wc[:, None] * np.einsum("kab,kb->ka", Kinv[bb], xi[cc])
+    i, k = family.owner[cc], nbr[cc]
+    dd = d * d
+    rows, cols, vals = [], [], []
+    for p in range(d):
+        for a in range(d):
+            rows += [bb * dd + p * d + a] * 2
+            cols += [3 * k + p, 3 * i + p]
+            vals += [g[:, a], -g[:, a]]
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                         shape=(family.nb * dd, 3 * family.n))
+
+
 # ---------------------------------------------------------------------------- model
 class Correspondence(Model):
     """Correspondence (NOSB) peridynamics, 2D and 3D; see the module docstring.
@@ -643,6 +721,14 @@ class Correspondence(Model):
         Loops over the half-pair list (each pair once, :mod:`upscale.engine.pairs`; needs
         symmetric pair weights, else falls back to "bond") or over the directed bonds. Same
         forces to round-off.
+    bond_associated : bool
+        Bond-associated correspondence (module docstring): one gradient per bond over the
+        bond-associated family, energy averaged over the bonds; linear law only, no
+        stabilisation (none is needed). Forces from the assembled stiffness.
+    ba_radius : float
+        Radius of the bond-associated family around the bond's far end, in horizons
+        (default 0.5: of 0.5, 0.75, 1 and 1.5 the smallest manufactured-solution error and
+        oscillation at delta = 3 dx).
     """
 
     name = "nosb"
@@ -651,7 +737,8 @@ class Correspondence(Model):
     def __init__(self, C=None, *, E: float | None = None, nu: float | None = None,
                  order: str = "standard", angle: float | None = None, axes=None,
                  law: str = "linear", stabilisation: str | None = None, Cs: float = 100.0,
-                 influence: str = "constant", kernel: str = "pair"):
+                 influence: str = "constant", kernel: str = "pair",
+                 bond_associated: bool = False, ba_radius: float = 0.5):
         if (C is None) == (E is None):
             raise ValueError("Correspondence needs exactly one of C (elastic stiffness) or E, nu")
         if E is not None and nu is None:
@@ -665,6 +752,12 @@ class Correspondence(Model):
         if kernel not in ("pair", "bond"):
             raise ValueError(f"unknown force kernel {kernel!r}; valid: 'pair', 'bond'")
         self.kernel = kernel
+        if bond_associated and (law != "linear" or stabilisation is not None):
+            raise ValueError("bond-associated correspondence is implemented for law='linear' "
+                             f"without stabilisation (got law={law!r}, stabilisation={stabilisation!r})")
+        if not (np.isfinite(ba_radius) and 0 < ba_radius <= 2):
+            raise ValueError(f"ba_radius must be in (0, 2] horizons, got {ba_radius!r}")
+        self.bond_associated, self.ba_radius = bool(bond_associated), float(ba_radius)
         if not (np.isfinite(Cs) and Cs >= 0):
             raise ValueError(f"stabilisation factor Cs must be >= 0, got {Cs!r}")
         if angle is not None and not np.isfinite(angle):
@@ -728,6 +821,29 @@ class Correspondence(Model):
         self._PK = np.zeros((family.n, 3, 3))
         self._psi = np.zeros(family.n)
         self._set_pairs()
+        if self.bond_associated:
+            self._prepare_bond_associated()
+
+    def _prepare_bond_associated(self) -> None:
+        """``K = G^T D G`` with D the block-diagonal ``V_i (V_j beta / sum_j V_j beta) C``
+        per bond (the bond energies averaged over i's family)."""
+        import scipy.sparse as sp
+
+        fam, d, n = self.family, self.dim, self.system.n
+        dd = d * d
+        wv = self.system.volume[fam.neighbors] * fam.volume_factor
+        G = bond_associated_operator(fam, self.system.x0, wv, self.ba_radius * fam.horizon, d)
+        wsum = np.bincount(fam.owner, weights=wv, minlength=n)
+        coef = self.system.volume[fam.owner] * wv / wsum[fam.owner]
+        Cm = self.C.reshape(dd, dd)
+        blk = coef[:, None, None] * Cm[None]
+        base = np.arange(fam.nb)[:, None, None] * dd
+        r = np.broadcast_to(base + np.arange(dd)[None, :, None], blk.shape)
+        c = np.broadcast_to(base + np.arange(dd)[None, None, :], blk.shape)
+        D = sp.csr_matrix((blk.ravel(), (r.ravel(), c.ravel())), shape=(fam.nb * dd, fam.nb * dd))
+        self._ba_G = G
+        self._ba_coef = coef
+        self._ba_K = (G.T @ D @ G).tocsr()
 
     def _set_pairs(self) -> None:
         """Half-pair form (:mod:`upscale.engine.pairs`) when the pair weight is symmetric,
@@ -787,6 +903,10 @@ class Correspondence(Model):
                       self.dim, self._PK, self._psi)
 
     def add_force(self, state, out):
+        if self.bond_associated:
+            u = (state.y - self.system.x0).ravel()
+            out += -(self._ba_K @ u).reshape(-1, 3) / self.system.volume[:, None]
+            return
         self._update(state)
         f = self.family
         if self._pair:
@@ -805,6 +925,11 @@ class Correspondence(Model):
                           self.B_n, state.y, self.dim, self.stabilisation is not None, out)
 
     def energy_density(self, state):
+        if self.bond_associated:
+            d, fam = self.dim, self.family
+            H = (self._ba_G @ (state.y - self.system.x0).ravel()).reshape(fam.nb, d, d)
+            e = 0.5 * np.einsum("kpa,paqb,kqb->k", H, self.C, H) * self._ba_coef
+            return np.bincount(fam.owner, weights=e, minlength=fam.n) / self.system.volume
         self._update(state)
         W = self._psi.copy()
         if self.stabilisation is not None:
@@ -858,6 +983,8 @@ class Correspondence(Model):
     def tangent(self, state=None):
         """The assembled stiffness for the linear law; the base class's finite differences
         for the others."""
+        if self.bond_associated:
+            return self._ba_K.copy()
         if self.law == "linear":
             return self.linear_stiffness()
         return super().tangent(state)
@@ -868,6 +995,10 @@ class Correspondence(Model):
         ``G_k = sum_{b of k} |g_b|_1`` (so that ``|H_k| <= 2 G_k max|u|``),
         ``R_i = c sum_b (|g_b|_1 2 G_i + |g'_b|_1 2 G_j)`` plus the stabilisation's
         ``sum_b w (|B_i| + |B_j|)(2 + |xi|_1 2 G)``; ``c = max_p sum |C_p...|``."""
+        if self.bond_associated:     # row sums of the assembled stiffness
+            A = abs(self._ba_K)
+            r = np.asarray(A.sum(axis=1)).ravel().reshape(-1, 3).max(axis=1)
+            return r / self.system.volume
         fam, d = self.family, self.dim
         i, j = fam.owner, fam.neighbors
         xi = np.abs(fam.xi[:, :d])
@@ -887,6 +1018,7 @@ class Correspondence(Model):
 
     def describe(self):
         d = {"model": self.name, "law": self.law, "stabilisation": self.stabilisation,
+             "bond_associated": self.bond_associated,
              "kernel": "pair" if getattr(self, "_pair", self.kernel == "pair") else "bond",
              "influence": self.influence}
         if self.stabilisation == "silling":

@@ -200,8 +200,12 @@ def tipd_mms(args):
                 jobs.append((dim, mod, cal, stab, dx, "none"))
     for cal in ("discrete", "continuum"):      # Ti-PD with the surface correction, 2D
         jobs += [(2, "tipd", cal, None, dx, "correspondence") for dx in dx2 if dx >= 0.00625]
+    # bond-associated NOSB (2D, assembled stiffness)
+    jobs += [(2, "nosb", None, "bond-associated", dx, "none") for dx in dx2_nosb if dx >= 0.00625]
     for dim, mod, cal, stab, dx, surf in tqdm(jobs, desc="tipd-mms solves"):
-        r = mms(mod, dim=dim, dx=dx, calibration=cal or "discrete", stabilisation=stab, surface=surf)
+        ba = stab == "bond-associated"
+        r = mms(mod, dim=dim, dx=dx, calibration=cal or "discrete", stabilisation=None if ba else stab,
+                surface=surf, bond_associated=ba)
         r["label"] = mod if mod == "tipd" else ("nosb" if stab is None else f"nosb-{stab}")
         if mod == "tipd":
             r["label"] += f"-{cal}" + ("-surface" if surf != "none" else "")
@@ -230,12 +234,17 @@ def tipd_mms(args):
     cont = get(2, "tipd-continuum", 0.005) or get(2, "tipd-continuum", fin2)
     fin_n = min(dx2_nosb)
     osc = {lab: get(2, lab, fin_n)["oscillation"] for lab in ("nosb", "nosb-silling", "nosb-wan")}
+    fin_ba = min(dx for dx in dx2_nosb if dx >= 0.00625)
+    ba_cmp = {lab: {"rel_l2": get(2, lab, fin_ba)["rel_l2"], "oscillation": get(2, lab, fin_ba)["oscillation"]}
+              for lab in ("nosb", "nosb-silling", "nosb-wan", "nosb-bond-associated")}
     res = {"order_discrete_2d": orders["tipd-discrete_2d"],
            "rel_l2_discrete_2d_finest": min(r["rel_l2"] for r in d2),
            "dx_finest_2d_m": fin2,
            "rel_l2_continuum_2d": cont["rel_l2"], "rel_l2_continuum_2d_dx_m": cont["dx_m"],
            "order_discrete_3d": orders["tipd-discrete_3d"],
            "order_discrete_2d_surface": orders["tipd-discrete-surface_2d"],
+           "order_nosb_bond_associated_2d": orders["nosb-bond-associated_2d"],
+           "bond_associated_vs_nosb_at_dx": {"dx_m": fin_ba, **ba_cmp},
            "orders": orders,
            "oscillation_2d_at_dx": {"dx_m": fin_n, **osc},
            "rel_l2_2d_at_dx": {"dx_m": fin_n, **{lab: get(2, lab, fin_n)["rel_l2"]
