@@ -114,3 +114,53 @@ def test_registered_and_bad_input():
     f = build_family(s, 2.01e-3)
     with pytest.raises(ValueError, match="shape tensor of particle 0 is singular"):
         Correspondence(E=1e9, nu=0.2).prepare(s, f)
+
+
+def test_bond_associated_patch_symmetry_and_no_zero_energy_modes():
+    import warnings as _w
+
+    from upscale.engine import State, build_family, square_lattice
+    from upscale.models.correspondence import Correspondence as _C
+
+    s = square_lattice(20, 20, 1e-3)
+    f = build_family(s, 3.015e-3)
+    m = _C(E=70e9, nu=0.25, bond_associated=True)
+    m.prepare(s, f)
+    H = np.array([[1.0, 0.3], [-0.2, 0.5]]) * 1e-4
+    st = State.reference(s.x0, f.nb)
+    st.y[:, :2] += s.x0[:, :2] @ H.T
+    eps = 0.5 * (H + H.T)
+    w = 0.5 * np.einsum("pa,paqb,qb->", eps, m.C, eps)
+    assert np.abs(m.energy_density(st) - w).max() <= 1e-9 * w       # every particle
+    o = np.zeros_like(st.y)
+    m.add_force(st, o)
+    x = s.x0[:, :2]
+    inner = np.all((x > 2 * f.horizon + 1e-9) & (x < x.max(0) - 2 * f.horizon - 1e-9), axis=1)
+    assert inner.sum() > 0 and np.abs(o[inner]).max() <= 1e-10 * np.abs(o).max()
+    K = m.tangent()
+    assert abs(K - K.T).max() <= 1e-14 * abs(K).max()
+    # small free body: only the 3 rigid modes are zero, none negative, and the softest
+    # deformation mode is far stiffer than plain NOSB's near-zero-energy one
+    s2 = square_lattice(8, 8, 1e-3)
+    f2 = build_family(s2, 3.015e-3)
+    counts = {}
+    for ba in (False, True):
+        m2 = _C(E=70e9, nu=0.25, bond_associated=ba)
+        with _w.catch_warnings():
+            _w.simplefilter("ignore")
+            m2.prepare(s2, f2)
+        Kd = m2.tangent().toarray()
+        free = np.zeros((s2.n, 3), dtype=bool)
+        free[:, :2] = True
+        ev = np.linalg.eigvalsh(Kd[free.ravel()][:, free.ravel()])
+        sc = np.abs(ev).max()
+        counts[ba] = (int((np.abs(ev) <= 1e-8 * sc).sum()), int((ev < -1e-8 * sc).sum()), ev[3] / sc)
+    assert counts[True][:2] == (3, 0)
+    assert counts[True][2] > 10 * counts[False][2]
+
+
+def test_bond_associated_bad_input():
+    with pytest.raises(ValueError, match="bond-associated"):
+        Correspondence(E=1e9, nu=0.2, bond_associated=True, law="svk")
+    with pytest.raises(ValueError, match="ba_radius"):
+        Correspondence(E=1e9, nu=0.2, bond_associated=True, ba_radius=0.0)

@@ -69,12 +69,21 @@ def make_model(name: str, C=None, *, E=None, nu=None, order="standard", angle=No
                              calibration=calibration, **kw)
     if name == "nosb":
         return models.create("nosb", C=C, E=E, nu=nu, order=order, angle=angle,
-                             stabilisation=stabilisation, Cs=Cs)
+                             stabilisation=stabilisation, Cs=Cs, **kw)
     if name in ("lps", "pmb"):
         if E is None:
             raise ValueError(f"model {name!r} is isotropic: give E and nu, not C")
         return models.create(name, E=E, nu=nu, **kw)
     raise ValueError(f"unknown model {name!r}; valid: 'tipd', 'nosb', 'lps', 'pmb'")
+
+
+def _surface_kw(model: str, surface: str) -> dict:
+    """The surface-correction keyword for Ti-PD (other models have none)."""
+    if model == "tipd":
+        return {"surface": surface}
+    if surface != "none":
+        raise ValueError(f"surface correction {surface!r} is a Ti-PD option, not one of {model!r}")
+    return {}
 
 
 # ---------------------------------------------------------------------------- MMS
@@ -109,8 +118,10 @@ def mms_body(dx: float, dim: int, m: float = 3.0):
 
 def mms(model: str = "tipd", *, dim: int = 2, dx: float = 0.005, m: float = 3.0,
         calibration: str = "discrete", stabilisation=None, Cs: float = 100.0,
-        method: str | None = None, return_fields: bool = False) -> dict:
-    """Manufactured solution 5.1.1 (2D) / 5.1.2 (3D) with one model (module docstring).
+        method: str | None = None, return_fields: bool = False, surface: str = "none",
+        bond_associated: bool = False) -> dict:
+    """Manufactured solution 5.1.1 (2D) / 5.1.2 (3D) with one model (module docstring);
+    ``surface``: Ti-PD's surface correction (:class:`~upscale.models.tipd.TiPD`).
 
     Returns ``{"rel_l2": ..., "oscillation": ..., "dx_m", "horizon_m", "particles",
     "solve": {...}, "wall_time_s"}`` (and the fields with ``return_fields``)."""
@@ -124,8 +135,15 @@ def mms(model: str = "tipd", *, dim: int = 2, dx: float = 0.005, m: float = 3.0,
     s, dom, shape = mms_body(dx, dim, m)
     fam = build_family(s, m * dx * (1 + 1e-9))
     Cv, order = (MMS_2D_C, "standard") if dim == 2 else (MMS_3D_C, "tian")
+    skw = _surface_kw(model, surface)
+    if bond_associated:
+        if model != "nosb":
+            raise ValueError(f"bond_associated is a NOSB option, not one of {model!r}")
+        skw["bond_associated"] = True
+    if surface != "none":      # the layer of exact displacement extends the body: no free surface
+        skw["surface_bulk"] = lambda x: ~np.all(np.abs(x[:, :dim]) < 0.25, axis=1)
     mdl = make_model(model, Cv, order=order, calibration=calibration,
-                     stabilisation=stabilisation, Cs=Cs)
+                     stabilisation=stabilisation, Cs=Cs, **skw)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         mdl.prepare(s, fam)
@@ -139,7 +157,7 @@ def mms(model: str = "tipd", *, dim: int = 2, dx: float = 0.005, m: float = 3.0,
     st = State.reference(s.x0, fam.nb)
     if method is None:
         method = "direct" if model == "tipd" and dim == 2 else ("cg" if model == "tipd" or dim == 2
-                                                                else "matrix-free")
+                                                                or bond_associated else "matrix-free")
     info = solve_linear(mdl, st, fixed=~dom, u_prescribed=u_ex, f_ext=f_ext, method=method,
                         tol=1e-12)
     u = st.y - s.x0
@@ -152,6 +170,8 @@ def mms(model: str = "tipd", *, dim: int = 2, dx: float = 0.005, m: float = 3.0,
     out = {"model": model, "dim": dim, "dx_m": dx, "horizon_m": fam.horizon, "m": m,
            "calibration": calibration if model == "tipd" else None,
            "stabilisation": stabilisation if model == "nosb" else None,
+           "surface": surface if model == "tipd" else None,
+           "bond_associated": bool(bond_associated),
            "particles": s.n, "bonds": fam.nb, "rel_l2": rel, "oscillation": osc,
            "max_abs_err": float(np.abs(e).max()), "solve": info,
            "wall_time_s": time.perf_counter() - t0}
@@ -165,7 +185,7 @@ def mms(model: str = "tipd", *, dim: int = 2, dx: float = 0.005, m: float = 3.0,
 # ---------------------------------------------------------------------------- strip
 def strip(model: str = "tipd", *, E: float = 70e9, nu: float | None = 0.25, C=None,
           nx: int = 60, ny: int = 20, dx: float = 1e-3, m: float = 3.015, strain: float = 1e-4,
-          calibration: str = "discrete", stabilisation=None) -> dict:
+          calibration: str = "discrete", stabilisation=None, surface: str = "none") -> dict:
     """Free-contraction tension of a plane-stress strip (module docstring). ``C`` (Voigt,
     axis 1 along x) instead of ``E``/``nu`` for an anisotropic material. Returns the
     apparent Poisson ratio and modulus."""
@@ -176,7 +196,8 @@ def strip(model: str = "tipd", *, E: float = 70e9, nu: float | None = 0.25, C=No
     s = square_lattice(nx, ny, dx, plane="stress")
     fam = build_family(s, m * dx)
     mdl = make_model(model, C, E=None if C is not None else E, nu=None if C is not None else nu,
-                     calibration=calibration, stabilisation=stabilisation)
+                     calibration=calibration, stabilisation=stabilisation,
+                     **_surface_kw(model, surface))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         mdl.prepare(s, fam)
@@ -211,7 +232,7 @@ def strip(model: str = "tipd", *, E: float = 70e9, nu: float | None = 0.25, C=No
 # ---------------------------------------------------------------------------- eigen
 def eigen_counts(model: str = "tipd", *, dim: int = 2, E: float = 70e9, nu: float = 0.25, C=None,
                  plane: str = "stress", n: int | None = None, m: float = 3.015,
-                 calibration: str = "discrete", stabilisation=None) -> dict:
+                 calibration: str = "discrete", stabilisation=None, surface: str = "none") -> dict:
     """Zero and negative eigenvalues of the free-body stiffness (module docstring)."""
     from upscale.engine import State, build_family, cubic_lattice, square_lattice
 
@@ -219,7 +240,8 @@ def eigen_counts(model: str = "tipd", *, dim: int = 2, E: float = 70e9, nu: floa
     s = square_lattice(n, n, 1e-3, plane=plane) if dim == 2 else cubic_lattice(n, n, n, 1e-3)
     fam = build_family(s, m * 1e-3)
     mdl = make_model(model, C, E=None if C is not None else E, nu=None if C is not None else nu,
-                     calibration=calibration, stabilisation=stabilisation)
+                     calibration=calibration, stabilisation=stabilisation,
+                     **_surface_kw(model, surface))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         mdl.prepare(s, fam)
@@ -239,7 +261,7 @@ def eigen_counts(model: str = "tipd", *, dim: int = 2, E: float = 70e9, nu: floa
 # ---------------------------------------------------------------------------- rotation
 def rotation(model: str = "tipd", *, E: float = 70e9, nu: float = 0.25, n: int = 10,
              angle: float = 0.2, omega: float = 1e3, rho: float = 2440.0, m: float = 3.015,
-             calibration: str = "discrete") -> dict:
+             calibration: str = "discrete", surface: str = "none") -> dict:
     """Free 2D body spun rigidly about its centre at ``omega`` (rad/s), velocity Verlet until
     it has turned by ``angle`` (rad): relative change of the angular momentum L_z and strain
     energy over the initial kinetic energy."""
@@ -248,7 +270,8 @@ def rotation(model: str = "tipd", *, E: float = 70e9, nu: float = 0.25, n: int =
 
     s = square_lattice(n, n, 1e-3, density=rho, plane="stress", centered=True)
     fam = build_family(s, m * 1e-3)
-    mdl = make_model(model, E=E, nu=nu, **({"calibration": calibration} if model == "tipd" else {}))
+    mdl = make_model(model, E=E, nu=nu, **({"calibration": calibration, "surface": surface}
+                                           if model == "tipd" else {}))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         sim = Simulation(s, fam, [mdl], integrator=VelocityVerlet(safety=0.5))
@@ -278,7 +301,7 @@ def _run(args) -> int:
         rows = []
         for dx in args.dx:
             r = mms(args.model, dim=args.dim, dx=dx, calibration=args.calibration,
-                    stabilisation=args.stabilisation)
+                    stabilisation=args.stabilisation, surface=args.surface)
             print(f"{args.model} dim={args.dim} dx={dx:g}: rel L2 {r['rel_l2']:.4e}, "
                   f"oscillation {r['oscillation']:.3e} ({r['wall_time_s']:.1f} s)")
             rows.append(r)
@@ -302,13 +325,15 @@ def _run(args) -> int:
             fig.savefig(out / "mms_error.png", dpi=120)
             plt.close(fig)
     elif args.scene_tipd == "strip":
-        res = strip(args.model, nu=args.nu)
+        res = strip(args.model, nu=args.nu, calibration=args.calibration, surface=args.surface)
         print(f"{args.model} nu={args.nu}: apparent nu {res['nu_apparent']:.4f}, "
               f"E {res['E_apparent_Pa']:.4e} Pa")
     elif args.scene_tipd == "hole":
         from upscale.experiments.tipd_hole import hole
 
-        res = hole(args.model, material=args.material, dx=args.dx[0] if args.dx else 1e-3)
+        res = hole(args.model, material=args.material, dx=args.dx[0] if args.dx else 1e-3,
+                   surface=args.surface,
+                   **({"calibration": args.calibration} if args.calibration else {}))
         print(json.dumps({k: v for k, v in res.items() if not isinstance(v, list)}, default=float))
     else:
         from upscale.experiments.tipd_branching import branching
@@ -329,7 +354,10 @@ def register(sub) -> None:
     p.add_argument("--model", default="tipd", help="tipd (default), nosb, lps, pmb")
     p.add_argument("--dim", type=int, default=2)
     p.add_argument("--dx", type=float, nargs="*", default=None, help="spacing(s) in m")
-    p.add_argument("--calibration", default="discrete", help="Ti-PD: discrete (default) or continuum")
+    p.add_argument("--calibration", default=None,
+                   help="Ti-PD: discrete or continuum (default: discrete; hole: continuum)")
+    p.add_argument("--surface", default="none",
+                   help="Ti-PD surface correction: none (default) or correspondence")
     p.add_argument("--stabilisation", default=None, help="NOSB: silling or wan (default none)")
     p.add_argument("--nu", type=float, default=0.25)
     p.add_argument("--material", default="iso", help="hole: iso or ortho")
@@ -339,6 +367,8 @@ def register(sub) -> None:
     p.add_argument("--quiet", action="store_true")
 
     def run(a):
+        if a.calibration is None and a.scene_tipd != "hole":
+            a.calibration = "discrete"
         if a.dx is None:
             a.dx = [0.025, 0.0125, 0.00625] if a.scene_tipd == "mms" else None
         return _run(a)

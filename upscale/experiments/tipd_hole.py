@@ -61,7 +61,7 @@ def hole_body(dx: float, m: float = 3.0, *, L=L_PLATE, W=W_PLATE, R=R_HOLE, dens
 
 def hole(model: str = "tipd", *, material: str = "iso", dx: float = 1e-3, m: float = 3.0,
          calibration: str = "continuum", stabilisation=None, U: float = U_GRIP,
-         L: float = L_PLATE, W: float = W_PLATE) -> dict:
+         L: float = L_PLATE, W: float = W_PLATE, surface: str = "none") -> dict:
     """Solve the clamped plate (module docstring). Returns positions and displacements of
     the rows next to y = 0 and to the free edges, the grip reaction (N), ``Kt`` and the
     stress at the particle next to the hole's top."""
@@ -74,7 +74,8 @@ def hole(model: str = "tipd", *, material: str = "iso", dx: float = 1e-3, m: flo
     C = material_voigt(material)
     s, lg, rg = hole_body(dx, m, L=L, W=W)
     fam = build_family(s, m * dx * (1 + 1e-9))
-    mdl = make_model(model, C, calibration=calibration, stabilisation=stabilisation)
+    mdl = make_model(model, C, calibration=calibration, stabilisation=stabilisation,
+                     **({"surface": surface} if model == "tipd" else {}))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         mdl.prepare(s, fam)
@@ -82,7 +83,8 @@ def hole(model: str = "tipd", *, material: str = "iso", dx: float = 1e-3, m: flo
     ubar = np.zeros((s.n, 3))
     ubar[rg, 0] = U
     st = State.reference(s.x0, fam.nb)
-    method = "direct" if model == "tipd" else "cg"
+    # the surface correction's 2-delta coupling makes LU fill in: CG on the assembled matrix
+    method = "direct" if model == "tipd" and surface == "none" else "cg"
     info = solve_linear(mdl, st, fixed=grips, u_prescribed=ubar, method=method, tol=1e-10)
     u = st.y - s.x0
     F = mdl.residual(st).reshape(s.n, 3)
@@ -102,6 +104,7 @@ def hole(model: str = "tipd", *, material: str = "iso", dx: float = 1e-3, m: flo
     return {"model": model, "material": material, "dx_m": dx, "horizon_m": fam.horizon,
             "calibration": calibration if model == "tipd" else None,
             "stabilisation": stabilisation if model == "nosb" else None,
+            "surface": surface if model == "tipd" else None,
             "particles": s.n, "reaction_N": reaction, "sigma_gross_Pa": sigma_gross,
             "Kt": float(sig[k, 0] / sigma_gross), "Kt_point_m": x[k, :2].tolist(),
             "mid_xy_m": x[mid, :2].tolist(), "mid_u_m": u[mid, :2].tolist(),
@@ -111,12 +114,13 @@ def hole(model: str = "tipd", *, material: str = "iso", dx: float = 1e-3, m: flo
 
 def hole_adr(model: str = "tipd", *, material: str = "ortho", nx: int = 300, steps: int = 4000,
              calibration: str = "continuum", stabilisation=None, U: float = U_GRIP,
-             fused: bool = True, progress: bool = False) -> dict:
+             fused: bool = True, kernel: str = "pair", progress: bool = False) -> dict:
     """``steps`` adaptive dynamic relaxation steps (Kilic & Madenci; the engine's
     :class:`~upscale.engine.integrators.AdaptiveDynamicRelaxation`, tolerance 0 so that every
     step runs; ``fused``: its kernel-fused twin :class:`~upscale.engine.adr.FusedAdaptiveDynamicRelaxation`)
     on the plate with ``nx x nx/3`` particles (Table 1 grids: dx = 150 mm / nx),
-    grips at their final displacement. Returns the wall time of the steps (s) and of the
+    grips at their final displacement; ``kernel``: the model's force loop ("pair" or
+    "bond", see the models). Returns the wall time of the steps (s) and of the
     set-up, the process CPU time of the steps (s; what a busy machine does not inflate;
     without the ADR's own set-up, the stiffness bounds, reported as ``adr_setup_cpu_s``) and
     the CPU time of one force evaluation of the model (s)."""
@@ -131,7 +135,7 @@ def hole_adr(model: str = "tipd", *, material: str = "ortho", nx: int = 300, ste
     C = material_voigt(material)
     s, lg, rg = hole_body(dx, 3.0)
     fam = build_family(s, 3.0 * dx * (1 + 1e-9))
-    mdl = make_model(model, C, calibration=calibration, stabilisation=stabilisation)
+    mdl = make_model(model, C, calibration=calibration, stabilisation=stabilisation, kernel=kernel)
     conds = [Fixed(region(s, "left grip", where=lambda x: x[:, 0] < -L_PLATE / 2)),
              Displacement(region(s, "right grip", where=lambda x: x[:, 0] > L_PLATE / 2), [U, 0.0, 0.0])]
     with warnings.catch_warnings():
@@ -150,7 +154,7 @@ def hole_adr(model: str = "tipd", *, material: str = "ortho", nx: int = 300, ste
     for _ in range(reps):
         mdl.step_force(sim.state, out, failure=False)
     t_force = (time.process_time() - c2) / reps
-    return {"model": model, "stabilisation": stabilisation, "adr": adr.name, "nx": nx, "ny": nx // 3, "particles": s.n,
+    return {"model": model, "stabilisation": stabilisation, "kernel": kernel, "adr": adr.name, "nx": nx, "ny": nx // 3, "particles": s.n,
             "bonds": fam.nb, "steps": int(info["iterations"]), "adr_wall_s": t_adr, "adr_cpu_s": c_adr,
             "adr_setup_cpu_s": info.get("setup_cpu_s"), "setup_wall_s": t_setup,
             "force_eval_s": t_force, "residual": info["residual"]}

@@ -44,6 +44,29 @@ nu > 1/4. :class:`TiPD` warns (:class:`IndefiniteWarning`) when that happens.
 Ti-PD equals bond-based PD (PMB) when D12 = D66 (nu = 1/3 plane stress, 1/4 plane strain
 and 3D; eqs. (50)-(51)).
 
+Surface correction (``surface="correspondence"``, not in the paper)
+-------------------------------------------------------------------
+The traction a pair model carries across any cut is ``S : H n``, not ``C : H n``: no
+micromodulus, however position-dependent, fixes the free-surface error, because a pair
+force cannot carry the part ``(C - S)`` of C that breaks the Cauchy relation. The correction
+adds that part as a correspondence energy on the nonlocal gradient
+``H_i = sum_j w (u_j - u_i) (x) xi K_i^-1`` (w = V_j beta, ``K_i = sum_j w xi (x) xi``)::
+
+    E = E_TiPD + sum_i V_i (1/2) H_i : Delta_i : H_i,   Delta_i = C - S_i^lat,
+    S_i^lat = (1/2) sum_j M_ij xi (x) xi V_j beta      (indexed [p, a, q, b])
+
+``S_i^lat`` is the tensor particle i's own (possibly truncated) family carries, so for
+every homogeneous gradient the energy density of every particle, surface ones included,
+is exactly ``(1/2) eps : C : eps`` (and a rigid rotation costs none). In the bulk ``Delta``
+is uniform and (for the discrete calibration) the null-Lagrangian part ``C - S``, whose
+energy vanishes on every plane wave: the bulk equations are Ti-PD's; with the continuum
+calibration Delta also removes its lattice bias. Forces are the linear correspondence
+force ``b_i = sum_j w (Q_i + Q_j) xi``, ``Q_i = (Delta_i : H_i) K_i^-1``, coupling
+particles 2 delta apart; the stiffness stays symmetric. Costs: a correspondence pass per
+force evaluation and a denser stiffness. Caveats: the free body is slightly indefinite
+(a rotation costs no energy but is not force-free), and the correction is elastic
+(refused with a failure criterion, since H is built on all bonds).
+
 Failure
 -------
 Damage (56)-(58): a bond breaks for good when its stretch ``s = (|y_j - y_i| - |xi|)/|xi|``
@@ -361,6 +384,95 @@ def tipd_force_kernel_3d(offsets, neighbors, q_bc, A, u_nc, y_nc, intact_b, rc2_
     return broke.sum()
 
 
+@nb.njit(cache=True)
+def _tipd_pair_chunk(i0, i1, poff, pj, pb, prb, K_p, u_nc, y_nc, intact_b, rc2_p, fail, check,
+                     buf, d):
+    """Pairs of the particles i0 <= i < i1 (as first end) of :func:`tipd_pair_force` into
+    one thread's buffer (zeroed here; i's sum kept in registers, j's scattered); returns
+    the bonds broken. ``check`` False: every bond is intact (the bond state is not read)."""
+    buf[:, :] = 0.0
+    k = 0
+    for i in range(i0, i1):
+        ui0 = u_nc[i, 0]
+        ui1 = u_nc[i, 1]
+        ui2 = u_nc[i, 2]
+        s0 = 0.0
+        s1 = 0.0
+        s2 = 0.0
+        for p in range(poff[i], poff[i + 1]):
+            fi = True
+            fj = True
+            if check:
+                b = pb[p]
+                rb = prb[p]
+                fi = intact_b[b]
+                fj = intact_b[rb]
+                if not (fi or fj):
+                    continue
+            j = pj[p]
+            e0 = u_nc[j, 0] - ui0
+            e1 = u_nc[j, 1] - ui1
+            if d == 2:
+                k12 = K_p[p, 1]
+                g0 = K_p[p, 0] * e0 + k12 * e1
+                g1 = k12 * e0 + K_p[p, 2] * e1
+                g2 = 0.0
+            else:
+                e2 = u_nc[j, 2] - ui2
+                k23 = K_p[p, 3]
+                k13 = K_p[p, 4]
+                k12 = K_p[p, 5]
+                g0 = K_p[p, 0] * e0 + k12 * e1 + k13 * e2
+                g1 = k12 * e0 + K_p[p, 1] * e1 + k23 * e2
+                g2 = k13 * e0 + k23 * e1 + K_p[p, 2] * e2
+            if fi:
+                s0 += g0
+                s1 += g1
+                s2 += g2
+            if fj:
+                buf[j, 0] -= g0
+                buf[j, 1] -= g1
+                if d == 3:
+                    buf[j, 2] -= g2
+            if fail:
+                d0 = y_nc[j, 0] - y_nc[i, 0]
+                d1 = y_nc[j, 1] - y_nc[i, 1]
+                d2 = y_nc[j, 2] - y_nc[i, 2]
+                if d0 * d0 + d1 * d1 + d2 * d2 > rc2_p[p]:
+                    if fi:
+                        intact_b[pb[p]] = False
+                        k += 1
+                    if fj:
+                        intact_b[prb[p]] = False
+                        k += 1
+        buf[i, 0] += s0
+        buf[i, 1] += s1
+        if d == 3:
+            buf[i, 2] += s2
+    return k
+
+
+@nb.njit(parallel=True, cache=True)
+def tipd_pair_force(bounds, poff, pj, pb, prb, K_p, u_nc, y_nc, intact_b, rc2_p, fail, check,
+                    buf_tnc, d):
+    """Pair form of the Ti-PD force: for each pair i < j with ``eta = u_j - u_i``,
+    ``g = K_p eta`` (``K_p = V_i M_ij = V_j M_ji``, N/m, symmetric d x d stored as
+    (K11, K12, K22) in 2D, (K11, K22, K33, K23, K13, K12) in 3D) is added to ``buf[t, i]``
+    if the bond i->j is intact and subtracted from ``buf[t, j]`` if j->i is; thread t takes
+    the particles ``bounds[t] <= i < bounds[t+1]`` into its private buffer ``buf_tnc[t]``
+    (T, N, d), zeroed here (sum them with :func:`upscale.engine.pairs.reduce_buffers`, scale
+    1/V for densities). If ``fail``, mutates ``intact_b``: both directions break when the
+    squared current length exceeds ``rc2_p``, after the force is counted. ``check`` False
+    skips reading the bond state (the caller knows that every bond is intact and ``fail``
+    is False). Returns the number of directed bonds broken."""
+    nt = buf_tnc.shape[0]
+    broke = np.zeros(nt, dtype=np.int64)
+    for t in nb.prange(nt):
+        broke[t] = _tipd_pair_chunk(bounds[t], bounds[t + 1], poff, pj, pb, prb, K_p, u_nc,
+                                    y_nc, intact_b, rc2_p, fail, check, buf_tnc[t], d)
+    return broke.sum()
+
+
 @nb.njit(parallel=True, cache=True)
 def tipd_energy_kernel(offsets, neighbors, q_bc, A, x_nc, y_nc, intact_b, d):
     """W_i = (1/4) sum_j eta.M eta (J/m^3), half of each bond's energy to each end."""
@@ -456,6 +568,19 @@ class TiPD(Model):
     warn : bool
         Emit :class:`IndefiniteWarning` when the material makes the free-body stiffness
         indefinite.
+    kernel : {"pair", "bond"}
+        Force loop over the half-pair list (each pair once, :mod:`upscale.engine.pairs`;
+        needs symmetric pair stiffnesses, else falls back to "bond") or over the directed
+        bonds (each pair twice). Same forces to round-off.
+    surface : {"none", "correspondence"}
+        "correspondence" adds the per-particle correction energy
+        ``sum_i V_i (1/2) H_i : (C - S_i^lat) : H_i`` (module docstring, "Surface
+        correction"); elastic only (refused together with a failure criterion).
+    surface_bulk : callable, optional
+        ``surface_bulk(x0) -> bool (N,)``: particles whose correction uses the bulk tensor
+        ``C - S^lat`` of the most complete family instead of their own, for layers whose
+        outer edge is not a free surface (prescribed-displacement layers that extend the
+        body).
     """
 
     name = "tipd"
@@ -464,7 +589,8 @@ class TiPD(Model):
     def __init__(self, C=None, *, E: float | None = None, nu: float | None = None,
                  order: str = "standard", angle: float | None = None, axes=None,
                  calibration: str = "continuum", s0: float | None = None,
-                 G0: float | None = None, critical: str = "tipd", warn: bool = True):
+                 G0: float | None = None, critical: str = "tipd", warn: bool = True,
+                 kernel: str = "pair", surface: str = "none", surface_bulk=None):
         if (C is None) == (E is None):
             raise ValueError("TiPD needs exactly one of C (elastic stiffness) or E, nu (isotropic)")
         if E is not None and nu is None:
@@ -473,6 +599,18 @@ class TiPD(Model):
             raise ValueError(f"unknown calibration {calibration!r}; valid: 'continuum', 'discrete'")
         if critical not in ("tipd", "osb"):
             raise ValueError(f"unknown critical-stretch rule {critical!r}; valid: 'tipd', 'osb'")
+        if kernel not in ("pair", "bond"):
+            raise ValueError(f"unknown force kernel {kernel!r}; valid: 'pair', 'bond'")
+        self.kernel = kernel
+        if surface not in ("none", "correspondence"):
+            raise ValueError(f"unknown surface correction {surface!r}; valid: 'none', 'correspondence'")
+        if surface != "none" and (s0 is not None or G0 is not None):
+            raise ValueError("the surface correction is elastic only: give no s0/G0 with "
+                             f"surface={surface!r} (valid: surface='none' with failure)")
+        self.surface = surface
+        if surface_bulk is not None and not callable(surface_bulk):
+            raise ValueError(f"surface_bulk must be a callable x0 -> bool mask, got {surface_bulk!r}")
+        self.surface_bulk = surface_bulk
         if s0 is not None and G0 is not None:
             raise ValueError("give the critical stretch s0 or the fracture energy G0, not both")
         for k, v in (("s0", s0), ("G0", G0)):
@@ -552,6 +690,90 @@ class TiPD(Model):
         self.rc2_b = np.ascontiguousarray((L * (1.0 + self.s0)) ** 2) if self.needs.failure \
             else np.zeros(1)
         self._u = np.zeros((system.n, 3))
+        self._set_pair_stiffness(self.bond_matrices())
+        if self.surface == "correspondence":
+            self._prepare_surface()
+
+    def lattice_moments(self) -> np.ndarray:
+        """``S_i^lat = (1/2) sum_j M_ij xi_a xi_b V_j beta`` of every particle (N, d, d, d, d),
+        indexed ``[i, p, a, q, b]`` (Pa): the tensor that the particle's (possibly
+        truncated) family carries for a homogeneous displacement gradient."""
+        fam, d = self.family, self.dim
+        M = self.bond_matrices()
+        xi = fam.xi[:, :d]
+        per = 0.5 * np.einsum("kpq,ka,kb->kpaqb", M, xi, xi).reshape(fam.nb, -1)
+        out = np.zeros((fam.n, per.shape[1]))
+        np.add.at(out, fam.owner, per)
+        return out.reshape((fam.n,) + (d,) * 4)
+
+    def _prepare_surface(self) -> None:
+        """The correction's per-particle tensors ``Delta_i = C - S_i^lat`` and the
+        correspondence gradient (shape tensors on the same family, omega = 1)."""
+        from upscale.models.correspondence import shape_tensors
+
+        fam, d = self.family, self.dim
+        Sl = self.lattice_moments()
+        if self.surface_bulk is not None:
+            mask = np.asarray(self.surface_bulk(self.system.x0), dtype=bool)
+            if mask.shape != (fam.n,):
+                raise ValueError(f"surface_bulk must return a bool mask of shape ({fam.n},), "
+                                 f"got {mask.shape}")
+            w = self.w_b
+            bulk = int(np.argmax(np.bincount(fam.owner, weights=w, minlength=fam.n)))
+            Sl[mask] = Sl[bulk]
+        self.Delta_n = np.ascontiguousarray(self.C[None] - Sl)
+        wv = np.ascontiguousarray(self.system.volume[fam.neighbors] * fam.volume_factor)
+        self._cw_b = wv
+        self._cK, self._cKinv = shape_tensors(fam, wv, d, fam.horizon)
+        self._cxi = np.ascontiguousarray(fam.xi)
+        self._cH = np.zeros((fam.n, 3, 3))
+        self._cQ = np.zeros((fam.n, 3, 3))
+
+    def surface_gradient(self, state) -> np.ndarray:
+        """The correction's displacement gradients ``H_i = sum_j w (u_j - u_i) (x) xi K_i^-1``
+        (N, 3, 3; first d x d block) on ``state`` (in an internal buffer)."""
+        from upscale.models.correspondence import defgrad_kernel
+
+        f = self.family
+        u = self._u
+        np.subtract(state.y, self.system.x0, out=u)
+        defgrad_kernel(f.offsets, f.neighbors, self._cxi, self._cw_b, self._cKinv, u, self.dim,
+                       self._cH)
+        return self._cH
+
+    def _add_surface_force(self, state, out) -> None:
+        from upscale.models.correspondence import nosb_force_kernel
+
+        d, f = self.dim, self.family
+        H = self.surface_gradient(state)[:, :d, :d]
+        P = np.einsum("npaqb,nqb->npa", self.Delta_n, H)
+        self._cQ[:, :d, :d] = np.einsum("npc,nca->npa", P, self._cKinv[:, :d, :d])
+        nosb_force_kernel(f.offsets, f.neighbors, self._cxi, self._cw_b, self._cQ, self._cH,
+                          self._cQ, state.y, d, False, out)
+
+    def _set_pair_stiffness(self, M_b) -> None:
+        """The pair form of the force from the bond matrices ``M_b`` (nb, d, d): on the
+        half-pair list (:mod:`upscale.engine.pairs`) ``K_p = V_i M_ij``, which equals
+        ``V_j M_ji`` when the bond weights are symmetric (then each pair is computed once);
+        otherwise the directed-bond kernel is used."""
+        from upscale.engine.pairs import half_pairs
+
+        fam, d, V = self.family, self.dim, self.system.volume
+        pr = half_pairs(fam)
+        Ki = M_b[pr.b] * V[pr.i][:, None, None]
+        Kj = M_b[pr.rb] * V[pr.j][:, None, None]
+        scale = max(np.abs(Ki).max(), 1e-300)
+        self._pair = self.kernel == "pair" and bool(np.abs(Ki - Kj).max() <= 1e-12 * scale)
+        if not self._pair:
+            self.pairs = None
+            return
+        self.pairs = pr
+        comp = [(0, 0), (0, 1), (1, 1)] if d == 2 else [(0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)]
+        self.K_p = np.ascontiguousarray(np.stack([0.5 * (Ki[:, a, b] + Kj[:, a, b]) for a, b in comp], 1))
+        self.rc2_p = np.ascontiguousarray(self.rc2_b[pr.b]) if self.needs.failure else np.zeros(1)
+        self._inv_vol = np.ascontiguousarray(1.0 / V)
+        self._buf = pr.buffers(self.system.n, d)
+        self._bounds = pr.thread_bounds(self._buf.shape[0])
 
     def _critical_stretch(self) -> float:
         d, fam, sysm = self.dim, self.family, self.system
@@ -598,17 +820,36 @@ class TiPD(Model):
     # ------------------------------------------------------------------ forces
     def _force(self, state, out, fail):
         f = self.family
-        kern = tipd_force_kernel_2d if self.dim == 2 else tipd_force_kernel_3d
         u = self._u
         np.subtract(state.y, self.system.x0, out=u)
+        if self._pair:
+            from upscale.engine.pairs import reduce_buffers
+
+            pr, buf = self.pairs, self._buf
+            if buf.shape[0] != nb.get_num_threads():
+                buf = self._buf = pr.buffers(self.system.n, self.dim)
+                self._bounds = pr.thread_bounds(buf.shape[0])
+            # the bond-state reads cost a fifth of the loop: skipped while every bond is intact
+            check = bool(fail or not state.intact.all())
+            k = int(tipd_pair_force(self._bounds, pr.offsets, pr.j, pr.b, pr.rb, self.K_p, u,
+                                    state.y, state.intact, self.rc2_p, fail, check, buf,
+                                    self.dim))
+            reduce_buffers(buf, self._inv_vol, out, self.dim)
+            return k
+        kern = tipd_force_kernel_2d if self.dim == 2 else tipd_force_kernel_3d
         return int(kern(f.offsets, f.neighbors, self._q_kernel, self.A, u, state.y,
                         state.intact, self.rc2_b, fail, out))
 
     def add_force(self, state, out):
         self._force(state, out, False)
+        if self.surface != "none":
+            self._add_surface_force(state, out)
 
     def step_force(self, state, out, *, failure=True):
-        return self._force(state, out, bool(failure and self.needs.failure))
+        k = self._force(state, out, bool(failure and self.needs.failure))
+        if self.surface != "none":
+            self._add_surface_force(state, out)
+        return k
 
     def break_bonds(self, state):
         from upscale.engine.kernels import break_by_stretch
@@ -621,8 +862,13 @@ class TiPD(Model):
 
     def energy_density(self, state):
         f = self.family
-        return tipd_energy_kernel(f.offsets, f.neighbors, self.q_bc, self.A, self.system.x0,
-                                  state.y, state.intact, self.dim)
+        W = tipd_energy_kernel(f.offsets, f.neighbors, self.q_bc, self.A, self.system.x0,
+                               state.y, state.intact, self.dim)
+        if self.surface != "none":
+            d = self.dim
+            H = self.surface_gradient(state)[:, :d, :d]
+            W = W + 0.5 * np.einsum("npa,npaqb,nqb->n", H, self.Delta_n, H)
+        return W
 
     def tangent(self, state=None):
         """Assembled stiffness ``K = -dF_int/dy`` (scipy.sparse CSR (3N, 3N), N/m); the
@@ -641,17 +887,51 @@ class TiPD(Model):
                 rows += [3 * i + p, 3 * i + p]
                 cols += [3 * j + r, 3 * i + r]
                 vals += [-v, v]
-        return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                             shape=(3 * n, 3 * n))
+        K = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(3 * n, 3 * n))
+        if self.surface != "none":
+            K = K + self._surface_stiffness()
+        return K
+
+    def _surface_stiffness(self):
+        """``-V Bs Delta G`` of the correction (correspondence factors, Delta block-diagonal)."""
+        import scipy.sparse as sp
+
+        from upscale.models.correspondence import gradient_operators
+
+        fam, d, n = self.family, self.dim, self.system.n
+        dd = d * d
+        G, Bs = gradient_operators(fam, self._cw_b, self._cKinv, d)
+        blk = self.Delta_n.reshape(n, dd, dd)
+        r = (np.arange(n)[:, None, None] * dd + np.arange(dd)[None, :, None]) + 0 * np.arange(dd)[None, None, :]
+        c = (np.arange(n)[:, None, None] * dd + np.arange(dd)[None, None, :]) + 0 * np.arange(dd)[None, :, None]
+        Db = sp.csr_matrix((blk.ravel(), (r.ravel(), c.ravel())), shape=(n * dd, n * dd))
+        Vd = sp.diags(np.repeat(self.system.volume, 3))
+        return (-(Vd @ (Bs @ Db @ G))).tocsr()
 
     def stiffness_bound(self):
-        """Gershgorin row bound (N/m^4): ``2 sum_j max_p sum_r |M_b,pr|``."""
+        """Gershgorin row bound (N/m^4): ``2 sum_j max_p sum_r |M_b,pr|`` (plus the surface
+        correction's correspondence bound, as in
+        :meth:`upscale.models.correspondence.Correspondence.stiffness_bound`)."""
         f = self.family
         M = np.abs(self.bond_matrices()).sum(axis=2).max(axis=1)
-        return 2.0 * np.bincount(f.owner, weights=M, minlength=f.n)
+        R = 2.0 * np.bincount(f.owner, weights=M, minlength=f.n)
+        if self.surface != "none":
+            d = self.dim
+            i, j = f.owner, f.neighbors
+            Kinv = self._cKinv[:, :d, :d]
+            xi = f.xi[:, :d]
+            g = np.abs(self._cw_b[:, None] * np.einsum("kab,kb->ka", Kinv[i], xi)).sum(1)
+            gp = np.abs(self._cw_b[:, None] * np.einsum("kab,kb->ka", Kinv[j], xi)).sum(1)
+            Gs = np.bincount(i, weights=g, minlength=f.n)
+            c = np.abs(self.Delta_n.reshape(f.n, d * d, d * d)).sum(2).max()
+            R = R + c * np.bincount(i, weights=g * 2 * Gs[i] + gp * 2 * Gs[j], minlength=f.n)
+        return R
 
     def describe(self):
         d = {"model": self.name, "calibration": self.calibration, "critical": self.critical,
+             "surface": self.surface,
+             "kernel": "pair" if getattr(self, "_pair", self.kernel == "pair") else "bond",
              "s0": None if np.isinf(self.s0) else self.s0}
         if self.E is not None:
             d.update(E_Pa=self.E, nu=self.nu)

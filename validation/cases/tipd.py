@@ -197,12 +197,18 @@ def tipd_mms(args):
     for dim, dxs, dxn in ((2, dx2, dx2_nosb), (3, dx3, dx3_nosb)):
         for (mod, cal, stab) in variants:
             for dx in (dxs if mod == "tipd" else dxn):
-                jobs.append((dim, mod, cal, stab, dx))
-    for dim, mod, cal, stab, dx in tqdm(jobs, desc="tipd-mms solves"):
-        r = mms(mod, dim=dim, dx=dx, calibration=cal or "discrete", stabilisation=stab)
+                jobs.append((dim, mod, cal, stab, dx, "none"))
+    for cal in ("discrete", "continuum"):      # Ti-PD with the surface correction, 2D
+        jobs += [(2, "tipd", cal, None, dx, "correspondence") for dx in dx2 if dx >= 0.00625]
+    # bond-associated NOSB (2D, assembled stiffness)
+    jobs += [(2, "nosb", None, "bond-associated", dx, "none") for dx in dx2_nosb if dx >= 0.00625]
+    for dim, mod, cal, stab, dx, surf in tqdm(jobs, desc="tipd-mms solves"):
+        ba = stab == "bond-associated"
+        r = mms(mod, dim=dim, dx=dx, calibration=cal or "discrete", stabilisation=None if ba else stab,
+                surface=surf, bond_associated=ba)
         r["label"] = mod if mod == "tipd" else ("nosb" if stab is None else f"nosb-{stab}")
         if mod == "tipd":
-            r["label"] += f"-{cal}"
+            r["label"] += f"-{cal}" + ("-surface" if surf != "none" else "")
         runs.append(r)
     rows = [{"dim": r["dim"], "model": r["label"], "dx": r["dx_m"], "particles": r["particles"],
              "rel_L2": r["rel_l2"], "oscillation": r["oscillation"], "wall_s": r["wall_time_s"]}
@@ -228,11 +234,17 @@ def tipd_mms(args):
     cont = get(2, "tipd-continuum", 0.005) or get(2, "tipd-continuum", fin2)
     fin_n = min(dx2_nosb)
     osc = {lab: get(2, lab, fin_n)["oscillation"] for lab in ("nosb", "nosb-silling", "nosb-wan")}
+    fin_ba = min(dx for dx in dx2_nosb if dx >= 0.00625)
+    ba_cmp = {lab: {"rel_l2": get(2, lab, fin_ba)["rel_l2"], "oscillation": get(2, lab, fin_ba)["oscillation"]}
+              for lab in ("nosb", "nosb-silling", "nosb-wan", "nosb-bond-associated")}
     res = {"order_discrete_2d": orders["tipd-discrete_2d"],
            "rel_l2_discrete_2d_finest": min(r["rel_l2"] for r in d2),
            "dx_finest_2d_m": fin2,
            "rel_l2_continuum_2d": cont["rel_l2"], "rel_l2_continuum_2d_dx_m": cont["dx_m"],
            "order_discrete_3d": orders["tipd-discrete_3d"],
+           "order_discrete_2d_surface": orders["tipd-discrete-surface_2d"],
+           "order_nosb_bond_associated_2d": orders["nosb-bond-associated_2d"],
+           "bond_associated_vs_nosb_at_dx": {"dx_m": fin_ba, **ba_cmp},
            "orders": orders,
            "oscillation_2d_at_dx": {"dx_m": fin_n, **osc},
            "rel_l2_2d_at_dx": {"dx_m": fin_n, **{lab: get(2, lab, fin_n)["rel_l2"]
@@ -278,11 +290,14 @@ def tipd_poisson(args):
     inputs = {"0.1": 0.1, "0.25": 0.25, "1/3": 1 / 3}
     ortho = orthotropic_voigt_2d(144.8e9, 11.7e9, 9.66e9, 0.21)
     rows = []
-    app = {"tipd": {}, "tipd-continuum": {}, "lps": {}, "nosb": {}, "nosb-wan": {}}
+    app = {"tipd": {}, "tipd-continuum": {}, "tipd-continuum-surface": {}, "tipd-surface": {},
+           "lps": {}, "nosb": {}, "nosb-wan": {}}
     appE = {k: {} for k in app}
     for key, nu in list(inputs.items()) + [("orthotropic", None)]:
         for lab, mod, stab, cal in (("tipd", "tipd", None, "discrete"),  # keyed 'tipd': the discrete calibration
                                     ("tipd-continuum", "tipd", None, "continuum"),
+                                    ("tipd-continuum-surface", "tipd", None, "continuum"),
+                                    ("tipd-surface", "tipd", None, "discrete"),
                                     ("lps", "lps", None, None), ("nosb", "nosb", None, None),
                                     ("nosb-wan", "nosb", "wan", None)):
             if key == "orthotropic" and mod == "lps":
@@ -290,6 +305,8 @@ def tipd_poisson(args):
                 appE[lab][key] = None
                 continue
             kw = {"C": ortho} if key == "orthotropic" else {"E": E, "nu": nu}
+            if lab.endswith("-surface"):
+                kw["surface"] = "correspondence"
             r = strip(mod, nx=nx, ny=ny, stabilisation=stab, calibration=cal or "discrete", **kw)
             app[lab][key] = r["nu_apparent"]
             Ein = 144.8e9 if key == "orthotropic" else E
@@ -312,9 +329,19 @@ def tipd_poisson(args):
                 if dim == 3 and abs(nu - 0.3) < 1e-12:
                     neg3 = neg3 or {}
                     neg3[cal] = r["negative"]
+    for dim, nus in ((2, (0.1, 0.25, 1 / 3, 0.4)), (3, (0.1, 0.25, 0.3))):
+        for nu in nus:
+            r = eigen_counts("tipd", dim=dim, nu=nu, calibration="continuum", surface="correspondence",
+                             n=(8 if dim == 2 else 4) if args.quick else None)
+            erows.append({"dim": dim, "model": "tipd continuum + surface", "nu": nu, "zero": r["zero"],
+                          "negative": r["negative"], "rigid": r["rigid_modes"],
+                          "min/max": r["min_over_max"]})
     r = eigen_counts("tipd", dim=2, C=ortho, n=8 if args.quick else None)
     erows.append({"dim": 2, "model": "tipd ortho", "nu": 0.21, "zero": r["zero"], "negative": r["negative"],
                   "rigid": 3, "min/max": r["min_over_max"]})
+    r = eigen_counts("tipd", dim=2, C=ortho, n=8 if args.quick else None, surface="correspondence")
+    erows.append({"dim": 2, "model": "tipd ortho + surface", "nu": 0.21, "zero": r["zero"],
+                  "negative": r["negative"], "rigid": 3, "min/max": r["min_over_max"]})
     for stab in (None, "wan"):
         r = eigen_counts("nosb", dim=2, nu=0.25, stabilisation=stab, n=8 if args.quick else None)
         erows.append({"dim": 2, "model": f"nosb {stab}", "nu": 0.25, "zero": r["zero"],
@@ -322,16 +349,21 @@ def tipd_poisson(args):
     print("free-body stiffness eigenvalues (threshold 1e-10 of the largest)")
     print(table(erows, ["dim", "model", "nu", "zero", "negative", "rigid", "min/max"], ".3g"))
     rrows = []
-    for mod, nu, cal in (("tipd", 1 / 3, "continuum"), ("tipd", 1 / 3, "discrete"),
-                         ("tipd", 0.2, "continuum"), ("tipd", 0.2, "discrete"),
-                         ("pmb", None, None), ("lps", 0.2, None)):
-        r = rotation(mod, nu=nu, angle=0.002, calibration=cal or "discrete")
-        rrows.append({"model": mod if cal is None else f"{mod} {cal}", "nu": nu, "dL/L": r["dL_over_L"],
+    for mod, nu, cal, surf in (("tipd", 1 / 3, "continuum", "none"), ("tipd", 1 / 3, "discrete", "none"),
+                               ("tipd", 0.2, "continuum", "none"), ("tipd", 0.2, "discrete", "none"),
+                               ("tipd", 0.2, "continuum", "correspondence"),
+                               ("tipd", 0.2, "discrete", "correspondence"),
+                               ("pmb", None, None, "none"), ("lps", 0.2, None, "none")):
+        r = rotation(mod, nu=nu, angle=0.002, calibration=cal or "discrete", surface=surf)
+        lab = mod if cal is None else f"{mod} {cal}" + (" + surface" if surf != "none" else "")
+        rrows.append({"model": lab, "nu": nu, "dL/L": r["dL_over_L"],
                       "strain energy / kinetic": r["strain_energy_over_kinetic"], "steps": r["steps"]})
     print("free 10 x 10 body spun at 1000 rad/s through 0.002 rad (velocity Verlet)")
     print(table(rrows, ["model", "nu", "dL/L", "strain energy / kinetic", "steps"], ".3e"))
     lps_err = max(abs(app["lps"][k] - v) for k, v in inputs.items())
     res = {"apparent_nu_tipd": app["tipd-continuum"], "apparent_nu_tipd_discrete": app["tipd"],
+           "apparent_nu_tipd_surface": app["tipd-continuum-surface"],
+           "apparent_nu_tipd_discrete_surface": app["tipd-surface"],
            "apparent_nu_lps": app["lps"],
            "apparent_nu_nosb": app["nosb"], "apparent_nu_nosb_wan": app["nosb-wan"],
            "apparent_E_over_input": appE, "negative_eigs_3d_nu0.3": neg3["continuum"],
@@ -401,6 +433,25 @@ def tipd_hole(args):
                 res[f"ux_l2_err_pct_{mat}"] = ex
                 res[f"uy_edges_l2_err_pct_{mat}"] = ey
                 curves[mat] = (up, uf, np.asarray(r["mid_xy_m"]))
+        for dx in dxs:        # the surface correction (module docstring of upscale.models.tipd)
+            r = hole("tipd", material=mat, dx=dx, surface="correspondence")
+            smp = F["samples"][f"{dx:g}"]
+            try:
+                up, uf = _match(r["mid_xy_m"], r["mid_u_m"], smp["mid"])
+                ex = float(100 * np.linalg.norm(up[:, 0] - uf[:, 0]) / np.linalg.norm(uf[:, 0]))
+            except (ValueError, IndexError):
+                ex = None
+            ue, ufe = _match(r["edge_xy_m"], r["edge_u_m"], smp["edge"])
+            ey = float(100 * np.linalg.norm(ue[:, 1] - ufe[:, 1]) / np.linalg.norm(ufe[:, 1]))
+            line = F["sigma_xx_over_gross_on_x0"]
+            kt_fe_pt = float(np.interp(r["Kt_point_m"][1], line["y_m"], line["value"]))
+            kt_pd.setdefault(f"{mat}_surface", []).append(r["Kt"])
+            rows.append({"material": mat, "model": "tipd+surface", "dx_mm": dx * 1e3, "ux_L2_err_%": ex,
+                         "uy_edges_L2_err_%": ey, "Kt_pd": r["Kt"], "Kt_fe_same_point": kt_fe_pt,
+                         "reaction_pd/fe": r["reaction_N"] / F["reaction_N"][-1], "wall_s": r["wall_time_s"]})
+            if np.isclose(dx, dx_cmp):
+                res[f"ux_l2_err_pct_{mat}_surface"] = ex
+                res[f"uy_edges_l2_err_pct_{mat}_surface"] = ey
         if mat == "ortho":
             for stab in (None, "silling", "wan"):
                 r = hole("nosb", material=mat, dx=1e-3, stabilisation=stab)
@@ -427,6 +478,7 @@ def tipd_hole(args):
     _plot_hole(curves, args.outdir)
     res.update({"Kt_fem_iso": fem["materials"]["iso"]["Kt"][-1], "Kt_fem_ortho": fem["materials"]["ortho"]["Kt"][-1],
                 "Kt_pd_iso": kt_pd["iso"], "Kt_pd_ortho": kt_pd["ortho"], "Kt_pd_dx_m": dxs,
+                "Kt_pd_iso_surface": kt_pd["iso_surface"], "Kt_pd_ortho_surface": kt_pd["ortho_surface"],
                 "Kt_fem_large_iso": fem["materials"]["iso"]["Kt_large_plate_1200x600mm"],
                 "Kt_fem_large_ortho": fem["materials"]["ortho"]["Kt_large_plate_1200x600mm"],
                 "Kt_kirsch": kirsch_kt(), "Kt_lekhnitskii": lekhnitskii_kt(),
@@ -488,24 +540,32 @@ def _bench_tipd(args):
     load0 = os.getloadavg()[0]
     grids = [300] if args.quick else [300, 600, 1200]
     steps_run = {300: 200 if args.quick else 1000, 600: 100, 1200: 40}
-    rows, speed = [], []
-    jobs = [(nx, lab) for nx in grids for lab in ("tipd", "nosb", "nosb-silling")]
-    for nx, lab in tqdm(jobs, desc="bench-tipd"):
+    rows, speed, before = [], [], {}
+    # "bond": the directed-bond force loops (each pair twice), "pair": the half-pair loops;
+    # both in this one run, interleaved, so that they see the same load
+    jobs = [(nx, lab, ker) for nx in grids for lab in ("tipd", "nosb", "nosb-silling")
+            for ker in ("bond", "pair")]
+    for nx, lab, ker in tqdm(jobs, desc="bench-tipd"):
         stab = "silling" if lab == "nosb-silling" else None
         r = hole_adr("nosb" if lab.startswith("nosb") else "tipd", nx=nx, steps=steps_run[nx],
-                     stabilisation=stab)
+                     stabilisation=stab, kernel=ker)
         per_step = r["adr_cpu_s"] / r["steps"]
         t4000 = 4000 * per_step
         paper = PAPER_TABLE1_S[nx][lab]
-        speed.append(paper / t4000)
-        rows.append({"grid": f"{nx}x{nx // 3}", "model": lab, "particles": r["particles"],
+        if ker == "pair":
+            speed.append(paper / t4000)
+        else:
+            before[(nx, lab)] = per_step
+        rows.append({"grid": f"{nx}x{nx // 3}", "model": lab, "kernel": ker, "particles": r["particles"],
                      "steps_run": r["steps"], "cpu_per_step_s": per_step, "4000_steps_s": t4000,
                      "paper_s": paper, "speedup": paper / t4000,
+                     "bond/pair": before[(nx, lab)] / per_step if ker == "pair" else None,
                      "wall/cpu": r["adr_wall_s"] / r["adr_cpu_s"]})
     print("ADR on the orthotropic plate with a hole (grips clamped), one thread; 4000-step time = "
-          "4000 x the measured CPU time per step")
-    print(table(rows, ["grid", "model", "particles", "steps_run", "cpu_per_step_s", "4000_steps_s",
-                       "paper_s", "speedup", "wall/cpu"], ".4g"))
+          "4000 x the measured CPU time per step; kernel 'bond' = directed-bond loops, 'pair' = "
+          "half-pair loops (the default)")
+    print(table(rows, ["grid", "model", "kernel", "particles", "steps_run", "cpu_per_step_s",
+                       "4000_steps_s", "paper_s", "speedup", "bond/pair", "wall/cpu"], ".4g"))
     # Ti-PD step against a PMB step on the same body (CPU time, interleaved repeats)
     s, _, _ = hole_body(0.5e-3)
     fam = build_family(s, 1.5e-3 * (1 + 1e-9))
@@ -530,7 +590,9 @@ def _bench_tipd(args):
           f"PMB {np.median(times['pmb']):.4g} s, ratio {ratio:.3f} (median of 7 interleaved CPU-time repeats)")
     load1 = os.getloadavg()[0]
     print(f"load average {load0:.1f} -> {load1:.1f} on {os.cpu_count()} cores")
-    res = {"speedup_vs_paper_min": float(min(speed)), "tipd_step_over_pmb": ratio, "rows": rows,
+    res = {"speedup_vs_paper_min": float(min(speed)),
+           "speedup_vs_paper_min_bond_kernel": float(min(r["speedup"] for r in rows if r["kernel"] == "bond")),
+           "tipd_step_over_pmb": ratio, "rows": rows,
            "load_average": [load0, load1], "cpu_count": os.cpu_count(),
            "note": "4000-step times extrapolated from the measured CPU time per ADR step"}
     res["pass"] = bool(min(speed) >= 10 and ratio <= 1.5)
