@@ -58,6 +58,8 @@ class TersoffModel(Model):
         Neighbour-list skin, Å (default 1.0).
     nthreads : int, optional
         numba threads of the kernel (default: numba's current setting).
+    period_z : float, optional
+        Periodic along z with this period, Å (a periodic tube; default open boundaries).
     """
 
     name = "tersoff"
@@ -65,8 +67,14 @@ class TersoffModel(Model):
     force_kind = "particle"
 
     def __init__(self, potential: str = "BNC.tersoff", elements=("C",), *, types=None,
-                 step_cutoff: bool = True, skin: float = 1.0, nthreads: int | None = None):
-        check_positive(skin=skin)
+                 step_cutoff: bool = True, skin: float = 1.0, nthreads: int | None = None,
+                 period_z: float | None = None):
+        check_positive(skin=skin, period_z=period_z)
+        self.period_z = None if period_z is None else float(period_z)
+        if self.period_z is None:
+            self._cell, self._pbc = _NOCELL, _OPEN
+        else:
+            self._cell, self._pbc = np.diag([1.0, 1.0, self.period_z]), (False, False, True)
         self.parameters = read_tersoff_file(potential, list(elements)).with_step_cutoff(
             bool(step_cutoff))
         self.potential = str(potential)
@@ -101,9 +109,9 @@ class TersoffModel(Model):
         last = self._last
         if last is not None and last[0].shape == y.shape and np.array_equal(last[0], y):
             return last[1]
-        self.nl.update(y, _NOCELL, _OPEN)
+        self.nl.update(y, self._cell, self._pbc)
         nt = self.nthreads or numba.get_num_threads()
-        out = tk.tersoff(y, _NOCELL, self.nl.first_n, self.nl.j_b, self.nl.shift_bc,
+        out = tk.tersoff(y, self._cell, self.nl.first_n, self.nl.j_b, self.nl.shift_bc,
                          self.types, self._e2p, self._P, float(self.cutoff), int(nt))
         self._last = (y.copy(), out)
         return out
@@ -128,7 +136,7 @@ class TersoffModel(Model):
     def describe(self) -> dict:
         return {"model": self.name, "potential": self.potential,
                 "elements": list(self.parameters.elements), "step_cutoff": self.step_cutoff,
-                "cutoff_A": self.cutoff}
+                "cutoff_A": self.cutoff, "period_z_A": self.period_z}
 
 
 def initial_bonds(x, bond_cutoff: float = 2.0) -> np.ndarray:

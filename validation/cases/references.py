@@ -92,7 +92,7 @@ def build_structure(spec):
     n, m = spec["chirality"]
     if spec.get("ntubes", 1) > 1:
         atoms = bundle(n, m, spec["length"], ntubes=spec["ntubes"],
-                       spacing=spec.get("spacing", "vdw"))
+                       spacing=spec.get("spacing", "vdw"), gap=spec.get("gap", 3.4))
     else:
         atoms = swcnt(n, m, spec["length"])
     if spec.get("vacancy"):
