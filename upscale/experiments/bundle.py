@@ -62,6 +62,9 @@ TUBE_MODELS = ("tersoff", "dcbr", "dcbr-defect")
 LJ_EPSILON_EV, LJ_SIGMA_A = 2.84e-3, 3.4   # the references' pair (Girifalco et al. 2000)
 LJ_CUTOFF_A = 3.0 * LJ_SIGMA_A
 LATTICE_A = 1.42 * math.sqrt(3.0)           # graphene lattice constant of the builder
+#: half-width (Å) of the atomistic band of a pristine coarse tube (``dcbr``): the coarse
+#: tube model carries one; 1 Å rounds out to one row of whole particle cells
+PRISTINE_BAND_A = 1.0
 #: an atom's mass in the scene's units (eV, Å, fs: amu / (Å/fs^2 per eV/(Å amu)))
 ATOM_MASS = CARBON_MASS_AMU / ACC_EV_A_AMU_IN_A_FS2
 
@@ -217,38 +220,53 @@ class BundleScene:
         from upscale.models.tersoff import TersoffModel
         from upscale.models.tube_vdw import AtomisticMap, TubeVdW
 
+        from upscale.models.tube_vdw import CoarseTubeMap
+
         mol = atoms.arrays["mol-id"]
-        bodies, maps, row = [], [], 0
+        bodies, coarse, prepared = [], {}, {}
+        zc_all = float(atoms.get_positions()[mol == 1, 2].mean())
         for k, s in enumerate(specs):
             name = f"tube{k + 1}"
             if s.model == "tersoff":
                 x = atoms.get_positions()[mol == k + 1]
                 bodies.append(Body(ParticleSystem(x, 1.0, ATOM_MASS, spacing=1.42),
                                    None, [TersoffModel()], name=name))
-                maps.append(AtomisticMap(slice(row, row + len(x))))
-                row += len(x)
             else:
-                body, cmap = _coarse_body(s, atoms, k, row, ratios, vacancy_tube == k)
-                bodies.append(body)
-                maps.append(cmap)
-                row += body.system.n
+                c = np.asarray(atoms.info["tube_centres"][k], dtype=float)
+                em, st = _coarse_model((n, m), length, s,
+                                       vacancy_tube == k, grip, c, zc_all, prepared)
+                coarse[k] = (em, st)
+                bodies.append(em.body(name))
+        assembly = assemble(bodies)
+        maps, conds = [], []
+        for k, b in enumerate(bodies):
+            rows = assembly.rows(b.name)
+            if k not in coarse:
+                maps.append(AtomisticMap(rows))
+                continue
+            em, st = coarse[k]
+            bm = next(mm for mm in assembly.models if getattr(mm, "body", None) is b)
+            natoms = int(len(em.tube.X_atoms) - em.tube.removed.sum())
+            maps.append(CoarseTubeMap(bm, natoms, field=f"{b.name}/{_FIELD}"))
+            conds += em.conditions(assembly.system.n, rows.start, field=f"{b.name}/{_FIELD}",
+                                   prefix=f"{b.name} ")
         vdw = TubeVdW(maps, epsilon, sigma, rc=rc)
-        assembly = assemble(bodies, interactions=[vdw])
+        assembly.models.append(vdw)
         info = {"chirality": [n, m], "length_A": float(atoms.info["length"]),
                 "spacing": spacing, "wall_gap_A": float(atoms.info["wall_gap"]),
                 "ratios": ratios, "grip_A": grip, "vacancy_tube": vacancy_tube,
                 "tubes": [dataclasses.asdict(s) for s in specs],
-                "n_atoms": len(atoms), "atoms_per_tube": np.bincount(mol)[1:].tolist()}
+                "n_atoms": len(atoms), "atoms_per_tube": np.bincount(mol)[1:].tolist(),
+                "_conditions": conds, "_coarse": coarse}
         return cls(atoms, specs, bodies, assembly, vdw, maps, info)
 
     # ------------------------------------------------------------------ states
     def state_at_rest(self):
-        """The assembled reference state with every model prepared (forces at rest)."""
-        st = self.assembly.reference_state()
-        for mdl in self.assembly.models:
-            mdl.prepare(self.assembly.system)
-            mdl.init_state(st)
-        return st
+        """The assembled state at the scene's start (atomistic tubes on the zero-stress
+        lattice, coarse tubes as their set-up left them) with every model prepared."""
+        sim = self.assembly.simulation(conditions=self.extra_conditions())
+        sim.apply_displacement(0.0, None)
+        return sim.state
 
     def atoms_at_rest(self):
         """The bundle's ase.Atoms at the scene's starting lattice, open boundaries (for
@@ -278,12 +296,24 @@ class BundleScene:
 
     @property
     def dof(self) -> int:
-        """Degrees of freedom of the scene: 3 per particle plus the models' fields."""
+        """Degrees of freedom: 3 per atom of an atomistic tube; a coarse tube's unknowns
+        (non-slave particles and free atoms, 3 each) and its particles' shifts (3 each)."""
         total = 0
-        for b in self.bodies:
-            dof = getattr(b.models[0], "dof", None)
-            total += int(dof) if dof is not None else 3 * b.system.n
+        for k, b in enumerate(self.bodies):
+            if k in self.info["_coarse"]:
+                em = self.info["_coarse"][k][0]
+                total += 3 * (em.nd + em.nf) + 3 * em.N
+            else:
+                total += 3 * b.system.n
         return total
+
+    def coarse_models(self):
+        """``[(tube index, BodyModel, set-up dict)]`` of the coarse tubes."""
+        out = []
+        for k, (em, st) in self.info["_coarse"].items():
+            bm = next(mm for mm in self.assembly.models if getattr(mm, "model", None) is em)
+            out.append((k, bm, st))
+        return out
 
 
 def _check_overlap(atoms, sigma, allow):
@@ -324,14 +354,45 @@ def _prescale(atoms, ratios):
 
 
 def _atoms_per_particle(body):
-    n = getattr(body.models[0], "atoms_per_particle", None)
-    if n is None:
-        return np.ones(body.system.n)
-    return np.asarray(n, dtype=float)
+    em = body.models[0]
+    return np.r_[np.asarray(em.tube.natoms_n, dtype=float), np.ones(em.nf)]
 
 
-def _coarse_body(spec, atoms, k, row, ratios, has_vacancy):
-    raise NotImplementedError("coarse tube bodies: pending the coarse engine model")
+_FIELD = "dcbr.delta"  # the coarse tube model's shift field (upscale.models.dcbr_engine)
+
+
+def _coarse_model(chirality, length, spec, has_vacancy, grip, centre, z_mid, prepared):
+    """A coarse tube (``DCBRDefectTube``: ``dcbr`` a pristine tube whose atomistic region is
+    one row of particle cells in the middle, ``dcbr-defect`` the 4-atom vacancy with a
+    region of ``spec.r_atomistic``), opened and relaxed with clamped grips in its own frame
+    (:func:`upscale.models.dcbr_dynamic.open_tube_with_grips`), then placed with its axis
+    on ``centre`` and its middle at ``z_mid``, as an engine model. Identical tubes are set
+    up once (``prepared``) and copied."""
+    import copy
+
+    from upscale.models.dcbr_defect import DCBRDefectTube
+    from upscale.models.dcbr_dynamic import open_tube_with_grips
+    from upscale.models.dcbr_engine import DCBRDefectTubeModel
+
+    n, m = chirality
+    defect = spec.model == "dcbr-defect"
+    vac = 4 if (defect and has_vacancy) else 0
+    r_at = spec.r_atomistic if defect else PRISTINE_BAND_A
+    key = (n, m, round(length, 6), spec.coarsening, vac, r_at, grip)
+    if key not in prepared:
+        tube = DCBRDefectTube(n, m, length, coarsening=spec.coarsening, vacancy=vac,
+                              r_atomistic=r_at)
+        st = open_tube_with_grips(tube, grip=grip, clamp=True)
+        prepared[key] = (tube, st)
+    tube, st = copy.deepcopy(prepared[key])
+    y = st["y"].copy()
+    shift = np.array([centre[0], centre[1], 0.0])
+    nd = len(tube.dof_idx)
+    xa = np.vstack([y[nd:], tube.mapped_atoms(y, st["delta"], st["L0"], tube.atom_map())])
+    shift[2] = z_mid - float(xa[:, 2].mean())  # its atoms' middle on the central tube's
+    em = DCBRDefectTubeModel(tube, y=y + shift, delta=st["delta"], Lz=st["L0"])
+    st = dict(st, shift=shift)
+    return em, st
 
 
 # ---------------------------------------------------------------------- dynamic tension
@@ -354,14 +415,31 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
     grip = scene.info["grip_A"] if grip is None else float(grip)
     asm = scene.assembly
     system = asm.system
-    # 1. the open bundle minimised (every body and the vdW)
-    sim0 = asm.simulation()
+    n = system.n
+    coarse = scene.coarse_models()
+    # 1. the open bundle minimised: the atomistic tubes and the vdW (the coarse tubes were
+    # relaxed with their clamped grips at set-up, and are held here: their slave ties are
+    # kinematic conditions a minimiser does not carry along)
+    from upscale.engine.conditions import Fixed
+
+    hold = np.zeros(n, bool)
+    for k, bm, st in coarse:
+        hold[bm.rows] = True
+    conds0 = list(scene.extra_conditions())
+    if hold.any():
+        conds0.append(Fixed(Region("coarse tubes", hold)))
+    sim0 = asm.simulation(conditions=conds0)
     t_min0 = time.perf_counter()
-    res_min = sim0.minimise(LBFGS(ftol=ftol, max_iter=20000), raise_on_fail=False)
+    res_min = sim0.minimise(LBFGS(ftol=ftol, max_iter=20000), raise_on_fail=False) \
+        if not hold.all() else None
     t_min = time.perf_counter() - t_min0
     y = sim0.state.y.copy()
-    # grips: every particle beyond a plane `grip` inside the bundle's end atoms
-    zmin, zmax = float(y[:, 2].min()), float(y[:, 2].max())
+    # grips: the atomistic tubes' atoms beyond a plane `grip` inside the bundle's end atoms
+    # (LAMMPS's), the coarse tubes' rows their own set-up clamped
+    atomistic = np.ones(n, bool)
+    atomistic[hold] = False
+    za = y[atomistic, 2] if atomistic.any() else y[:, 2]
+    zmin, zmax = float(za.min()), float(za.max())
     zb, zt = zmin + grip, zmax - grip
     sep0 = zt - zb
     if sep0 < 10.0:
@@ -370,38 +448,60 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
     v = speed * 1e-3                        # Å/fs (the scene's time unit is the fs)
     dt = float(dt_fs)
     tubes = [asm.rows(b.name) for b in scene.bodies]
-    grips, bot_mask, top_mask = [], np.zeros(system.n, bool), np.zeros(system.n, bool)
+    coarse_of = {k: (bm, st) for k, bm, st in coarse}
+    grips, bot_mask, top_mask = [], np.zeros(n, bool), np.zeros(n, bool)
+    slave = np.zeros(n, bool)
     for k, rows in enumerate(tubes):
-        zk = np.zeros(system.n, bool)
-        zk[rows] = True
-        b = zk & (y[:, 2] < zb)
-        t = zk & (y[:, 2] > zt)
+        b, t = np.zeros(n, bool), np.zeros(n, bool)
+        if k in coarse_of:
+            bm, st = coarse_of[k]
+            em = bm.model
+            b[rows.start + em.y_rows[st["bottom"]]] = True
+            t[rows.start + em.y_rows[st["top"]]] = True
+            slave[rows.start + em.tube.slave_idx] = True
+        else:
+            zk = np.zeros(n, bool)
+            zk[rows] = True
+            b = zk & (y[:, 2] < zb)
+            t = zk & (y[:, 2] > zt)
         bot_mask |= b
         top_mask |= t
-        grips.append((Grip(Region(f"bot{k + 1}", b), velocity=(0.0, 0.0, -v),
-                           u0=(0, 0, 0), record_every=0),
-                      Grip(Region(f"top{k + 1}", t), velocity=(0.0, 0.0, v),
-                           u0=(0, 0, 0), record_every=0)))
+        gb = Grip(Region(f"bot{k + 1}", b), velocity=(0.0, 0.0, -v), record_every=0)
+        gt = Grip(Region(f"top{k + 1}", t), velocity=(0.0, 0.0, v), record_every=0)
+        grips.append((gb, gt))
     free = ~(bot_mask | top_mask)
-    # the grips' prescribed path starts from the minimised positions: u0 = y - x0
+    # the grips' prescribed path starts where the minimisation left them: u0 = y - x0
     x0 = system.x0
     for gb, gt in grips:
         for g, vz in ((gb, -v), (gt, v)):
             idx = g.region.index
             u0 = (y[idx] - x0[idx])
             g.value = (lambda t, _u=u0, _v=vz: _u + np.array([0.0, 0.0, _v]) * t)
-    # 2. velocities: ramp + Gaussian thermal (x, y temperature exactly T, zero momentum)
+    # 2. velocities: ramp + Gaussian thermal (x, y temperature exactly T, zero momentum);
+    # the coarse tubes' shifts thermal too (their reduced masses), slaves follow their atoms
     rng = np.random.default_rng(seed)
     mass = system.mass
-    vel = np.zeros((system.n, 3))
+    vel = np.zeros((n, 3))
+    moving = free & ~slave
+    fields = [f"{scene.bodies[k].name}/{_FIELD}" for k in coarse_of]
+    field_v = {}
     if temperature > 0:
-        vel[free] = rng.normal(size=(int(free.sum()), 3)) * np.sqrt(
-            K_B_EV * temperature / mass[free])[:, None]
-        p = (mass[free, None] * vel[free]).sum(axis=0) / mass[free].sum()
-        vel[free] -= p
-        Txy = (mass[free, None] * vel[free, :2] ** 2).sum() / (2 * free.sum() * K_B_EV)
-        vel[free] *= math.sqrt(temperature / Txy)
-    vel[free, 2] += -v + 2 * v * (y[free, 2] - zb) / sep0
+        vel[moving] = rng.normal(size=(int(moving.sum()), 3)) * np.sqrt(
+            K_B_EV * temperature / mass[moving])[:, None]
+        p = (mass[moving, None] * vel[moving]).sum(axis=0) / mass[moving].sum()
+        vel[moving] -= p
+        Txy = (mass[moving, None] * vel[moving, :2] ** 2).sum() / (2 * moving.sum() * K_B_EV)
+        vel[moving] *= math.sqrt(temperature / Txy)
+        for k, (bm, st) in coarse_of.items():
+            em = bm.model
+            md = em.fields()[_FIELD].inertia[:em.N]
+            vd = np.zeros((n, 3))
+            r0 = tubes[k].start
+            vd[r0:r0 + em.N] = rng.normal(size=(em.N, 3)) * np.sqrt(
+                K_B_EV * temperature / md)[:, None]
+            vd[r0 + em.tube.slave_idx] = 0.0
+            field_v[f"{scene.bodies[k].name}/{_FIELD}"] = vd
+    vel[free, 2] += np.clip(-v + 2 * v * (y[free, 2] - zb) / sep0, -v, v)
     vel[bot_mask, 2] = -v
     vel[top_mask, 2] = v
     conds = [g for pair in grips for g in pair]
@@ -410,12 +510,28 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
     if temperature > 0:
         from upscale.engine.thermostats import NoseHoover
 
+        # degrees of freedom: x, y of the moving rows, and the coarse tubes' free shifts
+        ndf = 2 * int(moving.sum()) + sum(3 * (bm.model.N - len(bm.model.tube.slave_idx))
+                                          for bm, _ in coarse_of.values())
+        frows = np.zeros(n, bool)
+        for k in coarse_of:
+            frows[tubes[k]] = True
         thermo = NoseHoover(temperature, 1e3 * tdamp_ps, region=free, components=(0, 1),
-                            k_B=K_B_EV)
-    sim = asm.simulation(conditions=conds, integrator=VelocityVerlet(dt, thermostat=thermo))
+                            fields=tuple(fields), field_region=frows if fields else None,
+                            ndf=ndf, k_B=K_B_EV)
+    sim = asm.simulation(conditions=conds,
+                         integrator=VelocityVerlet(dt, force=True, thermostat=thermo))
     sim.state.y[...] = y
     sim.state.v[...] = vel
     _copy_fields(sim0.state, sim.state)
+    for key, vd in field_v.items():
+        sim.state.field_v[key][...] = vd
+    for k, bm, st in coarse:  # slaves' velocities from their atoms
+        em = bm.model
+        r0 = tubes[k].start
+        if len(em.tube.slave_idx):
+            atoms_v = sim.state.v[r0 + em.N:r0 + em.N + em.nf]
+            sim.state.v[r0 + em.tube.slave_idx] = em.tube.Phi @ atoms_v
     R = _central_radius(scene, y)
     # 3. the pull
     strains, stresses, per_tube, times = [], [], [], []
@@ -424,6 +540,7 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
     t_dyn0 = time.perf_counter()
     nread = sample_every // 10
     snaps = []
+    broken_links: dict = {}
     step = 0
     try:
         while True:
@@ -436,6 +553,19 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
                     acc[k] += 0.5 * (-gb.reaction_now[2] + gt.reaction_now[2])
             step += sample_every
             Fk = acc / nread
+            if coarse:
+                strain_now = 2.0 * speed * step * dt_fs * 1e-3 / sep0
+                for k, bm, st in coarse:
+                    sub = bm.sub(sim.state)
+                    broken_links[k] = broken_links.get(k, 0) + bm.model.break_links(sub)
+                    tube = bm.model.tube
+                    tube.prepare_step(st["L0"] * (1.0 + strain_now))
+                    g = tube.ghost_correction
+                    if g is not None:  # the open tube's energy is called with L0
+                        g["Lz"] = float(st["L0"])
+                        tube.ghost_correction = g
+                    bm.model.store_ghost(sub)
+                sim.update_forces()
             tmid = (step - 0.5 * sample_every) * dt_fs * 1e-3
             eps = 2.0 * speed * tmid / sep0
             sk = [float(stress_from_force(f, R, WALL_THICKNESS_A, 1)) for f in Fk]
@@ -462,9 +592,11 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
                                "thermostat": f"Nose-Hoover on the free part's vx, vy, damping "
                                              f"{tdamp_ps} ps", "seed": seed,
                                "gauge_length_A": sep0, "sample_every_steps": sample_every,
-                               "minimisation": {"converged": bool(res_min.converged),
-                                                "fmax": float(res_min.fmax),
-                                                "iterations": int(res_min.iterations)}},
+                               "minimisation": None if res_min is None else {
+                                   "converged": bool(res_min.converged),
+                                   "fmax": float(res_min.fmax),
+                                   "iterations": int(res_min.iterations),
+                                   "coarse_tubes_held": bool(hold.any())}},
            "stress_convention": {"wall_thickness_A": WALL_THICKNESS_A, "radius_A": R,
                                  "area": "per tube 2 pi R t; bundle: mean over the tubes"},
            "curve": {"strain": strains, "stress_GPa": stresses,
@@ -473,6 +605,7 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
     res.update(tube_failures(strains, per_tube))
     res["damage"] = tube_damage(scene, sim, y)
     res["dof"] = scene.dof
+    res["coarse_links_broken"] = {int(k) + 1: int(v) for k, v in broken_links.items()}
     res["particles"] = int(system.n)
     res["timing_s"] = {"minimisation": t_min, "dynamics": t_dyn, "steps": step}
     res["wall_s"] = time.perf_counter() - t0
