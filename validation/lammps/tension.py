@@ -548,6 +548,7 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
                        seed=seed, ftol=ftol, max_steps=max_steps,
                        max_box_volume=max_box_volume)
     t0 = time.perf_counter()
+    c0 = time.process_time()  # CPU time of this process (LAMMPS runs in it): load-free
     pot = resolve_potential(potential, cutoff)
     relaxed, rinfo = relax_zero_stress(atoms, potential, cutoff, ftol, _pot=pot)
     t_periodic = time.perf_counter() - t0
@@ -705,6 +706,8 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
                    failure_note="run stopped: an atom thrown off the tube (box volume)")
     res["dump"] = str(dump) if dump is not None else None
     res["wall_s"] = time.perf_counter() - t0
+    res["cpu_s"] = time.process_time() - c0
+    res["load_avg_end"] = list(os.getloadavg())
     # where the time went: the periodic zero-stress relaxation (with the set-up), the open
     # tube's minimisation, and the pull (dynamics, sampling and dump)
     res["timing_s"] = {"zero_stress_relaxation": t_periodic, "open_tube_minimisation": t_open,
