@@ -103,3 +103,39 @@ def test_bad_input():
                            ratios=RATIOS)
     with pytest.raises(ValueError, match="coarsening 0.5"):
         TubeSpec("dcbr", 0.5)
+
+
+@pytest.mark.slow
+def test_mixed_bundle_vdw_and_chain_rule():
+    """Coarse outer tubes: the inter-tube energy through their reconstructed atoms is
+    within 1 % of the all-atomistic bundle's, and the vdW's generalised forces are minus
+    the energy's gradient (the chain rule through the coarse tube's map)."""
+    mixed = BundleScene.create((10, 10), 60.0, [TubeSpec("tersoff"), TubeSpec("dcbr", 2.0)],
+                               ratios=RATIOS, grip=15.0)
+    atom = BundleScene.create((10, 10), 60.0, [TubeSpec("tersoff")] * 2, ratios=RATIOS,
+                              grip=15.0)
+    sm, sa = mixed.state_at_rest(), atom.state_at_rest()
+    em, ea = mixed.vdw.energy(sm), atom.vdw.energy(sa)
+    assert abs(em - ea) < 0.01 * abs(ea)
+    F, G = mixed.vdw.generalised_forces(sm)
+    rows = mixed.assembly.rows("tube2")
+    key = "tube2/dcbr.delta"
+    h = 1e-5
+    checked = 0
+    for i in np.argsort(-np.abs(F[rows, 0]))[:3] + rows.start:
+        st = sm
+        st.y[i, 0] += h
+        ep = mixed.vdw.energy(st)
+        st.y[i, 0] -= 2 * h
+        emm = mixed.vdw.energy(st)
+        st.y[i, 0] += h
+        assert abs(-(ep - emm) / (2 * h) - F[i, 0]) < 1e-6 + 1e-4 * abs(F[i, 0])
+        checked += 1
+    j = int(np.argmax(np.abs(G[key][rows, 1]))) + rows.start
+    sm.fields[key][j, 1] += h
+    ep = mixed.vdw.energy(sm)
+    sm.fields[key][j, 1] -= 2 * h
+    emm = mixed.vdw.energy(sm)
+    sm.fields[key][j, 1] += h
+    assert abs(-(ep - emm) / (2 * h) - G[key][j, 1]) < 1e-6 + 1e-4 * abs(G[key][j, 1])
+    assert checked == 3

@@ -107,15 +107,14 @@ def zero_stress_ratios(n: int, m: int, potential: str = "BNC.tersoff", cells: in
     minimum of the parabola through their energies is the zero-axial-stress period
     (LAMMPS ``fix box/relax z 0``), its mean radius (at a final minimisation there) the
     radius. Returns ``{"axial", "radial", "L0_A", "radius_A", "period_built_A"}``."""
-    from upscale.build import swcnt
+    from upscale.build import chirality, swcnt
     from upscale.engine.minimisers import LBFGS
     from upscale.engine.simulation import Simulation
     from upscale.engine.system import ParticleSystem
     from upscale.models.tersoff import TersoffModel
 
-    probe = swcnt(n, m, 10.0)
-    T = probe.info["unit_cell_length"]
-    k = cells or max(1, math.ceil(10.0 / T))
+    T = chirality(n, m).cell_length
+    k = cells or max(2, math.ceil(10.0 / T))  # (the builder needs two cells at least)
     probe = swcnt(n, m, k * T)
     L = probe.cell[2, 2]
     cx, cy = probe.info["axis_xy"]
