@@ -139,3 +139,18 @@ def test_mixed_bundle_vdw_and_chain_rule():
     sm.fields[key][j, 1] += h
     assert abs(-(ep - emm) / (2 * h) - G[key][j, 1]) < 1e-6 + 1e-4 * abs(G[key][j, 1])
     assert checked == 3
+
+
+@pytest.mark.slow
+def test_defect_centre_among_atomistic_tubes():
+    """A coarse central tube with the vacancy's atomistic region (dcbr-defect) beside an
+    atomistic tube: the scene builds, its vdW energy is within 1 % of the all-atomistic
+    pair's, and the coarse tube keeps the vacancy (4 atoms fewer)."""
+    mixed = BundleScene.create((10, 10), 60.0, [TubeSpec("dcbr-defect", 2.0),
+                                                TubeSpec("tersoff")], ratios=RATIOS, grip=15.0)
+    atom = BundleScene.create((10, 10), 60.0, [TubeSpec("tersoff")] * 2, ratios=RATIOS,
+                              grip=15.0)
+    em, ea = mixed.vdw.energy(mixed.state_at_rest()), atom.vdw.energy(atom.state_at_rest())
+    assert abs(em - ea) < 0.01 * abs(ea)
+    assert mixed.maps[0].natoms == atom.maps[0].natoms
+    assert mixed.dof < atom.dof
