@@ -602,7 +602,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
                     progress=None, gtol: float = 1e-4, temperature: float = 10.0,
                     tdamp: float = 100.0, seed: int = 12345, ghost: str = "local",
                     monitor=None, clamp: bool | None = None, stability: bool = False,
-                    planes=None, gauge_planes=None, rigid_shifts=None, engine: bool = False,
+                    planes=None, gauge_planes=None, rigid_shifts=None, engine: bool = True,
                     checkpoint=None, checkpoint_every: int = 500, resume: bool = False,
                     output=None, engine_progress: bool = False) -> dict:
     """Dynamic tension of an open coarse tube with end grips (module docstring).
@@ -622,14 +622,16 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     the lattice-stability rule (:meth:`DCBRDefectTube.check_stability`) every ``sample``
     steps (its time in ``stability_s``).
 
-    ``engine``: the time loop on the engine (:func:`_engine_loop`: the tube as
+    ``engine`` (default): the time loop on the engine (:func:`_engine_loop`: the tube as
     :class:`~upscale.models.dcbr_engine.DCBRDefectTubeModel`, the engine's velocity Verlet
     with :class:`~upscale.engine.thermostats.NoseHoover` on x, y and the shifts, the grips as
     :class:`~upscale.engine.conditions.Grip` conditions, the blow-up guard), which also
     takes ``checkpoint`` (a path: a checkpoint every ``checkpoint_every`` steps),
     ``resume`` (continue from that checkpoint, bit for bit), ``output`` (an
     :class:`~upscale.engine.output.Output`: extxyz / VTK frames) and ``engine_progress``
-    (the engine's progress bar). The default is the loop below (``engine=False``).
+    (the engine's progress bar). ``engine=False``: the same protocol in the position form of
+    velocity Verlet written out below (the same trajectory to round-off; kept as the
+    reference the engine loop is compared with, ``dcbr-regression``).
     """
     from upscale.analysis.stress import Extensometer  # noqa: PLC0415
 
