@@ -153,8 +153,8 @@ class Tie(Displacement):
         kind, c = self.target
         g, m, w = self.region.index, self.masters, self.weights
         if kind == "y":
-            u = state.y[:, c] - state.x0[:, c]
-            state.y[g, c] = state.x0[g, c] + np.sum(w * u[m], axis=1)
+            um = state.y[m, c] - state.x0[m, c]  # the masters' displacements
+            state.y[g, c] = state.x0[g, c] + np.sum(w * um, axis=1)
             state.v[g, c] = np.sum(w * state.v[m, c], axis=1)
         else:
             f, fv = state.fields[kind], state.field_v[kind]

@@ -296,11 +296,14 @@ class NoseHoover:
                        for f in self.field_names}
         nfield = sum(int((~sim.field_constrained[f][self.frows]).sum()) for f in self.field_names)
         self.nf = int(self._ndf) if self._ndf is not None else int(self.dof.sum()) + nfield
+        self.idx = np.flatnonzero(self.dof.ravel())  # the thermostatted translation dofs
+        self.m_idx = np.repeat(sim.system.mass, 3)[self.idx]
+        self.frows = slice(None) if self.frows.size == n else self.frows
 
     def temperature(self, sim) -> float:
         """Eq. (1) on the thermostat's dofs (K)."""
-        v = sim.state.v
-        K2 = float(np.sum(self.m * v * v * self.dof))
+        vi = sim.state.v.reshape(-1)[self.idx]
+        K2 = float(np.dot(self.m_idx * vi, vi))
         for f in self.field_names:
             fv = sim.state.field_v[f][self.frows]
             K2 += float(np.sum(self.finert[f] * fv * fv))
@@ -310,7 +313,10 @@ class NoseHoover:
         """Mutates xi and the thermostatted rates: eq. (3) with h = dt/2."""
         self.xi += 0.5 * dt * (self.temperature(sim) / self.T - 1.0) / self.tau ** 2
         s = float(np.exp(-0.5 * dt * self.xi))
-        sim.state.v[self.dof] *= s
+        v = sim.state.v.reshape(-1)
+        if not np.shares_memory(v, sim.state.v):  # (a non-contiguous velocity array)
+            raise ValueError("the state's velocities must be one contiguous array")
+        v[self.idx] *= s
         for f in self.field_names:
             sim.state.field_v[f][self.frows] *= s
 

@@ -1304,6 +1304,12 @@ class DCBRDefectTube(DCBRTube):
         last built (None before the first evaluation)."""
         return None if self._nl is None else self._nl["x"]
 
+    @property
+    def twin(self) -> "DCBRDefectTube | None":
+        """The pristine twin whose gradient gives the ghost-force correction (None for a
+        twin itself)."""
+        return self._twin
+
     def rebuild_neighbours(self, x) -> None:
         """Build the Verlet list at positions ``x`` (free then pad atoms): a resumed run
         rebuilds the list it was interrupted with, so its pairs come in the same order."""

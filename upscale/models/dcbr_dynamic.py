@@ -388,6 +388,7 @@ def _engine_loop(tube, st, y, d, v, vd, L0, mass, mass_d, movable, dfree, ndf, t
     from upscale.engine.integrators import VelocityVerlet  # noqa: PLC0415
     from upscale.engine.simulation import Simulation  # noqa: PLC0415
     from upscale.engine.thermostats import NoseHoover  # noqa: PLC0415
+    from upscale.io import NumpyJSON  # noqa: PLC0415
     from upscale.models.dcbr_engine import FIELD, DCBRDefectTubeModel  # noqa: PLC0415
 
     t0 = _time.perf_counter()
@@ -419,7 +420,8 @@ def _engine_loop(tube, st, y, d, v, vd, L0, mass, mass_d, movable, dfree, ndf, t
     def save_rec(step):
         rec["step"] = int(step)
         state_ = sim.state
-        state_.extra["dcbr.scene"] = np.frombuffer(json.dumps(rec).encode(), dtype=np.uint8)
+        state_.extra["dcbr.scene"] = np.frombuffer(json.dumps(rec, cls=NumpyJSON).encode(),
+                                                   dtype=np.uint8)
 
     def bookkeeping(sim_) -> bool:
         s_ = sim_.state
@@ -600,7 +602,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
                     progress=None, gtol: float = 1e-4, temperature: float = 10.0,
                     tdamp: float = 100.0, seed: int = 12345, ghost: str = "local",
                     monitor=None, clamp: bool | None = None, stability: bool = False,
-                    planes=None, gauge_planes=None, rigid_shifts=None, engine: bool = False,
+                    planes=None, gauge_planes=None, rigid_shifts=None, engine: bool = True,
                     checkpoint=None, checkpoint_every: int = 500, resume: bool = False,
                     output=None, engine_progress: bool = False) -> dict:
     """Dynamic tension of an open coarse tube with end grips (module docstring).
@@ -620,14 +622,16 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     the lattice-stability rule (:meth:`DCBRDefectTube.check_stability`) every ``sample``
     steps (its time in ``stability_s``).
 
-    ``engine``: the time loop on the engine (:func:`_engine_loop`: the tube as
+    ``engine`` (default): the time loop on the engine (:func:`_engine_loop`: the tube as
     :class:`~upscale.models.dcbr_engine.DCBRDefectTubeModel`, the engine's velocity Verlet
     with :class:`~upscale.engine.thermostats.NoseHoover` on x, y and the shifts, the grips as
     :class:`~upscale.engine.conditions.Grip` conditions, the blow-up guard), which also
     takes ``checkpoint`` (a path: a checkpoint every ``checkpoint_every`` steps),
     ``resume`` (continue from that checkpoint, bit for bit), ``output`` (an
     :class:`~upscale.engine.output.Output`: extxyz / VTK frames) and ``engine_progress``
-    (the engine's progress bar). The default is the loop below (``engine=False``).
+    (the engine's progress bar). ``engine=False``: the same protocol in the position form of
+    velocity Verlet written out below (the same trajectory to round-off; kept as the
+    reference the engine loop is compared with, ``dcbr-regression``).
     """
     from upscale.analysis.stress import Extensometer  # noqa: PLC0415
 
@@ -653,6 +657,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     # (where LAMMPS's break), against the vacancy when there is one
     at_planes = banded and not np.any(model.removed)
     t_relax = time.perf_counter() - t0
+    c_relax = time.process_time()
 
     def z_ext(y):  # the extensometer's points: every particle, then the free atoms
         return np.r_[model.particle_positions(y)[:, 2], y[nd:, 2]]
@@ -876,4 +881,5 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     res["gauge_planes_A"] = [float(st["gb"]), float(st["gt"])]
     res["grip_bottom"], res["grip_top"] = bottom, top  # masks over the rows of positions
     res["dynamics_s"] = res["wall_s"] - t_relax
+    res["dynamics_cpu_s"] = time.process_time() - c_relax  # this process's CPU time
     return res

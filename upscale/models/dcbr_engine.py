@@ -111,6 +111,7 @@ class DCBRDefectTubeModel:
         self._version = 0  # bumped when the links or the ghost-force correction change
         self._ghost_version = 0
         self._map = None
+        self._synced = None
         self.system_ = None
 
     # ------------------------------------------------------------------ rows and masses
@@ -224,6 +225,11 @@ class DCBRDefectTubeModel:
         ref = t.neighbour_reference
         ex.setdefault("dcbr.nl_x", np.full((self.nf + len(t.pad_idx), 3), np.nan)
                       if ref is None else ref.copy())
+        tw = t.twin
+        if tw is not None:
+            ref = tw.neighbour_reference
+            ex.setdefault("dcbr.twin_nl_x", np.full((tw.nf + len(tw.pad_idx), 3), np.nan)
+                          if ref is None else ref.copy())
         g = t.ghost_correction
         ex.setdefault("dcbr.ghost_version", np.array(self._ghost_version, np.int64))
         ex.setdefault("dcbr.ghost_on", np.array(g is not None))
@@ -234,8 +240,14 @@ class DCBRDefectTubeModel:
                           np.array(g[k], np.float64, copy=True))
 
     def _sync(self, state) -> None:
-        """Give the tube the state's history where it differs (a resumed state)."""
+        """Give the tube the state's history where it differs (a resumed state). The
+        extras are the arrays this model writes in place; while they are the same objects
+        as at the last sync, nothing else has changed them."""
         t, ex = self.tube, state.extra
+        key = ex.get("dcbr.fs_last")
+        if key is not None and key is self._synced:
+            return
+        self._synced = key
         li, la = ex.get("dcbr.intact"), ex.get("dcbr.alive")
         if li is not None and not (np.array_equal(li, t.intact) and np.array_equal(la, t.alive)):
             t.set_links(li, la)
@@ -251,11 +263,14 @@ class DCBRDefectTubeModel:
                 **{k: np.array(ex[f"dcbr.ghost.{k}"], copy=True) for k in _GHOST}}
             self._ghost_version = int(gv)
             self._changed()
-        x = ex.get("dcbr.nl_x")
-        ref = t.neighbour_reference
-        if x is not None and np.all(np.isfinite(x)) and (ref is None or not np.array_equal(ref, x)):
-            t.rebuild_neighbours(x)
-            self._cache = None
+        for tube, key in ((t, "dcbr.nl_x"), (t.twin, "dcbr.twin_nl_x")):
+            x = ex.get(key)
+            if tube is None or x is None or not np.all(np.isfinite(x)):
+                continue
+            ref = tube.neighbour_reference
+            if ref is None or not np.array_equal(ref, x):
+                tube.rebuild_neighbours(x)
+                self._cache = None
 
     def _changed(self) -> None:
         self._version += 1
@@ -321,6 +336,10 @@ class DCBRDefectTubeModel:
         self._ghost_version += 1
         ex["dcbr.ghost_version"][...] = self._ghost_version
         ex["dcbr.ghost_on"][...] = g is not None
+        tw = self.tube.twin
+        if tw is not None and tw.neighbour_reference is not None and "dcbr.twin_nl_x" in ex:
+            ex["dcbr.twin_nl_x"][...] = tw.neighbour_reference  # (the twin's list, built at
+            # the uniform states of the correction: its pairs' order is part of the result)
         if g is not None:
             ex["dcbr.ghost.Lz"][...] = g["Lz"]
             ex["dcbr.ghost.dL"][...] = g["dL"]
