@@ -820,6 +820,10 @@ def run(args) -> int:
                              f"reference-tension --chirality {n},{m} --length {args.length:g} "
                              f"--vacancy --dynamic --bundle {len(specs)} --save-reference")
         lam = json.loads(p.read_text())
+        rerun = p.with_name(f"{name}_rerun.json")  # the kept run again, per-tube reactions
+        if "stress_per_tube_GPa" not in lam["curve"] and rerun.is_file():
+            lam["curve"]["stress_per_tube_GPa"] = json.loads(rerun.read_text())["curve"][
+                "stress_per_tube_GPa"]
     plot_curves(res, out / f"bundle_{tag}.png", lam,
                 title=f"({n},{m}) bundle of {len(specs)}: {', '.join(s.model for s in specs)}")
     plot_damage_maps(res, out / f"bundle_damage_{tag}.png", title=f"({n},{m}) bundle: damage")
