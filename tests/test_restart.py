@@ -10,7 +10,8 @@ CPD solve is killed inside a load step after at least one checkpoint.
 import numpy as np
 import pytest
 
-from validation.kill_resume import cpd_kill_resume, dcbr_kill_resume, plate_kill_resume
+from validation.kill_resume import (cpd_kill_resume, dcbr_kill_resume, dcbr_vacancy_kill_resume,
+                                    plate_kill_resume)
 
 
 @pytest.mark.parametrize("model", ["pmb", "lps"])
@@ -53,4 +54,15 @@ def test_dcbr_periodic_tube_on_the_engine_killed_and_resumed_is_bit_identical(tm
     r = dcbr_kill_resume(tmp_path, steps=150, every=20, strain_rate=2e-3, seed=seed)
     assert r["resumed_from_step"] > 0 and r["broken_links_uninterrupted"] > 0, r
     assert r["broken_links_resumed"] == r["broken_links_uninterrupted"], (seed, r)
+    assert r["bit_identical"], (seed, r)
+
+
+@pytest.mark.slow
+def test_dcbr_vacancy_dynamic_tension_killed_and_resumed_is_bit_identical(tmp_path):
+    """The open vacancy tube's dynamic tension on the engine, pulled to failure: the state
+    (positions, velocities, shifts, links, last maps, ghost dead load, the scene's records)
+    and the result (stress curve, strength, first damage) bit for bit."""
+    seed = int(np.random.SeedSequence().entropy % 2**32)
+    r = dcbr_vacancy_kill_resume(tmp_path, tube="small", every=50, seed=seed)
+    assert 0 < r["resumed_from_step"] <= r["killed_at_step"] < r["steps"], r
     assert r["bit_identical"], (seed, r)

@@ -11,11 +11,18 @@ solve with ``resume=True``).
     python -m validation.kill_resume plate OUT [--kill-at K] [--resume] [--n 40 ...]
     python -m validation.kill_resume cpd OUT [--kill-at K] [--resume] [--steps 8 ...]
     python -m validation.kill_resume dcbr OUT [--kill-at K] [--resume] [--steps 300 ...]
+    python -m validation.kill_resume dcbr-vacancy OUT [--kill-at K] [--resume] [--tube small]
 
 The ``dcbr`` run is the periodic coarse tube on the engine
 (:class:`upscale.models.dcbr.DCBRTubeModel`): (10,10), 25 Å, coarsening 2, its cell
 stretched at a constant strain rate, velocity Verlet with a Nose-Hoover chain at 10 K,
-links breaking by the tube's failure rules.
+links breaking by the tube's failure rules. The ``dcbr-vacancy`` run is the dynamic
+tension of the open vacancy tube on the engine
+(:func:`upscale.models.dcbr_dynamic.dynamic_tension` with ``engine=True``): ``--tube
+scene``, the (10,10) 150 Å coarsening-2 tube of ``dcbr-seeds`` (clamped grips on LAMMPS's
+planes, 10 K, seed 1000) pulled to failure; ``--tube small``, a (6,6) 60 Å tube with 10 Å
+grips at 10 Å/ps, to failure (the atomistic region's bonds break, the ghost-force
+correction is refreshed every sample).
 """
 from __future__ import annotations
 
@@ -30,7 +37,8 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 
-__all__ = ["plate_kill_resume", "cpd_kill_resume", "dcbr_kill_resume", "main"]
+__all__ = ["plate_kill_resume", "cpd_kill_resume", "dcbr_kill_resume",
+           "dcbr_vacancy_kill_resume", "main"]
 
 
 def _die_at(k: int):
@@ -140,6 +148,42 @@ def _dcbr(args) -> int:
         ck.last_step = sim.state.step
     sim.run(max(0, args.steps - sim.state.step), checkpoint=ck)
     print(int((~tube.intact).sum()), "broken links", flush=True)
+    return 0
+
+
+def _dcbr_vacancy(args) -> int:
+    import json
+
+    from upscale.engine.kernels import set_threads
+    from upscale.io import NumpyJSON, atomic_write_bytes
+    from upscale.models.dcbr_dynamic import dynamic_tension
+
+    set_threads(args.threads)
+    if args.kill_at:
+        _patch_vv_kill(args.kill_at)
+    if args.tube == "small":
+        from upscale.models.dcbr_defect import DCBRDefectTube
+
+        model = DCBRDefectTube(6, 6, 60.0, coarsening=2.0, vacancy=4, r_atomistic=5.0)
+        dyn = dict(grip=10.0, speed=10.0, max_strain=0.3, sample=20, seed=7)
+    else:
+        from upscale.experiments.tube_tension import dynamic_scene
+        from validation.cases.dcbr import lammps_reference_or_run
+
+        ref = lammps_reference_or_run(10, 10, 150.0, protocol="dynamic", vacancy=True,
+                                      progress=False)
+        model, dyn = dynamic_scene(10, 10, 150.0, 2.0, ref)
+        dyn.pop("grips")
+        dyn["seed"] = 1000
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    r = dynamic_tension(model, engine=True, checkpoint=out / "checkpoint.npz",
+                        checkpoint_every=args.checkpoint_every, resume=args.resume, **dyn)
+    keep = {k: r[k] for k in ("steps", "strength_GPa", "youngs_modulus_TPa", "strain_at_peak",
+                              "first_damage", "curve")}
+    keep["broken_links"] = int((~model.intact).sum())
+    atomic_write_bytes(out / "result.json", json.dumps(keep, cls=NumpyJSON).encode())
+    print(keep["broken_links"], "broken links", r["steps"], "steps", flush=True)
     return 0
 
 
@@ -261,10 +305,56 @@ def dcbr_kill_resume(workdir, *, steps: int = 300, every: int = 20, strain_rate:
             "max_abs_dy_A": float(np.abs(sa.y - sb.y).max()), "bit_identical": bool(same)}
 
 
+def dcbr_vacancy_kill_resume(workdir, *, tube: str = "small", every: int = 50,
+                             kill_at: int | None = None, threads: int = 1, seed=None) -> dict:
+    """The open vacancy tube's dynamic tension on the engine (module docstring)
+    uninterrupted, killed at step ``kill_at`` (default: a random step after the first
+    checkpoint) and resumed; compares the final states (positions, velocities, shifts and
+    their rates, every extra: links, last maps, ghost dead load, the scene's records) and
+    the result (stress curve, strength, first damage)."""
+    import json
+
+    from upscale.engine.checkpoint import load_checkpoint
+
+    w = Path(workdir)
+    common = ["--tube", tube, "--checkpoint-every", str(every), "--threads", str(threads)]
+    _check(_run(["dcbr-vacancy", str(w / "full"), *common], threads))
+    ja = json.loads((w / "full" / "result.json").read_text())
+    steps = int(ja["steps"])
+    if kill_at is None:
+        kill_at = int(np.random.default_rng(seed).integers(every + 1, steps))
+    if not 1 <= kill_at < steps:
+        raise ValueError(f"kill_at={kill_at}; valid: 1 <= kill_at < {steps} (the run's steps)")
+    _check(_run(["dcbr-vacancy", str(w / "cut"), *common, "--kill-at", str(kill_at)],
+                threads), killed=True)
+    ck_step = int(load_checkpoint(w / "cut" / "checkpoint.npz")[0].step)
+    _check(_run(["dcbr-vacancy", str(w / "cut"), *common, "--resume"], threads))
+    jb = json.loads((w / "cut" / "result.json").read_text())
+    sa, _ = load_checkpoint(w / "full" / "checkpoint.npz")
+    sb, _ = load_checkpoint(w / "cut" / "checkpoint.npz")
+    same_state = (sa.step == sb.step and np.array_equal(sa.y, sb.y)
+                  and np.array_equal(sa.v, sb.v) and sa.extra.keys() == sb.extra.keys()
+                  and all(np.array_equal(sa.extra[k], sb.extra[k], equal_nan=sa.extra[k].dtype.kind == "f")
+                          for k in sa.extra)
+                  and all(np.array_equal(sa.fields[k], sb.fields[k]) and
+                          np.array_equal(sa.field_v[k], sb.field_v[k]) for k in sa.fields))
+    return {"tube": tube, "steps": steps, "killed_at_step": kill_at,
+            "resumed_from_step": ck_step,
+            "broken_links_uninterrupted": ja["broken_links"],
+            "broken_links_resumed": jb["broken_links"],
+            "strength_GPa_uninterrupted": ja["strength_GPa"],
+            "strength_GPa_resumed": jb["strength_GPa"],
+            "max_abs_dy_A": float(np.abs(sa.y - sb.y).max()),
+            "max_abs_dstress_GPa": float(np.abs(np.subtract(ja["curve"]["stress_GPa"],
+                                                            jb["curve"]["stress_GPa"])).max())
+            if len(ja["curve"]["stress_GPa"]) == len(jb["curve"]["stress_GPa"]) else None,
+            "bit_identical": bool(same_state and ja == jb)}
+
+
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m validation.kill_resume", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("scene", choices=("plate", "cpd", "dcbr"))
+    p.add_argument("scene", choices=("plate", "cpd", "dcbr", "dcbr-vacancy"))
     p.add_argument("out", type=Path)
     p.add_argument("--kill-at", type=int, default=0, help="SIGKILL at this step (0: never)")
     p.add_argument("--resume", action="store_true")
@@ -277,12 +367,15 @@ def main(argv=None) -> int:
     p.add_argument("--strain-rate", type=float, default=1e-3, help="dcbr: per fs")
     p.add_argument("--dx", type=float, default=2e-3, help="cpd: spacing (m)")
     p.add_argument("--strain", type=float, default=0.05, help="cpd: nominal strain of the load")
+    p.add_argument("--tube", choices=("small", "scene"), default="small",
+                   help="dcbr-vacancy: a (6,6) 60 Å tube or the (10,10) 150 Å K2 seed scene")
     args = p.parse_args(argv)
     if args.steps is None:
         args.steps = 8 if args.scene == "cpd" else 300
     if args.scene == "dcbr" and args.checkpoint_every == 10:
         args.checkpoint_every = 20
-    return {"plate": _plate, "cpd": _cpd, "dcbr": _dcbr}[args.scene](args)
+    return {"plate": _plate, "cpd": _cpd, "dcbr": _dcbr,
+            "dcbr-vacancy": _dcbr_vacancy}[args.scene](args)
 
 
 if __name__ == "__main__":

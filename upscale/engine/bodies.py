@@ -16,7 +16,11 @@ particle's body in ``system.body_n`` (N,) int32.
 
 Every body must have the same dimension (and, in 2D, thickness and plane). A body model's
 history arrays in ``state.extra`` are stored under ``"<body name>/<key>"`` (so two bodies
-with the same model keep theirs apart); models update them in place.
+with the same model keep theirs apart); models update them in place. Likewise a body
+model's fields with inertia (:mod:`upscale.engine.fields`, e.g. the coarse tube's sublattice
+shifts) are the assembled fields ``"<body name>/<field>"`` (on the other bodies' rows: unit
+inertia, no force, at rest), so a region of a body is given to field conditions and
+thermostats on those names.
 """
 from __future__ import annotations
 
@@ -88,14 +92,66 @@ class BodyModel:
         r, k = self.rows, self.bonds
         p = self._prefix
         extra = _ExtraView({key[len(p):]: v for key, v in state.extra.items() if key.startswith(p)})
+        fields = {key[len(p):]: v[r] for key, v in state.fields.items() if key.startswith(p)}
+        field_v = {key[len(p):]: v[r] for key, v in state.field_v.items() if key.startswith(p)}
         return State(self.body.system.x0, state.y[r], state.v[r], state.intact[k], state.t,
-                     state.step, extra)
+                     state.step, extra, fields, field_v)
 
     def init_state(self, state) -> None:
         s = self.sub(state)
         self.model.init_state(s)
         for key, v in s.extra.items():
             state.extra[self._prefix + key] = v
+        for store, own in ((state.fields, s.fields), (state.field_v, s.field_v)):
+            for key, v in own.items():  # a field the model set up: into the assembled arrays
+                full = store.setdefault(self._prefix + key,
+                                        np.zeros((state.y.shape[0],) + np.shape(v)[1:]))
+                full[self.rows] = v
+
+    # fields with inertia (upscale.engine.fields) of the body model, as "<body>/<name>" on
+    # the assembled rows (other bodies' rows: unit inertia, no force, they stay at rest)
+    def fields(self) -> dict:
+        fn = getattr(self.model, "fields", None)
+        if not callable(fn):
+            return {}
+        from upscale.engine.fields import FieldSpec
+
+        out = {}
+        for name, spec in fn().items():
+            inertia = np.ones(self._n)
+            inertia[self.rows] = np.broadcast_to(np.asarray(spec.inertia, dtype=np.float64),
+                                                 (self.body.system.n,))
+            out[self._prefix + name] = FieldSpec(spec.ncomp, inertia, spec.unit)
+        return out
+
+    def add_field_force(self, state, out) -> None:
+        fn = getattr(self.model, "add_field_force", None)
+        if fn is None:
+            return
+        p = self._prefix
+        fn(self.sub(state), {key[len(p):]: v[self.rows] for key, v in out.items()
+                             if key.startswith(p)})
+
+    def field_stiffness_bound(self):
+        fn = getattr(self.model, "field_stiffness_bound", None)
+        if fn is None:
+            return {}
+        b = fn()
+        if b is None:
+            return None
+        out = {}
+        for name, r in b.items():
+            full = np.zeros(self._n)
+            full[self.rows] = r
+            out[self._prefix + name] = full
+        return out
+
+    def particle_damage(self, state):
+        mu = np.zeros(state.y.shape[0])
+        fn = getattr(self.model, "particle_damage", None)
+        if callable(fn):
+            mu[self.rows] = fn(self.sub(state))
+        return mu
 
     def add_force(self, state, out) -> None:
         self.model.add_force(self.sub(state), out[self.rows])

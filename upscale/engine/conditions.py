@@ -169,10 +169,35 @@ class Grip(Displacement):
             value = displacement
         super().__init__(region, value, components)
         self.velocity = velocity
+        self._rigid = None if velocity is None else (start, vel)
+        self._x0 = None  # (reference positions, their region rows) of the last state
         self.record_every = int(record_every)
         self.reaction_now = np.zeros(3)
         self.history: list[tuple[float, np.ndarray]] = []
         self._calls = 0
+
+    def apply(self, state, t: float, dt: float | None = None) -> None:
+        """As :meth:`Displacement.apply` (the same numbers); a grip moving at a velocity
+        takes its one rigid displacement instead of a value per particle."""
+        if self._rigid is None:
+            return super().apply(state, t, dt)
+        u0, vel = self._rigid
+        u = u0 + vel * t
+        if not np.isfinite(u).all():
+            raise ValueError(f"condition on region {self.region.name!r} gave a non-finite "
+                             f"value at t={t:g}")
+        idx, c = self.region.index, self.components
+        if self._x0 is None or self._x0[0] is not state.x0:
+            self._x0 = (state.x0, state.x0[idx][:, c], len(c) == 3)
+        x0r, full = self._x0[1], self._x0[2]
+        if full:
+            state.y[idx] = x0r + u
+            if dt:
+                state.v[idx] = (u - (u0 + vel * (t - dt))) / dt
+            return
+        if dt:
+            state.v[np.ix_(idx, c)] = ((u - (u0 + vel * (t - dt))) / dt)[c]
+        state.y[np.ix_(idx, c)] = x0r + u[c]
 
     def reaction(self, F: np.ndarray) -> np.ndarray:
         """``-sum_{i in region} F_i`` on the grip's components (3,) from forces ``F`` (N, 3)."""

@@ -99,18 +99,23 @@ def init_fields(state, specs: dict) -> None:
 # --------------------------------------------------------------------------- conditions
 class FixedField(Displacement):
     """Zero value and rate of components ``components`` of field ``field`` on a region
-    (a clamped rotation). Does not constrain translations."""
+    (a clamped rotation). Does not constrain translations. ``hold=True``: the components
+    keep whatever value they have (only their rate is zeroed), e.g. a sublattice shift
+    held at its set-up value by a rigid grip."""
 
-    def __init__(self, region: Region, field: str, components=(0,), value=0.0):
+    def __init__(self, region: Region, field: str, components=(0,), value=0.0, *,
+                 hold: bool = False):
         super().__init__(region, 0.0, (0,))
         self.kinematic = False  # translations untouched
         self.field = str(field)
         self.field_components = np.atleast_1d(np.asarray(components, dtype=np.int64))
         self.field_value = float(value)
+        self.hold = bool(hold)
 
     def apply(self, state, t, dt=None) -> None:
         idx, c = self.region.index, self.field_components
-        state.fields[self.field][np.ix_(idx, c)] = self.field_value
+        if not self.hold:
+            state.fields[self.field][np.ix_(idx, c)] = self.field_value
         state.field_v[self.field][np.ix_(idx, c)] = 0.0
 
     def constrains(self, field: str):
@@ -148,8 +153,8 @@ class Tie(Displacement):
         kind, c = self.target
         g, m, w = self.region.index, self.masters, self.weights
         if kind == "y":
-            u = state.y[:, c] - state.x0[:, c]
-            state.y[g, c] = state.x0[g, c] + np.sum(w * u[m], axis=1)
+            um = state.y[m, c] - state.x0[m, c]  # the masters' displacements
+            state.y[g, c] = state.x0[g, c] + np.sum(w * um, axis=1)
             state.v[g, c] = np.sum(w * state.v[m, c], axis=1)
         else:
             f, fv = state.fields[kind], state.field_v[kind]

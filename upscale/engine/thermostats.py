@@ -27,6 +27,18 @@ matching time unit, in which ``m v^2`` is an energy).
         H' = E_kin + E_pot + sum_j Q_j p_j^2 / 2 + N_f k_B T eta_1 + k_B T sum_{j>1} eta_j  (2)
 
     (:meth:`NoseHooverChain.conserved_extra` gives the thermostat's part).
+:class:`NoseHoover`
+    One Nose-Hoover variable xi (S. Nose, J. Chem. Phys. 81, 511 (1984); W. G. Hoover,
+    Phys. Rev. A 31, 1695 (1985)) in explicit half steps of h = dt/2 before the first
+    half-kick and after the second,
+
+        xi <- xi + h (T_kin / T - 1) / tau^2,     v <- v exp(-h xi),                    (3)
+
+    on chosen translation components and, optionally, on fields with inertia (their rates
+    count in K with their inertia, eq. (1)). With ``components=(0, 1)`` it is LAMMPS's
+    ``fix nvt`` with ``compute temp/partial 1 1 0`` (the temperature of x, y only: an
+    axial stretching flow is not heat), in the single-variable form. ``ndf`` overrides
+    the number of degrees of freedom in eq. (1) (as LAMMPS's ``compute_modify extra/dof``).
 """
 from __future__ import annotations
 
@@ -34,7 +46,7 @@ import json
 
 import numpy as np
 
-__all__ = ["Langevin", "NoseHooverChain", "kinetic_temperature"]
+__all__ = ["Langevin", "NoseHooverChain", "NoseHoover", "kinetic_temperature"]
 
 
 def _region_dofs(sim, region):
@@ -215,3 +227,112 @@ class NoseHooverChain:
     def describe(self) -> dict:
         return {"thermostat": self.name, "temperature_K": self.T, "tau": self.tau,
                 "chain": self.M}
+
+
+class NoseHoover:
+    """Single Nose-Hoover thermostat on a region, on chosen components and fields (module
+    docstring, eq. (3)).
+
+    Parameters
+    ----------
+    temperature : float
+        K (> 0).
+    tau : float
+        Relaxation time (time unit of the scene).
+    region : Region or (N,) bool, optional
+        The particles whose translations are thermostatted (their free dofs on
+        ``components``).
+    components : subset of (0, 1, 2)
+        Translation components in eq. (1) and scaled by (3).
+    fields : sequence of str
+        Fields with inertia (:mod:`upscale.engine.fields`) whose rates count in eq. (1) and
+        are scaled too, on ``field_region`` (default every particle; components a condition
+        prescribes are left out of the count).
+    ndf : int, optional
+        Degrees of freedom of eq. (1) (default: the free dofs it acts on).
+    k_B : float, optional
+        Boltzmann constant in the scene's units (default SI, J/K).
+    """
+
+    name = "nose-hoover"
+
+    def __init__(self, temperature: float, tau: float, *, region=None, components=(0, 1, 2),
+                 fields=(), field_region=None, ndf: int | None = None,
+                 k_B: float | None = None):
+        from upscale.constants import K_B_SI
+
+        _check(temperature, "tau", tau)
+        if not temperature > 0:
+            raise ValueError(f"Nose-Hoover needs temperature > 0 K, got {temperature!r}")
+        comps = np.atleast_1d(np.asarray(components, dtype=np.int64))
+        if comps.size == 0 or comps.min() < 0 or comps.max() > 2 or len(set(comps)) != comps.size:
+            raise ValueError(f"components={components!r}; valid: a subset of (0, 1, 2)")
+        if ndf is not None and not int(ndf) > 0:
+            raise ValueError(f"ndf={ndf!r}; valid: a positive number of degrees of freedom")
+        self.T, self.tau, self.region = float(temperature), float(tau), region
+        self.components, self.field_names = comps, tuple(str(f) for f in fields)
+        self.field_region, self._ndf = field_region, ndf
+        self.k_B = K_B_SI if k_B is None else float(k_B)
+        self.xi = 0.0
+
+    def prepare(self, sim) -> None:
+        dof = _region_dofs(sim, self.region)
+        keep = np.zeros(3, bool)
+        keep[self.components] = True
+        self.dof = dof & keep[None, :]
+        self.m = sim.system.mass[:, None]
+        n = sim.system.n
+        fr = np.ones(n, bool) if self.field_region is None else \
+            np.asarray(getattr(self.field_region, "mask", self.field_region), dtype=bool)
+        if fr.shape != (n,):
+            raise ValueError(f"field_region of shape {fr.shape}; valid: ({n},) or a Region")
+        specs = getattr(sim, "field_specs", {})
+        missing = [f for f in self.field_names if f not in specs]
+        if missing:
+            raise ValueError(f"thermostat fields {missing}; valid: the simulation's fields "
+                             f"{sorted(specs)}")
+        self.frows = np.flatnonzero(fr)
+        self.finert = {f: (specs[f].inertia * sim.system.volume)[self.frows, None]
+                       for f in self.field_names}
+        nfield = sum(int((~sim.field_constrained[f][self.frows]).sum()) for f in self.field_names)
+        self.nf = int(self._ndf) if self._ndf is not None else int(self.dof.sum()) + nfield
+        self.idx = np.flatnonzero(self.dof.ravel())  # the thermostatted translation dofs
+        self.m_idx = np.repeat(sim.system.mass, 3)[self.idx]
+        self.frows = slice(None) if self.frows.size == n else self.frows
+
+    def temperature(self, sim) -> float:
+        """Eq. (1) on the thermostat's dofs (K)."""
+        vi = sim.state.v.reshape(-1)[self.idx]
+        K2 = float(np.dot(self.m_idx * vi, vi))
+        for f in self.field_names:
+            fv = sim.state.field_v[f][self.frows]
+            K2 += float(np.sum(self.finert[f] * fv * fv))
+        return K2 / (self.nf * self.k_B)
+
+    def _half(self, sim, dt) -> None:
+        """Mutates xi and the thermostatted rates: eq. (3) with h = dt/2."""
+        self.xi += 0.5 * dt * (self.temperature(sim) / self.T - 1.0) / self.tau ** 2
+        s = float(np.exp(-0.5 * dt * self.xi))
+        v = sim.state.v.reshape(-1)
+        if not np.shares_memory(v, sim.state.v):  # (a non-contiguous velocity array)
+            raise ValueError("the state's velocities must be one contiguous array")
+        v[self.idx] *= s
+        for f in self.field_names:
+            sim.state.field_v[f][self.frows] *= s
+
+    def begin(self, sim, dt) -> None:
+        self._half(sim, dt)
+
+    def end(self, sim, dt) -> None:
+        self._half(sim, dt)
+
+    def checkpoint_arrays(self) -> dict:
+        return {"xi": np.float64(self.xi)}
+
+    def restore_arrays(self, d: dict) -> None:
+        if "xi" in d:
+            self.xi = float(d["xi"])
+
+    def describe(self) -> dict:
+        return {"thermostat": self.name, "temperature_K": self.T, "tau": self.tau,
+                "components": self.components.tolist(), "fields": list(self.field_names)}

@@ -843,6 +843,14 @@ class DCBRTube:
         return y, delta, Lz, E, info, gL
 
     # ------------------------------------------------------------------ links and failure
+    def set_links(self, intact, alive) -> None:
+        """Put back a link state (``intact`` over the links, ``alive`` (N,)), e.g. a resumed
+        run's: G is rebuilt on the intact links and the particles failed by the stability
+        rule stay failed."""
+        self.intact[...] = np.asarray(intact, bool)
+        self._build_gain(self.intact)
+        self.alive &= np.asarray(alive, bool)
+
     def update_links(self):
         """Break links per the failure rule (module docstring); return the number broken."""
         q = self._q_n

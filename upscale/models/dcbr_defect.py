@@ -1191,6 +1191,131 @@ class DCBRDefectTube(DCBRTube):
         finally:
             self._ghost = saved
 
+    # ------------------------------------------------------------------ mapped atoms, state
+    def atom_map(self, atoms=None) -> dict:
+        """The table that reconstructs atoms of the lattice from the coarse particles.
+
+        ``atoms``: indices into ``X_atoms`` (default every atom that is neither free nor
+        removed). Each follows the uniform map of its nearest carrying (non-slave) particle
+        c, as the pad atoms do (module docstring): x_a = y_c + Q3_c (h_a + r0_a), with its
+        reference arc and axial offsets from c, its sublattice and the reference residual
+        r0_a taken at the current G (nearest carrier across the cell boundary only on a
+        periodic tube). Returns ``{"atoms", "c", "ds", "dz", "sig", "r0"}`` (arrays over the
+        mapped atoms) for :meth:`mapped_atoms` and :meth:`mapped_atom_gradient`."""
+        X, R0 = self.X_atoms, self.lattice.R0
+        if atoms is None:
+            free = np.zeros(len(X), bool)
+            free[self.free_idx] = True
+            atoms = np.nonzero(~free & ~self.removed)[0]
+        atoms = np.asarray(atoms, dtype=np.int64)
+        if atoms.ndim != 1 or (len(atoms) and (atoms.min() < 0 or atoms.max() >= len(X))):
+            raise ValueError(f"atoms of shape {atoms.shape}; valid: indices 0..{len(X) - 1} "
+                             "into X_atoms")
+        carry = self.dof_idx
+        th = np.arctan2(X[atoms, 1], X[atoms, 0])
+        dsc = R0 * _wrap(th[:, None] - self.theta[carry][None, :])
+        dzc = X[atoms, 2][:, None] - self.x0[carry][None, :, 2]
+        if self.periodic:
+            dzc -= self.L * np.round(dzc / self.L)
+        k = np.argmin(dsc ** 2 + dzc ** 2, axis=1)
+        na = len(atoms)
+        c = np.ascontiguousarray(carry[k], dtype=np.int64)
+        ds, dz = dsc[np.arange(na), k], dzc[np.arange(na), k]
+        sig = self.sub_atoms[atoms].astype(float)
+        F0 = self.gain.deformation(self.x0, self.gain.cell)
+        FS = np.einsum("nia,nab->nib", F0[c], self.S[c])
+        lt, gm, lz, Q3 = uniform_map_frame(FS)
+        rp = lt * R0
+        phi = (lt * ds + gm * dz) / rp
+        h = np.stack([rp * np.sin(phi), lz * dz, rp * np.cos(phi) - rp], axis=1)
+        dX = X[atoms] - self.x0[c]
+        if self.periodic:
+            dX[:, 2] -= self.L * np.round(dX[:, 2] / self.L)
+        r0 = np.ascontiguousarray(np.einsum("eia,ei->ea", Q3, dX) - h)
+        return {"atoms": atoms, "c": c, "ds": np.ascontiguousarray(ds),
+                "dz": np.ascontiguousarray(dz), "sig": np.ascontiguousarray(sig), "r0": r0}
+
+    def _map_state(self, y, Lz):
+        yp = self.particle_positions(y)
+        F = self.gain.deformation(yp, np.array([0.0, 0.0, Lz]))
+        return yp, F, self._map_frames(F)
+
+    def mapped_atoms(self, y, delta, Lz, table) -> np.ndarray:
+        """Positions (k, 3) of the atoms of ``table`` (:meth:`atom_map`) at unknowns y,
+        shifts delta (N, 3), cell Lz (a failed carrier's atoms keep its last good map)."""
+        yp, _, (_, par, Q3, flag) = self._map_state(y, Lz)
+        out = np.empty((len(table["c"]), 3))
+        CK.pad_positions(yp, np.ascontiguousarray(delta, dtype=float), par, Q3, flag,
+                         self._FS_last, table["c"], table["ds"], table["dz"], table["sig"],
+                         table["r0"], self.lattice.R0, out)
+        return out
+
+    def mapped_atom_gradient(self, y, delta, Lz, table, g):
+        """Chain rule of :meth:`mapped_atoms`: a gradient ``g`` = dE/dx (k, 3) on the mapped
+        atoms pulled back to (dE/dy (rows of y), dE/d delta (N, 3)): to each carrier's
+        position, shift and frame, and through G to the particles of its family; a slave
+        particle's part goes to the free atoms it interpolates."""
+        g = np.ascontiguousarray(g, dtype=float)
+        if g.shape != (len(table["c"]), 3):
+            raise ValueError(f"gradient of shape {g.shape}; valid: ({len(table['c'])}, 3), "
+                             "one row per mapped atom")
+        delta = np.ascontiguousarray(delta, dtype=float)
+        yp, F, (_, par, Q3, flag) = self._map_state(y, Lz)
+        N = self.N
+        gyp, gd = np.zeros((N, 3)), np.zeros((N, 3))
+        gQ3, gpar, P = np.zeros((N, 3, 3)), np.zeros((N, 3)), np.zeros((N, 3, 2))
+        CK.pad_backward(g, delta, par, Q3, flag, self._FS_last, table["c"], table["ds"],
+                        table["dz"], table["sig"], table["r0"], self.lattice.R0,
+                        bool(self.relax_shift), gyp, gd, gQ3, gpar)
+        CK.frame_adjoint(np.ascontiguousarray(F), self.S, self.gain.alive, par, Q3, gQ3,
+                         gpar, P)
+        gyp = gyp - self.gain.forces(P)
+        nd = len(self.dof_idx)
+        gy = np.zeros((nd + self.nf, 3))
+        gy[:nd] = gyp[self.dof_idx]
+        if len(self.slave_idx):
+            gy[nd:] += self._PhiT @ gyp[self.slave_idx]
+        return gy, gd
+
+    @property
+    def ghost_correction(self) -> dict | None:
+        """The ghost-force dead load of the current load step (:meth:`prepare_step`,
+        :meth:`prepare_sides`): ``{"Lz", "y", "d", "gy", "gd", "dL"}``; settable (a
+        resumed run puts back the one it was interrupted with)."""
+        return self._ghost
+
+    @ghost_correction.setter
+    def ghost_correction(self, g):
+        self._ghost = None if g is None else {k: g[k] for k in ("Lz", "y", "d", "gy", "gd", "dL")}
+
+    @property
+    def last_maps(self) -> np.ndarray:
+        """(N, 3, 2) each particle's last good surface map FS (the map a failed carrier's
+        pad atoms keep); history of the run, settable."""
+        return self._FS_last
+
+    @last_maps.setter
+    def last_maps(self, fs):
+        self._FS_last[...] = fs
+
+    @property
+    def neighbour_reference(self) -> np.ndarray | None:
+        """Positions (free and pad atoms) at which the atomistic region's Verlet list was
+        last built (None before the first evaluation)."""
+        return None if self._nl is None else self._nl["x"]
+
+    @property
+    def twin(self) -> "DCBRDefectTube | None":
+        """The pristine twin whose gradient gives the ghost-force correction (None for a
+        twin itself)."""
+        return self._twin
+
+    def rebuild_neighbours(self, x) -> None:
+        """Build the Verlet list at positions ``x`` (free then pad atoms): a resumed run
+        rebuilds the list it was interrupted with, so its pairs come in the same order."""
+        self._nl = None
+        self._neighbours(np.ascontiguousarray(x, dtype=float))
+
     def summary(self) -> dict:
         return {"particles": int(self.N), "slave_particles": int(len(self.slave_idx)),
                 "free_atoms": int(self.nf), "pad_atoms": int(len(self.pad_idx)),

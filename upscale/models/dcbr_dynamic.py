@@ -359,6 +359,122 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | N
                        for k, v in model._ghost.items()}}
 
 
+def _engine_loop(tube, st, y, d, v, vd, L0, mass, mass_d, movable, dfree, ndf, thermo,
+                 temperature, tdamp, dt, vz, sample, max_strain, gauge, z_ext, ext, rec,
+                 on_sample, stability, checkpoint, checkpoint_every, resume, output,
+                 engine_progress):
+    """The time loop of :func:`dynamic_tension` on the engine.
+
+    The tube as :class:`~upscale.models.dcbr_engine.DCBRDefectTubeModel` (rows: particles,
+    then free atoms; the shifts a field with inertia), its slave particles tied to their
+    atoms, the grips :class:`~upscale.engine.conditions.Grip` conditions moving rigidly at
+    -+``vz`` (all components), the engine's velocity Verlet (kick-drift-kick: the same
+    trajectory as the position form of the loop in :func:`dynamic_tension`, to round-off)
+    inside :class:`~upscale.engine.thermostats.NoseHoover` half steps on x, y of the free
+    rows and on the shifts, with the loop's ``ndf``. After every step the grips' mean
+    reaction and the extensometer strain are accumulated; every ``sample`` steps
+    ``on_sample`` (the failure rules, the ghost-force refresh, after which the forces are
+    computed again). The scene's records live in ``rec`` and go into the state's extras
+    (``dcbr.scene``, JSON) before every checkpoint, so a run killed at any step resumes from
+    its last checkpoint bit for bit: the checkpoint of step k is written before that
+    step's bookkeeping, which the resumed run does first. Returns (steps, y, delta, wall s
+    of the dynamics)."""
+    import json  # noqa: PLC0415
+    import time as _time  # noqa: PLC0415
+    from pathlib import Path  # noqa: PLC0415
+
+    from upscale.engine.checkpoint import Checkpoint  # noqa: PLC0415
+    from upscale.engine.conditions import Grip, Region  # noqa: PLC0415
+    from upscale.engine.integrators import VelocityVerlet  # noqa: PLC0415
+    from upscale.engine.simulation import Simulation  # noqa: PLC0415
+    from upscale.engine.thermostats import NoseHoover  # noqa: PLC0415
+    from upscale.io import NumpyJSON  # noqa: PLC0415
+    from upscale.models.dcbr_engine import FIELD, DCBRDefectTubeModel  # noqa: PLC0415
+
+    t0 = _time.perf_counter()
+    em = DCBRDefectTubeModel(tube, y=y, delta=d, Lz=L0)
+    system = em.system()
+    n, N = em.n, em.N
+    rows = em.y_rows
+    bottom, top = np.zeros(n, bool), np.zeros(n, bool)
+    bottom[rows], top[rows] = st["bottom"], st["top"]
+    held = np.zeros(N, bool)
+    held[~dfree] = True
+    grips = [Grip(Region("grip bottom", bottom), velocity=(0.0, 0.0, -vz), record_every=0),
+             Grip(Region("grip top", top), velocity=(0.0, 0.0, vz), record_every=0)]
+    conds = em.conditions(held_shifts=held) + grips
+    thermostat = NoseHoover(temperature, tdamp, components=(0, 1), fields=(FIELD,), ndf=ndf,
+                            k_B=K_B_EV) if thermo else None
+    sim = Simulation(system, None, [em], conds,
+                     VelocityVerlet(dt, force=True, thermostat=thermostat))
+    state = sim.state
+    state.v[rows] = v
+    if len(tube.slave_idx):
+        state.v[tube.slave_idx] = tube.Phi @ v[em.nd:]
+    state.field_v[FIELD][:N] = vd
+    ck = None
+    if checkpoint is not None:
+        ck = Checkpoint(checkpoint, int(checkpoint_every))
+    every = ck.every if ck is not None else 0
+
+    def save_rec(step):
+        rec["step"] = int(step)
+        state_ = sim.state
+        state_.extra["dcbr.scene"] = np.frombuffer(json.dumps(rec, cls=NumpyJSON).encode(),
+                                                   dtype=np.uint8)
+
+    def bookkeeping(sim_) -> bool:
+        s_ = sim_.state
+        step = int(s_.step)
+        # the grips' reaction (what they exert on the tube, -sum F over the region, here
+        # from the unzeroed forces on the prescribed rows)
+        R = sim_.reactions
+        rec["blk"].append(0.5 * (-R[top, 2].sum() + R[bottom, 2].sum()))
+        yk = s_.y[rows]
+        rec["eblk"].append(ext.strain(z_ext(yk)))
+        stop = False
+        if step % sample == 0:
+            d_ = s_.fields[FIELD][:N]
+
+            def links():  # (with the stability rule, its time includes the link rule's)
+                ts = _time.perf_counter()
+                nb = em.break_links(s_, stability=stability)
+                if stability:
+                    rec["t_stab"] += _time.perf_counter() - ts
+                return nb
+
+            def refresh():
+                em.store_ghost(s_)
+                sim_.update_forces()
+            stop = bool(on_sample(step, yk, s_.v[rows], d_, links, refresh))
+        if stop or (every and (step + 1) % every == 0):
+            save_rec(step)
+        return stop
+
+    steps_max = int(np.ceil(max_strain * gauge / (2 * vz * dt))) + 2 * sample
+    if resume and ck is not None and Path(checkpoint).is_file():
+        sim.resume(checkpoint)
+        sc = json.loads(bytes(sim.state.extra["dcbr.scene"]).decode()) \
+            if "dcbr.scene" in sim.state.extra else None
+        sim.prepare()
+        if sc is not None:
+            rec.update(sc)
+        ck.last_step = None
+        if int(sim.state.step) > 0 and rec["step"] < sim.state.step:
+            if bookkeeping(sim):  # the interrupted step's own bookkeeping
+                steps_max = 0
+        if steps_max:
+            save_rec(sim.state.step)
+    else:
+        save_rec(0)
+    left = max(steps_max - int(sim.state.step), 0)
+    if left:
+        sim.run(left, output=output, checkpoint=ck, progress=engine_progress,
+                callback=bookkeeping, meta={"scene": "dcbr dynamic tension"})
+    yk, dk = em.unknowns(sim.state)
+    return int(sim.state.step), yk, np.array(dk, copy=True), _time.perf_counter() - t0
+
+
 def _hold_grip_ghost(model, st) -> None:
     """With atomistic bands across the grip planes, the ghost-force dead load on the grips'
     rows (and on their particles' shifts) is put back to its set-up value (``st["ghost0"]``).
@@ -486,7 +602,9 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
                     progress=None, gtol: float = 1e-4, temperature: float = 10.0,
                     tdamp: float = 100.0, seed: int = 12345, ghost: str = "local",
                     monitor=None, clamp: bool | None = None, stability: bool = False,
-                    planes=None, gauge_planes=None, rigid_shifts=None) -> dict:
+                    planes=None, gauge_planes=None, rigid_shifts=None, engine: bool = True,
+                    checkpoint=None, checkpoint_every: int = 500, resume: bool = False,
+                    output=None, engine_progress: bool = False) -> dict:
     """Dynamic tension of an open coarse tube with end grips (module docstring).
 
     Returns a dict like the LAMMPS runner's: ``curve`` (strain, stress_GPa, time_ps,
@@ -503,6 +621,17 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     shifts (default: with bands across the planes only, see the code); ``stability`` also applies
     the lattice-stability rule (:meth:`DCBRDefectTube.check_stability`) every ``sample``
     steps (its time in ``stability_s``).
+
+    ``engine`` (default): the time loop on the engine (:func:`_engine_loop`: the tube as
+    :class:`~upscale.models.dcbr_engine.DCBRDefectTubeModel`, the engine's velocity Verlet
+    with :class:`~upscale.engine.thermostats.NoseHoover` on x, y and the shifts, the grips as
+    :class:`~upscale.engine.conditions.Grip` conditions, the blow-up guard), which also
+    takes ``checkpoint`` (a path: a checkpoint every ``checkpoint_every`` steps),
+    ``resume`` (continue from that checkpoint, bit for bit), ``output`` (an
+    :class:`~upscale.engine.output.Output`: extxyz / VTK frames) and ``engine_progress``
+    (the engine's progress bar). ``engine=False``: the same protocol in the position form of
+    velocity Verlet written out below (the same trajectory to round-off; kept as the
+    reference the engine loop is compared with, ``dcbr-regression``).
     """
     from upscale.analysis.stress import Extensometer  # noqa: PLC0415
 
@@ -528,6 +657,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     # (where LAMMPS's break), against the vacancy when there is one
     at_planes = banded and not np.any(model.removed)
     t_relax = time.perf_counter() - t0
+    c_relax = time.process_time()
 
     def z_ext(y):  # the extensometer's points: every particle, then the free atoms
         return np.r_[model.particle_positions(y)[:, 2], y[nd:, 2]]
@@ -595,7 +725,6 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     pc = model._pad["c"]
     pad_lo = model.x0[pc, 2] < zc_vac
     c_lo, c_hi = np.unique(pc[pad_lo & ~held[pc]]), np.unique(pc[~pad_lo & ~held[pc]])
-    t_stab = 0.0
 
     def refresh_ghost(y, strain):
         if ghost == "grips" or model.nf == 0:
@@ -617,93 +746,119 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
         _, gy, gd, _ = model.energy_and_gradient(y, d, L0)
         return gy, gd
 
-    gy, gd = forces(y, d, 0.0)
-    strains, stresses, times, off_wall, kinetic = [], [], [], [], []
-    blk, eblk, exts = [], [], []
-    step = 0
-    smax, failed = 0.0, False
-    first = None
+    rec = {"strains": [], "stresses": [], "times": [], "off_wall": [], "kinetic": [],
+           "exts": [], "blk": [], "eblk": [], "smax": 0.0, "failed": False, "first": None,
+           "t_stab": 0.0, "step": 0}
     sep0 = 2 * vz  # separation rate
-    while True:
-        # velocity Verlet (grips move at constant velocity) inside Nose-Hoover half steps
-        if thermo:
-            xi = thermostat_half(xi)
-        a = -gy / mass[:, None] * acc
-        ad = -gd / mass_d[:, None] * acc * dfree[:, None]
-        y = y + v * dt
-        y[movable] += 0.5 * a[movable] * dt * dt
-        d = d + vd * dt + 0.5 * ad * dt * dt
-        step += 1
+
+    def on_sample(step, y, v, d, break_links, refresh_forces):
+        """The end of a ``sample``-step block (both loops): the block's stress, the
+        diagnostics, the failure rules, the ghost-force refresh; True to stop."""
+        blk, eblk = rec["blk"], rec["eblk"]
         strain = sep0 * step * dt / gauge
-        gy2, gd2 = forces(y, d, strain)
-        a2 = -gy2 / mass[:, None] * acc
-        v[movable] += 0.5 * (a[movable] + a2[movable]) * dt
-        vd += 0.5 * (ad - gd2 / mass_d[:, None] * acc * dfree[:, None]) * dt
-        if thermo:
-            xi = thermostat_half(xi)
-        gy, gd = gy2, gd2
-        # reaction of the grips: the tube pulls the top grip down and the bottom one up
-        blk.append(0.5 * (gy[top, 2].sum() - gy[bottom, 2].sum()))
-        eblk.append(ext.strain(z_ext(y)))
-        if not np.all(np.isfinite(y)):
-            raise FloatingPointError(f"dynamic tension blew up at step {step} (strain "
-                                     f"{strain:.4f}); last good stress {stresses[-1:]}")
-        if step % sample == 0:
-            s = float(np.mean(blk)) / area * EV_PER_A3_IN_GPA
-            exts.append(float(np.mean(eblk)))
-            blk, eblk = [], []
-            # the block's mean stress belongs to its mid-time (as the LAMMPS runner)
-            strains.append(sep0 * (step - 0.5 * sample) * dt / gauge)
-            stresses.append(s)
-            times.append(step * dt * 1e-3)
-            # diagnostics: free atoms more than 3 Å off the wall (thrown off), and the
-            # kinetic energy of the free atoms (eV)
-            xf = y[nd:]
-            cc = model.particle_positions(y)[:, :2].mean(axis=0)
-            off_wall.append(int(np.sum(np.abs(np.hypot(xf[:, 0] - cc[0], xf[:, 1] - cc[1])
-                                               - R) > 3.0)))
-            kinetic.append(float(0.5 * np.sum(mass[nd:, None] * v[nd:] ** 2) / acc))
-            smax = max(smax, s)
-            if progress is not None:
-                progress(strain, s)
-            if monitor is not None:  # monitor(step, y, v, delta, stress): a look inside
-                monitor(step, y, v, d, s)
-            if first is None and model.nf:
-                mu = model.atom_damage(y, d, L0)
-                if mu.max() > 0 and at_planes:  # where: each atom's signed distance into
-                    # the gauge from the nearer grip plane (negative: inside the grip)
-                    first = _where(y[nd:][mu > 0, 2], strain, 0.5 * sep0 * step * dt, zb, zt)
-                elif mu.max() > 0:  # where the first bonds broke, on the unrolled wall
-                    xf = y[nd:][mu > 0]
-                    c = model.particle_positions(y)[:, :2].mean(axis=0)
-                    th = np.arctan2(xf[:, 1] - c[1], xf[:, 0] - c[0])
-                    dth = np.angle(np.mean(np.exp(1j * (th - model.vacancy_theta_z[0]))))
-                    zv = model.vacancy_theta_z[1] * L0 / model.L  # on the relaxed tube
-                    zmid = 0.5 * (zlo + zhi) - 0.5 * (model.x0[:, 2].min() + model.x0[:, 2].max()) \
-                        * L0 / model.L
-                    first = {"strain": strain, "n_atoms": int((mu > 0).sum()),
-                             "distance_to_vacancy_A": float(np.hypot(
-                                 R * dth, xf[:, 2].mean() - (zv + zmid)))}
-            broke = model.update_links()
-            if stability:
-                ts = time.perf_counter()
-                broke += model.check_stability()
-                t_stab += time.perf_counter() - ts
-            if broke:
-                if at_planes and first is None:  # the first damage is a coarse link's
-                    g = model.gain
-                    hit = np.zeros(model.N, bool)
-                    hit[g.pair_i[~model.intact]] = True
-                    hit |= ~model.alive
-                    first = _where(model.particle_positions(y)[hit, 2], strain,
-                                   0.5 * sep0 * step * dt, zb, zt, what="particles")
-                gy, gd = forces(y, d, strain)
-            refresh_ghost(y, strain)
-            gy, gd = forces(y, d, strain)
-            if s < 0.95 * smax:
-                failed = True
-            if (failed and s < 0.2 * smax) or strain >= max_strain:
-                break
+        s = float(np.mean(blk)) / area * EV_PER_A3_IN_GPA
+        rec["exts"].append(float(np.mean(eblk)))
+        rec["blk"], rec["eblk"] = [], []
+        # the block's mean stress belongs to its mid-time (as the LAMMPS runner)
+        rec["strains"].append(sep0 * (step - 0.5 * sample) * dt / gauge)
+        rec["stresses"].append(s)
+        rec["times"].append(step * dt * 1e-3)
+        # diagnostics: free atoms more than 3 Å off the wall (thrown off), and the
+        # kinetic energy of the free atoms (eV)
+        xf = y[nd:]
+        cc = model.particle_positions(y)[:, :2].mean(axis=0)
+        rec["off_wall"].append(int(np.sum(np.abs(np.hypot(xf[:, 0] - cc[0], xf[:, 1] - cc[1])
+                                                  - R) > 3.0)))
+        rec["kinetic"].append(float(0.5 * np.sum(mass[nd:, None] * v[nd:] ** 2) / acc))
+        rec["smax"] = smax = max(rec["smax"], s)
+        if progress is not None:
+            progress(strain, s)
+        if monitor is not None:  # monitor(step, y, v, delta, stress): a look inside
+            monitor(step, y, v, d, s)
+        first = rec["first"]
+        if first is None and model.nf:
+            mu = model.atom_damage(y, d, L0)
+            if mu.max() > 0 and at_planes:  # where: each atom's signed distance into
+                # the gauge from the nearer grip plane (negative: inside the grip)
+                first = _where(y[nd:][mu > 0, 2], strain, 0.5 * sep0 * step * dt, zb, zt)
+            elif mu.max() > 0:  # where the first bonds broke, on the unrolled wall
+                xf = y[nd:][mu > 0]
+                c = model.particle_positions(y)[:, :2].mean(axis=0)
+                th = np.arctan2(xf[:, 1] - c[1], xf[:, 0] - c[0])
+                dth = np.angle(np.mean(np.exp(1j * (th - model.vacancy_theta_z[0]))))
+                zv = model.vacancy_theta_z[1] * L0 / model.L  # on the relaxed tube
+                zmid = 0.5 * (zlo + zhi) - 0.5 * (model.x0[:, 2].min() + model.x0[:, 2].max()) \
+                    * L0 / model.L
+                first = {"strain": strain, "n_atoms": int((mu > 0).sum()),
+                         "distance_to_vacancy_A": float(np.hypot(
+                             R * dth, xf[:, 2].mean() - (zv + zmid)))}
+        broke = break_links()
+        if broke and at_planes and first is None:  # the first damage is a coarse link's
+            g = model.gain
+            hit = np.zeros(model.N, bool)
+            hit[g.pair_i[~model.intact]] = True
+            hit |= ~model.alive
+            first = _where(model.particle_positions(y)[hit, 2], strain,
+                           0.5 * sep0 * step * dt, zb, zt, what="particles")
+        rec["first"] = first
+        refresh_ghost(y, strain)
+        refresh_forces()
+        if s < 0.95 * smax:
+            rec["failed"] = True
+        return (rec["failed"] and s < 0.2 * smax) or strain >= max_strain
+
+    def links_old():
+        broke = model.update_links()
+        if stability:
+            ts = time.perf_counter()
+            broke += model.check_stability()
+            rec["t_stab"] += time.perf_counter() - ts
+        return broke
+
+    if engine:
+        step, y, d, wall_dyn = _engine_loop(
+            model, st, y, d, v, vd, L0, mass, mass_d, movable, dfree, ndf, thermo,
+            temperature, tdamp, dt, vz, sample, max_strain, gauge, z_ext, ext, rec, on_sample,
+            stability, checkpoint, checkpoint_every, resume, output, engine_progress)
+    else:
+        gy, gd = forces(y, d, 0.0)
+        step = 0
+        while True:
+            # velocity Verlet (grips move at constant velocity) inside Nose-Hoover half steps
+            if thermo:
+                xi = thermostat_half(xi)
+            a = -gy / mass[:, None] * acc
+            ad = -gd / mass_d[:, None] * acc * dfree[:, None]
+            y = y + v * dt
+            y[movable] += 0.5 * a[movable] * dt * dt
+            d = d + vd * dt + 0.5 * ad * dt * dt
+            step += 1
+            strain = sep0 * step * dt / gauge
+            gy2, gd2 = forces(y, d, strain)
+            a2 = -gy2 / mass[:, None] * acc
+            v[movable] += 0.5 * (a[movable] + a2[movable]) * dt
+            vd += 0.5 * (ad - gd2 / mass_d[:, None] * acc * dfree[:, None]) * dt
+            if thermo:
+                xi = thermostat_half(xi)
+            gy, gd = gy2, gd2
+            # reaction of the grips: the tube pulls the top grip down and the bottom one up
+            rec["blk"].append(0.5 * (gy[top, 2].sum() - gy[bottom, 2].sum()))
+            rec["eblk"].append(ext.strain(z_ext(y)))
+            if not np.all(np.isfinite(y)):
+                raise FloatingPointError(f"dynamic tension blew up at step {step} (strain "
+                                         f"{strain:.4f}); last good stress "
+                                         f"{rec['stresses'][-1:]}")
+            if step % sample == 0:
+                box = {}
+
+                def refresh(box=box, y=y, d=d, strain=strain):
+                    box["g"] = forces(y, d, strain)
+                if on_sample(step, y, v, d, links_old, refresh):
+                    gy, gd = box["g"]
+                    break
+                gy, gd = box["g"]
+    strains, stresses, exts, first = rec["strains"], rec["stresses"], rec["exts"], rec["first"]
+    times, off_wall, kinetic, t_stab = rec["times"], rec["off_wall"], rec["kinetic"], rec["t_stab"]
     res = {"model": "dcbr-defect", "protocol": "dynamic", "chirality":
            [model.lattice.n, model.lattice.m], "coarsening": model.coarsening,
            "particles": model.N, "dof": model.dof, "atoms": model.n_atoms, "L0_A": float(L0),
@@ -726,4 +881,5 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     res["gauge_planes_A"] = [float(st["gb"]), float(st["gt"])]
     res["grip_bottom"], res["grip_top"] = bottom, top  # masks over the rows of positions
     res["dynamics_s"] = res["wall_s"] - t_relax
+    res["dynamics_cpu_s"] = time.process_time() - c_relax  # this process's CPU time
     return res

@@ -10,6 +10,7 @@ protocol, strain step, cutoff, vacancy), else computed on the fly and cached in
 from __future__ import annotations
 
 import math
+import os
 import time
 from pathlib import Path
 
@@ -427,8 +428,15 @@ def _defect_nve_args(p):
 
 def _dcbr_defect_nve(args):
     """NVE of the periodic coupled tube with the vacancy (atomistic band, pads, slaves, ghost
-    correction at the zero-stress state) from Gaussian velocities: total energy drift."""
+    correction at the zero-stress state) from Gaussian velocities: total energy drift. The
+    time loop is the engine's velocity Verlet on the tube's engine model
+    (:class:`upscale.models.dcbr_engine.DCBRDefectTubeModel`: the shifts a field with
+    inertia, the slave particles tied to their atoms); the energy counts the unknowns'
+    and the shifts' kinetic energy (a slave's velocity follows its atoms')."""
+    from upscale.engine.integrators import VelocityVerlet
+    from upscale.engine.simulation import Simulation
     from upscale.models.dcbr_defect import DCBRDefectTube
+    from upscale.models.dcbr_engine import FIELD, DCBRDefectTubeModel
 
     n, m = _chirality(args.chirality)
     steps = args.steps or (1000 if args.quick else 10000)
@@ -437,31 +445,35 @@ def _dcbr_defect_nve(args):
                          f"{args.temperature}; valid: steps >= 10, dt > 0, temperature > 0")
     model = DCBRDefectTube(n, m, args.length, coarsening=args.coarsening)
     y, d, Lz, _, _, _ = model.minimise(None, None, None, relax_box=True, gtol=1e-6)
-    nd, acc, kB, dt = len(model.dof_idx), ACC_EV_A_AMU_IN_A_FS2, K_B_EV, args.dt_fs
+    acc, kB, dt = ACC_EV_A_AMU_IN_A_FS2, K_B_EV, args.dt_fs
     mass, mass_d = model.masses()
     rng = np.random.default_rng(7)
     v = rng.standard_normal(y.shape) * np.sqrt(kB * args.temperature * acc / mass)[:, None]
     v -= np.sum(mass[:, None] * v, axis=0) / mass.sum()
     vd = rng.standard_normal(d.shape) * np.sqrt(kB * args.temperature * acc / mass_d)[:, None]
     vd[model.slave_idx] = 0.0
-    E, gy, gd, _ = model.energy_and_gradient(y, d, Lz)
+    em = DCBRDefectTubeModel(model, y=y, delta=d, Lz=Lz)
+    sim = Simulation(em.system(), None, em, em.conditions(),
+                     VelocityVerlet(dt, force=True))
+    st = sim.state
+    st.v[em.y_rows] = v
+    if len(model.slave_idx):
+        st.v[model.slave_idx] = model.Phi @ v[len(model.dof_idx):]
+    st.field_v[FIELD][:model.N] = vd
 
-    def total(E):
-        return E + 0.5 * (np.sum(mass[:, None] * v * v) + np.sum(mass_d[:, None] * vd * vd)) / acc
+    def total():
+        vv, ww = st.v[em.y_rows], st.field_v[FIELD][:model.N]
+        return em.energy(st) + 0.5 * (np.sum(mass[:, None] * vv * vv)
+                                      + np.sum(mass_d[:, None] * ww * ww)) / acc
 
-    e0, k0 = total(E), 0.5 * np.sum(mass[:, None] * v * v) / acc
+    e0, k0 = total(), 0.5 * np.sum(mass[:, None] * v * v) / acc
     dev = []
+
+    def every_100(sim_):
+        if sim_.state.step % 100 == 0:
+            dev.append((total() - e0) / k0)
     t0 = time.perf_counter()
-    for step in range(1, steps + 1):
-        v -= 0.5 * dt * acc * gy / mass[:, None]
-        vd -= 0.5 * dt * acc * gd / mass_d[:, None]
-        y = y + dt * v
-        d = d + dt * vd
-        E, gy, gd, _ = model.energy_and_gradient(y, d, Lz)
-        v -= 0.5 * dt * acc * gy / mass[:, None]
-        vd -= 0.5 * dt * acc * gd / mass_d[:, None]
-        if step % 100 == 0:
-            dev.append((total(E) - e0) / k0)
+    sim.run(steps, callback=every_100, progress=not args.quick)
     wall = time.perf_counter() - t0
     dev = np.array(dev)
     out = {"chirality": f"{n},{m}", "coarsening": args.coarsening, "steps": steps, "dt_fs": dt,
@@ -483,6 +495,64 @@ def _regression_args(p):
     p.add_argument("--length", type=float, default=None, help="Å (default 100; --quick 25)")
     p.add_argument("--coarsening", type=float, action="append", default=None,
                    help="repeatable (default 2)")
+    p.add_argument("--dynamic-chirality", default=None,
+                   help="N,M of the MD step-time comparison (default 50,50; --quick 10,10)")
+    p.add_argument("--dynamic-coarsening", type=float, default=None,
+                   help="its coarsening (default 3; --quick 2)")
+    p.add_argument("--dynamic-strain", type=float, default=None,
+                   help="grip strain each timed run reaches (default 0.02; --quick 0.01)")
+    p.add_argument("--repeats", type=int, default=2,
+                   help="timed runs of each loop, interleaved (default 2)")
+    p.add_argument("--skip-quasi-static", action="store_true",
+                   help="only the MD step-time comparison")
+
+
+def _step_time(args) -> dict:
+    """Time per MD step of the dynamic vacancy tension (the ``dcbr-seeds`` scene, clamped
+    grips on LAMMPS's planes, 10 K, seed 1000) with the scene's own loop and on the engine,
+    the two alternating in this process (old, engine, old, engine, ...): wall and CPU time of
+    the dynamics (set-up excluded), summed over the repeats."""
+    from upscale.experiments.tube_tension import dynamic_scene
+    from upscale.models.dcbr_dynamic import dynamic_tension
+
+    n, m = _chirality(args.dynamic_chirality or ("10,10" if args.quick else "50,50"))
+    k = args.dynamic_coarsening or (2.0 if args.quick else 3.0)
+    strain = args.dynamic_strain or (0.01 if args.quick else 0.02)
+    if not (args.repeats >= 1 and 0 < strain < 0.3 and k >= 1):
+        raise SystemExit(f"--repeats {args.repeats}, --dynamic-strain {strain}, "
+                         f"--dynamic-coarsening {k}; valid: >= 1, 0 < strain < 0.3, >= 1")
+    ref = lammps_reference_or_run(n, m, 150.0, protocol="dynamic", vacancy=True, progress=False)
+    runs = []
+    for rep in range(args.repeats):
+        for engine in (False, True):
+            model, dyn = dynamic_scene(n, m, 150.0, k, ref)
+            dyn.pop("grips")
+            r = dynamic_tension(model, seed=1000, max_strain=strain, engine=engine, **dyn)
+            runs.append({"loop": "engine" if engine else "scene", "repeat": rep,
+                         "steps": r["steps"], "dynamics_wall_s": r["dynamics_s"],
+                         "dynamics_cpu_s": r["dynamics_cpu_s"],
+                         "ms_per_step_wall": 1e3 * r["dynamics_s"] / r["steps"],
+                         "ms_per_step_cpu": 1e3 * r["dynamics_cpu_s"] / r["steps"],
+                         "stress_GPa": r["curve"]["stress_GPa"]})
+            print(f"({n},{m}) K={k:g} {runs[-1]['loop']}: {runs[-1]['ms_per_step_wall']:.3f} ms "
+                  f"per step wall, {runs[-1]['ms_per_step_cpu']:.3f} CPU", flush=True)
+    print(table([{kk: v for kk, v in r.items() if kk != "stress_GPa"} for r in runs],
+                floatfmt=".4g"))
+
+    def tot(loop, key):
+        return sum(r[key] for r in runs if r["loop"] == loop) / \
+            sum(r["steps"] for r in runs if r["loop"] == loop)
+    a = [r["stress_GPa"] for r in runs if r["loop"] == "scene"][0]
+    b = [r["stress_GPa"] for r in runs if r["loop"] == "engine"][0]
+    return {"tube": f"({n},{m})", "coarsening": k, "strain": strain, "runs": runs,
+            "ms_per_step_wall_before": 1e3 * tot("scene", "dynamics_wall_s"),
+            "ms_per_step_wall_after": 1e3 * tot("engine", "dynamics_wall_s"),
+            "ms_per_step_cpu_before": 1e3 * tot("scene", "dynamics_cpu_s"),
+            "ms_per_step_cpu_after": 1e3 * tot("engine", "dynamics_cpu_s"),
+            "wall_ratio": tot("engine", "dynamics_wall_s") / tot("scene", "dynamics_wall_s"),
+            "cpu_ratio": tot("engine", "dynamics_cpu_s") / tot("scene", "dynamics_cpu_s"),
+            "max_abs_stress_diff_GPa": float(np.abs(np.subtract(a, b)).max()),
+            "load_average": os.getloadavg()[0]}
 
 
 def _dcbr_regression(args):
@@ -492,7 +562,9 @@ def _dcbr_regression(args):
     (:func:`upscale.experiments.tube_tension.quasi_static_tension_engine`), one after the
     other in this process, on the same machine: the change of every figure, and the ratio of
     wall and of CPU times (this process's; CPU time is what a loaded machine does not
-    change). The dynamic runs are not on the engine yet: their step-time ratio is null."""
+    change). Then the time per MD step of the dynamic vacancy tension, the scene's own loop
+    against the engine's (:func:`_step_time`); ``step_time_ratio_after_over_before`` is its
+    wall-time ratio (CPU-time ratio beside it)."""
     from upscale.experiments.tube_tension import quasi_static_tension_engine
     from upscale.models.dcbr import DCBRTube, quasi_static_tension
 
@@ -500,7 +572,7 @@ def _dcbr_regression(args):
                                                          ["10,10", "17,0", "12,6"]))]
     length = args.length or (25.0 if args.quick else 100.0)
     rows = []
-    for n, m in chis:
+    for n, m in ([] if args.skip_quasi_static else chis):
         for k in args.coarsening or [2.0]:
             c0 = time.process_time()
             a = quasi_static_tension(DCBRTube(n, m, length, coarsening=k))
@@ -526,6 +598,11 @@ def _dcbr_regression(args):
                              b["minimiser"]["minimisations_above_tolerance"]})
             print(f"({n},{m}) K={k:g}: before {a['wall_s']:.1f} s, after {b['wall_s']:.1f} s",
                   flush=True)
+    dyn = _step_time(args)
+    if not rows:
+        return {"rows": [], "max_strength_change_pct": None, "max_modulus_change_pct": None,
+                "step_time_ratio_after_over_before": dyn["wall_ratio"],
+                "step_cpu_ratio_after_over_before": dyn["cpu_ratio"], "dynamic": dyn}
     print(table(rows, floatfmt=".6g"))
     wall_b = sum(r["wall_before_s"] for r in rows)
     wall_a = sum(r["wall_after_s"] for r in rows)
@@ -537,9 +614,10 @@ def _dcbr_regression(args):
             "qs_wall_ratio_after_over_before": wall_a / wall_b,
             "qs_cpu_ratio_after_over_before": sum(r["cpu_after_s"] for r in rows)
             / sum(r["cpu_before_s"] for r in rows),
-            "step_time_ratio_after_over_before": None,
-            "note": "quasi-static pristine tubes only: the vacancy tubes (DCBRDefectTube) and "
-                    "the dynamic runs (dcbr_dynamic.dynamic_tension) still run their own loops",
+            "step_time_ratio_after_over_before": dyn["wall_ratio"],
+            "step_cpu_ratio_after_over_before": dyn["cpu_ratio"], "dynamic": dyn,
+            "note": "quasi-static: pristine tubes (the vacancy tube's quasi-static minimiser is "
+                    "the tube's own); dynamic: the vacancy tube's MD step, scene loop vs engine",
             "pass": bool(ms < 1e-4 and mm < 1e-4)}
 
 

@@ -91,7 +91,8 @@ def build_structure(spec):
 
     n, m = spec["chirality"]
     if spec.get("ntubes", 1) > 1:
-        atoms = bundle(n, m, spec["length"], ntubes=spec["ntubes"])
+        atoms = bundle(n, m, spec["length"], ntubes=spec["ntubes"],
+                       spacing=spec.get("spacing", "vdw"), gap=spec.get("gap", 3.4))
     else:
         atoms = swcnt(n, m, spec["length"])
     if spec.get("vacancy"):
@@ -138,6 +139,8 @@ def run_spec(spec, potential="tersoff:BNC.tersoff", cutoff="step", dump_dir=None
                      + (" --vacancy" if spec.get("vacancy") else "")
                      + (" --dynamic" if spec["protocol"] == "dynamic" else "")
                      + (f" --bundle {spec['ntubes']}" if spec.get("ntubes", 1) > 1 else "")
+                     + (" --spacing seed" if spec.get("spacing", "vdw") == "seed" else "")
+                     + (f" --seed {spec['seed']}" if spec.get("seed") is not None else "")
                      + (f" --cutoff {cutoff}" if cutoff != "step" else "")
                      + " --save-reference")
     return res
@@ -331,6 +334,11 @@ def _args_tension(p):
                    "dynamic; rounded to whole unit cells)")
     p.add_argument("--bundle", type=int, default=1, metavar="NTUBES",
                    help="number of tubes (7 = hexagonal bundle); default 1")
+    p.add_argument("--spacing", choices=("vdw", "seed"), default="vdw",
+                   help="bundle spacing: vdw (walls 3.4 Å apart, default) or seed (centres "
+                   "2.2 R apart, seed 004 sec. 5.3.2)")
+    p.add_argument("--seed", type=int, default=None,
+                   help="thermal-velocity seed of a dynamic run (default: the runner's)")
     p.add_argument("--strain-step", type=float, default=0.005)
     p.add_argument("--grip", type=float, default=50.0, help="grip length, Å")
     p.add_argument("--speed", type=float, default=1.0, help="speed of each grip, Å/ps")
@@ -374,6 +382,15 @@ def _reference_tension(args):
                  ntubes=args.bundle)
     if args.cutoff != "step":
         spec["name"] += "_stdcut"
+    if args.bundle > 1 and args.spacing == "seed":
+        spec["spacing"] = "seed"
+        spec["name"] += "_hex"
+    if args.seed is not None:
+        if not dynamic:
+            raise SystemExit(f"--seed {args.seed}: only a dynamic run has thermal velocities")
+        spec["seed"] = args.seed
+        spec["name"] += f"_s{args.seed}"
+        kw["seed"] = args.seed
     # only a kept reference (--save-reference, full size) uses the reference dump name
     dump_name = spec["name"] if args.save_reference and not args.quick else \
         f"case_{spec['name']}{'_quick' if args.quick else ''}"

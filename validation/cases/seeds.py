@@ -143,7 +143,11 @@ def _reference_seeds(args):
                                               default=None,
                                               help="'bands' (atomistic bands across the grip "
                                                    "planes; default with --pristine) or "
-                                                   "'clamped' (default for the vacancy tubes)")))
+                                                   "'clamped' (default for the vacancy tubes)"),
+                               p.add_argument("--scene-loop", action="store_true",
+                                              help="the scene's own velocity Verlet "
+                                                   "(dynamic_tension(engine=False)) instead "
+                                                   "of the engine's")))
 def _dcbr_seeds(args):
     """The coarse scene of ``dcbr-tension --dynamic`` (with ``--vacancy`` unless
     ``--pristine``; :func:`validation.cases.dcbr.dynamic_scene`), seeds 1000, 1001, ..."""
@@ -162,7 +166,8 @@ def _dcbr_seeds(args):
             model, dyn = dynamic_scene(n, m, 150.0, args.coarsening, ref,
                                        vacancy=not args.pristine, grips=args.grips)
             grips = dyn.pop("grips")
-            r = dynamic_tension(model, seed=1000 + s, temperature=args.temperature, **dyn)
+            r = dynamic_tension(model, seed=1000 + s, temperature=args.temperature,
+                                engine=not args.scene_loop, **dyn)
             rows.append({"seed": 1000 + s, **{k: r[k] for k in KEYS},
                          "wall_s": time.perf_counter() - t0})
             print(f"({n},{m}) K={args.coarsening:g} seed {1000 + s}: {r['strength_GPa']:.2f} GPa "
@@ -171,7 +176,7 @@ def _dcbr_seeds(args):
         result[f"{n},{m}"] = {"runs": rows, "stats": _stats(rows)}
         print(table(rows, floatfmt=".4g"))
     return {"coarsening": args.coarsening, "pristine": bool(args.pristine),
-            "temperature_K": args.temperature,
+            "temperature_K": args.temperature, "engine": not args.scene_loop,
             "grips": grips, "tubes": result}
 
 
@@ -255,3 +260,50 @@ def _seeds_extensometer(args):
                        "eps_peak_ext_err_%", "eps_peak_ext_median_err_%"], floatfmt=".3g"))
     return {"rows": rows, "coarse_files": [Path(f).name for f in files],
             "lammps_file": f"data/reference/{_spread_file(args.pristine)}"}
+
+
+def _before_after_args(p):
+    p.add_argument("--before", type=Path, required=True, help="dcbr-seeds result JSON (before)")
+    p.add_argument("--after", type=Path, required=True, help="dcbr-seeds result JSON (after)")
+
+
+@case("dcbr-seeds-before-after", "two dcbr-seeds results of the same scene and seeds (e.g. the "
+      "scene's own loop and the engine's): per tube, the change of every seed mean and the "
+      "largest change of a single seed (reads stored runs, runs nothing)",
+      add_arguments=_before_after_args)
+def _seeds_before_after(args):
+    res = []
+    for f in (args.before, args.after):
+        if not Path(f).is_file():
+            raise SystemExit(f"{f}: no such file; valid: a dcbr-seeds result JSON")
+        r = json.loads(Path(f).read_text())
+        res.append(r.get("result", r))
+    a, b = res
+    if a["coarsening"] != b["coarsening"] or bool(a.get("pristine")) != bool(b.get("pristine")):
+        raise SystemExit(f"--before (K={a['coarsening']}, pristine={a.get('pristine')}) and "
+                         f"--after (K={b['coarsening']}, pristine={b.get('pristine')}); valid: "
+                         "the same scene")
+    rows = []
+    for tube in a["tubes"]:
+        if tube not in b["tubes"]:
+            continue
+        ra = {r["seed"]: r for r in a["tubes"][tube]["runs"]}
+        rb = {r["seed"]: r for r in b["tubes"][tube]["runs"]}
+        seeds = sorted(set(ra) & set(rb))
+        row = {"tube": f"({tube})", "K": a["coarsening"], "seeds": len(seeds)}
+        for key, short in COMPARED:
+            va = np.array([ra[s][key] for s in seeds], float)
+            vb = np.array([rb[s][key] for s in seeds], float)
+            row[f"{short}_before"] = float(va.mean())
+            row[f"{short}_after"] = float(vb.mean())
+            row[f"{short}_mean_change_%"] = _pct(float(vb.mean()), float(va.mean()))
+            row[f"{short}_max_seed_change_%"] = float(np.max(np.abs(100 * (vb - va) / va)))
+        rows.append(row)
+    print(table(rows, ["tube", "K", "seeds", "strength_before", "strength_after",
+                       "strength_mean_change_%", "strength_max_seed_change_%",
+                       "E_grip_mean_change_%", "eps_peak_grip_mean_change_%",
+                       "eps_peak_grip_max_seed_change_%", "E_ext_mean_change_%",
+                       "eps_peak_ext_mean_change_%"], floatfmt=".3g"))
+    return {"rows": rows, "before": Path(args.before).name, "after": Path(args.after).name,
+            "max_abs_mean_change_pct": {short: max(abs(r[f"{short}_mean_change_%"]) for r in rows)
+                                        for _, short in COMPARED}}

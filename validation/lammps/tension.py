@@ -175,6 +175,20 @@ def extensometer_commands(ext: Extensometer) -> list[str]:
             "variable extn equal count(ext)"]
 
 
+def per_tube_grip_commands(ntubes: int) -> list[str]:
+    """Groups ``botK``/``topK`` (tube K's grip atoms, atom type K) and ``fix sfbK``/``sftK``
+    (setforce 0) whose global vectors are tube K's grip reactions; none for one tube."""
+    if ntubes <= 1:
+        return []
+    out = []
+    for k in range(1, ntubes + 1):
+        out += [f"group tube{k} type {k}", f"group bot{k} intersect bot tube{k}",
+                f"group top{k} intersect top tube{k}",
+                f"fix sfb{k} bot{k} setforce 0.0 0.0 0.0",
+                f"fix sft{k} top{k} setforce 0.0 0.0 0.0"]
+    return out
+
+
 def _minimize(lmp, ftol, maxiter=20000):
     lmp.command(f"minimize 0.0 {ftol} {maxiter} {10 * maxiter}")
 
@@ -534,6 +548,7 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
                        seed=seed, ftol=ftol, max_steps=max_steps,
                        max_box_volume=max_box_volume)
     t0 = time.perf_counter()
+    c0 = time.process_time()  # CPU time of this process (LAMMPS runs in it): load-free
     pot = resolve_potential(potential, cutoff)
     relaxed, rinfo = relax_zero_stress(atoms, potential, cutoff, ftol, _pot=pot)
     t_periodic = time.perf_counter() - t0
@@ -555,7 +570,7 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
         dump.parent.mkdir(parents=True, exist_ok=True)
         if dump.exists():
             dump.unlink()
-    strains, stresses, times, exts = [], [], [], []
+    strains, stresses, times, exts, per_tube = [], [], [], [], []
     try:
         # open tube: relax the cut ends once (all atoms free), then grips from the new ends
         t1 = time.perf_counter()
@@ -585,13 +600,18 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
             f"velocity free ramp vz {-v!r} {v!r} z {zb!r} {zt!r} sum yes units box",
             f"velocity bot set 0 0 {-v!r} units box",
             f"velocity top set 0 0 {v!r} units box",
+            # per-tube grip reactions of a bundle: setforce fixes on each tube's part of the
+            # grips, defined before the whole-grip ones (which then see zero force and hold
+            # the grips; the total reaction is the sum over the tubes)
+            *per_tube_grip_commands(ntubes),
             "fix sfb bot setforce 0.0 0.0 0.0", "fix sft top setforce 0.0 0.0 0.0",
             "fix grips grips nve",
             f"fix nvt free nvt temp {max(temperature, 1e-6)!r} {max(temperature, 1e-6)!r} "
             f"{tdamp!r}",
             "fix_modify nvt temp tpart",
             f"fix avg all ave/time 10 {sample_every // 10} {sample_every} f_sfb[3] f_sft[3] "
-            "v_exteps",
+            "v_exteps" + "".join(f" f_sfb{k}[3] f_sft{k}[3]" for k in range(1, ntubes + 1)
+                                 if ntubes > 1),
             "thermo_style custom step pe ke c_tpart",
             f"thermo {sample_every}",
             "variable boxvol equal lx*ly*lz",
@@ -630,6 +650,12 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
             ft = lmp.extract_fix("avg", LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR, 1)
             F = 0.5 * (fb - ft)  # tension: bottom grip pulled +z by the tube, top grip -z
             exts.append(float(lmp.extract_fix("avg", LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR, 2)))
+            if ntubes > 1:
+                Fk = [0.5 * (lmp.extract_fix("avg", LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR, 3 + 2 * k)
+                             - lmp.extract_fix("avg", LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR,
+                                               4 + 2 * k)) for k in range(ntubes)]
+                F = float(sum(Fk))
+                per_tube.append([float(stress_from_force(f, R, WALL_THICKNESS, 1)) for f in Fk])
             # the sample averages the interval; assign it to the interval's mid-time
             tmid = (step - 0.5 * sample_every) * timestep
             eps = 2.0 * v * tmid / sep0
@@ -665,6 +691,12 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
     res["protocol_detail"]["max_box_volume_A3"] = max_box_volume
     res["curve"] = {"strain": strains, "stress_GPa": stresses, "time_ps": times,
                     "extensometer_strain": exts}
+    if ntubes > 1:
+        # (nsamples, ntubes): each tube's grip reaction over its own area 2 pi R t
+        res["curve"]["stress_per_tube_GPa"] = per_tube
+        res["protocol_detail"]["stress_per_tube"] = (
+            "mean reaction of the two grips on each tube's own atoms / (2 pi R t); the bundle "
+            "stress is their mean")
     res["aborted"] = aborted
     res.update(curve_metrics(strains, stresses, fit_max_strain=fit_max_strain))
     res.update(extensometer_metrics(strains, exts, stresses, res["strain_at_peak"],
@@ -674,6 +706,8 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
                    failure_note="run stopped: an atom thrown off the tube (box volume)")
     res["dump"] = str(dump) if dump is not None else None
     res["wall_s"] = time.perf_counter() - t0
+    res["cpu_s"] = time.process_time() - c0
+    res["load_avg_end"] = list(os.getloadavg())
     # where the time went: the periodic zero-stress relaxation (with the set-up), the open
     # tube's minimisation, and the pull (dynamics, sampling and dump)
     res["timing_s"] = {"zero_stress_relaxation": t_periodic, "open_tube_minimisation": t_open,

@@ -1,0 +1,424 @@
+"""The open coarse tube with its atomistic region as an engine model (by composition).
+
+:class:`DCBRDefectTubeModel` wraps a :class:`~upscale.models.dcbr_defect.DCBRDefectTube`
+(with a vacancy, or pristine: ``vacancy=0``, e.g. the banded tube of
+:func:`upscale.models.dcbr_dynamic.pristine_grip_tube`) for the engine's
+:class:`~upscale.engine.simulation.Simulation`, alone or as one body of an
+:func:`~upscale.engine.bodies.assemble`-d scene.
+
+Rows of the engine's state (``n = N + nf``):
+
+* ``[0, N)``: the N coarse particles in the tube's order. The non-slave ones are unknowns;
+  a slave particle (the tube's ``slave_idx``) interpolates free atoms,
+  y_s = sum_a Phi_sa (x_a - X_a) + X_s (the tube's ``Phi``), which the engine carries out
+  by :class:`~upscale.engine.fields.Tie` conditions (:meth:`DCBRDefectTubeModel.conditions`);
+  the model reads the unknown rows only and folds a slave's force into its atoms.
+* ``[N, N + nf)``: the free atoms of the atomistic region (the tube's ``free_idx`` order).
+
+The sublattice shifts delta (N, 3) are the field :data:`FIELD` (Å) with inertia (the
+reduced mass of a particle's two sublattices, m_C max(w_c, N_c/2) / 4,
+:meth:`~upscale.models.dcbr_defect.DCBRDefectTube.masses`); the atom rows carry the field
+too (it has one row per engine row) and hold it at zero. Forces are per row
+(``force_kind = "particle"``, eV/Å); masses and the shift inertia are given in amu divided
+by ``unit`` (default :data:`upscale.constants.ACC_EV_A_AMU_IN_A_FS2`), so that with eV/Å
+forces the accelerations are in Å/fs^2 and time steps in fs.
+
+Energy and forces: :meth:`DCBRDefectTube.energy_and_gradient` at the tube's unknowns and
+shifts and the cell length ``Lz`` (an open tube's fixed cell), with the tube's ghost-force
+correction (:meth:`DCBRDefectTubeModel.store_ghost` after the scene has refreshed it). The
+failure rules (the coarse link rule, optionally the lattice-stability rule) are applied by
+:meth:`DCBRDefectTubeModel.break_links` (the dynamic scene: every sample), or in every force
+evaluation with ``failure=True``.
+
+History in ``state.extra`` (so a checkpoint carries it and a resumed run continues bit for
+bit): the links (``dcbr.intact``, ``dcbr.alive``), each particle's last good map
+(``dcbr.fs_last``), the ghost-force dead load (``dcbr.ghost.*``) and the positions at which
+the atomistic Verlet list was built (``dcbr.nl_x``: the list is rebuilt there on resume, so
+the pairs come in the same order).
+
+Atoms for interactions between bodies (:meth:`DCBRDefectTubeModel.atoms`,
+:meth:`DCBRDefectTubeModel.atom_forces`): every atom of the tube, the free ones as they
+are and the others reconstructed from their carriers' uniform maps (as the pad atoms,
+:meth:`DCBRDefectTube.atom_map`); forces on them map back exactly (the chain rule through
+the maps and G) to generalised forces on the rows and the shift field.
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from upscale.constants import ACC_EV_A_AMU_IN_A_FS2, CARBON_MASS_AMU
+
+__all__ = ["DCBRDefectTubeModel", "FIELD"]
+
+#: the name of the sublattice-shift field
+FIELD = "dcbr.delta"
+
+_GHOST = ("y", "d", "gy", "gd")
+
+
+class DCBRDefectTubeModel:
+    """A :class:`~upscale.models.dcbr_defect.DCBRDefectTube` as an engine model (module
+    docstring).
+
+    Parameters
+    ----------
+    tube : DCBRDefectTube
+        Open or periodic; the model mutates its links on failure.
+    y, delta : arrays, optional
+        The tube's unknowns (non-slave particles, then free atoms; (nd + nf, 3)) and shifts
+        (N, 3) of the initial state (default the reference lattice, zero shifts): the rows'
+        positions of :meth:`system` and the shift field of :meth:`init_state`.
+    Lz : float, optional
+        Cell length the energy is called with (Å; default the tube's ``L``); an open tube's
+        energy does not depend on it, but the ghost-force correction is keyed on it.
+    failure : bool
+        Apply the link rule (and ``stability``) in every force evaluation (default False:
+        the scene calls :meth:`break_links`).
+    stability : bool
+        With the link rule, also the lattice-stability rule.
+    unit : float
+        Masses and inertia are amu / ``unit`` (default: Å/fs^2 per eV/(Å amu)).
+    """
+
+    name = "dcbr-defect-tube"
+    force_kind = "particle"
+
+    def __init__(self, tube, *, y=None, delta=None, Lz: float | None = None,
+                 failure: bool = False, stability: bool = False,
+                 unit: float = ACC_EV_A_AMU_IN_A_FS2):
+        from upscale.models.base import Needs
+        from upscale.models.dcbr_defect import DCBRDefectTube
+
+        if not isinstance(tube, DCBRDefectTube):
+            raise ValueError(f"DCBRDefectTubeModel takes a DCBRDefectTube, got "
+                             f"{type(tube).__name__}")
+        if not (np.isfinite(unit) and unit > 0):
+            raise ValueError(f"unit={unit!r}; valid: a positive mass unit factor")
+        self.tube = tube
+        self.N, self.nf, self.nd = int(tube.N), int(tube.nf), int(len(tube.dof_idx))
+        self.n = self.N + self.nf
+        self.y_rows = np.r_[tube.dof_idx, self.N + np.arange(self.nf)].astype(np.int64)
+        self.atom_rows = self.N + np.arange(self.nf)
+        self.unit = float(unit)
+        self.Lz = float(tube.L if Lz is None else Lz)
+        if not (np.isfinite(self.Lz) and self.Lz > 0):
+            raise ValueError(f"Lz={Lz!r}; valid: a positive cell length (Å)")
+        self.set_initial(tube.y_init if y is None else y,
+                         np.zeros((self.N, 3)) if delta is None else delta)
+        self.stability = bool(stability)
+        self.needs = Needs(pairs=False, failure=bool(failure), energy=True)
+        self._cache = None
+        self._version = 0  # bumped when the links or the ghost-force correction change
+        self._ghost_version = 0
+        self._map = None
+        self._synced = None
+        self.system_ = None
+
+    # ------------------------------------------------------------------ rows and masses
+    def set_initial(self, y, delta) -> None:
+        """The initial unknowns (nd + nf, 3) and shifts (N, 3) (see the class)."""
+        y = np.asarray(y, dtype=np.float64)
+        delta = np.asarray(delta, dtype=np.float64)
+        if y.shape != (self.nd + self.nf, 3) or delta.shape != (self.N, 3):
+            raise ValueError(f"y {y.shape}, delta {delta.shape}; valid: y "
+                             f"({self.nd + self.nf}, 3) (non-slave particles, then free "
+                             f"atoms) and delta ({self.N}, 3)")
+        self.y0, self.delta0 = y.copy(), delta.copy()
+
+    def rows(self, y) -> np.ndarray:
+        """Row positions (n, 3) from the tube's unknowns ``y``: every particle (slaves
+        interpolated), then the free atoms."""
+        return np.vstack([self.tube.particle_positions(y), np.asarray(y)[self.nd:]])
+
+    def unknowns(self, state):
+        """(y, delta): the tube's unknowns (a new array) and shifts (a view) of ``state``."""
+        return state.y[self.y_rows], state.fields[FIELD][:self.N]
+
+    def masses(self) -> np.ndarray:
+        """Mass of every row (n,), amu / ``unit``: a particle m_C max(w_c, N_c/2) (slaves
+        too, whose motion their atoms set), a free atom m_C."""
+        t = self.tube
+        w = np.maximum(t.natoms_n, 0.5 * t.nominal) * CARBON_MASS_AMU
+        return np.r_[w, np.full(self.nf, CARBON_MASS_AMU)] / self.unit
+
+    def fields(self) -> dict:
+        """``{FIELD: FieldSpec(3, inertia)}``: a particle's shift has the reduced mass of
+        its two sublattices (a quarter of its mass); the atom rows' (held at zero) unit."""
+        from upscale.engine.fields import FieldSpec
+
+        inertia = self.masses()
+        inertia[:self.N] *= 0.25
+        inertia[self.N:] = 1.0
+        return {FIELD: FieldSpec(3, inertia, unit="Å")}
+
+    def system(self):
+        """A :class:`~upscale.engine.system.ParticleSystem` of the rows at the initial
+        state (volume 1, density the row masses, spacing the bond length)."""
+        from upscale.engine.system import ParticleSystem
+
+        return ParticleSystem(self.rows(self.y0), 1.0, density=self.masses(),
+                              spacing=float(self.tube.lattice.bond))
+
+    def body(self, name: str = "tube"):
+        """This model on its :meth:`system` as an :class:`~upscale.engine.bodies.Body`."""
+        from upscale.engine.bodies import Body
+
+        return Body(self.system(), None, [self], name)
+
+    def conditions(self, n_total: int | None = None, offset: int = 0, *, field: str = FIELD,
+                   held_shifts=None, prefix: str = "") -> list:
+        """The conditions the rows need: the slave particles tied to their atoms
+        (:class:`~upscale.engine.fields.Tie`, x, y, z) and the atom rows' shift held at
+        zero (:class:`~upscale.engine.fields.FixedField`); ``held_shifts`` (N,) bool: the
+        particles whose shifts are also held at their current value (a rigid grip's).
+        In an assembly: ``n_total`` rows, this body's rows from ``offset``, its field
+        ``"<body>/" + FIELD``; ``prefix`` names the regions."""
+        from upscale.engine.conditions import Region
+        from upscale.engine.fields import FixedField, Tie
+
+        n = self.n if n_total is None else int(n_total)
+        out = []
+        t = self.tube
+        if len(t.slave_idx):
+            phi = t.Phi.tocsr()
+            p = int(np.diff(phi.indptr).max())
+            ms = np.full((len(t.slave_idx), p), offset + self.N, np.int64)
+            ws = np.zeros((len(t.slave_idx), p))
+            for k in range(len(t.slave_idx)):
+                a, b = phi.indptr[k], phi.indptr[k + 1]
+                ms[k, :b - a] = offset + self.N + phi.indices[a:b]
+                ws[k, :b - a] = phi.data[a:b]
+            mask = np.zeros(n, bool)
+            mask[offset + t.slave_idx] = True
+            reg = Region(f"{prefix}slave particles", mask)
+            out += [Tie(reg, ms, ws, ("y", c)) for c in range(3)]
+        hold = np.zeros(n, bool)
+        hold[offset + self.atom_rows] = True
+        if held_shifts is not None:
+            hs = np.asarray(held_shifts, bool)
+            if hs.shape != (self.N,):
+                raise ValueError(f"held_shifts of shape {hs.shape}; valid: ({self.N},)")
+            hold[offset + np.nonzero(hs)[0]] = True
+        out.append(FixedField(Region(f"{prefix}held shifts", hold), field, (0, 1, 2), hold=True))
+        return out
+
+    # ------------------------------------------------------------------ the contract
+    def prepare(self, system, family=None, **kw) -> None:
+        if system.dim != 3:
+            raise ValueError(f"the tube model needs a 3D body, got dim={system.dim}")
+        if system.n != self.n:
+            raise ValueError(f"the body has {system.n} rows, the tube model {self.n} (its "
+                             f"{self.N} particles, then its {self.nf} free atoms); valid: "
+                             "DCBRDefectTubeModel.system()")
+        self.system_ = system
+
+    def init_state(self, state) -> None:
+        t = self.tube
+        d = np.zeros((self.n, 3))
+        d[:self.N] = self.delta0
+        state.fields.setdefault(FIELD, d)
+        state.field_v.setdefault(FIELD, np.zeros((self.n, 3)))
+        ex = state.extra
+        ex.setdefault("dcbr.intact", t.intact.copy())
+        ex.setdefault("dcbr.alive", t.alive.copy())
+        ex.setdefault("dcbr.fs_last", t.last_maps.copy())
+        ref = t.neighbour_reference
+        ex.setdefault("dcbr.nl_x", np.full((self.nf + len(t.pad_idx), 3), np.nan)
+                      if ref is None else ref.copy())
+        tw = t.twin
+        if tw is not None:
+            ref = tw.neighbour_reference
+            ex.setdefault("dcbr.twin_nl_x", np.full((tw.nf + len(tw.pad_idx), 3), np.nan)
+                          if ref is None else ref.copy())
+        g = t.ghost_correction
+        ex.setdefault("dcbr.ghost_version", np.array(self._ghost_version, np.int64))
+        ex.setdefault("dcbr.ghost_on", np.array(g is not None))
+        ex.setdefault("dcbr.ghost.Lz", np.array(np.nan if g is None else g["Lz"], np.float64))
+        ex.setdefault("dcbr.ghost.dL", np.array(0.0 if g is None else g["dL"], np.float64))
+        for k, shape in zip(_GHOST, ((self.nd + self.nf, 3), (self.N, 3)) * 2):
+            ex.setdefault(f"dcbr.ghost.{k}", np.zeros(shape) if g is None else
+                          np.array(g[k], np.float64, copy=True))
+
+    def _sync(self, state) -> None:
+        """Give the tube the state's history where it differs (a resumed state). The
+        extras are the arrays this model writes in place; while they are the same objects
+        as at the last sync, nothing else has changed them."""
+        t, ex = self.tube, state.extra
+        key = ex.get("dcbr.fs_last")
+        if key is not None and key is self._synced:
+            return
+        self._synced = key
+        li, la = ex.get("dcbr.intact"), ex.get("dcbr.alive")
+        if li is not None and not (np.array_equal(li, t.intact) and np.array_equal(la, t.alive)):
+            t.set_links(li, la)
+            self._changed()
+        fs = ex.get("dcbr.fs_last")
+        if fs is not None and not np.array_equal(fs, t.last_maps):
+            t.last_maps = fs
+            self._cache = None
+        gv = ex.get("dcbr.ghost_version")
+        if gv is not None and int(gv) != self._ghost_version:
+            t.ghost_correction = None if not bool(ex["dcbr.ghost_on"]) else {
+                "Lz": float(ex["dcbr.ghost.Lz"]), "dL": float(ex["dcbr.ghost.dL"]),
+                **{k: np.array(ex[f"dcbr.ghost.{k}"], copy=True) for k in _GHOST}}
+            self._ghost_version = int(gv)
+            self._changed()
+        for tube, key in ((t, "dcbr.nl_x"), (t.twin, "dcbr.twin_nl_x")):
+            x = ex.get(key)
+            if tube is None or x is None or not np.all(np.isfinite(x)):
+                continue
+            ref = tube.neighbour_reference
+            if ref is None or not np.array_equal(ref, x):
+                tube.rebuild_neighbours(x)
+                self._cache = None
+
+    def _changed(self) -> None:
+        self._version += 1
+        self._cache = None
+
+    def _evaluate(self, state):
+        self._sync(state)
+        y, d = self.unknowns(state)
+        c = self._cache
+        if c is not None and c[0] == self._version and np.array_equal(c[1], y) and \
+                np.array_equal(c[2], d):
+            return c[3]
+        t = self.tube
+        E, gy, gd, _ = t.energy_and_gradient(y, d, self.Lz)
+        ex = state.extra
+        if "dcbr.fs_last" in ex:
+            ex["dcbr.fs_last"][...] = t.last_maps
+            ref = t.neighbour_reference
+            if ref is not None and not np.array_equal(ref, ex["dcbr.nl_x"]):
+                ex["dcbr.nl_x"][...] = ref
+        out = (float(E), gy, gd)
+        self._cache = (self._version, y, np.array(d, copy=True), out)
+        return out
+
+    def add_force(self, state, out) -> None:
+        """Adds -dE/dy to the unknown rows (a slave's part is in its atoms' rows)."""
+        out[self.y_rows] -= self._evaluate(state)[1]
+
+    def add_field_force(self, state, out) -> None:
+        """Adds -dE/d delta to the particle rows of the shift field."""
+        out[FIELD][:self.N] -= self._evaluate(state)[2]
+
+    def step_force(self, state, out, *, failure=True) -> int:
+        self.add_force(state, out)
+        return self.break_links(state) if failure else 0
+
+    def break_bonds(self, state) -> int:
+        return self.break_links(state)
+
+    def break_links(self, state, stability: bool | None = None) -> int:
+        """The tube's failure rules at the current state: the link rule
+        (:meth:`DCBRDefectTube.update_links`), then, with ``stability`` (default the
+        model's), the lattice-stability rule; returns the number of links (or particles)
+        broken. The links go to ``state.extra``."""
+        self._evaluate(state)  # the rules read the lattice state of this configuration
+        t = self.tube
+        nb = t.update_links()
+        if self.stability if stability is None else stability:
+            nb += t.check_stability()
+        if nb:
+            self._changed()
+            ex = state.extra
+            if "dcbr.intact" in ex:
+                ex["dcbr.intact"][...] = t.intact
+                ex["dcbr.alive"][...] = t.alive
+        return int(nb)
+
+    def store_ghost(self, state) -> None:
+        """The tube's current ghost-force correction (set by the scene: ``prepare_step``,
+        ``prepare_sides``) into ``state.extra``; the next evaluation uses it."""
+        g = self.tube.ghost_correction
+        ex = state.extra
+        self._ghost_version += 1
+        ex["dcbr.ghost_version"][...] = self._ghost_version
+        ex["dcbr.ghost_on"][...] = g is not None
+        tw = self.tube.twin
+        if tw is not None and tw.neighbour_reference is not None and "dcbr.twin_nl_x" in ex:
+            ex["dcbr.twin_nl_x"][...] = tw.neighbour_reference  # (the twin's list, built at
+            # the uniform states of the correction: its pairs' order is part of the result)
+        if g is not None:
+            ex["dcbr.ghost.Lz"][...] = g["Lz"]
+            ex["dcbr.ghost.dL"][...] = g["dL"]
+            for k in _GHOST:
+                ex[f"dcbr.ghost.{k}"][...] = g[k]
+        self._changed()
+
+    def force(self, state):
+        out = np.zeros_like(state.y)
+        self.add_force(state, out)
+        return out
+
+    def energy(self, state) -> float:
+        return self._evaluate(state)[0]
+
+    def energy_density(self, state):
+        return np.zeros(state.y.shape[0])
+
+    def particle_damage(self, state) -> np.ndarray:
+        """Rows' damage: a particle's mu = 1 - R/T of its links (seed 004 eq. 5.16), a free
+        atom's 1 - bonds left / bonds at the start."""
+        self._sync(state)
+        y, d = self.unknowns(state)
+        return np.r_[self.tube.damage, self.tube.atom_damage(y, d, self.Lz)]
+
+    def stiffness_bound(self):
+        return None
+
+    def describe(self) -> dict:
+        t = self.tube
+        return {"model": self.name, "chirality": [t.lattice.n, t.lattice.m],
+                "coarsening": t.coarsening, "particles": t.N, "free_atoms": t.nf,
+                "atoms": t.n_atoms, "vacancy_atoms": int(t.removed.sum()),
+                "potential": t.potential, "cutoff": t.cutoff, "periodic": bool(t.periodic),
+                "cell_length_A": self.Lz}
+
+    # ------------------------------------------------------------------ atoms
+    def atoms(self, state):
+        """Every atom of the tube at ``state``: (positions (n_atoms, 3) Å, index into the
+        tube's ``X_atoms``); the free atoms are their rows, the others reconstructed from
+        their carriers' maps (:meth:`DCBRDefectTube.mapped_atoms`). The map table is built
+        at the first call from the tube's G (build it again with :meth:`reset_atom_map`
+        after opening or clamping the tube)."""
+        self._sync(state)
+        t = self.tube
+        if self._map is None:
+            self._map = t.atom_map()
+        y, d = self.unknowns(state)
+        x = np.vstack([y[self.nd:], t.mapped_atoms(y, d, self.Lz, self._map)])
+        return x, np.r_[t.free_idx, self._map["atoms"]]
+
+    def reset_atom_map(self) -> None:
+        self._map = None
+
+    def atom_forces(self, state, f):
+        """Forces ``f`` (n_atoms, 3) on the atoms of :meth:`atoms` (same order) as
+        generalised forces: (on the rows (n, 3), on the shift field (n, 3)) to add to the
+        model's own (the chain rule through the maps and G; slave rows get none, their
+        part is on their atoms)."""
+        f = np.asarray(f, dtype=np.float64)
+        nm = 0 if self._map is None else len(self._map["c"])
+        if self._map is None or f.shape != (self.nf + nm, 3):
+            raise ValueError(f"forces of shape {f.shape}; valid: ({self.nf} + mapped atoms, 3), "
+                             "the rows of atoms(state) (call it first)")
+        self._sync(state)
+        y, d = self.unknowns(state)
+        gy, gd = self.tube.mapped_atom_gradient(y, d, self.Lz, self._map, -f[self.nf:])
+        F = np.zeros((self.n, 3))
+        F[self.y_rows] = -gy
+        F[self.atom_rows] += f[:self.nf]
+        G = np.zeros((self.n, 3))
+        G[:self.N] = -gd
+        return F, G
+
+
+def _register():
+    from upscale.models import register
+
+    register("dcbr-defect-tube", DCBRDefectTubeModel)
+
+
+_register()

@@ -1,0 +1,338 @@
+"""The 7-tube bundle: van der Waals between tubes at rest, and dynamic tension, against LAMMPS.
+
+Cases
+-----
+``bundle-vdw``      the inter-tube Lennard-Jones energy and forces of the bundle at rest:
+                    all-atomistic on the engine (Tersoff bodies + ``tube-vdw``) against
+                    LAMMPS (``pair_style hybrid tersoff lj/cut``, the references' pair,
+                    cutoff and parameters), and the mixed bundle (coarse outer tubes, atoms
+                    reconstructed from their particles) against the all-atomistic one.
+``bundle-tension``  the bundle scene (:mod:`upscale.experiments.bundle`) against the
+                    full-atomistic LAMMPS bundle in dynamic tension (stored reference, or
+                    computed on the fly with the same protocol).
+"""
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from validation.registry import case, table
+
+REPO = Path(__file__).resolve().parents[2]
+REF_DIR = REPO / "data" / "reference"
+
+
+def _parse_chirality(text):
+    try:
+        n, m = (int(v) for v in str(text).split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"--chirality {text!r}; valid: two integers N,M (e.g. 10,10)") from None
+    return n, m
+
+
+def lammps_pair_lines(ntubes: int, tersoff_file, lj_only: bool = False) -> list[str]:
+    """The references' bundle pair (validation.lammps.potential): Tersoff within a tube
+    (atom type = tube), lj/cut between tubes; ``lj_only``: the LJ part alone."""
+    from validation.lammps.potential import LJ_CUTOFF, LJ_EPSILON_EV, LJ_SIGMA  # noqa: PLC0415
+
+    if lj_only:
+        out = [f"pair_style lj/cut {LJ_CUTOFF}", f"pair_coeff * * 0.0 {LJ_SIGMA}"]
+        out += [f"pair_coeff {i} {j} {LJ_EPSILON_EV} {LJ_SIGMA}"
+                for i in range(1, ntubes + 1) for j in range(i + 1, ntubes + 1)]
+        return out
+    elems = " ".join(["C"] * ntubes)
+    out = [f"pair_style hybrid tersoff lj/cut {LJ_CUTOFF}",
+           f"pair_coeff * * tersoff {tersoff_file} {elems}"]
+    out += [f"pair_coeff {i} {j} lj/cut {LJ_EPSILON_EV} {LJ_SIGMA}"
+            for i in range(1, ntubes + 1) for j in range(i + 1, ntubes + 1)]
+    return out
+
+
+def _rel(a, b):
+    return float(abs(a - b) / max(abs(b), 1e-300))
+
+
+def _frel(fa, fb):
+    return float(np.abs(fa - fb).max() / max(np.abs(fb).max(), 1e-300))
+
+
+def _args_vdw(p):
+    p.add_argument("--chirality", type=_parse_chirality, default=(10, 10), help="N,M")
+    p.add_argument("--length", type=float, default=150.0, help="tube length, Å")
+    p.add_argument("--coarsening", type=float, default=2.0,
+                   help="coarsening of the outer tubes of the mixed bundle (default 2)")
+    p.add_argument("--spacing", choices=("vdw", "seed"), default="vdw")
+
+
+@case("bundle-vdw", "van der Waals between the tubes of a bundle at rest: engine vs LAMMPS "
+      "(all-atomistic), mixed vs all-atomistic", add_arguments=_args_vdw)
+def run_bundle_vdw(args):
+    from potentials.lammps_runtime import lammps_potential_path  # noqa: PLC0415
+    from potentials.tersoff import write_step_cutoff_file  # noqa: PLC0415
+    from upscale.experiments.bundle import BundleScene, TubeSpec  # noqa: PLC0415
+    from validation.cases.tersoff import lammps_evaluate  # noqa: PLC0415
+    from validation.lammps.potential import LJ_CUTOFF, LJ_EPSILON_EV, LJ_SIGMA  # noqa: PLC0415
+
+    n, m = args.chirality
+    t0 = time.perf_counter()
+    atomistic = BundleScene.create((n, m), args.length, [TubeSpec("tersoff")] * 7,
+                                   spacing=args.spacing, vacancy_tube=0)
+    if (atomistic.vdw.eps, atomistic.vdw.sigma, atomistic.vdw.rc) != \
+            (LJ_EPSILON_EV, LJ_SIGMA, LJ_CUTOFF):
+        raise SystemExit("bundle-vdw: the scene's LJ parameters differ from the references'")
+    st = atomistic.state_at_rest()
+    e_vdw = atomistic.vdw.energy(st)
+    f_vdw = atomistic.vdw.force(st)
+    e_tot = e_vdw + sum(mm.energy(st) for mm in atomistic.body_models)
+    f_tot = f_vdw + sum(mm.force(st) for mm in atomistic.body_models)
+    t_ours = time.perf_counter() - t0
+    # LAMMPS: the same atoms (types = tubes), the LJ part alone and the whole pair
+    atoms = atomistic.atoms_at_rest()
+    types = atoms.arrays["mol-id"]
+    step = write_step_cutoff_file(lammps_potential_path("BNC.tersoff"),
+                                  Path(args.outdir) / "BNC.step.tersoff")
+    t1 = time.perf_counter()
+    ref_lj = lammps_evaluate(atoms, lammps_pair_lines(7, step, lj_only=True), types=types)
+    ref_all = lammps_evaluate(atoms, lammps_pair_lines(7, step), types=types)
+    t_lmp = time.perf_counter() - t1
+    rows = [{"quantity": "vdW energy (eV)", "engine": e_vdw, "LAMMPS": ref_lj["energy"],
+             "rel_err": _rel(e_vdw, ref_lj["energy"])},
+            {"quantity": "vdW forces (max |df| / max |f|)", "engine": np.abs(f_vdw).max(),
+             "LAMMPS": np.abs(ref_lj["forces"]).max(), "rel_err": _frel(f_vdw, ref_lj["forces"])},
+            {"quantity": "total energy (eV)", "engine": e_tot, "LAMMPS": ref_all["energy"],
+             "rel_err": _rel(e_tot, ref_all["energy"])},
+            {"quantity": "total forces", "engine": np.abs(f_tot).max(),
+             "LAMMPS": np.abs(ref_all["forces"]).max(), "rel_err": _frel(f_tot, ref_all["forces"])}]
+    out = {"chirality": [n, m], "length_A": args.length, "spacing": args.spacing,
+           "n_atoms": len(atoms),
+           "energy_rel_err_all_atomistic": rows[0]["rel_err"],
+           "force_rel_err_all_atomistic": rows[1]["rel_err"],
+           "total_energy_rel_err_all_atomistic": rows[2]["rel_err"],
+           "total_force_rel_err_all_atomistic": rows[3]["rel_err"],
+           "vdw_energy_eV": e_vdw, "wall_s_engine": t_ours, "wall_s_lammps": t_lmp}
+    # the mixed bundle: the outer tubes coarse, atoms reconstructed from their particles
+    mixed = BundleScene.create((n, m), args.length,
+                               [TubeSpec("tersoff")] + [TubeSpec("dcbr", args.coarsening)] * 6,
+                               spacing=args.spacing, vacancy_tube=0)
+    sm = mixed.state_at_rest()
+    e_mixed = mixed.vdw.energy(sm)
+    between_mixed = mixed.vdw.energy_between(sm)
+    between_atom = atomistic.vdw.energy_between(st)
+    lumped = mixed.lumped_vdw()
+    e_lumped = lumped.energy(sm)
+    # the tension runs' cheaper variant: coarse-coarse pairs through lumped sites only
+    from upscale.models.tube_vdw import TubeVdW  # noqa: PLC0415
+
+    sv = mixed.vdw
+    sites = [lumped.maps[k] if mixed.specs[k].model != "tersoff" else None
+             for k in range(len(mixed.specs))]
+    half = TubeVdW(sv.maps, sv.eps, sv.sigma, rc=sv.rc, sites=sites)
+    half.prepare(mixed.assembly.system)
+    e_half = half.energy(sm)
+    out.update({"energy_rel_err_mixed": _rel(e_mixed, e_vdw),
+                "energy_rel_err_lumped": _rel(e_lumped, e_vdw),
+                "vdw_energy_mixed_eV": e_mixed, "vdw_energy_lumped_eV": e_lumped,
+                "energy_rel_err_coarse_pairs_sites": _rel(e_half, e_vdw),
+                "vdw_energy_coarse_pairs_sites_eV": e_half,
+                "central_outer_energy_rel_err_mixed": _rel(between_mixed[0].sum(),
+                                                           between_atom[0].sum()),
+                "outer_outer_energy_rel_err_mixed": _rel(between_mixed[1:].sum(),
+                                                         between_atom[1:].sum()),
+                "coarsening": args.coarsening})
+    pairs = between_atom != 0
+    out["pair_energy_max_rel_err_mixed"] = float(np.max(np.abs(
+        between_mixed[pairs] - between_atom[pairs]) / np.abs(between_atom[pairs])))
+    out["dof_mixed"], out["dof_all_atomistic"] = mixed.dof, atomistic.dof
+    # the reference of the mixed rows is the all-atomistic engine bundle (column LAMMPS)
+    rows += [{"quantity": f"mixed K={args.coarsening:g}: vdW energy (eV), reconstructed atoms",
+              "engine": e_mixed, "LAMMPS": e_vdw, "rel_err": out["energy_rel_err_mixed"]},
+             {"quantity": f"mixed K={args.coarsening:g}: vdW energy (eV), lumped particles",
+              "engine": e_lumped, "LAMMPS": e_vdw, "rel_err": out["energy_rel_err_lumped"]},
+             {"quantity": f"mixed K={args.coarsening:g}: atoms to the centre, sites between "
+                          "coarse tubes", "engine": e_half, "LAMMPS": e_vdw,
+              "rel_err": out["energy_rel_err_coarse_pairs_sites"]}]
+    print(table(rows))
+    print("rows 'mixed': column LAMMPS holds the all-atomistic bundle's vdW energy (engine = "
+          "LAMMPS to the digits above); mixed = outer tubes coarse, at their own relaxed "
+          f"open state; largest error of one tube pair's energy: "
+          f"{100 * out['pair_energy_max_rel_err_mixed']:.2f} %")
+    out["pass"] = bool(out["energy_rel_err_all_atomistic"] < 1e-10
+                       and out["force_rel_err_all_atomistic"] < 1e-10
+                       and out["energy_rel_err_mixed"] < 0.01)
+    return out
+
+
+# ---------------------------------------------------------------------- bundle tension
+def _args_tension(p):
+    p.add_argument("--chirality", type=_parse_chirality, default=(10, 10), help="N,M")
+    p.add_argument("--length", type=float, default=150.0, help="tube length, Å (default 150)")
+    p.add_argument("--coarsening", type=float, default=2.0,
+                   help="coarsening K of the six outer tubes (default 2)")
+    p.add_argument("--tubes", default=None,
+                   help="model of each tube, centre first (default tersoff,dcbr:K x6)")
+    g = p.add_mutually_exclusive_group()
+    g.add_argument("--gap", type=float, default=None, help="wall gap, Å (default 3.4)")
+    g.add_argument("--hexagon", action="store_true",
+                   help="the seed's hexagon: centres 2.2 R apart")
+    p.add_argument("--seeds", type=int, default=1,
+                   help="thermal seeds of the engine run (the mean is compared with the mean "
+                   "of the LAMMPS seeds stored; default 1)")
+    p.add_argument("--allow-overlap", action="store_true",
+                   help="run tubes closer than the van der Waals wall (the seed's hexagon)")
+    p.add_argument("--vdw-every", type=int, default=1,
+                   help="vdW forces recomputed every N steps, held in between (default 1)")
+    p.add_argument("--coarse-pairs", choices=("atoms", "sites"), default="atoms",
+                   help="two coarse tubes interact through reconstructed atoms (default) or "
+                   "their particles as lumped sites")
+    p.add_argument("--max-strain", type=float, default=0.40,
+                   help="stop the pull at this strain (default 0.40, the references')")
+
+
+def lammps_bundle_references(n, m, length, spacing, gap, compute=True):
+    """The LAMMPS bundle references of this geometry: every stored seed (the default seed's
+    file and ``_s<seed>`` variants); computed with ``reference-tension``'s runner and the
+    same protocol when none is stored (kept under validation/out/)."""
+    import json  # noqa: PLC0415
+
+    from upscale.experiments.bundle import reference_name  # noqa: PLC0415
+
+    base = reference_name((n, m), spacing, True, 7)
+    if gap is not None and abs(gap - 3.4) > 1e-9:
+        base += f"_gap{gap:g}"
+    found = sorted(REF_DIR.glob(f"{base}.json")) + sorted(REF_DIR.glob(f"{base}_s*.json"))
+    cache = REPO / "validation" / "out" / "lammps-cache"
+    found += sorted(cache.glob(f"{base}.json")) if not found else []
+    refs = [json.loads(p.read_text()) for p in found]
+    rerun = REF_DIR / f"{base}_rerun.json"  # the kept run again, with per-tube reactions
+    if refs and "stress_per_tube_GPa" not in refs[0]["curve"] and rerun.is_file():
+        refs[0]["curve"]["stress_per_tube_GPa"] = json.loads(rerun.read_text())["curve"][
+            "stress_per_tube_GPa"]
+        refs[0]["curve"]["_per_tube_from"] = str(rerun.relative_to(REPO))
+    if refs or not compute:
+        return refs, [str(p.relative_to(REPO)) for p in found]
+    from validation.cases.references import analyse, run_spec  # noqa: PLC0415
+    from upscale.io import write_json  # noqa: PLC0415
+
+    spec = {"name": base, "protocol": "dynamic", "chirality": (n, m), "vacancy": True,
+            "length": length, "ntubes": 7, "spacing": spacing}
+    if gap is not None:
+        spec["gap"] = gap
+    res = analyse(run_spec(spec))
+    cache.mkdir(parents=True, exist_ok=True)
+    write_json(cache / f"{base}.json", res)
+    return [res], [str((cache / f"{base}.json").relative_to(REPO))]
+
+
+def _mean(rs, key):
+    v = [r[key] for r in rs if r.get(key) is not None]
+    return float(np.mean(v)) if v else None
+
+
+def _pct(a, b):
+    return None if a is None or b is None else float(100.0 * (a - b) / b)
+
+
+@case("bundle-tension", "the bundle (atomistic centre, coarse outer tubes) in dynamic "
+      "tension against the full-atomistic LAMMPS bundle", add_arguments=_args_tension)
+def run_bundle_tension(args):
+    import os  # noqa: PLC0415
+
+    from upscale.experiments.bundle import (BundleScene, dynamic_tension,  # noqa: PLC0415
+                                            parse_specs, plot_curves, plot_damage_maps,
+                                            tube_failures)
+
+    n, m = args.chirality
+    spacing = "seed" if args.hexagon else "vdw"
+    gap = 3.4 if args.gap is None else args.gap
+    load0 = os.getloadavg()
+    try:
+        specs = parse_specs(args.tubes, 7, args.coarsening)
+        scene = BundleScene.create((n, m), args.length, specs, spacing=spacing, gap=gap,
+                                   vacancy_tube=0, allow_overlap=args.allow_overlap,
+                                   vdw_every=args.vdw_every, coarse_pairs=args.coarse_pairs)
+    except ValueError as exc:
+        raise SystemExit(f"bundle-tension: {exc}") from None
+    refs, ref_files = lammps_bundle_references(n, m, args.length, spacing, args.gap)
+    runs = []
+    t0 = time.perf_counter()
+    for k in range(args.seeds):
+        seed = 4928459 + k
+        if k:
+            scene = BundleScene.create((n, m), args.length, specs, spacing=spacing, gap=gap,
+                                       vacancy_tube=0, allow_overlap=args.allow_overlap,
+                                       ratios=scene.info["ratios"], vdw_every=args.vdw_every,
+                                       coarse_pairs=args.coarse_pairs)
+        runs.append(dynamic_tension(scene, seed=seed, progress=not args.quick,
+                                    max_strain=args.max_strain))
+    wall = (time.perf_counter() - t0) / args.seeds
+    lam_order = [tube_failures(r["curve"]["strain"], r["curve"]["stress_per_tube_GPa"])
+                 for r in refs if "stress_per_tube_GPa" in r["curve"]]
+    out = {"chirality": [n, m], "coarsening": args.coarsening, "spacing": spacing,
+           "wall_gap_A": scene.info["wall_gap_A"], "tubes": [s.model for s in specs],
+           "seeds": args.seeds, "lammps_seeds": len(refs), "lammps_files": ref_files}
+    for key, name in (("strength_GPa", "strength"), ("youngs_modulus_TPa", "modulus"),
+                      ("strain_at_peak", "strain_at_peak")):
+        ours, theirs = _mean(runs, key), _mean(refs, key)
+        out[f"{name}_engine"] = ours
+        out[f"{name}_lammps"] = theirs
+        out[f"{name}_err_pct"] = _pct(ours, theirs)
+        if len(runs) > 1:
+            out[f"{name}_engine_sd"] = float(np.std([r[key] for r in runs], ddof=1))
+        if len(refs) > 1:
+            out[f"{name}_lammps_sd"] = float(np.std([r[key] for r in refs], ddof=1))
+    dof_atoms = 3 * scene.info["n_atoms"]
+    out.update({"dof": scene.dof, "dof_atoms": dof_atoms,
+                "dof_reduction_pct": float(100.0 * (scene.dof - dof_atoms) / dof_atoms),
+                "wall_s": wall, "lammps_wall_s": _mean(refs, "wall_s"),
+                "cpu_s": _mean(runs, "cpu_s"), "lammps_cpu_s": _mean(refs, "cpu_s"),
+                "vdw_every": args.vdw_every, "coarse_pairs": args.coarse_pairs,
+                "failure_order": [r["failure_order"] for r in runs],
+                "tube_failure_strain": [r["tube_failure_strain"] for r in runs],
+                "lammps_failure_order": [o["failure_order"] for o in lam_order],
+                "central_tube_fails_first": bool(all(r["central_tube_fails_first"]
+                                                     for r in runs)),
+                "lammps_central_tube_fails_first": [o["central_tube_fails_first"]
+                                                    for o in lam_order],
+                "timing_s": [r["timing_s"] for r in runs],
+                "load_before": list(load0), "load_after": list(os.getloadavg())})
+    out["speedup"] = (out["lammps_wall_s"] / wall) if out["lammps_wall_s"] else None
+    out["speedup_cpu"] = (out["lammps_cpu_s"] / out["cpu_s"]) if out["lammps_cpu_s"] else None
+    # the result itself, for the results file and plots
+    from upscale.io import write_json  # noqa: PLC0415
+
+    tagj = f"{n}-{m}_K{args.coarsening:g}_{spacing}"
+    write_json(Path(args.outdir) / f"bundle_run_{tagj}.json",
+               {"runs": [{k: v for k, v in r.items() if not k.startswith("_")
+                          and k != "damage"} for r in runs],
+                "damage": [[{"tube": d["tube"], "model": d["model"],
+                             "damaged_fraction": d["damaged_fraction"],
+                             "max_mu": d["max_mu"]} for d in r["damage"]] for r in runs]})
+    tag = f"{n}-{m}_K{args.coarsening:g}_{spacing}"
+    plot_curves(runs[0], Path(args.outdir) / f"bundle_{tag}.png", refs[0] if refs else None,
+                title=f"({n},{m}) 7-tube bundle, outer tubes K={args.coarsening:g}: engine "
+                      "(solid) vs LAMMPS (dashed)")
+    plot_damage_maps(runs[0], Path(args.outdir) / f"bundle_damage_{tag}.png",
+                     title=f"({n},{m}) bundle K={args.coarsening:g}: damage, last state")
+    rows = [{"quantity": q, "engine": out[f"{k}_engine"], "LAMMPS": out[f"{k}_lammps"],
+             "error (%)": out[f"{k}_err_pct"]}
+            for q, k in (("strength (GPa)", "strength"), ("Young's modulus (TPa)", "modulus"),
+                         ("strain at peak", "strain_at_peak"))]
+    rows += [{"quantity": "degrees of freedom", "engine": out["dof"], "LAMMPS": dof_atoms,
+              "error (%)": out["dof_reduction_pct"]},
+             {"quantity": "wall time (s)", "engine": wall, "LAMMPS": out["lammps_wall_s"],
+              "error (%)": None}]
+    print(table(rows))
+    print(f"failure order (tubes, 1 = centre): engine {out['failure_order']}, LAMMPS "
+          f"{out['lammps_failure_order']}")
+    ok = [out[k] is not None for k in ("strength_err_pct", "modulus_err_pct",
+                                       "strain_at_peak_err_pct")]
+    out["pass"] = bool(all(ok) and abs(out["strength_err_pct"]) <= 5.0
+                       and abs(out["modulus_err_pct"]) <= 3.0
+                       and abs(out["strain_at_peak_err_pct"]) <= 10.0
+                       and out["central_tube_fails_first"]
+                       and (out["speedup"] or 0) >= 5.0)
+    return out
