@@ -92,6 +92,10 @@ Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bon
     all); only its free dofs are thermostatted. ``k_B`` in the scene's energy per K
     (default SI; ``upscale.constants.K_B_EV`` for eV). ``kinetic_temperature(sim, region,
     k_B)``. Their variables and random state are part of the checkpoint.
+    ``NoseHoover(temperature, tau, region=None, components=(0, 1, 2), fields=(),
+    field_region=None, ndf=None, k_B=None)``: one Nose-Hoover variable in explicit half
+    steps, on chosen translation components (``(0, 1)``: LAMMPS's ``temp/partial 1 1 0``)
+    and on fields with inertia (their rates count in the temperature and are scaled).
 
 ``upscale.engine.minimisers`` (peers of the integrators)
     ``FIRE(ftol, max_iter, dt=None, ...)``, ``QuickMin(ftol, max_iter, dt=None)``,
@@ -116,7 +120,9 @@ Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bon
     ``interactions`` are models on the whole system acting between bodies (e.g.
     ``upscale.models.lennard_jones.LennardJonesBetweenBodies``). ``Assembly.rows(name)``,
     ``.mask(name)``, ``.simulation(conditions, integrator)``. Mismatched bodies (dim,
-    plane, thickness) or repeated names -> ``ValueError``.
+    plane, thickness) or repeated names -> ``ValueError``. A body model's fields are the
+    assembled fields ``"<body>/<field>"`` (its field forces and ``particle_damage`` are
+    forwarded too; ``BodyModel.sub(state)`` is the body's view of the assembled state).
 
 ``upscale.engine.simulation``
     ``Simulation(system, family, models, conditions=(), integrator=None, state=None,
@@ -148,8 +154,9 @@ Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bon
     ``Tie(region, masters, weights, target)`` (ghost dofs slaved to linear combinations:
     mirror supports, extrapolated ends). Linear tools: ``operator(sim)`` (K = -dF/dq by
     probing the force routines), ``solve_static(sim)`` (sparse LU, no symmetry assumed),
-    ``critical_dt(sim)``. Massless internal fields and global variables are not part of
-    this extension.
+    ``critical_dt(sim)``. ``FixedField(..., hold=True)`` keeps the components' current
+    values (only their rate is zeroed). Massless internal fields and global variables are
+    not part of this extension.
 
 ``upscale.engine.dispersion``
     ``dynamical_matrix(sim, k)`` / ``dispersion(sim, ks)``: the discrete dispersion of any

@@ -1,6 +1,11 @@
 """Dynamic tension of the coarse tube (the LAMMPS references' dynamic protocol), with a
 vacancy or pristine.
 
+The time loop runs on the engine (:func:`dynamic_tension` with ``engine=True``, the
+default: the tube as :class:`upscale.models.dcbr_engine.DCBRDefectTubeModel`, checkpoints
+with exact resume, extxyz / VTK output, the blow-up guard); ``engine=False`` runs the same
+protocol in the loop written out in :func:`dynamic_tension`.
+
 :func:`dynamic_tension` follows ``validation.lammps.tension.dynamic_tension`` step for step,
 on a :class:`~upscale.models.dcbr_defect.DCBRDefectTube`:
 
