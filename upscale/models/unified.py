@@ -81,7 +81,7 @@ import scipy.sparse as sp
 
 from upscale.models import register
 from upscale.models.base import Model, Needs
-from upscale.models.gain import gain_coefficients, kappa
+from upscale.models.gain import gain_coefficients, gain_coefficients_quadratic, kappa
 
 __all__ = ["UnifiedModel", "elastic_tensor", "orthotropic_tensor", "critical_energy_release_rate"]
 
@@ -409,7 +409,8 @@ class UnifiedModel(Model):
                  plane: str = "stress", force: str = "energy", stabilisation: float = 0.0,
                  K_Ic: float | None = None, r_s: float | None = None, G_c: float | None = None,
                  no_fail=None, rcond: float = 1e-6, kernel: str = "quartic",
-                 failure_energy: str = "tensile", min_bonds: int = 0):
+                 failure_energy: str = "tensile", min_bonds: int = 0, gain_order: int = 1,
+                 qcond: float = 1e-8):
         if dim not in (2, 3):
             raise ValueError(f"dim={dim!r}; valid: 2, 3")
         if force not in ("energy", "printed"):
@@ -432,6 +433,10 @@ class UnifiedModel(Model):
         self.kernel = kernel
         self.rcond = float(rcond)
         self.min_bonds = int(min_bonds)
+        if gain_order not in (1, 2):
+            raise ValueError(f"gain_order={gain_order!r}; valid: 1 (linear fit), 2 (quadratic fit)")
+        self.gain_order = int(gain_order)
+        self.qcond = float(qcond)
         if r_s is not None and not (np.isfinite(r_s) and r_s > 0):
             raise ValueError(f"r_s={r_s!r} m; valid: r_s > 0")
         self.r_s = None if r_s is None else float(r_s)
@@ -471,8 +476,13 @@ class UnifiedModel(Model):
         """Recompute Upsilon, the centring and the gain coefficients of every particle from
         the intact bonds (mutates ``coef``, ``alive``, the cached operators)."""
         intact = np.ascontiguousarray(intact, dtype=np.bool_)
-        gain_coefficients(self._xi, self.family.offsets, self._w, intact, self.dim, self.rcond,
-                          self.coef, self.alive)
+        if self.gain_order == 2:
+            self.quadratic = np.zeros(self.system.n, dtype=bool)
+            gain_coefficients_quadratic(self._xi, self.family.offsets, self._w, intact, self.dim, self.rcond,
+                                        self.qcond, self.coef, self.alive, self.quadratic)
+        else:
+            gain_coefficients(self._xi, self.family.offsets, self._w, intact, self.dim, self.rcond,
+                              self.coef, self.alive)
         if self.min_bonds > self.dim + 1:
             cnt = np.bincount(self.family.owner[intact], minlength=self.system.n)
             few = self.alive & (cnt < self.min_bonds)
