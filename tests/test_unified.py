@@ -70,7 +70,7 @@ def test_rigid_rotation_gives_zero_strain_and_force():
     t = 0.7
     R = np.array([[np.cos(t), -np.sin(t), 0], [np.sin(t), np.cos(t), 0], [0, 0, 1]])
     st.y = s.x0 @ R.T + 3e-3
-    F, E, S, P, W = model.fields(st)
+    F, E, S, P, W = model.continuum_fields(st)
     assert np.abs(E).max() < 1e-13
     assert np.abs(model.particle_force(st)).max() < 1e-12 * 3.75e9 * H * H
 
@@ -202,7 +202,7 @@ def test_breaking_recomputes_upsilon_and_kills_lonely_particles():
     st.intact[fam.reverse[row]] = False
     Hm = np.array([[1e-3, 0, 0], [0, -2e-4, 0], [0, 0, 0]])
     st.y = s.x0 + s.x0 @ Hm.T
-    F, E, S, P, W = model.fields(st)
+    F, E, S, P, W = model.continuum_fields(st)
     assert not model.alive[0] and W[0] == 0.0
     # the neighbours re-centred on their remaining bonds: still affine exact
     assert np.abs(F[model.alive] - (np.eye(2) + Hm[:2, :2])).max() < 1e-12

@@ -499,7 +499,7 @@ class UnifiedModel(Model):
             self.update_bonds(state.intact)
 
     # ------------------------------------------------------------------ continuum fields
-    def fields(self, state):
+    def continuum_fields(self, state):
         """(F, E, S, P, W): deformation gradient, Green strain, PK2 stress (Pa), force
         stress (Pa) as (N, dim, dim) and energy density W (N,) J/m^3."""
         self._sync(state)
@@ -516,11 +516,11 @@ class UnifiedModel(Model):
 
     def deformation_gradient(self, state) -> np.ndarray:
         """F = I + G per particle (N, dim, dim)."""
-        return self.fields(state)[0]
+        return self.continuum_fields(state)[0]
 
     # ------------------------------------------------------------------ forces and energy
     def add_force(self, state, out) -> None:
-        F, E, S, P, W = self.fields(state)
+        F, E, S, P, W = self.continuum_fields(state)
         force_kernel(P, self.system.volume, self.family.offsets, self.family.neighbors,
                      self._reverse, self.coef, self.dim, out)
         if self.stabilisation > 0:
@@ -544,11 +544,11 @@ class UnifiedModel(Model):
 
     def energy_density(self, state) -> np.ndarray:
         """Strain energy density W_c = S:E/2 (J/m^3) of the gain model (penalty excluded)."""
-        return self.fields(state)[4]
+        return self.continuum_fields(state)[4]
 
     def energy(self, state) -> float:
         """Stored energy (J): sum_c V_c W_c plus the stabilisation energy."""
-        F, E, S, P, W = self.fields(state)
+        F, E, S, P, W = self.continuum_fields(state)
         e = float(np.dot(W, self.system.volume))
         if self.stabilisation > 0:
             e += self._penalty_force(state, F, np.zeros((self.system.n, 3)))
@@ -613,7 +613,7 @@ class UnifiedModel(Model):
     def tangent(self, state):
         """Consistent stiffness K = -dF_int/dy = B^T blockdiag(V_c dP_c/dF_c) B (+ K_s),
         dP_iA/dF_jB = delta_ij S_AB + F_iC C_CAKB F_jK (energy form; scipy.sparse (3N, 3N))."""
-        F, E, S, P, W = self.fields(state)
+        F, E, S, P, W = self.continuum_fields(state)
         d, n = self.dim, self.system.n
         dPdF = np.einsum("ij,nab->niajb", np.eye(d), S) + np.einsum("nic,cakb,njk->niajb", F, self._C4, F)
         dPdF[~self.alive] = 0.0
@@ -648,7 +648,7 @@ class UnifiedModel(Model):
         (default ``"tensile"``) e+ = sum_i <s_i> (n_i . E n_i) / 2 over the principal
         stresses s_i and directions n_i of S (e+ = W in uniaxial tension, 0 in any
         compressive state)."""
-        F, E, S, P, W = self.fields(state)
+        F, E, S, P, W = self.continuum_fields(state)
         if self.failure_energy == "total":
             return W
         s, n = np.linalg.eigh(S)

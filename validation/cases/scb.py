@@ -4,9 +4,10 @@
 ``scb-fem``          geometry factors Y_I, Y_II, T* of the eight angles (scikit-fem, tip-refined
                      P2 mesh), compliance at alpha = 0, against the factors implied by Table
                      6.2's own K and P columns (the FE study of Ayatollahi et al.)
-``scb-elastic``      unified model (elastic) against the FE reference at the same load and
-                     support widths (3 dx): Y_I, Y_II from the crack-face displacement jump,
-                     load-patch compliance; rollers and the literal pinned supports
+``scb-elastic``      unified model (elastic) against the FE reference with the same boundary
+                     conditions (the 3 x 3 particle patches held as blocks): Y_I, Y_II from
+                     a Williams-expansion fit of the near field (and from the crack-face
+                     jump), load-patch compliance; rollers and the literal pinned supports
 ``scb-table``        r_s calibrated at alpha = 0 only, P_c at the eight angles, K from P_c
                      through the FE factors, errors against the experiment, the paper's errors
                      recomputed from its own values; initiation angles against MTS and GMTS
