@@ -33,3 +33,30 @@ def test_geometry():
     assert np.all(np.abs(x[sc.load, 0]) <= 1.5 * 3e-3 + 1e-12)
     assert np.all(np.abs(np.abs(x[sc.support, 0]) - 0.43 * 0.05) <= 1.5 * 3e-3 + 1e-12)
     assert sc.fixed[sc.support, 1].all() and not sc.fixed[sc.support, 0].any()   # rollers
+
+
+def test_williams_fit_recovers_closed_form_tip_field():
+    """K_I, K_II, T of the textbook near-tip field (plane stress, right-handed frame (ex, -ey))
+    plus a rigid motion, recovered by the Williams least-squares fit; K_II comes back with the
+    sign of the mirrored frame of crack_frame."""
+    from upscale.experiments.scb import crack_frame, williams_fit
+
+    E, nu = 3.75e9, 0.35
+    mu, kap = E / (2 * (1 + nu)), (3 - nu) / (1 + nu)
+    ex, ey = crack_frame(30.0)
+    e1, e2 = ex, -ey
+    rng = np.random.default_rng(1)
+    pts = rng.uniform(-0.01, 0.01, (3000, 2))
+    x1, x2 = pts @ e1, pts @ e2
+    r, th = np.hypot(x1, x2), np.arctan2(x2, x1)
+    KI, KII, T = 1.3e6, 0.7e6, 2.0e6
+    f = np.sqrt(r / (2 * np.pi)) / (2 * mu)
+    u1 = KI * f * np.cos(th / 2) * (kap - 1 + 2 * np.sin(th / 2) ** 2) \
+        + KII * f * np.sin(th / 2) * (kap + 1 + 2 * np.cos(th / 2) ** 2) + T * x1 / E
+    u2 = KI * f * np.sin(th / 2) * (kap + 1 - 2 * np.cos(th / 2) ** 2) \
+        - KII * f * np.cos(th / 2) * (kap - 1 - 2 * np.sin(th / 2) ** 2) - nu * T * x2 / E
+    u = np.outer(u1, e1) + np.outer(u2, e2) + np.array([3e-6, -2e-6]) + 1e-4 * np.column_stack([-pts[:, 1], pts[:, 0]])
+    ki, kii, t = williams_fit(pts, u, ex, ey, mu, kap, 0.002, 0.009, n_terms=6)
+    assert abs(ki / KI - 1) < 1e-6 and abs(kii / -KII - 1) < 1e-6 and abs(t / T - 1) < 1e-6
+    with pytest.raises(ValueError, match="annulus"):
+        williams_fit(pts, u, ex, ey, mu, kap, 0.00910, 0.00911, n_terms=6)

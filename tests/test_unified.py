@@ -70,7 +70,7 @@ def test_rigid_rotation_gives_zero_strain_and_force():
     t = 0.7
     R = np.array([[np.cos(t), -np.sin(t), 0], [np.sin(t), np.cos(t), 0], [0, 0, 1]])
     st.y = s.x0 @ R.T + 3e-3
-    F, E, S, P, W = model.fields(st)
+    F, E, S, P, W = model.continuum_fields(st)
     assert np.abs(E).max() < 1e-13
     assert np.abs(model.particle_force(st)).max() < 1e-12 * 3.75e9 * H * H
 
@@ -202,8 +202,42 @@ def test_breaking_recomputes_upsilon_and_kills_lonely_particles():
     st.intact[fam.reverse[row]] = False
     Hm = np.array([[1e-3, 0, 0], [0, -2e-4, 0], [0, 0, 0]])
     st.y = s.x0 + s.x0 @ Hm.T
-    F, E, S, P, W = model.fields(st)
+    F, E, S, P, W = model.continuum_fields(st)
     assert not model.alive[0] and W[0] == 0.0
     # the neighbours re-centred on their remaining bonds: still affine exact
     assert np.abs(F[model.alive] - (np.eye(2) + Hm[:2, :2])).max() < 1e-12
     assert model.describe()["particles_without_stress"] == 1
+
+
+def test_quadratic_gain_exact_for_quadratic_fields_and_equal_to_linear_inside():
+    """gain_order=2: F exact for a quadratic field at every particle (edges and corners
+    included, where the linear fit is off by order delta x second gradient); at interior
+    particles with a point-symmetric family the coefficients equal the linear ones."""
+    s, fam, lin, st = _plate(nx=12, ny=10)
+    quad = UnifiedModel(E=3.75e9, nu=0.35, gain_order=2)
+    quad.prepare(s, fam)
+    x, y = s.x0[:, 0], s.x0[:, 1]
+    k = 2.0
+    st.y = s.x0.copy()
+    st.y[:, 0] += 1e-3 * k * x * y
+    st.y[:, 1] += -1e-3 * k * (x * x + 0.35 * y * y) / 2
+    exact = np.zeros((s.n, 2, 2))
+    exact[:, 0, 0], exact[:, 0, 1] = 1 + 1e-3 * k * y, 1e-3 * k * x
+    exact[:, 1, 0], exact[:, 1, 1] = -1e-3 * k * x, 1 - 1e-3 * k * 0.35 * y
+    assert quad.quadratic.all()
+    assert np.abs(quad.deformation_gradient(st) - exact).max() < 1e-12
+    err_lin = np.abs(lin.deformation_gradient(st) - exact).max()
+    assert err_lin > 1e-7                      # the linear fit is off at the edges (order delta x 2e-3 /m)
+    full = np.diff(fam.offsets) == np.diff(fam.offsets).max()
+    rows = np.isin(fam.owner, np.flatnonzero(full))
+    assert np.abs(quad.coef[rows] - lin.coef[rows]).max() < 1e-9 * np.abs(lin.coef).max()
+    with pytest.raises(ValueError, match="gain_order"):
+        UnifiedModel(gain_order=3)
+
+
+def test_quadratic_gain_force_is_minus_energy_gradient():
+    s, fam, model, st = _plate(nx=6, ny=5, stabilisation=0.05, gain_order=2)
+    st = _random_state(s, st, amp=2e-5)
+    K = model.tangent(st)
+    Kn = numerical_tangent(model, st, eps=1e-9)
+    assert abs(K - Kn).max() <= 1e-6 * abs(K).max()

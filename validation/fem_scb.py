@@ -115,8 +115,16 @@ def scb_mesh(alpha_deg, *, R=0.05, a_over_R=0.3, S_over_R=0.43, w=1.5e-3, h_far=
 
 
 def solve_scb(alpha_deg, *, E=3.75e9, nu=0.35, R=0.05, a_over_R=0.3, S_over_R=0.43, t=0.005,
-              w=1.5e-3, supports="rollers", h_tip=2e-5, h_far=2.5e-3, mouth=2e-5, probe=None):
+              w=1.5e-3, supports="rollers", h_tip=2e-5, h_far=2.5e-3, mouth=2e-5, probe=None,
+              patch="segment", block=None):
     """Plane-stress P2 solve of the SCB under a unit load-segment displacement.
+
+    ``patch="segment"`` (default): load and supports act on boundary segments of width
+    ``w``. ``patch="block"``: they act on the regions the particle model's patches occupy
+    (every dof inside them is constrained: the load block |x| <= hb, x^2 + y^2 >= (R - db)^2
+    moves rigidly, the support blocks |x -+ S| <= hb, y <= db hold u_y, or u when pinned),
+    with ``block = (hb, db)`` in m (default (2 w / 3, w): the cells of 3 x 3 particles of
+    spacing w / 3).
 
     ``probe`` (k, 2) points (m): also return the FE displacement there per newton of load
     (key ``probe_u_m_per_N``, (k, 2)), e.g. to apply a particle estimator to the FE field.
@@ -149,7 +157,22 @@ def solve_scb(alpha_deg, *, E=3.75e9, nu=0.35, R=0.05, a_over_R=0.3, S_over_R=0.
     ds = ib.get_dofs(sup)
     top_x, top_y = dt.all("u^1"), dt.all("u^2")
     sup_y = ds.all("u^2")
-    fixed = [top_x, top_y, sup_y] + ([ds.all("u^1")] if supports == "pinned" else [])
+    sup_x = ds.all("u^1")
+    if patch == "block":
+        hb, db = block if block is not None else (2 * w / 3, w)
+        X = ib.doflocs
+        comp = np.zeros(X.shape[1], int)
+        comp[ib.nodal_dofs[1]] = 1
+        comp[ib.facet_dofs[1]] = 1 if ib.facet_dofs.size else 0
+        in_load = (np.abs(X[0]) <= hb + tol) & (X[0] ** 2 + X[1] ** 2 >= (R - db) ** 2 - tol)
+        in_sup = (np.abs(np.abs(X[0]) - S) <= hb + tol) & (X[1] <= db + tol)
+        top_x = np.union1d(top_x, np.flatnonzero(in_load & (comp == 0)))
+        top_y = np.union1d(top_y, np.flatnonzero(in_load & (comp == 1)))
+        sup_y = np.union1d(sup_y, np.flatnonzero(in_sup & (comp == 1)))
+        sup_x = np.union1d(sup_x, np.flatnonzero(in_sup & (comp == 0)))
+    elif patch != "segment":
+        raise ValueError(f"patch={patch!r}; valid: 'segment', 'block'")
+    fixed = [top_x, top_y, sup_y] + ([sup_x] if supports == "pinned" else [])
     D = np.unique(np.concatenate(fixed))
     d = 1e-5
     u = np.zeros(K.shape[0])
@@ -215,7 +238,13 @@ def solve_scb(alpha_deg, *, E=3.75e9, nu=0.35, R=0.05, a_over_R=0.3, S_over_R=0.
     if probe is not None:
         from skfem import ElementTriP2 as _P2
 
-        pb = ib.with_element(_P2()).probes(np.asarray(probe, float).T)
+        q = np.asarray(probe, float).copy()
+        rq = np.hypot(q[:, 0], q[:, 1])
+        out = rq > R * (1 - 1e-3)                 # the meshed arc is a polygon inside the circle
+        q[out] *= (R * (1 - 1e-3) / rq[out])[:, None]
+        slit = (np.abs(q @ ey) < mouth) & (q @ ex < a)
+        q[slit] += 2 * mouth * np.sign(q[slit] @ ey + 1e-30)[:, None] * ey   # points inside the slit: nearer face
+        pb = ib.with_element(_P2()).probes(q.T)
         extra["probe_u_m_per_N"] = np.column_stack([pb @ u[0::2],
                                                     pb @ u[1::2]]) / P
     return {**extra,"alpha_deg": float(alpha_deg), "Y_I": float(Y(KI)), "Y_II": float(Y(KII)),

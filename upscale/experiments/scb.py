@@ -32,7 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["SCBScene", "run_scb", "register", "PMMA", "crack_frame"]
+__all__ = ["SCBScene", "run_scb", "register", "PMMA", "crack_frame", "williams_fit"]
 
 R_DEFAULT = 0.05
 PMMA = {"E": 3.75e9, "nu": 0.35, "rho": 1410.0, "K_Ic": 2.13e6}
@@ -43,6 +43,55 @@ def crack_frame(alpha_deg):
     y' = (cos alpha, -sin alpha) (the frame of ``validation.fem_scb``, K_II > 0)."""
     al = np.radians(alpha_deg)
     return np.array([np.sin(al), np.cos(al)]), np.array([np.cos(al), -np.sin(al)])
+
+
+def williams_fit(rel, u, ex, ey, mu, kappa, r1, r2, n_terms=6):
+    """Least-squares fit of the Williams expansion to a displacement field near a crack tip.
+
+    ``rel`` (k, 2) positions relative to the tip (m), ``u`` (k, 2) displacements (m);
+    ``ex`` along the crack (mouth -> tip), ``ey`` the normal of the tip frame of
+    :func:`crack_frame` (a mirrored frame: the fit runs in the right-handed frame
+    (ex, -ey) and K_II is returned with the sign of the mirrored frame). Points with
+    r1 <= r <= r2 enter. Terms n = 0 .. n_terms - 1 of both modes (theta from the crack
+    extension line, faces at +-pi):
+
+        mode I:  2 mu u_1 = a_n r^(n/2) [(kappa + n/2 + (-1)^n) cos(n theta/2) - n/2 cos((n/2 - 2) theta)]
+                 2 mu u_2 = a_n r^(n/2) [(kappa - n/2 - (-1)^n) sin(n theta/2) + n/2 sin((n/2 - 2) theta)]
+        mode II: 2 mu u_1 = b_n r^(n/2) [(kappa + n/2 - (-1)^n) sin(n theta/2) - n/2 sin((n/2 - 2) theta)]
+                 2 mu u_2 = b_n r^(n/2) [-(kappa - n/2 + (-1)^n) cos(n theta/2) - n/2 cos((n/2 - 2) theta)]
+
+    K_I = a_1 sqrt(2 pi), K_II = -b_1 sqrt(2 pi) (sign of the mirrored frame, the one of
+    ``validation.fem_scb``), T = 4 a_2 (the n = 2 mode-II term is a rigid rotation, n = 0
+    translations). Returns (K_I, K_II, T) in the
+    units of ``u`` times mu / sqrt(m).
+    """
+    e1, e2 = np.asarray(ex, float), -np.asarray(ey, float)
+    x1, x2 = rel @ e1, rel @ e2
+    r = np.hypot(x1, x2)
+    th = np.arctan2(x2, x1)
+    sel = (r >= r1) & (r <= r2)
+    if sel.sum() < 4 * n_terms:
+        raise ValueError(f"only {int(sel.sum())} points in the annulus {r1:g} <= r <= {r2:g} m; "
+                         f"valid: at least {4 * n_terms} (widen the window or refine the spacing)")
+    r, th = r[sel], th[sel]
+    u1, u2 = u[sel] @ e1, u[sel] @ e2
+    cols1, cols2 = [], []
+    for n in range(n_terms):
+        h = n / 2.0
+        rn = r ** h / (2 * mu)
+        sg = (-1.0) ** n
+        cols1.append(rn * ((kappa + h + sg) * np.cos(h * th) - h * np.cos((h - 2) * th)))
+        cols2.append(rn * ((kappa - h - sg) * np.sin(h * th) + h * np.sin((h - 2) * th)))
+        cols1.append(rn * ((kappa + h - sg) * np.sin(h * th) - h * np.sin((h - 2) * th)))
+        cols2.append(rn * (-(kappa - h + sg) * np.cos(h * th) - h * np.cos((h - 2) * th)))
+    A = np.vstack([np.column_stack(cols1), np.column_stack(cols2)])
+    keep = np.abs(A).max(axis=0) > 0
+    coef = np.zeros(A.shape[1])
+    scale = np.abs(A[:, keep]).max(axis=0)
+    sol = np.linalg.lstsq(A[:, keep] / scale, np.concatenate([u1, u2]), rcond=None)[0] / scale
+    coef[keep] = sol
+    a1, b1, a2 = coef[2], coef[3], coef[4]
+    return a1 * np.sqrt(2 * np.pi), -b1 * np.sqrt(2 * np.pi), 4 * a2
 
 
 class SCBScene:
@@ -64,8 +113,13 @@ class SCBScene:
         Length of the failure criterion (m); None: elastic only.
     supports : {"rollers", "pinned"}
     stabilisation : float
-        Bond penalty c_s of the model (default 0.1: without it the elastic field shows
-        the near-zero-energy modes of the gain operator).
+        Bond penalty c_s of the model (default 1: the non-affine part of every bond is
+        resisted at about half the material's own stiffness). The gain operator's
+        near-zero-energy modes are excited wherever the field is singular on the scale of
+        the horizon -- the crack tip and the corners of the rigid patches -- and a weak
+        penalty (0.1) leaves the body too soft there: a larger crack opening per load
+        (K too high) and a larger compliance, the latter hidden when the rigid 3 x 3
+        particle patches are compared with an FE model loaded on boundary segments.
     failure_energy : {"tensile", "total"}
     rcond : float
         Regularity threshold of a particle's Upsilon (``gain_coefficients``): a particle
@@ -78,12 +132,16 @@ class SCBScene:
     no_fail : float
         Bonds with an end within this many dx of a patch box never break.
     force : {"energy", "printed"}
+    gain_order : {1, 2}
+        1: the centred (linear-fit) gain; 2: the quadratic-fit gain
+        (:func:`upscale.models.gain.gain_coefficients_quadratic`), exact for quadratic
+        fields at the faces and edges too.
     """
 
     def __init__(self, alpha_deg=0.0, *, dx=1e-3, m=3.0, a_over_R=0.3, S_over_R=0.43,
-                 R=R_DEFAULT, t=5e-3, r_s=None, supports="rollers", stabilisation=0.1,
+                 R=R_DEFAULT, t=5e-3, r_s=None, supports="rollers", stabilisation=1.0,
                  no_fail=3.0, force="energy", failure_energy="tensile", rcond=1e-2, min_bonds=6, E=PMMA["E"], nu=PMMA["nu"], K_Ic=PMMA["K_Ic"],
-                 rho=PMMA["rho"]):
+                 rho=PMMA["rho"], gain_order=1):
         from upscale.engine import ParticleSystem, bonds_crossing_segment, build_family
         from upscale.models.unified import UnifiedModel
 
@@ -130,7 +188,7 @@ class SCBScene:
         self.model = UnifiedModel(E=E, nu=nu, dim=2, plane="stress", stabilisation=stabilisation,
                                   K_Ic=K_Ic if r_s is not None else None, r_s=r_s,
                                   no_fail=near, force=force, failure_energy=failure_energy,
-                                  rcond=rcond, min_bonds=min_bonds)
+                                  rcond=rcond, min_bonds=min_bonds, gain_order=gain_order)
         self.model.prepare(self.system, self.family)
         self.fixed = np.zeros((self.system.n, 3), bool)
         self.fixed[self.load, :2] = True
@@ -158,15 +216,33 @@ class SCBScene:
         P = float(np.sum(reaction * self.u_dir))
         return st, P
 
-    def stress_intensity(self, state, P, window=(0.2, 0.6)):
-        """K_I, K_II (Pa sqrt(m)) from the crack-face displacement jump of the particle
-        rows next to each face, K(r) = mu sqrt(2 pi / r) du / (kappa + 1) fitted as K + c r
-        over r / a in ``window`` (the estimator of ``validation.fem_scb`` on the same
-        window), plane stress; and Y_I, Y_II (6.30-6.31)."""
+    def stress_intensity(self, state, P, window=(0.2, 0.6), method="jump", n_terms=6):
+        """K_I, K_II (Pa sqrt(m)) and Y_I, Y_II (6.30-6.31) from the displacement field,
+        plane stress (kappa = (3 - nu) / (1 + nu)), over r / a in ``window``.
+
+        ``method="jump"``: the crack-face displacement jump of the particle rows next to
+        each face, K(r) = mu sqrt(2 pi / r) du / (kappa + 1), fitted as K + c r (the
+        estimator of ``validation.fem_scb`` on this window).
+        ``method="williams"``: a least-squares fit of the first ``n_terms`` orders of the
+        Williams expansion (both modes, orders n = 0 .. n_terms - 1, rigid motions
+        included) to the displacements of every particle in the annulus; it uses the whole
+        near field instead of the two face rows (over-deterministic displacement method).
+        """
         x0 = self.system.x0[:, :2]
         u = (state.y - self.system.x0)[:, :2]
         rel = x0 - self.tip
         along, across = rel @ self.ex, rel @ self.ey
+        E, nu = self.model.E, self.model.nu
+        mu = E / (2 * (1 + nu))
+        kap = (3 - nu) / (1 + nu)
+        Yf = 2 * self.R * self.t / (P * np.sqrt(np.pi * self.a))
+        if method == "williams":
+            KI, KII, T = williams_fit(rel, u, self.ex, self.ey, mu, kap, window[0] * self.a, window[1] * self.a,
+                                      n_terms)
+            return {"K_I": float(KI), "K_II": float(KII), "Y_I": float(KI * Yf), "Y_II": float(KII * Yf),
+                    "T_star": float(T * 2 * self.R * self.t / P)}
+        if method != "jump":
+            raise ValueError(f"method={method!r}; valid: 'jump', 'williams'")
         face = (along < 0) & (np.abs(across) < self.dx) & (-along < self.a)
         r = np.linspace(window[0], window[1], 30) * self.a
         jumps = []
@@ -176,13 +252,9 @@ class SCBScene:
             o = np.argsort(rs)
             jumps.append(np.vstack([np.interp(r, rs[o], u[sel, 0][o]), np.interp(r, rs[o], u[sel, 1][o])]))
         du = jumps[0] - jumps[1]
-        E, nu = self.model.E, self.model.nu
-        mu = E / (2 * (1 + nu))
-        kap = (3 - nu) / (1 + nu)
         fac = mu / (kap + 1) * np.sqrt(2 * np.pi / r)
         KI = np.polyfit(r, fac * (self.ey @ du), 1)[1]
         KII = np.polyfit(r, fac * (self.ex @ du), 1)[1]
-        Yf = 2 * self.R * self.t / (P * np.sqrt(np.pi * self.a))
         return {"K_I": float(KI), "K_II": float(KII), "Y_I": float(KI * Yf), "Y_II": float(KII * Yf)}
 
     # ------------------------------------------------------------------ fracture
@@ -295,7 +367,7 @@ def damage_png(path, scene, mu, title, path_pts=None):
     return Path(path)
 
 
-def run_scb(alpha_deg=30.0, *, dx=1e-3, m=3.0, r_s=1e-3, supports="rollers", stabilisation=0.1,
+def run_scb(alpha_deg=30.0, *, dx=1e-3, m=3.0, r_s=1e-3, supports="rollers", stabilisation=1.0,
             no_fail=3.0, force="energy", failure_energy="tensile", progress=False, outdir=None,
             a_over_R=0.3, S_over_R=0.43, u_max=None, d_lambda=None, stop_fraction=0.2,
             keep: bool = False, max_equilibria: int = 3000) -> dict:
@@ -348,7 +420,7 @@ def register(sub) -> None:
     p.add_argument("--r-s", type=float, default=None, help="failure length r_s in m (default: r_s / dx of "
                    "data/reference/scb_calibration.json times --dx)")
     p.add_argument("--supports", default="rollers", choices=("rollers", "pinned"))
-    p.add_argument("--stabilisation", type=float, default=0.1, help="bond penalty c_s (default %(default)s)")
+    p.add_argument("--stabilisation", type=float, default=1.0, help="bond penalty c_s (default %(default)s)")
     p.add_argument("--force", default="energy", choices=("energy", "printed"))
     p.add_argument("--out", default="out/scb", help="output directory (default: %(default)s)")
     p.add_argument("--stop-fraction", type=float, default=0.5,

@@ -56,7 +56,7 @@ import numba
 import numpy as np
 from scipy.spatial import cKDTree
 
-__all__ = ["kappa", "GainOperator", "build_gain", "gain_coefficients"]
+__all__ = ["kappa", "GainOperator", "build_gain", "gain_coefficients", "gain_coefficients_quadratic"]
 
 
 def kappa(r, horizon, kind: str = "quartic"):
@@ -647,4 +647,96 @@ def gain_coefficients(xi_bc, offsets, weight_b, intact_b, dim, rcond, coef_bk, a
                     for q in range(dim):
                         s += U[a, q] * (xi_bc[b, q] - bb[q])
                     coef_bk[b, a] = weight_b[b] * s
+    return coef_bk, alive_n
+
+
+@numba.njit(parallel=True, cache=True)
+def gain_coefficients_quadratic(xi_bc, offsets, weight_b, intact_b, dim, rcond, qcond, coef_bk, alive_n,
+                                quadratic_n):
+    """Second-order gain coefficients: the gradient of a weighted least-squares quadratic fit.
+
+    The centred gain of :func:`gain_coefficients` is the gradient part of the weighted
+    least-squares fit of u_j - u_c over the family by the basis p(beta) = [1, beta]; here
+    the basis is p(beta) = [1, beta, quadratic monomials of beta / L] (L = the row's
+    longest bond, for conditioning: 6 functions in 2D, 10 in 3D):
+
+        A_c = sum_b w_b p_b p_b^T,   a_b = w_b [A_c^-1 p_b]_(gradient part),
+        F_c = sum_b (y_j(b) - y_c) (x) a_b.
+
+    A is exact for every quadratic field, at boundary and crack-face particles too, where
+    the linear fit of a one-sided family picks up an error of order delta x (second
+    gradient). On a point-symmetric family the odd moments vanish, the gradient decouples
+    from the constant and the quadratic terms and the coefficients equal the linear ones
+    exactly (interior particles of a regular grid are unchanged). Still linear in y, still
+    sum_b a_b = 0 (the constant of the basis), so forces and tangents built from a_b are
+    unchanged in form.
+
+    Rows whose A has ``lambda_min / lambda_max <= qcond`` (too few or too flat intact
+    bonds for a quadratic fit) keep the linear coefficients (``quadratic_n`` False);
+    rows that fail the linear test of :func:`gain_coefficients` (``rcond``) are dead.
+    Arguments and outputs as :func:`gain_coefficients`; ``quadratic_n`` (N,) bool is
+    mutated.
+    """
+    gain_coefficients(xi_bc, offsets, weight_b, intact_b, dim, rcond, coef_bk, alive_n)
+    n = offsets.shape[0] - 1
+    nq = dim * (dim + 1) // 2
+    nbas = 1 + dim + nq
+    for c in numba.prange(n):
+        quadratic_n[c] = False
+        if not alive_n[c]:
+            continue
+        s0 = offsets[c]
+        s1 = offsets[c + 1]
+        L = 0.0
+        for b in range(s0, s1):
+            if intact_b[b]:
+                l2 = 0.0
+                for a in range(dim):
+                    l2 += xi_bc[b, a] * xi_bc[b, a]
+                if l2 > L:
+                    L = l2
+        L = np.sqrt(L)
+        A = np.zeros((nbas, nbas))
+        p = np.zeros(nbas)
+        for b in range(s0, s1):
+            if not intact_b[b]:
+                continue
+            p[0] = 1.0
+            for a in range(dim):
+                p[1 + a] = xi_bc[b, a] / L
+            k = 1 + dim
+            for a in range(dim):
+                for q in range(a, dim):
+                    p[k] = xi_bc[b, a] * xi_bc[b, q] / (L * L)
+                    k += 1
+            for r in range(nbas):
+                for q in range(nbas):
+                    A[r, q] += weight_b[b] * p[r] * p[q]
+        ev, V = np.linalg.eigh(A)
+        if not ev[0] > qcond * ev[nbas - 1]:
+            continue
+        Ainv = np.zeros((nbas, nbas))
+        for r in range(nbas):
+            for q in range(nbas):
+                s = 0.0
+                for e in range(nbas):
+                    s += V[r, e] * V[q, e] / ev[e]
+                Ainv[r, q] = s
+        quadratic_n[c] = True
+        for b in range(s0, s1):
+            if not intact_b[b]:
+                continue
+            p[0] = 1.0
+            for a in range(dim):
+                p[1 + a] = xi_bc[b, a] / L
+            k = 1 + dim
+            for a in range(dim):
+                for q in range(a, dim):
+                    p[k] = xi_bc[b, a] * xi_bc[b, q] / (L * L)
+                    k += 1
+            for a in range(dim):
+                s = 0.0
+                for q in range(nbas):
+                    s += Ainv[1 + a, q] * p[q]
+                coef_bk[b, a] = weight_b[b] * s / L
     return coef_bk, alive_n

@@ -81,7 +81,7 @@ import scipy.sparse as sp
 
 from upscale.models import register
 from upscale.models.base import Model, Needs
-from upscale.models.gain import gain_coefficients, kappa
+from upscale.models.gain import gain_coefficients, gain_coefficients_quadratic, kappa
 
 __all__ = ["UnifiedModel", "elastic_tensor", "orthotropic_tensor", "critical_energy_release_rate"]
 
@@ -409,7 +409,8 @@ class UnifiedModel(Model):
                  plane: str = "stress", force: str = "energy", stabilisation: float = 0.0,
                  K_Ic: float | None = None, r_s: float | None = None, G_c: float | None = None,
                  no_fail=None, rcond: float = 1e-6, kernel: str = "quartic",
-                 failure_energy: str = "tensile", min_bonds: int = 0):
+                 failure_energy: str = "tensile", min_bonds: int = 0, gain_order: int = 1,
+                 qcond: float = 1e-8):
         if dim not in (2, 3):
             raise ValueError(f"dim={dim!r}; valid: 2, 3")
         if force not in ("energy", "printed"):
@@ -432,6 +433,10 @@ class UnifiedModel(Model):
         self.kernel = kernel
         self.rcond = float(rcond)
         self.min_bonds = int(min_bonds)
+        if gain_order not in (1, 2):
+            raise ValueError(f"gain_order={gain_order!r}; valid: 1 (linear fit), 2 (quadratic fit)")
+        self.gain_order = int(gain_order)
+        self.qcond = float(qcond)
         if r_s is not None and not (np.isfinite(r_s) and r_s > 0):
             raise ValueError(f"r_s={r_s!r} m; valid: r_s > 0")
         self.r_s = None if r_s is None else float(r_s)
@@ -471,8 +476,13 @@ class UnifiedModel(Model):
         """Recompute Upsilon, the centring and the gain coefficients of every particle from
         the intact bonds (mutates ``coef``, ``alive``, the cached operators)."""
         intact = np.ascontiguousarray(intact, dtype=np.bool_)
-        gain_coefficients(self._xi, self.family.offsets, self._w, intact, self.dim, self.rcond,
-                          self.coef, self.alive)
+        if self.gain_order == 2:
+            self.quadratic = np.zeros(self.system.n, dtype=bool)
+            gain_coefficients_quadratic(self._xi, self.family.offsets, self._w, intact, self.dim, self.rcond,
+                                        self.qcond, self.coef, self.alive, self.quadratic)
+        else:
+            gain_coefficients(self._xi, self.family.offsets, self._w, intact, self.dim, self.rcond,
+                              self.coef, self.alive)
         if self.min_bonds > self.dim + 1:
             cnt = np.bincount(self.family.owner[intact], minlength=self.system.n)
             few = self.alive & (cnt < self.min_bonds)
@@ -489,7 +499,7 @@ class UnifiedModel(Model):
             self.update_bonds(state.intact)
 
     # ------------------------------------------------------------------ continuum fields
-    def fields(self, state):
+    def continuum_fields(self, state):
         """(F, E, S, P, W): deformation gradient, Green strain, PK2 stress (Pa), force
         stress (Pa) as (N, dim, dim) and energy density W (N,) J/m^3."""
         self._sync(state)
@@ -506,11 +516,11 @@ class UnifiedModel(Model):
 
     def deformation_gradient(self, state) -> np.ndarray:
         """F = I + G per particle (N, dim, dim)."""
-        return self.fields(state)[0]
+        return self.continuum_fields(state)[0]
 
     # ------------------------------------------------------------------ forces and energy
     def add_force(self, state, out) -> None:
-        F, E, S, P, W = self.fields(state)
+        F, E, S, P, W = self.continuum_fields(state)
         force_kernel(P, self.system.volume, self.family.offsets, self.family.neighbors,
                      self._reverse, self.coef, self.dim, out)
         if self.stabilisation > 0:
@@ -534,11 +544,11 @@ class UnifiedModel(Model):
 
     def energy_density(self, state) -> np.ndarray:
         """Strain energy density W_c = S:E/2 (J/m^3) of the gain model (penalty excluded)."""
-        return self.fields(state)[4]
+        return self.continuum_fields(state)[4]
 
     def energy(self, state) -> float:
         """Stored energy (J): sum_c V_c W_c plus the stabilisation energy."""
-        F, E, S, P, W = self.fields(state)
+        F, E, S, P, W = self.continuum_fields(state)
         e = float(np.dot(W, self.system.volume))
         if self.stabilisation > 0:
             e += self._penalty_force(state, F, np.zeros((self.system.n, 3)))
@@ -603,7 +613,7 @@ class UnifiedModel(Model):
     def tangent(self, state):
         """Consistent stiffness K = -dF_int/dy = B^T blockdiag(V_c dP_c/dF_c) B (+ K_s),
         dP_iA/dF_jB = delta_ij S_AB + F_iC C_CAKB F_jK (energy form; scipy.sparse (3N, 3N))."""
-        F, E, S, P, W = self.fields(state)
+        F, E, S, P, W = self.continuum_fields(state)
         d, n = self.dim, self.system.n
         dPdF = np.einsum("ij,nab->niajb", np.eye(d), S) + np.einsum("nic,cakb,njk->niajb", F, self._C4, F)
         dPdF[~self.alive] = 0.0
@@ -638,7 +648,7 @@ class UnifiedModel(Model):
         (default ``"tensile"``) e+ = sum_i <s_i> (n_i . E n_i) / 2 over the principal
         stresses s_i and directions n_i of S (e+ = W in uniaxial tension, 0 in any
         compressive state)."""
-        F, E, S, P, W = self.fields(state)
+        F, E, S, P, W = self.continuum_fields(state)
         if self.failure_energy == "total":
             return W
         s, n = np.linalg.eigh(S)

@@ -4,9 +4,10 @@
 ``scb-fem``          geometry factors Y_I, Y_II, T* of the eight angles (scikit-fem, tip-refined
                      P2 mesh), compliance at alpha = 0, against the factors implied by Table
                      6.2's own K and P columns (the FE study of Ayatollahi et al.)
-``scb-elastic``      unified model (elastic) against the FE reference at the same load and
-                     support widths (3 dx): Y_I, Y_II from the crack-face displacement jump,
-                     load-patch compliance; rollers and the literal pinned supports
+``scb-elastic``      unified model (elastic) against the FE reference with the same boundary
+                     conditions (the 3 x 3 particle patches held as blocks): Y_I, Y_II from
+                     a Williams-expansion fit of the near field (and from the crack-face
+                     jump), load-patch compliance; rollers and the literal pinned supports
 ``scb-table``        r_s calibrated at alpha = 0 only, P_c at the eight angles, K from P_c
                      through the FE factors, errors against the experiment, the paper's errors
                      recomputed from its own values; initiation angles against MTS and GMTS
@@ -37,10 +38,16 @@ def _exp():
     return json.loads(TABLE.read_text())
 
 
-def _fe(alpha, w, supports="rollers", quick=False):
+def _fe(alpha, w, supports="rollers", quick=False, patch="segment", block=None):
     from validation.fem_scb import solve_scb
 
-    return solve_scb(alpha, w=w, supports=supports, h_tip=8e-5 if quick else 2e-5)
+    return solve_scb(alpha, w=w, supports=supports, h_tip=8e-5 if quick else 2e-5, patch=patch, block=block)
+
+
+def _fe_block(alpha, dx, supports="rollers", quick=False):
+    """FE with the particle model's boundary conditions: every point inside the box of the
+    patch particles' centres (half width 1.5 dx, depth 2.5 dx from the edge) is held."""
+    return _fe(alpha, 3 * dx, supports, quick, patch="block", block=(1.5 * dx, 2.5 * dx))
 
 
 def _outdir(args):
@@ -83,49 +90,87 @@ def run_fem(args):
 # ---------------------------------------------------------------------------- scb-elastic
 def _el_args(p):
     p.add_argument("--dx", type=float, default=None, help="particle spacing in m (default 1e-3, quick 2e-3)")
-    p.add_argument("--stabilisation", type=float, default=0.1)
+    p.add_argument("--stabilisation", type=float, default=None, help="bond penalty c_s (default: the scene's)")
+    p.add_argument("--gain-order", type=int, default=1, choices=(1, 2), help="1: linear fit (default), 2: quadratic fit")
 
 
 @case("scb-elastic", "SCB elastic: unified particle model vs FE (Y_I, Y_II, compliance; rollers and pinned)", _el_args)
 def run_elastic(args):
+    """The FE reference carries the particle model's boundary conditions (the load and
+    support patches are 3 x 3 particle blocks, so the FE holds the box of their centres,
+    ``_fe_block``); the errors against the FE with boundary segments of width 3 dx (the
+    earlier reference) are reported beside them (``*_segment``). The particle factors come
+    from the Williams fit over the annulus 0.2 a < r < 0.6 a (``method="williams"``, 10
+    orders; keys ``Y_I_err_pct_max``, ``Y_II_err_pct_max``) and from the crack-face jump
+    (keys ``*_jump``); the Williams fit applied to the FE field sampled at the particle
+    positions gives the estimator's own error (keys ``*_estimator``)."""
     from upscale.experiments.scb import SCBScene
 
     quick = getattr(args, "quick", False)
     dx = getattr(args, "dx", None) or (2e-3 if quick else 1e-3)
-    stab = getattr(args, "stabilisation", 0.1)
+    stab = getattr(args, "stabilisation", None)
+    kw = {} if stab is None else {"stabilisation": stab}
+    order = getattr(args, "gain_order", 1)
     rows = []
-    eI, eII = [], []
+    eI, eII, eIs, eIIs, eC, eIj, eIIj, eIe, eIIe = [], [], [], [], [], [], [], [], []
+    from validation.fem_scb import solve_scb
+
     for al in ALPHAS:
-        fe = _fe(al, 3 * dx, quick=quick)
-        sc = SCBScene(al, dx=dx, stabilisation=stab)
+        sc = SCBScene(al, dx=dx, gain_order=order, **kw)
+        fe = solve_scb(al, w=3 * dx, h_tip=8e-5 if quick else 2e-5, patch="block", block=(1.5 * dx, 2.5 * dx),
+                       probe=sc.system.x0[:, :2])
+        fs = _fe(al, 3 * dx, quick=quick)
         st, P = sc.elastic()
-        k = sc.stress_intensity(st, P)
+        k = sc.stress_intensity(st, P, method="williams", n_terms=10)
+        kj = sc.stress_intensity(st, P)
+        sf = sc.state()
+        sf.y[:, :2] = sc.system.x0[:, :2] + fe["probe_u_m_per_N"]
+        ke = sc.stress_intensity(sf, 1.0, method="williams", n_terms=10)
         C = 1e-5 / P
         row = {"alpha": al, "Y_I": k["Y_I"], "Y_I FE": fe["Y_I"], "Y_II": k["Y_II"], "Y_II FE": fe["Y_II"],
-               "C um/N": C * 1e6, "C FE": fe["compliance_m_per_N"] * 1e6}
+               "C um/N": C * 1e6, "C FE": fe["compliance_m_per_N"] * 1e6,
+               "Y_I jump": kj["Y_I"], "Y_II jump": kj["Y_II"], "Y_I est(FE)": ke["Y_I"], "Y_II est(FE)": ke["Y_II"],
+               "T* W": k["T_star"], "T* FE": fe["T_star"],
+               "Y_I FE seg": fs["Y_I"], "Y_II FE seg": fs["Y_II"], "C FE seg": fs["compliance_m_per_N"] * 1e6}
         if abs(fe["Y_I"]) > 0.1:
             eI.append(100 * (k["Y_I"] / fe["Y_I"] - 1))
+            eIs.append(100 * (k["Y_I"] / fs["Y_I"] - 1))
+            eIj.append(100 * (kj["Y_I"] / fe["Y_I"] - 1))
+            eIe.append(100 * (ke["Y_I"] / fe["Y_I"] - 1))
         if abs(fe["Y_II"]) > 0.1:
             eII.append(100 * (k["Y_II"] / fe["Y_II"] - 1))
+            eIIs.append(100 * (k["Y_II"] / fs["Y_II"] - 1))
+            eIIj.append(100 * (kj["Y_II"] / fe["Y_II"] - 1))
+            eIIe.append(100 * (ke["Y_II"] / fe["Y_II"] - 1))
+        eC.append(100 * (C / fe["compliance_m_per_N"] - 1))
         if al == 0.0:
-            c_err = 100 * (C / fe["compliance_m_per_N"] - 1)
+            c_err = eC[-1]
+            c_err_seg = 100 * (C / fs["compliance_m_per_N"] - 1)
         rows.append(row)
         print(f"alpha {al:4.1f}: Y_I {k['Y_I']:.4f} (FE {fe['Y_I']:.4f})  Y_II {k['Y_II']:.4f} "
               f"(FE {fe['Y_II']:.4f})  C {C * 1e6:.4f} (FE {fe['compliance_m_per_N'] * 1e6:.4f}) um/N", flush=True)
     print(table(rows, floatfmt=".4f"))
-    fe_p = _fe(0.0, 3 * dx, "pinned", quick=quick)
-    sc = SCBScene(0.0, dx=dx, stabilisation=stab, supports="pinned")
+    fe_p = _fe_block(0.0, dx, "pinned", quick=quick)
+    sc = SCBScene(0.0, dx=dx, supports="pinned", gain_order=order, **kw)
     st, P = sc.elastic()
-    kp = sc.stress_intensity(st, P)
+    kp = sc.stress_intensity(st, P, method="williams", n_terms=10)
     print(f"pinned supports (u_x = u_y = 0, literal 6.40), alpha = 0: Y_I particle {kp['Y_I']:.4f}, "
           f"FE {fe_p['Y_I']:.4f}; compliance {1e-5 / P * 1e6:.4f} (FE {fe_p['compliance_m_per_N'] * 1e6:.4f}) um/N")
-    out = {"dx_m": dx, "stabilisation": stab,
+    out = {"dx_m": dx, "stabilisation": sc.model.stabilisation, "gain_order": order,
            "Y_I_err_pct_max": float(max(np.abs(eI))), "Y_II_err_pct_max": float(max(np.abs(eII))),
            "Y_I_err_pct": [float(e) for e in eI], "Y_II_err_pct": [float(e) for e in eII],
-           "compliance_err_pct": float(c_err),
+           "compliance_err_pct": float(c_err), "compliance_err_pct_max": float(max(np.abs(eC))),
+           "Y_I_err_pct_max_segment": float(max(np.abs(eIs))), "Y_II_err_pct_max_segment": float(max(np.abs(eIIs))),
+           "compliance_err_pct_segment": float(c_err_seg),
+           "Y_I_err_pct_max_jump": float(max(np.abs(eIj))), "Y_II_err_pct_max_jump": float(max(np.abs(eIIj))),
+           "Y_I_err_pct_max_estimator": float(max(np.abs(eIe))), "Y_II_err_pct_max_estimator": float(max(np.abs(eIIe))),
+           "Y_I_err_pct_jump": [float(e) for e in eIj], "Y_II_err_pct_jump": [float(e) for e in eIIj],
+           "Y_I_err_pct_segment": [float(e) for e in eIs], "Y_II_err_pct_segment": [float(e) for e in eIIs],
+           "compliance_err_pct_all": [float(e) for e in eC],
            "pinned_Y_I_particle": kp["Y_I"], "pinned_Y_I_fe": fe_p["Y_I"],
-           "rollers_Y_I_fe": rows[0]["Y_I FE"]}
-    out["pass"] = bool(out["Y_I_err_pct_max"] < 5 and out["Y_II_err_pct_max"] < 5 and abs(c_err) < 5)
+           "pinned_compliance_um_per_N": 1e-5 / P * 1e6, "pinned_compliance_fe_um_per_N": fe_p["compliance_m_per_N"] * 1e6,
+           "rollers_Y_I_fe": rows[0]["Y_I FE"], "rows": rows}
+    out["pass"] = bool(out["Y_I_err_pct_max"] < 5 and out["Y_II_err_pct_max"] < 5 and out["compliance_err_pct_max"] < 5)
     return out
 
 
@@ -147,13 +192,13 @@ def _table_args(p):
     p.add_argument("--dx", type=float, default=None, help="spacing in m (default 2e-3)")
     p.add_argument("--alphas", default=None, help="comma list of angles (default the eight; quick 0,30,50)")
     p.add_argument("--r-s", type=float, default=None, help="use this r_s (m) instead of calibrating")
-    p.add_argument("--stabilisation", type=float, default=0.1)
+    p.add_argument("--stabilisation", type=float, default=1.0)
     p.add_argument("--stop-fraction", type=float, default=0.5,
                    help="a run ends when the load falls below this fraction of its peak")
     p.add_argument("--max-equilibria", type=int, default=3000, help="cap on the solves of one run")
 
 
-def calibrate_r_s(dx, P_target, stab=0.1, r0=None, iters=4, tol=0.005, log=print):
+def calibrate_r_s(dx, P_target, stab=1.0, r0=None, iters=4, tol=0.005, log=print):
     """Secant on log P_c(log r_s) at alpha = 0 (slope -1/2 to start: P_c ~ r_s^-1/2 for a
     linear elastic body up to the first failure)."""
     from upscale.experiments.scb import run_scb
@@ -203,7 +248,7 @@ def run_table(args):
 
     quick = getattr(args, "quick", False)
     dx = getattr(args, "dx", None) or 2e-3
-    stab = getattr(args, "stabilisation", 0.1)
+    stab = getattr(args, "stabilisation", 1.0)
     al_s = getattr(args, "alphas", None)
     alphas = [float(a) for a in al_s.split(",")] if al_s else ([0.0, 30.0, 50.0] if quick else list(ALPHAS))
     ex = _exp()

@@ -1,0 +1,1 @@
+"""Diagnostic scripts of the SCB near-tip study (validation/results/scb.md)."""
