@@ -131,6 +131,7 @@ class PotentialCalculator(Calculator):
         self._nl: NeighbourList | None = None
         # (list, its build count, shortest listed distance at that build)
         self._overlap_ref = None
+        self._volume_of = (None, 0.0)  # (cell bytes, full_rank_volume of that cell)
 
     # -- what a subclass provides --------------------------------------------------------
     def compute(self, atoms, nl: NeighbourList):
@@ -179,7 +180,10 @@ class PotentialCalculator(Calculator):
     def calculate(self, atoms=None, properties=("energy",), system_changes=all_changes):
         super().calculate(atoms, properties, system_changes)  # self.atoms is now a copy
         atoms = self.atoms
-        volume = full_rank_volume(atoms.cell)
+        key = np.ascontiguousarray(atoms.cell.array, dtype=float).tobytes()
+        if key != self._volume_of[0]:
+            self._volume_of = (key, full_rank_volume(atoms.cell))
+        volume = self._volume_of[1]
         if "stress" in properties and volume == 0.0:
             raise PropertyNotImplementedError(
                 "stress needs a cell of full rank; this cell (lengths "
