@@ -347,6 +347,9 @@ class NeighbourList:
         CSR arrays, see :func:`neighbour_list`.
     nbuilds : int
         How many times the list was built (for tests and diagnostics).
+    displacement : float
+        Largest displacement of an atom since the last build, Angstrom, as of the last
+        :meth:`update` (see there).
     """
 
     def __init__(self, cutoff: float, skin: float = 0.3, half: bool = False):
@@ -360,23 +363,37 @@ class NeighbourList:
         self._cell = None
         self._pbc = None
         self.first_n = self.j_b = self.shift_bc = None
+        self.displacement = 0.0
+
+    def _rebuild_test(self, positions, cell, pbc):
+        """(stale, largest squared displacement since the build or None if not measured)."""
+        if self._x0 is None or len(positions) != len(self._x0):
+            return True, None
+        if not np.array_equal(np.asarray(pbc, bool).reshape(3), self._pbc):
+            return True, None
+        if not np.array_equal(np.asarray(cell, float).reshape(3, 3), self._cell):
+            return True, None
+        if len(positions) == 0:
+            return False, 0.0
+        d2 = _max_disp2(np.ascontiguousarray(positions, dtype=float), self._x0)
+        return d2 > (0.5 * self.skin) ** 2, d2
 
     def needs_rebuild(self, positions, cell, pbc) -> bool:
         """True when the rebuild rule says the list is stale (see class docstring)."""
-        if self._x0 is None or len(positions) != len(self._x0):
-            return True
-        if not np.array_equal(np.asarray(pbc, bool).reshape(3), self._pbc):
-            return True
-        if not np.array_equal(np.asarray(cell, float).reshape(3, 3), self._cell):
-            return True
-        if len(positions) == 0:
-            return False
-        d2 = _max_disp2(np.ascontiguousarray(positions, dtype=float), self._x0)
-        return d2 > (0.5 * self.skin) ** 2
+        return self._rebuild_test(positions, cell, pbc)[0]
 
     def update(self, positions, cell, pbc) -> bool:
-        """Rebuild if needed; returns True if the list was rebuilt."""
-        if not self.needs_rebuild(positions, cell, pbc):
+        """Rebuild if needed; returns True if the list was rebuilt.
+
+        Afterwards :attr:`displacement` is the largest distance (Angstrom) an atom of
+        ``positions`` lies from where it was at the last build (0.0 right after a build);
+        every pair of the list is then at most ``2 * displacement`` shorter than it was at
+        the build, which lets callers bound the shortest distance without a pass over the
+        list.
+        """
+        stale, d2 = self._rebuild_test(positions, cell, pbc)
+        if not stale:
+            self.displacement = float(np.sqrt(d2))
             return False
         self.build(positions, cell, pbc)
         return True
@@ -390,6 +407,7 @@ class NeighbourList:
         self._cell = np.array(cell, dtype=float).reshape(3, 3)
         self._pbc = np.array(pbc, dtype=bool).reshape(3)
         self.nbuilds += 1
+        self.displacement = 0.0
 
     def bond_vectors(self, positions) -> np.ndarray:
         """(M, 3) bond vectors ``r_ij`` of the current positions (Angstrom)."""

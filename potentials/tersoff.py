@@ -267,6 +267,9 @@ class Tersoff(PotentialCalculator):
         self._symbol_to_type = {s: t for t, s in enumerate(parameters.elements)}
         self._types = self._numbers = None
 
+    #: the kernel allocates its outputs afresh on every call
+    compute_returns_new_arrays = True
+
     @property
     def table(self) -> np.ndarray:
         """Parameter table (rows of :data:`NAMES`) the kernels take as ``P``."""

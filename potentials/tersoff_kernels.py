@@ -122,6 +122,26 @@ def ters_bij_d(zeta, beta, n, c1, c2, c3, c4):
 
 
 @njit(cache=True, inline="always")
+def ters_bij_and_d(zeta, beta, n, c1, c2, c3, c4):
+    """``(ters_bij(...), ters_bij_d(...))`` with the same branches and expressions, the power
+    of ``beta zeta`` shared between the two (bit for bit the values of the two functions)."""
+    tmp = beta * zeta
+    if tmp > c1:
+        return 1.0 / math.sqrt(tmp), beta * -0.5 * tmp ** -1.5
+    if tmp > c2:
+        tmp_mn = tmp ** (-n)
+        return ((1.0 - tmp_mn / (2.0 * n)) / math.sqrt(tmp),
+                beta * (-0.5 * tmp ** -1.5 * (1.0 - (1.0 + 1.0 / (2.0 * n)) * tmp_mn)))
+    if tmp < c4:
+        return 1.0, 0.0
+    if tmp < c3:
+        return 1.0 - tmp ** n / (2.0 * n), -0.5 * beta * tmp ** (n - 1.0)
+    tmp_n = tmp ** n
+    return ((1.0 + tmp_n) ** (-1.0 / (2.0 * n)),
+            -0.5 * (1.0 + tmp_n) ** (-1.0 - 1.0 / (2.0 * n)) * tmp_n / zeta)
+
+
+@njit(cache=True, inline="always")
 def ters_gijk(costheta, gamma, csq, dsq, csq_dsq, h):
     hcth = h - costheta
     return gamma * (1.0 + csq_dsq - csq / (dsq + hcth * hcth))
@@ -281,10 +301,10 @@ def tersoff_range(lo, hi, x_nc, cell, first_n, j_b, shift_bc, type_n, e2p, P, cu
                 c2 = P[pij, IDX_C2]
                 c3 = P[pij, IDX_C3]
                 c4 = P[pij, IDX_C4]
-                bij = ters_bij(zeta, beta, n, c1, c2, c3, c4)
+                bij, bij_d = ters_bij_and_d(zeta, beta, n, c1, c2, c3, c4)
                 dedr += 0.5 * bij * fa_d
                 e_bond += 0.5 * bij * fa
-                prefactor = -0.5 * fa * ters_bij_d(zeta, beta, n, c1, c2, c3, c4)
+                prefactor = -0.5 * fa * bij_d
             else:
                 prefactor = 0.0
             energy += e_bond

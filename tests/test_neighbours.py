@@ -225,3 +225,83 @@ def test_exclusion_is_symmetric_whatever_the_callable_returns():
     assert np.array_equal(fam.owner[fam.reverse], fam.neighbors)
     assert np.array_equal(fam.offsets, ref.offsets) and np.array_equal(fam.neighbors, ref.neighbors)
     assert fam.nb < build_family(sysm, 3.015).nb
+
+
+def test_overlap_found_between_rebuilds():
+    """An overlap that appears while the list is not rebuilt (every move < skin / 2) is
+    still caught, with the message of the exact check; a move that keeps the distance above
+    ``min_distance`` passes although the bound ``d_0 - 2 u`` alone would not clear it."""
+    a = Atoms("C3", positions=[[0, 0, 0], [1.4, 0, 0], [0, 1.4, 0]])
+    a.calc = _Morse(min_distance=1.2)  # skin 0.3: no rebuild while every move < 0.15
+    a.get_potential_energy()
+    nl = a.calc.neighbour_list
+    a.positions[1, 0] -= 0.01  # bound 1.4 - 0.02 clears 1.2
+    a.get_potential_energy()
+    a.positions[1, 0] -= 0.11  # d = 1.28, bound 1.16 < 1.2: exact check, passes
+    a.get_potential_energy()
+    a.positions[0, 0] += 0.12  # d = 1.16
+    with pytest.raises(OverlappingAtomsError, match=r"atoms 0 and 1 overlap: distance 1.16 "):
+        a.get_potential_energy()
+    assert nl.nbuilds == 1 and a.calc.neighbour_list is nl
+
+
+def test_overlap_bound_matches_exact_check_on_a_random_walk():
+    """Along a random walk without rebuilds, the calculator raises exactly when the
+    smallest listed distance (computed here directly) is below ``min_distance``."""
+    from potentials.neighbours import min_bond_distance
+
+    a = bulk("C", "diamond", a=3.5668, cubic=True).repeat(2)
+    x0 = a.positions.copy()
+    rng = np.random.default_rng(3)
+    # small steps take the bound's shortcut, large ones (|u| < 0.3 = skin / 2) the exact pass
+    walk = [x0 + rng.uniform(-h, h, x0.shape) for h in [0.01, 0.17] * 20]
+    lists = neighbour_list(x0, a.cell.array, a.pbc, _Morse.cutoff + 0.6, half=True)
+    d = [min_bond_distance(x, a.cell.array, *lists)[0] for x in walk]
+    dmin = float(np.median(d))
+    calc = _Morse(min_distance=dmin, skin=0.6)
+    a.calc = calc
+    a.get_potential_energy()
+    nl = calc.neighbour_list
+    for x, dx in zip(walk, d):
+        b = a.copy()
+        b.positions = x
+        b.calc = calc
+        if dx < dmin:
+            with pytest.raises(OverlappingAtomsError):
+                b.get_potential_energy()
+        else:
+            b.get_potential_energy()
+    assert nl.nbuilds == 1 and 0 < sum(dx < dmin for dx in d) < 40
+
+
+def test_change_detection_as_ase():
+    """compare_atoms finds the same changes as ASE's, at its tolerance (1e-15 absolute)."""
+    from ase.calculators.calculator import compare_atoms as ase_compare
+
+    from potentials.calculator import compare_atoms
+
+    a = bulk("Si", "diamond", a=5.43, cubic=True)
+    cases = []
+    for dx in (0.0, 5e-16, 2e-15, 1e-3, np.inf, np.nan):
+        b = a.copy()
+        b.positions[3, 1] += dx
+        cases.append(b)
+    b = a.copy()
+    b.numbers[2] = 6
+    cases.append(b)
+    b = a.copy()
+    b.set_initial_charges(np.zeros(len(a)))
+    cases.append(b)
+    b = a.copy()
+    b.cell[0, 0] += 1e-9
+    cases.append(b)
+    b = a.copy()
+    b.pbc = [True, False, True]
+    cases.append(b)
+    inf = a.copy()
+    inf.positions[0, 0] = np.inf
+    cases.append((inf, inf.copy()))
+    for c in cases:
+        x, y = c if isinstance(c, tuple) else (a, c)
+        assert sorted(compare_atoms(x, y)) == sorted(ase_compare(x, y)), c
+    assert compare_atoms(None, a) == ase_compare(None, a)
