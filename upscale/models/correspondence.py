@@ -125,50 +125,14 @@ def _inv_det(F, d):
 
 @nb.njit(parallel=True, cache=True)
 def stress_kernel(F_n, Kinv_n, C, law, lam, mu, d, PK_n, psi_n):
-    """Mutates ``PK_n`` (N, 3, 3) = P(F_i) K_i^-1 and ``psi_n`` (N,) = Psi(F_i) (J/m^3)."""
+    """Mutates ``PK_n`` (N, 3, 3) = P(F_i) K_i^-1 and ``psi_n`` (N,) = Psi(F_i) (J/m^3)
+    (the stress law of :func:`_stress_point`)."""
     n = F_n.shape[0]
     for i in nb.prange(n):
-        F = F_n[i]
         P = np.zeros((3, 3))
-        psi = 0.0
-        if law == 0 or law == 1:
-            E = np.zeros((3, 3))
-            for p in range(d):
-                for q in range(d):
-                    if law == 0:
-                        E[p, q] = 0.5 * (F[p, q] + F[q, p]) - (1.0 if p == q else 0.0)
-                    else:
-                        s = 0.0
-                        for k in range(d):
-                            s += F[k, p] * F[k, q]
-                        E[p, q] = 0.5 * (s - (1.0 if p == q else 0.0))
-            S = np.zeros((3, 3))
-            for p in range(d):
-                for q in range(d):
-                    s = 0.0
-                    for a in range(d):
-                        for b in range(d):
-                            s += C[p, q, a, b] * E[a, b]
-                    S[p, q] = s
-                    psi += 0.5 * s * E[p, q]
-            if law == 0:
-                P = S
-            else:
-                for p in range(d):
-                    for q in range(d):
-                        s = 0.0
-                        for k in range(d):
-                            s += F[p, k] * S[k, q]
-                        P[p, q] = s
-        else:
-            G, J = _inv_det(F, d)
-            lnJ = np.log(J) if J > 0 else np.nan
-            tr = 0.0
-            for p in range(d):
-                for q in range(d):
-                    tr += F[p, q] * F[p, q]
-                    P[p, q] = mu * (F[p, q] - G[q, p]) + lam * lnJ * G[q, p]
-            psi = 0.5 * mu * (tr - d) - mu * lnJ + 0.5 * lam * lnJ * lnJ
+        E = np.zeros((3, 3))
+        S = np.zeros((3, 3))
+        psi = _stress_point(F_n[i], Kinv_n[i], C, law, lam, mu, d, P, E, S)
         psi_n[i] = psi
         for p in range(d):
             for a in range(d):

@@ -650,6 +650,20 @@ def gain_coefficients(xi_bc, offsets, weight_b, intact_b, dim, rcond, coef_bk, a
     return coef_bk, alive_n
 
 
+@numba.njit(cache=True)
+def _quadratic_basis(xi_bc, b, dim, L, p):
+    """The basis of the quadratic fit at bond ``b`` into ``p`` (1 + dim + dim (dim + 1) / 2,):
+    1, xi_a / L, xi_a xi_q / L^2 (a <= q), L the family's largest bond length."""
+    p[0] = 1.0
+    for a in range(dim):
+        p[1 + a] = xi_bc[b, a] / L
+    k = 1 + dim
+    for a in range(dim):
+        for q in range(a, dim):
+            p[k] = xi_bc[b, a] * xi_bc[b, q] / (L * L)
+            k += 1
+
+
 @numba.njit(parallel=True, cache=True)
 def gain_coefficients_quadratic(xi_bc, offsets, weight_b, intact_b, dim, rcond, qcond, coef_bk, alive_n,
                                 quadratic_n):
@@ -701,14 +715,7 @@ def gain_coefficients_quadratic(xi_bc, offsets, weight_b, intact_b, dim, rcond, 
         for b in range(s0, s1):
             if not intact_b[b]:
                 continue
-            p[0] = 1.0
-            for a in range(dim):
-                p[1 + a] = xi_bc[b, a] / L
-            k = 1 + dim
-            for a in range(dim):
-                for q in range(a, dim):
-                    p[k] = xi_bc[b, a] * xi_bc[b, q] / (L * L)
-                    k += 1
+            _quadratic_basis(xi_bc, b, dim, L, p)
             for r in range(nbas):
                 for q in range(nbas):
                     A[r, q] += weight_b[b] * p[r] * p[q]
@@ -726,14 +733,7 @@ def gain_coefficients_quadratic(xi_bc, offsets, weight_b, intact_b, dim, rcond, 
         for b in range(s0, s1):
             if not intact_b[b]:
                 continue
-            p[0] = 1.0
-            for a in range(dim):
-                p[1 + a] = xi_bc[b, a] / L
-            k = 1 + dim
-            for a in range(dim):
-                for q in range(a, dim):
-                    p[k] = xi_bc[b, a] * xi_bc[b, q] / (L * L)
-                    k += 1
+            _quadratic_basis(xi_bc, b, dim, L, p)
             for a in range(dim):
                 s = 0.0
                 for q in range(nbas):
