@@ -9,18 +9,24 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["plot_stress_strain", "plot_damage_map"]
+__all__ = ["plot_stress_strain", "plot_damage_map", "save_figure"]
 
 
-def _save(fig, path) -> Path:
+def save_figure(fig, path, dpi: int = 90, **savefig_kw) -> Path:
+    """Write ``fig`` as a PNG to ``path`` atomically (:func:`upscale.io.atomic_write_bytes`:
+    a killed run never leaves a truncated picture), close it, return the path."""
     from upscale.io import atomic_write_bytes  # noqa: PLC0415
 
     buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=90, bbox_inches="tight")
+    fig.savefig(buf, format="png", dpi=dpi, **savefig_kw)
     import matplotlib.pyplot as plt  # noqa: PLC0415
 
     plt.close(fig)
     return atomic_write_bytes(path, buf.getvalue())
+
+
+def _save(fig, path) -> Path:
+    return save_figure(fig, path, dpi=90, bbox_inches="tight")
 
 
 def plot_stress_strain(curves, path, title: str = "", mark_peak: bool = True) -> Path:

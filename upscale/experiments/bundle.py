@@ -53,6 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
+from upscale.analysis.plots import save_figure
 from upscale.constants import ACC_EV_A_AMU_IN_A_FS2, CARBON_MASS_AMU, K_B_EV, WALL_THICKNESS_A
 
 __all__ = ["TubeSpec", "BundleScene", "TUBE_MODELS", "dynamic_tension", "register", "run",
@@ -719,11 +720,7 @@ def plot_curves(res, path, lammps=None, title=""):
         ax.legend(fontsize=6, ncol=2)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=130)
 
 
 def plot_damage_maps(res, path, title=""):
@@ -747,11 +744,7 @@ def plot_damage_maps(res, path, title=""):
     axs[0].set_ylabel("z (Å)")
     fig.colorbar(sc, ax=list(axs), label="damage mu", shrink=0.8)
     fig.suptitle(title, fontsize=10)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=130)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=130)
 
 
 # ---------------------------------------------------------------------- command line

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
+from upscale.analysis.plots import save_figure
 from upscale.engine import newton
 from upscale.engine.families import build_family
 from upscale.engine.state import State
@@ -188,11 +189,7 @@ def plot(result: dict, path, scale: float | None = None) -> Path:
     ax.set_title(f"CPD {result['scene']} {result['dim']}D, delta/dx={result['delta_over_dx']:g}, "
                  f"x{scale:.3g}; error {result[key]:+.2f} %")
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=120)
 
 
 def _run(args) -> int:

@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from upscale.analysis.plots import save_figure
+
 __all__ = ["beam_static", "timoshenko_branches", "beam_dispersion", "pd_bar_dispersion",
            "cin", "register", "SUPPORT_PAIRS", "plate_long_wave", "rayleigh_branch",
            "rayleigh_dispersion", "rayleigh_mode"]
@@ -207,11 +209,7 @@ def plot_beams(results: list, path) -> Path:
     ax.set_title(f"{r0['theory']} beam, {r0['support']}, N={r0['n']}")
     ax.legend(fontsize=7)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=120)
 
 
 def plot_dispersion(results: list, path, h=STEEL["h"]) -> Path:
@@ -249,11 +247,7 @@ def plot_dispersion(results: list, path, h=STEEL["h"]) -> Path:
     axes[0].legend(fontsize=6)
     fig.suptitle("tridynamic beam branches (dots: classical Timoshenko / bar)")
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=120)
 
 
 # =========================================================================== CLI
@@ -359,11 +353,7 @@ def plot_plate(results: list, path) -> Path:
     ax.set_title(f"simply supported square plate, h/a = {r0['h_over_a']:g}, uniform load")
     ax.legend(fontsize=7)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=120)
 
 
 def plot_plate_dispersion(r: dict, path) -> Path:
@@ -380,11 +370,7 @@ def plot_plate_dispersion(r: dict, path) -> Path:
     ax.set_title(f"tridynamic plate, delta/dx = {r['delta_over_dx']:g}, h = {r['h_over_dx']:g} dx")
     ax.legend(fontsize=6, ncol=3)
     fig.tight_layout()
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-    return path
+    return save_figure(fig, path, dpi=120)
 
 
 def _run_plate(args) -> int:
