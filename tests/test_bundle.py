@@ -164,21 +164,3 @@ def test_defect_centre_among_atomistic_tubes():
         assert mixed.maps[0].natoms == atom.maps[0].natoms
         assert mixed.dof < atom.dof
 
-
-def test_csr_kernel_equals_pair_kernel():
-    """The compressed-row kernel sums the same pairs as the (i, j) pair kernel."""
-    from upscale.models.tube_vdw import lj_cut_csr, lj_cut_pairs
-
-    rng = np.random.default_rng(1)
-    x = rng.uniform(0.0, 14.0, size=(300, 3))
-    w = rng.uniform(0.5, 2.0, size=300)
-    i, j = np.triu_indices(300, 1)
-    keep = (np.sum((x[i] - x[j]) ** 2, axis=1) < 11.0 ** 2) & (rng.random(len(i)) < 0.7)
-    i, j = i[keep], j[keep]
-    off = np.zeros(301, np.int64)
-    np.cumsum(np.bincount(i, minlength=300), out=off[1:])
-    f1, f2 = np.zeros_like(x), np.zeros_like(x)
-    e1 = lj_cut_pairs(x, w, i, j, 2.84e-3, 3.4, 10.2, f1)
-    e2 = lj_cut_csr(x, w, off, j.astype(np.int32), 2.84e-3, 3.4, 10.2, f2)
-    assert abs(e1 - e2) <= 1e-12 * abs(e1)
-    assert np.abs(f1 - f2).max() <= 1e-12 * np.abs(f1).max()

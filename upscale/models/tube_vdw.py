@@ -20,9 +20,8 @@ map (``positions(state)`` (n_a, 3) Å, ``pull_back(state, f_atoms, out, field_ou
 Energy E = sum over pairs (a in body A, b in body B, A != B) of w_a w_b phi(r_ab); forces
 -dE/dx on the atoms, pulled back by each map. The pair list (``scipy.spatial.cKDTree``
 between the atoms of every two bodies whose atoms' bounding boxes come within
-rc + skin: only pairs of different bodies) is kept as a half list in compressed rows
-(int32 partners, :func:`lj_cut_csr`) and rebuilt when an atom has moved more than half
-the ``skin``. A coarse tube's reconstruction is kept while its rows, shifts and history
+rc + skin: only pairs of different bodies, each once, sorted by the first atom) is rebuilt
+when an atom has moved more than half the ``skin``. A coarse tube's reconstruction is kept while its rows, shifts and history
 are unchanged (a tube held in a minimisation). Units: eV, Å; ``force_kind = "particle"``.
 """
 from __future__ import annotations
@@ -33,8 +32,7 @@ from numba import njit
 from upscale.models import register
 from upscale.models.base import Model, Needs, check_positive
 
-__all__ = ["TubeVdW", "AtomisticMap", "LumpedMap", "CoarseTubeMap", "lj_cut_pairs",
-           "lj_cut_csr"]
+__all__ = ["TubeVdW", "AtomisticMap", "LumpedMap", "CoarseTubeMap", "lj_cut_pairs"]
 
 
 @njit(cache=True)
@@ -65,56 +63,6 @@ def lj_cut_pairs(x, w, pi, pj, eps, sigma, rc, f):
         f[b, 0] -= g * dx
         f[b, 1] -= g * dy
         f[b, 2] -= g * dz
-    return e
-
-
-@njit(cache=True)
-def lj_cut_csr(x, w, offsets, nbr, eps, sigma, rc, f):
-    """Eq. (1) over a half pair list in compressed rows: atom ``a``'s partners are
-    ``nbr[offsets[a]:offsets[a + 1]]`` (int32, each pair once). Returns the energy (eV) and
-    adds the forces (eV/Å) to ``f`` (n, 3); the same sums as :func:`lj_cut_pairs` over
-    the same pairs, with one division per pair and the row's own force kept in
-    registers (4 bytes of index per pair instead of 16)."""
-    rc2 = rc * rc
-    s2 = sigma * sigma
-    c4 = 4.0 * eps
-    c24 = 24.0 * eps
-    e = 0.0
-    for a in range(offsets.shape[0] - 1):
-        p0 = offsets[a]
-        p1 = offsets[a + 1]
-        if p0 == p1:
-            continue
-        xa = x[a, 0]
-        ya = x[a, 1]
-        za = x[a, 2]
-        wa = w[a]
-        fx = 0.0
-        fy = 0.0
-        fz = 0.0
-        for p in range(p0, p1):
-            b = nbr[p]
-            dx = xa - x[b, 0]
-            dy = ya - x[b, 1]
-            dz = za - x[b, 2]
-            r2 = dx * dx + dy * dy + dz * dz
-            if r2 >= rc2:
-                continue
-            ir2 = 1.0 / r2
-            q = s2 * ir2
-            q6 = q * q * q
-            ww = wa * w[b]
-            e += ww * c4 * (q6 * q6 - q6)
-            g = ww * c24 * (2.0 * q6 * q6 - q6) * ir2   # -dphi/dr / r
-            fx += g * dx
-            fy += g * dy
-            fz += g * dz
-            f[b, 0] -= g * dx
-            f[b, 1] -= g * dy
-            f[b, 2] -= g * dz
-        f[a, 0] += fx
-        f[a, 1] += fy
-        f[a, 2] += fz
     return e
 
 
@@ -309,23 +257,20 @@ class TubeVdW(Model):
                 pj.append(j[order])
         pi = np.concatenate(pi) if pi else np.zeros(0, np.int64)
         pj = np.concatenate(pj) if pj else np.zeros(0, np.int64)
-        order = np.argsort(pi, kind="stable")  # rows in order, partners ascending
+        order = np.argsort(pi, kind="stable")  # memory order: the kernel walks rows
         self._pi, self._pj = pi[order], pj[order]
-        self._offsets = np.zeros(len(x) + 1, np.int64)
-        np.cumsum(np.bincount(self._pi, minlength=len(x)), out=self._offsets[1:])
-        self._nbr = self._pj.astype(np.int32)
         self._x_built = x.copy()
         self.nbuilds += 1
         return self._pi, self._pj
 
     def pair_list(self, x=None) -> dict:
         """The current pair list (built for the points ``x`` (n, 3) if given, else the last
-        evaluation's): ``{"offsets" (n+1,), "partners" int32, "i", "j" (int64 pairs)}``."""
+        evaluation's): ``{"i", "j"}`` int64, each pair once, sorted by ``i``."""
         if x is not None:
             self._pairs(np.ascontiguousarray(x, dtype=float))
         if self._x_built is None:
             raise RuntimeError("no pair list yet; evaluate a state or give x")
-        return {"offsets": self._offsets, "partners": self._nbr, "i": self._pi, "j": self._pj}
+        return {"i": self._pi, "j": self._pj}
 
     def rebuild(self) -> None:
         """Forget the pair list (the next evaluation builds it)."""
@@ -349,10 +294,9 @@ class TubeVdW(Model):
         c = self._cache
         if c is not None and c[0].shape == x.shape and np.array_equal(c[0], x):
             return c[1], x, c[2]
-        self._pairs(x)
+        pi, pj = self._pairs(x)
         f = np.zeros_like(x)
-        e = lj_cut_csr(x, self.weights, self._offsets, self._nbr, self.eps, self.sigma,
-                       self.rc, f)
+        e = lj_cut_pairs(x, self.weights, pi, pj, self.eps, self.sigma, self.rc, f)
         self._cache = (x.copy(), e, f)
         self._key = (state.y.copy(), {n: v.copy() for n, v in
                                       (getattr(state, "fields", {}) or {}).items()})
