@@ -13,7 +13,7 @@ import os
 import time
 
 from upscale.experiments.bundle import BundleScene, dynamic_tension, parse_specs
-from validation.cases.references import _spec, build_structure
+from validation.cases.references import build_structure
 from validation.lammps.tension import dynamic_tension as lammps_tension
 
 p = argparse.ArgumentParser()
@@ -23,7 +23,8 @@ p.add_argument("--max-strain", type=float, default=0.16)
 a = p.parse_args()
 n, m = (int(v) for v in a.chirality.split(","))
 out = {"chirality": [n, m], "load_start": list(os.getloadavg()), "runs": []}
-atoms = build_structure(_spec("dynamic", n, m, True, 150.0, ntubes=7))
+atoms = build_structure({"name": f"dyn_{n}-{m}_vac4_bundle7", "protocol": "dynamic",
+                         "chirality": (n, m), "vacancy": True, "length": 150.0, "ntubes": 7})
 t0, c0 = time.perf_counter(), time.process_time()
 lam = lammps_tension(atoms, "tersoff:BNC.tersoff", cutoff="step", max_strain=a.max_strain)
 row = {"run": "LAMMPS", "wall_s": time.perf_counter() - t0, "cpu_s": time.process_time() - c0,
