@@ -92,6 +92,10 @@ def test_tube_failures_order():
 def test_bad_input():
     with pytest.raises(ValueError, match=r"tubes 1 and 2 overlap: nearest atoms 0\.\d+ Å"):
         _scene(gap=0.8)
+    # the seed's hexagon (centres 2.2 R apart: walls 0.2 R = 1.36 Å apart for (10,10))
+    with pytest.raises(ValueError, match=r"tubes 1 and 2 overlap: nearest atoms 1\.\d+ Å "
+                                         r"apart, inside the repulsive wall"):
+        _scene(spacing="seed")
     with pytest.raises(ValueError, match="unknown tube model 'pmb'"):
         TubeSpec("pmb")
     with pytest.raises(ValueError, match="tube 2 has length 120 Å, the bundle 150 Å"):
@@ -159,3 +163,4 @@ def test_defect_centre_among_atomistic_tubes():
         assert abs(em - ea) < tol * abs(ea)
         assert mixed.maps[0].natoms == atom.maps[0].natoms
         assert mixed.dof < atom.dof
+

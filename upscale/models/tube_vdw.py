@@ -20,8 +20,9 @@ map (``positions(state)`` (n_a, 3) Å, ``pull_back(state, f_atoms, out, field_ou
 Energy E = sum over pairs (a in body A, b in body B, A != B) of w_a w_b phi(r_ab); forces
 -dE/dx on the atoms, pulled back by each map. The pair list (``scipy.spatial.cKDTree``
 between the atoms of every two bodies whose atoms' bounding boxes come within
-rc + skin) is rebuilt when an atom has moved more than half the ``skin``. Units: eV, Å;
-``force_kind = "particle"``.
+rc + skin: only pairs of different bodies, each once, sorted by the first atom) is rebuilt
+when an atom has moved more than half the ``skin``. A coarse tube's reconstruction is kept while its rows, shifts and history
+are unchanged (a tube held in a minimisation). Units: eV, Å; ``force_kind = "particle"``.
 """
 from __future__ import annotations
 
@@ -106,12 +107,37 @@ class CoarseTubeMap:
         self.natoms = int(natoms)
         self.weights = np.ones(self.natoms)
         self.field = field
+        self._key = None
+        self._x = None
+
+    def _state_key(self, state):
+        """What the atoms depend on: the tube's rows and shifts in ``state`` and its
+        history (last good maps, links)."""
+        t = self.bm.model.tube
+        d = (getattr(state, "fields", None) or {}).get(self.field)
+        return (state.y[self.rows], None if d is None else d[self.rows],
+                t.last_maps, getattr(t, "intact", None), getattr(t, "alive", None))
+
+    def forget(self) -> None:
+        """Drop the kept reconstruction (the next call reconstructs)."""
+        self._key = None
+        self._x = None
 
     def positions(self, state) -> np.ndarray:
+        """(natoms, 3) Å; the last reconstruction again while nothing it depends on has
+        changed (e.g. a tube held during a minimisation)."""
+        key = self._state_key(state)
+        k0 = self._key
+        if k0 is not None and all((a is None and b is None) or
+                                  (a is not None and b is not None and np.array_equal(a, b))
+                                  for a, b in zip(k0, key)):
+            return self._x
         x = self.bm.model.atoms(self.bm.sub(state))[0]
         if len(x) != self.natoms:
             raise RuntimeError(f"the coarse tube gave {len(x)} atoms, the map expects "
                                f"{self.natoms}")
+        self._key = tuple(None if a is None else np.array(a, copy=True) for a in key)
+        self._x = x
         return x
 
     def pull_back(self, state, f, out, field_out=None) -> None:
@@ -229,11 +255,27 @@ class TubeVdW(Model):
                 order = np.lexsort((j, i))  # memory order: the kernel walks rows
                 pi.append(i[order])
                 pj.append(j[order])
-        self._pi = np.concatenate(pi) if pi else np.zeros(0, np.int64)
-        self._pj = np.concatenate(pj) if pj else np.zeros(0, np.int64)
+        pi = np.concatenate(pi) if pi else np.zeros(0, np.int64)
+        pj = np.concatenate(pj) if pj else np.zeros(0, np.int64)
+        order = np.argsort(pi, kind="stable")  # memory order: the kernel walks rows
+        self._pi, self._pj = pi[order], pj[order]
         self._x_built = x.copy()
         self.nbuilds += 1
         return self._pi, self._pj
+
+    def pair_list(self, x=None) -> dict:
+        """The current pair list (built for the points ``x`` (n, 3) if given, else the last
+        evaluation's): ``{"i", "j"}`` int64, each pair once, sorted by ``i``."""
+        if x is not None:
+            self._pairs(np.ascontiguousarray(x, dtype=float))
+        if self._x_built is None:
+            raise RuntimeError("no pair list yet; evaluate a state or give x")
+        return {"i": self._pi, "j": self._pj}
+
+    def rebuild(self) -> None:
+        """Forget the pair list (the next evaluation builds it)."""
+        self._x_built = None
+        self._cache = None
 
     def _same_state(self, state) -> bool:
         """True if ``state``'s positions and fields are those of the last evaluation."""

@@ -181,6 +181,9 @@ def _args_tension(p):
     p.add_argument("--seeds", type=int, default=1,
                    help="thermal seeds of the engine run (the mean is compared with the mean "
                    "of the LAMMPS seeds stored; default 1)")
+    p.add_argument("--seed-start", type=int, default=4928459,
+                   help="first thermal seed; the runs use seed-start, seed-start + 1, ... "
+                   "(default 4928459, the references' default seed number)")
     p.add_argument("--allow-overlap", action="store_true",
                    help="run tubes closer than the van der Waals wall (the seed's hexagon)")
     p.add_argument("--vdw-every", type=int, default=1,
@@ -248,7 +251,10 @@ def run_bundle_tension(args):
     n, m = args.chirality
     spacing = "seed" if args.hexagon else "vdw"
     gap = 3.4 if args.gap is None else args.gap
+    if args.seeds < 1:
+        raise SystemExit(f"bundle-tension: --seeds {args.seeds}; valid: an integer >= 1")
     load0 = os.getloadavg()
+    c_case0 = time.process_time()
     try:
         specs = parse_specs(args.tubes, 7, args.coarsening)
         scene = BundleScene.create((n, m), args.length, specs, spacing=spacing, gap=gap,
@@ -256,11 +262,12 @@ def run_bundle_tension(args):
                                    vdw_every=args.vdw_every, coarse_pairs=args.coarse_pairs)
     except ValueError as exc:
         raise SystemExit(f"bundle-tension: {exc}") from None
+    c_scene = time.process_time() - c_case0
     refs, ref_files = lammps_bundle_references(n, m, args.length, spacing, args.gap)
     runs = []
     t0 = time.perf_counter()
     for k in range(args.seeds):
-        seed = 4928459 + k
+        seed = args.seed_start + k
         if k:
             scene = BundleScene.create((n, m), args.length, specs, spacing=spacing, gap=gap,
                                        vacancy_tube=0, allow_overlap=args.allow_overlap,
@@ -273,7 +280,8 @@ def run_bundle_tension(args):
                  for r in refs if "stress_per_tube_GPa" in r["curve"]]
     out = {"chirality": [n, m], "coarsening": args.coarsening, "spacing": spacing,
            "wall_gap_A": scene.info["wall_gap_A"], "tubes": [s.model for s in specs],
-           "seeds": args.seeds, "lammps_seeds": len(refs), "lammps_files": ref_files}
+           "seeds": args.seeds, "engine_seeds": [args.seed_start + k for k in range(args.seeds)],
+           "lammps_seeds": len(refs), "lammps_files": ref_files}
     for key, name in (("strength_GPa", "strength"), ("youngs_modulus_TPa", "modulus"),
                       ("strain_at_peak", "strain_at_peak")):
         ours, theirs = _mean(runs, key), _mean(refs, key)
@@ -293,11 +301,22 @@ def run_bundle_tension(args):
                 "failure_order": [r["failure_order"] for r in runs],
                 "tube_failure_strain": [r["tube_failure_strain"] for r in runs],
                 "lammps_failure_order": [o["failure_order"] for o in lam_order],
+                "lammps_tube_failure_strain": [o["tube_failure_strain"] for o in lam_order],
                 "central_tube_fails_first": bool(all(r["central_tube_fails_first"]
                                                      for r in runs)),
                 "lammps_central_tube_fails_first": [o["central_tube_fails_first"]
                                                     for o in lam_order],
                 "timing_s": [r["timing_s"] for r in runs],
+                "scene_cpu_s": c_scene, "case_cpu_s": time.process_time() - c_case0,
+                "per_seed": [{"seed": args.seed_start + k, **{q: r[q] for q in (
+                    "strength_GPa", "youngs_modulus_TPa", "strain_at_peak", "failure_order",
+                    "tube_failure_strain", "wall_s", "cpu_s")}}
+                    for k, r in enumerate(runs)],
+                "lammps_per_seed": [{"file": f, **{q: r.get(q) for q in (
+                    "strength_GPa", "youngs_modulus_TPa", "strain_at_peak", "wall_s")},
+                    "steps": r.get("timing_s", {}).get("steps"),
+                    "dynamics_s": r.get("timing_s", {}).get("dynamics")}
+                    for f, r in zip(ref_files, refs)],
                 "load_before": list(load0), "load_after": list(os.getloadavg())})
     out["speedup"] = (out["lammps_wall_s"] / wall) if out["lammps_wall_s"] else None
     out["speedup_cpu"] = (out["lammps_cpu_s"] / out["cpu_s"]) if out["lammps_cpu_s"] else None
@@ -305,6 +324,8 @@ def run_bundle_tension(args):
     from upscale.io import write_json  # noqa: PLC0415
 
     tagj = f"{n}-{m}_K{args.coarsening:g}_{spacing}"
+    if args.seeds > 1 or args.seed_start != 4928459:
+        tagj += f"_s{args.seed_start}x{args.seeds}"
     write_json(Path(args.outdir) / f"bundle_run_{tagj}.json",
                {"runs": [{k: v for k, v in r.items() if not k.startswith("_")
                           and k != "damage"} for r in runs],
