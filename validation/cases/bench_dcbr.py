@@ -38,9 +38,10 @@ def _args(p):
                    help="respa: outer step of the coarse forces, fs (default 5)")
     p.add_argument("--inner", type=int, default=5,
                    help="respa: 1 fs steps of the atomistic region per outer step (default 5)")
-    p.add_argument("--region", choices=("band", "disc", "ellipse"), default="ellipse",
-                   help="the coarse model's atomistic region about the vacancy (default "
-                        "ellipse: 8 Å along the axis, --r-arc around)")
+    p.add_argument("--region", choices=("band", "disc", "ellipse"), default="band",
+                   help="the coarse model's atomistic region about the vacancy (default band, "
+                        "the one whose crack path is atomistic; ellipse: 8 Å along the axis, "
+                        "--r-arc around)")
     p.add_argument("--r-arc", type=float, default=30.0,
                    help="ellipse: circumferential semi-axis, Å (default 30)")
 
