@@ -84,6 +84,21 @@ Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bon
     ``VelocityVerlet(..., thermostat=None)``; an integrator may provide
     ``checkpoint_arrays() -> dict`` / ``restore_arrays(dict)`` for its own variables.
 
+``upscale.engine.respa`` (multiple time stepping, a peer of ``VelocityVerlet``)
+    ``RESPA(outer_dt, inner=1, thermostat=None, force=False)``: r-RESPA (Tuckerman, Berne &
+    Martyna 1992, impulse form): half kick with the slow forces, ``inner`` velocity
+    Verlet steps of ``outer_dt / inner`` with the fast ones, half kick with the slow
+    forces; ``sim.run(k)`` runs k outer steps; ``RESPA.dt`` is the inner step (the blow-up
+    guard's); ``checkpoint_arrays`` / ``restore_arrays`` hold both groups' forces and the
+    thermostat, so a resumed run continues bit for bit. The force split is the models'
+    (optional, additive): ``add_group_force(state, out, group)``,
+    ``add_group_field_force(state, out, group)``, ``group_energy(state, group)`` for
+    ``group`` in ``("fast", "slow")``, each pair summing to ``add_force`` /
+    ``add_field_force`` / ``energy`` (an exact split of one energy); a model without them
+    is fast as a whole; ``prepare_split(state)`` (optional) re-chooses the split about the
+    current state, called by ``RESPA.update_forces(sim)``, which a scene calls instead of
+    ``sim.update_forces()`` after changing a model between steps (links, dead loads).
+
 ``upscale.engine.thermostats``
     ``Langevin(temperature, damping, region=None, seed=0, k_B=None)`` (Ornstein-Uhlenbeck
     step after the second half-kick) and ``NoseHooverChain(temperature, tau, region=None,

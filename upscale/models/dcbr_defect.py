@@ -109,7 +109,17 @@ class DCBRDefectTube(DCBRTube):
         0 keeps the tube pristine (the atomistic region is then a plain refinement, used to
         measure the coupling's own error).
     r_atomistic : float
-        Radius (Å, on the unrolled wall) of the atomistic region around the vacancy.
+        Radius (Å, on the unrolled wall) of the atomistic region around the vacancy: the
+        half-width of a ``"band"``, the radius of a ``"disc"``, the axial semi-axis of an
+        ``"ellipse"``.
+    region : {"band", "disc", "ellipse"}
+        The region's shape on the unrolled wall about the vacancy: all around the tube
+        (default), a disc, or an ellipse with semi-axes ``r_atomistic`` (axial) and
+        ``r_arc`` (around the circumference, Å); rounded out to whole cells with
+        ``whole_cells``. A crack across the axis needs its path atomistic beyond the
+        vacancy's neighbourhood (at the coarse edge it is arrested), hence the ellipse.
+    r_arc : float, optional
+        The circumferential semi-axis of ``region="ellipse"`` (Å).
     pad : float
         Width (Å) of the band of slaved pad atoms outside it (> cutoff 2.1 Å).
     whole_cells : bool
@@ -128,7 +138,8 @@ class DCBRDefectTube(DCBRTube):
     def __init__(self, n: int, m: int, length: float, coarsening: float = 2.0,
                  vacancy: int = 4, r_atomistic: float = 8.0, pad: float = 3.5,
                  region: str = "band", step_crossing: str = "damped", whole_cells: bool = True,
-                 band_z=None, _twin_of: "DCBRDefectTube | None" = None, **kw):
+                 band_z=None, r_arc: float | None = None,
+                 _twin_of: "DCBRDefectTube | None" = None, **kw):
         super().__init__(n, m, length, coarsening, **kw)
         if step_crossing not in ("energy", "always", "force", "damped"):
             raise ValueError(f"step_crossing={step_crossing!r}; valid: 'damped' (while a "
@@ -140,12 +151,18 @@ class DCBRDefectTube(DCBRTube):
                              "(it crosses, as damped dynamics would)")
         self.step_crossing = step_crossing
         self.skip_empty_links = False  # (update_links)
-        if region not in ("band", "disc"):
+        if region not in ("band", "disc", "ellipse"):
             raise ValueError(f"region={region!r}; valid: 'band' (|z - z_vacancy| < r_atomistic, "
-                             "all around the tube) or 'disc' (distance on the wall < r_atomistic)")
+                             "all around the tube), 'disc' (distance on the wall < r_atomistic) "
+                             "or 'ellipse' (semi-axes r_atomistic along the axis, r_arc around)")
+        if (region == "ellipse") != (r_arc is not None) or \
+                (r_arc is not None and not (np.isfinite(r_arc) and r_arc > 0)):
+            raise ValueError(f"r_arc={r_arc!r} with region={region!r}; valid: a semi-axis > 0 Å "
+                             "along the circumference with region='ellipse' (only then)")
         self.region = region
+        self.r_arc = None if r_arc is None else float(r_arc)
         self._kw = dict(kw, vacancy=vacancy, r_atomistic=r_atomistic, pad=pad, region=region,
-                        whole_cells=whole_cells)
+                        whole_cells=whole_cells, r_arc=self.r_arc)
         from potentials.neighbours import neighbour_list  # noqa: PLC0415
         from potentials.tersoff import Tersoff  # noqa: PLC0415
         from upscale.build import swcnt  # noqa: PLC0415
@@ -214,7 +231,12 @@ class DCBRDefectTube(DCBRTube):
         self.band_z = None if band_z is None else tuple(float(b) for b in band_z)
         s_rel = R0 * _wrap(th - thc)
         z_rel = X[:, 2] - zc
-        r = np.hypot(s_rel, z_rel) if region == "disc" else np.abs(z_rel)
+        if region == "disc":  # distance on the unrolled wall
+            r = np.hypot(s_rel, z_rel)
+        elif region == "ellipse":  # elliptic distance, r_atomistic on the boundary
+            r = np.hypot(s_rel * (r_atomistic / self.r_arc), z_rel)
+        else:
+            r = np.abs(z_rel)
         if self.band_z is not None:  # distance to the nearest band's centre
             if min(self.band_z) < X[:, 2].min() or max(self.band_z) > X[:, 2].max():
                 raise ValueError(f"band_z={band_z!r}; valid: centres inside the tube "
@@ -383,7 +405,7 @@ class DCBRDefectTube(DCBRTube):
 
     def _kw_all(self, kw):
         return dict(kw, vacancy=0, r_atomistic=self._kw["r_atomistic"], pad=self._kw["pad"],
-                    region=self.region, whole_cells=self._kw["whole_cells"])
+                    region=self.region, whole_cells=self._kw["whole_cells"], r_arc=self.r_arc)
 
     # ------------------------------------------------------------------ pieces
     def _stab_scale(self):

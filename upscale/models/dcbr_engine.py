@@ -108,6 +108,10 @@ class DCBRDefectTubeModel:
         self.stability = bool(stability)
         self.needs = Needs(pairs=False, failure=bool(failure), energy=True)
         self._cache = None
+        self._slow_cache = self._fast_cache = None
+        self._split_ref = None  # the split's transfer (prepare_split)
+        self._split_src = None
+        self._sub = None  # the pads' carriers' G (_carriers)
         self._version = 0  # bumped when the links or the ghost-force correction change
         self._ghost_version = 0
         self._map = None
@@ -255,7 +259,7 @@ class DCBRDefectTubeModel:
         fs = ex.get("dcbr.fs_last")
         if fs is not None and not np.array_equal(fs, t.last_maps):
             t.last_maps = fs
-            self._cache = None
+            self._cache = self._slow_cache = self._fast_cache = None
         gv = ex.get("dcbr.ghost_version")
         if gv is not None and int(gv) != self._ghost_version:
             t.ghost_correction = None if not bool(ex["dcbr.ghost_on"]) else {
@@ -263,6 +267,12 @@ class DCBRDefectTubeModel:
                 **{k: np.array(ex[f"dcbr.ghost.{k}"], copy=True) for k in _GHOST}}
             self._ghost_version = int(gv)
             self._changed()
+        H = ex.get("dcbr.split.H")
+        if H is not None and H is not self._split_src:  # a resumed state's split
+            self._split_ref = {k: np.array(ex[f"dcbr.split.{k}"], copy=True)
+                               for k in ("y", "d", "gy", "gd", "H")}
+            self._split_src = H
+            self._slow_cache = self._fast_cache = None
         for tube, key in ((t, "dcbr.nl_x"), (t.twin, "dcbr.twin_nl_x")):
             x = ex.get(key)
             if tube is None or x is None or not np.all(np.isfinite(x)):
@@ -270,11 +280,11 @@ class DCBRDefectTubeModel:
             ref = tube.neighbour_reference
             if ref is None or not np.array_equal(ref, x):
                 tube.rebuild_neighbours(x)
-                self._cache = None
+                self._cache = self._slow_cache = self._fast_cache = None
 
     def _changed(self) -> None:
         self._version += 1
-        self._cache = None
+        self._cache = self._slow_cache = self._fast_cache = None
 
     def _evaluate(self, state):
         self._sync(state)
@@ -302,6 +312,252 @@ class DCBRDefectTubeModel:
     def add_field_force(self, state, out) -> None:
         """Adds -dE/d delta to the particle rows of the shift field."""
         out[FIELD][:self.N] -= self._evaluate(state)[2]
+
+    # ------------------------------------------------------------------ force split
+    def _coarse_eval(self, y, d):
+        """(E_c, dE_c/dy, dE_c/d delta) of the coarse particles' lattice energy and
+        hourglass term, sum_c w_c (e(C_c, delta_c) - e0) + W_stab (module docstring of
+        :mod:`upscale.models.dcbr_defect`), with the ghost-force dead load, at unknowns
+        ``y`` and shifts ``d``; a slave's part folded into its atoms as in the total. (The
+        dead load is nearly constant: its constant part goes to the fast group with the
+        transfer of :meth:`prepare_split`.)"""
+        t = self.tube
+        d = np.ascontiguousarray(d, dtype=float)
+        yp = t.particle_positions(y)
+        E, _, P, gd, gys, _ = t._coarse_part(yp, d, self.Lz)
+        gyp = gys - t.gain.forces(P)
+        return self._ghost_term(y, d, float(E), self._fold(y, gyp, None), gd)
+
+    def _slow_eval(self, state):
+        """(E_slow, dE_slow/dy, dE_slow/d delta): the coarse energy E_c less its transfer
+        Q (:meth:`prepare_split`)."""
+        self._sync(state)
+        y, d = self.unknowns(state)
+        c = self._slow_cache
+        if c is not None and c[0] == self._version and np.array_equal(c[1], y) and \
+                np.array_equal(c[2], d):
+            return c[3]
+        E, gy, gd = self._coarse_eval(y, d)
+        q = self._transfer(y, d)
+        if q is not None:
+            E, gy, gd = E - q[0], gy - q[1], gd - q[2]
+        self._store_history(state)
+        out = (E, gy, gd)
+        self._slow_cache = (self._version, y, np.array(d, copy=True), out)
+        return out
+
+    def _store_history(self, state) -> None:
+        """The carriers' last maps and the Verlet list's positions into ``state.extra``
+        (once per outer step, with the slow group: a checkpoint follows a whole step)."""
+        t, ex = self.tube, state.extra
+        if "dcbr.fs_last" in ex:
+            ex["dcbr.fs_last"][...] = t.last_maps
+            ref = t.neighbour_reference
+            if ref is not None and not np.array_equal(ref, ex["dcbr.nl_x"]):
+                ex["dcbr.nl_x"][...] = ref
+
+    def _transfer(self, y, d):
+        """(Q, dQ/dy, dQ/d delta) of the split's transfer, or None (:meth:`prepare_split`)."""
+        r = self._split_ref
+        if r is None:
+            return None
+        dd = d - r["d"]
+        Hd = np.einsum("nij,nj->ni", r["H"], dd)
+        Q = float(np.sum(r["gy"] * (y - r["y"])) + np.sum(r["gd"] * dd) + 0.5 * np.sum(dd * Hd))
+        return Q, r["gy"], r["gd"] + Hd
+
+    def prepare_split(self, state, h: float = 1e-4) -> None:
+        """Choose the force split about the current state (the engine's split contract,
+        :mod:`upscale.engine.respa`; the total is unchanged). The sublattice shifts are the
+        coarse energy's fastest motion (the optical mode of the two sublattices, the
+        reduced mass a quarter of a particle's: about the atoms' own period), so the
+        coarse energy's expansion to second order in the shifts, with its gradient in the
+        positions,
+
+            Q = g_y . (y - y_r) + g_d . (delta - delta_r)
+                + 1/2 sum_c (delta_c - delta_rc)^T H_c (delta_c - delta_rc),
+
+        (g_y, g_d its gradient at the reference r, H_c = d^2 E_c / d delta_c^2 its 3x3
+        blocks, by forward differences of step ``h`` Å: e(C_c, delta_c) is a particle's
+        own) moves to the fast group: E_slow = E_c - Q, E_fast = E_atoms + E_ghost + Q.
+        What stays slow is the coarse energy's change of stiffness and the acoustic
+        motion of the particles; the constant part of the slow forces, which would
+        otherwise be applied as impulses once per outer step (on the atoms through the
+        slaves), is applied at every inner step. Call it again as the state moves (the
+        dynamic scene: every sample)."""
+        self._sync(state)
+        self._split_ref = None
+        y, d = self.unknowns(state)
+        d = np.array(d, copy=True)
+        _, gy0, gd0 = self._coarse_eval(y, d)
+        H = np.empty((self.N, 3, 3))
+        for k in range(3):
+            dp = d.copy()
+            dp[:, k] += h
+            H[:, :, k] = (self._coarse_eval(y, dp)[2] - gd0) / h
+        H = 0.5 * (H + H.transpose(0, 2, 1))
+        self._split_ref = {"y": y.copy(), "d": d, "gy": gy0, "gd": gd0, "H": H}
+        for k, v in self._split_ref.items():  # (a checkpoint carries the split)
+            state.extra[f"dcbr.split.{k}"] = v
+        self._split_src = state.extra["dcbr.split.H"]
+        self._slow_cache = self._fast_cache = None
+
+    def _fold(self, y, gyp, gx):
+        """dE/d(unknowns) (nd + nf, 3) from dE/d(particle positions) ``gyp`` (N, 3) and
+        dE/d(free atoms) ``gx`` (nf, 3) or None: a slave's gradient goes to its atoms by
+        Phi^T (y_s = Phi (x - X) + X_s)."""
+        t, nd = self.tube, self.nd
+        gy = np.empty_like(y)
+        gy[:nd] = gyp[t.dof_idx]
+        gy[nd:] = 0.0 if gx is None else gx
+        if len(t.slave_idx):
+            gy[nd:] += t._PhiT @ gyp[t.slave_idx]
+        return gy
+
+    def _carriers(self):
+        """The pads' carriers as a G restricted to their rows (the fast group needs the maps
+        of these particles only): (rows (nc,), each pad's carrier in them, the
+        restricted :class:`~upscale.models.gain.GainOperator`); rebuilt with G."""
+        import dataclasses  # noqa: PLC0415
+
+        t = self.tube
+        g = t.gain
+        if self._sub is not None and self._sub[0] is g:
+            return self._sub[1]
+        c = t._pad["c"]
+        rows = np.unique(c)
+        loc = np.ascontiguousarray(np.searchsorted(rows, c), dtype=np.int64)
+        cnt = np.diff(g.offsets)[rows]
+        offs = np.zeros(len(rows) + 1, np.int64)
+        np.cumsum(cnt, out=offs[1:])
+        ent = np.concatenate([np.arange(g.offsets[i], g.offsets[i + 1]) for i in rows]) \
+            if len(rows) else np.zeros(0, np.int64)
+        sel = {k: (None if getattr(g, k) is None else getattr(g, k)[rows])
+               for k in ("F0", "frame", "normal", "n_family", "alive", "offset")}
+        sg = dataclasses.replace(g, offsets=offs, neighbors=g.neighbors[ent],
+                                 image=g.image[ent], coef=g.coef[ent],
+                                 fit_beta=None if g.fit_beta is None else g.fit_beta[ent], **sel)
+        out = (rows, loc, sg)
+        self._sub = (g, out)
+        return out
+
+    def _fast_eval(self, state):
+        """(E_fast, dE_fast/dy, dE_fast/d delta): the rest of the tube's energy, the free
+        atoms' Tersoff site energies with the pad atoms on their carriers' maps,
+        sum_a (E_a - e0), with the transfer of :meth:`prepare_split`. Computed without the
+        particles' lattice energies: the carriers' maps (G on their rows only), the pads
+        and the chain rule back through G^T are all it needs of the coarse part, so it
+        is the cheap group."""
+        from upscale.models import dcbr_coupling_kernels as CK  # noqa: PLC0415
+
+        self._sync(state)
+        y, d = self.unknowns(state)
+        c = self._fast_cache
+        if c is not None and c[0] == self._version and np.array_equal(c[1], y) and \
+                np.array_equal(c[2], d):
+            return c[3]
+        t, nd, nf, N = self.tube, self.nd, self.nf, self.N
+        rows, loc, sg = self._carriers()
+        nc = len(rows)
+        dc = np.ascontiguousarray(d, dtype=float)
+        ds = np.ascontiguousarray(dc[rows])
+        yp = t.particle_positions(y)
+        F = sg.deformation(yp, np.array([0.0, 0.0, self.Lz]))
+        FS = np.empty((nc, 3, 2))
+        par = np.empty((nc, 3))
+        Q3 = np.empty((nc, 3, 3))
+        flag = np.empty(nc, np.int8)
+        S = t.S[rows]
+        ga = sg.alive if sg.alive is not None else np.ones(nc, bool)
+        CK.map_frames(F, S, ga, t.alive[rows], FS, par, Q3, flag)
+        ok = flag > 0
+        fsl = t._FS_last[rows]
+        fsl[ok] = FS[ok]
+        t._FS_last[rows[ok]] = FS[ok]
+        pd, R0 = t._pad, t.lattice.R0
+        x = np.empty((nf + len(t.pad_idx), 3))
+        x[:nf] = y[nd:]
+        CK.pad_positions(np.ascontiguousarray(yp[rows]), ds, par, Q3, flag, fsl, loc,
+                         pd["ds"], pd["dz"], pd["sig"], pd["r0"], R0, x[nf:])
+        Ea, gx = t._atomistic(x)
+        E = Ea - nf * t.e0
+        gys = np.zeros((nc, 3))
+        gds = np.zeros((nc, 3))
+        gQ3 = np.zeros((nc, 3, 3))
+        gpar = np.zeros((nc, 3))
+        P = np.zeros((nc, 3, 2))
+        CK.pad_backward(np.ascontiguousarray(gx[nf:]), ds, par, Q3, flag, fsl, loc,
+                        pd["ds"], pd["dz"], pd["sig"], pd["r0"], R0, bool(t.relax_shift),
+                        gys, gds, gQ3, gpar)
+        CK.frame_adjoint(F, S, ga, par, Q3, gQ3, gpar, P)
+        gyp = -sg.forces(P, out=np.empty((N, 3)))
+        gyp[rows] += gys
+        gd = np.zeros((N, 3))
+        gd[rows] = gds
+        gy = self._fold(y, gyp, gx[:nf])
+        q = self._transfer(y, dc)
+        if q is not None:
+            E, gy, gd = E + q[0], gy + q[1], gd + q[2]
+        out = (float(E), gy, gd)
+        self._fast_cache = (self._version, y, np.array(d, copy=True), out)
+        return out
+
+    def _ghost_term(self, y, delta, E, gy, gd):
+        """The ghost-force dead load of :meth:`DCBRDefectTube.energy_and_gradient` (in each
+        row's cylindrical components about the rows' centroid) applied to (E, gy, gd)."""
+        t = self.tube
+        gc = t.ghost_correction
+        Lz = self.Lz
+        if gc is None or not abs(gc["Lz"] - Lz) < 1e-12 * Lz:
+            return E, gy, gd
+        if "gr" not in gc:
+            yu, g = gc["y"], gc["gy"]
+            xu = yu[:, :2] - yu[:, :2].mean(axis=0)
+            thu = np.arctan2(xu[:, 1], xu[:, 0])
+            c, s_ = np.cos(thu), np.sin(thu)
+            gc.update(thu=thu, rhou=np.hypot(xu[:, 0], xu[:, 1]),
+                      gr=g[:, 0] * c + g[:, 1] * s_, gt=-g[:, 0] * s_ + g[:, 1] * c)
+        xc = y[:, :2] - y[:, :2].mean(axis=0)
+        rho = np.hypot(xc[:, 0], xc[:, 1])
+        th = np.arctan2(xc[:, 1], xc[:, 0])
+        turn = float(np.angle(np.mean(np.exp(1j * (th - gc["thu"])))))
+        dth = turn + (th - gc["thu"] - turn + np.pi) % (2 * np.pi) - np.pi
+        gr, gt, rt = gc["gr"], gc["gt"] * gc["rhou"], gc["gy"][:, 2]
+        gdl = gc["gd"]
+        if not t.alive.all():
+            on = np.r_[t.alive[t.dof_idx].astype(float), np.ones(len(y) - self.nd)]
+            gr, gt, rt = gr * on, gt * on, rt * on
+            gdl = gdl * t.alive[:, None]
+        E -= float(np.sum(gr * (rho - gc["rhou"]) + gt * dth + rt * (y[:, 2] - gc["y"][:, 2]))
+                   + np.sum(gdl * (delta - gc["d"])))
+        corr = np.empty_like(gy)
+        corr[:, 0] = (gr * xc[:, 0] - gt * xc[:, 1] / rho) / rho
+        corr[:, 1] = (gr * xc[:, 1] + gt * xc[:, 0] / rho) / rho
+        corr[:, :2] -= corr[:, :2].mean(axis=0)
+        corr[:, 2] = rt
+        return E, gy - corr, gd - gdl
+
+    def _group(self, state, group):
+        if group == "slow":
+            return self._slow_eval(state)
+        if group == "fast":
+            return self._fast_eval(state)
+        raise ValueError(f"force group {group!r}; valid: 'fast' or 'slow'")
+
+    def add_group_force(self, state, out, group: str) -> None:
+        """Adds the ``group``'s part of :meth:`add_force` (the engine's force-split
+        contract, :mod:`upscale.engine.respa`): ``"slow"`` the particles' lattice energy
+        and hourglass term, ``"fast"`` the atomistic region with its pads and the
+        ghost-force dead load; the two add up to the total (the same energy, split)."""
+        out[self.y_rows] -= self._group(state, group)[1]
+
+    def add_group_field_force(self, state, out, group: str) -> None:
+        """The ``group``'s part of :meth:`add_field_force` (the shifts)."""
+        out[FIELD][:self.N] -= self._group(state, group)[2]
+
+    def group_energy(self, state, group: str) -> float:
+        """The ``group``'s part of :meth:`energy` (eV); the two add up to it."""
+        return self._group(state, group)[0]
 
     def step_force(self, state, out, *, failure=True) -> int:
         self.add_force(state, out)

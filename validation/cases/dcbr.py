@@ -339,6 +339,85 @@ def _stability_args(p):
     p.add_argument("--temperature", type=float, default=10.0, help="initial K (default 10)")
     p.add_argument("--hourglass", type=float, default=0.1,
                    help="zero-energy-mode control, fraction of the lattice stiffness (0 = off)")
+    p.add_argument("--mts-outer-dt", type=float, default=5.0,
+                   help="multiple time stepping: outer step, fs (default 5)")
+    p.add_argument("--mts-inner", type=int, default=5,
+                   help="multiple time stepping: inner steps per outer step (default 5)")
+    p.add_argument("--mts-steps", type=int, default=None,
+                   help="multiple time stepping NVE: outer steps (default 10000; --quick 1000)")
+    p.add_argument("--mts-length", type=float, default=50.0,
+                   help="length of the periodic vacancy tube of the MTS run, Å (default 50)")
+    p.add_argument("--mts-region", choices=("band", "disc", "ellipse"), default="ellipse",
+                   help="its atomistic region (default ellipse: 8 Å axial, --mts-r-arc around)")
+    p.add_argument("--mts-r-arc", type=float, default=12.0,
+                   help="the ellipse's circumferential semi-axis, Å (default 12)")
+    p.add_argument("--no-mts", action="store_true", help="skip the multiple-time-step run")
+
+
+def _mts_nve(args, n, m):
+    """NVE energy drift of the r-RESPA integrator (upscale.engine.respa) on the periodic
+    coupled vacancy tube (the dcbr-defect-nve scene, 10 K start, the atomistic region of
+    ``--mts-region``), against velocity Verlet at the inner step over the same simulated
+    time in the same run. The drift is the change of the total energy between the first
+    and the last tenth of the run (their means: the O(dt^2) fluctuation averages out),
+    relative to the initial kinetic energy (the case's convention) and to the atoms'
+    cohesive energy."""
+    from upscale.engine.integrators import VelocityVerlet
+    from upscale.engine.respa import RESPA
+    from upscale.engine.simulation import Simulation
+    from upscale.models.dcbr_defect import DCBRDefectTube
+    from upscale.models.dcbr_engine import FIELD, DCBRDefectTubeModel
+
+    Dt, inner = args.mts_outer_dt, args.mts_inner
+    steps = args.mts_steps or (1000 if args.quick else 10000)
+    if not (Dt > 0 and inner >= 1 and steps >= 20):
+        raise SystemExit(f"--mts-outer-dt {Dt}, --mts-inner {inner}, --mts-steps {steps}; "
+                         "valid: > 0, >= 1, >= 20")
+    kw = {"r_arc": args.mts_r_arc} if args.mts_region == "ellipse" else {}
+    tube = DCBRDefectTube(n, m, args.mts_length, coarsening=args.coarsening, vacancy=4,
+                          r_atomistic=8.0, region=args.mts_region, **kw)
+    y, d, Lz, *_ = tube.minimise(None, None, None, relax_box=True, gtol=1e-6)
+    acc = ACC_EV_A_AMU_IN_A_FS2
+    mass, mass_d = tube.masses()
+    out = {"mts_tube": f"({n},{m}) {args.mts_length:g} Å K={args.coarsening:g}, "
+                       f"region {args.mts_region}", "mts_free_atoms": tube.nf,
+           "mts_outer_dt_fs": Dt, "mts_inner": inner, "mts_outer_steps": steps}
+    for name, integ, nsteps in (("mts", RESPA(Dt, inner, force=True), steps),
+                                ("vv", VelocityVerlet(Dt / inner, force=True), steps * inner)):
+        rng = np.random.default_rng(7)
+        v = rng.standard_normal(y.shape) * np.sqrt(K_B_EV * args.temperature * acc / mass)[:, None]
+        v -= np.sum(mass[:, None] * v, axis=0) / mass.sum()
+        vd = rng.standard_normal(d.shape) * np.sqrt(K_B_EV * args.temperature * acc
+                                                    / mass_d)[:, None]
+        vd[tube.slave_idx] = 0.0
+        em = DCBRDefectTubeModel(tube, y=y, delta=d, Lz=Lz)
+        sim = Simulation(em.system(), None, em, em.conditions(), integ)
+        st = sim.state
+        st.v[em.y_rows] = v
+        if len(tube.slave_idx):
+            st.v[tube.slave_idx] = tube.Phi @ v[em.nd:]
+        st.field_v[FIELD][:tube.N] = vd
+
+        def total():  # the unknowns' and shifts' kinetic energy (a slave's follows its atoms)
+            vv, ww = st.v[em.y_rows], st.field_v[FIELD][:tube.N]
+            return em.energy(st) + 0.5 * (np.sum(mass[:, None] * vv * vv)
+                                          + np.sum(mass_d[:, None] * ww * ww)) / acc
+        e0, k0 = total(), 0.5 * np.sum(mass[:, None] * v * v) / acc
+        every = max(1, nsteps // 200)
+        es = []
+        t0 = time.process_time()
+        sim.run(nsteps, callback=lambda s_: (s_.state.step % every == 0 and es.append(total()))
+                and False, progress=not args.quick)
+        cpu = time.process_time() - t0
+        es = np.array(es) - e0
+        k = max(1, len(es) // 10)
+        drift = float(np.mean(es[-k:]) - np.mean(es[:k]))
+        out.update({f"{name}_drift_rel": drift / k0, f"{name}_max_dev_rel": float(np.abs(es).max() / k0),
+                    f"{name}_drift_rel_to_cohesive": drift / abs(tube.e0 * tube.n_atoms),
+                    f"{name}_cpu_ms_per_fs": 1e3 * cpu / (steps * Dt)})
+    out["mts_initial_KE_eV"] = float(k0)
+    print(table([out], floatfmt=".4g"))
+    return out
 
 
 def _dcbr_stability(args):
@@ -403,13 +482,17 @@ def _dcbr_stability(args):
     rel = (Et - Etot0) / ke0
     maxdev = max(abs(e) for _, e in drift) / ke0
     print(table([{"steps": s, "E - E0 (eV)": e, "(E - E0)/KE0": e / ke0} for s, e in drift], floatfmt=".3e"))
-    return {"dt_crit_coarse_fs": dt_c_coarse, "dt_crit_atomistic_fs": dt_c_atom,
+    res = {"dt_crit_coarse_fs": dt_c_coarse, "dt_crit_atomistic_fs": dt_c_atom,
             "dt_crit_ratio": dt_c_coarse / dt_c_atom, "nve_steps": steps, "nve_dt_fs": args.dt_fs,
             "nve_drift_rel_to_KE0": float(rel), "nve_max_deviation_rel_to_KE0": float(maxdev),
             "nve_initial_KE_eV": float(ke0), "nve_wall_s": wall, "particles": N,
             "zero_energy_modes_beyond_rigid": spurious, "hourglass": args.hourglass,
             "lowest_nonrigid_eigenvalue_over_max": lowest_nonrigid,
             "pass": bool(dt_c_coarse >= dt_c_atom and abs(maxdev) < 1e-2 and spurious == 0)}
+    if not args.no_mts:
+        res.update(_mts_nve(args, n, m))
+        res["mts_pass"] = bool(abs(res["mts_drift_rel"]) < 1e-4)
+    return res
 
 
 case("dcbr-stability", "critical time step of the DCBR tube vs the atomistic lattice, NVE drift",
