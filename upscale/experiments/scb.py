@@ -432,10 +432,10 @@ def run_scb(alpha_deg=30.0, *, dx=1e-3, m=3.0, r_s=1e-3, supports="rollers", sta
 def register(sub) -> None:
     p = sub.add_parser("scb", help="mixed-mode fracture of a PMMA semi-circular bend specimen (seed 004 6.6)")
     p.add_argument("--alpha", type=float, default=30.0, help="crack angle in degrees, [0, 90) (default %(default)s)")
-    p.add_argument("--dx", type=float, default=2e-3, help="particle spacing in m (default %(default)s, the calibrated one)")
+    p.add_argument("--dx", type=float, default=1e-3, help="particle spacing in m (default %(default)s, the calibrated one)")
     p.add_argument("--m", type=float, default=3.0, help="horizon / spacing (default %(default)s)")
-    p.add_argument("--r-s", type=float, default=None, help="failure length r_s in m (default: r_s / dx of "
-                   "data/reference/scb_calibration.json times --dx)")
+    p.add_argument("--r-s", type=float, default=None, help="failure length r_s in m (default: the calibrated r_s "
+                   "of data/reference/scb_calibration.json; for --criterion energy its r_s / dx times --dx)")
     p.add_argument("--supports", default="rollers", choices=("rollers", "pinned"))
     p.add_argument("--stabilisation", type=float, default=1.0, help="bond penalty c_s (default %(default)s)")
     p.add_argument("--force", default="energy", choices=("energy", "printed"))
@@ -458,7 +458,11 @@ def _main(args) -> int:
         cal = Path(__file__).resolve().parents[2] / "data" / "reference" / "scb_calibration.json"
         if not cal.exists():
             raise FileNotFoundError(f"{cal} is missing; pass --r-s")
-        r_s = json.loads(cal.read_text())["r_s_over_dx"] * args.dx
+        c = json.loads(cal.read_text())
+        if args.criterion == "energy":
+            r_s = c["r_s_over_dx"] * args.dx            # that criterion's r_s scales with the spacing
+        else:
+            r_s = c["principal"]["r_s_m"]              # a length in metres
     res = run_scb(args.alpha, dx=args.dx, m=args.m, r_s=r_s, supports=args.supports,
                   stabilisation=args.stabilisation, force=args.force, progress=not args.quiet,
                   outdir=args.out, stop_fraction=args.stop_fraction, criterion=args.criterion)

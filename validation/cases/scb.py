@@ -8,7 +8,9 @@
                      conditions (the 3 x 3 particle patches held as blocks): Y_I, Y_II from
                      a Williams-expansion fit of the near field (and from the crack-face
                      jump), load-patch compliance; rollers and the literal pinned supports
-``scb-table``        r_s calibrated at alpha = 0 only, P_c at the eight angles, K from P_c
+``scb-table``        r_s calibrated at alpha = 0 only (a scan over ``--r-s-candidates`` for the
+                     averaged-stress criteria, default ``--criterion principal``; a secant for
+                     the particle-energy criterion), P_c at the eight angles, K from P_c
                      through the FE factors, errors against the experiment, the paper's errors
                      recomputed from its own values; initiation angles against MTS and GMTS
 ``scb-convergence``  P_c at several spacings with r_s fixed in metres and with r_s / dx fixed
