@@ -56,7 +56,7 @@ The nonlocal stress of the first two is the stress averaged over the disc (2D) o
 s_1 of S_bar_c, e_1 = <s_1>^2 / (2 E'), enters the chapter's structure (energy density x
 length against G_c, 6.28-6.29):
 
-    G_c^{(c)} = 2 r_s e_1 / beta^2 >= G_c      <=>      s_1 >= sigma_c = beta K_Ic / sqrt(r_s),
+    G^{(c)} = 2 r_s e_1 / beta^2 >= G_c      <=>      s_1 >= sigma_c = beta K_Ic / sqrt(r_s),
 
 where beta fixes the one free constant by the mode-I tip field: the disc average of
 sigma_yy = K cos(t/2)[1 + sin(t/2) sin(3t/2)] / sqrt(2 pi r) about a centre at distance p
@@ -74,6 +74,13 @@ tangential stress (MTS) criterion; the averaging adds the T-stress over r_s, lik
 critical distance r_c of the generalised MTS criterion (the disc average of the Williams
 field with T acts as GMTS with r_c of about r_s / 3). The index (s_1 / sigma_c)^2 (the
 larger of the two ends, per bond) is quadratic in the load of a linear body.
+
+The gain's stress is itself a weighted average of the gradient over the horizon, so when
+r_s is a few spacings the averaged tip stress of the particle model is lower than the
+continuum's disc average. ``tip_factor="lattice"`` (default in 2D) takes beta from the
+same operations applied to the exact mode-I tip displacement field on the model's own
+lattice (:func:`lattice_tip_factor`; it depends on r_s / spacing and the horizon, and
+tends to the continuum value as r_s / spacing grows); ``"continuum"`` uses 0.50497.
 
 ``criterion="normal"``: per bond, the averaged stress resolved on the bond, s_b = n_b .
 (S_bar_c + S_bar_j)/2 . n_b (n_b the unit reference bond vector), with the same sigma_c.

@@ -349,6 +349,10 @@ def _conv_args(p):
     p.add_argument("--alphas", default=None, help="comma list of angles (default 0,30,50; quick 0)")
     p.add_argument("--r-s", type=float, required=False, default=None,
                    help="r_s in m at the coarsest spacing (default: calibrate there)")
+    p.add_argument("--criterion", default="principal", choices=("principal", "normal", "energy"),
+                   help="failure rule (default %(default)s)")
+    p.add_argument("--r-s-candidates", default="1e-3,2e-3",
+                   help="principal/normal: r_s values (m) scanned at alpha = 0 (default %(default)s)")
 
 
 @case("scb-convergence", "SCB: P_c versus spacing, r_s fixed in metres and r_s / dx fixed", _conv_args)
@@ -360,8 +364,12 @@ def run_convergence(args):
     alphas = [float(v) for v in (getattr(args, "alphas", None) or ("0" if quick else "0,30,50")).split(",")]
     ex = _exp()
     r_s = getattr(args, "r_s", None)
-    if r_s is None:
+    crit = getattr(args, "criterion", "principal")
+    if r_s is None and crit == "energy":
         r_s, _ = calibrate_r_s(dxs[0], ex["exp_P_c_kN"][0] * 1e3, iters=3)
+    elif r_s is None:
+        cands = [float(v) for v in getattr(args, "r_s_candidates", "1e-3,2e-3").split(",")]
+        r_s, _ = calibrate_r_s_scan(dxs[0], ex["exp_P_c_kN"][0] * 1e3, cands, criterion=crit)
     ratio = r_s / dxs[0]
     rows = []
     for al in alphas:
@@ -369,7 +377,7 @@ def run_convergence(args):
             for mode, r in (("fixed m", r_s), ("fixed r_s/dx", ratio * dx)):
                 if mode == "fixed r_s/dx" and dx == dxs[0]:
                     continue
-                res = run_scb(al, dx=dx, r_s=r, stop_fraction=0.6)
+                res = run_scb(al, dx=dx, r_s=r, stop_fraction=0.6, criterion=crit)
                 rows.append({"alpha": al, "dx mm": dx * 1e3, "mode": mode, "r_s mm": r * 1e3,
                              "P_c kN": res["P_c_kN"], "wall s": res["wall_s"]})
                 print(rows[-1], flush=True)
@@ -382,7 +390,7 @@ def run_convergence(args):
             ch.append({"alpha": al, "mode": mode, "change_pct": 100 * (b / a - 1)})
     print(table(ch, floatfmt=".2f"))
     fixed_ratio = [abs(c["change_pct"]) for c in ch if c["mode"] == "fixed r_s/dx"]
-    return {"dx_m": dxs, "alpha_deg": alphas, "r_s_m_coarsest": r_s, "rows": rows, "changes": ch,
+    return {"dx_m": dxs, "alpha_deg": alphas, "r_s_m_coarsest": r_s, "criterion": crit, "rows": rows, "changes": ch,
             "P_c_change_pct_max": float(max(fixed_ratio)),
             "P_c_change_pct_max_fixed_r_s": float(max(abs(c["change_pct"]) for c in ch if c["mode"] == "fixed m")),
             "pass": bool(max(fixed_ratio) < 5 and dxs[-1] <= 0.25e-3)}
@@ -391,7 +399,10 @@ def run_convergence(args):
 # ---------------------------------------------------------------------------- scb-rate
 def _rate_args(p):
     p.add_argument("--dx", type=float, default=2e-3)
-    p.add_argument("--r-s", type=float, default=0.075, help="r_s in m (default %(default)s)")
+    p.add_argument("--r-s", type=float, default=None,
+                   help="r_s in m (default: 1e-3 for the averaged-stress criteria, 0.075 for 'energy')")
+    p.add_argument("--criterion", default="principal", choices=("principal", "normal", "energy"),
+                   help="failure rule (default %(default)s)")
     p.add_argument("--times", default=None, help="comma list of loading times in s to 1 mm "
                    "(default 2e-3,5e-3,1.5e-2; quick 1e-3,2e-3,4e-3)")
 
@@ -401,9 +412,12 @@ def run_rate(args):
     from upscale.experiments.scb import SCBScene, run_scb
 
     quick = getattr(args, "quick", False)
-    dx, r_s = getattr(args, "dx", 2e-3), getattr(args, "r_s", 0.075)
+    crit = getattr(args, "criterion", "principal")
+    dx, r_s = getattr(args, "dx", 2e-3), getattr(args, "r_s", None)
+    if r_s is None:
+        r_s = 0.075 if crit == "energy" else 1e-3
     times = [float(v) for v in (getattr(args, "times", None) or ("1e-3,2e-3,4e-3" if quick else "2e-3,5e-3,1.5e-2")).split(",")]
-    qs = run_scb(0.0, dx=dx, r_s=r_s, stop_fraction=0.5, keep=True)
+    qs = run_scb(0.0, dx=dx, r_s=r_s, stop_fraction=0.5, keep=True, criterion=crit)
     P_qs = qs["P_c_N"]
     mu_qs = qs.pop("_damage")
     qs.pop("_scene"), qs.pop("_state")
@@ -411,7 +425,7 @@ def run_rate(args):
     rows = []
     u_end = 1e-3
     for T in times:
-        sc = SCBScene(0.0, dx=dx, r_s=r_s)
+        sc = SCBScene(0.0, dx=dx, r_s=r_s, criterion=crit)
         t, d, P, st, info = sc.explicit(T, u_end)
         from upscale.engine import damage
 
@@ -425,7 +439,7 @@ def run_rate(args):
     print(table(rows, floatfmt=".4f"))
     errs = [r["err %"] for r in rows]
     mono = all(abs(b) <= abs(a) + 1e-9 for a, b in zip(errs, errs[1:]))
-    return {"dx_m": dx, "r_s_m": r_s, "P_c_quasi_static_kN": P_qs / 1e3, "loading_times_s": times,
+    return {"dx_m": dx, "r_s_m": r_s, "criterion": crit, "P_c_quasi_static_kN": P_qs / 1e3, "loading_times_s": times,
             "P_c_kN": [r["P_c kN"] for r in rows], "P_c_rate_err_pct": errs,
             "P_c_rate_err_pct_slowest": float(errs[-1]), "monotone": bool(mono),
             "damaged_overlap": [r["damaged overlap with QS"] for r in rows],
