@@ -684,6 +684,9 @@ class UnifiedModel(Model):
         :func:`lattice_tip_factor` on this model's spacing and horizon (``"lattice"``, 2D)."""
         if self.tip_factor_kind == "continuum" or self.dim == 3:
             return disc_average_factor(self.dim)[0]
+        if self.system.spacing is None:
+            raise ValueError("tip_factor='lattice' needs the particle system's spacing (ParticleSystem(spacing=...)); "
+                             "valid otherwise: tip_factor='continuum'")
         return lattice_tip_factor(self.r_s, self.system.spacing, self.family.horizon, E=self.E, nu=self.nu,
                                   plane=self.plane, kernel=self.kernel, rcond=self.rcond,
                                   min_bonds=self.min_bonds, gain_order=self.gain_order)[0]
