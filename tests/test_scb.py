@@ -11,6 +11,7 @@ from upscale.experiments.scb import SCBScene
     ({"a_over_R": 1.0}, "a/R"), ({"a_over_R": 0.0}, "a/R"),
     ({"dx": 5e-3}, "too coarse"), ({"r_s": 0.0}, "r_s"), ({"r_s": -1e-3}, "r_s"),
     ({"supports": "glued"}, "supports"), ({"nu": 0.5}, "Poisson"),
+    ({"r_s": 1e-3, "criterion": "bond"}, "criterion"), ({"r_s": 1e-3, "sequential": 1.5}, "sequential"),
 ])
 def test_bad_input(kw, match):
     kw = {"alpha_deg": 0.0, "dx": 3e-3, **kw}

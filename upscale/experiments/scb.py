@@ -15,8 +15,11 @@ discretisation              square grid x, y = (i + 1/2) dx inside the half disc
                             of this spacing), horizon delta = m dx (default m = 3)
 material                    E = 3.75 GPa, nu = 0.35, rho = 1410 kg/m^3, K_Ic = 2.13 MPa sqrt(m)
                             (Table 6.1); G_c = K_Ic^2 / E
-failure                     energy criterion with length r_s (``upscale.models.unified``);
-                            bonds with an end within ``--no-fail`` dx of a patch never break
+failure                     largest principal stress averaged over r_s (default), the bond
+                            normal stress (``--criterion normal``) or the particle energy
+                            criterion (``--criterion energy``), length r_s in metres
+                            (``upscale.models.unified``); bonds with an end within
+                            ``--no-fail`` dx of a patch never break
 loading                     quasi-static (``upscale.engine.quasistatic``): Newton equilibria,
                             bonds broken and the body re-equilibrated at the same load
 ==========================  ================================================================
@@ -120,6 +123,15 @@ class SCBScene:
         penalty (0.1) leaves the body too soft there: a larger crack opening per load
         (K too high) and a larger compliance, the latter hidden when the rigid 3 x 3
         particle patches are compared with an FE model loaded on boundary segments.
+    criterion : {"principal", "normal", "energy"}
+        Failure rule of :class:`upscale.models.unified.UnifiedModel` (default: the largest
+        principal stress averaged over r_s, a failing particle losing all its bonds).
+    sequential : float
+        Per round only the bonds within this fraction of the largest index break
+        (default 0.99: the most loaded particle first, then re-equilibrium).
+    tip_factor : {"lattice", "continuum"}
+        beta of the critical stress (``UnifiedModel``): from the mode-I tip field on this
+        lattice (default) or the continuum disc average.
     failure_energy : {"tensile", "total"}
     rcond : float
         Regularity threshold of a particle's Upsilon (``gain_coefficients``): a particle
@@ -141,7 +153,8 @@ class SCBScene:
     def __init__(self, alpha_deg=0.0, *, dx=1e-3, m=3.0, a_over_R=0.3, S_over_R=0.43,
                  R=R_DEFAULT, t=5e-3, r_s=None, supports="rollers", stabilisation=1.0,
                  no_fail=3.0, force="energy", failure_energy="tensile", rcond=1e-2, min_bonds=6, E=PMMA["E"], nu=PMMA["nu"], K_Ic=PMMA["K_Ic"],
-                 rho=PMMA["rho"], gain_order=1):
+                 rho=PMMA["rho"], gain_order=1, criterion="principal", sequential=0.99,
+                 tip_factor="lattice"):
         from upscale.engine import ParticleSystem, bonds_crossing_segment, build_family
         from upscale.models.unified import UnifiedModel
 
@@ -188,7 +201,9 @@ class SCBScene:
         self.model = UnifiedModel(E=E, nu=nu, dim=2, plane="stress", stabilisation=stabilisation,
                                   K_Ic=K_Ic if r_s is not None else None, r_s=r_s,
                                   no_fail=near, force=force, failure_energy=failure_energy,
-                                  rcond=rcond, min_bonds=min_bonds, gain_order=gain_order)
+                                  rcond=rcond, min_bonds=min_bonds, gain_order=gain_order,
+                                  criterion=criterion, sequential=sequential,
+                                  tip_factor=tip_factor)
         self.model.prepare(self.system, self.family)
         self.fixed = np.zeros((self.system.n, 3), bool)
         self.fixed[self.load, :2] = True
@@ -370,14 +385,16 @@ def damage_png(path, scene, mu, title, path_pts=None):
 def run_scb(alpha_deg=30.0, *, dx=1e-3, m=3.0, r_s=1e-3, supports="rollers", stabilisation=1.0,
             no_fail=3.0, force="energy", failure_energy="tensile", progress=False, outdir=None,
             a_over_R=0.3, S_over_R=0.43, u_max=None, d_lambda=None, stop_fraction=0.2,
-            keep: bool = False, max_equilibria: int = 3000) -> dict:
+            keep: bool = False, max_equilibria: int = 3000, criterion: str = "principal",
+            sequential: float = 0.99, tip_factor: str = "lattice") -> dict:
     """Build and run the SCB fracture scene; returns a JSON-able result (and writes files
     under ``outdir`` when given); ``keep`` adds the scene, final state and damage under
     the keys ``_scene``, ``_state``, ``_damage`` (not JSON-able)."""
     t0 = time.perf_counter()
     sc = SCBScene(alpha_deg, dx=dx, m=m, r_s=r_s, supports=supports, stabilisation=stabilisation,
                   no_fail=no_fail, force=force, failure_energy=failure_energy, a_over_R=a_over_R,
-                  S_over_R=S_over_R)
+                  S_over_R=S_over_R, criterion=criterion, sequential=sequential,
+                  tip_factor=tip_factor)
     st, curve = sc.fracture(progress=progress, u_max=u_max, d_lambda=d_lambda, stop_fraction=stop_fraction,
                             max_equilibria=max_equilibria)
     pts, mu = sc.crack_path(st)
@@ -415,13 +432,16 @@ def run_scb(alpha_deg=30.0, *, dx=1e-3, m=3.0, r_s=1e-3, supports="rollers", sta
 def register(sub) -> None:
     p = sub.add_parser("scb", help="mixed-mode fracture of a PMMA semi-circular bend specimen (seed 004 6.6)")
     p.add_argument("--alpha", type=float, default=30.0, help="crack angle in degrees, [0, 90) (default %(default)s)")
-    p.add_argument("--dx", type=float, default=2e-3, help="particle spacing in m (default %(default)s, the calibrated one)")
+    p.add_argument("--dx", type=float, default=1e-3, help="particle spacing in m (default %(default)s, the calibrated one)")
     p.add_argument("--m", type=float, default=3.0, help="horizon / spacing (default %(default)s)")
-    p.add_argument("--r-s", type=float, default=None, help="failure length r_s in m (default: r_s / dx of "
-                   "data/reference/scb_calibration.json times --dx)")
+    p.add_argument("--r-s", type=float, default=None, help="failure length r_s in m (default: the calibrated r_s "
+                   "of data/reference/scb_calibration.json; for --criterion energy its r_s / dx times --dx)")
     p.add_argument("--supports", default="rollers", choices=("rollers", "pinned"))
     p.add_argument("--stabilisation", type=float, default=1.0, help="bond penalty c_s (default %(default)s)")
     p.add_argument("--force", default="energy", choices=("energy", "printed"))
+    p.add_argument("--criterion", default="principal", choices=("principal", "normal", "energy"),
+                   help="failure rule: largest principal stress averaged over r_s (default), the averaged stress "
+                        "resolved on each bond, or the particle energies of 6.28")
     p.add_argument("--out", default="out/scb", help="output directory (default: %(default)s)")
     p.add_argument("--stop-fraction", type=float, default=0.5,
                    help="stop when the load falls below this fraction of its peak (default %(default)s: "
@@ -438,10 +458,14 @@ def _main(args) -> int:
         cal = Path(__file__).resolve().parents[2] / "data" / "reference" / "scb_calibration.json"
         if not cal.exists():
             raise FileNotFoundError(f"{cal} is missing; pass --r-s")
-        r_s = json.loads(cal.read_text())["r_s_over_dx"] * args.dx
+        c = json.loads(cal.read_text())
+        if args.criterion == "energy":
+            r_s = c["r_s_over_dx"] * args.dx            # that criterion's r_s scales with the spacing
+        else:
+            r_s = c["principal"]["r_s_m"]              # a length in metres
     res = run_scb(args.alpha, dx=args.dx, m=args.m, r_s=r_s, supports=args.supports,
                   stabilisation=args.stabilisation, force=args.force, progress=not args.quiet,
-                  outdir=args.out, stop_fraction=args.stop_fraction)
+                  outdir=args.out, stop_fraction=args.stop_fraction, criterion=args.criterion)
     print(f"alpha = {args.alpha:g} deg, dx = {args.dx:g} m, r_s = {r_s:g} m: P_c = {res['P_c_kN']:.4f} kN, "
           f"initiation angle {res['initiation_angle_deg']} deg, {res['broken_bonds']} bonds broken, "
           f"{res['wall_s']:.1f} s -> {args.out}/scb.json")

@@ -42,9 +42,62 @@ removes them. z_b vanishes for every affine field (F_c is exact there), so the p
 changes neither the patch test nor a homogeneous solution; U_s is quadratic in y, so
 its force and tangent are a constant sparse matrix (rebuilt when bonds break).
 
-Failure (sec. 6.5, a dimensionally consistent form of 6.27-6.29). Silling and Askari's
-fracture energy of a straight crack in 2D is the work to break every bond crossing a unit
-length of it, per unit thickness:
+Failure (sec. 6.5). Three dimensionally consistent readings of 6.26-6.29; all use G_c
+= K_Ic^2 / E' (E' = E in plane stress, E / (1 - nu^2) in plane strain and 3D) and a length
+r_s in metres, and all leave bonds with an end in ``no_fail`` (load and support patches)
+intact.
+
+The nonlocal stress of the first two is the stress averaged over the disc (2D) or ball
+(3D) of radius r_s about each particle (weights V_j, particles without stress excluded),
+
+    S_bar_c = sum_{|x_j - x_c| <= r_s} V_j S_j / sum V_j.
+
+``criterion="principal"`` (default): the energy density of the largest principal value
+s_1 of S_bar_c, e_1 = <s_1>^2 / (2 E'), enters the chapter's structure (energy density x
+length against G_c, 6.28-6.29):
+
+    G^{(c)} = 2 r_s e_1 / beta^2 >= G_c      <=>      s_1 >= sigma_c = beta K_Ic / sqrt(r_s),
+
+where beta fixes the one free constant by the mode-I tip field: the disc average of
+sigma_yy = K cos(t/2)[1 + sin(t/2) sin(3t/2)] / sqrt(2 pi r) about a centre at distance p
+ahead of the tip is (1 / pi r_s^2) int dt f_yy(t) (2/3) r_2(t)^(3/2) / sqrt(2 pi), r_2 =
+p cos t + sqrt(r_s^2 - p^2 sin^2 t), largest at p = 0.720 r_s where it is beta K /
+sqrt(r_s), beta = 0.50497 (:func:`disc_average_factor`; 0.40636 at p = 0; on the crack
+line the averaged shear vanishes and sigma_bar_yy > sigma_bar_xx, so it is s_1 there). In
+a K-dominated mode-I field the particle 0.72 r_s ahead of the tip therefore fails exactly
+at K_I = K_Ic, whatever r_s (for r_s large against the spacing and small against the
+body): r_s is the length over which the material averages its stress, a material length,
+not a multiple of the spacing. A failing particle loses every bond (it becomes a void:
+no stress, excluded from the averages), so a crack is a chain of voids that advances
+toward the largest averaged principal stress, i.e. normal to s_1 as the maximum
+tangential stress (MTS) criterion; the averaging adds the T-stress over r_s, like the
+critical distance r_c of the generalised MTS criterion (the disc average of the Williams
+field with T acts as GMTS with r_c of about r_s / 3). The index (s_1 / sigma_c)^2 (the
+larger of the two ends, per bond) is quadratic in the load of a linear body.
+
+The gain's stress is itself a weighted average of the gradient over the horizon, so when
+r_s is a few spacings the averaged tip stress of the particle model is lower than the
+continuum's disc average. ``tip_factor="lattice"`` (default in 2D) takes beta from the
+same operations applied to the exact mode-I tip displacement field on the model's own
+lattice (:func:`lattice_tip_factor`; it depends on r_s / spacing and the horizon, and
+tends to the continuum value as r_s / spacing grows); ``"continuum"`` uses 0.50497.
+
+``criterion="normal"``: per bond, the averaged stress resolved on the bond, s_b = n_b .
+(S_bar_c + S_bar_j)/2 . n_b (n_b the unit reference bond vector), with the same sigma_c.
+A bond crossing a crack at an angle phi to its normal carries only about s_1 cos^2 phi, so
+the shallow bonds of the family never reach sigma_c: they bridge the faces, the gain
+model keeps the particles' stress and the damage spreads instead of forming a crack
+(measured in the SCB; kept as an option).
+
+With every criterion ``break_bonds`` breaks, per round, the bonds over the threshold whose
+index is at least ``sequential`` times the largest (1: all of them). The averaged field is
+smooth over r_s, so breaking everything over the threshold at once fails a band of width
+about r_s; ``sequential`` < 1 breaks the most loaded first and re-equilibrates (the
+quasi-static driver calls it until nothing breaks).
+
+``criterion="energy"``: the particle energy densities of 6.28 (the earlier reading).
+Silling and Askari's fracture energy of a straight crack in 2D is the work to break every
+bond crossing a unit length of it, per unit thickness:
 
     G = int_0^{r_s} dy int int_{r > y / cos theta, r < r_s} w r dr dtheta = (2/3) r_s^3 w
 
@@ -56,14 +109,13 @@ among its interactions over the disc of radius r_s, so w_c = e_c / (pi r_s^2) an
 
     G^{nc} = 2 r_s e_c / (3 pi),      G_b = G^{nc} + G^{cn} = 2 r_s (e_c + e_n) / (3 pi)
 
-(6.29 with f_1 = f_2 = 1). A bond breaks when G_b >= G_c, with G_c = K_Ic^2 / E (plane
-stress) or K_Ic^2 (1 - nu^2) / E (plane strain, 3D). e is positive in compression too,
-which would break bonds under the load: by default e is the tensile part of the energy
-(principal-stress split, :meth:`UnifiedModel.failure_energy_density`; the chapter's total
-phi:xi/2 with ``failure_energy="total"``), a bond breaks only when it is stretched
-(|y_j - y_c| > |xi|), and bonds with an end in ``no_fail`` (load and support patches)
-never break. The failure index G_b / G_c is quadratic in the load of a linear
-elastic body, which the quasi-static driver uses to step to the next failure.
+(6.29 with f_1 = f_2 = 1), G_b >= G_c breaks the bond. By default e is the tensile part
+of the energy (principal-stress split, :meth:`UnifiedModel.failure_energy_density`; the
+chapter's total phi:xi/2 with ``failure_energy="total"``), and a bond breaks only when it is
+stretched (|y_j - y_c| > |xi|). This criterion is not directional (every bond of a
+high-energy particle is loaded alike) and, the tip particle's energy density being capped
+by the spacing (e ~ K^2 / (E dx)), it acts as a strength reached at the tip particle: r_s
+then scales with the spacing.
 
 After bonds break, the Upsilon and the centring of every particle are recomputed from
 its remaining bonds; a particle whose remaining bonds do not give a regular Upsilon
@@ -83,7 +135,8 @@ from upscale.models import register
 from upscale.models.base import Model, Needs
 from upscale.models.gain import gain_coefficients, gain_coefficients_quadratic, kappa
 
-__all__ = ["UnifiedModel", "elastic_tensor", "orthotropic_tensor", "critical_energy_release_rate"]
+__all__ = ["UnifiedModel", "elastic_tensor", "orthotropic_tensor", "critical_energy_release_rate",
+           "disc_average_factor", "lattice_tip_factor"]
 
 
 # ---------------------------------------------------------------------------- material
@@ -207,6 +260,107 @@ def critical_energy_release_rate(K_Ic: float, E: float, nu: float = 0.0, plane: 
     return K_Ic ** 2 / E if plane == "stress" else K_Ic ** 2 * (1 - nu * nu) / E
 
 
+def disc_average_factor(dim: int = 2, n_quad: int = 400) -> tuple[float, float]:
+    """(beta, p): the largest average of the mode-I tip stress sigma_yy over a disc (dim 2)
+    or ball (dim 3, the plane-strain field constant along z) of radius r_s, in units K /
+    sqrt(r_s), and the distance p / r_s of its centre ahead of the tip (module docstring).
+
+    2D: sigma_bar_yy(p) = int_{-pi}^{pi} f_yy(t) (2/3) r_2^(3/2) dt / (pi sqrt(2 pi)),
+    r_2 = p cos t + sqrt(1 - p^2 sin^2 t), Gauss-Legendre in t, maximised over p in [0, 1).
+    3D: the ball's slices z = const are discs of radius sqrt(1 - z^2) (weights pi (1 - z^2)
+    of the ball's volume 4 pi / 3), each averaged by the 2D formula (rays from a tip outside
+    a slice meet it between r_1 and r_2, the integrand then (2/3)(r_2^(3/2) - r_1^(3/2))).
+    """
+    from scipy.optimize import minimize_scalar
+
+    if dim not in (2, 3):
+        raise ValueError(f"dim={dim!r}; valid: 2, 3")
+    x, w = np.polynomial.legendre.leggauss(n_quad)
+    t, w = np.pi * x, np.pi * w
+    fyy = np.cos(t / 2) * (1 + np.sin(t / 2) * np.sin(1.5 * t))
+
+    def disc(p, rho):
+        # disc of radius rho centred at p ahead of the tip, average in units K / sqrt(rho)
+        # (the tip outside the disc, q > 1: rays meet it between r_1 and r_2)
+        q = p / rho
+        disc_ = 1 - (q * np.sin(t)) ** 2
+        hit = (disc_ > 0) & ((q < 1) | (np.cos(t) > 0))
+        sq = np.sqrt(np.where(hit, disc_, 0.0))
+        r2 = np.where(hit, q * np.cos(t) + sq, 0.0)
+        r1 = np.where(hit & (q >= 1), np.maximum(q * np.cos(t) - sq, 0.0), 0.0)
+        g = (2.0 / 3.0) * (r2 ** 1.5 - r1 ** 1.5)
+        return np.sum(w * fyy * g) / (np.pi * np.sqrt(2 * np.pi)) / np.sqrt(rho)
+
+    if dim == 2:
+        f = lambda p: -disc(p, 1.0)
+    else:
+        zq, wq = np.polynomial.legendre.leggauss(64)
+        rho = np.sqrt(1 - zq ** 2)
+
+        def f(p):
+            return -np.sum(wq * np.pi * rho ** 2 * np.array([disc(p, r) for r in rho])) / (4 * np.pi / 3)
+    r = minimize_scalar(f, bounds=(0.0, 0.99), method="bounded", options={"xatol": 1e-9})
+    return float(-r.fun), float(r.x)
+
+
+def _averaging_matrix(x, volume, radius):
+    """Sparse (N, N) matrix of V_j over the pairs |x_j - x_c| <= radius (self included)."""
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(x).query_pairs(radius * (1 + 1e-9), output_type="ndarray")
+    n = x.shape[0]
+    i = np.concatenate([pairs[:, 0], pairs[:, 1], np.arange(n)])
+    j = np.concatenate([pairs[:, 1], pairs[:, 0], np.arange(n)])
+    return sp.csr_matrix((volume[j], (i, j)), shape=(n, n))
+
+
+def lattice_tip_factor(r_s: float, spacing: float, horizon: float, *, E: float = 3.75e9, nu: float = 0.35,
+                       plane: str = "stress", kernel: str = "quartic", rcond: float = 1e-6,
+                       min_bonds: int = 0, gain_order: int = 1) -> tuple[float, float]:
+    """(beta, p): :func:`disc_average_factor` on the model's own lattice. The exact mode-I
+    tip displacement field (K = 1, isotropic E, nu; plane stress kappa = (3 - nu)/(1 + nu),
+    plane strain 3 - 4 nu) is imposed on a square lattice of ``spacing`` (a disc of radius
+    4 (r_s + horizon + spacing) about a tip at a cell corner, the crack a cut along -x
+    between two rows); the gain's stress (which is itself a weighted average of the
+    gradient over the horizon) is averaged over r_s as in the criterion, and beta is the
+    largest principal value times sqrt(r_s) within r_s + horizon of the tip, p / r_s its
+    distance ahead. With this beta the criterion reaches sigma_c exactly at K_I = K_Ic in
+    a K-dominated field at this spacing and horizon, for any r_s / spacing (2D only)."""
+    from upscale.engine import ParticleSystem, bonds_crossing_segment, build_family
+    from upscale.engine.state import State
+
+    L = 4.0 * (r_s + horizon + spacing)
+    n = int(np.ceil(L / spacing))
+    g = (np.arange(-n, n) + 0.5) * spacing
+    X, Y = np.meshgrid(g, g, indexing="ij")
+    keep = X ** 2 + Y ** 2 <= L * L
+    x0 = np.column_stack([X[keep], Y[keep], np.zeros(keep.sum())])
+    sysm = ParticleSystem(x0, spacing * spacing, 1.0, dim=2, thickness=1.0, plane=plane, spacing=spacing)
+    fam = build_family(sysm, horizon)
+    cut = bonds_crossing_segment(x0, (-2 * L, 0.0), (0.0, 0.0))(fam.owner, fam.neighbors, fam.xi)
+    fam = fam.remove_bonds(cut | cut[fam.reverse])
+    model = UnifiedModel(E=E, nu=nu, plane=plane, kernel=kernel, rcond=rcond, min_bonds=min_bonds,
+                         gain_order=gain_order)
+    model.prepare(sysm, fam)
+    mu = E / (2 * (1 + nu))
+    kap = (3 - nu) / (1 + nu) if plane == "stress" else 3 - 4 * nu
+    K = 1e-6 * E * np.sqrt(spacing)            # small: the Green strain stays linear
+    r = np.hypot(x0[:, 0], x0[:, 1])
+    th = np.arctan2(x0[:, 1], x0[:, 0])
+    f = K / (2 * mu) * np.sqrt(r / (2 * np.pi))
+    st = State.reference(x0, fam.nb)
+    st.y[:, 0] += f * np.cos(th / 2) * (kap - 1 + 2 * np.sin(th / 2) ** 2)
+    st.y[:, 1] += f * np.sin(th / 2) * (kap + 1 - 2 * np.cos(th / 2) ** 2)
+    S = model.continuum_fields(st)[2]
+    A = _averaging_matrix(x0[:, :2], sysm.volume, r_s)
+    wv = model.alive.astype(float)
+    Sb = (A @ (wv[:, None] * S.reshape(-1, 4))) / np.maximum(A @ wv, 1e-300)[:, None]
+    s1 = np.linalg.eigvalsh(Sb.reshape(-1, 2, 2))[:, -1]
+    near = r <= r_s + horizon
+    i = np.flatnonzero(near)[np.argmax(s1[near])]
+    return float(s1[i] * np.sqrt(r_s) / K), float(x0[i, 0] / r_s)
+
+
 def _tensor4(Cv, dim):
     """Full C_ijkl (tensor shear) from the Voigt matrix (engineering shear)."""
     pairs = _voigt_pairs(dim)
@@ -321,6 +475,34 @@ def failure_index_kernel(y_nc, x_nc, offsets, neighbors, W_n, intact_b, no_fail_
 
 
 @numba.njit(parallel=True, cache=True)
+def normal_index_kernel(xi_bc, offsets, neighbors, Sbar_nij, intact_b, no_fail_n, dim, inv_sc, out_b):
+    """Failure index (s_b / sigma_c)^2 per directed bond, s_b = n_b . (S_bar_c + S_bar_j)/2 .
+    n_b the averaged stress resolved on the unit reference bond vector n_b; 0 for broken
+    bonds, bonds in compression (s_b <= 0) and bonds touching ``no_fail``;
+    ``inv_sc = 1 / sigma_c`` (1/Pa)."""
+    n = offsets.shape[0] - 1
+    for c in numba.prange(n):
+        for b in range(offsets[c], offsets[c + 1]):
+            j = neighbors[b]
+            out_b[b] = 0.0
+            if not intact_b[b] or no_fail_n[c] or no_fail_n[j]:
+                continue
+            l2 = 0.0
+            for k in range(dim):
+                l2 += xi_bc[b, k] * xi_bc[b, k]
+            sn = 0.0
+            for k in range(dim):
+                for m in range(dim):
+                    sn += xi_bc[b, k] * 0.5 * (Sbar_nij[c, k, m] + Sbar_nij[j, k, m]) * xi_bc[b, m]
+            sn /= l2
+            if sn <= 0.0:
+                continue
+            sn *= inv_sc
+            out_b[b] = sn * sn
+    return out_b
+
+
+@numba.njit(parallel=True, cache=True)
 def penalty_kernel(y_nc, xi_bc, offsets, neighbors, reverse_b, coef_bk, F_nij, kv_n, w_b, ok_b, dim,
                    g_bc, Q_nij, out_nc):
     """Adds the force of the bond penalty U_s = sum_c kv_c sum_b w_b |z_b|^2 / 2,
@@ -393,8 +575,18 @@ class UnifiedModel(Model):
         Critical energy release rate (J/m^2) instead of K_Ic.
     no_fail : (N,) bool, optional
         Particles whose bonds never break (load and support patches).
+    criterion : {"principal", "normal", "energy"}
+        Failure rule (module docstring): the largest principal stress averaged over r_s
+        (default; a failing particle loses all its bonds), the averaged stress resolved on
+        each bond, or the particle energy densities of 6.28.
+    tip_factor : {"lattice", "continuum"}
+        beta of sigma_c: from the mode-I tip field on this lattice (default, 2D;
+        :func:`lattice_tip_factor`) or the continuum disc average (:func:`disc_average_factor`).
+    sequential : float
+        In (0, 1]: per round only the bonds whose index is at least this fraction of the
+        largest break (1: every bond over the threshold).
     failure_energy : {"tensile", "total"}
-        Energy density of the criterion (:meth:`failure_energy_density`).
+        Energy density of the ``"energy"`` criterion (:meth:`failure_energy_density`).
     rcond : float
         Regularity threshold of Upsilon (see :func:`gain_coefficients`).
     min_bonds : int
@@ -410,7 +602,8 @@ class UnifiedModel(Model):
                  K_Ic: float | None = None, r_s: float | None = None, G_c: float | None = None,
                  no_fail=None, rcond: float = 1e-6, kernel: str = "quartic",
                  failure_energy: str = "tensile", min_bonds: int = 0, gain_order: int = 1,
-                 qcond: float = 1e-8):
+                 qcond: float = 1e-8, criterion: str = "principal",
+                 sequential: float = 1.0, tip_factor: str = "lattice"):
         if dim not in (2, 3):
             raise ValueError(f"dim={dim!r}; valid: 2, 3")
         if force not in ("energy", "printed"):
@@ -429,6 +622,17 @@ class UnifiedModel(Model):
         if failure_energy not in ("tensile", "total"):
             raise ValueError(f"failure_energy={failure_energy!r}; valid: 'tensile', 'total'")
         self.failure_energy = failure_energy
+        if criterion not in ("principal", "normal", "energy"):
+            raise ValueError(f"criterion={criterion!r}; valid: 'principal' (largest principal averaged stress of a "
+                             "particle), 'normal' (the averaged stress resolved on the bond), 'energy' (particle "
+                             "energy densities of 6.28)")
+        if not (0.0 < sequential <= 1.0):
+            raise ValueError(f"sequential={sequential!r}; valid: 0 < sequential <= 1")
+        self.sequential = float(sequential)
+        if tip_factor not in ("lattice", "continuum"):
+            raise ValueError(f"tip_factor={tip_factor!r}; valid: 'lattice', 'continuum'")
+        self.tip_factor_kind = tip_factor
+        self.criterion = criterion
         self.stabilisation = float(stabilisation)
         self.kernel = kernel
         self.rcond = float(rcond)
@@ -470,7 +674,44 @@ class UnifiedModel(Model):
                 raise ValueError(f"no_fail has shape {self.no_fail.shape}; valid: ({n},)")
             self._no_fail = self.no_fail
         self._topology = None
+        self._avg = None
+        if self.needs.failure and self.criterion in ("normal", "principal"):
+            self._avg = _averaging_matrix(system.x0[:, :self.dim], system.volume, self.r_s)
         self.update_bonds(np.ones(family.nb, dtype=bool))
+
+    def tip_factor(self) -> float:
+        """beta of sigma_c: :func:`disc_average_factor` (``tip_factor="continuum"``) or
+        :func:`lattice_tip_factor` on this model's spacing and horizon (``"lattice"``, 2D)."""
+        if self.tip_factor_kind == "continuum" or self.dim == 3:
+            return disc_average_factor(self.dim)[0]
+        if self.system.spacing is None:
+            raise ValueError("tip_factor='lattice' needs the particle system's spacing (ParticleSystem(spacing=...)); "
+                             "valid otherwise: tip_factor='continuum'")
+        return lattice_tip_factor(self.r_s, self.system.spacing, self.family.horizon, E=self.E, nu=self.nu,
+                                  plane=self.plane, kernel=self.kernel, rcond=self.rcond,
+                                  min_bonds=self.min_bonds, gain_order=self.gain_order)[0]
+
+    def sigma_c(self) -> float:
+        """Critical averaged stress beta K_Ic / sqrt(r_s) (Pa) of the ``"principal"`` and
+        ``"normal"`` criteria, K_Ic = sqrt(E' G_c)."""
+        Ep = self.E if (self.dim == 2 and self.plane == "stress") else self.E / (1 - self.nu ** 2)
+        return self.tip_factor() * np.sqrt(Ep * self.G_c) / np.sqrt(self.r_s)
+
+    def _sigma_c(self):
+        if getattr(self, "_sc_cache", None) is None:
+            self._sc_cache = self.sigma_c()
+        return self._sc_cache
+
+    def averaged_stress(self, state) -> np.ndarray:
+        """Stress S averaged over the r_s neighbourhood (N, dim, dim), Pa (particles without
+        stress excluded from the average)."""
+        S = self.continuum_fields(state)[2]
+        n, d = self.system.n, self.dim
+        wv = self.alive.astype(float)
+        num = self._avg @ (wv[:, None] * S.reshape(n, d * d))
+        den = self._avg @ wv
+        out = np.where(den[:, None] > 0, num / np.where(den > 0, den, 1.0)[:, None], 0.0)
+        return out.reshape(n, d, d)
 
     def update_bonds(self, intact) -> None:
         """Recompute Upsilon, the centring and the gain coefficients of every particle from
@@ -636,6 +877,21 @@ class UnifiedModel(Model):
         out = np.zeros(self.family.nb)
         if not self.needs.failure:
             return out
+        if self.criterion == "principal":
+            Sb = self.averaged_stress(state)
+            s1 = np.linalg.eigvalsh(Sb)[:, -1]
+            ip = (np.maximum(s1, 0.0) / self._sigma_c()) ** 2
+            ip[self._no_fail] = 0.0
+            fam = self.family
+            out[:] = np.where(state.intact, np.maximum(ip[fam.owner], ip[fam.neighbors]), 0.0)
+            nf = self._no_fail[fam.owner] | self._no_fail[fam.neighbors]
+            out[nf] = 0.0
+            return out
+        if self.criterion == "normal":
+            Sb = np.ascontiguousarray(self.averaged_stress(state))
+            normal_index_kernel(self._xi, self.family.offsets, self.family.neighbors, Sb, state.intact,
+                                self._no_fail, self.dim, 1.0 / self._sigma_c(), out)
+            return out
         W = self.failure_energy_density(state)
         factor = 2.0 * self.r_s / (3.0 * np.pi * self.G_c)
         failure_index_kernel(np.ascontiguousarray(state.y), self.system.x0, self.family.offsets,
@@ -663,6 +919,8 @@ class UnifiedModel(Model):
             return 0
         idx = self.failure_index(state)
         hit = idx >= threshold
+        if self.sequential < 1.0 and hit.any():
+            hit &= idx >= self.sequential * idx.max()
         hit |= hit[self._reverse]
         hit &= state.intact
         k = int(hit.sum())
@@ -684,10 +942,13 @@ class UnifiedModel(Model):
     def describe(self) -> dict:
         d = {"model": self.name, "dim": self.dim, "plane": self.plane, "E_Pa": self.E, "nu": self.nu,
              "C_voigt_Pa": self.C.tolist(), "force": self.force_form,
-             "stabilisation": self.stabilisation, "failure_energy": self.failure_energy, "r_s_m": self.r_s, "G_c_J_per_m2": self.G_c,
+             "stabilisation": self.stabilisation, "criterion": self.criterion, "failure_energy": self.failure_energy, "r_s_m": self.r_s, "G_c_J_per_m2": self.G_c,
              "K_Ic_Pa_sqrt_m": self.K_Ic}
         if self.system is not None:
             d["particles_without_stress"] = int((~self.alive).sum())
+        if self.needs.failure and self.criterion in ("normal", "principal"):
+            d["sigma_c_Pa"] = self._sigma_c()
+            d["tip_factor"] = self.tip_factor_kind
         return d
 
 
