@@ -93,8 +93,8 @@ import time
 import numpy as np
 
 __all__ = ["MinimiseResult", "NotConverged", "FIRE", "QuickMin", "LBFGS", "total_energy",
-           "ArrayMinimum", "lbfgs_b", "one_blas_thread", "bfgs", "quick_min_blocks", "restarted", "first_lower",
-           "zero_cell_force"]
+           "ArrayMinimum", "lbfgs_b", "one_blas_thread", "bfgs", "quick_min_blocks",
+           "restarted", "first_lower", "zero_cell_force"]
 
 
 class NotConverged(RuntimeError):

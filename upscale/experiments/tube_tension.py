@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["parse_chirality", "lammps_reference", "GRIPS", "dynamic_scene",
-           "quasi_static_tension", "quasi_static_tension_engine", "defect_nve", "tension", "TensionRun",
-           "run_tension_comparison", "reference_grip_planes", "reference_held_planes",
+           "quasi_static_tension", "quasi_static_tension_engine", "defect_nve", "tension",
+           "TensionRun", "run_tension_comparison", "reference_grip_planes", "reference_held_planes",
            "tube_z_range", "crack_metrics", "plot_comparison", "ROOT", "REFERENCE_DIR"]
 
 #: the repository's root (``data/reference`` lives there)

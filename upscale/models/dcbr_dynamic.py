@@ -487,8 +487,7 @@ def static_grip_stiffness(model, grip: float = 50.0, strain: float = 0.0025,
     apart by ``strain`` times the gauge (all their components held), the free part is
     minimised with the ghost-force correction at that stretch, and the grips' mean reaction
     F (less its value at the set-up state, ``force_at_setup_eV_per_A``: clamping the grips
-    leaves a small reaction, (10,10) coarsening 3: -0.013 eV/Å; with the periodic twin at
-    coarsening 4, -0.05 eV/Å, which moved k by -2.5 % at 0.25 % strain) gives
+    leaves a small reaction, which would otherwise bias k at small strain) gives
     k = F / separation (eV/Å^2). k is free of any gauge convention, so it compares the coarse
     grips with LAMMPS's (``validation.lammps.tension.static_grip_stiffness``) directly;
     ``modulus_TPa`` = (F / area) / strain with LAMMPS's gauge."""
@@ -540,8 +539,8 @@ def run_metrics(strains, stresses, exts, first, fit_max_strain: float = 0.02,
     ``strain_at_peak`` (taken before the correction they would be the first drop's sample's).
     The extensometer's fit takes the samples up to the peak only: its window selects by the
     extensometer strain, and after a break next to a grip (the pristine tubes) the unloaded
-    gauge springs back below ``fit_max_strain`` (a (10,10) fit through those samples gave
-    0.07 TPa); a vacancy tube breaks inside the window, whose strain then grows.
+    gauge springs back below ``fit_max_strain`` (a fit through those samples gives a modulus
+    near zero); a vacancy tube breaks inside the window, whose strain then grows.
 
     ``plateau_fraction``: the plateau-then-rise rule of ``curve_metrics``, which flags the
     switching-function artefact of the standard cutoff; with the step cutoff there is none,

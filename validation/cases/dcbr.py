@@ -517,7 +517,8 @@ def _step_time(args) -> dict:
 
 def _dcbr_regression(args):
     """The quasi-static pristine tension of each tube by the model's own driver
-    (:func:`upscale.experiments.tube_tension.quasi_static_tension`, its joint L-BFGS over positions and
+    (:func:`upscale.experiments.tube_tension.quasi_static_tension`, its joint L-BFGS over
+    positions and
     shifts: the code before the port) and on the engine
     (:func:`upscale.experiments.tube_tension.quasi_static_tension_engine`), one after the
     other in this process, on the same machine: the change of every figure, and the ratio of
