@@ -2,7 +2,8 @@
 import numpy as np
 import pytest
 
-from upscale.models.dcbr import DCBRTube, TubeLattice, quasi_static_tension, tersoff_params
+from upscale.experiments.tube_tension import quasi_static_tension
+from upscale.models.dcbr import DCBRTube, TubeLattice, tersoff_params
 
 
 def _rot(axis, ang):
@@ -173,7 +174,8 @@ def test_lattice_stability_of_strained_armchair_tube():
     """Stable at small strain; unstable beyond the LAMMPS failure strain of the (10,10) tube
     (0.255 with 0.5 % steps): the state of the relaxed coarse tube at 26 % strain."""
     t = DCBRTube(10, 10, 10.0, coarsening=2)
-    y, d, L0, *_ = t.minimise(t.x0, t.delta, t.L, relax_box=True)
+    r0 = t.minimise(t.x0, t.delta, t.L, relax_box=True)
+    y, d, L0 = r0.y, r0.delta, r0.Lz
     states = {}
     for eps in (0.05, 0.26):
         y2 = y.copy()
@@ -275,7 +277,8 @@ def test_hourglass_control_forces_match_finite_differences(tube):
 def _zero_modes_beyond_rigid(t):
     """Count of |eigenvalues| < 1e-6 max of the relaxed tube's Hessian (shifts condensed)
     beyond the 4 rigid modes, as in ``python -m validation dcbr-stability``."""
-    y, d, L0, *_ = t.minimise(t.x0, t.delta, t.L, relax_box=True, gtol=1e-9)
+    r0 = t.minimise(t.x0, t.delta, t.L, relax_box=True, gtol=1e-9)
+    y, d, L0 = r0.y, r0.delta, r0.Lz
     K = t.condensed_hessian(y, d, L0)
     w = np.linalg.eigvalsh(K)
     return int((np.abs(w) < 1e-6 * w.max()).sum()) - 4
@@ -303,12 +306,12 @@ def test_sublattice_shift_stays_in_graphenes_basin():
     y[:, 2] *= lam
     d0 = np.zeros((model.N, 3))
     d0[:, 0], d0[:, 1] = 0.07, 0.7  # along the arc into the spurious basin (-8.8 eV/atom)
-    y1, d1, _, _, _, _ = model.minimise(y, d0, model.L * lam)
+    d1 = model.minimise(y, d0, model.L * lam).delta
     assert np.abs(d1).max() <= model.shift_bound + 1e-12
     assert np.abs(d1).max() < 0.1  # back to the relaxed lattice (0.03 Å at this strain)
     assert model._e_lat_n.min() > model.e0
     model.shift_bound = np.inf
-    _, d2, _, _, _, _ = model.minimise(y, d0, model.L * lam)
+    model.minimise(y, d0, model.L * lam)
     assert model._e_lat_n.min() < model.e0 - 0.5  # the basin the bounds keep out
 
 
@@ -333,5 +336,6 @@ def test_minimiser_steps_back_from_a_trial_off_the_map():
         return real(yy, dd, L)
 
     model.energy_and_gradient = flaky
-    y1, d1, _, E1, info, _ = model.minimise(y, np.zeros((model.N, 3)), model.L * lam)
+    r1 = model.minimise(y, np.zeros((model.N, 3)), model.L * lam)
+    y1, E1 = r1.y, r1.energy
     assert calls[0] > 4 and np.all(np.isfinite(y1)) and np.isfinite(E1) and E1 <= E0

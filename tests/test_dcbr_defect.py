@@ -463,7 +463,8 @@ def _stretched_clamped_tube(n, m, length, grip, eps, **kw):
     m_._ghost["Lz"] = float(L0)
     fixed = np.zeros_like(y, bool)
     fixed[grips] = True
-    y, d, *_ = m_.minimise(y, d0.copy(), L0, gtol=1e-6, fixed=fixed)
+    r_ = m_.minimise(y, d0.copy(), L0, gtol=1e-6, fixed=fixed)
+    y, d = r_.y, r_.delta
     m_.energy_and_gradient(y, d, L0)
     return m_, m_._q_n[:, 2] / lz0 - 1.0, np.asarray(m_.clamp[2], bool)
 

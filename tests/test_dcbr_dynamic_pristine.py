@@ -24,7 +24,8 @@ def test_pristine_scene_grips_and_linear_rise():
       few % on a gauge this short (40 Å); measured here -2.6 % (0.940 vs 0.966 TPa). A
       gauge one row spacing (2.1 Å) off, a wrong area or held rows that do not move miss
       by more."""
-    from upscale.models.dcbr import DCBRTube, quasi_static_tension
+    from upscale.experiments.tube_tension import quasi_static_tension
+    from upscale.models.dcbr import DCBRTube
 
     m = pristine_grip_tube(6, 6, 70.0, 2.0, grip=GRIP, **KW)
     seen = []

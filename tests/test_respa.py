@@ -81,7 +81,8 @@ _RELAXED = {}
 
 def _nve(tube, integ, steps, T=10.0, seed=7, ck=None):
     if id(tube) not in _RELAXED:  # the relaxed periodic tube (the dcbr-defect-nve scene)
-        _RELAXED[id(tube)] = tube.minimise(None, None, None, relax_box=True, gtol=1e-6)[:3]
+        r0 = tube.minimise(None, None, None, relax_box=True, gtol=1e-6)
+        _RELAXED[id(tube)] = (r0.y, r0.delta, r0.Lz)
     y, d, Lz = _RELAXED[id(tube)]
     m = DCBRDefectTubeModel(tube, y=y, delta=d, Lz=Lz)
     sim = Simulation(m.system(), None, m, m.conditions(), integ)

@@ -128,7 +128,8 @@ def _dcbr(args) -> int:
     if args.kill_at:
         _patch_vv_kill(args.kill_at)
     tube = DCBRTube(10, 10, 25.0, coarsening=2.0)
-    y, d, L0, *_ = tube.minimise(tube.x0, tube.delta, tube.L, relax_box=True, gtol=1e-8)
+    r0 = tube.minimise(tube.x0, tube.delta, tube.L, relax_box=True, gtol=1e-8)
+    y, d, L0 = r0.y, r0.delta, r0.Lz
     tube.delta = d
     dt = 1.0 / ASE_TIME_FS                 # 1 fs
     rate = args.strain_rate * ASE_TIME_FS  # per fs -> per time unit

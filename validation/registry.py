@@ -2,7 +2,7 @@
 
 A case is a function ``run(args) -> dict`` registered with :func:`case`. It prints its own
 readable table (use :func:`table`), may save plots under ``args.outdir``, and returns its key
-figures: numbers with units in the key names and ``"pass"`` against the issue's target.
+figures: numbers with units in the key names and ``"pass"`` against the case's target.
 The driver writes them to ``validation/out/CASE.json`` and prints them as one JSON object on
 the last line of output.
 """

@@ -127,6 +127,15 @@ Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bon
     shifts): a model declares ``internal_fields = {name: (lo, hi)}`` and provides
     ``internal_gradient(state) -> {name: dE/dfield}`` and ``hold_internal(flag)``; L-BFGS-B
     then minimises them together with the positions (the model holds them meanwhile).
+    Array level, for a model that is its own configuration space (the coarse tube: its
+    particles, free atoms, shifts and cell length), each returning an ``ArrayMinimum``
+    (``x, energy, iterations, n_force, converged, message``): ``lbfgs_b(fun, x0, lo, hi,
+    gtol, max_iter, memory, ftol, maxfun)`` (``fun(x) -> (E, dE/dx)``; points off the
+    domain get an infinite energy), ``bfgs(fun, x0, gtol, max_iter)``,
+    ``quick_min_blocks(forces, blocks, masses, dt, steps, max_step, ftol, bounds, acc)``;
+    strategies over them: ``restarted(result, restart, done, max_restarts)``,
+    ``first_lower(starts, minimise, energy, below)``, ``zero_cell_force(relax, L, tol)``
+    (secant on a cell length). The model supplies energy and gradient, the engine iterates.
 
 ``upscale.engine.bodies``
     ``Body(system, family, models, name)``; ``assemble(bodies, interactions=()) ->

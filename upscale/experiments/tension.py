@@ -40,7 +40,8 @@ def register(subparsers):
 
 def run(args) -> int:
     from upscale.io import versions, write_json
-    from upscale.models.dcbr import DCBRTube, quasi_static_tension
+    from upscale.experiments.tube_tension import quasi_static_tension
+    from upscale.models.dcbr import DCBRTube
 
     from upscale.experiments.tube_tension import parse_chirality
 

@@ -1,6 +1,6 @@
 """Tube tension scenes of the coarse DCBR model beside their LAMMPS references.
 
-The scenes: quasi-static tension of a periodic tube (:func:`upscale.models.dcbr.quasi_static_tension`
+The scenes: quasi-static tension of a periodic tube (:func:`quasi_static_tension`
 on :class:`~upscale.models.dcbr.DCBRTube`, or :class:`~upscale.models.dcbr_defect.DCBRDefectTube`
 with the 4-atom vacancy) and dynamic tension of the open tube held by grips
 (:func:`dynamic_scene`, :func:`upscale.models.dcbr_dynamic.dynamic_tension`). One call,
@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["parse_chirality", "lammps_reference", "GRIPS", "dynamic_scene",
-           "quasi_static_tension_engine", "tension", "TensionRun",
-           "run_tension_comparison", "reference_grip_planes", "reference_held_planes",
+           "quasi_static_tension", "quasi_static_tension_engine", "defect_nve", "tension",
+           "TensionRun", "run_tension_comparison", "reference_grip_planes", "reference_held_planes",
            "tube_z_range", "crack_metrics", "plot_comparison", "ROOT", "REFERENCE_DIR"]
 
 #: the repository's root (``data/reference`` lives there)
@@ -227,7 +227,7 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
     band of ``r_atomistic`` Å across each grip plane: LAMMPS's pristine tubes fail next to a
     grip plane, where the held atoms keep the radius). ``cache_dir`` and ``runner`` go to
     :func:`lammps_reference`."""
-    from upscale.models.dcbr import DCBRTube, quasi_static_tension
+    from upscale.models.dcbr import DCBRTube
 
     ref = lammps_reference(n, m, length, strain_step=strain_step, vacancy=vacancy,
                            protocol="dynamic" if dynamic else "quasi-static",
@@ -466,6 +466,101 @@ def plot_comparison(res, ref, out, path, model):
 
 
 
+def quasi_static_tension(model, strain_step: float = 0.005, max_strain: float = 0.40,
+                         gtol: float = 1e-6, after_failure: int = 1, fit_max_strain: float = 0.02,
+                         progress=None) -> dict:
+    """Quasi-static axial tension of the periodic coarse tube (the LAMMPS runners' protocol).
+
+    Zero-stress relaxation over positions, sublattice shifts and the cell length gives L0 and
+    R (mean wall radius). Then eps_k = k * strain_step: the cell is set to L0 (1 + eps_k), the
+    particles are mapped affinely along z, the energy is minimised at fixed cell (L-BFGS on
+    positions and shifts, max |gradient| < ``gtol`` eV/Å), links are broken by the failure
+    rule and the minimisation repeated until no link breaks (``model``: a
+    :class:`~upscale.models.dcbr.DCBRTube` or :class:`~upscale.models.dcbr_defect.DCBRDefectTube`,
+    whose ``minimise`` runs on the engine's array-level minimisers). Stress sigma = (dE/dLz) /
+    (2 pi R t), t = 3.4 Å. Stops ``after_failure`` steps after the first drop of more than 5 %
+    below the running maximum (1, as the references' runner, so the last state, which the
+    damage map and crack line are read from, is the step of LAMMPS's last frame), or at
+    ``max_strain``.
+
+    Returns
+    -------
+    dict
+        ``curve`` (strain, stress_GPa, energy_eV, Lz_A, damage_max, broken_links), the metrics
+        of :func:`upscale.analysis.stress.curve_metrics`, ``L0_A``, ``radius_relaxed_A``,
+        ``dof``, ``particles``, ``atoms``, ``wall_s`` and the final ``damage`` (N,).
+    """
+    import math
+
+    from upscale.analysis.stress import curve_metrics
+    from upscale.constants import EV_PER_A3_IN_GPA, WALL_THICKNESS_A as WALL_THICKNESS
+
+    if not (0 < strain_step < max_strain <= 2.0):
+        raise ValueError(f"strain_step={strain_step}, max_strain={max_strain}; valid: "
+                         "0 < strain_step < max_strain <= 2")
+    t0 = time.perf_counter()
+    y0 = getattr(model, "y_init", model.x0)  # the unknowns' reference (atoms too, if any)
+    r0 = model.minimise(y0, model.delta, model.L, relax_box=True, gtol=gtol)
+    y, d, L0 = r0.y, r0.delta, r0.Lz
+    R = model.radius(y, d)
+    area = 2 * math.pi * R * WALL_THICKNESS
+    strains, stresses, energies, lzs, dmax, nbroken = [], [], [], [], [], []
+    k, failed_at = 0, None
+    Lprev = L0
+    while True:
+        eps = k * strain_step
+        if eps > max_strain + 1e-12:
+            break
+        Lz = L0 * (1.0 + eps)
+        y = y.copy()
+        y[:, 2] *= Lz / Lprev
+        Lprev = Lz
+        nb_step = 0
+        if hasattr(model, "prepare_step"):  # per-step set-up (ghost-force correction)
+            model.prepare_step(Lz)
+        for _ in range(4 * model.N + 10):
+            r = model.minimise(y, d, Lz, gtol=gtol)
+            y, d = r.y, r.delta
+            nb = model.update_links()
+            if nb == 0:
+                nb = model.check_stability(all_equal=True)
+            nb_step += nb
+            if nb == 0:
+                break
+            if not model.alive.any():
+                break
+        E, gy, gd, gL = model.energy_and_gradient(y, d, Lz)
+        s = gL / area * EV_PER_A3_IN_GPA
+        strains.append(eps)
+        stresses.append(float(s))
+        energies.append(float(E))
+        lzs.append(float(Lz))
+        dmax.append(float(model.damage.max()))
+        nbroken.append(int((~model.intact).sum()))
+        if progress is not None:
+            progress(eps, s)
+        if failed_at is None and s < 0.95 * max(stresses) and max(stresses) > 0:
+            failed_at = k
+        if failed_at is not None and k - failed_at >= after_failure:
+            break
+        k += 1
+    res = {"model": "dcbr", "protocol": "quasi-static", "chirality": [model.lattice.n, model.lattice.m],
+           "coarsening": model.coarsening, "particles": model.N, "dof": getattr(model, "dof", 3 * model.N),
+           "internal_dof": 3 * model.N if model.relax_shift else 0, "atoms": model.n_atoms,
+           "L0_A": float(L0), "radius_relaxed_A": R, "area_A2": area,
+           "area": "2 pi R t, R = mean wall radius after zero-stress relaxation, t = 3.4 A",
+           "potential": model.potential, "cutoff": model.cutoff, "horizon_A": model.horizon,
+           "spacing_A": list(model.spacing), "strain_step": strain_step,
+           "curve": {"strain": strains, "stress_GPa": stresses, "energy_eV": energies,
+                     "Lz_A": lzs, "damage_max": dmax, "broken_links": nbroken}}
+    res.update(curve_metrics(strains, stresses, fit_max_strain=fit_max_strain))
+    res["damage"] = model.damage
+    res["positions"] = y
+    res["delta"] = d
+    res["wall_s"] = time.perf_counter() - t0
+    return res
+
+
 def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: float = 0.40,
                                 gtol: float = 1e-6, after_failure: int = 1,
                                 fit_max_strain: float = 0.02, progress=None,
@@ -473,7 +568,7 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
                                 shift_gtol: float = 1e-10, resume: bool = False) -> dict:
     """Quasi-static tension of the periodic coarse tube on the engine.
 
-    The protocol of :func:`upscale.models.dcbr.quasi_static_tension` (zero-stress
+    The protocol of :func:`quasi_static_tension` (zero-stress
     relaxation; at eps_k = k ``strain_step`` the cell is set to L0 (1 + eps_k), the
     particles mapped affinely along z, the energy minimised at fixed cell, the failure rules
     applied and the minimisation repeated until no link breaks; stress
@@ -494,7 +589,7 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
     load step's minimisation starts afresh, so the resumed run ends bit for bit where the
     uninterrupted one does.
 
-    Returns the dict of :func:`upscale.models.dcbr.quasi_static_tension` (``curve``, the
+    Returns the dict of :func:`quasi_static_tension` (``curve``, the
     metrics of :func:`upscale.analysis.stress.curve_metrics`, ``L0_A``,
     ``radius_relaxed_A``, ``damage``, ``positions``, ``delta``, ``wall_s``) plus
     ``minimiser`` (iterations and force evaluations in all, load steps whose minimisation
@@ -523,7 +618,8 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
                              f"tension ({restored[1].get('scene')!r})")
         y, d, L0 = restored[0].y, restored[0].extra["dcbr.delta"], restored[1]["L0_A"]
     else:
-        y, d, L0, _, _, _ = tube.minimise(tube.x0, tube.delta, tube.L, relax_box=True, gtol=gtol)
+        r0 = tube.minimise(tube.x0, tube.delta, tube.L, relax_box=True, gtol=gtol)
+        y, d, L0 = r0.y, r0.delta, r0.Lz
     R = tube.radius(y, d) if restored is None else restored[1]["radius_relaxed_A"]
     area = 2 * math.pi * R * WALL_THICKNESS_A
     # a particle's mass: its atoms (volume = atoms, density = the carbon mass)
@@ -606,6 +702,69 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
     return res
 
 
+def defect_nve(n: int, m: int, length: float, coarsening: float, *, steps: int = 10000,
+               dt_fs: float = 1.0, temperature: float = 10.0, seed: int = 7,
+               progress: bool = False) -> dict:
+    """NVE of the periodic coupled (n, m) tube with the vacancy (atomistic band, pads, slaves,
+    ghost correction at the zero-stress state) from Gaussian velocities at ``temperature``
+    K: the total energy's drift.
+
+    The time loop is the engine's velocity Verlet (``dt_fs`` fs) on the tube's engine model
+    (:class:`upscale.models.dcbr_engine.DCBRDefectTubeModel`: the shifts a field with
+    inertia, the slave particles tied to their atoms); the energy counts the unknowns' and
+    the shifts' kinetic energy (a slave's velocity follows its atoms'), sampled every 100
+    steps. Returns ``drift_final_rel_to_kinetic`` and ``max_abs_deviation_rel_to_kinetic``
+    (E - E0 over the initial kinetic energy), ``initial_kinetic_eV``, ``dof``, ``wall_s``.
+    """
+    from upscale.constants import ACC_EV_A_AMU_IN_A_FS2, K_B_EV
+    from upscale.engine.integrators import VelocityVerlet
+    from upscale.engine.simulation import Simulation
+    from upscale.models.dcbr_defect import DCBRDefectTube
+    from upscale.models.dcbr_engine import FIELD, DCBRDefectTubeModel
+
+    if not (steps >= 10 and dt_fs > 0 and temperature > 0):
+        raise ValueError(f"steps={steps}, dt_fs={dt_fs}, temperature={temperature}; valid: "
+                         "steps >= 10, dt_fs > 0, temperature > 0")
+    model = DCBRDefectTube(n, m, length, coarsening=coarsening)
+    r0 = model.minimise(None, None, None, relax_box=True, gtol=1e-6)
+    y, d, Lz = r0.y, r0.delta, r0.Lz
+    acc, kB, dt = ACC_EV_A_AMU_IN_A_FS2, K_B_EV, dt_fs
+    mass, mass_d = model.masses()
+    rng = np.random.default_rng(seed)
+    v = rng.standard_normal(y.shape) * np.sqrt(kB * temperature * acc / mass)[:, None]
+    v -= np.sum(mass[:, None] * v, axis=0) / mass.sum()
+    vd = rng.standard_normal(d.shape) * np.sqrt(kB * temperature * acc / mass_d)[:, None]
+    vd[model.slave_idx] = 0.0
+    em = DCBRDefectTubeModel(model, y=y, delta=d, Lz=Lz)
+    sim = Simulation(em.system(), None, em, em.conditions(),
+                     VelocityVerlet(dt, force=True))
+    st = sim.state
+    st.v[em.y_rows] = v
+    if len(model.slave_idx):
+        st.v[model.slave_idx] = model.Phi @ v[len(model.dof_idx):]
+    st.field_v[FIELD][:model.N] = vd
+
+    def total():
+        vv, ww = st.v[em.y_rows], st.field_v[FIELD][:model.N]
+        return em.energy(st) + 0.5 * (np.sum(mass[:, None] * vv * vv)
+                                      + np.sum(mass_d[:, None] * ww * ww)) / acc
+
+    e0, k0 = total(), 0.5 * np.sum(mass[:, None] * v * v) / acc
+    dev = []
+
+    def every_100(sim_):
+        if sim_.state.step % 100 == 0:
+            dev.append((total() - e0) / k0)
+    t0 = time.perf_counter()
+    sim.run(steps, callback=every_100, progress=progress)
+    wall = time.perf_counter() - t0
+    dev = np.array(dev)
+    return {"chirality": f"{n},{m}", "coarsening": coarsening, "steps": steps, "dt_fs": dt,
+            "dof": model.dof, "initial_kinetic_eV": float(k0),
+            "drift_final_rel_to_kinetic": float(dev[-1]),
+            "max_abs_deviation_rel_to_kinetic": float(np.abs(dev).max()), "wall_s": wall}
+
+
 @dataclasses.dataclass
 class TensionRun:
     """A tube tension result: ``result`` (the driver's dict: ``curve``, modulus, strength,
@@ -667,7 +826,7 @@ def tension(n: int, m: int, length: float, *, model: str = "dcbr", coarsening: f
     :func:`quasi_static_tension_engine`); ``model="lammps"``: the stored LAMMPS reference
     of the same tube and protocol (:func:`lammps_reference`).
     """
-    from upscale.models.dcbr import DCBRTube, quasi_static_tension
+    from upscale.models.dcbr import DCBRTube
 
     if model == "lammps":
         return TensionRun(lammps_reference(n, m, length, strain_step=strain_step,

@@ -23,8 +23,8 @@ and M^T M = C fixes (lam_t, gam, lam_z) uniquely (Cholesky). The mapped bonds ar
 the deformed cylinder; in the flat limit R0 -> inf this is r = F delta again. The two-atom
 basis gets a shift (d_rho, d_s, d_z) of sublattice B; e(C) = min over the shift. Then for a
 uniformly strained periodic tube the coarse energy per atom equals the atomistic one (the
-uniformly strained tube *is* this two-atom helical cell), which is what the issue's 1 %
-energy test checks against LAMMPS.
+uniformly strained tube *is* this two-atom helical cell), which ``python -m validation
+dcbr-energy`` checks against LAMMPS (1 % of the strain energy per atom).
 
 **Forces.** dW/dF = 2 N_c F S (de/dC) S by the chain rule through (lam_t, gam, lam_z), then
 through G (linear in positions) to particle forces (:meth:`GainOperator.forces`). The
@@ -38,9 +38,10 @@ sublattice shifts are extra per-particle unknowns minimised together with the po
    periodic piece of the real tube at least twice the cutoff long, is tested for a negative
    eigenvalue of its atomistic Hessian (:class:`LatticeStability`; the phonon instability by
    which a perfect lattice fails). An unstable particle fails: it loses all its links. The
-   uniform coarse branch alone keeps rising past the atomistic failure (its stress peak is
-   at ~31 % strain for (10,10) with the step cutoff, LAMMPS fails at 25.5 %): the Hessian
-   of the 80-atom (10,10) piece turns negative between 24.0 and 24.5 %.
+   uniform coarse branch alone keeps rising well past the atomistic failure (its stress
+   peak lies several % of strain beyond LAMMPS's), while the periodic piece's Hessian turns
+   negative close to LAMMPS's failure strain (figures in ``validation/results/engine.md``,
+   "Design measurements of the coarse tube").
 2. Bond cutoff: a link (c, n) of G's family breaks when, in the mapped lattice of c or of
    n, the C-C bond most aligned with the link's reference direction is longer than the
    outer cutoff R + D of the potential file (2.1 Å for C-C in BNC.tersoff), i.e. the bond
@@ -51,9 +52,9 @@ non-collinear links drops out. Damage index mu = 1 - R/T per particle (eq. 5.16)
 
 **Zero-energy-mode (hourglass) control** (``hourglass``, default 0.1; 0 switches it off).
 G_c does not see u_c itself, so checkerboard-like patterns of the regular grid leave every
-G unchanged (on the curved wall: combinations of them) and cost nothing: the validation case
-dcbr-stability counted 32 / 6 / 8 such zero-energy modes beyond the 4 rigid ones for the
-(10,10) tube, 25 Å, at coarsening 1 / 2 / 4 without this control, 0 with it. A penalty on the non-affine part of each link (Silling 2017;
+G unchanged (on the curved wall: combinations of them) and cost nothing (``python -m
+validation dcbr-stability`` counts the zero-energy modes beyond the 4 rigid ones: several
+without this control, none with it). A penalty on the non-affine part of each link (Silling 2017;
 Breitenfeld et al. 2014: hourglass control for correspondence peridynamics) restores its
 stiffness,
 
@@ -93,11 +94,15 @@ The lattice-stability rule reads the lattice energy per atom only (``_e_lat_n``)
 W_stab (its own links) divided by N_c, so the per-particle energies sum to the total.
 
 Scope (what is and is not here): periodic pristine tubes of any chirality, uniform
-(theta, z) arrangement, quasi-static tension (:func:`quasi_static_tension`) and an ASE
+(theta, z) arrangement (quasi-static tension:
+:func:`upscale.experiments.tube_tension.quasi_static_tension`) and an ASE
 calculator (:mod:`upscale.calculators`). Defects are in :mod:`upscale.models.dcbr_defect`
 (an atomistic region around the vacancy coupled to these particles) and dynamic tension of
-open tubes with grips in :mod:`upscale.models.dcbr_dynamic`. Not yet: the engine's ``Model``
-interface (this model runs its own L-BFGS loop).
+open tubes with grips in :mod:`upscale.models.dcbr_dynamic`. The tube supplies energy and
+gradient; its minimisations run on the engine's array-level minimisers
+(:func:`upscale.engine.minimisers.lbfgs_b`, :meth:`DCBRTube.minimise`), and
+:class:`DCBRTubeModel` is the same tube as an engine model (shifts relaxed at every
+configuration) for the engine's integrators and minimisers.
 
 Units: eV, Å; stress in GPa with the wall area 2 pi R t, t = 3.4 Å.
 """
@@ -107,20 +112,17 @@ import dataclasses
 import math
 
 import numpy as np
-from scipy.optimize import Bounds, minimize
 
 from potentials.tersoff import INDEX as TI
 from upscale.constants import EV_PER_A3_IN_GPA, WALL_THICKNESS_A
+from upscale.engine.minimisers import bfgs, lbfgs_b
 
 from upscale.models import dcbr_coupling_kernels as CK
 from upscale.models import dcbr_kernels as K
 from upscale.models.gain import GainOperator, build_gain
 
 __all__ = ["tersoff_params", "TubeLattice", "LatticeStability", "DCBRTube",
-           "quasi_static_tension", "DCBRTubeModel", "EV_PER_A3_IN_GPA", "WALL_THICKNESS"]
-
-_BLAS_CONTROLLER = None
-
+           "DCBRTubeModel", "TubeMinimum", "EV_PER_A3_IN_GPA", "WALL_THICKNESS"]
 
 # Each component of a particle's sublattice shift is held within +-SHIFT_BOUND_FRACTION
 # times the bond length (0.355 Å for 1.42 Å) by the minimiser's bounds. The relaxed lattice
@@ -130,24 +132,9 @@ _BLAS_CONTROLLER = None
 # takes the third out of the cutoff, and these two-coordinated chains come out at -8.8 to
 # -9.1 eV/atom, below graphene's -7.91, past a barrier of +3 eV/atom. No atomistic tube goes
 # there (every atom would have to move at once), but an L-BFGS line search, which samples
-# energies, stepped over the barrier in a (10,10) K = 4 vacancy run at 12.5 % strain: the
-# stress jumped from 91 to 133 GPa (tests/test_dcbr.py::test_sublattice_shift_stays_in_graphenes_basin).
+# energies, can step over the barrier and the stress then jumps
+# (tests/test_dcbr.py::test_sublattice_shift_stays_in_graphenes_basin).
 SHIFT_BOUND_FRACTION = 0.25
-
-
-def _one_blas_thread():
-    """Context in which BLAS runs on one thread. scipy's L-BFGS-B makes many small BLAS
-    calls per iteration (vectors of the unknowns, maxcor = 30 pairs); with OpenBLAS's
-    threads on a small, shared machine those cost ~6x more than on one thread (measured
-    3.5 vs 0.6 ms per iteration for 5,800 unknowns on 2 cores, and the spinning threads
-    slow the energy evaluations in between), while the vector sizes here are far too
-    small for threads to pay. Same algorithm and stopping rules."""
-    global _BLAS_CONTROLLER
-    from threadpoolctl import ThreadpoolController  # noqa: PLC0415
-
-    if _BLAS_CONTROLLER is None:
-        _BLAS_CONTROLLER = ThreadpoolController()
-    return _BLAS_CONTROLLER.limit(limits=1, user_api="blas")
 
 
 WALL_THICKNESS = WALL_THICKNESS_A
@@ -294,9 +281,8 @@ class TubeLattice:
             e, g = self.energy(np.r_[fixed, d], p)
             return e, g[3:]
 
-        res = minimize(fun, np.asarray(shift0, float), jac=True, method="BFGS",
-                       options={"gtol": 1e-11, "maxiter": 200})
-        return float(res.fun), res.x
+        res = bfgs(fun, np.asarray(shift0, float), gtol=1e-11, max_iter=200)
+        return res.energy, res.x
 
 
 class LatticeStability:
@@ -425,6 +411,41 @@ def uniform_map_frame(FS):
                   q1[:, 2] * q2[:, 0] - q1[:, 0] * q2[:, 2],
                   q1[:, 0] * q2[:, 1] - q1[:, 1] * q2[:, 0]], axis=1)
     return lt, gm, lz, np.stack([q1, q2, n], axis=2)
+
+
+@dataclasses.dataclass
+class TubeMinimum:
+    """A minimum of the coarse tube (:meth:`DCBRTube.minimise`).
+
+    Attributes
+    ----------
+    y : (Ny, 3) float
+        The unknown positions (particles, then any free atoms), Å.
+    delta : (N, 3) float
+        Sublattice shifts (d_s, d_z, d_rho), Å.
+    Lz : float
+        Cell length, Å.
+    energy : float
+        Energy at the minimum, eV.
+    info : dict
+        ``nit``, ``nfev``, ``success``, ``max_force_eV_A`` (largest position gradient
+        component), ``message``, and what a subclass adds (``damped_cycles``,
+        ``step_crossings``, ``zero_stress_iterations``).
+    cell_force : float
+        dE/dLz at the minimum, eV/Å (the axial force on the cell).
+    """
+
+    y: np.ndarray
+    delta: np.ndarray
+    Lz: float
+    energy: float
+    info: dict
+    cell_force: float
+
+    @property
+    def max_force(self) -> float:
+        """Largest position gradient component, eV/Å."""
+        return self.info["max_force_eV_A"]
 
 
 class DCBRTube:
@@ -764,55 +785,43 @@ class DCBRTube:
             parts.append([Lz])
         return np.concatenate(parts)
 
-    def minimise(self, y, delta, Lz, relax_box=False, gtol=1e-6, maxiter=5000, fixed=None):
-        """Minimise the energy over positions and shifts (and Lz if ``relax_box``) by L-BFGS.
+    def minimise(self, y, delta, Lz, relax_box=False, gtol=1e-6, maxiter=5000,
+                 fixed=None) -> "TubeMinimum":
+        """Minimise the energy over positions and shifts (and Lz if ``relax_box``) by the
+        engine's L-BFGS-B (:func:`upscale.engine.minimisers.lbfgs_b`, 30 correction pairs).
 
-        Returns (y, delta, Lz, E, info). ``gtol``: max |gradient component| in eV/Å.
-        ``fixed``: optional boolean mask shaped like ``y``; those position components stay.
+        ``gtol``: max |gradient component| in eV/Å. ``fixed``: optional boolean mask shaped
+        like ``y``; those position components stay. With ``relax_box`` the positions scale
+        with the cell along z (affine in z) and the cell length, in units of L/10 so that
+        its step matches the particle steps, is one more unknown. Each sublattice shift
+        component stays within +-``shift_bound`` (graphene's basin; see
+        SHIFT_BOUND_FRACTION). Returns a :class:`TubeMinimum`.
         """
         N = self.N
         Ny = len(y)  # the unknown positions (a subclass may add rows, e.g. atoms)
-        x0 = self._pack(y, delta, Lz if relax_box else None)
-        # relative scaling of the box length so its step matches the particle steps
         Lscale = self.L / 10.0
 
         def fun(xv):
             yy = xv[:3 * Ny].reshape(Ny, 3)
             dd = xv[3 * Ny:3 * Ny + 3 * N].reshape(N, 3)
             L = xv[-1] * Lscale if relax_box else Lz
-            if relax_box:  # positions scale with the box along z (affine in z)
+            if relax_box:
                 yy = yy.copy()
                 yy[:, 2] *= L / self.L
-            # a trial point off the map (non-finite unknowns, energy or forces after a
-            # kink) gets an infinite energy, so the line search steps back; the lowest
-            # finite point seen is kept in case the minimiser still ends on such a point
-            if not np.all(np.isfinite(xv)):
-                return np.inf, np.zeros_like(xv)
-            try:
-                E, gy, gd, gL = self.energy_and_gradient(yy, dd, L)
-            except FloatingPointError:
-                return np.inf, np.zeros_like(xv)
+            E, gy, gd, gL = self.energy_and_gradient(yy, dd, L)
             if relax_box:
                 gL_tot = gL + np.dot(gy[:, 2], xv[:3 * Ny].reshape(Ny, 3)[:, 2]) / self.L
                 gy = gy.copy()
                 gy[:, 2] *= L / self.L
-                g = np.concatenate([gy.ravel(), gd.ravel(), [gL_tot * Lscale]])
-            else:
-                g = np.concatenate([gy.ravel(), gd.ravel()])
-            if not (np.isfinite(E) and np.all(np.isfinite(g))):
-                return np.inf, np.zeros_like(xv)
-            if E < best[0]:
-                best[0], best[1] = E, xv.copy()
-            return E, g
-
-        best = [np.inf, None]
+                return E, np.concatenate([gy.ravel(), gd.ravel(), [gL_tot * Lscale]])
+            return E, np.concatenate([gy.ravel(), gd.ravel()])
 
         if relax_box:
             ys = y.copy()
             ys[:, 2] *= self.L / Lz
             x0 = self._pack(ys, delta, Lz / Lscale)
-        # each sublattice shift component stays within +-shift_bound (graphene's basin; see
-        # SHIFT_BOUND_FRACTION), positions are free unless ``fixed``
+        else:
+            x0 = self._pack(y, delta)
         b = self.shift_bound
         lo = np.full(len(x0), -np.inf)
         hi = np.full(len(x0), np.inf)
@@ -824,23 +833,18 @@ class DCBRTube:
                 raise ValueError(f"fixed has shape {fixed.shape}; valid: that of y {y.shape}")
             fx = np.nonzero(fixed.ravel())[0]
             lo[fx] = hi[fx] = x0[fx]
-        bounds = Bounds(lo, hi)
-        with _one_blas_thread():
-            res = minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=bounds,
-                           options={"maxiter": maxiter, "maxcor": 30, "gtol": gtol,
-                                    "ftol": 1e-15, "maxfun": 4 * maxiter})
+        res = lbfgs_b(fun, x0, lo, hi, gtol=gtol, max_iter=maxiter, memory=30, ftol=1e-15,
+                      maxfun=4 * maxiter)
         xv = res.x
-        if not np.all(np.isfinite(xv)) and best[1] is not None:
-            xv = best[1]  # the last good state, not the trial that left the map
         y = xv[:3 * Ny].reshape(Ny, 3).copy()
         delta = xv[3 * Ny:3 * Ny + 3 * N].reshape(N, 3).copy()
         if relax_box:
             Lz = xv[-1] * Lscale
             y[:, 2] *= Lz / self.L
         E, gy, gd, gL = self.energy_and_gradient(y, delta, Lz)
-        info = {"nit": int(res.nit), "nfev": int(res.nfev), "success": bool(res.success),
-                "max_force_eV_A": float(np.abs(gy).max()), "message": str(res.message)}
-        return y, delta, Lz, E, info, gL
+        info = {"nit": res.iterations, "nfev": res.n_force, "success": res.converged,
+                "max_force_eV_A": float(np.abs(gy).max()), "message": res.message}
+        return TubeMinimum(y, delta, Lz, E, info, gL)
 
     # ------------------------------------------------------------------ links and failure
     def set_links(self, intact, alive) -> None:
@@ -903,96 +907,6 @@ class DCBRTube:
         """Mean wall radius (Å): particles sit on sublattice A, B is d_rho further out."""
         rho = np.hypot(y[:, 0], y[:, 1])
         return float(np.mean(rho + 0.5 * delta[:, 0]))
-
-
-def quasi_static_tension(model: DCBRTube, strain_step: float = 0.005, max_strain: float = 0.40,
-                         gtol: float = 1e-6, after_failure: int = 1, fit_max_strain: float = 0.02,
-                         progress=None) -> dict:
-    """Quasi-static axial tension of the periodic coarse tube (the LAMMPS runners' protocol).
-
-    Zero-stress relaxation over positions, sublattice shifts and the cell length gives L0 and
-    R (mean wall radius). Then eps_k = k * strain_step: the cell is set to L0 (1 + eps_k), the
-    particles are mapped affinely along z, the energy is minimised at fixed cell (L-BFGS on
-    positions and shifts, max |gradient| < ``gtol`` eV/Å), links are broken by the failure
-    rule and the minimisation repeated until no link breaks. Stress sigma = (dE/dLz) /
-    (2 pi R t), t = 3.4 Å. Stops ``after_failure`` steps after the first drop of more than 5 %
-    below the running maximum (1, as the references' runner, so the last state, which the
-    damage map and crack line are read from, is the step of LAMMPS's last frame), or at
-    ``max_strain``.
-
-    Returns
-    -------
-    dict
-        ``curve`` (strain, stress_GPa, energy_eV, Lz_A, damage_max, broken_links), the metrics
-        of :func:`upscale.analysis.stress.curve_metrics`, ``L0_A``, ``radius_relaxed_A``,
-        ``dof``, ``particles``, ``atoms``, ``wall_s`` and the final ``damage`` (N,).
-    """
-    import time  # noqa: PLC0415
-
-    from upscale.analysis.stress import curve_metrics  # noqa: PLC0415
-
-    if not (0 < strain_step < max_strain <= 2.0):
-        raise ValueError(f"strain_step={strain_step}, max_strain={max_strain}; valid: "
-                         "0 < strain_step < max_strain <= 2")
-    t0 = time.perf_counter()
-    y0 = getattr(model, "y_init", model.x0)  # the unknowns' reference (atoms too, if any)
-    y, d, L0, E, info, _ = model.minimise(y0, model.delta, model.L, relax_box=True, gtol=gtol)
-    R = model.radius(y, d)
-    area = 2 * math.pi * R * WALL_THICKNESS
-    strains, stresses, energies, lzs, dmax, nbroken = [], [], [], [], [], []
-    k, failed_at = 0, None
-    Lprev = L0
-    while True:
-        eps = k * strain_step
-        if eps > max_strain + 1e-12:
-            break
-        Lz = L0 * (1.0 + eps)
-        y = y.copy()
-        y[:, 2] *= Lz / Lprev
-        Lprev = Lz
-        nb_step = 0
-        if hasattr(model, "prepare_step"):  # per-step set-up (ghost-force correction)
-            model.prepare_step(Lz)
-        for _ in range(4 * model.N + 10):
-            y, d, _, E, info, gL = model.minimise(y, d, Lz, gtol=gtol)
-            nb = model.update_links()
-            if nb == 0:
-                nb = model.check_stability(all_equal=True)
-            nb_step += nb
-            if nb == 0:
-                break
-            if not model.alive.any():
-                break
-        E, gy, gd, gL = model.energy_and_gradient(y, d, Lz)
-        s = gL / area * EV_PER_A3_IN_GPA
-        strains.append(eps)
-        stresses.append(float(s))
-        energies.append(float(E))
-        lzs.append(float(Lz))
-        dmax.append(float(model.damage.max()))
-        nbroken.append(int((~model.intact).sum()))
-        if progress is not None:
-            progress(eps, s)
-        if failed_at is None and s < 0.95 * max(stresses) and max(stresses) > 0:
-            failed_at = k
-        if failed_at is not None and k - failed_at >= after_failure:
-            break
-        k += 1
-    res = {"model": "dcbr", "protocol": "quasi-static", "chirality": [model.lattice.n, model.lattice.m],
-           "coarsening": model.coarsening, "particles": model.N, "dof": getattr(model, "dof", 3 * model.N),
-           "internal_dof": 3 * model.N if model.relax_shift else 0, "atoms": model.n_atoms,
-           "L0_A": float(L0), "radius_relaxed_A": R, "area_A2": area,
-           "area": "2 pi R t, R = mean wall radius after zero-stress relaxation, t = 3.4 A",
-           "potential": model.potential, "cutoff": model.cutoff, "horizon_A": model.horizon,
-           "spacing_A": list(model.spacing), "strain_step": strain_step,
-           "curve": {"strain": strains, "stress_GPa": stresses, "energy_eV": energies,
-                     "Lz_A": lzs, "damage_max": dmax, "broken_links": nbroken}}
-    res.update(curve_metrics(strains, stresses, fit_max_strain=fit_max_strain))
-    res["damage"] = model.damage
-    res["positions"] = y
-    res["delta"] = d
-    res["wall_s"] = time.perf_counter() - t0
-    return res
 
 
 class DCBRTubeModel:
@@ -1110,10 +1024,8 @@ class DCBRTubeModel:
 
         b = t.shift_bound
         x0 = np.clip(delta.ravel(), -b, b)
-        with _one_blas_thread():
-            r = minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=Bounds(-b, b),
-                         options={"maxiter": 1000, "gtol": self.shift_gtol, "ftol": 1e-15,
-                                  "maxcor": 10})
+        r = lbfgs_b(fun, x0, -b, b, gtol=self.shift_gtol, max_iter=1000, memory=10,
+                    ftol=1e-15, maxfun=15000)
         delta[...] = r.x.reshape(t.N, 3)
         return delta
 

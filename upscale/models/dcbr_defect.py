@@ -17,10 +17,8 @@ It is an energy-based concurrent coupling (in the spirit of the quasicontinuum m
   region and every other particle keeps all of its, so each particle is either atomistic or
   coarse and the region holds at least every atom within ``r_atomistic``. Without it the free atoms are those with ``r < r_atomistic`` and
   particles cut by the boundary keep a part of their atoms, with a G whose stencil can
-  reach across the defect: such particles stiffened the vacancy's neighbourhood and
-  delayed failure ((10,10), coarsening 4, ``r_atomistic`` 8 Å, its two slave rows carrying
-  26 % and 15 % of their atoms: failure between 9.25 and 9.5 % strain in 0.25 % steps,
-  LAMMPS and the same model with whole rows free between 8.75 and 9 %).
+  reach across the defect: such particles stiffen the vacancy's neighbourhood and delay
+  failure (``validation/results/engine.md``, "Design measurements of the coarse tube").
 * **Pad atoms** (non-free atoms within ``pad`` Å of a free atom, default 3.5 Å > the 2.1 Å
   cutoff plus margin; without ``whole_cells``, within ``pad`` of the region's boundary): the neighbours free atoms need. They are not unknowns: each follows
   the coarse map of its nearest carrying particle c, the same uniform cylindrical map (with
@@ -72,11 +70,13 @@ damped dynamics (``quickmin``), which feels only forces and goes through, and CG
 ``"damped"`` (default) does the same here (:meth:`_quickmin`, LAMMPS's settings: 1 fs,
 0.02 Å per step at most, 5000 steps, up to 3 cycles while a force component exceeds
 1e-4 eV/Å). ``"energy"`` crosses only where that lowers the re-minimised energy; with it
-the (10,10) vacancy tube did not fail before 22 % strain, because at 8 % the pair across
-the vacancy that LAMMPS's damped step pulls into a bond (2.109 -> 1.64 Å) is 0.5 eV uphill,
-while the tube then fails downhill one step later (LAMMPS: 67.6 GPa at 8.5 %; the strength
-moves by <= 2.2 % over LAMMPS's damped-dynamics settings, data/reference/
-qs_protocol_sensitivity.json). ``"force"`` and ``"always"`` move single pairs across.
+the vacancy tube fails far too late, because the pair across the vacancy that LAMMPS's
+damped step pulls into a bond is uphill in energy, while the tube then fails downhill one
+step later (the sensitivity of the strength to LAMMPS's damped-dynamics settings is in
+data/reference/qs_protocol_sensitivity.json). ``"force"`` and ``"always"`` move single pairs
+across. The iterations are the engine's (:mod:`upscale.engine.minimisers`: ``lbfgs_b``,
+``quick_min_blocks``, ``restarted``, ``first_lower``, ``zero_cell_force``); the tube gives
+the energy, its gradient and the trial starts.
 """
 from __future__ import annotations
 
@@ -87,7 +87,9 @@ import numpy as np
 from potentials.tersoff import INDEX as TI
 from upscale.constants import ACC_EV_A_AMU_IN_A_FS2, CARBON_MASS_AMU
 from upscale.models import dcbr_coupling_kernels as CK
-from upscale.models.dcbr import DCBRTube, uniform_map_frame
+from upscale.engine.minimisers import (bfgs, first_lower, quick_min_blocks, restarted,
+                                       zero_cell_force)
+from upscale.models.dcbr import DCBRTube, TubeMinimum, uniform_map_frame
 
 CARBON_MASS = CARBON_MASS_AMU  # amu
 ACC_UNIT = ACC_EV_A_AMU_IN_A_FS2  # eV/(Å amu) in Å/fs^2
@@ -673,22 +675,18 @@ class DCBRDefectTube(DCBRTube):
     def uniform_lattice(self, lam_z=None):
         """(lam_t, lam_z, shift) of the lattice relaxed at axial stretch ``lam_z`` (gam = 0,
         lam_t and the sublattice shift minimised), or at zero stress when ``lam_z`` is None."""
-        from scipy.optimize import minimize  # noqa: PLC0415
-
         lat, p = self.lattice, self.p
         if lam_z is None:
             def fun(v):
                 e, g = lat.energy(np.array([v[0], 0.0, v[1], v[2], v[3], v[4]]), p)
                 return e, np.array([g[0], g[2], g[3], g[4], g[5]])
-            r = minimize(fun, np.array([1.0, 1.0, 0, 0, 0]), jac=True, method="BFGS",
-                         options={"gtol": 1e-12, "maxiter": 500})
+            r = bfgs(fun, np.array([1.0, 1.0, 0, 0, 0]), gtol=1e-12, max_iter=500)
             return float(r.x[0]), float(r.x[1]), r.x[2:].copy()
 
         def fun(v):
             e, g = lat.energy(np.array([v[0], 0.0, lam_z, v[1], v[2], v[3]]), p)
             return e, np.array([g[0], g[3], g[4], g[5]])
-        r = minimize(fun, np.array([1.0, 0, 0, 0]), jac=True, method="BFGS",
-                     options={"gtol": 1e-12, "maxiter": 500})
+        r = bfgs(fun, np.array([1.0, 0, 0, 0]), gtol=1e-12, max_iter=500)
         return float(r.x[0]), float(lam_z), r.x[1:].copy()
 
     def uniform_state(self, lam_t, lam_z, shift):
@@ -796,41 +794,38 @@ class DCBRDefectTube(DCBRTube):
             g[k] = np.where(rows[:, None], a[k], b[k])
         self._ghost = g
 
-    def minimise(self, y, delta, Lz, relax_box=False, gtol=1e-6, maxiter=5000, fixed=None):
+    def minimise(self, y, delta, Lz, relax_box=False, gtol=1e-6, maxiter=5000,
+                 fixed=None) -> TubeMinimum:
         """As :meth:`DCBRTube.minimise`, with two additions: ``relax_box`` finds the zero-stress
         cell length (:meth:`_relax_zero_stress`), and pairs held at the step cutoff go across
         it per ``step_crossing`` (module docstring: damped dynamics by default, or
-        :meth:`_cross_steps`), then the energy is minimised again."""
+        :meth:`_cross_steps`), then the energy is minimised again (the restarts of
+        :func:`upscale.engine.minimisers.restarted`). Returns a :class:`TubeMinimum`."""
         if relax_box:
             return self._relax_zero_stress(gtol, maxiter)
         if fixed is None and self.periodic:
             fixed = self._rotation_pins(y)
-        crossed = 0
-        done = set()  # pairs crossed in this call do not cross back (no ping-pong)
-        out = super().minimise(y, delta, Lz, relax_box=False, gtol=gtol, maxiter=maxiter,
-                               fixed=fixed)
+
+        def lbfgs(y_, d_):
+            return DCBRTube.minimise(self, y_, d_, Lz, relax_box=False, gtol=gtol,
+                                     maxiter=maxiter, fixed=fixed)
+
+        out = lbfgs(y, delta)
         if self.step_crossing == "damped":
             # the LAMMPS references' quasi-static protocol: while a force component above
             # 1e-4 eV/Å is left (a pair held at the step), damped dynamics, which feels the
             # forces only and so goes through the step, then L-BFGS again; at most 3 cycles
-            for _ in range(3):
-                if out[4]["max_force_eV_A"] <= 1e-4:
-                    break
-                yq, dq = self._quickmin(out[0], out[1], Lz, fixed=fixed)
-                out = super().minimise(yq, dq, Lz, relax_box=False, gtol=gtol, maxiter=maxiter,
-                                       fixed=fixed)
-                crossed += 1
-            out[4]["damped_cycles"] = crossed
+            out, n = restarted(out, lambda o: lbfgs(*self._quickmin(o.y, o.delta, Lz, fixed=fixed)),
+                               done=lambda o: o.max_force <= 1e-4, max_restarts=3)
+            out.info["damped_cycles"] = n
             return out
-        for _ in range(50):
-            if out[4]["max_force_eV_A"] <= 10 * gtol and self.step_crossing != "always":
-                break
-            better = self._cross_steps(out, Lz, gtol, maxiter, fixed=fixed, done=done)
-            if better is None:
-                break
-            out = better
-            crossed += 1
-        out[4]["step_crossings"] = crossed
+        done = set()  # pairs crossed in this call do not cross back (no ping-pong)
+        out, n = restarted(out, lambda o: self._cross_steps(o, Lz, gtol, maxiter, fixed=fixed,
+                                                            done=done),
+                           done=lambda o: (o.max_force <= 10 * gtol
+                                           and self.step_crossing != "always"),
+                           max_restarts=50)
+        out.info["step_crossings"] = n
         return out
 
     def clamp_grips(self, z_lo: float, z_hi: float, rigid, y_ref=None, Lz0=None):
@@ -915,11 +910,9 @@ class DCBRDefectTube(DCBRTube):
         f_j = -P sum_c w_c a_cj). Away from the planes the families are symmetric and the
         sum vanishes term by term; next to a plane the families fitted about their own
         particle (the grip edges and the first free rows) are not, and with the gauge's
-        length shares as weights the first free row was pulled into the gauge: (10,10)
-        coarsening 2, 5 % static strain, the edge row's axial stretch 1.082 against the
-        gauge's 1.065, and under load the gap between the plane and the first free row
-        softened further (dynamic, 15 % strain: 31 % in the gap, the edge row's mapped bond
-        2.10 Å, the link rule broke the grip's edge at 98 GPa instead of the tube's 118 GPa).
+        length shares as weights the first free row is pulled into the gauge, statically and
+        more so under load, until the link rule breaks the grip's edge before the gauge
+        (``validation/results/engine.md``, "Design measurements of the coarse tube").
 
         The weights of the particles whose families are fitted about themselves (the set U,
         pad-atom carriers excluded) are therefore solved from sum_c w_c a_cj = 0 (both
@@ -929,7 +922,7 @@ class DCBRDefectTube(DCBRTube):
         ghost-force correction carry the rest of the uniform state's balance). The total
         weight, i.e. the energy of the uniform gauge, is then fixed by the grips' motion
         alone (with every free j balanced, sum_c w_c G_c depends on the grips' rows only),
-        and it equals the length shares' total (measured: to 1e-12), so the static grip
+        and it equals the length shares' total (to round-off), so the static grip
         stiffness of the uniform field is unchanged; what changes is that the field stays
         uniform. Each plane is solved on its own. Where the atomistic region's pad reaches
         the rows next to a plane (a gauge that is mostly atomistic: (6,6), 40 Å, 8 Å grips,
@@ -985,40 +978,27 @@ class DCBRDefectTube(DCBRTube):
 
     def _quickmin(self, y, delta, Lz, steps: int = 5000, dt: float = 1.0, dmax: float = 0.02,
                   ftol: float = 1e-3, fixed=None):
-        """Damped dynamics as LAMMPS's ``min_style quickmin``: velocity Verlet with the
-        velocity projected on the force (zeroed when it points uphill), ``dt`` fs, no unknown
-        moving more than ``dmax`` Å per step, until the force vector's 2-norm is below
-        ``ftol`` eV/Å or after ``steps`` steps. Masses: 12.011 amu per atom, a particle's
-        carried atoms (at least half its share), a shift the reduced mass of its pair of
-        sublattices (as the dynamic scene)."""
-        acc = ACC_UNIT
+        """Damped dynamics as LAMMPS's ``min_style quickmin``
+        (:func:`upscale.engine.minimisers.quick_min_blocks` on the positions and the shifts):
+        the velocity projected on the force (zeroed when it points uphill), ``dt`` fs, no
+        unknown moving more than ``dmax`` Å per step, until the force vector's 2-norm is
+        below ``ftol`` eV/Å or after ``steps`` steps; the shifts stay within
+        +-``shift_bound``. Masses (:meth:`masses`): 12.011 amu per atom, a particle's carried
+        atoms (at least half its share), a shift the reduced mass of its pair of sublattices
+        (as the dynamic scene). Returns (y, delta)."""
         m, md = self.masses()
-        m, md = m[:, None], md[:, None]
         hold = np.zeros_like(y, bool) if fixed is None else np.asarray(fixed, bool)
-        y, delta = y.copy(), delta.copy()
-        vy, vd = np.zeros_like(y), np.zeros_like(delta)
-        b = self.shift_bound
-        for _ in range(steps):
-            _, gy, gd, _ = self.energy_and_gradient(y, delta, Lz)
+
+        def forces(x):
+            _, gy, gd, _ = self.energy_and_gradient(x[0], x[1], Lz)
             fy, fd = -gy, -gd
             fy[hold] = 0.0
-            fnorm2 = float(np.sum(fy * fy) + np.sum(fd * fd))
-            if fnorm2 < ftol * ftol:
-                break
-            vy += fy / m * acc * dt
-            vd += fd / md * acc * dt
-            vf = float(np.sum(vy * fy) + np.sum(vd * fd))
-            if vf <= 0:
-                vy[:], vd[:] = 0.0, 0.0
-            else:
-                vy[:], vd[:] = vf / fnorm2 * fy, vf / fnorm2 * fd
-            sy, sd = vy * dt, vd * dt
-            big = max(np.abs(sy).max(), np.abs(sd).max())
-            if big > dmax:
-                sy, sd = sy * (dmax / big), sd * (dmax / big)
-            y += sy
-            delta = np.clip(delta + sd, -b, b)
-        return y, delta
+            return [fy, fd]
+
+        r = quick_min_blocks(forces, [y, delta], [m[:, None], md[:, None]], dt=dt, steps=steps,
+                             max_step=dmax, ftol=ftol, bounds=[None, self.shift_bound],
+                             acc=ACC_UNIT)
+        return r.x[0], r.x[1]
 
     def _rotation_pins(self, y):
         """Mask holding the rigid turn about the axis (a zero mode of the periodic tube, which
@@ -1043,30 +1023,27 @@ class DCBRDefectTube(DCBRTube):
 
     def _relax_zero_stress(self, gtol, maxiter, tol=1e-4):
         """Zero axial stress: start from the pristine lattice's zero-stress length, then a
-        secant iteration on the cell length (positions minimised with each length's
-        correction) until |dE/dLz| < ``tol`` eV/Å."""
+        secant iteration on the cell length (:func:`upscale.engine.minimisers.zero_cell_force`;
+        positions minimised with each length's correction, the positions scaled along z with
+        the length) until |dE/dLz| < ``tol`` eV/Å."""
         lt, lz, sh = self.uniform_lattice(None)
         y, delta, Lz = self.uniform_state(lt, lz, sh)
-        hist = []
-        for _ in range(12):
-            self.prepare_step(Lz)
-            out = self.minimise(y, delta, Lz, gtol=gtol, maxiter=maxiter)
-            y, delta, gL = out[0], out[1], out[5]
-            hist.append((Lz, gL))
-            if abs(gL) < tol:
-                break
-            if len(hist) == 1:
-                Lnew = Lz * (1.0 - 1e-4 * np.sign(gL))
-            else:
-                (L1, g1), (L2, g2) = hist[-2], hist[-1]
-                Lnew = L2 - g2 * (L2 - L1) / (g2 - g1)
-            y = y.copy()
-            y[:, 2] *= Lnew / Lz
-            Lz = Lnew
-        out = list(out)
-        out[2] = Lz
-        out[4]["zero_stress_iterations"] = len(hist)
-        return tuple(out)
+        cur = {"y": y, "delta": delta, "Lz": Lz}
+
+        def relax(L):
+            if L != cur["Lz"]:
+                cur["y"] = cur["y"].copy()
+                cur["y"][:, 2] *= L / cur["Lz"]
+                cur["Lz"] = L
+            self.prepare_step(L)
+            o = self.minimise(cur["y"], cur["delta"], L, gtol=gtol, maxiter=maxiter)
+            cur["y"], cur["delta"] = o.y, o.delta
+            return o, o.cell_force
+
+        out, Lz, n = zero_cell_force(relax, Lz, tol=tol, max_iter=12, first_step=1e-4)
+        out.Lz = Lz
+        out.info["zero_stress_iterations"] = n
+        return out
 
     def _cross_steps(self, out, Lz, gtol, maxiter, window: float = 2e-3, fixed=None,
                      done=None):
@@ -1082,7 +1059,7 @@ class DCBRDefectTube(DCBRTube):
         returned (None if there is none)."""
         from scipy.spatial import cKDTree  # noqa: PLC0415
 
-        y, delta, E0 = out[0], out[1], out[3]
+        y, delta, E0 = out.y, out.delta, out.energy
         nd = len(self.dof_idx)
         x = np.vstack(self.atom_positions(y, delta, Lz))
         rc = self._tcut
@@ -1131,30 +1108,27 @@ class DCBRDefectTube(DCBRTube):
                 return DCBRTube.minimise(self, yt, delta, Lz, gtol=gtol, maxiter=maxiter,
                                          fixed=fixed)
             return None
-        for (a, b), rr, v in list(zip(pn[order], rn[order], vn[order]))[:4]:
-            yt = across(a, b, rr, v)
-            trial = DCBRTube.minimise(self, yt, delta, Lz, gtol=gtol, maxiter=maxiter,
-                                      fixed=fixed)
-            if trial[3] < E0 - 1e-6 or self.step_crossing == "always":
-                return trial
-        return None
+        starts = (across(a, b, rr, v)
+                  for (a, b), rr, v in list(zip(pn[order], rn[order], vn[order]))[:4])
+        return first_lower(starts, lambda yt: DCBRTube.minimise(self, yt, delta, Lz, gtol=gtol,
+                                                                 maxiter=maxiter, fixed=fixed),
+                           lambda r: r.energy, E0 - 1e-6,
+                           accept_any=self.step_crossing == "always")
 
     # ------------------------------------------------------------------ failure and output
     def update_links(self):
         """The link rule of the base class, with the slave particles' own mapped bonds left
         out: a slave stands for atoms that are explicit (its weight is at most half its
         share, often zero), so its lattice state, and above all its sublattice shift, which
-        then has next to no stiffness, says nothing about a bond (at 10 K their shifts
-        drifted and broke links next to the region of a pristine tube at 3 % strain). Links
-        to a slave still break on the carrying particle's mapped bond. The same holds for a
-        particle that carries no atoms at all (at coarsening 1 a few cells of the particle
-        Voronoi tiling hold no atom, anywhere along the tube; weights before any grip
-        clamp): its shift has no stiffness and drifted with its thermal velocity (pristine
-        (10,10) dynamic, 10 K: links broken at 1.2 % strain, shift 1.4 Å). That exclusion is
-        on with ``skip_empty_links`` (set by the pristine dynamic scene); it is off by
-        default only so that the stored vacancy results reproduce: on, the vacancy (10,10)
-        coarsening-1 dynamic strength moves from 69.74 to 69.33 GPa (coarsening 2-4 have no
-        empty particle)."""
+        then has next to no stiffness, says nothing about a bond (thermal drift of their
+        shifts breaks links next to the region early). Links to a slave still break on the
+        carrying particle's mapped bond. The same holds for a particle that carries no atoms
+        at all (at coarsening 1 a few cells of the particle Voronoi tiling hold no atom,
+        anywhere along the tube; weights before any grip clamp): its shift has no stiffness
+        and drifts with its thermal velocity. That exclusion is on with ``skip_empty_links``
+        (set by the banded dynamic scenes); it is off by default so that the stored vacancy
+        results reproduce (coarsening 1 only: coarsening 2-4 have no empty particle; figures
+        in ``validation/results/engine.md``)."""
         a = self.alive
         masked = a & ~self.is_slave
         if self.skip_empty_links:

@@ -4,13 +4,15 @@ vacancy or pristine.
 The time loop runs on the engine (:func:`dynamic_tension` with ``engine=True``, the
 default: the tube as :class:`upscale.models.dcbr_engine.DCBRDefectTubeModel`, checkpoints
 with exact resume, extxyz / VTK output, the blow-up guard); ``engine=False`` runs the same
-protocol in the loop written out in :func:`dynamic_tension`.
+protocol in the loop written out in :func:`dynamic_tension`. Units: eV, Å, fs, amu; stress
+in GPa on the wall area 2 pi R t, t = 3.4 Å. The measurements behind the choices below are
+in ``validation/results/engine.md`` ("The dynamic tube tension's design measurements").
 
 :func:`dynamic_tension` follows ``validation.lammps.tension.dynamic_tension`` step for step,
 on a :class:`~upscale.models.dcbr_defect.DCBRDefectTube`:
 
 1. the tube on the zero-stress uniform lattice (L0; LAMMPS relaxes the periodic tube with
-   its vacancy, which changes L0 by ~2e-4 here, and an open tube's length relaxes anyway);
+   its vacancy, which changes L0 by a few 1e-4, and an open tube's length relaxes anyway);
 2. the axial periodicity is removed (G is rebuilt without links across the cell boundary)
    and the open tube is minimised once (R = mean atom radius after it);
 3. end grips of ``grip`` Å move rigidly apart at ``speed`` Å/ps each. As LAMMPS's, a grip
@@ -28,87 +30,61 @@ on a :class:`~upscale.models.dcbr_defect.DCBRDefectTube`:
    extensometer (:class:`upscale.analysis.stress.Extensometer`, the same in the LAMMPS
    runner) also reads the strain between two marks inside the gauge.
 
-Grips (``validation.cases.dcbr.dynamic_scene``). The pristine tubes get an atomistic band
-across each grip plane (:func:`grip_band_tube`, "Atomistic bands" below): the grip then holds
-atoms as LAMMPS's does, where those tubes break. The vacancy tubes keep clamped coarse grips
-(``clamp=True``, the default of this function for a model without bands): with bands, the
-vacancy's region and the bands cover 80-100 % of the 50 Å gauge's atoms at coarsening 2-4,
-and the gauge would no longer be coarse.
+Grips (:func:`upscale.experiments.tube_tension.dynamic_scene`). The pristine tubes get an
+atomistic band across each grip plane (:func:`grip_band_tube`, "Atomistic bands" below): the
+grip then holds atoms as LAMMPS's does, where those tubes break. The vacancy tubes keep
+clamped coarse grips (``clamp=True``, the default of this function for a model without
+bands): with bands, the vacancy's region and the bands would cover most of a 50 Å gauge's
+atoms at coarsening 2-4, and the gauge would no longer be coarse.
 
 The gauge (``gauge_planes``) and where a clamp takes hold (``planes``). Which atoms end
-LAMMPS's open tube depends on its periodic wrap (the builder's layer at z = 0 went to the top
-of the (10,10) and (17,0) tubes) and on the end atoms' relaxation, so its planes, 50 Å inside
-them, cut the lattice elsewhere than planes 50 Å inside the coarse tube's own end atoms: the
-coarse gauge was 1.0 % ((10,10)), 2.3 % ((17,0)) and 2.0 % ((12,6)) longer than LAMMPS's,
-the strain at a given grip separation that much smaller, and the modulus by grip
-separation that much higher at the same static grip stiffness (seed means +3.1 to +3.4 %
-in three rows, static k within 1.2 %). The validation scenes therefore take LAMMPS's planes
-as the gauge (the strain's length, the extensometer's window and the velocity ramp), and
-put each clamp where LAMMPS's grip takes hold, at its innermost held atoms
-(``validation.cases.dcbr._reference_held_planes``): a lattice stretched uniformly between
-held layers strains the bonds across them as the rest, and a clamped coarse grip counts its
-held rows as sitting at its plane. Then the static grip stiffness is +0.2 to +1.6 % of
-LAMMPS's at coarsening 1-4 and the gauge LAMMPS's to 0.05 %.
+LAMMPS's open tube depends on its periodic wrap and on the end atoms' relaxation, so its
+planes, 50 Å inside them, cut the lattice elsewhere than planes 50 Å inside the coarse tube's
+own end atoms: the coarse gauge came out longer than LAMMPS's, the strain at a given grip
+separation smaller and the modulus by grip separation higher at the same static grip
+stiffness. The validation scenes therefore take LAMMPS's planes as the gauge (the strain's
+length, the extensometer's window and the velocity ramp), and put each clamp where LAMMPS's
+grip takes hold, at its innermost held atoms
+(:func:`upscale.experiments.tube_tension.reference_held_planes`): a lattice stretched
+uniformly between held layers strains the bonds across them as the rest, and a clamped
+coarse grip counts its held rows as sitting at its plane.
 
 Clamped grips (``clamp=True``, :meth:`DCBRDefectTube.clamp_grips`, build_gain's ``clamp``).
 With the plain centred stencil a grip is too compliant: the rows next to a plane mix the
 grip's zero strain into theirs, the grips' own rows take strain from the gauge, and the two
 row parities (the centred stencil's nearly decoupled chains) end one row apart in the grips;
-the effective gauge is about a row spacing longer per grip, and the static grip stiffness
-was 7-23 % below LAMMPS's on these 50 Å gauges (coarsening 1-4; ``python -m validation
-dcbr-grip-stiffness``), which showed as a dynamic modulus 5-19 % low. Clamped, once the open
-tube has relaxed, G is linearised about that state and fitted against the axial coordinate
-clamped at the planes (material beyond a plane has no strain to give), a held row counting
-as sitting at its plane; the held rows whose families reach the gauge (the edges) stand for
-the material between the plane and the gauge (their fit is taken about the plane, so they
-see that gap's strain), the others have a fixed G, the families that reach past a plane are
-fitted about their particle (so the row next to a plane feels its own position), and the
-weights are the gauge's length shares, corrected next to the planes so that the uniform
-gauge is an equilibrium (:meth:`DCBRDefectTube._balanced_grip_weights`). A gauge stretched
-uniformly between rigid grips then gives every particle exactly its strain and stays so when
-it is relaxed, and with the ghost forces of a clamped twin (below) the static grip
-stiffness is within 1.7 % of LAMMPS's for the three tubes at coarsening 1-4. (With the
-length shares alone the families fitted about their own particle left the first free row
-pulled into the gauge at uniform strain: the gap between a plane and the gauge took 1.3
-times the gauge's strain statically and about twice under load, the coarse link rule broke
-the grip's edge rows first (pristine (10,10) coarsening 2: 98 GPa at 15 % strain, LAMMPS 119
-GPa at 22 %; the (30,60) coarsening-4 vacancy tube 7.7 % weak), and the coarsening-4 grips
-were 6-8 % too compliant.) Holding the row less than h/2 inside a plane keeps the gap
-between the plane and the first free row at least h/2 (a thinner gap was a
-soft spot that the kernel-weighted fit hardly saw: (17,0) K1 86 % too soft).
+the effective gauge is about a row spacing longer per grip (``python -m validation
+dcbr-grip-stiffness`` measures the static grip stiffness against LAMMPS's). Clamped, once
+the open tube has relaxed, G is linearised about that state and fitted against the axial
+coordinate clamped at the planes (material beyond a plane has no strain to give), a held row
+counting as sitting at its plane; the held rows whose families reach the gauge (the edges)
+stand for the material between the plane and the gauge (their fit is taken about the plane,
+so they see that gap's strain), the others have a fixed G, the families that reach past a
+plane are fitted about their particle (so the row next to a plane feels its own position),
+and the weights are the gauge's length shares, corrected next to the planes so that the
+uniform gauge is an equilibrium (:meth:`DCBRDefectTube._balanced_grip_weights`: with the
+length shares alone the first free row was pulled into the gauge at uniform strain and the
+grip's edge rows broke first). A gauge stretched uniformly between rigid grips then gives
+every particle exactly its strain and stays so when it is relaxed. Holding the row less than
+h/2 inside a plane keeps the gap between the plane and the first free row at least h/2 (a
+thinner gap is a soft spot that the kernel-weighted fit hardly sees).
 
 Ghost forces with clamped grips (:meth:`DCBRDefectTube.clamp_grips`, ``Lz0``;
 :meth:`DCBRDefectTube.prepare_step`). The ghost-force correction of the atomistic region is
 the gradient of a pristine twin at the uniform stretch. A periodic twin is right far from
-the grips, but at coarsening 4 a 50 Å gauge holds five rows and the region's coupling (8 Å,
-rounded out to whole cells: its carriers 5-10 Å inside the planes) borders the grips: the
-periodic twin's dead load then fell on held rows, where it is no ghost force but part of the
-measured reaction, and the rows next to them were balanced for the periodic G, not the
-clamped one. So the twin is opened and clamped like the tube (linearised about its own
-uniform lattice at the set-up stretch), its uniform state has the gauge uniform and the
-grips' rows moved rigidly with their planes (:meth:`DCBRDefectTube.clamped_uniform_state`),
-its gradient there is the dead load of every free particle and atom, and on the grips' rows
-the dead load is what the twin's grips carry beyond the uniform tube's tension T = N / L
-de/dlam_z (the patch test at the grips: a pristine tube stretched uniformly between them is
-in equilibrium and its grips carry T; uncorrected, at coarsening 4, up to 1.7 eV/Å was left
-on free particles and the grips carried 10.7 % more). Measured, static stiffness of the
-vacancy tubes between the grips (:func:`static_grip_stiffness`, 150 Å, 50 Å grips, the
-clamps and gauge of LAMMPS's grips, "The gauge" above) against LAMMPS's 17.74 / 17.37 / 17.01
-eV/Å^2 at 0.25 % for (10,10) / (17,0) / (12,6): +0.2 to +0.8 % / +0.8 to +1.3 % / +1.4 to
-+1.6 % at coarsening 1-4; between 1 and 2 % strain (LAMMPS 16.65 / 16.24 / 15.96) +0.2 to
-+0.7 % / +0.8 to +1.2 % / +1.3 to +1.6 %. With the periodic twin coarsening 4 was +5.5 /
-+6.2 / +5.5 % between 1 and 2 % (for (10,10) the dead load on the held rows gave +10.4 % and
-the rest -4.9 %), and the dynamic modulus by grip separation +7.2 to +8.4 % over 4 thermal
-seeds; with the clamped twin but the coarse tube's own planes, +1.1 to +3.4 % (the gauge
-1-2.3 % longer than LAMMPS's: the excess that was first taken for a dynamic effect, since
-the static stiffness agreed within 1.2 %); with LAMMPS's gauge and clamps ("The gauge"
-above) -0.3 to +2.3 % at coarsening 1-4, 16 coarse seeds against LAMMPS's 16 ((10,10)) and
-8 ((17,0), (12,6)), ``python -m validation seeds-extensometer``. (Tried
-first, commit 1dac62b: lowering the vacancy's region until its coupling kept a row spacing
-from the grips, 5 Å at coarsening 4. That fixed the small tubes' modulus, but the one-row
-band (10 Å) is narrower than the path of LAMMPS's crack in the seed-scale tubes: (50,50) at
-coarsening 4 first broke at the vacancy at 8.5 % strain but its crack stopped at the band's
-edge until 14 %, +21 % in strength.)
+the grips, but at coarsening 4 a 50 Å gauge holds five rows and the region's coupling
+(rounded out to whole cells) borders the grips: the periodic twin's dead load then falls on
+held rows, where it is no ghost force but part of the measured reaction, and the rows next
+to them are balanced for the periodic G, not the clamped one. So the twin is opened and
+clamped like the tube (linearised about its own uniform lattice at the set-up stretch), its
+uniform state has the gauge uniform and the grips' rows moved rigidly with their planes
+(:meth:`DCBRDefectTube.clamped_uniform_state`), its gradient there is the dead load of every
+free particle and atom, and on the grips' rows the dead load is what the twin's grips carry
+beyond the uniform tube's tension T = N / L de/dlam_z (the patch test at the grips: a
+pristine tube stretched uniformly between them is in equilibrium and its grips carry T).
+(A vacancy region lowered until its coupling kept a row spacing from the grips was tried
+first; its narrow band is narrower than the path of LAMMPS's crack in the seed-scale tubes,
+whose crack then stopped at the band's edge.)
 
 Masses (:meth:`DCBRDefectTube.masses`): a free atom 12.011 amu; a particle carries m_C
 max(w_c, N_c/2) (its atoms, at least half its nominal share, so that interface particles
@@ -121,54 +97,41 @@ free part, and a Nose-Hoover thermostat (damping ``tdamp``, default 100 fs) whos
 is measured from the x, y velocities of the free particles and atoms and the shift velocities
 (the axial stretching flow is not heat); ``temperature=0`` runs plain NVE from rest. Without
 it, the energy a crack releases stays in the atomistic band (the coarse particles cannot carry
-its short waves away, which reflect at the interface) and throws hundreds of atoms off the
-wall after the break; with it, none in the tests run (``curve["atoms_off_wall"]``).
+its short waves away, which reflect at the interface) and throws atoms off the wall after
+the break (``curve["atoms_off_wall"]`` counts them).
 
 Ghost-force correction (:meth:`DCBRDefectTube.prepare_sides`): refreshed every ``sample``
 steps (a dead load in between), on each side of the atomistic region at the axial stretch
 that side's interface particles carry (``ghost="local"``), so that after the break each half's
 correction relaxes with it; ``ghost="grips"`` takes it at the grips' strain for the whole tube
-(the first version: after the break it pushed 1-3 eV/Å of load that nothing balanced into the
-interface atoms).
+(after the break it pushes load that nothing balances into the interface atoms).
 
 Atomistic bands across the grip planes (:func:`grip_band_tube`, :func:`pristine_grip_tube`;
-``python -m validation dcbr-tension --dynamic``, with or without ``--vacancy``), found on the
-pristine tubes first. Where LAMMPS's pristine tubes fail (their dumps, bonds < 2.0 Å at the
-start): (10,10) and (12,6) at the grip planes, both at once, the first free bonds next to the
-held atoms the longest all along the pull ((10,10) at 15.9 % strain: 1.641 Å there, 1.614 Å
-at most in the gauge; (12,6) at 16.7 %: 1.738 vs 1.643 Å): a rigid grip keeps its atoms at
+``python -m validation dcbr-tension --dynamic``, with or without ``--vacancy``). LAMMPS's
+pristine (10,10) and (12,6) tubes fail at the grip planes (their dumps: the first free bonds
+next to the held atoms are the longest all along the pull): a rigid grip keeps its atoms at
 their radius, so the wall next to it cannot contract and its bonds across the plane stretch
-more. (17,0) fails in the gauge (its bonds at the planes stay shorter than the gauge's). The
-clamped coarse grip edge does not carry this concentration: with the length-share weights
-it overdid it (the held edge row, which stands for the gap to the first free row, had its
-mapped bonds 0.07 Å longer than the gauge's at 14 % strain, LAMMPS: 0.03 Å at 16 %, and the
-(10,10) tube broke there at 15 % strain, 98 GPa), with the balanced weights the gap is
-strained as the gauge (up to the wall's lateral constraint by the grip) and the (10,10)
-tube breaks in the gauge. The site
-is set by the protocol (the planes), not by chance, so the pristine scene puts an atomistic
-band (``r_atomistic``, default 8 Å, whole cells) across each grip plane; the band atoms
-beyond a plane are held by the grip as LAMMPS's (no clamp: the grip's edge is atomistic) and
-the grip's particles' sublattice shifts are held too (a rigid grip moves its B atoms with its
-A atoms). Where a plane cuts the lattice decides which bonds cross it ((17,0): the inclined
-or the axial ones), and LAMMPS's planes lie 50 Å inside its end atoms after its set-up,
-which depends on its periodic wrap and on the end atoms' relaxation, neither of which coarse
-ends carry; ``planes`` therefore takes the reference's own planes (the validation case
-recovers them from the stored run), which makes the coarse grips hold exactly LAMMPS's atoms;
-without it the planes are ``grip`` inside the uniform lattice's end atoms (0.2-1 Å off).
-The ghost-force dead load on the grips' rows stays at its set-up value (a grip does not
-stretch; :func:`_hold_grip_ghost`). The gauge between the bands is coarse and fails
-only by the link rule unless the lattice-stability rule of the quasi-static scene is applied
-too (``stability=True``: every ``sample`` steps, on the most loaded particle carrying at least
-half its atoms, in its instantaneous thermal state). The pristine scene leaves it off, on
-these measurements (``dcbr-table --dynamic``, coarsening 1-4, seed 12345): with it (17,0)
-breaks in the coarse gauge at coarsening 1-2 (LAMMPS's (17,0) breaks in the gauge; without
-it the coarse (17,0) breaks in a band, 1-16 Å from a plane, at the same strength within
-1 %), but (10,10) at coarsening 1 then breaks mid-gauge at 19.8 % strain (116.1 GPa, -2.8 %;
-LAMMPS and the banded run: at the planes, 119.3 GPa) because the most loaded of ~1000
-two-atom particles is tested in an instantaneous state with the thermal noise of a particle
-that small, while the periodic tube's lattice becomes unstable only at 24 %; the largest
-strength error over the 12 runs was 2.8 % with it, 1.6 % without. Its cost: 0.2-0.45 s of
-6-7 s at coarsening 2 (3-7 %).
+more; (17,0) fails in the gauge. A clamped coarse grip edge does not carry this
+concentration (with the length-share weights it overdid it, with the balanced weights the
+gap is strained as the gauge). The site is set by the protocol (the planes), not by chance,
+so the pristine scene puts an atomistic band (``r_atomistic``, default 8 Å, whole cells)
+across each grip plane; the band atoms beyond a plane are held by the grip as LAMMPS's (no
+clamp: the grip's edge is atomistic) and the grip's particles' sublattice shifts are held
+too (a rigid grip moves its B atoms with its A atoms). Where a plane cuts the lattice decides
+which bonds cross it ((17,0): the inclined or the axial ones), and LAMMPS's planes lie 50 Å
+inside its end atoms after its set-up, which depends on its periodic wrap and on the end
+atoms' relaxation, neither of which coarse ends carry; ``planes`` therefore takes the
+reference's own planes (the validation case recovers them from the stored run), which makes
+the coarse grips hold exactly LAMMPS's atoms; without it the planes are ``grip`` inside the
+uniform lattice's end atoms (a fraction of an Å off). The ghost-force dead load on the
+grips' rows stays at its set-up value (a grip does not stretch; :func:`_hold_grip_ghost`).
+The gauge between the bands is coarse and fails only by the link rule unless the
+lattice-stability rule of the quasi-static scene is applied too (``stability=True``: every
+``sample`` steps, on the most loaded particle carrying at least half its atoms, in its
+instantaneous thermal state). The pristine scene leaves it off: at coarsening 1 the most
+loaded of ~1000 two-atom particles is tested in an instantaneous state with the thermal
+noise of a particle that small and fails mid-gauge long before the periodic tube's lattice
+becomes unstable.
 
 Multiple time stepping (``integrator="respa"``, :class:`upscale.engine.respa.RESPA` on the
 split of :meth:`upscale.models.dcbr_engine.DCBRDefectTubeModel.add_group_force`): the
@@ -189,10 +152,10 @@ keeps the crack's whole path atomistic (``validation/results/engine.md``).
 
 Other differences from the LAMMPS runs, stated: the coarse failure rule is the link rule
 only (checked every ``sample`` steps; the lattice-stability rule needs a Hessian, the coarse
-region stays far below its ~24 % instability strain when the vacancy fails, and the pristine
-scene leaves it off for the reasons above), and the thermal
-velocities are drawn by numpy, so a run is one draw of the thermal noise like the
-reference's (``python -m validation dcbr-seeds`` / ``reference-seeds`` give the spreads).
+region stays far below its instability strain when the vacancy fails, and the pristine
+scene leaves it off for the reasons above), and the thermal velocities are drawn by numpy,
+so a run is one draw of the thermal noise like the reference's (``python -m validation
+dcbr-seeds`` / ``reference-seeds`` give the spreads).
 """
 from __future__ import annotations
 
@@ -344,7 +307,8 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | N
     end_lo, end_hi = (z[:nd] < zlo + 1e-6), (z[:nd] > zhi - 1e-6)  # the end rows
     z_pre = z[:nd].copy()
     z_pre_a = z[nd:].copy()
-    y, d, _, _, _, _ = model.minimise(y, d, L0, gtol=gtol, fixed=fixed)
+    r = model.minimise(y, d, L0, gtol=gtol, fixed=fixed)
+    y, d = r.y, r.delta
     # the grip planes follow the end rows' relaxation (the end atoms move with them)
     if banded:  # the planes follow the lattice they cut (the band atoms within 3 Å of
         # each); the coarse end rows' own relaxation is no measure of where the atoms are
@@ -365,7 +329,8 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | N
         model.clamp_grips(zb_ref, zt_ref, rigid, yp, Lz0=L0)  # (rebuilds G and its twin)
         model.prepare_step(L0)
         fixed[grips] = True
-        y, d, _, _, _, _ = model.minimise(y, d, L0, gtol=gtol, fixed=fixed)
+        r = model.minimise(y, d, L0, gtol=gtol, fixed=fixed)
+        y, d = r.y, r.delta
     R = model.radius(y, d)
     z = y[:, 2]
     # the gauge is LAMMPS's: the initial distance between its grip planes (gauge_planes), so
@@ -524,10 +489,8 @@ def _hold_grip_ghost(model, st) -> None:
     The correction of a load step is taken at the gauge's stretch, but a grip's interface
     (band atoms and coarse rows beyond the plane) does not stretch: it is held as it was
     set up. Its dead load enters no motion, only the grips' reaction force; at the gauge's
-    stretch it added a strain-proportional term to it (measured, (10,10) coarsening 2, grip
-    planes 50 Å inside the uniform lattice's end atoms: static grip stiffness 18.46 eV/Å^2
-    with it, 18.35 held (coarsening 1, with it: 17.81); LAMMPS's vacancy tube: 17.74). No-op without
-    bands."""
+    stretch it would add a strain-proportional term to it (a stiffer static grip; figures in
+    ``validation/results/engine.md``). No-op without bands."""
     if getattr(model, "band_z", None) is None or model._ghost is None:
         return
     g, g0 = model._ghost, st["ghost0"]
@@ -561,8 +524,7 @@ def static_grip_stiffness(model, grip: float = 50.0, strain: float = 0.0025,
     apart by ``strain`` times the gauge (all their components held), the free part is
     minimised with the ghost-force correction at that stretch, and the grips' mean reaction
     F (less its value at the set-up state, ``force_at_setup_eV_per_A``: clamping the grips
-    leaves a small reaction, (10,10) coarsening 3: -0.013 eV/Å; with the periodic twin at
-    coarsening 4, -0.05 eV/Å, which moved k by -2.5 % at 0.25 % strain) gives
+    leaves a small reaction, which would otherwise bias k at small strain) gives
     k = F / separation (eV/Å^2). k is free of any gauge convention, so it compares the coarse
     grips with LAMMPS's (``validation.lammps.tension.static_grip_stiffness``) directly;
     ``modulus_TPa`` = (F / area) / strain with LAMMPS's gauge."""
@@ -586,7 +548,8 @@ def static_grip_stiffness(model, grip: float = 50.0, strain: float = 0.0025,
     _hold_grip_ghost(model, st)
     fixed = np.zeros_like(y, bool)
     fixed[grips] = True
-    y, d, _, _, info, _ = model.minimise(y, d0.copy(), L0, gtol=gtol, fixed=fixed)
+    r = model.minimise(y, d0.copy(), L0, gtol=gtol, fixed=fixed)
+    y, d, info = r.y, r.delta, r.info
     _, gy, _, _ = model.energy_and_gradient(y, d, L0)
     F = 0.5 * (gy[top, 2].sum() - gy[bottom, 2].sum()) - F0
     return {"k_eV_per_A2": float(F / (2 * u)), "force_eV_per_A": float(F), "strain": strain,
@@ -613,8 +576,8 @@ def run_metrics(strains, stresses, exts, first, fit_max_strain: float = 0.02,
     ``strain_at_peak`` (taken before the correction they would be the first drop's sample's).
     The extensometer's fit takes the samples up to the peak only: its window selects by the
     extensometer strain, and after a break next to a grip (the pristine tubes) the unloaded
-    gauge springs back below ``fit_max_strain`` (a (10,10) fit through those samples gave
-    0.07 TPa); a vacancy tube breaks inside the window, whose strain then grows.
+    gauge springs back below ``fit_max_strain`` (a fit through those samples gives a modulus
+    near zero); a vacancy tube breaks inside the window, whose strain then grows.
 
     ``plateau_fraction``: the plateau-then-rise rule of ``curve_metrics``, which flags the
     switching-function artefact of the standard cutoff; with the step cutoff there is none,

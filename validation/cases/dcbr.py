@@ -16,7 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
-from upscale.constants import ACC_EV_A_AMU_IN_A_FS2, ASE_TIME_FS, CARBON_MASS_AMU, K_B_EV
+from upscale.constants import ASE_TIME_FS, CARBON_MASS_AMU, K_B_EV
 from upscale.experiments.tube_tension import (GRIPS, dynamic_scene, lammps_reference,
                                               parse_chirality)
 from upscale.experiments.tube_tension import run_tension_comparison as _run_tension
@@ -150,7 +150,8 @@ def _energy_args(p):
 
 
 def _dcbr_energy(args):
-    from upscale.models.dcbr import DCBRTube, quasi_static_tension
+    from upscale.experiments.tube_tension import quasi_static_tension
+    from upscale.models.dcbr import DCBRTube
 
     chis = [_chirality(c) for c in (args.chirality or (["10,10"] if args.quick else
                                                          ["10,10", "17,0", "12,6"]))]
@@ -376,7 +377,8 @@ def _mts_nve(args, n, m):
     kw = {"r_arc": args.mts_r_arc} if args.mts_region == "ellipse" else {}
     tube = DCBRDefectTube(n, m, args.mts_length, coarsening=args.coarsening, vacancy=4,
                           r_atomistic=8.0, region=args.mts_region, **kw)
-    y, d, Lz, *_ = tube.minimise(None, None, None, relax_box=True, gtol=1e-6)
+    r0 = tube.minimise(None, None, None, relax_box=True, gtol=1e-6)
+    y, d, Lz = r0.y, r0.delta, r0.Lz
     acc = ACC_EV_A_AMU_IN_A_FS2
     mass, mass_d = tube.masses()
     out = {"mts_tube": f"({n},{m}) {args.mts_length:g} Å K={args.coarsening:g}, "
@@ -431,7 +433,8 @@ def _dcbr_stability(args):
     n, m = _chirality(args.chirality)
     steps = args.steps or (500 if args.quick else 10000)
     t = DCBRTube(n, m, args.length, coarsening=args.coarsening, hourglass=args.hourglass)
-    y, d, L0, *_ = t.minimise(t.x0, t.delta, t.L, relax_box=True, gtol=1e-9)
+    r0 = t.minimise(t.x0, t.delta, t.L, relax_box=True, gtol=1e-9)
+    y, d, L0 = r0.y, r0.delta, r0.Lz
     N = t.N
     Keff = t.condensed_hessian(y, d, L0)  # shifts condensed (Schur complement)
     mass = np.repeat(t.natoms_n * CARBON_MASS_AMU, 3)
@@ -510,59 +513,17 @@ def _defect_nve_args(p):
 
 
 def _dcbr_defect_nve(args):
-    """NVE of the periodic coupled tube with the vacancy (atomistic band, pads, slaves, ghost
-    correction at the zero-stress state) from Gaussian velocities: total energy drift. The
-    time loop is the engine's velocity Verlet on the tube's engine model
-    (:class:`upscale.models.dcbr_engine.DCBRDefectTubeModel`: the shifts a field with
-    inertia, the slave particles tied to their atoms); the energy counts the unknowns'
-    and the shifts' kinetic energy (a slave's velocity follows its atoms')."""
-    from upscale.engine.integrators import VelocityVerlet
-    from upscale.engine.simulation import Simulation
-    from upscale.models.dcbr_defect import DCBRDefectTube
-    from upscale.models.dcbr_engine import FIELD, DCBRDefectTubeModel
+    """NVE energy drift of the periodic coupled tube with the vacancy
+    (:func:`upscale.experiments.tube_tension.defect_nve`)."""
+    from upscale.experiments.tube_tension import defect_nve
 
     n, m = _chirality(args.chirality)
     steps = args.steps or (1000 if args.quick else 10000)
     if not (steps >= 10 and args.dt_fs > 0 and args.temperature > 0):
         raise SystemExit(f"--steps {steps}, --dt-fs {args.dt_fs}, --temperature "
                          f"{args.temperature}; valid: steps >= 10, dt > 0, temperature > 0")
-    model = DCBRDefectTube(n, m, args.length, coarsening=args.coarsening)
-    y, d, Lz, _, _, _ = model.minimise(None, None, None, relax_box=True, gtol=1e-6)
-    acc, kB, dt = ACC_EV_A_AMU_IN_A_FS2, K_B_EV, args.dt_fs
-    mass, mass_d = model.masses()
-    rng = np.random.default_rng(7)
-    v = rng.standard_normal(y.shape) * np.sqrt(kB * args.temperature * acc / mass)[:, None]
-    v -= np.sum(mass[:, None] * v, axis=0) / mass.sum()
-    vd = rng.standard_normal(d.shape) * np.sqrt(kB * args.temperature * acc / mass_d)[:, None]
-    vd[model.slave_idx] = 0.0
-    em = DCBRDefectTubeModel(model, y=y, delta=d, Lz=Lz)
-    sim = Simulation(em.system(), None, em, em.conditions(),
-                     VelocityVerlet(dt, force=True))
-    st = sim.state
-    st.v[em.y_rows] = v
-    if len(model.slave_idx):
-        st.v[model.slave_idx] = model.Phi @ v[len(model.dof_idx):]
-    st.field_v[FIELD][:model.N] = vd
-
-    def total():
-        vv, ww = st.v[em.y_rows], st.field_v[FIELD][:model.N]
-        return em.energy(st) + 0.5 * (np.sum(mass[:, None] * vv * vv)
-                                      + np.sum(mass_d[:, None] * ww * ww)) / acc
-
-    e0, k0 = total(), 0.5 * np.sum(mass[:, None] * v * v) / acc
-    dev = []
-
-    def every_100(sim_):
-        if sim_.state.step % 100 == 0:
-            dev.append((total() - e0) / k0)
-    t0 = time.perf_counter()
-    sim.run(steps, callback=every_100, progress=not args.quick)
-    wall = time.perf_counter() - t0
-    dev = np.array(dev)
-    out = {"chirality": f"{n},{m}", "coarsening": args.coarsening, "steps": steps, "dt_fs": dt,
-           "dof": model.dof, "initial_kinetic_eV": float(k0),
-           "drift_final_rel_to_kinetic": float(dev[-1]),
-           "max_abs_deviation_rel_to_kinetic": float(np.abs(dev).max()), "wall_s": wall}
+    out = defect_nve(n, m, args.length, args.coarsening, steps=steps, dt_fs=args.dt_fs,
+                     temperature=args.temperature, progress=not args.quick)
     print(table([out], floatfmt=".4g"))
     return out
 
@@ -640,7 +601,8 @@ def _step_time(args) -> dict:
 
 def _dcbr_regression(args):
     """The quasi-static pristine tension of each tube by the model's own driver
-    (:func:`upscale.models.dcbr.quasi_static_tension`, its joint L-BFGS over positions and
+    (:func:`upscale.experiments.tube_tension.quasi_static_tension`, its joint L-BFGS over
+    positions and
     shifts: the code before the port) and on the engine
     (:func:`upscale.experiments.tube_tension.quasi_static_tension_engine`), one after the
     other in this process, on the same machine: the change of every figure, and the ratio of
@@ -648,8 +610,9 @@ def _dcbr_regression(args):
     change). Then the time per MD step of the dynamic vacancy tension, the scene's own loop
     against the engine's (:func:`_step_time`); ``step_time_ratio_after_over_before`` is its
     wall-time ratio (CPU-time ratio beside it)."""
-    from upscale.experiments.tube_tension import quasi_static_tension_engine
-    from upscale.models.dcbr import DCBRTube, quasi_static_tension
+    from upscale.experiments.tube_tension import (quasi_static_tension,
+                                                  quasi_static_tension_engine)
+    from upscale.models.dcbr import DCBRTube
 
     chis = [_chirality(c) for c in (args.chirality or (["10,10"] if args.quick else
                                                          ["10,10", "17,0", "12,6"]))]

@@ -21,7 +21,7 @@ from validation.registry import case, table
 
 def _args(p):
     p.add_argument("--n", type=int, default=None,
-                   help="plate particles a side (default 500, the issue's run; --quick 40)")
+                   help="plate particles a side (default 500; --quick 40)")
     p.add_argument("--t-end", type=float, default=None,
                    help="plate end time, s (default 5e-5; --quick 3e-5)")
     p.add_argument("--checkpoint-every", type=int, default=None,

@@ -127,7 +127,8 @@ def lammps_tersoff_lines(path, elements) -> list[str]:
 
 # -- structures -----------------------------------------------------------------------------
 def tersoff_structures(quick: bool = False) -> dict:
-    """The four structures of issue #3 (a few hundred atoms each)."""
+    """The four test structures: a (10,10) tube, rattled graphene, diamond and a strained,
+    rattled (12,6) tube (a few hundred atoms each)."""
     from ase.build import bulk, graphene, nanotube
 
     out = {}
@@ -149,7 +150,7 @@ def tersoff_structures(quick: bool = False) -> dict:
 
 
 def compare(ours: dict, ref: dict) -> dict:
-    """Error measures of issue #3 between two evaluations."""
+    """Error measures between two evaluations (energy, forces, virial)."""
     e_rel = abs(ours["energy"] - ref["energy"]) / abs(ref["energy"])
     f_err = float(np.max(np.abs(ours["forces"] - ref["forces"])))
     w_scale = max(np.max(np.abs(ref["virial"])), 1e-300)
@@ -197,7 +198,7 @@ def _exactness_rows(quick: bool):
 
 @case("tersoff-vs-lammps",
       "Tersoff (BNC/SiC carbon, smooth and step cutoff) vs LAMMPS pair_style tersoff: "
-      "energy, forces, virial on the issue's four structures")
+      "energy, forces, virial on four test structures")
 def run_tersoff_vs_lammps(args) -> dict:
     from potentials.lammps_runtime import lammps_version
 
