@@ -22,8 +22,8 @@ the 20,000-iteration limit on a 40 Å tube already; at the seed scale that costs
 minutes; without it SD's whole set-up is not rated). Stage O is measured for every style (CG x3 line searches, SD, HFTN, FIRE with
 LAMMPS's defaults (its 2020 variant: Euler-implicit, ``tmax`` 10, 1 fs), FIRE with
 ``abcfire yes``, quickmin at 1 fs; at full size without ``--all-options`` only P with CG
-quadratic and O with CG quadratic and forcezero, HFTN and FIRE abcfire, the others having
-lost by 3-30x on the small tube), all from the same stage-P result (CG, quadratic line
+quadratic and O with CG quadratic and forcezero, HFTN and FIRE abcfire, the ones that came
+closest to CG on the small tube), all from the same stage-P result (CG, quadratic line
 search), so they start from the same state. An option's whole set-up time is that of its
 P (CG quadratic for the styles that cannot move the cell, as ``MinSettings`` runs them) plus
 its O. A stage is converged when LAMMPS stopped on the force tolerance (:func:`_converged`:
@@ -50,8 +50,9 @@ import numpy as np
 
 from validation.registry import case, table
 
-#: the fastest eligible option on the seed-scale tubes (this study); bench-dcbr-seed's
-#: fair LAMMPS set-up
+#: the fastest eligible option of this study (bench-dcbr-seed's fair LAMMPS set-up; the
+#: measured tables are in validation/results/engine.md); ``pass`` checks it is still the
+#: fastest
 BEST_SETUP = {"min_style": "cg", "min_line": "quadratic", "min_norm": "inf"}
 
 # stage-P options: (name, MinSettings keywords)
