@@ -53,6 +53,18 @@ Dynamic tension (non-periodic tube or bundle, seed 004 sec. 5.3.1)
     Å/fs after fracture and LAMMPS's neighbour bins grow with the box (a 60 Å (50,50) test
     tube reached 7 GB and minutes per 100 steps); ``aborted`` records where.
 
+Set-up minimiser of the dynamic tension (:class:`MinSettings`, the ``min_*`` keywords of
+:func:`dynamic_tension`, :func:`open_tube_setup` for the set-up alone)
+    ``min_style`` cg (line search quadratic, backtrack or forcezero), sd, hftn, fire or
+    quickmin, the norm the force tolerance bounds (``min_modify norm``: ``two``, the 2-norm
+    of the global 3N force vector, LAMMPS's default and the references'; ``inf``, the
+    largest force component; ``max``, the largest per-atom force), the damped styles' time
+    step and FIRE's keywords. Only cg and sd move the cell: with the others the two
+    box/relax minimisations of the zero-stress relaxation use cg. The defaults are the
+    references' set-up, command for command. Every set-up minimisation is recorded in
+    ``res["setup_minimisation"]`` (wall time, iterations and force evaluations from LAMMPS's
+    log, stopping criterion, energy, largest force component and 2-norm).
+
 Each run returns a result dict (:func:`quasi_static_tension`, :func:`dynamic_tension`) with
 the curve, Young's modulus (fit over 0-2 % strain), strength, strain at peak, failure strain
 (dynamic: also ``youngs_modulus_ext_TPa`` and ``strain_at_peak_ext`` on the extensometer),
@@ -62,8 +74,11 @@ repository).
 """
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
+import re
+import tempfile
 import time
 from pathlib import Path
 
@@ -76,7 +91,8 @@ from upscale.analysis.stress import (WALL_THICKNESS, Extensometer, curve_metrics
 from validation.lammps.potential import Potential, resolve_potential
 
 __all__ = ["relax_zero_stress", "quasi_static_tension", "dynamic_tension", "default_dump_dir",
-           "static_grip_stiffness", "CARBON_MASS"]
+           "static_grip_stiffness", "CARBON_MASS", "MinSettings", "SETUP_MIN_STYLES",
+           "MIN_NORMS", "open_tube_setup"]
 
 CARBON_MASS = 12.011  # amu
 
@@ -235,6 +251,117 @@ def _minimize_robust(lmp, ftol, fmax_tol=1e-4, cycles=3, maxiter=20000,
     return {"fmax_eV_per_A": float(th["Fmax"]), "damped_md_cycles": k}
 
 
+SETUP_MIN_STYLES = ("cg", "sd", "hftn", "fire", "quickmin")
+DAMPED_MIN_STYLES = ("fire", "quickmin")
+BOX_RELAX_STYLES = ("cg", "sd")  # LAMMPS refuses fix box/relax with the others
+MIN_NORMS = ("two", "inf", "max")
+
+
+@dataclasses.dataclass(frozen=True)
+class MinSettings:
+    """The LAMMPS minimiser of a set-up minimisation (``min_style`` + ``min_modify``).
+
+    ``style``: one of :data:`SETUP_MIN_STYLES`. ``line``: the line search of ``cg`` and
+    ``sd`` (``quadratic``, ``backtrack``, ``forcezero``). ``norm``: the norm the force
+    tolerance ``ftol`` (eV/Å) bounds (``min_modify norm``): ``two``, the 2-norm of the whole
+    3N force vector (LAMMPS's default); ``inf``, the largest force component; ``max``, the
+    largest per-atom force magnitude. ``timestep_ps`` (damped styles: the ``timestep`` of
+    the minimiser's dynamics; FIRE's own step grows up to ``tmax`` times it) and ``dmax``
+    (Å: the largest move of an atom per iteration or line-search step) are LAMMPS's defaults
+    (1 fs in metal units, 0.1 Å) when None. ``box_vmax``: ``fix box/relax``'s largest
+    fractional volume change per iteration in the zero-stress relaxation. ``fire``: extra ``min_modify`` keywords of FIRE
+    (e.g. ``("integrator", "verlet", "tmax", "4")``). ``maxiter``: iterations per minimize
+    (force evaluations at most 10x that).
+
+    Only CG and SD move the cell (LAMMPS refuses ``fix box/relax`` with damped dynamics and
+    HFTN): with another style the periodic zero-stress relaxation's two box/relax
+    minimisations use CG with the same norm; every other minimisation uses ``style``. The defaults are the stored references'
+    set-up (CG, quadratic line search, 2-norm).
+    """
+    style: str = "cg"
+    line: str = "quadratic"
+    norm: str = "two"
+    timestep_ps: float | None = None
+    dmax: float | None = None
+    fire: tuple = ()
+    maxiter: int = 20000
+    box_vmax: float = 0.001
+
+    def __post_init__(self):
+        if self.style not in SETUP_MIN_STYLES:
+            raise ValueError(f"min style={self.style!r}; valid: {', '.join(SETUP_MIN_STYLES)}")
+        if self.line not in LINE_SEARCHES:
+            raise ValueError(f"line search={self.line!r}; valid: {', '.join(LINE_SEARCHES)}")
+        if self.norm not in MIN_NORMS:
+            raise ValueError(f"force norm={self.norm!r}; valid: {', '.join(MIN_NORMS)}")
+        for name in ("timestep_ps", "dmax", "box_vmax"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise ValueError(f"{name}={v!r}; valid: None or a positive number")
+        if isinstance(self.maxiter, bool) or not isinstance(self.maxiter, int) \
+                or self.maxiter < 1:
+            raise ValueError(f"maxiter={self.maxiter!r}; valid: an integer >= 1")
+        if len(self.fire) % 2 or (self.fire and self.style != "fire"):
+            raise ValueError(f"fire={self.fire!r} with style {self.style!r}; valid: keyword, "
+                             "value pairs of min_modify, with style 'fire' only")
+
+    def style_for(self, box_relax: bool) -> str:
+        """The style of a minimisation (with ``fix box/relax`` if ``box_relax``)."""
+        return "cg" if (box_relax and self.style not in BOX_RELAX_STYLES) else self.style
+
+    def commands(self, box_relax: bool = False) -> list[str]:
+        """The commands that select this minimiser (LAMMPS resets ``min_modify`` on every
+        ``min_style``); ``box_relax``: for a minimisation with ``fix box/relax``."""
+        style = self.style_for(box_relax)
+        out = [f"min_style {style}"]
+        if style in ("cg", "sd") and self.line != "quadratic":
+            out.append(f"min_modify line {self.line}")
+        if self.norm != "two":
+            out.append(f"min_modify norm {self.norm}")
+        if self.dmax is not None:
+            out.append(f"min_modify dmax {self.dmax!r}")
+        if style == "fire" and self.fire:
+            out.append("min_modify " + " ".join(str(v) for v in self.fire))
+        if style in DAMPED_MIN_STYLES:
+            out.append(f"timestep {(self.timestep_ps or 0.001)!r}")
+        return out
+
+    def describe(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+_MIN_STATS = re.compile(r"Iterations, force evaluations = (\d+) (\d+)")
+_MIN_STOP = re.compile(r"Stopping criterion = (.+)")
+
+
+def _minimize_logged(lmp, ftol, settings: MinSettings, label: str, stats: list,
+                     box_relax: bool = False) -> None:
+    """``minimize 0 ftol`` with ``settings``; appends to ``stats`` this minimisation's
+    record: ``label``, the style used, wall time (s), iterations and force evaluations (from
+    LAMMPS's log), stopping criterion, final energy (eV), largest force component (eV/Å)
+    and the force 2-norm (eV/Å)."""
+    lmp.commands_list(settings.commands(box_relax))
+    with tempfile.TemporaryDirectory(prefix="upscale-min-") as d:
+        log = Path(d) / "min.log"
+        lmp.command(f"log {log}")
+        t0 = time.perf_counter()
+        try:
+            _minimize(lmp, ftol, settings.maxiter)
+        finally:
+            wall = time.perf_counter() - t0
+            lmp.command("log none")
+        text = log.read_text(errors="replace")
+    it = _MIN_STATS.findall(text)
+    stop = _MIN_STOP.findall(text)
+    th = _thermo(lmp)
+    stats.append({"stage": label, "style": settings.style_for(box_relax), "wall_s": wall,
+                  "iterations": int(it[-1][0]) if it else None,
+                  "force_evaluations": int(it[-1][1]) if it else None,
+                  "stop": stop[-1].strip() if stop else None,
+                  "energy_eV": float(th["PotEng"]), "fmax_eV_per_A": float(th["Fmax"]),
+                  "fnorm_eV_per_A": float(th["Fnorm"])})
+
+
 def _prescale(atoms, pot, ftol):
     """Start long tubes near their relaxed shape (``box/relax`` alone needs ~1e4 CG steps).
 
@@ -275,7 +402,8 @@ def _prescale(atoms, pot, ftol):
 
 
 def relax_zero_stress(atoms: Atoms, potential="tersoff:BNC.tersoff", cutoff="step",
-                      ftol: float = 1e-6, _pot: Potential | None = None):
+                      ftol: float = 1e-6, _pot: Potential | None = None,
+                      minimiser: MinSettings | None = None, stats: list | None = None):
     """Relax atoms and the axial cell length to zero axial stress (see module docstring).
 
     Returns
@@ -291,11 +419,19 @@ def relax_zero_stress(atoms: Atoms, potential="tersoff:BNC.tersoff", cutoff="ste
     atoms = _prescale(atoms, pot, ftol)
     lmp, types = _setup(atoms, pot, "s s p")
     try:
-        lmp.command("fix br all box/relax z 0.0 vmax 0.001")
-        _minimize(lmp, ftol)
-        _minimize(lmp, ftol)
-        lmp.command("unfix br")
-        _minimize(lmp, ftol)
+        vmax = 0.001 if minimiser is None else minimiser.box_vmax
+        lmp.command(f"fix br all box/relax z 0.0 vmax {vmax!r}")
+        if minimiser is None:  # the references' set-up (CG, 2-norm), no records
+            _minimize(lmp, ftol)
+            _minimize(lmp, ftol)
+            lmp.command("unfix br")
+            _minimize(lmp, ftol)
+        else:
+            st = [] if stats is None else stats
+            _minimize_logged(lmp, ftol, minimiser, "box_relax_1", st, box_relax=True)
+            _minimize_logged(lmp, ftol, minimiser, "box_relax_2", st, box_relax=True)
+            lmp.command("unfix br")
+            _minimize_logged(lmp, ftol, minimiser, "fixed_box", st)
         th = _thermo(lmp)
         x = _positions(lmp, len(atoms))
     finally:
@@ -499,6 +635,59 @@ def quasi_static_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
     return res
 
 
+def open_tube_setup(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="step",
+                    ftol: float = 1e-6, minimiser: MinSettings | None = None,
+                    periodic_relaxation: bool = True, relaxed: Atoms | None = None) -> dict:
+    """The set-up of :func:`dynamic_tension` alone: the periodic zero-stress relaxation
+    (unless ``periodic_relaxation`` is False, see :func:`dynamic_tension`), the tube cut at
+    the cell boundary and minimised open, all with ``minimiser`` (default
+    :class:`MinSettings`: the references' CG) to ``ftol`` eV/Å in its norm. ``relaxed``:
+    an already relaxed periodic structure (from :func:`relax_zero_stress`); only the open
+    tube is then minimised.
+
+    Returns a dict: ``stages`` (one record per minimize, :func:`_minimize_logged`: wall
+    time, iterations, force evaluations, stopping criterion, energy, largest force
+    component), ``wall_s`` (the whole set-up, with the prescaling and LAMMPS's set-up),
+    ``iterations``, ``force_evaluations`` (sums), the open tube's ``energy_eV``,
+    ``fmax_eV_per_A`` (largest force component) and ``fnorm_eV_per_A``, ``L0_A``,
+    ``relaxed`` (the periodic structure the tube was cut from) and ``positions`` ((N, 3),
+    Å, ASE order, the minimised open tube)."""
+    _check_atoms(atoms)
+    settings = minimiser or MinSettings()
+    t0 = time.perf_counter()
+    pot = resolve_potential(potential, cutoff)
+    stats: list = []
+    if relaxed is not None:
+        relaxed = relaxed.copy()
+    elif periodic_relaxation:
+        relaxed, _ = relax_zero_stress(atoms, potential, cutoff, ftol, _pot=pot,
+                                       minimiser=settings, stats=stats)
+    else:
+        relaxed = _prescale(atoms, pot, ftol)
+    periodic = relaxed.copy()
+    L0 = float(relaxed.cell[2, 2])
+    n = len(relaxed)
+    x = relaxed.get_positions()
+    x[:, 2] = np.mod(x[:, 2], L0)
+    x[x[:, 2] >= L0, 2] -= L0
+    relaxed.set_positions(x)
+    lmp, _ = _setup(relaxed, pot, "s s s", box=relaxed.cell.lengths().copy())
+    try:
+        _minimize_logged(lmp, ftol, settings, "open_tube", stats)
+        x = _positions(lmp, n)
+    finally:
+        lmp.close()
+    last = stats[-1]
+    return {"settings": settings.describe(), "ftol_eV_per_A": ftol,
+            "periodic_relaxation": bool(periodic_relaxation), "stages": stats,
+            "wall_s": time.perf_counter() - t0,
+            "iterations": sum(st["iterations"] or 0 for st in stats),
+            "force_evaluations": sum(st["force_evaluations"] or 0 for st in stats),
+            "energy_eV": last["energy_eV"], "fmax_eV_per_A": last["fmax_eV_per_A"],
+            "fnorm_eV_per_A": last["fnorm_eV_per_A"], "L0_A": L0, "relaxed": periodic,
+            "positions": x}
+
+
 def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="step",
                     grip: float = 50.0, speed: float = 1.0, temperature: float = 10.0,
                     timestep: float = 0.001, tdamp: float = 0.1, max_strain: float = 0.40,
@@ -506,11 +695,27 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
                     fit_max_strain: float = 0.02, dump: str | Path | None = None,
                     seed: int = 4928459, ftol: float = 1e-6, progress=None,
                     max_steps: int = 200000, max_box_volume: float = 1e8,
-                    nprocs: int = 1) -> dict:
+                    nprocs: int = 1, min_style: str = "cg", min_line: str = "quadratic",
+                    min_norm: str = "two", min_timestep_ps: float | None = None,
+                    min_dmax: float | None = None, min_fire: tuple = (),
+                    min_maxiter: int = 20000, periodic_relaxation: bool = True) -> dict:
     """Dynamic tension with end grips pulled apart at constant speed (module docstring).
 
     Parameters
     ----------
+    ftol : float
+        Force tolerance of the set-up minimisations, eV/Å, in the norm ``min_norm``.
+    min_style, min_line, min_norm, min_timestep_ps, min_dmax, min_fire, min_maxiter
+        The set-up minimiser (:class:`MinSettings`: style, line search, the norm ``ftol``
+        bounds, damped-dynamics time step, largest move per iteration, FIRE keywords,
+        iterations per minimize); the defaults are the stored references' (CG, quadratic
+        line search, 2-norm of the global force vector).
+    periodic_relaxation : bool
+        True (default): the periodic zero-stress relaxation (module docstring) before the
+        tube is cut open. False: the open tube is minimised straight from the prescaled
+        structure (:func:`_prescale`: a short periodic tube's relaxed axial and radial
+        ratios; L0 is then the prescaled cell length and R the mean atom radius of the
+        minimised open tube), as the coarse model starts from its zero-stress lattice.
     grip : float
         Axial length of each end grip, Å (``2 grip`` must leave a free part >= 10 Å).
     speed : float
@@ -546,11 +751,24 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
                        tdamp=tdamp, max_strain=max_strain, sample_every=sample_every,
                        dump_every=dump_every, fit_max_strain=fit_max_strain, dump=dump,
                        seed=seed, ftol=ftol, max_steps=max_steps,
-                       max_box_volume=max_box_volume)
+                       max_box_volume=max_box_volume, min_style=min_style, min_line=min_line,
+                       min_norm=min_norm, min_timestep_ps=min_timestep_ps, min_dmax=min_dmax,
+                       min_fire=tuple(min_fire), min_maxiter=min_maxiter,
+                       periodic_relaxation=periodic_relaxation)
+    settings = MinSettings(min_style, min_line, min_norm, min_timestep_ps, min_dmax,
+                           tuple(min_fire), min_maxiter)
     t0 = time.perf_counter()
     c0 = time.process_time()  # CPU time of this process (LAMMPS runs in it): load-free
     pot = resolve_potential(potential, cutoff)
-    relaxed, rinfo = relax_zero_stress(atoms, potential, cutoff, ftol, _pot=pot)
+    min_stats: list = []
+    if periodic_relaxation:
+        relaxed, rinfo = relax_zero_stress(atoms, potential, cutoff, ftol, _pot=pot,
+                                           minimiser=settings, stats=min_stats)
+    else:
+        relaxed = _prescale(atoms, pot, ftol)
+        rinfo = {"L0_A": float(relaxed.cell[2, 2]), "radius_relaxed_A": None,
+                 "pzz_bar": None, "stress_GPa": None, "energy_eV": None,
+                 "note": "no periodic relaxation: prescaled structure; R from the open tube"}
     t_periodic = time.perf_counter() - t0
     L0, R = rinfo["L0_A"], rinfo["radius_relaxed_A"]
     free0 = L0 - 2.0 * grip
@@ -574,10 +792,14 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
     try:
         # open tube: relax the cut ends once (all atoms free), then grips from the new ends
         t1 = time.perf_counter()
-        _minimize(lmp, ftol)
+        _minimize_logged(lmp, ftol, settings, "open_tube", min_stats)
         t_open = time.perf_counter() - t1
         t2 = time.perf_counter()
         x = _positions(lmp, n)
+        if rinfo["radius_relaxed_A"] is None:
+            opened = relaxed.copy()
+            opened.set_positions(x)
+            R = rinfo["radius_relaxed_A"] = _mean_radius(opened, types)
         zmin, zmax = float(x[:, 2].min()), float(x[:, 2].max())
         zb, zt = zmin + float(grip), zmax - float(grip)
         sep0 = zt - zb
@@ -712,6 +934,9 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
     # tube's minimisation, and the pull (dynamics, sampling and dump)
     res["timing_s"] = {"zero_stress_relaxation": t_periodic, "open_tube_minimisation": t_open,
                        "dynamics": time.perf_counter() - t2, "steps": step}
+    res["setup_minimisation"] = {"settings": settings.describe(), "ftol_eV_per_A": ftol,
+                                 "periodic_relaxation": bool(periodic_relaxation),
+                                 "stages": min_stats}
     return res
 
 
