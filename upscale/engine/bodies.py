@@ -60,8 +60,9 @@ class BodyModel:
 
     Presents the engine's model contract (``needs``, ``force_kind``, ``prepare``,
     ``init_state``, ``add_force``, ``step_force``, ``break_bonds``, ``energy``,
-    ``energy_density``, ``stiffness_bound``, ``describe``) and forwards each call to the
-    wrapped model with the body's views.
+    ``energy_density``, ``stiffness_bound``, ``describe``, and the force split of
+    :mod:`upscale.engine.respa`) and forwards each call to the wrapped model with the
+    body's views.
     """
 
     def __init__(self, model, body: Body, rows: slice, bonds: slice):
@@ -155,6 +156,36 @@ class BodyModel:
 
     def add_force(self, state, out) -> None:
         self.model.add_force(self.sub(state), out[self.rows])
+
+    # the force-split contract of multiple time stepping (upscale.engine.respa): forwarded
+    # when the wrapped model splits its forces; otherwise the whole model is fast
+    def add_group_force(self, state, out, group: str) -> None:
+        split = getattr(self.model, "add_group_force", None)
+        if split is not None:
+            split(self.sub(state), out[self.rows], group)
+        elif group == "fast":
+            self.add_force(state, out)
+
+    def add_group_field_force(self, state, out, group: str) -> None:
+        split = getattr(self.model, "add_group_field_force", None)
+        if split is None:
+            if group == "fast":
+                self.add_field_force(state, out)
+            return
+        p = self._prefix
+        split(self.sub(state), {key[len(p):]: v[self.rows] for key, v in out.items()
+                                if key.startswith(p)}, group)
+
+    def group_energy(self, state, group: str) -> float:
+        split = getattr(self.model, "group_energy", None)
+        if split is not None:
+            return float(split(self.sub(state), group))
+        return self.energy(state) if group == "fast" else 0.0
+
+    def prepare_split(self, state) -> None:
+        fn = getattr(self.model, "prepare_split", None)
+        if fn is not None:
+            fn(self.sub(state))
 
     def step_force(self, state, out, *, failure=True) -> int:
         return self.model.step_force(self.sub(state), out[self.rows], failure=failure)

@@ -415,10 +415,19 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
                     temperature: float = 10.0, dt_fs: float = 1.0, tdamp_ps: float = 0.1,
                     max_strain: float = 0.40, seed: int = 4928459, sample_every: int = 100,
                     ftol: float = 1e-2, progress: bool = True, max_steps: int = 200000,
-                    snapshot_every: int = 500) -> dict:
+                    snapshot_every: int = 500, integrator: str = "verlet",
+                    inner: int = 5) -> dict:
     """The references' dynamic tension of ``scene`` (module docstring). Returns the result
     dict: ``curve`` (strain, stress_GPa, stress_per_tube_GPa, time_ps), metrics, per-tube
-    failure strains and order, damage per tube, timings."""
+    failure strains and order, damage per tube, timings.
+
+    ``integrator="verlet"`` (default): velocity Verlet at ``dt_fs``. ``"respa"``: multiple
+    time stepping (:class:`upscale.engine.respa.RESPA`), outer step ``inner * dt_fs``:
+    slow are the coarse tubes' lattice energies (their shift modes and the atomistic
+    regions are fast, :meth:`~upscale.models.dcbr_engine.DCBRDefectTubeModel.prepare_split`,
+    renewed every sample) and the inter-tube van der Waals; fast the atomistic tubes
+    (Tersoff) at ``dt_fs``. ``inner`` must divide 10 (the grips are read every 10 fs
+    steps) and the scene's vdW must not be held between steps (``vdw_every=1``)."""
     from tqdm.auto import tqdm
 
     from upscale.analysis.stress import curve_metrics, stress_from_force
@@ -426,6 +435,17 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
     from upscale.engine.integrators import VelocityVerlet
     from upscale.engine.minimisers import LBFGS
 
+    if integrator not in ("verlet", "respa"):
+        raise ValueError(f"integrator={integrator!r}; valid: 'verlet' or 'respa'")
+    per = 1
+    if integrator == "respa":
+        if not (isinstance(inner, (int, np.integer)) and inner >= 1 and 10 % inner == 0):
+            raise ValueError(f"inner={inner!r}; valid: 1, 2, 5 or 10 (inner steps per outer "
+                             "step; the grips are read every 10 steps)")
+        if int(scene.info.get("vdw_every", 1)) != 1:
+            raise ValueError(f"vdw_every={scene.info['vdw_every']} with integrator='respa'; "
+                             "valid: 1 (multiple time stepping puts the vdW in the slow group)")
+        per = int(inner)
     t0 = time.perf_counter()
     c0 = time.process_time()
     grip = scene.info["grip_A"] if grip is None else float(grip)
@@ -535,8 +555,15 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
         thermo = NoseHoover(temperature, 1e3 * tdamp_ps, region=free, components=(0, 1),
                             fields=tuple(fields), field_region=frows if fields else None,
                             ndf=ndf, k_B=K_B_EV)
-    sim = asm.simulation(conditions=conds,
-                         integrator=VelocityVerlet(dt, force=True, thermostat=thermo))
+    if integrator == "respa":
+        from upscale.engine.respa import RESPA
+
+        integ = RESPA(dt * per, per, thermostat=thermo, force=True)
+    else:
+        integ = VelocityVerlet(dt, force=True, thermostat=thermo)
+    sim = asm.simulation(conditions=conds, integrator=integ)
+    # (a multiple-time-step integrator keeps its own group forces and renews the split)
+    update_forces = getattr(integ, "update_forces", None) or (lambda s: s.update_forces())
     sim.state.y[...] = y
     sim.state.v[...] = vel
     _copy_fields(sim0.state, sim.state)
@@ -562,7 +589,7 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
         while True:
             acc = np.zeros(len(tubes))
             for _ in range(nread):
-                sim.run(10)
+                sim.run(10 // per)
                 for k, (gb, gt) in enumerate(grips):
                     # force on the bottom grip's atoms from the tube: -reaction; tension =
                     # mean of the bottom one's +z and the top one's -z
@@ -581,7 +608,7 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
                         g["Lz"] = float(st["L0"])
                         tube.ghost_correction = g
                     bm.model.store_ghost(sub)
-                sim.update_forces()
+                update_forces(sim)
             tmid = (step - 0.5 * sample_every) * dt_fs * 1e-3
             eps = 2.0 * speed * tmid / sep0
             sk = [float(stress_from_force(f, R, WALL_THICKNESS_A, 1)) for f in Fk]
@@ -605,6 +632,8 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
     res = {"protocol": "dynamic", "scene": scene.info,
            "protocol_detail": {"grip_A": grip, "speed_A_per_ps_each_grip": speed,
                                "timestep_fs": dt_fs, "temperature_K": temperature,
+                               "integrator": integ.name,
+                               "outer_step_fs": dt_fs * per,
                                "thermostat": f"Nose-Hoover on the free part's vx, vy, damping "
                                              f"{tdamp_ps} ps", "seed": seed,
                                "gauge_length_A": sep0, "sample_every_steps": sample_every,

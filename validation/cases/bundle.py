@@ -193,6 +193,12 @@ def _args_tension(p):
                    "their particles as lumped sites")
     p.add_argument("--max-strain", type=float, default=0.40,
                    help="stop the pull at this strain (default 0.40, the references')")
+    p.add_argument("--integrator", choices=("verlet", "respa"), default="verlet",
+                   help="velocity Verlet at 1 fs (default), or multiple time stepping: the "
+                   "coarse tubes' lattice and the vdW at an outer step of --inner fs")
+    p.add_argument("--inner", type=int, default=5,
+                   help="inner (1 fs) steps per outer step with --integrator respa: 1, 2, 5 "
+                   "or 10 (default 5)")
 
 
 def lammps_bundle_references(n, m, length, spacing, gap, compute=True):
@@ -273,8 +279,12 @@ def run_bundle_tension(args):
                                        vacancy_tube=0, allow_overlap=args.allow_overlap,
                                        ratios=scene.info["ratios"], vdw_every=args.vdw_every,
                                        coarse_pairs=args.coarse_pairs)
-        runs.append(dynamic_tension(scene, seed=seed, progress=not args.quick,
-                                    max_strain=args.max_strain))
+        try:
+            runs.append(dynamic_tension(scene, seed=seed, progress=not args.quick,
+                                        max_strain=args.max_strain,
+                                        integrator=args.integrator, inner=args.inner))
+        except ValueError as exc:
+            raise SystemExit(f"bundle-tension: {exc}") from None
     wall = (time.perf_counter() - t0) / args.seeds
     lam_order = [tube_failures(r["curve"]["strain"], r["curve"]["stress_per_tube_GPa"])
                  for r in refs if "stress_per_tube_GPa" in r["curve"]]
@@ -298,6 +308,8 @@ def run_bundle_tension(args):
                 "wall_s": wall, "lammps_wall_s": _mean(refs, "wall_s"),
                 "cpu_s": _mean(runs, "cpu_s"), "lammps_cpu_s": _mean(refs, "cpu_s"),
                 "vdw_every": args.vdw_every, "coarse_pairs": args.coarse_pairs,
+                "integrator": args.integrator,
+                "inner": args.inner if args.integrator == "respa" else 1,
                 "failure_order": [r["failure_order"] for r in runs],
                 "tube_failure_strain": [r["tube_failure_strain"] for r in runs],
                 "lammps_failure_order": [o["failure_order"] for o in lam_order],

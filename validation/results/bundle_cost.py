@@ -3,9 +3,13 @@ LAMMPS's full-atomistic bundle (the references' protocol and default seed) pulle
 its run stops (runaway-atom halt at failure, or ``--max-strain``), then the mixed bundle
 on the engine (outer tubes ``dcbr:K``, vdW every 4 steps, lumped sites between coarse
 tubes) pulled to the strain LAMMPS reached; wall and CPU time of each whole run (engine:
-scene set-up included). Figures in validation/out/bundle_cost_<N>-<M>.json.
+scene set-up included). ``--integrators verlet,respa``: each engine run with velocity
+Verlet at 1 fs (vdW held 4 steps) and with multiple time stepping (``--inner`` 1 fs steps
+per outer step, the vdW in the slow group). Figures in
+validation/out/bundle_cost_<N>-<M>.json.
 
     python validation/results/bundle_cost.py [--chirality 10,10] [--coarsening 2,4]
+        [--integrators verlet,respa] [--inner 5]
 """
 import argparse
 import json
@@ -20,6 +24,8 @@ p = argparse.ArgumentParser()
 p.add_argument("--chirality", default="10,10")
 p.add_argument("--coarsening", default="2,4")
 p.add_argument("--max-strain", type=float, default=0.16)
+p.add_argument("--integrators", default="verlet")
+p.add_argument("--inner", type=int, default=5)
 a = p.parse_args()
 n, m = (int(v) for v in a.chirality.split(","))
 out = {"chirality": [n, m], "load_start": list(os.getloadavg()), "runs": []}
@@ -34,12 +40,15 @@ row = {"run": "LAMMPS", "wall_s": time.perf_counter() - t0, "cpu_s": time.proces
 out["runs"].append(row)
 print(row, flush=True)
 strain_end = row["final_strain"]
-for K in (float(k) for k in a.coarsening.split(",")):
+runs = [(float(k), i) for k in a.coarsening.split(",") for i in a.integrators.split(",")]
+for K, integ in runs:
     t0, c0 = time.perf_counter(), time.process_time()
-    scene = BundleScene.create((n, m), 150.0, parse_specs(None, 7, K), vdw_every=4,
-                               coarse_pairs="sites")
-    r = dynamic_tension(scene, max_strain=strain_end, progress=False)
-    row = {"run": f"engine K={K:g}", "wall_s": time.perf_counter() - t0,
+    scene = BundleScene.create((n, m), 150.0, parse_specs(None, 7, K),
+                               vdw_every=1 if integ == "respa" else 4, coarse_pairs="sites")
+    r = dynamic_tension(scene, max_strain=strain_end, progress=False, integrator=integ,
+                        inner=a.inner)
+    row = {"run": f"engine K={K:g} {integ}" + (f" {a.inner}x1 fs" if integ == "respa" else ""),
+           "wall_s": time.perf_counter() - t0,
            "cpu_s": time.process_time() - c0, "steps": r["timing_s"]["steps"],
            "timing_s": r["timing_s"], "final_strain": r["curve"]["strain"][-1],
            "strength_GPa": r["strength_GPa"], "load_end": list(os.getloadavg())}
