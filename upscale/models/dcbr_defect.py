@@ -633,43 +633,51 @@ class DCBRDefectTube(DCBRTube):
         it, leaving the loads on the wrong atoms; the cylindrical form is the same at the
         uniform state (the patch test is unchanged) and does not see the turn."""
         E, gy, gd, dL = self._raw_energy_and_gradient(y, delta, Lz)
-        gc = self._ghost
-        if gc is not None and abs(gc["Lz"] - Lz) < 1e-12 * Lz:
-            if "gr" not in gc:  # the load's cylindrical components at the uniform state
-                yu, g = gc["y"], gc["gy"]
-                xu = yu[:, :2] - yu[:, :2].mean(axis=0)
-                thu = np.arctan2(xu[:, 1], xu[:, 0])
-                c, s_ = np.cos(thu), np.sin(thu)
-                gc.update(thu=thu, rhou=np.hypot(xu[:, 0], xu[:, 1]),
-                          gr=g[:, 0] * c + g[:, 1] * s_, gt=-g[:, 0] * s_ + g[:, 1] * c)
-            # about the rows' centroid (so that a sideways shift is free as well)
-            xc = y[:, :2] - y[:, :2].mean(axis=0)
-            rho = np.hypot(xc[:, 0], xc[:, 1])
-            th = np.arctan2(xc[:, 1], xc[:, 0])
-            # arc angle change, on the branch of the rows' mean turn (so that all rows agree
-            # on it, even at a half turn; locally it is th - thu, the branch only picks 2 pi k)
-            turn = float(np.angle(np.mean(np.exp(1j * (th - gc["thu"])))))
-            dth = turn + (th - gc["thu"] - turn + np.pi) % (2 * np.pi) - np.pi
-            gr, gt, rt = gc["gr"], gc["gt"] * gc["rhou"], gc["gy"][:, 2]
-            gdl = gc["gd"]
-            if not self.alive.all():
-                # a failed particle has no energy left: a dead load on it is unbounded below
-                # (the minimiser pushed such particles away without end, the energy of a
-                # (10,10) K = 4 tube fell by 900 eV in one step); the load goes with the energy
-                on = np.r_[self.alive[self.dof_idx].astype(float), np.ones(len(y) - len(self.dof_idx))]
-                gr, gt, rt = gr * on, gt * on, rt * on
-                gdl = gdl * self.alive[:, None]
-            E -= float(np.sum(gr * (rho - gc["rhou"]) + gt * dth + rt * (y[:, 2] - gc["y"][:, 2]))
-                       + np.sum(gdl * (delta - gc["d"])))
-            corr = np.empty_like(gy)
-            corr[:, 0] = (gr * xc[:, 0] - gt * xc[:, 1] / rho) / rho
-            corr[:, 1] = (gr * xc[:, 1] + gt * xc[:, 0] / rho) / rho
-            corr[:, :2] -= corr[:, :2].mean(axis=0)  # through the centroid
-            corr[:, 2] = rt
-            gy = gy - corr
-            gd = gd - gdl
-            dL = dL + gc["dL"]
+        E, gy, gd, on = self.apply_ghost_load(y, delta, Lz, E, gy, gd)
+        if on:
+            dL = dL + self._ghost["dL"]
         return E, gy, gd, dL
+
+    def apply_ghost_load(self, y, delta, Lz, E, gy, gd):
+        """The ghost-force dead load of :meth:`energy_and_gradient` applied to an energy E
+        (eV) and its gradients ``gy`` (Ny, 3) and ``gd`` (N, 3) at (y, delta, Lz): returns
+        ``(E', gy', gd', applied)``, unchanged (and ``applied`` False) when no load is set
+        for this cell length."""
+        gc = self._ghost
+        if gc is None or not abs(gc["Lz"] - Lz) < 1e-12 * Lz:
+            return E, gy, gd, False
+        if "gr" not in gc:  # the load's cylindrical components at the uniform state
+            yu, g = gc["y"], gc["gy"]
+            xu = yu[:, :2] - yu[:, :2].mean(axis=0)
+            thu = np.arctan2(xu[:, 1], xu[:, 0])
+            c, s_ = np.cos(thu), np.sin(thu)
+            gc.update(thu=thu, rhou=np.hypot(xu[:, 0], xu[:, 1]),
+                      gr=g[:, 0] * c + g[:, 1] * s_, gt=-g[:, 0] * s_ + g[:, 1] * c)
+        # about the rows' centroid (so that a sideways shift is free as well)
+        xc = y[:, :2] - y[:, :2].mean(axis=0)
+        rho = np.hypot(xc[:, 0], xc[:, 1])
+        th = np.arctan2(xc[:, 1], xc[:, 0])
+        # arc angle change, on the branch of the rows' mean turn (so that all rows agree
+        # on it, even at a half turn; locally it is th - thu, the branch only picks 2 pi k)
+        turn = float(np.angle(np.mean(np.exp(1j * (th - gc["thu"])))))
+        dth = turn + (th - gc["thu"] - turn + np.pi) % (2 * np.pi) - np.pi
+        gr, gt, rt = gc["gr"], gc["gt"] * gc["rhou"], gc["gy"][:, 2]
+        gdl = gc["gd"]
+        if not self.alive.all():
+            # a failed particle has no energy left: a dead load on it is unbounded below
+            # (the minimiser pushed such particles away without end, the energy of a
+            # (10,10) K = 4 tube fell by 900 eV in one step); the load goes with the energy
+            on = np.r_[self.alive[self.dof_idx].astype(float), np.ones(len(y) - len(self.dof_idx))]
+            gr, gt, rt = gr * on, gt * on, rt * on
+            gdl = gdl * self.alive[:, None]
+        E -= float(np.sum(gr * (rho - gc["rhou"]) + gt * dth + rt * (y[:, 2] - gc["y"][:, 2]))
+                   + np.sum(gdl * (delta - gc["d"])))
+        corr = np.empty_like(gy)
+        corr[:, 0] = (gr * xc[:, 0] - gt * xc[:, 1] / rho) / rho
+        corr[:, 1] = (gr * xc[:, 1] + gt * xc[:, 0] / rho) / rho
+        corr[:, :2] -= corr[:, :2].mean(axis=0)  # through the centroid
+        corr[:, 2] = rt
+        return E, gy - corr, gd - gdl, True
 
     # ------------------------------------------------------------------ uniform states
     def uniform_lattice(self, lam_z=None):

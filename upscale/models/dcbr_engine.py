@@ -505,37 +505,7 @@ class DCBRDefectTubeModel:
     def _ghost_term(self, y, delta, E, gy, gd):
         """The ghost-force dead load of :meth:`DCBRDefectTube.energy_and_gradient` (in each
         row's cylindrical components about the rows' centroid) applied to (E, gy, gd)."""
-        t = self.tube
-        gc = t.ghost_correction
-        Lz = self.Lz
-        if gc is None or not abs(gc["Lz"] - Lz) < 1e-12 * Lz:
-            return E, gy, gd
-        if "gr" not in gc:
-            yu, g = gc["y"], gc["gy"]
-            xu = yu[:, :2] - yu[:, :2].mean(axis=0)
-            thu = np.arctan2(xu[:, 1], xu[:, 0])
-            c, s_ = np.cos(thu), np.sin(thu)
-            gc.update(thu=thu, rhou=np.hypot(xu[:, 0], xu[:, 1]),
-                      gr=g[:, 0] * c + g[:, 1] * s_, gt=-g[:, 0] * s_ + g[:, 1] * c)
-        xc = y[:, :2] - y[:, :2].mean(axis=0)
-        rho = np.hypot(xc[:, 0], xc[:, 1])
-        th = np.arctan2(xc[:, 1], xc[:, 0])
-        turn = float(np.angle(np.mean(np.exp(1j * (th - gc["thu"])))))
-        dth = turn + (th - gc["thu"] - turn + np.pi) % (2 * np.pi) - np.pi
-        gr, gt, rt = gc["gr"], gc["gt"] * gc["rhou"], gc["gy"][:, 2]
-        gdl = gc["gd"]
-        if not t.alive.all():
-            on = np.r_[t.alive[t.dof_idx].astype(float), np.ones(len(y) - self.nd)]
-            gr, gt, rt = gr * on, gt * on, rt * on
-            gdl = gdl * t.alive[:, None]
-        E -= float(np.sum(gr * (rho - gc["rhou"]) + gt * dth + rt * (y[:, 2] - gc["y"][:, 2]))
-                   + np.sum(gdl * (delta - gc["d"])))
-        corr = np.empty_like(gy)
-        corr[:, 0] = (gr * xc[:, 0] - gt * xc[:, 1] / rho) / rho
-        corr[:, 1] = (gr * xc[:, 1] + gt * xc[:, 0] / rho) / rho
-        corr[:, :2] -= corr[:, :2].mean(axis=0)
-        corr[:, 2] = rt
-        return E, gy - corr, gd - gdl
+        return self.tube.apply_ghost_load(y, delta, self.Lz, E, gy, gd)[:3]
 
     def _group(self, state, group):
         if group == "slow":
