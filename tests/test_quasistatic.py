@@ -38,7 +38,7 @@ def test_equilibrium_matches_newton():
 def test_step_lands_on_first_failure():
     # r_s large enough that the strip fails at ~0.2 % strain: the index is quadratic in the
     # load to O(strain) (Green strain), so the prediction lands within a few 1e-3
-    s, fam, m, fixed, u = _strip(K_Ic=2.13e6, r_s=0.2)
+    s, fam, m, fixed, u = _strip(K_Ic=2.13e6, r_s=0.2, criterion="energy")
     st = State.reference(s.x0, fam.nb)
     curve = quasi_static_fracture(m, st, fixed=fixed, u_dir=u, u_max=1e-3, d_lambda=1e-3,
                                   stop_fraction=0.5)

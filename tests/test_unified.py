@@ -281,6 +281,18 @@ def test_lattice_tip_factor_tends_to_continuum():
     assert abs(b8 / beta - 1) < 0.03
 
 
+def test_lattice_tip_factor_large_r_s_takes_the_continuum_value():
+    """r_s far above the spacing: the continuum beta, without building the (8 r_s/dx)^2
+    lattice (r_s = 200 dx would need ~2.6 million particles)."""
+    from upscale.engine import build_family, square_lattice
+    from upscale.models.unified import UnifiedModel, disc_average_factor
+
+    s = square_lattice(12, 6, 1e-3, thickness=5e-3)
+    m = UnifiedModel(E=3.75e9, nu=0.35, K_Ic=2.13e6, r_s=0.2)
+    m.prepare(s, build_family(s, 3e-3))
+    assert m.tip_factor() == disc_average_factor()[0]
+
+
 def _uniaxial(st, s, angle, sig, E=3.75e9, nu=0.35):
     """Homogeneous plane-stress state of uniaxial stress sig along angle (rad)."""
     c, sn = np.cos(angle), np.sin(angle)

@@ -314,6 +314,10 @@ def _averaging_matrix(x, volume, radius):
     return sp.csr_matrix((volume[j], (i, j)), shape=(n, n))
 
 
+#: above this r_s / spacing, ``tip_factor="lattice"`` takes the continuum factor
+LATTICE_TIP_MAX_RATIO = 16.0
+
+
 def lattice_tip_factor(r_s: float, spacing: float, horizon: float, *, E: float = 3.75e9, nu: float = 0.35,
                        plane: str = "stress", kernel: str = "quartic", rcond: float = 1e-6,
                        min_bonds: int = 0, gain_order: int = 1) -> tuple[float, float]:
@@ -581,7 +585,9 @@ class UnifiedModel(Model):
         each bond, or the particle energy densities of 6.28.
     tip_factor : {"lattice", "continuum"}
         beta of sigma_c: from the mode-I tip field on this lattice (default, 2D;
-        :func:`lattice_tip_factor`) or the continuum disc average (:func:`disc_average_factor`).
+        :func:`lattice_tip_factor`; the continuum value above r_s / spacing =
+        :data:`LATTICE_TIP_MAX_RATIO`) or the continuum disc average
+        (:func:`disc_average_factor`).
     sequential : float
         In (0, 1]: per round only the bonds whose index is at least this fraction of the
         largest break (1: every bond over the threshold).
@@ -683,6 +689,10 @@ class UnifiedModel(Model):
         """beta of sigma_c: :func:`disc_average_factor` (``tip_factor="continuum"``) or
         :func:`lattice_tip_factor` on this model's spacing and horizon (``"lattice"``, 2D)."""
         if self.tip_factor_kind == "continuum" or self.dim == 3:
+            return disc_average_factor(self.dim)[0]
+        if self.system.spacing is not None and self.r_s > LATTICE_TIP_MAX_RATIO * self.system.spacing:
+            # the lattice factor has converged to the continuum one (within 1.2 % from
+            # r_s / spacing = 4 on), and its lattice would hold ~(8 r_s / spacing)^2 particles
             return disc_average_factor(self.dim)[0]
         if self.system.spacing is None:
             raise ValueError("tip_factor='lattice' needs the particle system's spacing (ParticleSystem(spacing=...)); "
