@@ -13,25 +13,16 @@ Cases
 """
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 
 import numpy as np
 
+from validation.cases.references import parse_chirality
 from validation.registry import case, table
 
 REPO = Path(__file__).resolve().parents[2]
 REF_DIR = REPO / "data" / "reference"
-
-
-def _parse_chirality(text):
-    try:
-        n, m = (int(v) for v in str(text).split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(
-            f"--chirality {text!r}; valid: two integers N,M (e.g. 10,10)") from None
-    return n, m
 
 
 def lammps_pair_lines(ntubes: int, tersoff_file, lj_only: bool = False) -> list[str]:
@@ -61,7 +52,7 @@ def _frel(fa, fb):
 
 
 def _args_vdw(p):
-    p.add_argument("--chirality", type=_parse_chirality, default=(10, 10), help="N,M")
+    p.add_argument("--chirality", type=parse_chirality, default=(10, 10), help="N,M")
     p.add_argument("--length", type=float, default=150.0, help="tube length, Å")
     p.add_argument("--coarsening", type=float, default=2.0,
                    help="coarsening of the outer tubes of the mixed bundle (default 2)")
@@ -168,7 +159,7 @@ def run_bundle_vdw(args):
 
 # ---------------------------------------------------------------------- bundle tension
 def _args_tension(p):
-    p.add_argument("--chirality", type=_parse_chirality, default=(10, 10), help="N,M")
+    p.add_argument("--chirality", type=parse_chirality, default=(10, 10), help="N,M")
     p.add_argument("--length", type=float, default=150.0, help="tube length, Å (default 150)")
     p.add_argument("--coarsening", type=float, default=2.0,
                    help="coarsening K of the six outer tubes (default 2)")

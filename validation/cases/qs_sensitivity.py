@@ -37,9 +37,9 @@ OUT_NAME = "qs_protocol_sensitivity.json"
 
 
 def _args(p):
-    from validation.cases.references import _add_common, _parse_chirality  # noqa: PLC0415
+    from validation.cases.references import _add_common, parse_chirality  # noqa: PLC0415
 
-    p.add_argument("--chirality", action="append", default=None, type=_parse_chirality,
+    p.add_argument("--chirality", action="append", default=None, type=parse_chirality,
                    help="N,M (repeatable; default 10,10)")
     p.add_argument("--variants", default=",".join(VARIANTS),
                    help="comma-separated variant letters (default %(default)s): " + "; ".join(

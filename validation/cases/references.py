@@ -70,7 +70,7 @@ REFERENCE_SET = (
 )
 
 
-def _parse_chirality(text):
+def parse_chirality(text):
     try:
         n, m = (int(v) for v in str(text).split(","))
     except ValueError:
@@ -325,7 +325,7 @@ def _add_common(p):
 
 
 def _args_tension(p):
-    p.add_argument("--chirality", type=_parse_chirality, default=(10, 10), help="N,M")
+    p.add_argument("--chirality", type=parse_chirality, default=(10, 10), help="N,M")
     p.add_argument("--vacancy", action="store_true", help="4-atom vacancy at the seed's point")
     p.add_argument("--dynamic", action="store_true", help="grips at constant speed (else "
                    "quasi-static periodic)")
