@@ -28,9 +28,14 @@ Dynamic tension (the LAMMPS references' protocol, ``validation.lammps.tension``)
    atoms, moved rigidly apart at ``speed`` Å/ps each (default 1); the free part starts on
    the linear axial velocity ramp between the grip speeds plus Gaussian thermal velocities
    at ``temperature`` (default 10 K; the x, y temperature set to it exactly, zero total
-   momentum), under a Nose-Hoover thermostat on the free part's x and y velocities
-   (damping 0.1 ps: LAMMPS ``fix nvt`` with ``compute temp/partial 1 1 0``); velocity
-   Verlet, 1 fs;
+   momentum), under a Nose-Hoover thermostat on the free part's x and y velocities and
+   the coarse tubes' shifts (damping 0.1 ps: LAMMPS ``fix nvt`` with ``compute
+   temp/partial 1 1 0``), or one per tube (``thermostat="per-tube"``). LAMMPS's single
+   thermostat holds each tube at the temperature because its tubes are alike; the tubes
+   of a mixed bundle are not (a coarse tube's x, y motion carries a breathing
+   oscillation, its shifts take up heat), so one thermostat holds only their mean and
+   the atomistic tube runs colder than the others; velocity Verlet at 1 fs, or multiple
+   time stepping (r-RESPA, ``integrator="respa"``);
 3. strain = grip separation change / initial gauge (the grip planes' distance); the stress
    of tube k is the mean of its two grips' reactions over its wall area 2 pi R t (t = 3.4 Å,
    R the mean radius of the central tube after the minimisation), the bundle stress the
@@ -417,7 +422,8 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
                     ftol: float = 1e-2, progress: bool = True, max_steps: int = 200000,
                     snapshot_every: int = 500, integrator: str = "verlet",
                     inner: int = 5, record_readings: bool = False,
-                    thermostat: str = "bundle") -> dict:
+                    thermostat: str = "bundle",
+                    per_tube_damping_ps: float | None = None) -> dict:
     """The references' dynamic tension of ``scene`` (module docstring). Returns the result
     dict: ``curve`` (strain, stress_GPa, stress_per_tube_GPa, time_ps), metrics, per-tube
     failure strains and order, damage per tube, timings.
@@ -430,8 +436,10 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
     (Tersoff) at ``dt_fs``. ``inner`` must divide 10 (the grips are read every 10 fs
     steps) and the scene's vdW must not be held between steps (``vdw_every=1``).
     ``thermostat``: ``"bundle"`` (default; one Nose-Hoover on every tube's free part, the
-    references' ``fix nvt`` on all free atoms) or ``"per-tube"`` (one per tube, each on its
-    own free rows and shifts). ``record_readings``: keep every grip reading (``curve["readings"]``: time in fs and
+    references' ``fix nvt`` on all free atoms) or ``"per-tube"`` (one per tube, each on
+    its own free rows and shifts, damping ``per_tube_damping_ps``, default
+    ``tdamp_ps * sqrt(ntubes)``: each tube's own heat then drives its thermostat as
+    strongly as a tube's heat drives the one thermostat of ``ntubes`` like tubes). ``record_readings``: keep every grip reading (``curve["readings"]``: time in fs and
     each tube's tension in eV/Å, every 10 fs) besides the sample means."""
     from tqdm.auto import tqdm
 
@@ -550,6 +558,7 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
     conds = [g for pair in grips for g in pair]
     conds += scene.extra_conditions()
     thermo = None
+    tau_tube = tdamp_ps
     if temperature > 0:
         from upscale.engine.thermostats import NoseHoover
 
@@ -567,6 +576,8 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
             from upscale.engine.thermostats import ThermostatGroup
 
             members = []
+            tau_tube = tdamp_ps * math.sqrt(len(tubes)) if per_tube_damping_ps is None \
+                else float(per_tube_damping_ps)
             for k, rows in enumerate(tubes):
                 mk = np.zeros(n, bool)
                 mk[rows] = True
@@ -576,7 +587,7 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
                     em = coarse_of[k][0].model
                     nk += 3 * (em.N - len(em.tube.slave_idx))
                     fk = (f"{scene.bodies[k].name}/{_FIELD}",)
-                members.append(NoseHoover(temperature, 1e3 * tdamp_ps, region=free & mk,
+                members.append(NoseHoover(temperature, 1e3 * tau_tube, region=free & mk,
                                           components=(0, 1), fields=fk,
                                           field_region=mk if fk else None, ndf=nk,
                                           k_B=K_B_EV))
@@ -694,8 +705,9 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
                                "outer_step_fs": dt_fs * per,
                                "thermostat": f"Nose-Hoover on the free part's vx, vy, damping "
                                              f"{tdamp_ps} ps"
-                                             + (", one per tube" if thermostat == "per-tube"
-                                                else ""), "seed": seed,
+                                             + (f", one per tube (damping {tau_tube:.4g} ps)"
+                                                if thermostat == "per-tube" else ""),
+                               "seed": seed,
                                "gauge_length_A": sep0, "sample_every_steps": sample_every,
                                "minimisation": None if res_min is None else {
                                    "converged": bool(res_min.converged),
@@ -859,6 +871,18 @@ def register(subparsers):
     p.add_argument("--no-vacancy", action="store_true", help="no vacancy in the central tube")
     p.add_argument("--seed", type=int, default=4928459, help="thermal velocity seed")
     p.add_argument("--max-strain", type=float, default=0.40)
+    p.add_argument("--integrator", choices=("verlet", "respa"), default="verlet",
+                   help="velocity Verlet at 1 fs (default) or multiple time stepping (the "
+                   "coarse tubes' lattice and the vdW at an outer step of --inner fs)")
+    p.add_argument("--inner", type=int, default=5,
+                   help="1 fs inner steps per outer step with respa: 1, 2, 5, 10 (default 5)")
+    p.add_argument("--thermostat", choices=("bundle", "per-tube"), default="bundle",
+                   help="one Nose-Hoover on all tubes (default) or one per tube")
+    p.add_argument("--coarse-pairs", choices=("atoms", "sites"), default="atoms",
+                   help="two coarse tubes interact through reconstructed atoms (default) or "
+                   "through their particles as lumped sites")
+    p.add_argument("--vdw-every", type=int, default=1,
+                   help="vdW forces recomputed every N steps (velocity Verlet only; default 1)")
     p.add_argument("--compare", choices=["lammps"], default=None,
                    help="overlay the stored LAMMPS reference (data/reference/)")
     p.add_argument("--outdir", type=Path, default=Path("out/bundle"))
@@ -889,8 +913,11 @@ def run(args) -> int:
     specs = parse_specs(args.tubes, args.ntubes, args.coarsening)
     scene = BundleScene.create((n, m), args.length, specs, spacing=args.spacing, gap=args.gap,
                                vacancy_tube=None if args.no_vacancy else 0,
-                               allow_overlap=args.allow_overlap)
-    res = dynamic_tension(scene, seed=args.seed, max_strain=args.max_strain)
+                               allow_overlap=args.allow_overlap, vdw_every=args.vdw_every,
+                               coarse_pairs=args.coarse_pairs)
+    res = dynamic_tension(scene, seed=args.seed, max_strain=args.max_strain,
+                          integrator=args.integrator, inner=args.inner,
+                          thermostat=args.thermostat)
     out = Path(args.outdir)
     tag = f"{n}_{m}_{'-'.join(s.model + (f'{s.coarsening:g}' if s.model != 'tersoff' else '') for s in specs)}"
     lam = None
