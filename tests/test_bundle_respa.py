@@ -54,3 +54,100 @@ def test_bad_options():
         dynamic_tension(_mixed(vdw_every=4), integrator="respa", inner=5, progress=False)
     with pytest.raises(ValueError, match="integrator='leapfrog'"):
         dynamic_tension(_mixed(), integrator="leapfrog", progress=False)
+
+
+def test_body_view_kept_while_the_state_is_and_renewed_otherwise():
+    scene = _mixed()
+    st = scene.state_at_rest()
+    bm = scene.coarse_models()[0][1]
+    a = bm.sub(st)
+    st.t, st.step = 7.0, 3
+    b = bm.sub(st)
+    assert b is a and (b.t, b.step) == (7.0, 3)
+    b.y[0, 0] += 0.25  # a view: writes go through
+    assert st.y[bm.rows][0, 0] == b.y[0, 0]
+    st.y = st.y.copy()  # a new array: a new view on it
+    c = bm.sub(st)
+    assert c is not a and np.shares_memory(c.y, st.y)
+    key = next(iter(st.extra))
+    st.extra["tube2/new"] = np.zeros(2)  # a key added: the view is rebuilt and shows it
+    assert "new" in bm.sub(st).extra
+    assert key in st.extra
+
+
+def test_per_tube_thermostat_members_and_dofs():
+    kw = dict(max_strain=0.006, progress=False, temperature=10.0, sample_every=50)
+    r = dynamic_tension(_mixed(), thermostat="per-tube", **kw)
+    T = np.array(r["curve"]["temperature_per_tube_K"])
+    assert T.shape[1:] == (2, 2) and np.all(np.isfinite(T[:, :, 0]))
+    assert "one per tube" in r["protocol_detail"]["thermostat"]
+    with pytest.raises(ValueError, match="thermostat='global'"):
+        dynamic_tension(_mixed(), thermostat="global", progress=False)
+
+
+class _Springs:
+    """Independent particles on harmonic springs to their start positions (no heat flows
+    between particles)."""
+
+    name = "springs"
+    force_kind = "particle"
+
+    def __init__(self, c, k):
+        from upscale.models.base import Needs
+
+        self.needs = Needs(pairs=False, energy=True)
+        self.c, self.k = np.asarray(c, float), np.asarray(k, float)
+
+    def prepare(self, system, family=None, **kw):
+        pass
+
+    def init_state(self, state):
+        pass
+
+    def add_force(self, state, out):
+        out -= self.k[:, None] * (state.y - self.c)
+
+    def step_force(self, state, out, *, failure=True):
+        self.add_force(state, out)
+        return 0
+
+    def energy(self, state):
+        return float(0.5 * np.sum(self.k[:, None] * (state.y - self.c) ** 2))
+
+    def stiffness_bound(self):
+        return self.k
+
+
+def test_thermostat_group_holds_each_region_where_one_holds_only_the_mean():
+    """Two halves that exchange no heat, one started at 4 T, one at T/4: one Nose-Hoover
+    per half brings each half's time-averaged temperature to T; one on all of them scales
+    both alike and keeps the halves apart."""
+    from upscale.engine.integrators import VelocityVerlet
+    from upscale.engine.simulation import Simulation
+    from upscale.engine.system import ParticleSystem
+    from upscale.engine.thermostats import NoseHoover, ThermostatGroup, kinetic_temperature
+
+    n = 200
+    rng = np.random.default_rng(3)
+    x0 = rng.uniform(0, 10, (n, 3))
+    k = rng.uniform(0.5, 2.0, n)
+    half = np.arange(n) < n // 2
+    out = {}
+    for kind in ("group", "one"):
+        sim = Simulation(ParticleSystem(x0, 1.0, 1.0, spacing=1.0), None, _Springs(x0, k))
+        v = rng.standard_normal((n, 3))
+        v[half] *= 2.0
+        v[~half] *= 0.5
+        sim.state.v[...] = v
+        th = ThermostatGroup([NoseHoover(1.0, 2.0, region=half, k_B=1.0),
+                              NoseHoover(1.0, 2.0, region=~half, k_B=1.0)]) \
+            if kind == "group" else NoseHoover(1.0, 2.0, k_B=1.0)
+        sim.integrator = VelocityVerlet(dt=0.02, thermostat=th)
+        sim.run(2000)
+        t = []
+        for _ in range(400):
+            sim.run(10)
+            t.append([kinetic_temperature(sim, m, k_B=1.0) for m in (half, ~half)])
+        out[kind] = np.mean(t, axis=0)
+    assert np.all(np.abs(out["group"] - 1.0) < 0.1)
+    assert out["one"][0] > 3.0 * out["one"][1]  # (measured: 1.87 and 0.47)

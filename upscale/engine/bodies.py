@@ -73,6 +73,7 @@ class BodyModel:
         self.force_kind = model.force_kind
         self.needs = replace(model.needs, pairs=False, triplets=False, quadruplets=False)
         self._prefix = f"{body.name}/"
+        self._view = None  # (signature, State): the last view, see :meth:`sub`
 
     # the engine's calls --------------------------------------------------------------
     def prepare(self, system, family=None, **kw) -> None:
@@ -89,14 +90,39 @@ class BodyModel:
         self.model.prepare(b.system, b.family, triplets=trip, quadruplets=quad)
 
     def sub(self, state: State) -> State:
-        """The body's view of ``state`` (rows and bonds are views: writes go through)."""
+        """The body's view of ``state`` (rows and bonds are views: writes go through).
+
+        The view is kept while ``state`` holds the same arrays (same objects, no key
+        added or removed): then only its time and step are renewed. (Rebuilding the
+        dictionaries of a state with many bodies' extras on every call of every model
+        was a measurable part of a step.)"""
+        sig = self._signature(state)
+        v = self._view
+        if v is not None and v[0] == sig:
+            s = v[1]
+            s.t, s.step = state.t, state.step
+            return s
         r, k = self.rows, self.bonds
         p = self._prefix
         extra = _ExtraView({key[len(p):]: v for key, v in state.extra.items() if key.startswith(p)})
         fields = {key[len(p):]: v[r] for key, v in state.fields.items() if key.startswith(p)}
         field_v = {key[len(p):]: v[r] for key, v in state.field_v.items() if key.startswith(p)}
-        return State(self.body.system.x0, state.y[r], state.v[r], state.intact[k], state.t,
-                     state.step, extra, fields, field_v)
+        s = State(self.body.system.x0, state.y[r], state.v[r], state.intact[k], state.t,
+                  state.step, extra, fields, field_v)
+        self._own = tuple((d, key) for d in ("extra", "fields", "field_v")
+                          for key in getattr(state, d) if key.startswith(p))
+        # (the objects themselves kept too: their ids cannot be reused while cached)
+        self._view = (self._signature(state), s, state,
+                      tuple(getattr(state, d).get(key) for d, key in self._own))
+        return s
+
+    def _signature(self, state) -> tuple:
+        """What :meth:`sub`'s view is made of: the state, its arrays' identities and the
+        number of keys of its dictionaries."""
+        own = getattr(self, "_own", ())
+        return (id(state), id(state.y), id(state.v), id(state.intact), len(state.extra),
+                len(state.fields), len(state.field_v),
+                tuple(id(getattr(state, d).get(key)) for d, key in own))
 
     def init_state(self, state) -> None:
         s = self.sub(state)
@@ -122,7 +148,7 @@ class BodyModel:
             inertia = np.ones(self._n)
             inertia[self.rows] = np.broadcast_to(np.asarray(spec.inertia, dtype=np.float64),
                                                  (self.body.system.n,))
-            out[self._prefix + name] = FieldSpec(spec.ncomp, inertia, spec.unit)
+            out[self._prefix + name] = FieldSpec(spec.ncomp, inertia, spec.unit, self.rows)
         return out
 
     def add_field_force(self, state, out) -> None:

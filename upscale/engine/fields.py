@@ -57,11 +57,21 @@ class FieldSpec:
         Inertia density (field acceleration = generalised force density / inertia).
     unit : str
         Unit of the field (for result files).
+    rows : slice, optional
+        The rows that carry the field (e.g. one body's of an assembly,
+        :mod:`upscale.engine.bodies`); on the other rows it has no force and stays at
+        rest, so the integrators and thermostats pass over ``rows`` only. None: every row.
     """
 
     ncomp: int
     inertia: object
     unit: str = "rad"
+    rows: object = None
+
+    @property
+    def span(self) -> slice:
+        """``rows``, or every row (``slice(None)``)."""
+        return slice(None) if self.rows is None else self.rows
 
 
 def collect_fields(models, n: int) -> dict:
@@ -82,7 +92,8 @@ def collect_fields(models, n: int) -> dict:
                     raise ValueError(f"field {name!r} declared twice with different "
                                      f"components or inertia")
                 continue
-            out[name] = FieldSpec(int(spec.ncomp), inertia, spec.unit)
+            out[name] = FieldSpec(int(spec.ncomp), inertia, spec.unit,
+                                  getattr(spec, "rows", None))
     return out
 
 
@@ -186,16 +197,20 @@ def field_constrained(n: int, specs: dict, conditions) -> dict:
 
 # --------------------------------------------------------------------------- forces
 def add_field_forces(sim, st, G: dict) -> None:
-    """Add every model's generalised force densities times volume (per particle) to G."""
+    """Add every model's generalised force densities times volume (per particle) to G
+    (a per-particle model adds into G directly: its contract is to add)."""
     vol = sim.system.volume[:, None]
     for m in sim.models:
         fn = getattr(m, "add_field_force", None)
         if fn is None:
             continue
+        if m.force_kind != "density":
+            fn(st, G)
+            continue
         tmp = {k: np.zeros_like(v) for k, v in G.items()}
         fn(st, tmp)
         for k, v in tmp.items():
-            G[k] += v * vol if m.force_kind == "density" else v
+            G[k] += v * vol
 
 
 def field_stiffness_over_inertia(system, models, specs: dict) -> np.ndarray | None:

@@ -157,7 +157,8 @@ class VelocityVerlet:
         drift(st.y, st.v, dt)
         if fields:
             for k in fields:
-                st.fields[k] += dt * st.field_v[k]
+                r = fields[k].span  # the rows that carry the field
+                st.fields[k][r] += dt * st.field_v[k][r]
         st.t += dt
         st.step += 1
         sim.apply_displacement(st.t, dt)
@@ -175,7 +176,8 @@ def _kick_fields(sim, h: float) -> None:
     """Field rates += h G / inertia (generalised degrees of freedom)."""
     st = sim.state
     for k, inv in sim.field_inv_inertia.items():
-        st.field_v[k] += h * sim.G[k] * inv[:, None]
+        r = sim.field_specs[k].span  # the rows that carry the field
+        st.field_v[k][r] += h * sim.G[k][r] * inv[r, None]
 
 
 class AdaptiveDynamicRelaxation:

@@ -206,7 +206,8 @@ class RESPA:
         st = sim.state
         kick(st.v, self._F[group], sim.inv_mass_n, h)
         for k, inv in sim.field_inv_inertia.items():
-            st.field_v[k] += h * self._G[group][k] * inv[:, None]
+            r = sim.field_specs[k].span  # the rows that carry the field
+            st.field_v[k][r] += h * self._G[group][k][r] * inv[r, None]
 
     def step(self, sim) -> int:
         """Advance ``sim.state`` by one outer step; returns the number of bonds broken."""
@@ -226,7 +227,7 @@ class RESPA:
             sim.apply_velocity(st.t + 0.5 * h)
             drift(st.y, st.v, h)
             for f in fields:
-                st.fields[f] += h * st.field_v[f]
+                st.fields[f][fields[f].span] += h * st.field_v[f][fields[f].span]
             st.t = t0 + (k + 1) * h
             sim.apply_displacement(st.t, h)
             self._group_forces(sim, "fast")

@@ -39,6 +39,11 @@ matching time unit, in which ``m v^2`` is an energy).
     ``fix nvt`` with ``compute temp/partial 1 1 0`` (the temperature of x, y only: an
     axial stretching flow is not heat), in the single-variable form. ``ndf`` overrides
     the number of degrees of freedom in eq. (1) (as LAMMPS's ``compute_modify extra/dof``).
+:class:`ThermostatGroup`
+    Several thermostats on disjoint regions, each with its own variable (e.g. one per body
+    of an assembly: bodies of different models, whose heat capacities and heating differ,
+    each held at the temperature, where one thermostat on all of them would hold only
+    their mean).
 """
 from __future__ import annotations
 
@@ -46,7 +51,8 @@ import json
 
 import numpy as np
 
-__all__ = ["Langevin", "NoseHooverChain", "NoseHoover", "kinetic_temperature"]
+__all__ = ["Langevin", "NoseHooverChain", "NoseHoover", "ThermostatGroup",
+           "kinetic_temperature"]
 
 
 def _region_dofs(sim, region):
@@ -67,6 +73,14 @@ def _region_dofs(sim, region):
     if not dof.any():
         raise ValueError("thermostat region has no free degree of freedom")
     return dof
+
+
+def _rows(idx, span: slice, n: int):
+    """The rows ``idx`` (sorted int array) within ``span``, as a slice if contiguous."""
+    idx = idx[(idx >= (span.start or 0)) & (idx < (n if span.stop is None else span.stop))]
+    if idx.size and int(idx[-1]) - int(idx[0]) + 1 == idx.size:
+        return slice(int(idx[0]), int(idx[-1]) + 1)
+    return idx
 
 
 def kinetic_temperature(sim, region=None, k_B: float | None = None) -> float:
@@ -291,21 +305,23 @@ class NoseHoover:
         if missing:
             raise ValueError(f"thermostat fields {missing}; valid: the simulation's fields "
                              f"{sorted(specs)}")
-        self.frows = np.flatnonzero(fr)
-        self.finert = {f: (specs[f].inertia * sim.system.volume)[self.frows, None]
+        # per field: the rows of field_region that carry it (FieldSpec.rows; elsewhere a
+        # field is at rest), as a slice where they are contiguous (one body's rows)
+        self.frows = {f: _rows(np.flatnonzero(fr), specs[f].span, n) for f in self.field_names}
+        self.finert = {f: (specs[f].inertia * sim.system.volume)[self.frows[f], None]
                        for f in self.field_names}
-        nfield = sum(int((~sim.field_constrained[f][self.frows]).sum()) for f in self.field_names)
+        nfield = sum(int((~sim.field_constrained[f][self.frows[f]]).sum())
+                     for f in self.field_names)
         self.nf = int(self._ndf) if self._ndf is not None else int(self.dof.sum()) + nfield
         self.idx = np.flatnonzero(self.dof.ravel())  # the thermostatted translation dofs
         self.m_idx = np.repeat(sim.system.mass, 3)[self.idx]
-        self.frows = slice(None) if self.frows.size == n else self.frows
 
     def temperature(self, sim) -> float:
         """Eq. (1) on the thermostat's dofs (K)."""
         vi = sim.state.v.reshape(-1)[self.idx]
         K2 = float(np.dot(self.m_idx * vi, vi))
         for f in self.field_names:
-            fv = sim.state.field_v[f][self.frows]
+            fv = sim.state.field_v[f][self.frows[f]]
             K2 += float(np.sum(self.finert[f] * fv * fv))
         return K2 / (self.nf * self.k_B)
 
@@ -318,7 +334,7 @@ class NoseHoover:
             raise ValueError("the state's velocities must be one contiguous array")
         v[self.idx] *= s
         for f in self.field_names:
-            sim.state.field_v[f][self.frows] *= s
+            sim.state.field_v[f][self.frows[f]] *= s
 
     def begin(self, sim, dt) -> None:
         self._half(sim, dt)
@@ -336,3 +352,46 @@ class NoseHoover:
     def describe(self) -> dict:
         return {"thermostat": self.name, "temperature_K": self.T, "tau": self.tau,
                 "components": self.components.tolist(), "fields": list(self.field_names)}
+
+
+class ThermostatGroup:
+    """Thermostats on disjoint regions acting together (module docstring): each one's
+    half steps in turn, in the given order.
+
+    Parameters
+    ----------
+    thermostats : sequence
+        :class:`NoseHoover`, :class:`NoseHooverChain` or :class:`Langevin`, on regions
+        (and fields) that do not overlap.
+    """
+
+    name = "group"
+
+    def __init__(self, thermostats):
+        self.members = list(thermostats)
+        if not self.members:
+            raise ValueError("ThermostatGroup needs at least one thermostat")
+
+    def prepare(self, sim) -> None:
+        for t in self.members:
+            t.prepare(sim)
+
+    def begin(self, sim, dt) -> None:
+        for t in self.members:
+            t.begin(sim, dt)
+
+    def end(self, sim, dt) -> None:
+        for t in self.members:
+            t.end(sim, dt)
+
+    def checkpoint_arrays(self) -> dict:
+        return {f"{k}_{key}": v for k, t in enumerate(self.members)
+                for key, v in t.checkpoint_arrays().items()}
+
+    def restore_arrays(self, d: dict) -> None:
+        for k, t in enumerate(self.members):
+            p = f"{k}_"
+            t.restore_arrays({key[len(p):]: v for key, v in d.items() if key.startswith(p)})
+
+    def describe(self) -> dict:
+        return {"thermostat": self.name, "members": [t.describe() for t in self.members]}

@@ -28,9 +28,14 @@ Dynamic tension (the LAMMPS references' protocol, ``validation.lammps.tension``)
    atoms, moved rigidly apart at ``speed`` Å/ps each (default 1); the free part starts on
    the linear axial velocity ramp between the grip speeds plus Gaussian thermal velocities
    at ``temperature`` (default 10 K; the x, y temperature set to it exactly, zero total
-   momentum), under a Nose-Hoover thermostat on the free part's x and y velocities
-   (damping 0.1 ps: LAMMPS ``fix nvt`` with ``compute temp/partial 1 1 0``); velocity
-   Verlet, 1 fs;
+   momentum), under a Nose-Hoover thermostat on the free part's x and y velocities and
+   the coarse tubes' shifts (damping 0.1 ps: LAMMPS ``fix nvt`` with ``compute
+   temp/partial 1 1 0``), or one per tube (``thermostat="per-tube"``). LAMMPS's single
+   thermostat holds each tube at the temperature because its tubes are alike; the tubes
+   of a mixed bundle are not (a coarse tube's x, y motion carries a breathing
+   oscillation, its shifts take up heat), so one thermostat holds only their mean and
+   the atomistic tube runs colder than the others; velocity Verlet at 1 fs, or multiple
+   time stepping (r-RESPA, ``integrator="respa"``);
 3. strain = grip separation change / initial gauge (the grip planes' distance); the stress
    of tube k is the mean of its two grips' reactions over its wall area 2 pi R t (t = 3.4 Å,
    R the mean radius of the central tube after the minimisation), the bundle stress the
@@ -416,7 +421,9 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
                     max_strain: float = 0.40, seed: int = 4928459, sample_every: int = 100,
                     ftol: float = 1e-2, progress: bool = True, max_steps: int = 200000,
                     snapshot_every: int = 500, integrator: str = "verlet",
-                    inner: int = 5) -> dict:
+                    inner: int = 5, record_readings: bool = False,
+                    thermostat: str = "bundle",
+                    per_tube_damping_ps: float | None = None) -> dict:
     """The references' dynamic tension of ``scene`` (module docstring). Returns the result
     dict: ``curve`` (strain, stress_GPa, stress_per_tube_GPa, time_ps), metrics, per-tube
     failure strains and order, damage per tube, timings.
@@ -427,7 +434,13 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
     regions are fast, :meth:`~upscale.models.dcbr_engine.DCBRDefectTubeModel.prepare_split`,
     renewed every sample) and the inter-tube van der Waals; fast the atomistic tubes
     (Tersoff) at ``dt_fs``. ``inner`` must divide 10 (the grips are read every 10 fs
-    steps) and the scene's vdW must not be held between steps (``vdw_every=1``)."""
+    steps) and the scene's vdW must not be held between steps (``vdw_every=1``).
+    ``thermostat``: ``"bundle"`` (default; one Nose-Hoover on every tube's free part, the
+    references' ``fix nvt`` on all free atoms) or ``"per-tube"`` (one per tube, each on
+    its own free rows and shifts, damping ``per_tube_damping_ps``, default
+    ``tdamp_ps * sqrt(ntubes)``: each tube's own heat then drives its thermostat as
+    strongly as a tube's heat drives the one thermostat of ``ntubes`` like tubes). ``record_readings``: keep every grip reading (``curve["readings"]``: time in fs and
+    each tube's tension in eV/Å, every 10 fs) besides the sample means."""
     from tqdm.auto import tqdm
 
     from upscale.analysis.stress import curve_metrics, stress_from_force
@@ -435,6 +448,8 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
     from upscale.engine.integrators import VelocityVerlet
     from upscale.engine.minimisers import LBFGS
 
+    if thermostat not in ("bundle", "per-tube"):
+        raise ValueError(f"thermostat={thermostat!r}; valid: 'bundle' or 'per-tube'")
     if integrator not in ("verlet", "respa"):
         raise ValueError(f"integrator={integrator!r}; valid: 'verlet' or 'respa'")
     per = 1
@@ -543,6 +558,7 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
     conds = [g for pair in grips for g in pair]
     conds += scene.extra_conditions()
     thermo = None
+    tau_tube = tdamp_ps
     if temperature > 0:
         from upscale.engine.thermostats import NoseHoover
 
@@ -552,9 +568,30 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
         frows = np.zeros(n, bool)
         for k in coarse_of:
             frows[tubes[k]] = True
-        thermo = NoseHoover(temperature, 1e3 * tdamp_ps, region=free, components=(0, 1),
-                            fields=tuple(fields), field_region=frows if fields else None,
-                            ndf=ndf, k_B=K_B_EV)
+        if thermostat == "bundle":
+            thermo = NoseHoover(temperature, 1e3 * tdamp_ps, region=free, components=(0, 1),
+                                fields=tuple(fields), field_region=frows if fields else None,
+                                ndf=ndf, k_B=K_B_EV)
+        else:  # one per tube, each on its own free rows (and shifts)
+            from upscale.engine.thermostats import ThermostatGroup
+
+            members = []
+            tau_tube = tdamp_ps * math.sqrt(len(tubes)) if per_tube_damping_ps is None \
+                else float(per_tube_damping_ps)
+            for k, rows in enumerate(tubes):
+                mk = np.zeros(n, bool)
+                mk[rows] = True
+                nk = 2 * int((moving & mk).sum())
+                fk = ()
+                if k in coarse_of:
+                    em = coarse_of[k][0].model
+                    nk += 3 * (em.N - len(em.tube.slave_idx))
+                    fk = (f"{scene.bodies[k].name}/{_FIELD}",)
+                members.append(NoseHoover(temperature, 1e3 * tau_tube, region=free & mk,
+                                          components=(0, 1), fields=fk,
+                                          field_region=mk if fk else None, ndf=nk,
+                                          k_B=K_B_EV))
+            thermo = ThermostatGroup(members)
     if integrator == "respa":
         from upscale.engine.respa import RESPA
 
@@ -576,8 +613,34 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
             atoms_v = sim.state.v[r0 + em.N:r0 + em.N + em.nf]
             sim.state.v[r0 + em.tube.slave_idx] = em.tube.Phi @ atoms_v
     R = _central_radius(scene, y)
+    # per-tube kinetic temperature of the x, y motion of the moving rows (eq. (1) of
+    # upscale.engine.thermostats) and of the coarse tubes' free shifts, for the record
+    t_rows = [np.flatnonzero(moving[r]) + r.start for r in tubes]
+    t_mass = [mass[i, None] for i in t_rows]
+    t_shift = {}
+    for k, (bm, st) in coarse_of.items():
+        em = bm.model
+        keep = np.ones(em.N, bool)
+        keep[em.tube.slave_idx] = False
+        idx = np.flatnonzero(keep)
+        t_shift[k] = (f"{scene.bodies[k].name}/{_FIELD}", tubes[k].start + idx,
+                      em.fields()[_FIELD].inertia[idx, None])
+
+    def tube_temperatures():
+        out = []
+        for k in range(len(tubes)):
+            vv = sim.state.v[t_rows[k], :2]
+            txy = float(np.sum(t_mass[k] * vv * vv)) / (2 * max(len(t_rows[k]), 1) * K_B_EV)
+            tsh = None
+            if k in t_shift:
+                f, i, inert = t_shift[k]
+                fv = sim.state.field_v[f][i]
+                tsh = float(np.sum(inert * fv * fv)) / (3 * len(i) * K_B_EV)
+            out.append((txy, tsh))
+        return out
+
     # 3. the pull
-    strains, stresses, per_tube, times = [], [], [], []
+    strains, stresses, per_tube, times, temps, readings = [], [], [], [], [], []
     smax, failed = -np.inf, False
     bar = tqdm(disable=not progress, unit="sample", desc="bundle tension", mininterval=1.0)
     t_dyn0 = time.perf_counter()
@@ -588,12 +651,17 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
     try:
         while True:
             acc = np.zeros(len(tubes))
+            tacc = np.zeros((len(tubes), 2))
             for _ in range(nread):
                 sim.run(10 // per)
                 for k, (gb, gt) in enumerate(grips):
                     # force on the bottom grip's atoms from the tube: -reaction; tension =
                     # mean of the bottom one's +z and the top one's -z
                     acc[k] += 0.5 * (-gb.reaction_now[2] + gt.reaction_now[2])
+                tacc += np.nan_to_num(np.array(tube_temperatures(), dtype=float))
+                if record_readings:
+                    readings.append([sim.state.t] + [
+                        0.5 * (-gb.reaction_now[2] + gt.reaction_now[2]) for gb, gt in grips])
             step += sample_every
             Fk = acc / nread
             if coarse:
@@ -617,6 +685,7 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
             stresses.append(s)
             per_tube.append(sk)
             times.append(tmid)
+            temps.append((tacc / nread).tolist())
             smax = max(smax, s)
             bar.update(1)
             bar.set_postfix_str(f"strain {100 * eps:.1f}%  stress {s:.1f} GPa")
@@ -635,7 +704,10 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
                                "integrator": integ.name,
                                "outer_step_fs": dt_fs * per,
                                "thermostat": f"Nose-Hoover on the free part's vx, vy, damping "
-                                             f"{tdamp_ps} ps", "seed": seed,
+                                             f"{tdamp_ps} ps"
+                                             + (f", one per tube (damping {tau_tube:.4g} ps)"
+                                                if thermostat == "per-tube" else ""),
+                               "seed": seed,
                                "gauge_length_A": sep0, "sample_every_steps": sample_every,
                                "minimisation": None if res_min is None else {
                                    "converged": bool(res_min.converged),
@@ -645,7 +717,10 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
            "stress_convention": {"wall_thickness_A": WALL_THICKNESS_A, "radius_A": R,
                                  "area": "per tube 2 pi R t; bundle: mean over the tubes"},
            "curve": {"strain": strains, "stress_GPa": stresses,
-                     "stress_per_tube_GPa": per_tube, "time_ps": times}}
+                     "stress_per_tube_GPa": per_tube, "time_ps": times,
+                     "temperature_per_tube_K": temps}}
+    if record_readings:  # every reading: (time fs, per-tube tension eV/Å)
+        res["curve"]["readings"] = readings
     res.update(curve_metrics(strains, stresses))
     res.update(tube_failures(strains, per_tube))
     res["damage"] = tube_damage(scene, sim, y)
@@ -796,6 +871,18 @@ def register(subparsers):
     p.add_argument("--no-vacancy", action="store_true", help="no vacancy in the central tube")
     p.add_argument("--seed", type=int, default=4928459, help="thermal velocity seed")
     p.add_argument("--max-strain", type=float, default=0.40)
+    p.add_argument("--integrator", choices=("verlet", "respa"), default="verlet",
+                   help="velocity Verlet at 1 fs (default) or multiple time stepping (the "
+                   "coarse tubes' lattice and the vdW at an outer step of --inner fs)")
+    p.add_argument("--inner", type=int, default=5,
+                   help="1 fs inner steps per outer step with respa: 1, 2, 5, 10 (default 5)")
+    p.add_argument("--thermostat", choices=("bundle", "per-tube"), default="bundle",
+                   help="one Nose-Hoover on all tubes (default) or one per tube")
+    p.add_argument("--coarse-pairs", choices=("atoms", "sites"), default="atoms",
+                   help="two coarse tubes interact through reconstructed atoms (default) or "
+                   "through their particles as lumped sites")
+    p.add_argument("--vdw-every", type=int, default=1,
+                   help="vdW forces recomputed every N steps (velocity Verlet only; default 1)")
     p.add_argument("--compare", choices=["lammps"], default=None,
                    help="overlay the stored LAMMPS reference (data/reference/)")
     p.add_argument("--outdir", type=Path, default=Path("out/bundle"))
@@ -826,8 +913,11 @@ def run(args) -> int:
     specs = parse_specs(args.tubes, args.ntubes, args.coarsening)
     scene = BundleScene.create((n, m), args.length, specs, spacing=args.spacing, gap=args.gap,
                                vacancy_tube=None if args.no_vacancy else 0,
-                               allow_overlap=args.allow_overlap)
-    res = dynamic_tension(scene, seed=args.seed, max_strain=args.max_strain)
+                               allow_overlap=args.allow_overlap, vdw_every=args.vdw_every,
+                               coarse_pairs=args.coarse_pairs)
+    res = dynamic_tension(scene, seed=args.seed, max_strain=args.max_strain,
+                          integrator=args.integrator, inner=args.inner,
+                          thermostat=args.thermostat)
     out = Path(args.outdir)
     tag = f"{n}_{m}_{'-'.join(s.model + (f'{s.coarsening:g}' if s.model != 'tersoff' else '') for s in specs)}"
     lam = None

@@ -141,10 +141,16 @@ class CoarseTubeMap:
         return x
 
     def pull_back(self, state, f, out, field_out=None) -> None:
+        """Adds the atoms' forces ``f`` pulled back to the tube's rows of ``out`` and, on
+        ``field_out[field]`` = (rows, (n, 3) forces on the tube's shifts), to its field."""
         F, G = self.bm.model.atom_forces(self.bm.sub(state), f)
         out[self.rows] += F
         if field_out is not None and self.field is not None:
-            field_out.setdefault(self.field, np.zeros_like(state.y))[self.rows] += G
+            cur = field_out.get(self.field)
+            if cur is None:
+                field_out[self.field] = (self.rows, np.array(G, dtype=float))
+            else:
+                cur[1][...] += G
 
 
 class TubeVdW(Model):
@@ -324,6 +330,16 @@ class TubeVdW(Model):
     def generalised_forces(self, state):
         """(forces on the particles (N, 3), {field: forces (N, 3)}): the atoms' forces
         pulled back by every map; kept while the atoms do not move."""
+        F, G = self._generalised(state)
+        full = {}
+        for k, (r, v) in G.items():
+            full[k] = np.zeros_like(state.y)
+            full[k][r] = v
+        return F, full
+
+    def _generalised(self, state):
+        """As :meth:`generalised_forces`, the field forces as {field: (rows, (n, 3))} on
+        the rows of the tube that carries the field."""
         g = getattr(self, "_gcache", None)
         step = int(getattr(state, "step", 0))
         if g is not None and self.every > 1 and 0 <= step - g[3] < self.every:
@@ -342,13 +358,13 @@ class TubeVdW(Model):
         return F, G
 
     def add_force(self, state, out) -> None:
-        out += self.generalised_forces(state)[0]
+        out += self._generalised(state)[0]
 
     def add_field_force(self, state, out) -> None:
         """Adds the coarse tubes' shift-field forces (the map's chain rule) to ``out``."""
-        for k, v in self.generalised_forces(state)[1].items():
+        for k, (r, v) in self._generalised(state)[1].items():
             if k in out:
-                out[k] += v
+                out[k][r] += v
 
     def energy(self, state) -> float:
         return float(self.evaluate(state)[0])

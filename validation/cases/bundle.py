@@ -187,6 +187,9 @@ def _args_tension(p):
     p.add_argument("--integrator", choices=("verlet", "respa"), default="verlet",
                    help="velocity Verlet at 1 fs (default), or multiple time stepping: the "
                    "coarse tubes' lattice and the vdW at an outer step of --inner fs")
+    p.add_argument("--thermostat", choices=("bundle", "per-tube"), default="bundle",
+                   help="one Nose-Hoover on all tubes' free parts (default), or one per tube "
+                   "(each tube held at the temperature)")
     p.add_argument("--inner", type=int, default=5,
                    help="inner (1 fs) steps per outer step with --integrator respa: 1, 2, 5 "
                    "or 10 (default 5)")
@@ -273,7 +276,8 @@ def run_bundle_tension(args):
         try:
             runs.append(dynamic_tension(scene, seed=seed, progress=not args.quick,
                                         max_strain=args.max_strain,
-                                        integrator=args.integrator, inner=args.inner))
+                                        integrator=args.integrator, inner=args.inner,
+                                        thermostat=args.thermostat))
         except ValueError as exc:
             raise SystemExit(f"bundle-tension: {exc}") from None
     wall = (time.perf_counter() - t0) / args.seeds
@@ -299,7 +303,7 @@ def run_bundle_tension(args):
                 "wall_s": wall, "lammps_wall_s": _mean(refs, "wall_s"),
                 "cpu_s": _mean(runs, "cpu_s"), "lammps_cpu_s": _mean(refs, "cpu_s"),
                 "vdw_every": args.vdw_every, "coarse_pairs": args.coarse_pairs,
-                "integrator": args.integrator,
+                "integrator": args.integrator, "thermostat": args.thermostat,
                 "inner": args.inner if args.integrator == "respa" else 1,
                 "failure_order": [r["failure_order"] for r in runs],
                 "tube_failure_strain": [r["tube_failure_strain"] for r in runs],

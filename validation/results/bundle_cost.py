@@ -9,7 +9,7 @@ per outer step, the vdW in the slow group). Figures in
 validation/out/bundle_cost_<N>-<M>.json.
 
     python validation/results/bundle_cost.py [--chirality 10,10] [--coarsening 2,4]
-        [--integrators verlet,respa] [--inner 5]
+        [--integrators verlet,respa] [--inner 5] [--thermostat per-tube]
 """
 import argparse
 import json
@@ -26,6 +26,7 @@ p.add_argument("--coarsening", default="2,4")
 p.add_argument("--max-strain", type=float, default=0.16)
 p.add_argument("--integrators", default="verlet")
 p.add_argument("--inner", type=int, default=5)
+p.add_argument("--thermostat", default="bundle", choices=("bundle", "per-tube"))
 a = p.parse_args()
 n, m = (int(v) for v in a.chirality.split(","))
 out = {"chirality": [n, m], "load_start": list(os.getloadavg()), "runs": []}
@@ -46,8 +47,9 @@ for K, integ in runs:
     scene = BundleScene.create((n, m), 150.0, parse_specs(None, 7, K),
                                vdw_every=1 if integ == "respa" else 4, coarse_pairs="sites")
     r = dynamic_tension(scene, max_strain=strain_end, progress=False, integrator=integ,
-                        inner=a.inner)
-    row = {"run": f"engine K={K:g} {integ}" + (f" {a.inner}x1 fs" if integ == "respa" else ""),
+                        inner=a.inner, thermostat=a.thermostat)
+    row = {"run": f"engine K={K:g} {integ}" + (f" {a.inner}x1 fs" if integ == "respa" else "")
+           + f", thermostat {a.thermostat}",
            "wall_s": time.perf_counter() - t0,
            "cpu_s": time.process_time() - c0, "steps": r["timing_s"]["steps"],
            "timing_s": r["timing_s"], "final_strain": r["curve"]["strain"][-1],

@@ -4,7 +4,7 @@
 by own time and the per-part totals (atomistic centre, coarse tubes, vdW, integrator).
 
     python validation/results/bundle_profile.py [--chirality 10,10] [--coarsening 2]
-        [--vdw-every 4] [--coarse-pairs sites] [--steps 500]
+        [--vdw-every 4] [--coarse-pairs sites] [--steps 500] [--integrator respa --inner 5]
 """
 import argparse
 import cProfile
@@ -22,6 +22,8 @@ p.add_argument("--coarsening", type=float, default=2.0)
 p.add_argument("--vdw-every", type=int, default=4)
 p.add_argument("--coarse-pairs", default="sites")
 p.add_argument("--steps", type=int, default=500)
+p.add_argument("--integrator", default="verlet", choices=("verlet", "respa"))
+p.add_argument("--inner", type=int, default=5)
 p.add_argument("--out", default="validation/out/bundle_profile.json")
 a = p.parse_args()
 n, m = (int(v) for v in a.chirality.split(","))
@@ -31,13 +33,14 @@ scene = BundleScene.create((n, m), 150.0, specs, vdw_every=a.vdw_every,
                            coarse_pairs=a.coarse_pairs)
 t_scene = time.perf_counter() - t0
 # a short run first: the numba kernels compiled/loaded outside the profile
-dynamic_tension(scene, max_steps=300, progress=False)
+dynamic_tension(scene, max_steps=300, progress=False, integrator=a.integrator, inner=a.inner)
 scene = BundleScene.create((n, m), 150.0, specs, vdw_every=a.vdw_every,
                            coarse_pairs=a.coarse_pairs, ratios=scene.info["ratios"])
 pr = cProfile.Profile()
 c0 = time.process_time()
 pr.enable()
-res = dynamic_tension(scene, max_steps=a.steps, progress=False)
+res = dynamic_tension(scene, max_steps=a.steps, progress=False, integrator=a.integrator,
+                      inner=a.inner)
 pr.disable()
 cpu = time.process_time() - c0
 s = io.StringIO()
@@ -61,7 +64,10 @@ PARTS = (("coarse tubes: own forces", "dcbr_engine.py", "_evaluate"),
          ("body views (engine)", "bodies.py", "sub"),
          ("conditions apply (grips, ties)", "conditions.py", "apply"),
          ("minimisation (whole)", "simulation.py", "minimise"),
-         ("MD steps (whole)", "integrators.py", "step"))
+         ("field kicks (r-RESPA)", "respa.py", "_kick"),
+         ("group forces (r-RESPA)", "respa.py", "_group_forces"),
+         ("MD steps (whole)", "integrators.py", "step"),
+         ("MD steps (whole, r-RESPA)", "respa.py", "step"))
 parts = []
 for label, fname, func in PARTS:
     nc = ct = 0.0
@@ -74,6 +80,7 @@ for r in parts:
     print(f"{r['part']:<36s} {r['calls']:>7d} {r['cum_s']:8.2f} s")
 tm = res["timing_s"]
 out = {"chirality": [n, m], "coarsening": a.coarsening, "vdw_every": a.vdw_every,
+       "integrator": a.integrator, "inner": a.inner if a.integrator == "respa" else 1,
        "coarse_pairs": a.coarse_pairs, "steps": tm["steps"], "cpu_s": cpu,
        "minimisation_s": tm["minimisation"], "dynamics_s": tm["dynamics"],
        "dynamics_ms_per_step": 1e3 * tm["dynamics"] / tm["steps"],
