@@ -156,11 +156,11 @@ class RESPA:
                     if density:
                         for k, v in tg.items():
                             G[k] += v * vol
-        if fast:
+        if fast and getattr(sim, "_loads", True):
             F += sim.external_forces()
         R = self._R[group]
         np.multiply(F, sim.constrained, out=R)
-        F[sim.constrained] = 0.0
+        np.copyto(F, 0.0, where=sim.constrained)
         for k, mask in sim.field_constrained.items():
             G[k][mask] = 0.0
 
@@ -206,7 +206,11 @@ class RESPA:
         st = sim.state
         kick(st.v, self._F[group], sim.inv_mass_n, h)
         for k, inv in sim.field_inv_inertia.items():
-            st.field_v[k] += h * self._G[group][k] * inv[:, None]
+            w, g = st.field_v[k], self._G[group][k]
+            if w.shape[1] == 3 and inv.dtype == np.float64:
+                kick(w, g, inv, h)
+            else:
+                w += h * g * inv[:, None]
 
     def step(self, sim) -> int:
         """Advance ``sim.state`` by one outer step; returns the number of bonds broken."""
