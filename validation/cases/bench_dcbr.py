@@ -10,7 +10,8 @@ wall time. Reported, per tube: the parts of each run (relaxation, dynamics, step
 time per MD step, and the ratios (whole run; dynamics per step; dynamics per simulated
 picosecond, ``speedup_per_ps``: LAMMPS at its 1 fs step against the coarse model with
 multiple time stepping, ``--integrator respa``, and its atomistic region shaped about the
-vacancy, ``--region``), plus the strength, modulus and strain at peak of the coarse run
+vacancy, ``--region``, of half-width ``--r-atomistic`` rounded out to whole particle
+cells), plus the strength, modulus and strain at peak of the coarse run
 against the stored reference.
 
 The fair whole run (:func:`fair_whole_run`, key ``speedup_whole_fair``): LAMMPS once more
