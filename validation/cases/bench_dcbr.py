@@ -46,8 +46,8 @@ def _args(p):
                    help="respa: 1 fs steps of the atomistic region per outer step (default 5)")
     p.add_argument("--region", choices=("band", "disc", "ellipse"), default="band",
                    help="the coarse model's atomistic region about the vacancy (default band, "
-                        "the one whose crack path is atomistic; ellipse: --r-atomistic along the axis, "
-                        "--r-arc around)")
+                        "the one whose crack path is atomistic; ellipse: --r-atomistic along "
+                        "the axis, --r-arc around)")
     p.add_argument("--r-atomistic", type=float, default=5.0,
                    help="half-width of the atomistic band (radius of a disc, axial semi-axis "
                         "of an ellipse) about the vacancy, Å, rounded out to whole particle "
