@@ -66,6 +66,38 @@ def test_split_adds_up_to_the_total(tube):
         m.add_group_force(st, np.zeros_like(st.y), "medium")
 
 
+def test_slow_group_without_the_atoms(tube):
+    """fast_interface + fast_ghost: the split still adds up to the total, and the slow group
+    exerts no force at all on the atoms (the interface particles' lattice energy and
+    hourglass links and the ghost-force dead load are fast), with and without the
+    transfer; the default split does act on them (through the slaves and the dead load)."""
+    m0 = _perturbed_model(tube, 5)
+    m = DCBRDefectTubeModel(tube, y=m0.y0, delta=m0.delta0, Lz=m0.Lz, fast_interface=True,
+                            fast_ghost=True)
+    assert len(m._interface()[0]) > 0
+    sims = [Simulation(k.system(), None, k, k.conditions(), VelocityVerlet(1.0, force=True))
+            for k in (m0, m)]
+    s0 = _split(m0, sims[0].state)
+    assert np.abs(s0["slow"][0][m0.atom_rows]).max() > 1e-3
+    st = sims[1].state
+    for transfer in (False, True):
+        if transfer:
+            m.prepare_split(st)
+            st.y[m.y_rows] += 0.01 * np.random.default_rng(1).standard_normal((len(m.y_rows), 3))
+            st.fields[FIELD][:m.N] -= 0.002
+        F = np.zeros_like(st.y)
+        G = {FIELD: np.zeros_like(st.y)}
+        m.add_force(st, F)
+        m.add_field_force(st, G)
+        s = _split(m, st)
+        scale = max(np.abs(F).max(), 1.0)
+        assert np.abs(s["fast"][0] + s["slow"][0] - F).max() < 1e-12 * scale
+        assert np.abs(s["fast"][1] + s["slow"][1] - G[FIELD]).max() < 1e-12 * scale
+        assert s["fast"][2] + s["slow"][2] == pytest.approx(m.energy(st), abs=1e-9)
+        assert np.abs(s["slow"][0][m.atom_rows]).max() == 0.0
+        assert np.abs(s["slow"][0]).max() > 1e-3 * np.abs(F).max()
+
+
 def test_transfer_takes_the_constant_part_of_the_slow_forces(tube):
     """At the reference of prepare_split the slow group has no force left (its gradient
     and the shift stiffness went to the fast group)."""

@@ -156,11 +156,11 @@ class RESPA:
                     if density:
                         for k, v in tg.items():
                             G[k] += v * vol
-        if fast:
+        if fast and getattr(sim, "_loads", True):
             F += sim.external_forces()
         R = self._R[group]
         np.multiply(F, sim.constrained, out=R)
-        F[sim.constrained] = 0.0
+        np.copyto(F, 0.0, where=sim.constrained)
         for k, mask in sim.field_constrained.items():
             G[k][mask] = 0.0
 
@@ -207,7 +207,11 @@ class RESPA:
         kick(st.v, self._F[group], sim.inv_mass_n, h)
         for k, inv in sim.field_inv_inertia.items():
             r = sim.field_specs[k].span  # the rows that carry the field
-            st.field_v[k][r] += h * self._G[group][k][r] * inv[r, None]
+            w, g, iv = st.field_v[k][r], self._G[group][k][r], inv[r]
+            if w.shape[1] == 3 and iv.dtype == np.float64:
+                kick(w, g, iv, h)
+            else:
+                w += h * g * iv[:, None]
 
     def step(self, sim) -> int:
         """Advance ``sim.state`` by one outer step; returns the number of bonds broken."""

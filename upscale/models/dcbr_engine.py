@@ -78,6 +78,14 @@ class DCBRDefectTubeModel:
         With the link rule, also the lattice-stability rule.
     unit : float
         Masses and inertia are amu / ``unit`` (default: Å/fs^2 per eV/(Å amu)).
+    fast_interface, fast_ghost : bool
+        The force split (:meth:`add_group_force`): with both, the slow group does not
+        depend on the atoms at all. ``fast_interface`` moves the lattice energy and the
+        hourglass links of the interface particles (the coarse particles with a slave in
+        their G stencil, whose maps move with the atoms through the slaves) to the fast
+        group; ``fast_ghost`` the ghost-force dead load (in cylindrical components, so not
+        constant on a vibrating atom). Without them (default) those forces reach the atoms
+        as impulses once per outer step. Both cost their terms at every inner step.
     """
 
     name = "dcbr-defect-tube"
@@ -85,7 +93,8 @@ class DCBRDefectTubeModel:
 
     def __init__(self, tube, *, y=None, delta=None, Lz: float | None = None,
                  failure: bool = False, stability: bool = False,
-                 unit: float = ACC_EV_A_AMU_IN_A_FS2):
+                 unit: float = ACC_EV_A_AMU_IN_A_FS2, fast_interface: bool = False,
+                 fast_ghost: bool = False):
         from upscale.models.base import Needs
         from upscale.models.dcbr_defect import DCBRDefectTube
 
@@ -112,6 +121,9 @@ class DCBRDefectTubeModel:
         self._split_ref = None  # the split's transfer (prepare_split)
         self._split_src = None
         self._sub = None  # the pads' carriers' G (_carriers)
+        self._iface = None  # the interface particles' G (_interface)
+        self.fast_interface = bool(fast_interface)
+        self.fast_ghost = bool(fast_ghost)
         self._version = 0  # bumped when the links or the ghost-force correction change
         self._ghost_version = 0
         self._map = None
@@ -326,6 +338,11 @@ class DCBRDefectTubeModel:
         yp = t.particle_positions(y)
         E, _, P, gd, gys, _ = t._coarse_part(yp, d, self.Lz)
         gyp = gys - t.gain.forces(P)
+        b = self._interface_part(yp, d)
+        if b is not None:  # (fast: :meth:`_fast_eval`)
+            E, gyp, gd = E - b[0], gyp - b[1], gd - b[2]
+        if self.fast_ghost:
+            return float(E), self._fold(y, gyp, None), gd
         return self._ghost_term(y, d, float(E), self._fold(y, gyp, None), gd)
 
     def _slow_eval(self, state):
@@ -414,19 +431,12 @@ class DCBRDefectTubeModel:
             gy[nd:] += t._PhiT @ gyp[t.slave_idx]
         return gy
 
-    def _carriers(self):
-        """The pads' carriers as a G restricted to their rows (the fast group needs the maps
-        of these particles only): (rows (nc,), each pad's carrier in them, the
-        restricted :class:`~upscale.models.gain.GainOperator`); rebuilt with G."""
+    def _restricted_gain(self, rows):
+        """G restricted to the rows ``rows`` (a :class:`~upscale.models.gain.GainOperator`
+        of len(rows) particles whose stencils still index all N particles)."""
         import dataclasses  # noqa: PLC0415
 
-        t = self.tube
-        g = t.gain
-        if self._sub is not None and self._sub[0] is g:
-            return self._sub[1]
-        c = t._pad["c"]
-        rows = np.unique(c)
-        loc = np.ascontiguousarray(np.searchsorted(rows, c), dtype=np.int64)
+        g = self.tube.gain
         cnt = np.diff(g.offsets)[rows]
         offs = np.zeros(len(rows) + 1, np.int64)
         np.cumsum(cnt, out=offs[1:])
@@ -434,12 +444,98 @@ class DCBRDefectTubeModel:
             if len(rows) else np.zeros(0, np.int64)
         sel = {k: (None if getattr(g, k) is None else getattr(g, k)[rows])
                for k in ("F0", "frame", "normal", "n_family", "alive", "offset")}
-        sg = dataclasses.replace(g, offsets=offs, neighbors=g.neighbors[ent],
-                                 image=g.image[ent], coef=g.coef[ent],
-                                 fit_beta=None if g.fit_beta is None else g.fit_beta[ent], **sel)
-        out = (rows, loc, sg)
+        return dataclasses.replace(g, offsets=offs, neighbors=g.neighbors[ent],
+                                   image=g.image[ent], coef=g.coef[ent],
+                                   fit_beta=None if g.fit_beta is None else g.fit_beta[ent],
+                                   **sel)
+
+    def _carriers(self):
+        """The pads' carriers as a G restricted to their rows (the fast group needs the maps
+        of these particles only): (rows (nc,), each pad's carrier in them, the
+        restricted :class:`~upscale.models.gain.GainOperator`); rebuilt with G."""
+        t = self.tube
+        g = t.gain
+        if self._sub is not None and self._sub[0] is g:
+            return self._sub[1]
+        c = t._pad["c"]
+        rows = np.unique(c)
+        loc = np.ascontiguousarray(np.searchsorted(rows, c), dtype=np.int64)
+        out = (rows, loc, self._restricted_gain(rows))
         self._sub = (g, out)
         return out
+
+    def _interface(self):
+        """The interface particles (``fast_interface``): the coarse particles with a slave
+        particle in their G stencil, whose maps (and hourglass links) therefore move with
+        the atoms; (rows (nb,), their hourglass links (a dict of the link arrays)) or None;
+        rebuilt with G and the links."""
+        t = self.tube
+        g = t.gain
+        if not self.fast_interface or not len(t.slave_idx):
+            return None
+        st = getattr(t, "_st", None)
+        key = (g, st, None if st is None else st["w"])
+        if self._iface is not None and all(a is b for a, b in zip(self._iface[0], key)):
+            return self._iface[1]
+        slave = np.zeros(self.N, bool)
+        slave[t.slave_idx] = True
+        owner = np.repeat(np.arange(self.N), np.diff(g.offsets))
+        hit = np.zeros(self.N, bool)
+        np.logical_or.at(hit, owner, slave[g.neighbors])
+        hit = (hit | slave) & (t.natoms_n > 0)  # (a slave with atoms of its own: itself)
+        rows = np.nonzero(hit)[0]
+        links = None
+        if st is not None and t.k_stab != 0.0 and len(st["c"]):
+            keep = hit[st["c"]]
+            links = {k: np.ascontiguousarray(v[keep]) if isinstance(v, np.ndarray)
+                     and len(v) == len(keep) else v for k, v in st.items()}
+        out = (rows, links) if len(rows) else None
+        self._iface = (key, out)
+        return out
+
+    def _interface_part(self, yp, d):
+        """(E_b, dE_b/d(particle positions) (N,3), dE_b/d delta (N,3)) of the interface
+        particles' lattice energy and hourglass links, sum_{c in b} w_c (e(C_c, delta_c)
+        - e0) + W_stab,c, or None (the same kernels and maps as the whole coarse part, on
+        these owners only, so that E_c - E_b + E_b = E_c to round-off)."""
+        from upscale.models import dcbr_coupling_kernels as CK  # noqa: PLC0415
+        from upscale.models import dcbr_kernels as K  # noqa: PLC0415
+
+        it = self._interface()
+        if it is None:
+            return None
+        rows, links = it
+        t, N = self.tube, self.N
+        lat = t.lattice
+        F = t.gain.deformation(yp, np.array([0.0, 0.0, self.Lz]))
+        nb = len(rows)
+        Pb = np.empty((nb, 3, 2))
+        gds = np.empty((nb, 3))
+        e = np.empty(nb)
+        q = np.zeros((nb, 6))
+        E = K.coarse_energy(np.ascontiguousarray(F[rows]), np.ascontiguousarray(t.S[rows]),
+                            np.ascontiguousarray(d[rows]), np.ascontiguousarray(t.natoms_n[rows]),
+                            np.ascontiguousarray(t.alive[rows]), lat.s, lat.z, lat.sub, lat.R0,
+                            lat.iA, lat.iB, lat.candA, lat.candB, t.p, t.e0, Pb, gds, e, q)
+        if not t.relax_shift:
+            gds[:] = 0.0
+        P = np.zeros((N, 3, 2))
+        gys = np.zeros((N, 3))
+        if links is not None:
+            _, par, Q3, _ = t._map_frames(F)
+            gQ3 = np.zeros((N, 3, 3))
+            gpar = np.zeros((N, 3))
+            Es, _ = CK.stab_links(np.ascontiguousarray(yp, dtype=float), float(self.Lz),
+                                  links["c"], links["j"], links["imz"], links["w"], links["ds"],
+                                  links["dz"], links["r0"], links["a"], links["s"], t.k_stab,
+                                  lat.R0, par, Q3, gys, np.zeros(N), gQ3, gpar)
+            CK.frame_adjoint(np.ascontiguousarray(F), t.S, t.gain.alive, par, Q3, gQ3, gpar, P)
+            E += Es
+        P[rows] += Pb
+        gyp = gys - t.gain.forces(P)
+        gd = np.zeros((N, 3))
+        gd[rows] = gds
+        return float(E), gyp, gd
 
     def _fast_eval(self, state):
         """(E_fast, dE_fast/dy, dE_fast/d delta): the rest of the tube's energy, the free
@@ -494,7 +590,12 @@ class DCBRDefectTubeModel:
         gyp[rows] += gys
         gd = np.zeros((N, 3))
         gd[rows] = gds
+        b = self._interface_part(yp, dc)
+        if b is not None:
+            E, gyp, gd = E + b[0], gyp + b[1], gd + b[2]
         gy = self._fold(y, gyp, gx[:nf])
+        if self.fast_ghost:
+            E, gy, gd = self._ghost_term(y, dc, E, gy, gd)
         q = self._transfer(y, dc)
         if q is not None:
             E, gy, gd = E + q[0], gy + q[1], gd + q[2]

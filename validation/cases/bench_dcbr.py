@@ -10,7 +10,8 @@ wall time. Reported, per tube: the parts of each run (relaxation, dynamics, step
 time per MD step, and the ratios (whole run; dynamics per step; dynamics per simulated
 picosecond, ``speedup_per_ps``: LAMMPS at its 1 fs step against the coarse model with
 multiple time stepping, ``--integrator respa``, and its atomistic region shaped about the
-vacancy, ``--region``), plus the strength, modulus and strain at peak of the coarse run
+vacancy, ``--region``, of half-width ``--r-atomistic`` rounded out to whole particle
+cells), plus the strength, modulus and strain at peak of the coarse run
 against the stored reference.
 
 The fair whole run (:func:`fair_whole_run`, key ``speedup_whole_fair``): LAMMPS once more
@@ -45,8 +46,13 @@ def _args(p):
                    help="respa: 1 fs steps of the atomistic region per outer step (default 5)")
     p.add_argument("--region", choices=("band", "disc", "ellipse"), default="band",
                    help="the coarse model's atomistic region about the vacancy (default band, "
-                        "the one whose crack path is atomistic; ellipse: 8 Å along the axis, "
-                        "--r-arc around)")
+                        "the one whose crack path is atomistic; ellipse: --r-atomistic along "
+                        "the axis, --r-arc around)")
+    p.add_argument("--r-atomistic", type=float, default=5.0,
+                   help="half-width of the atomistic band (radius of a disc, axial semi-axis "
+                        "of an ellipse) about the vacancy, Å, rounded out to whole particle "
+                        "cells (default 5: the (50,50) K3 band is the same 1296 atoms as at "
+                        "8 Å, the (30,60) K4 band 746 atoms instead of 2186)")
     p.add_argument("--r-arc", type=float, default=30.0,
                    help="ellipse: circumferential semi-axis, Å (default 30)")
     p.add_argument("--lammps-setup", choices=("both", "fair", "default"), default="both",
@@ -134,8 +140,10 @@ def _bench(args):
         ref = lammps_reference_or_run(n, m, DYN_LENGTH, vacancy=True, protocol="dynamic")
         print(f"({n},{m}) K={K:g}: coarse run (build, set-up relaxation, dynamics)...", flush=True)
         t0, c0 = time.perf_counter(), time.process_time()
-        rkw = {"region": args.region} | ({"r_arc": args.r_arc} if args.region == "ellipse"
-                                         else {})
+        if not args.r_atomistic > 0:
+            raise SystemExit(f"--r-atomistic {args.r_atomistic}; valid: > 0 (Å)")
+        rkw = {"region": args.region, "r_atomistic": args.r_atomistic} | (
+            {"r_arc": args.r_arc} if args.region == "ellipse" else {})
         model, dyn = dynamic_scene(n, m, DYN_LENGTH, K, ref, grips=args.grips, **rkw)
         dyn.pop("grips")
         build = time.perf_counter() - t0
@@ -167,6 +175,7 @@ def _bench(args):
         # with multiple time stepping one outer step of dt_fs)
         row.update({"coarse_integrator": args.integrator, "coarse_dt_fs": rc["dt_fs"],
                     "coarse_inner_steps": rc.get("inner_steps"), "region": args.region,
+                    "r_atomistic_A": args.r_atomistic,
                     "free_atoms": model.nf,
                     "coarse_s_per_ps": rc["dynamics_s"] / (rc["steps"] * rc["dt_fs"] * 1e-3),
                     "lammps_s_per_ps": tl["dynamics"] / (max(tl["steps"], 1) * 1e-3)})

@@ -352,6 +352,11 @@ def _stability_args(p):
                    help="its atomistic region (default ellipse: 8 Å axial, --mts-r-arc around)")
     p.add_argument("--mts-r-arc", type=float, default=12.0,
                    help="the ellipse's circumferential semi-axis, Å (default 12)")
+    p.add_argument("--mts-seed", type=int, default=7,
+                   help="seed of the initial velocities of both NVE runs (default 7)")
+    p.add_argument("--mts-atoms-fast", action="store_true",
+                   help="the split whose slow group does not act on the atoms "
+                        "(DCBRDefectTubeModel fast_interface and fast_ghost)")
     p.add_argument("--no-mts", action="store_true", help="skip the multiple-time-step run")
 
 
@@ -383,16 +388,18 @@ def _mts_nve(args, n, m):
     mass, mass_d = tube.masses()
     out = {"mts_tube": f"({n},{m}) {args.mts_length:g} Å K={args.coarsening:g}, "
                        f"region {args.mts_region}", "mts_free_atoms": tube.nf,
-           "mts_outer_dt_fs": Dt, "mts_inner": inner, "mts_outer_steps": steps}
+           "mts_outer_dt_fs": Dt, "mts_inner": inner, "mts_outer_steps": steps,
+           "mts_seed": args.mts_seed, "mts_atoms_fast": bool(args.mts_atoms_fast)}
     for name, integ, nsteps in (("mts", RESPA(Dt, inner, force=True), steps),
                                 ("vv", VelocityVerlet(Dt / inner, force=True), steps * inner)):
-        rng = np.random.default_rng(7)
+        rng = np.random.default_rng(args.mts_seed)
         v = rng.standard_normal(y.shape) * np.sqrt(K_B_EV * args.temperature * acc / mass)[:, None]
         v -= np.sum(mass[:, None] * v, axis=0) / mass.sum()
         vd = rng.standard_normal(d.shape) * np.sqrt(K_B_EV * args.temperature * acc
                                                     / mass_d)[:, None]
         vd[tube.slave_idx] = 0.0
-        em = DCBRDefectTubeModel(tube, y=y, delta=d, Lz=Lz)
+        em = DCBRDefectTubeModel(tube, y=y, delta=d, Lz=Lz, fast_interface=args.mts_atoms_fast,
+                                 fast_ghost=args.mts_atoms_fast)
         sim = Simulation(em.system(), None, em, em.conditions(), integ)
         st = sim.state
         st.v[em.y_rows] = v
