@@ -47,3 +47,39 @@ def test_step_lands_on_first_failure():
     assert 1.0 <= curve.index_max[first - 1] < 1.005
     assert curve.load[-1] < 0.5 * curve.peak[0]          # the strip failed
     assert (~st.intact).sum() > 0
+
+
+def test_solver_options_give_the_same_fracture_curve():
+    # forward differences, adaptive inner tolerance and amortised refactorisation (the
+    # defaults) against central differences, fixed cg_tol and one factorisation: the same
+    # equilibria to the outer tolerance, so the same bonds break and the same curve
+    import upscale.engine.quasistatic as qs
+
+    curves = []
+    for kw in ({}, dict(difference="central", forcing="fixed", refactor="never")):
+        s, fam, m, fixed, u = _strip(K_Ic=2.13e6, r_s=1e-3)
+        st = State.reference(s.x0, fam.nb)
+        orig = qs.Equilibrium.__init__
+
+        def init(self, *a, _kw=kw, **k):
+            orig(self, *a, **{**k, **_kw})
+
+        qs.Equilibrium.__init__ = init
+        try:
+            curves.append((quasi_static_fracture(m, st, fixed=fixed, u_dir=u, u_max=1e-3, d_lambda=2e-5,
+                                                 stop_fraction=0.5, max_equilibria=60), st.intact.copy()))
+        finally:
+            qs.Equilibrium.__init__ = orig
+    (a, ia), (b, ib) = curves
+    assert (a.broken > 0).sum() >= 3                      # the run does break bonds
+    assert a.load.size == b.load.size and np.array_equal(ia, ib)
+    assert np.allclose(a.load, b.load, rtol=1e-7, atol=1e-9 * np.abs(b.load).max())
+
+
+def test_equilibrium_bad_options():
+    s, fam, m, fixed, u = _strip()
+    import pytest
+
+    for kw in (dict(difference="backward"), dict(forcing="ew3"), dict(refactor="always"), dict(eta_max=1.5)):
+        with pytest.raises(ValueError, match=list(kw)[0]):
+            Equilibrium(m, fixed, **kw)

@@ -50,6 +50,32 @@ class Equilibrium:
     pivots (SuperLU's symmetric mode, ``symmetric_lu``): less fill and no pivot search
     than the column ordering ``permc_spec="COLAMD", symmetric_lu=False``.
 
+    The matrix-free product is by default a forward difference from the residual of the
+    current Newton iterate, K v = (F(y) - F(y + h v)) / h with a perturbation of 1e-8 dx
+    per dof (``difference="forward"``: one residual per CG iteration; the truncation error
+    is of the order of the strain change, 1e-8, the rounding error eps |F| / (K h v) about
+    1e-10, both far below ``cg_tol``; the outer Newton loop converges on the exact
+    residual either way). ``difference="central"`` takes two residuals with 1e-6 dx.
+
+    Refactorisation (``refactor="amortised"``, default): breaking bonds makes the old factor
+    a worse preconditioner, so CG needs more iterations with every round. The factor is
+    renewed before a solve once the CG iterations spent since the last factorisation
+    beyond ``n_fresh`` per Newton step (the count of the first Newton step after that
+    factorisation) would have paid for a new one, i.e. excess x t_iteration >=
+    t_assembly + t_factor, with both times measured at the first factorisation (the
+    ski-rental rule: at most twice the cost of the best refactorisation schedule).
+    ``refactor="never"`` keeps only the in-solve rule (more than ``refactor_after`` CG
+    iterations in one Newton step).
+
+    Inner tolerance (``forcing="adaptive"``, default): the Newton step k solves
+    K du = R_k only to the relative residual eta_k (inexact Newton, Eisenstat and Walker
+    1996, choice 2), eta_0 = ``eta_max``, eta_k = 0.9 (|R_k| / |R_k-1|)^2 clipped to
+    [``cg_tol``, ``eta_max``], and never tighter than 0.5 tol r0 / |R_k| (no oversolving
+    of the last step); a linear solve to ``cg_tol`` is wasted where the nonlinearity
+    limits the step anyway (after bonds break the first Newton step reduces |R| by about
+    1e-3 whatever the inner tolerance). The stopping test |R| <= tol r0 is the same, so the
+    equilibrium is the same to that tolerance. ``forcing="fixed"``: eta_k = ``cg_tol``.
+
     Parameters
     ----------
     model : Model
@@ -60,9 +86,24 @@ class Equilibrium:
 
     def __init__(self, model, fixed, *, tol=1e-9, max_iter=30, cg_tol=1e-6,
                  refactor_after=40, preconditioner="lu", permc_spec="MMD_AT_PLUS_A",
-                 matvec="matrix-free", symmetric_lu=True):
+                 matvec="matrix-free", symmetric_lu=True, difference="forward", refactor="amortised",
+                 forcing="adaptive", eta_max=1e-3):
         if preconditioner not in ("lu", "jacobi"):
             raise ValueError(f"preconditioner={preconditioner!r}; valid: 'lu', 'jacobi'")
+        if difference not in ("forward", "central"):
+            raise ValueError(f"difference={difference!r}; valid: 'forward', 'central'")
+        if refactor not in ("amortised", "never"):
+            raise ValueError(f"refactor={refactor!r}; valid: 'amortised', 'never'")
+        if forcing not in ("adaptive", "fixed"):
+            raise ValueError(f"forcing={forcing!r}; valid: 'adaptive', 'fixed'")
+        if not 0 < eta_max < 1:
+            raise ValueError(f"eta_max={eta_max!r}; valid: 0 < eta_max < 1")
+        self.difference, self.refactor, self.forcing, self.eta_max = difference, refactor, forcing, eta_max
+        self._F_base = None
+        self._excess = 0
+        self._fresh = None
+        self._budget = None
+        self._factor_cost = 0.0
         n = model.system.n
         mask = np.asarray(fixed, dtype=bool).copy()
         mask[:, model.system.dim:] = True
@@ -88,22 +129,27 @@ class Equilibrium:
         self.stats["assemblies"] += 1
 
     def _jv(self, state, v):
-        """Tangent times v on the free dofs by central differences of the residual,
-        K v = (F(y - h v) - F(y + h v)) / 2h (exact for a quadratic energy)."""
+        """Tangent times v on the free dofs by differences of the residual: forward,
+        K v = (F(y) - F(y + h v)) / h from the residual ``_F_base`` of the current iterate,
+        or central, K v = (F(y - h v) - F(y + h v)) / 2h (exact for a quadratic energy)."""
         y = state.y.reshape(-1)
         base = y[self.free].copy()
         nv = float(np.linalg.norm(v))
         if nv == 0:
             return np.zeros_like(v)
-        h = 1e-6 * self.model.system.spacing * np.sqrt(v.size) / nv
+        forward = self.difference == "forward" and self._F_base is not None
+        h = (1e-8 if forward else 1e-6) * self.model.system.spacing * np.sqrt(v.size) / nv
         try:
             y[self.free] = base + h * v
             fp = self.model.residual(state)[self.free]
-            y[self.free] = base - h * v
-            fm = self.model.residual(state)[self.free]
+            if not forward:
+                y[self.free] = base - h * v
+                fm = self.model.residual(state)[self.free]
         finally:
             y[self.free] = base
         self.stats["matvecs"] += 1
+        if forward:
+            return (self._F_base - fp) / h
         return (fm - fp) / (2 * h)
 
     def _factor(self, Kff):
@@ -130,8 +176,18 @@ class Equilibrium:
         if need or (self.matvec == "assembled" and not np.array_equal(self._K_intact, state.intact)):
             self._assemble(state)
         st["assembly_s"] += time.perf_counter() - t
+        if (self.kind == "lu" and self._lu is not None and self.refactor == "amortised"
+                and self._budget is not None and self._excess >= self._budget):
+            t = time.perf_counter()
+            self._assemble(state)
+            st["assembly_s"] += time.perf_counter() - t
+            self._lu = None
         if self.kind == "lu" and self._lu is None:
+            t = time.perf_counter()
             self._factor(self._K)
+            if self._factor_cost == 0.0:
+                self._factor_cost = time.perf_counter() - t + st["assembly_s"]
+            self._excess, self._fresh = 0, None
         if self.matvec == "assembled":
             A = self._K
         else:
@@ -142,15 +198,18 @@ class Equilibrium:
         else:
             M = spla.LinearOperator(A.shape, matvec=lambda v: self._lu.solve(v))
         it = 0
-        r0 = None
+        r0 = r_prev = None
+        self.history = []
         while True:
             t = time.perf_counter()
             F = m.residual(state)
             st["residual_s"] += time.perf_counter() - t
             R = F[free]
+            self._F_base = R
             r = float(np.linalg.norm(R))
             if r0 is None:
                 r0 = max(r, float(np.linalg.norm(F)), 1e-300)
+            self.history.append((it, r / r0))
             if r <= self.tol * r0 or it >= self.max_iter:
                 break
             t = time.perf_counter()
@@ -159,19 +218,34 @@ class Equilibrium:
             def cb(_):
                 count[0] += 1
 
-            du, info = spla.cg(A, R, rtol=self.cg_tol, maxiter=20000, M=M, callback=cb)
-            st["cg_s"] += time.perf_counter() - t
+            eta = self.cg_tol
+            if self.forcing == "adaptive":
+                eta = self.eta_max if r_prev is None else 0.9 * (r / r_prev) ** 2
+                eta = min(max(eta, self.cg_tol), self.eta_max)
+                eta = min(max(eta, 0.5 * self.tol * r0 / r), 0.5)
+            r_prev = r
+            du, info = spla.cg(A, R, rtol=eta, maxiter=20000, M=M, callback=cb)
+            dt = time.perf_counter() - t
+            st["cg_s"] += dt
             st["cg_iterations"] += count[0]
+            if self._fresh is None:
+                self._fresh = count[0]
+            self._excess += max(0, count[0] - self._fresh)
+            if self._budget is None and count[0] > 0 and self._factor_cost > 0:
+                # the factorisation's cost in CG iterations, measured once
+                self._budget = self._factor_cost / (dt / count[0])
             if self.kind == "lu" and count[0] > self.refactor_after:
                 t = time.perf_counter()
                 self._assemble(state)
                 st["assembly_s"] += time.perf_counter() - t
                 self._factor(self._K)
+                self._excess, self._fresh = 0, None
                 if self.matvec == "assembled":
                     A = self._K
             state.y.reshape(-1)[free] += du
             it += 1
             st["outer_iterations"] += 1
+        self._F_base = None
         if it >= self.max_iter and r > self.tol * r0:
             raise RuntimeError(f"no equilibrium after {it} iterations (|R| = {r:.3e} N of {r0:.3e} N)")
         F = m.residual(state).reshape(-1, 3)

@@ -345,7 +345,7 @@ def run_table(args):
 
 # ---------------------------------------------------------------------------- scb-convergence
 def _conv_args(p):
-    p.add_argument("--dxs", default=None, help="comma list of spacings in m (default 2e-3,1e-3)")
+    p.add_argument("--dxs", default=None, help="comma list of spacings in m, coarsest first (default 2e-3,1e-3)")
     p.add_argument("--alphas", default=None, help="comma list of angles (default 0,30,50; quick 0)")
     p.add_argument("--r-s", type=float, required=False, default=None,
                    help="r_s in m at the coarsest spacing (default: calibrate there)")
@@ -353,15 +353,35 @@ def _conv_args(p):
                    help="failure rule (default %(default)s)")
     p.add_argument("--r-s-candidates", default="1e-3,2e-3",
                    help="principal/normal: r_s values (m) scanned at alpha = 0 (default %(default)s)")
+    p.add_argument("--modes", default="fixed m,fixed r_s/dx",
+                   help="comma list: 'fixed m' (r_s held in metres) and/or 'fixed r_s/dx' (default both)")
+    p.add_argument("--ratio-alphas", default=None,
+                   help="angles at which the 'fixed r_s/dx' runs are made (default: all of --alphas)")
+    p.add_argument("--ms", default="",
+                   help="extra horizon / spacing ratios (default 3 only), run with r_s fixed at --m-dx")
+    p.add_argument("--m-dx", type=float, default=None, help="spacing in m of the --ms runs (default the coarsest)")
 
 
-@case("scb-convergence", "SCB: P_c versus spacing, r_s fixed in metres and r_s / dx fixed", _conv_args)
+@case("scb-convergence", "SCB: P_c versus spacing, r_s fixed in metres and r_s / dx fixed, and versus horizon / "
+      "spacing", _conv_args)
 def run_convergence(args):
+    """P_c and the initiation angle per run. ``P_c_change_pct_max``: the largest |change| of P_c
+    between the two finest spacings with r_s held in metres (the criterion's r_s is a length of
+    the material); ``P_c_change_pct_max_fixed_ratio`` the same with r_s / dx fixed;
+    ``P_c_change_pct_max_m``: the largest |change| over the horizon ratios against m = 3."""
     from upscale.experiments.scb import run_scb
 
     quick = getattr(args, "quick", False)
     dxs = [float(v) for v in (getattr(args, "dxs", None) or ("2e-3,1.5e-3" if quick else "2e-3,1e-3")).split(",")]
     alphas = [float(v) for v in (getattr(args, "alphas", None) or ("0" if quick else "0,30,50")).split(",")]
+    modes = [v.strip() for v in getattr(args, "modes", "fixed m,fixed r_s/dx").split(",") if v.strip()]
+    for mo in modes:
+        if mo not in ("fixed m", "fixed r_s/dx"):
+            raise ValueError(f"--modes entry {mo!r}; valid: 'fixed m', 'fixed r_s/dx'")
+    ra = getattr(args, "ratio_alphas", None)
+    ratio_alphas = alphas if ra is None else [float(v) for v in ra.split(",")]
+    ms = [float(v) for v in (getattr(args, "ms", "") or "").split(",") if v.strip()]
+    m_dx = getattr(args, "m_dx", None) or dxs[0]
     ex = _exp()
     r_s = getattr(args, "r_s", None)
     crit = getattr(args, "criterion", "principal")
@@ -372,28 +392,61 @@ def run_convergence(args):
         r_s, _ = calibrate_r_s_scan(dxs[0], ex["exp_P_c_kN"][0] * 1e3, cands, criterion=crit)
     ratio = r_s / dxs[0]
     rows = []
+
+    def one(al, dx, m, mode, r):
+        res = run_scb(al, dx=dx, m=m, r_s=r, stop_fraction=0.6, criterion=crit)
+        c = res["curve"]
+        rows.append({"alpha": al, "dx mm": dx * 1e3, "delta/dx": m, "mode": mode, "r_s mm": r * 1e3,
+                     "particles": res["scene"]["particles"], "P_c kN": res["P_c_kN"],
+                     "initiation deg": res["initiation_angle_deg"], "equilibria": len(c["load_N"]),
+                     "stop": c["stop_reason"], "wall s": res["wall_s"]})
+        print(rows[-1], flush=True)
+
     for al in alphas:
         for dx in dxs:
-            for mode, r in (("fixed m", r_s), ("fixed r_s/dx", ratio * dx)):
-                if mode == "fixed r_s/dx" and dx == dxs[0]:
+            for mode in modes:
+                if mode == "fixed r_s/dx" and (dx == dxs[0] or al not in ratio_alphas):
                     continue
-                res = run_scb(al, dx=dx, r_s=r, stop_fraction=0.6, criterion=crit)
-                rows.append({"alpha": al, "dx mm": dx * 1e3, "mode": mode, "r_s mm": r * 1e3,
-                             "P_c kN": res["P_c_kN"], "wall s": res["wall_s"]})
-                print(rows[-1], flush=True)
+                one(al, dx, 3.0, mode, r_s if mode == "fixed m" else ratio * dx)
+        for m in ms:
+            if m != 3.0:
+                one(al, m_dx, m, "fixed m", r_s)
     print(table(rows, floatfmt=".4f"))
+
+    def P_of(al, dx, mode, m=3.0):
+        for r in rows:
+            if r["alpha"] == al and r["dx mm"] == dx * 1e3 and r["delta/dx"] == m and (
+                    r["mode"] == mode or (dx == dxs[0] and r["mode"] == "fixed m")):
+                return r["P_c kN"]
+        return None
+
     ch = []
     for al in alphas:
-        for mode in ("fixed m", "fixed r_s/dx"):
-            P = {r["dx mm"]: r["P_c kN"] for r in rows if r["alpha"] == al and (r["mode"] == mode or r["dx mm"] == dxs[0] * 1e3)}
-            a, b = P[dxs[-2] * 1e3], P[dxs[-1] * 1e3]
-            ch.append({"alpha": al, "mode": mode, "change_pct": 100 * (b / a - 1)})
+        for mode in modes:
+            for d0, d1 in zip(dxs, dxs[1:]):
+                a, b = P_of(al, d0, mode), P_of(al, d1, mode)
+                if a is not None and b is not None:
+                    ch.append({"alpha": al, "mode": mode, "dx mm": f"{d0 * 1e3:g} -> {d1 * 1e3:g}",
+                               "finest": d1 == dxs[-1], "change_pct": 100 * (b / a - 1)})
+        for m in ms:
+            a, b = P_of(al, m_dx, "fixed m"), P_of(al, m_dx, "fixed m", m)
+            if a is not None and b is not None and m != 3.0:
+                ch.append({"alpha": al, "mode": f"delta/dx {m:g} vs 3", "dx mm": f"{m_dx * 1e3:g}", "finest": False,
+                           "change_pct": 100 * (b / a - 1)})
     print(table(ch, floatfmt=".2f"))
-    fixed_ratio = [abs(c["change_pct"]) for c in ch if c["mode"] == "fixed r_s/dx"]
-    return {"dx_m": dxs, "alpha_deg": alphas, "r_s_m_coarsest": r_s, "criterion": crit, "rows": rows, "changes": ch,
-            "P_c_change_pct_max": float(max(fixed_ratio)),
-            "P_c_change_pct_max_fixed_r_s": float(max(abs(c["change_pct"]) for c in ch if c["mode"] == "fixed m")),
-            "pass": bool(max(fixed_ratio) < 5 and dxs[-1] <= 0.25e-3)}
+
+    def worst(sel):
+        v = [abs(c["change_pct"]) for c in ch if sel(c)]
+        return float(max(v)) if v else None
+
+    fixed_m = worst(lambda c: c["mode"] == "fixed m" and c["finest"])
+    out = {"dx_m": dxs, "alpha_deg": alphas, "horizon_over_dx": [3.0] + [m for m in ms if m != 3.0],
+           "r_s_m_coarsest": r_s, "criterion": crit, "rows": rows, "changes": ch,
+           "P_c_change_pct_max": fixed_m,
+           "P_c_change_pct_max_fixed_ratio": worst(lambda c: c["mode"] == "fixed r_s/dx" and c["finest"]),
+           "P_c_change_pct_max_m": worst(lambda c: c["mode"].startswith("delta/dx"))}
+    out["pass"] = bool(fixed_m is not None and fixed_m < 5 and dxs[-1] <= 0.25e-3)
+    return out
 
 
 # ---------------------------------------------------------------------------- scb-rate
