@@ -166,3 +166,20 @@ def test_surface_correction_bad_input():
         TiPD(E=1e9, nu=0.2, kernel="fast")
     with pytest.raises(ValueError, match="force kernel 'fast'"):
         Correspondence(E=1e9, nu=0.2, kernel="fast")
+
+
+@pytest.mark.parametrize("dim,cal", [(2, "continuum"), (2, "discrete"), (3, "continuum")])
+def test_surface_correction_pair_kernel_equals_bond_kernel(dim, cal):
+    s, f = _body(dim)
+    kw = {"C": D_ANISO} if dim == 2 else {"E": 70e9, "nu": 0.2}
+    mp = _quiet(TiPD(**kw, calibration=cal, surface="correspondence", kernel="pair"), s, f)
+    mb = _quiet(TiPD(**kw, calibration=cal, surface="correspondence", kernel="bond"), s, f)
+    assert mp._cpair and not mb._cpair
+    st = _perturbed(s, f, seed=3)
+    o = [np.zeros_like(st.y), np.zeros_like(st.y)]
+    mp.add_force(st, o[0])
+    mb.add_force(st, o[1])
+    assert np.abs(o[0] - o[1]).max() <= 1e-12 * np.abs(o[1]).max()
+    # and both equal -K u of the assembled stiffness
+    Ku = -(mb.tangent(st) @ (st.y - s.x0).ravel()).reshape(-1, 3) / s.volume[:, None]
+    assert np.abs(o[0] - Ku).max() <= 1e-10 * np.abs(Ku).max()

@@ -58,8 +58,9 @@ def rayleigh_speed(E=GLASS["E"], nu=GLASS["nu"], rho=GLASS["rho"]) -> float:
 def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
               critical: str = "tipd", t_end: float | None = None, m: float = 3.0,
               record_dt: float = 0.25e-6, progress: bool = False, outdir=None) -> dict:
-    """Run the branching scene (module docstring); returns the crack-tip history and its
-    measures (SI units)."""
+    """Run the branching scene (module docstring) with horizon ``delta = m dx``; returns the
+    crack-tip history and its measures (SI units), and the final ``damage`` (n,) with the
+    reference ``positions_m`` (n, 2) as arrays (not JSON)."""
     from upscale import models
     from upscale.engine import Simulation, bonds_crossing_segment, build_family, square_lattice
     from upscale.engine.conditions import Force, region
@@ -177,7 +178,8 @@ def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
            "branch_angle_deg": angle, "asymmetry_fraction": asym,
            "damaged_off_crack": edge_damage,
            "broken_bonds": run["broken_bonds"], "tip_t_s": rec_t, "tip_x_m": rec_tip,
-           "upper_tip_xy_m": rec_up, "lower_tip_xy_m": rec_lo, "wall_time_s": time.perf_counter() - t0}
+           "upper_tip_xy_m": rec_up, "lower_tip_xy_m": rec_lo, "wall_time_s": time.perf_counter() - t0,
+           "positions_m": x0[:, :2].copy(), "damage": d}
     if outdir is not None:
         import matplotlib
 
@@ -193,7 +195,8 @@ def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
                      f"t = {sim.state.t * 1e6:.1f} us")
         fig.colorbar(sc, ax=ax, label="damage")
         fig.tight_layout()
-        tag = f"{model}{'_' + critical if model == 'tipd' else ''}_{stress / 1e6:g}MPa_dx{dx * 1e3:g}mm"
+        tag = (f"{model}{'_' + critical if model == 'tipd' else ''}_{stress / 1e6:g}MPa_dx{dx * 1e3:g}mm"
+               + ("" if m == 3 else f"_m{m:g}"))
         fig.savefig(out / f"damage_{tag}.png", dpi=150)
         plt.close(fig)
         res["damage_png"] = str(out / f"damage_{tag}.png")
