@@ -49,7 +49,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["MMS_2D_C", "MMS_3D_C", "mms_body", "mms", "strip", "eigen_counts", "rotation",
-           "make_model", "register"]
+           "make_model", "surface_kw", "surface_of", "register"]
 
 #: seed 003 sec. 5.1.1 (Voigt 11, 22, 12)
 MMS_2D_C = np.array([[5.0, 3.0, 0.0], [3.0, 5.0, 0.0], [0.0, 0.0, 6.0]])
@@ -77,7 +77,7 @@ def make_model(name: str, C=None, *, E=None, nu=None, order="standard", angle=No
     raise ValueError(f"unknown model {name!r}; valid: 'tipd', 'nosb', 'lps', 'pmb'")
 
 
-def _surface_kw(model: str, surface: str | None) -> dict:
+def surface_kw(model: str, surface: str | None) -> dict:
     """The surface-correction keyword for Ti-PD (other models have none); None: the
     model's default (:func:`upscale.models.tipd.default_surface`)."""
     if model == "tipd":
@@ -155,7 +155,7 @@ def mms(model: str = "tipd", *, dim: int = 2, dx: float = 0.005, m: float = 3.0,
     s, dom, shape = mms_body(dx, dim, m, layer)
     fam = build_family(s, m * dx * (1 + 1e-9))
     Cv, order = (MMS_2D_C, "standard") if dim == 2 else (MMS_3D_C, "tian")
-    skw = _surface_kw(model, surface)
+    skw = surface_kw(model, surface)
     if bond_associated:
         if model != "nosb":
             raise ValueError(f"bond_associated is a NOSB option, not one of {model!r}")
@@ -217,7 +217,7 @@ def strip(model: str = "tipd", *, E: float = 70e9, nu: float | None = 0.25, C=No
     fam = build_family(s, m * dx)
     mdl = make_model(model, C, E=None if C is not None else E, nu=None if C is not None else nu,
                      calibration=calibration, stabilisation=stabilisation,
-                     **_surface_kw(model, surface))
+                     **surface_kw(model, surface))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         mdl.prepare(s, fam)
@@ -261,7 +261,7 @@ def eigen_counts(model: str = "tipd", *, dim: int = 2, E: float = 70e9, nu: floa
     fam = build_family(s, m * 1e-3)
     mdl = make_model(model, C, E=None if C is not None else E, nu=None if C is not None else nu,
                      calibration=calibration, stabilisation=stabilisation,
-                     **_surface_kw(model, surface))
+                     **surface_kw(model, surface))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         mdl.prepare(s, fam)
@@ -290,7 +290,7 @@ def rotation(model: str = "tipd", *, E: float = 70e9, nu: float = 0.25, n: int =
 
     s = square_lattice(n, n, 1e-3, density=rho, plane="stress", centered=True)
     fam = build_family(s, m * 1e-3)
-    mdl = make_model(model, E=E, nu=nu, **({"calibration": calibration, **_surface_kw(model, surface)}
+    mdl = make_model(model, E=E, nu=nu, **({"calibration": calibration, **surface_kw(model, surface)}
                                            if model == "tipd" else {}))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")

@@ -67,7 +67,7 @@ def hole(model: str = "tipd", *, material: str = "iso", dx: float = 1e-3, m: flo
     stress at the particle next to the hole's top."""
     from upscale.engine import State, build_family
     from upscale.engine.static import solve_linear
-    from upscale.experiments.tipd import _surface_kw, make_model
+    from upscale.experiments.tipd import surface_kw, make_model
     from upscale.models.correspondence import Correspondence
 
     t0 = time.perf_counter()
@@ -75,7 +75,7 @@ def hole(model: str = "tipd", *, material: str = "iso", dx: float = 1e-3, m: flo
     s, lg, rg = hole_body(dx, m, L=L, W=W)
     fam = build_family(s, m * dx * (1 + 1e-9))
     mdl = make_model(model, C, calibration=calibration, stabilisation=stabilisation,
-                     **_surface_kw(model, surface))
+                     **surface_kw(model, surface))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         mdl.prepare(s, fam)
@@ -129,7 +129,7 @@ def hole_adr(model: str = "tipd", *, material: str = "ortho", nx: int = 300, ste
     from upscale.engine.conditions import Displacement, Fixed, region
     from upscale.engine.adr import FusedAdaptiveDynamicRelaxation
     from upscale.engine.integrators import AdaptiveDynamicRelaxation
-    from upscale.experiments.tipd import _surface_kw, make_model
+    from upscale.experiments.tipd import surface_kw, make_model
 
     t0 = time.perf_counter()
     dx = L_PLATE / nx
@@ -137,7 +137,7 @@ def hole_adr(model: str = "tipd", *, material: str = "ortho", nx: int = 300, ste
     s, lg, rg = hole_body(dx, 3.0)
     fam = build_family(s, 3.0 * dx * (1 + 1e-9))
     mdl = make_model(model, C, calibration=calibration, stabilisation=stabilisation, kernel=kernel,
-                     **_surface_kw(model, surface))
+                     **surface_kw(model, surface))
     conds = [Fixed(region(s, "left grip", where=lambda x: x[:, 0] < -L_PLATE / 2)),
              Displacement(region(s, "right grip", where=lambda x: x[:, 0] > L_PLATE / 2), [U, 0.0, 0.0])]
     with warnings.catch_warnings():
