@@ -8,7 +8,8 @@ Each scene is a plain function of its parameters returning a JSON-able dict (SI 
     D = [[5, 3, 0], [3, 5, 0], [0, 0, 6]]) and 5.1.2 (3D: u = (sin, sin, cos) of
     pi(x+y+z) on [-0.25, 0.25]^3, C of (98) with 18.1 for the printed "181", Voigt order
     of the paper (11, 22, 33, 12, 23, 13)). Particles at cell centres of spacing dx, a
-    layer of width delta outside the domain holds the exact displacement (Dirichlet), the
+    layer of width delta outside the domain (2 delta for Ti-PD with the surface correction,
+    whose forces couple particles 2 delta apart) holds the exact displacement (Dirichlet), the
     interior carries the body force ``b = -div(C : eps(u))`` (closed form:
     ``b_p = pi^2 C_paqb k_a k_b u_q`` for ``u = A sin(pi k.x) + B cos(pi k.x)``). One
     linear static solve (:func:`upscale.engine.static.solve_linear`); the relative L2
@@ -252,12 +253,16 @@ def strip(model: str = "tipd", *, E: float = 70e9, nu: float | None = 0.25, C=No
 # ---------------------------------------------------------------------------- eigen
 def eigen_counts(model: str = "tipd", *, dim: int = 2, E: float = 70e9, nu: float = 0.25, C=None,
                  plane: str = "stress", n: int | None = None, m: float = 3.015,
-                 calibration: str = "discrete", stabilisation=None, surface: str | None = None) -> dict:
-    """Zero and negative eigenvalues of the free-body stiffness (module docstring)."""
+                 calibration: str = "discrete", stabilisation=None, surface: str | None = None,
+                 shape=None, clamped: bool = False) -> dict:
+    """Zero and negative eigenvalues of the free-body stiffness (module docstring);
+    ``shape``: lattice counts (default n per side); ``clamped``: the particles within one
+    horizon of the x = min end held (the stiffness of a body that cannot move rigidly)."""
     from upscale.engine import State, build_family, cubic_lattice, square_lattice
 
     n = n or (10 if dim == 2 else 5)
-    s = square_lattice(n, n, 1e-3, plane=plane) if dim == 2 else cubic_lattice(n, n, n, 1e-3)
+    shape = tuple(shape) if shape is not None else (n,) * dim
+    s = square_lattice(*shape, 1e-3, plane=plane) if dim == 2 else cubic_lattice(*shape, 1e-3)
     fam = build_family(s, m * 1e-3)
     mdl = make_model(model, C, E=None if C is not None else E, nu=None if C is not None else nu,
                      calibration=calibration, stabilisation=stabilisation,
@@ -268,6 +273,8 @@ def eigen_counts(model: str = "tipd", *, dim: int = 2, E: float = 70e9, nu: floa
     K = mdl.tangent(State.reference(s.x0, fam.nb)).toarray()
     free = np.zeros((s.n, 3), dtype=bool)
     free[:, :dim] = True
+    if clamped:
+        free[s.x0[:, 0] < s.x0[:, 0].min() + m * 1e-3 - 1e-9] = False
     Kf = K[free.ravel()][:, free.ravel()]
     ev = np.linalg.eigvalsh(0.5 * (Kf + Kf.T))
     sc = np.abs(ev).max()
@@ -275,7 +282,7 @@ def eigen_counts(model: str = "tipd", *, dim: int = 2, E: float = 70e9, nu: floa
             "zero": int((np.abs(ev) <= 1e-10 * sc).sum()),
             "negative": int((ev < -1e-10 * sc).sum()),
             "min_over_max": float(ev.min() / sc),
-            "rigid_modes": dim * (dim + 1) // 2}
+            "rigid_modes": 0 if clamped else dim * (dim + 1) // 2}
 
 
 # ---------------------------------------------------------------------------- rotation

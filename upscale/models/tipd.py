@@ -103,7 +103,6 @@ the paper's ``(11, 22, 33, 12, 23, 13)`` (``order="tian"``, its eqs. (8)-(9) and
 """
 from __future__ import annotations
 
-import itertools
 import warnings
 
 import numba as nb

@@ -7,7 +7,8 @@ Kirsch / Lekhnitskii stress concentrations.
     Induced tensor against (47) (2D, anisotropic) and Remark 5 (3D isotropic); lattice
     moment of the discrete calibration; forces against the project's PMB at D12 = D66;
     zero interior force of a linear field; assembled stiffness symmetric, = -dF/du and =
-    Appendix A corrected (and how far the printed Appendix A is off).
+    Appendix A corrected (and how far the printed Appendix A is off); the same checks on
+    the surface-corrected model (PMB equivalence beyond 2 delta of the surfaces).
 ``tipd-mms``
     Manufactured solutions 5.1.1 / 5.1.2: relative L2 error against spacing for Ti-PD
     (discrete and continuum calibration), NOSB and stabilised NOSB; convergence orders;
@@ -16,6 +17,12 @@ Kirsch / Lekhnitskii stress concentrations.
     Free-contraction tension: apparent Poisson ratio and modulus of a free strip for
     nu = 0.1, 0.25, 1/3 and the orthotropic material of 5.2.2, Ti-PD, LPS, NOSB;
     free-body eigenvalue signs (2D, 3D); angular momentum of a free rotating body.
+``tipd-surface``
+    The surface correction as the default: eigenvalues of a body held at one end, force
+    cost, manufactured-solution order with one- and two-horizon layers.
+``tipd-hole``, ``bench-tipd``, ``tipd-branching``
+    Plate with a hole against FE; speed against Table 1; crack branching in glass with two
+    refinements (dx/2 at the same horizon, dx/2 at delta = 3 dx).
 """
 from __future__ import annotations
 
@@ -695,10 +702,88 @@ def _bench_tipd(args):
     return res
 
 
+# ---------------------------------------------------------------------------- surface default
+@case("tipd-surface", "Ti-PD surface correction as the default: clamped-body eigenvalues, force cost, "
+      "MMS order with a one- and two-horizon layer")
+def tipd_surface(args):
+    """The figures behind ``TiPD(surface=None)`` meaning the correction for elastic models."""
+    import time
+
+    from upscale.engine import State, build_family
+    from upscale.experiments.tipd import eigen_counts, make_model, mms
+    from upscale.experiments.tipd_hole import hole_body, material_voigt
+
+    _threads()
+    rows, res = [], {"clamped_min_over_max": {}, "clamped_negative": {}}
+    ortho = material_voigt("ortho")
+    cases = [(2, 0.1, None), (2, 0.25, None), (2, 0.4, None), (2, None, ortho)]
+    cases += [] if args.quick else [(3, 0.1, None), (3, 0.2, None), (3, 0.3, None)]
+    for dim, nu, C in cases:
+        for surf in ("none", "correspondence"):
+            r = eigen_counts("tipd", dim=dim, nu=nu if nu is not None else 0.25, C=C, calibration="continuum",
+                             surface=surf, shape=(20, 10) if dim == 2 else (10, 5, 5), clamped=True)
+            key = f"{dim}d_{'ortho' if C is not None else f'nu{nu:g}'}_{surf}"
+            res["clamped_min_over_max"][key] = r["min_over_max"]
+            res["clamped_negative"][key] = r["negative"]
+            rows.append({"dim": dim, "material": "ortho" if C is not None else f"nu={nu:g}", "surface": surf,
+                         "negative": r["negative"], "min/max": r["min_over_max"]})
+    print("stiffness of a body held at one end (20 x 10 / 10 x 5 x 5 particles, delta = 3.015 dx, "
+          "continuum calibration)")
+    print(table(rows, ["dim", "material", "surface", "negative", "min/max"], ".3e"))
+    # force evaluation cost, 300 x 100 orthotropic plate with a hole, one process, CPU time
+    dx = 0.15 / 300
+    s, _, _ = hole_body(dx, 3.0)
+    fam = build_family(s, 3 * dx * (1 + 1e-9))
+    st = State.reference(s.x0, fam.nb)
+    st.y[:, :2] += 1e-6 * np.random.default_rng(0).normal(size=(s.n, 2))
+    out = np.zeros_like(st.y)
+    mods = {}
+    for surf in ("none", "correspondence"):
+        m = make_model("tipd", ortho, calibration="continuum", surface=surf)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            m.prepare(s, fam)
+        m.step_force(st, out, failure=False)
+        mods[surf] = m
+    times = {k: [] for k in mods}
+    for _ in range(9):
+        for k, m in mods.items():
+            c0 = time.process_time()
+            for _ in range(3):
+                m.step_force(st, out, failure=False)
+            times[k].append((time.process_time() - c0) / 3)
+    t0, t1 = (float(np.median(times[k])) for k in ("none", "correspondence"))
+    nnz = {k: int(m.tangent(st).nnz) for k, m in mods.items()}
+    res.update({"force_eval_s": {"none": t0, "correspondence": t1}, "force_cost_ratio": t1 / t0,
+                "stiffness_nnz_ratio": nnz["correspondence"] / nnz["none"]})
+    print(f"force evaluation ({fam.nb} bonds): uncorrected {t0 * 1e3:.3f} ms, corrected {t1 * 1e3:.3f} ms, "
+          f"ratio {t1 / t0:.2f} (median of 9 interleaved CPU-time repeats); stiffness nnz ratio "
+          f"{res['stiffness_nnz_ratio']:.2f}")
+    # MMS: the layer of exact displacement one or two horizons wide
+    dxs = [0.025, 0.0125] if args.quick else [0.025, 0.0125, 0.00625]
+    mrows = []
+    for cal in ("discrete", "continuum"):
+        for surf, lay in (("none", 1.0), ("correspondence", 1.0), ("correspondence", 2.0)):
+            e = [mms("tipd", dim=2, dx=h, calibration=cal, surface=surf, layer=lay)["rel_l2"] for h in dxs]
+            order = float(np.polyfit(np.log(dxs), np.log(e), 1)[0])
+            key = f"{cal}_{surf}_layer{lay:g}"
+            res.setdefault("mms_order", {})[key] = order
+            res.setdefault("mms_rel_l2_finest", {})[key] = e[-1]
+            mrows.append({"calibration": cal, "surface": surf, "layer (horizons)": lay,
+                          **{f"dx={h:g}": v for h, v in zip(dxs, e)}, "order": order})
+    print("manufactured solution 5.1.1 (2D)")
+    print(table(mrows, list(mrows[0]), ".4g"))
+    res["pass"] = bool(all(v == 0 for k, v in res["clamped_negative"].items() if k.endswith("correspondence"))
+                       and res["mms_order"]["discrete_correspondence_layer2"] >= 1.9
+                       and res["mms_order"]["continuum_correspondence_layer2"] >= 1.9)
+    return res
+
+
 # ---------------------------------------------------------------------------- branching
 def _branching_args(p):
-    p.add_argument("--no-refine", action="store_true",
-                   help="only the runs at dx (skip the two dx/2 refinements)")
+    p.add_argument("--refine", default="both", choices=["both", "fixed-delta", "delta-3dx", "none"],
+                   help="dx/2 runs besides the runs at dx: at the same horizon (m = 6, the loaded "
+                        "layer kept at the coarse dx), at delta = 3 dx/2, both (default) or none")
 
 
 def _branch_key(r):
@@ -721,18 +806,23 @@ def tipd_branching(args):
 
     _threads()
     dx = 1e-3 if args.quick else 5e-4
-    refine = not (args.quick or getattr(args, "no_refine", False))
+    refine = "none" if args.quick else getattr(args, "refine", "both")
+    tags = {"both": ("fixed_delta", "delta_3dx"), "fixed-delta": ("fixed_delta",),
+            "delta-3dx": ("delta_3dx",), "none": ()}[refine]
     variants = [("tipd", "tipd"), ("tipd", "osb"), ("lps", None), ("pmb", None)]
-    jobs = [(mod, crit, sig, dx, 3.0) for sig in (12e6, 24e6) for mod, crit in variants]
-    if refine:
-        jobs += [(mod, crit, sig, dx / 2, 6.0) for sig in (12e6, 24e6) for mod, crit in variants]
-        jobs += [(mod, crit, sig, dx / 2, 3.0) for sig in (12e6, 24e6) for mod, crit in variants]
+    jobs = [(mod, crit, sig, dx, 3.0, None) for sig in (12e6, 24e6) for mod, crit in variants]
+    if "fixed_delta" in tags:      # same horizon, same loaded layer (two rows of dx/2)
+        jobs += [(mod, crit, sig, dx / 2, 6.0, dx) for sig in (12e6, 24e6) for mod, crit in variants]
+    if "delta_3dx" in tags:
+        jobs += [(mod, crit, sig, dx / 2, 3.0, None) for sig in (12e6, 24e6) for mod, crit in variants]
     runs = []
-    for mod, crit, sig, h, m in tqdm(jobs, desc="tipd-branching runs"):
+    for mod, crit, sig, h, m, lw in tqdm(jobs, desc="tipd-branching runs"):
         c0 = time.process_time()
-        r = branching(mod, stress=sig, dx=h, m=m, critical=crit or "tipd", outdir=args.outdir)
+        r = branching(mod, stress=sig, dx=h, m=m, critical=crit or "tipd", load_width=lw, outdir=args.outdir)
         r["m"], r["cpu_s"] = m, time.process_time() - c0
         runs.append(r)
+        np.savez_compressed(args.outdir / f"damage_run{len(runs):02d}.npz", positions_m=r["positions_m"],
+                            damage=r["damage"])
         with open(args.outdir / "tipd-branching-runs.jsonl", "a" if len(runs) > 1 else "w") as fh:
             fh.write(json.dumps({k: v for k, v in r.items()
                                  if not k.endswith("_xy_m") and k not in ("positions_m", "damage")}) + "\n")
@@ -740,6 +830,7 @@ def tipd_branching(args):
     for r in runs:
         lab = r["model"] + (f"({r['critical']})" if r["critical"] else "")
         rows.append({"model": lab, "MPa": r["stress_Pa"] / 1e6, "dx_mm": r["dx_m"] * 1e3, "m": r["m"],
+                     "load_rows": r["load_rows"],
                      "delta_mm": r["horizon_m"] * 1e3, "s0": r["s0"],
                      "v_max/cR": r["v_max_over_cR"], "branch_t_us": None if r["branching_t_s"] is None
                      else r["branching_t_s"] * 1e6,
@@ -748,7 +839,7 @@ def tipd_branching(args):
                      "off_crack": r["damaged_off_crack"],
                      "steps": r["steps"], "cpu_s": r["cpu_s"]})
     print(f"Ha & Bobaru plate 100 x 40 mm, pre-crack to the centre, cR = {runs[0]['cR_m_per_s']:.1f} m/s")
-    print(table(rows, ["model", "MPa", "dx_mm", "m", "delta_mm", "s0", "v_max/cR", "branch_t_us", "branch_x_mm",
+    print(table(rows, ["model", "MPa", "dx_mm", "m", "load_rows", "delta_mm", "s0", "v_max/cR", "branch_t_us", "branch_x_mm",
                        "angle_deg", "asym", "off_crack", "steps", "cpu_s"], ".4g"))
     _plot_tips(runs, args.outdir)
     _plot_damage(runs, args.outdir)
@@ -761,9 +852,11 @@ def tipd_branching(args):
         out["branching_t_s"][key] = r["branching_t_s"]
         out["branch_angle_deg"][key] = r["branch_angle_deg"]
     res = {**out, "dx_m": dx, "rows": rows}
-    if refine:
+    if tags:
         # branching position in horizons (the coarse run's delta; equal for m = 6), peak speed
         for tag, m in (("fixed_delta", 6.0), ("delta_3dx", 3.0)):
+            if tag not in tags:
+                continue
             conv = {}
             for c in base:
                 f = next(r for r in runs if not np.isclose(r["dx_m"], dx) and r["m"] == m
@@ -830,13 +923,16 @@ def _plot_damage(runs, outdir):
                              squeeze=False)
     for r in runs:
         ax = axes[labels.index(_variant_label(r)), cols.index((round(r["dx_m"], 12), r.get("m", 3.0)))]
-        x = r["positions_m"] * 1e3
-        ax.scatter(x[:, 0], x[:, 1], c=r["damage"], s=(r["dx_m"] * 1e3) ** 2 * 0.6, cmap="inferno",
-                   vmin=0, vmax=1, marker="s", linewidths=0)
-        ax.set_aspect("equal")
+        x, h = r["positions_m"], r["dx_m"]
+        ix = np.rint((x[:, 0] - x[:, 0].min()) / h).astype(int)
+        iy = np.rint((x[:, 1] - x[:, 1].min()) / h).astype(int)
+        g = np.zeros((iy.max() + 1, ix.max() + 1))
+        g[iy, ix] = r["damage"]
+        ext = np.array([x[:, 0].min() - h / 2, x[:, 0].max() + h / 2, x[:, 1].min() - h / 2, x[:, 1].max() + h / 2]) * 1e3
+        ax.imshow(g, origin="lower", extent=ext, cmap="inferno", vmin=0, vmax=1, interpolation="nearest")
         ax.set_xticks([])
         ax.set_yticks([])
-        ax.set_title(f"{_variant_label(r)}, dx {r['dx_m'] * 1e3:g} mm, delta {r['horizon_m'] * 1e3:.3g} mm, "
+        ax.set_title(f"{_variant_label(r)}, dx {h * 1e3:g} mm, delta {r['horizon_m'] * 1e3:.3g} mm, "
                      f"{r['t_end_s'] * 1e6:.0f} us", fontsize=6)
     fig.tight_layout()
     fig.savefig(outdir / "tipd_branching_damage.png", dpi=150)
