@@ -13,7 +13,7 @@ def _sim():
     f = build_family(s, 3.015e-3)
     conds = [Fixed(region(s, "l", box=((None, None, None), (0.5e-3, None, None)))),
              Displacement(region(s, "r", box=((14.5e-3, None, None), (None, None, None))), [1e-6, 2e-7, 0])]
-    return Simulation(s, f, [TiPD(E=70e9, nu=0.25)], conditions=conds)
+    return Simulation(s, f, [TiPD(E=70e9, nu=0.25, surface="none")], conditions=conds)
 
 
 def test_fused_adr_matches_engine_adr():

@@ -46,7 +46,7 @@ def test_compact_induced_tensor_is_the_papers_47():
 def test_discrete_calibration_lattice_moment_is_S(dim):
     s, f = _body(dim)
     C = D_ANISO if dim == 2 else isotropic_voigt(200e9, 0.3, 3)
-    m = TiPD(C, calibration="discrete", angle=0.3, warn=False)
+    m = TiPD(C, calibration="discrete", angle=0.3, warn=False, surface="none")
     m.prepare(s, f)
     L = m.lattice_moment()
     assert np.abs(L - m.S).max() <= 1e-12 * np.abs(m.S).max()
@@ -62,7 +62,7 @@ def test_d12_equal_d66_is_pmb(dim, plane, nu):
     to round-off, and the small-displacement PMB force to O(strain)."""
     s = square_lattice(12, 12, 1e-3, plane=plane) if dim == 2 else cubic_lattice(7, 7, 7, 1e-3)
     f = build_family(s, 3.015e-3)
-    m = TiPD(E=70e9, nu=nu)
+    m = TiPD(E=70e9, nu=nu, surface="none")          # the paper's model
     m.prepare(s, f)
     p = PMB(E=70e9, nu=nu)
     p.prepare(s, f)
@@ -89,7 +89,7 @@ def test_d12_equal_d66_is_pmb(dim, plane, nu):
 def test_linear_field_gives_zero_interior_force(dim):
     s, f = _body(dim, 12 if dim == 2 else 9)
     C = D_ANISO if dim == 2 else isotropic_voigt(200e9, 0.2, 3)
-    m = TiPD(C, calibration="discrete", angle=0.7, warn=False)
+    m = TiPD(C, calibration="discrete", angle=0.7, warn=False, surface="none")
     m.prepare(s, f)
     H = np.random.default_rng(3).normal(size=(3, 3)) * 1e-3
     if dim == 2:
@@ -120,7 +120,7 @@ def test_stiffness_symmetric_and_minus_dforce_du(dim):
 
 def test_stiffness_is_corrected_appendix_a():
     s, f = _body(2, 10)
-    m = TiPD(D_ANISO)
+    m = TiPD(D_ANISO, surface="none")
     m.prepare(s, f)
     K = m.tangent()
     perm = np.empty(2 * s.n, dtype=int)
@@ -146,7 +146,7 @@ def test_rigid_rotation_energy_only_when_d12_differs_from_d66():
     R = np.array([[np.cos(th), -np.sin(th), 0], [np.sin(th), np.cos(th), 0], [0, 0, 1]])
     energies = {}
     for nu in (1 / 3, 0.2):
-        m = TiPD(E=70e9, nu=nu)
+        m = TiPD(E=70e9, nu=nu, surface="none")
         m.prepare(s, f)
         st = State.reference(s.x0, f.nb)
         st.y[...] = s.x0 @ R.T
@@ -165,7 +165,7 @@ def test_indefiniteness_warning(dim, plane, nu, bad):
     f = build_family(s, 2.01e-3)
     with warnings.catch_warnings(record=True) as w:
         warnings.simplefilter("always")
-        m = TiPD(E=70e9, nu=nu)
+        m = TiPD(E=70e9, nu=nu, surface="none")
         m.prepare(s, f)
     hit = [x for x in w if issubclass(x.category, IndefiniteWarning)]
     assert bool(hit) == bad
@@ -225,3 +225,17 @@ def test_registered_and_bad_input():
         m.prepare(s, f)
     with pytest.raises(ValueError, match="unknown calibration"):
         TiPD(E=1e9, nu=0.2, calibration="lattice")
+
+
+def test_default_surface_correction_follows_failure():
+    """Elastic Ti-PD gets the surface correction by default, Ti-PD with a failure criterion
+    the paper's model; the indefiniteness warning is about the uncorrected model."""
+    assert TiPD(E=70e9, nu=0.2).surface == "correspondence"
+    assert TiPD(E=70e9, nu=0.2, G0=10.0).surface == "none"
+    assert TiPD(E=70e9, nu=0.2, s0=1e-3).surface == "none"
+    s = square_lattice(6, 6, 1e-3)
+    f = build_family(s, 2.01e-3)
+    with warnings.catch_warnings(record=True) as w:
+        warnings.simplefilter("always")
+        TiPD(E=70e9, nu=0.4).prepare(s, f)
+    assert not [x for x in w if issubclass(x.category, IndefiniteWarning)]

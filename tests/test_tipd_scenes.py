@@ -13,7 +13,7 @@ from upscale.models.tipd import TiPD
 def test_solve_linear_methods_agree():
     s = square_lattice(12, 12, 1e-3)
     f = build_family(s, 3.015e-3)
-    m = TiPD(np.array([[5.0, 3.0, 0.4], [3.0, 5.0, 0.1], [0.4, 0.1, 6.0]]) * 1e9)
+    m = TiPD(np.array([[5.0, 3.0, 0.4], [3.0, 5.0, 0.1], [0.4, 0.1, 6.0]]) * 1e9, surface="none")
     m.prepare(s, f)
     left = s.x0[:, 0] < 2.5e-3
     right = s.x0[:, 0] > 8.5e-3
@@ -36,16 +36,26 @@ def test_solve_linear_methods_agree():
 
 
 def test_mms_discrete_calibration_converges_second_order():
-    e = [mms("tipd", dim=2, dx=dx, calibration="discrete")["rel_l2"] for dx in (0.05, 0.025)]
+    e = [mms("tipd", dim=2, dx=dx, calibration="discrete", surface="none")["rel_l2"] for dx in (0.05, 0.025)]
     assert np.log2(e[0] / e[1]) > 1.8
-    c = mms("tipd", dim=2, dx=0.025, calibration="continuum")["rel_l2"]
+    c = mms("tipd", dim=2, dx=0.025, calibration="continuum", surface="none")["rel_l2"]
     assert c > 3 * e[1]        # the continuum calibration's lattice bias
 
 
+def test_mms_surface_correction_second_order_with_two_horizon_layer():
+    """With the correction (the default) and the exact field in a two-horizon layer both
+    calibrations converge at second order; a one-horizon layer drops it to first."""
+    e = [mms("tipd", dim=2, dx=dx, calibration="continuum")["rel_l2"] for dx in (0.05, 0.025)]
+    assert np.log2(e[0] / e[1]) > 1.8
+    e1 = [mms("tipd", dim=2, dx=dx, calibration="continuum", layer=1.0)["rel_l2"] for dx in (0.05, 0.025)]
+    assert np.log2(e1[0] / e1[1]) < 1.3
+
+
 def test_free_body_eigen_signs():
-    assert eigen_counts("tipd", dim=2, nu=0.3, calibration="continuum", n=7)["negative"] == 0
-    assert eigen_counts("tipd", dim=2, nu=0.4, calibration="continuum", n=7)["negative"] > 0
-    r = eigen_counts("tipd", dim=2, nu=1 / 3, calibration="continuum", n=7)
+    kw = {"calibration": "continuum", "n": 7, "surface": "none"}
+    assert eigen_counts("tipd", dim=2, nu=0.3, **kw)["negative"] == 0
+    assert eigen_counts("tipd", dim=2, nu=0.4, **kw)["negative"] > 0
+    r = eigen_counts("tipd", dim=2, nu=1 / 3, **kw)
     assert r["zero"] == 3 and r["negative"] == 0     # PMB-equivalent: rotation costs nothing
 
 

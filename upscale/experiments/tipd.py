@@ -8,7 +8,8 @@ Each scene is a plain function of its parameters returning a JSON-able dict (SI 
     D = [[5, 3, 0], [3, 5, 0], [0, 0, 6]]) and 5.1.2 (3D: u = (sin, sin, cos) of
     pi(x+y+z) on [-0.25, 0.25]^3, C of (98) with 18.1 for the printed "181", Voigt order
     of the paper (11, 22, 33, 12, 23, 13)). Particles at cell centres of spacing dx, a
-    layer of width delta outside the domain holds the exact displacement (Dirichlet), the
+    layer of width delta outside the domain (2 delta for Ti-PD with the surface correction,
+    whose forces couple particles 2 delta apart) holds the exact displacement (Dirichlet), the
     interior carries the body force ``b = -div(C : eps(u))`` (closed form:
     ``b_p = pi^2 C_paqb k_a k_b u_q`` for ``u = A sin(pi k.x) + B cos(pi k.x)``). One
     linear static solve (:func:`upscale.engine.static.solve_linear`); the relative L2
@@ -49,7 +50,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["MMS_2D_C", "MMS_3D_C", "mms_body", "mms", "strip", "eigen_counts", "rotation",
-           "make_model", "register"]
+           "make_model", "surface_kw", "surface_of", "register"]
 
 #: seed 003 sec. 5.1.1 (Voigt 11, 22, 12)
 MMS_2D_C = np.array([[5.0, 3.0, 0.0], [3.0, 5.0, 0.0], [0.0, 0.0, 6.0]])
@@ -77,13 +78,23 @@ def make_model(name: str, C=None, *, E=None, nu=None, order="standard", angle=No
     raise ValueError(f"unknown model {name!r}; valid: 'tipd', 'nosb', 'lps', 'pmb'")
 
 
-def _surface_kw(model: str, surface: str) -> dict:
-    """The surface-correction keyword for Ti-PD (other models have none)."""
+def surface_kw(model: str, surface: str | None) -> dict:
+    """The surface-correction keyword for Ti-PD (other models have none); None: the
+    model's default (:func:`upscale.models.tipd.default_surface`)."""
     if model == "tipd":
-        return {"surface": surface}
-    if surface != "none":
+        return {} if surface is None else {"surface": surface}
+    if surface not in (None, "none"):
         raise ValueError(f"surface correction {surface!r} is a Ti-PD option, not one of {model!r}")
     return {}
+
+
+def surface_of(model: str, surface: str | None, failure: bool = False) -> str | None:
+    """The surface correction a scene's Ti-PD uses (None for the other models)."""
+    from upscale.models.tipd import default_surface
+
+    if model != "tipd":
+        return None
+    return default_surface(failure) if surface is None else surface
 
 
 # ---------------------------------------------------------------------------- MMS
@@ -97,15 +108,18 @@ def _mms_field(x, dim):
     return u
 
 
-def mms_body(dx: float, dim: int, m: float = 3.0):
-    """Particles at cell centres of [-0.25, 0.25]^d plus a layer of ceil(m) cells outside;
-    returns (system, domain mask (N,), grid shape of the domain)."""
+def mms_body(dx: float, dim: int, m: float = 3.0, layer: float = 1.0):
+    """Particles at cell centres of [-0.25, 0.25]^d plus a layer of ceil(layer m) cells
+    outside (``layer`` horizons wide); returns (system, domain mask (N,), grid shape of the
+    domain)."""
     from upscale.engine import cubic_lattice, square_lattice
 
     n = int(round(0.5 / dx))
     if not np.isclose(n * dx, 0.5, rtol=1e-9) or n < 4:
         raise ValueError(f"dx must divide 0.5 into at least 4 cells, got dx = {dx!r}")
-    layer = int(np.ceil(m - 1e-9))
+    if not (np.isfinite(layer) and layer >= 1):
+        raise ValueError(f"layer must be at least one horizon, got {layer!r}")
+    layer = int(np.ceil(layer * m - 1e-9))
     nt = n + 2 * layer
     o = -0.25 - (layer - 0.5) * dx
     if dim == 2:
@@ -118,10 +132,14 @@ def mms_body(dx: float, dim: int, m: float = 3.0):
 
 def mms(model: str = "tipd", *, dim: int = 2, dx: float = 0.005, m: float = 3.0,
         calibration: str = "discrete", stabilisation=None, Cs: float = 100.0,
-        method: str | None = None, return_fields: bool = False, surface: str = "none",
-        bond_associated: bool = False) -> dict:
+        method: str | None = None, return_fields: bool = False, surface: str | None = None,
+        bond_associated: bool = False, layer: float | None = None) -> dict:
     """Manufactured solution 5.1.1 (2D) / 5.1.2 (3D) with one model (module docstring);
-    ``surface``: Ti-PD's surface correction (:class:`~upscale.models.tipd.TiPD`).
+    ``surface``: Ti-PD's surface correction (:class:`~upscale.models.tipd.TiPD`);
+    ``layer``: width of the layer of exact displacement, in horizons; default two for Ti-PD
+    with the surface correction (its forces couple particles 2 delta apart, so a
+    one-horizon layer feeds gradients of truncated families into the free particles), one
+    otherwise (the paper's set-up).
 
     Returns ``{"rel_l2": ..., "oscillation": ..., "dx_m", "horizon_m", "particles",
     "solve": {...}, "wall_time_s"}`` (and the fields with ``return_fields``)."""
@@ -132,15 +150,18 @@ def mms(model: str = "tipd", *, dim: int = 2, dx: float = 0.005, m: float = 3.0,
     from upscale.models.tipd import voigt_to_tensor
 
     t0 = time.perf_counter()
-    s, dom, shape = mms_body(dx, dim, m)
+    surf = surface_of(model, surface)
+    if layer is None:
+        layer = 2.0 if surf == "correspondence" else 1.0
+    s, dom, shape = mms_body(dx, dim, m, layer)
     fam = build_family(s, m * dx * (1 + 1e-9))
     Cv, order = (MMS_2D_C, "standard") if dim == 2 else (MMS_3D_C, "tian")
-    skw = _surface_kw(model, surface)
+    skw = surface_kw(model, surface)
     if bond_associated:
         if model != "nosb":
             raise ValueError(f"bond_associated is a NOSB option, not one of {model!r}")
         skw["bond_associated"] = True
-    if surface != "none":      # the layer of exact displacement extends the body: no free surface
+    if surf == "correspondence":   # the layer of exact displacement extends the body: no free surface
         skw["surface_bulk"] = lambda x: ~np.all(np.abs(x[:, :dim]) < 0.25, axis=1)
     mdl = make_model(model, Cv, order=order, calibration=calibration,
                      stabilisation=stabilisation, Cs=Cs, **skw)
@@ -170,8 +191,8 @@ def mms(model: str = "tipd", *, dim: int = 2, dx: float = 0.005, m: float = 3.0,
     out = {"model": model, "dim": dim, "dx_m": dx, "horizon_m": fam.horizon, "m": m,
            "calibration": calibration if model == "tipd" else None,
            "stabilisation": stabilisation if model == "nosb" else None,
-           "surface": surface if model == "tipd" else None,
-           "bond_associated": bool(bond_associated),
+           "surface": surf,
+           "bond_associated": bool(bond_associated), "layer_horizons": layer,
            "particles": s.n, "bonds": fam.nb, "rel_l2": rel, "oscillation": osc,
            "max_abs_err": float(np.abs(e).max()), "solve": info,
            "wall_time_s": time.perf_counter() - t0}
@@ -185,7 +206,7 @@ def mms(model: str = "tipd", *, dim: int = 2, dx: float = 0.005, m: float = 3.0,
 # ---------------------------------------------------------------------------- strip
 def strip(model: str = "tipd", *, E: float = 70e9, nu: float | None = 0.25, C=None,
           nx: int = 60, ny: int = 20, dx: float = 1e-3, m: float = 3.015, strain: float = 1e-4,
-          calibration: str = "discrete", stabilisation=None, surface: str = "none") -> dict:
+          calibration: str = "discrete", stabilisation=None, surface: str | None = None) -> dict:
     """Free-contraction tension of a plane-stress strip (module docstring). ``C`` (Voigt,
     axis 1 along x) instead of ``E``/``nu`` for an anisotropic material. Returns the
     apparent Poisson ratio and modulus."""
@@ -197,7 +218,7 @@ def strip(model: str = "tipd", *, E: float = 70e9, nu: float | None = 0.25, C=No
     fam = build_family(s, m * dx)
     mdl = make_model(model, C, E=None if C is not None else E, nu=None if C is not None else nu,
                      calibration=calibration, stabilisation=stabilisation,
-                     **_surface_kw(model, surface))
+                     **surface_kw(model, surface))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         mdl.prepare(s, fam)
@@ -232,22 +253,28 @@ def strip(model: str = "tipd", *, E: float = 70e9, nu: float | None = 0.25, C=No
 # ---------------------------------------------------------------------------- eigen
 def eigen_counts(model: str = "tipd", *, dim: int = 2, E: float = 70e9, nu: float = 0.25, C=None,
                  plane: str = "stress", n: int | None = None, m: float = 3.015,
-                 calibration: str = "discrete", stabilisation=None, surface: str = "none") -> dict:
-    """Zero and negative eigenvalues of the free-body stiffness (module docstring)."""
+                 calibration: str = "discrete", stabilisation=None, surface: str | None = None,
+                 shape=None, clamped: bool = False) -> dict:
+    """Zero and negative eigenvalues of the free-body stiffness (module docstring);
+    ``shape``: lattice counts (default n per side); ``clamped``: the particles within one
+    horizon of the x = min end held (the stiffness of a body that cannot move rigidly)."""
     from upscale.engine import State, build_family, cubic_lattice, square_lattice
 
     n = n or (10 if dim == 2 else 5)
-    s = square_lattice(n, n, 1e-3, plane=plane) if dim == 2 else cubic_lattice(n, n, n, 1e-3)
+    shape = tuple(shape) if shape is not None else (n,) * dim
+    s = square_lattice(*shape, 1e-3, plane=plane) if dim == 2 else cubic_lattice(*shape, 1e-3)
     fam = build_family(s, m * 1e-3)
     mdl = make_model(model, C, E=None if C is not None else E, nu=None if C is not None else nu,
                      calibration=calibration, stabilisation=stabilisation,
-                     **_surface_kw(model, surface))
+                     **surface_kw(model, surface))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         mdl.prepare(s, fam)
     K = mdl.tangent(State.reference(s.x0, fam.nb)).toarray()
     free = np.zeros((s.n, 3), dtype=bool)
     free[:, :dim] = True
+    if clamped:
+        free[s.x0[:, 0] < s.x0[:, 0].min() + m * 1e-3 - 1e-9] = False
     Kf = K[free.ravel()][:, free.ravel()]
     ev = np.linalg.eigvalsh(0.5 * (Kf + Kf.T))
     sc = np.abs(ev).max()
@@ -255,13 +282,13 @@ def eigen_counts(model: str = "tipd", *, dim: int = 2, E: float = 70e9, nu: floa
             "zero": int((np.abs(ev) <= 1e-10 * sc).sum()),
             "negative": int((ev < -1e-10 * sc).sum()),
             "min_over_max": float(ev.min() / sc),
-            "rigid_modes": dim * (dim + 1) // 2}
+            "rigid_modes": 0 if clamped else dim * (dim + 1) // 2}
 
 
 # ---------------------------------------------------------------------------- rotation
 def rotation(model: str = "tipd", *, E: float = 70e9, nu: float = 0.25, n: int = 10,
              angle: float = 0.2, omega: float = 1e3, rho: float = 2440.0, m: float = 3.015,
-             calibration: str = "discrete", surface: str = "none") -> dict:
+             calibration: str = "discrete", surface: str | None = None) -> dict:
     """Free 2D body spun rigidly about its centre at ``omega`` (rad/s), velocity Verlet until
     it has turned by ``angle`` (rad): relative change of the angular momentum L_z and strain
     energy over the initial kinetic energy."""
@@ -270,7 +297,7 @@ def rotation(model: str = "tipd", *, E: float = 70e9, nu: float = 0.25, n: int =
 
     s = square_lattice(n, n, 1e-3, density=rho, plane="stress", centered=True)
     fam = build_family(s, m * 1e-3)
-    mdl = make_model(model, E=E, nu=nu, **({"calibration": calibration, "surface": surface}
+    mdl = make_model(model, E=E, nu=nu, **({"calibration": calibration, **surface_kw(model, surface)}
                                            if model == "tipd" else {}))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -356,8 +383,9 @@ def register(sub) -> None:
     p.add_argument("--dx", type=float, nargs="*", default=None, help="spacing(s) in m")
     p.add_argument("--calibration", default=None,
                    help="Ti-PD: discrete or continuum (default: discrete; hole: continuum)")
-    p.add_argument("--surface", default="none",
-                   help="Ti-PD surface correction: none (default) or correspondence")
+    p.add_argument("--surface", default=None, choices=["none", "correspondence"],
+                   help="Ti-PD surface correction: correspondence or none (default: correspondence "
+                        "for the elastic scenes, none with failure)")
     p.add_argument("--stabilisation", default=None, help="NOSB: silling or wan (default none)")
     p.add_argument("--nu", type=float, default=0.25)
     p.add_argument("--material", default="iso", help="hole: iso or ortho")

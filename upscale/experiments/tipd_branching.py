@@ -57,9 +57,14 @@ def rayleigh_speed(E=GLASS["E"], nu=GLASS["nu"], rho=GLASS["rho"]) -> float:
 
 def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
               critical: str = "tipd", t_end: float | None = None, m: float = 3.0,
-              record_dt: float = 0.25e-6, progress: bool = False, outdir=None) -> dict:
-    """Run the branching scene (module docstring); returns the crack-tip history and its
-    measures (SI units)."""
+              record_dt: float = 0.25e-6, load_width: float | None = None, progress: bool = False,
+              outdir=None) -> dict:
+    """Run the branching scene (module docstring) with horizon ``delta = m dx``; the traction
+    acts on the rows within ``load_width`` (m, a multiple of dx; default dx: the outer row)
+    of the top and bottom edges, shared equally between them (a grid refinement at a fixed
+    horizon keeps the loaded layer with ``load_width`` = the coarse dx). Returns the
+    crack-tip history and its measures (SI units), and the final ``damage`` (n,) with the
+    reference ``positions_m`` (n, 2) as arrays (not JSON)."""
     from upscale import models
     from upscale.engine import Simulation, bonds_crossing_segment, build_family, square_lattice
     from upscale.engine.conditions import Force, region
@@ -88,9 +93,13 @@ def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
     else:
         raise ValueError(f"unknown model {model!r}; valid: 'tipd', 'lps', 'pmb'")
     ytop, ybot = x0[:, 1].max(), x0[:, 1].min()
-    f = stress * dx * s.thickness
-    conds = [Force(region(s, "top edge", where=lambda x: x[:, 1] > ytop - 1e-9 * dx), [0.0, f, 0.0]),
-             Force(region(s, "bottom edge", where=lambda x: x[:, 1] < ybot + 1e-9 * dx), [0.0, -f, 0.0])]
+    rows = 1 if load_width is None else int(round(load_width / dx))
+    if rows < 1 or not np.isclose(rows * dx, load_width if load_width is not None else dx, rtol=1e-6):
+        raise ValueError(f"load_width must be a positive multiple of dx = {dx!r} m, got {load_width!r}")
+    f = stress * dx * s.thickness / rows
+    lw = (rows - 0.5) * dx
+    conds = [Force(region(s, "top edge", where=lambda x: x[:, 1] > ytop - lw), [0.0, f, 0.0]),
+             Force(region(s, "bottom edge", where=lambda x: x[:, 1] < ybot + lw), [0.0, -f, 0.0])]
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         sim = Simulation(s, fam, [mdl], conditions=conds, integrator=VelocityVerlet(safety=0.8))
@@ -170,14 +179,15 @@ def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
     asym = float((dam & ~dam[mirror]).sum() / max(dam.sum(), 1))
     edge_damage = int((dam & ~crack_cluster(dam)).sum())
     res = {"model": model, "critical": critical if model == "tipd" else None, "stress_Pa": stress,
-           "dx_m": dx, "horizon_m": fam.horizon, "particles": s.n, "dt_s": float(dt), "steps": run["steps"],
+           "dx_m": dx, "horizon_m": fam.horizon, "load_rows": rows, "particles": s.n, "dt_s": float(dt), "steps": run["steps"],
            "t_end_s": float(sim.state.t), "s0": float(mdl.s0), "cR_m_per_s": cR,
            "v_max_m_per_s": vmax, "v_max_over_cR": vmax / cR,
            "branching_t_s": None if br is None else br[0], "branching_x_m": None if br is None else br[1],
            "branch_angle_deg": angle, "asymmetry_fraction": asym,
            "damaged_off_crack": edge_damage,
            "broken_bonds": run["broken_bonds"], "tip_t_s": rec_t, "tip_x_m": rec_tip,
-           "upper_tip_xy_m": rec_up, "lower_tip_xy_m": rec_lo, "wall_time_s": time.perf_counter() - t0}
+           "upper_tip_xy_m": rec_up, "lower_tip_xy_m": rec_lo, "wall_time_s": time.perf_counter() - t0,
+           "positions_m": x0[:, :2].copy(), "damage": d}
     if outdir is not None:
         import matplotlib
 
@@ -193,7 +203,8 @@ def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
                      f"t = {sim.state.t * 1e6:.1f} us")
         fig.colorbar(sc, ax=ax, label="damage")
         fig.tight_layout()
-        tag = f"{model}{'_' + critical if model == 'tipd' else ''}_{stress / 1e6:g}MPa_dx{dx * 1e3:g}mm"
+        tag = (f"{model}{'_' + critical if model == 'tipd' else ''}_{stress / 1e6:g}MPa_dx{dx * 1e3:g}mm"
+               + ("" if m == 3 else f"_m{m:g}") + ("" if rows == 1 else f"_load{rows}"))
         fig.savefig(out / f"damage_{tag}.png", dpi=150)
         plt.close(fig)
         res["damage_png"] = str(out / f"damage_{tag}.png")

@@ -61,13 +61,13 @@ def hole_body(dx: float, m: float = 3.0, *, L=L_PLATE, W=W_PLATE, R=R_HOLE, dens
 
 def hole(model: str = "tipd", *, material: str = "iso", dx: float = 1e-3, m: float = 3.0,
          calibration: str = "continuum", stabilisation=None, U: float = U_GRIP,
-         L: float = L_PLATE, W: float = W_PLATE, surface: str = "none") -> dict:
+         L: float = L_PLATE, W: float = W_PLATE, surface: str | None = None) -> dict:
     """Solve the clamped plate (module docstring). Returns positions and displacements of
     the rows next to y = 0 and to the free edges, the grip reaction (N), ``Kt`` and the
     stress at the particle next to the hole's top."""
     from upscale.engine import State, build_family
     from upscale.engine.static import solve_linear
-    from upscale.experiments.tipd import make_model
+    from upscale.experiments.tipd import surface_kw, make_model
     from upscale.models.correspondence import Correspondence
 
     t0 = time.perf_counter()
@@ -75,7 +75,7 @@ def hole(model: str = "tipd", *, material: str = "iso", dx: float = 1e-3, m: flo
     s, lg, rg = hole_body(dx, m, L=L, W=W)
     fam = build_family(s, m * dx * (1 + 1e-9))
     mdl = make_model(model, C, calibration=calibration, stabilisation=stabilisation,
-                     **({"surface": surface} if model == "tipd" else {}))
+                     **surface_kw(model, surface))
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         mdl.prepare(s, fam)
@@ -84,7 +84,7 @@ def hole(model: str = "tipd", *, material: str = "iso", dx: float = 1e-3, m: flo
     ubar[rg, 0] = U
     st = State.reference(s.x0, fam.nb)
     # the surface correction's 2-delta coupling makes LU fill in: CG on the assembled matrix
-    method = "direct" if model == "tipd" and surface == "none" else "cg"
+    method = "direct" if model == "tipd" and mdl.surface == "none" else "cg"
     info = solve_linear(mdl, st, fixed=grips, u_prescribed=ubar, method=method, tol=1e-10)
     u = st.y - s.x0
     F = mdl.residual(st).reshape(s.n, 3)
@@ -104,7 +104,7 @@ def hole(model: str = "tipd", *, material: str = "iso", dx: float = 1e-3, m: flo
     return {"model": model, "material": material, "dx_m": dx, "horizon_m": fam.horizon,
             "calibration": calibration if model == "tipd" else None,
             "stabilisation": stabilisation if model == "nosb" else None,
-            "surface": surface if model == "tipd" else None,
+            "surface": mdl.surface if model == "tipd" else None,
             "particles": s.n, "reaction_N": reaction, "sigma_gross_Pa": sigma_gross,
             "Kt": float(sig[k, 0] / sigma_gross), "Kt_point_m": x[k, :2].tolist(),
             "mid_xy_m": x[mid, :2].tolist(), "mid_u_m": u[mid, :2].tolist(),
@@ -114,7 +114,8 @@ def hole(model: str = "tipd", *, material: str = "iso", dx: float = 1e-3, m: flo
 
 def hole_adr(model: str = "tipd", *, material: str = "ortho", nx: int = 300, steps: int = 4000,
              calibration: str = "continuum", stabilisation=None, U: float = U_GRIP,
-             fused: bool = True, kernel: str = "pair", progress: bool = False) -> dict:
+             fused: bool = True, kernel: str = "pair", progress: bool = False,
+             surface: str | None = None) -> dict:
     """``steps`` adaptive dynamic relaxation steps (Kilic & Madenci; the engine's
     :class:`~upscale.engine.integrators.AdaptiveDynamicRelaxation`, tolerance 0 so that every
     step runs; ``fused``: its kernel-fused twin :class:`~upscale.engine.adr.FusedAdaptiveDynamicRelaxation`)
@@ -128,14 +129,15 @@ def hole_adr(model: str = "tipd", *, material: str = "ortho", nx: int = 300, ste
     from upscale.engine.conditions import Displacement, Fixed, region
     from upscale.engine.adr import FusedAdaptiveDynamicRelaxation
     from upscale.engine.integrators import AdaptiveDynamicRelaxation
-    from upscale.experiments.tipd import make_model
+    from upscale.experiments.tipd import surface_kw, make_model
 
     t0 = time.perf_counter()
     dx = L_PLATE / nx
     C = material_voigt(material)
     s, lg, rg = hole_body(dx, 3.0)
     fam = build_family(s, 3.0 * dx * (1 + 1e-9))
-    mdl = make_model(model, C, calibration=calibration, stabilisation=stabilisation, kernel=kernel)
+    mdl = make_model(model, C, calibration=calibration, stabilisation=stabilisation, kernel=kernel,
+                     **surface_kw(model, surface))
     conds = [Fixed(region(s, "left grip", where=lambda x: x[:, 0] < -L_PLATE / 2)),
              Displacement(region(s, "right grip", where=lambda x: x[:, 0] > L_PLATE / 2), [U, 0.0, 0.0])]
     with warnings.catch_warnings():

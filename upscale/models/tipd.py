@@ -40,12 +40,13 @@ Poisson ratio different from the input unless D12 = D66. Rigid rotations store e
 unless D12 = D66, bond forces are not along the bond, and the free-body stiffness is
 indefinite when ``S`` (as a quadratic form on all d x d displacement gradients) has a
 negative eigenvalue: isotropic 2D plane stress for nu > 1/3, plane strain and 3D for
-nu > 1/4. :class:`TiPD` warns (:class:`IndefiniteWarning`) when that happens.
-Ti-PD equals bond-based PD (PMB) when D12 = D66 (nu = 1/3 plane stress, 1/4 plane strain
+nu > 1/4. :class:`TiPD` warns (:class:`IndefiniteWarning`) when that happens without the
+surface correction below (with it the free-surface traction is that of C and a body held
+at one end is positive definite for these materials too). Ti-PD equals bond-based PD (PMB) when D12 = D66 (nu = 1/3 plane stress, 1/4 plane strain
 and 3D; eqs. (50)-(51)).
 
-Surface correction (``surface="correspondence"``, not in the paper)
--------------------------------------------------------------------
+Surface correction (``surface="correspondence"``, not in the paper; the default without failure)
+------------------------------------------------------------------------------------------------
 The traction a pair model carries across any cut is ``S : H n``, not ``C : H n``: no
 micromodulus, however position-dependent, fixes the free-surface error, because a pair
 force cannot carry the part ``(C - S)`` of C that breaks the Cauchy relation. The correction
@@ -64,8 +65,20 @@ calibration Delta also removes its lattice bias. Forces are the linear correspon
 force ``b_i = sum_j w (Q_i + Q_j) xi``, ``Q_i = (Delta_i : H_i) K_i^-1``, coupling
 particles 2 delta apart; the stiffness stays symmetric. Costs: a correspondence pass per
 force evaluation and a denser stiffness. Caveats: the free body is slightly indefinite
-(a rotation costs no energy but is not force-free), and the correction is elastic
-(refused with a failure criterion, since H is built on all bonds).
+(a rotation costs no energy but is not force-free; a body held at one end is positive
+definite, also for the materials that make the uncorrected model indefinite); layers of
+prescribed displacement must be two horizons wide (or be declared with ``surface_bulk``
+and be two horizons wide) for the gradients that reach free particles to be built on full
+families, else the error is first order in dx; and the correction is elastic (a failure
+criterion leaves it off, since H is built on all bonds).
+
+Default: ``surface=None`` means "correspondence" for an elastic model and "none" (the
+paper's model) with a failure criterion. The correction is the default because the pair
+model alone carries the wrong traction ``S : H n`` at every free surface (apparent Poisson
+ratio (1 + nu)/4 in 2D plane stress, whatever the input nu) and stores energy in rigid
+rotations; with it the bulk equations are unchanged (discrete calibration) or freed of the
+lattice bias (continuum calibration). ``surface="none"`` is the paper's model, e.g. for
+its identity with PMB at D12 = D66.
 
 Failure
 -------
@@ -90,7 +103,6 @@ the paper's ``(11, 22, 33, 12, 23, 13)`` (``order="tian"``, its eqs. (8)-(9) and
 """
 from __future__ import annotations
 
-import itertools
 import warnings
 
 import numba as nb
@@ -103,7 +115,7 @@ from upscale.models.base import Model, Needs
 __all__ = ["TiPD", "IndefiniteWarning", "voigt_to_tensor", "tensor_to_voigt", "isotropic_voigt",
            "orthotropic_voigt_2d", "rotate_tensor", "symmetrised_tensor", "induced_tensor",
            "paper_induced_voigt_2d", "appendix_a_stiffness", "indefiniteness",
-           "tipd_critical_stretch"]
+           "tipd_critical_stretch", "surface_stress_kernel", "default_surface"]
 
 
 class IndefiniteWarning(UserWarning):
@@ -543,6 +555,37 @@ def _sym_pairs_inverse(Q, d):
     return np.linalg.pinv(Qm, rcond=1e-12, hermitian=True).reshape(d, d, d, d)
 
 
+@nb.njit(parallel=True, cache=True)
+def surface_stress_kernel(H_nk, Delta_nkk, Kinv_n, d, Q_nk):
+    """Surface correction's ``Q_i = (Delta_i : H_i) K_i^-1`` per particle. ``H_nk``: the
+    gradients as rows of d*d (2D) or 9 (3D, a (N, 3, 3) view) entries ``[p, a]``;
+    ``Delta_nkk`` (N, d*d, d*d) with row ``p d + a`` and column ``q d + b``; ``Kinv_n``
+    (N, 3, 3); ``Q_nk`` laid out as ``H_nk``."""
+    n = H_nk.shape[0]
+    st = 2 if d == 2 else 3                     # row stride of the (p, a) layout
+    for i in nb.prange(n):
+        P = np.zeros((3, 3))
+        for p in range(d):
+            for a in range(d):
+                v = 0.0
+                for q in range(d):
+                    for b in range(d):
+                        v += Delta_nkk[i, p * d + a, q * d + b] * H_nk[i, q * st + b]
+                P[p, a] = v
+        for p in range(d):
+            for a in range(d):
+                v = 0.0
+                for c in range(d):
+                    v += P[p, c] * Kinv_n[i, c, a]
+                Q_nk[i, p * st + a] = v
+
+
+def default_surface(failure: bool) -> str:
+    """The surface correction :class:`TiPD` uses when none is given: "correspondence" for
+    an elastic model, "none" with a failure criterion (the correction is elastic)."""
+    return "none" if failure else "correspondence"
+
+
 class TiPD(Model):
     """Tensor-involved peridynamics (seed 003), 2D (plane stress/strain) and 3D; see the
     module docstring for the equations.
@@ -567,15 +610,17 @@ class TiPD(Model):
         ((62)/(96)). Neither: no failure.
     warn : bool
         Emit :class:`IndefiniteWarning` when the material makes the free-body stiffness
-        indefinite.
+        of the uncorrected model (``surface="none"``) indefinite.
     kernel : {"pair", "bond"}
         Force loop over the half-pair list (each pair once, :mod:`upscale.engine.pairs`;
         needs symmetric pair stiffnesses, else falls back to "bond") or over the directed
         bonds (each pair twice). Same forces to round-off.
-    surface : {"none", "correspondence"}
+    surface : {None, "none", "correspondence"}
         "correspondence" adds the per-particle correction energy
         ``sum_i V_i (1/2) H_i : (C - S_i^lat) : H_i`` (module docstring, "Surface
-        correction"); elastic only (refused together with a failure criterion).
+        correction"); elastic only (refused together with a failure criterion). "none":
+        the paper's model. None (default): "correspondence" without a failure criterion,
+        "none" with one (:func:`default_surface`).
     surface_bulk : callable, optional
         ``surface_bulk(x0) -> bool (N,)``: particles whose correction uses the bulk tensor
         ``C - S^lat`` of the most complete family instead of their own, for layers whose
@@ -590,7 +635,7 @@ class TiPD(Model):
                  order: str = "standard", angle: float | None = None, axes=None,
                  calibration: str = "continuum", s0: float | None = None,
                  G0: float | None = None, critical: str = "tipd", warn: bool = True,
-                 kernel: str = "pair", surface: str = "none", surface_bulk=None):
+                 kernel: str = "pair", surface: str | None = None, surface_bulk=None):
         if (C is None) == (E is None):
             raise ValueError("TiPD needs exactly one of C (elastic stiffness) or E, nu (isotropic)")
         if E is not None and nu is None:
@@ -602,8 +647,10 @@ class TiPD(Model):
         if kernel not in ("pair", "bond"):
             raise ValueError(f"unknown force kernel {kernel!r}; valid: 'pair', 'bond'")
         self.kernel = kernel
-        if surface not in ("none", "correspondence"):
-            raise ValueError(f"unknown surface correction {surface!r}; valid: 'none', 'correspondence'")
+        if surface not in (None, "none", "correspondence"):
+            raise ValueError(f"unknown surface correction {surface!r}; valid: None, 'none', 'correspondence'")
+        if surface is None:
+            surface = default_surface(failure=s0 is not None or G0 is not None)
         if surface != "none" and (s0 is not None or G0 is not None):
             raise ValueError("the surface correction is elastic only: give no s0/G0 with "
                              f"surface={surface!r} (valid: surface='none' with failure)")
@@ -654,7 +701,7 @@ class TiPD(Model):
         self.S = symmetrised_tensor(C)
         info = indefiniteness(C)
         self.indefinite = info
-        if info["indefinite"] and self.warn:
+        if info["indefinite"] and self.warn and self.surface == "none":
             Dv = tensor_to_voigt(C)
             cond = ("D12 > D66 (isotropic: nu > 1/3 plane stress, nu > 1/4 plane strain)"
                     if d == 2 else "nu > 1/4 for isotropic materials")
@@ -728,6 +775,44 @@ class TiPD(Model):
         self._cxi = np.ascontiguousarray(fam.xi)
         self._cH = np.zeros((fam.n, 3, 3))
         self._cQ = np.zeros((fam.n, 3, 3))
+        self._surface_pairs()
+
+    def _surface_pairs(self) -> None:
+        """Half-pair form of the correction's gradient and force (the correspondence pair
+        kernels of :mod:`upscale.models.correspondence`, fed with u instead of y so that
+        they return H directly), when the pair weight ``V_i w_ij = V_j w_ji`` is symmetric."""
+        from upscale.engine.pairs import half_pairs
+
+        fam, V, d, n = self.family, self.system.volume, self.dim, self.system.n
+        pr = half_pairs(fam)
+        ci = self._cw_b[pr.b] * V[pr.i]
+        cj = self._cw_b[pr.rb] * V[pr.j]
+        self._cpair = self.kernel == "pair" and bool(
+            np.abs(ci - cj).max() <= 1e-12 * max(np.abs(ci).max(), 1e-300))
+        if not self._cpair:
+            return
+        self._cpr = pr
+        self._cc_p = np.ascontiguousarray(0.5 * (ci + cj))
+        self._cinv_vol = np.ascontiguousarray(1.0 / V)
+        self._cxi_p = np.ascontiguousarray(fam.xi[pr.b, :d] if d == 2 else fam.xi[pr.b])
+        self._cC3 = np.zeros((3, 3, 3, 3))          # the kernels' stress pass is not used
+        self._cpsi = np.zeros(n)
+        self._cDelta = np.ascontiguousarray(self.Delta_n.reshape(n, d * d, d * d))
+        if d == 2:
+            self._cH4 = np.zeros((n, 4))
+            self._cP4 = np.zeros((n, 4))
+            self._cQ4 = np.zeros((n, 4))
+            self._cB4 = np.zeros((n, 4))
+        else:
+            self._cPK = np.zeros((n, 3, 3))
+            self._cB = np.zeros((n, 3, 3))
+        self._surface_buffers()
+
+    def _surface_buffers(self) -> None:
+        n, d = self.system.n, self.dim
+        self._cbufA = self._cpr.buffers(n, 4 if d == 2 else 9)
+        self._cbufF = self._cpr.buffers(n, d)
+        self._cbounds = self._cpr.thread_bounds(self._cbufA.shape[0])
 
     def surface_gradient(self, state) -> np.ndarray:
         """The correction's displacement gradients ``H_i = sum_j w (u_j - u_i) (x) xi K_i^-1``
@@ -745,11 +830,41 @@ class TiPD(Model):
         from upscale.models.correspondence import nosb_force_kernel
 
         d, f = self.dim, self.family
+        if self._cpair:
+            self._add_surface_force_pairs(state, out)
+            return
         H = self.surface_gradient(state)[:, :d, :d]
         P = np.einsum("npaqb,nqb->npa", self.Delta_n, H)
         self._cQ[:, :d, :d] = np.einsum("npc,nca->npa", P, self._cKinv[:, :d, :d])
         nosb_force_kernel(f.offsets, f.neighbors, self._cxi, self._cw_b, self._cQ, self._cH,
                           self._cQ, state.y, d, False, out)
+
+    def _add_surface_force_pairs(self, state, out) -> None:
+        from upscale.engine.pairs import reduce_buffers
+        from upscale.models.correspondence import (nosb_pair_force, nosb_pair_force_2d, nosb_pair_update,
+                                                   nosb_pair_update_2d)
+
+        if self._cbufA.shape[0] != nb.get_num_threads():
+            self._surface_buffers()
+        u = self._u
+        np.subtract(state.y, self.system.x0, out=u)
+        pr, d = self._cpr, self.dim
+        if d == 2:
+            nosb_pair_update_2d(self._cbounds, pr.offsets, pr.j, self._cxi_p, self._cc_p, u, self._cinv_vol,
+                                self._cKinv, self._cC3, 0, 0.0, 0.0, self._cbufA, self._cH, self._cH4,
+                                self._cP4, self._cpsi)
+            surface_stress_kernel(self._cH4, self._cDelta, self._cKinv, 2, self._cQ4)
+            nosb_pair_force_2d(self._cbounds, pr.offsets, pr.j, self._cxi_p, self._cc_p, self._cQ4, self._cH4,
+                               self._cB4, state.y, False, self._cbufF)
+        else:
+            nosb_pair_update(self._cbounds, pr.offsets, pr.j, self._cxi_p, self._cc_p, u, self._cinv_vol,
+                             self._cKinv, self._cC3, 0, 0.0, 0.0, 3, self._cbufA, self._cH, self._cPK,
+                             self._cpsi)
+            Q = self._cQ.reshape(-1, 9)
+            surface_stress_kernel(self._cH.reshape(-1, 9), self._cDelta, self._cKinv, 3, Q)
+            nosb_pair_force(self._cbounds, pr.offsets, pr.j, self._cxi_p, self._cc_p, self._cQ, self._cH,
+                            self._cB, state.y, 3, False, self._cbufF)
+        reduce_buffers(self._cbufF, self._cinv_vol, out, d)
 
     def _set_pair_stiffness(self, M_b) -> None:
         """The pair form of the force from the bond matrices ``M_b`` (nb, d, d): on the

@@ -7,7 +7,8 @@ Kirsch / Lekhnitskii stress concentrations.
     Induced tensor against (47) (2D, anisotropic) and Remark 5 (3D isotropic); lattice
     moment of the discrete calibration; forces against the project's PMB at D12 = D66;
     zero interior force of a linear field; assembled stiffness symmetric, = -dF/du and =
-    Appendix A corrected (and how far the printed Appendix A is off).
+    Appendix A corrected (and how far the printed Appendix A is off); the same checks on
+    the surface-corrected model (PMB equivalence beyond 2 delta of the surfaces).
 ``tipd-mms``
     Manufactured solutions 5.1.1 / 5.1.2: relative L2 error against spacing for Ti-PD
     (discrete and continuum calibration), NOSB and stabilised NOSB; convergence orders;
@@ -16,6 +17,12 @@ Kirsch / Lekhnitskii stress concentrations.
     Free-contraction tension: apparent Poisson ratio and modulus of a free strip for
     nu = 0.1, 0.25, 1/3 and the orthotropic material of 5.2.2, Ti-PD, LPS, NOSB;
     free-body eigenvalue signs (2D, 3D); angular momentum of a free rotating body.
+``tipd-surface``
+    The surface correction as the default: eigenvalues of a body held at one end, force
+    cost, manufactured-solution order with one- and two-horizon layers.
+``tipd-hole``, ``bench-tipd``, ``tipd-branching``
+    Plate with a hole against FE; speed against Table 1; crack branching in glass with two
+    refinements (dx/2 at the same horizon, dx/2 at delta = 3 dx).
 """
 from __future__ import annotations
 
@@ -80,7 +87,7 @@ def tipd_kernel(args):
     for (s, f, C, lab) in ((s2, f2, D, "2D anisotropic, angle 0.3"),
                            (s3, f3, isotropic_voigt(E, nu, 3), "3D nu=0.3")):
         for cal in ("discrete", "continuum"):
-            m = TiPD(C, calibration=cal, angle=0.3, warn=False)
+            m = TiPD(C, calibration=cal, angle=0.3, warn=False, surface="none")
             m.prepare(s, f)
             err = float(np.abs(m.lattice_moment() - m.S).max() / np.abs(m.S).max())
             if cal == "discrete":
@@ -93,7 +100,7 @@ def tipd_kernel(args):
     for dim, plane, nuv in ((2, "stress", 1 / 3), (2, "strain", 0.25), (3, "stress", 0.25)):
         s = square_lattice(n2, n2, 1e-3, plane=plane) if dim == 2 else s3
         f = build_family(s, 3.015e-3) if dim == 2 else f3
-        t = TiPD(E=70e9, nu=nuv)
+        t = TiPD(E=70e9, nu=nuv, surface="none")
         t.prepare(s, f)
         p = PMB(E=70e9, nu=nuv)
         p.prepare(s, f)
@@ -119,7 +126,7 @@ def tipd_kernel(args):
         rows.append({"check": f"Ti-PD vs PMB kernel, central difference at strain 1e-5, {dim}D {plane}",
                      "value": e_nl, "target": "reported (truncation ~1e-10)"})
 
-    m = TiPD(D, calibration="discrete", angle=0.7, warn=False)
+    m = TiPD(D, calibration="discrete", angle=0.7, warn=False, surface="none")
     m.prepare(s2, f2)
     H = np.array([[1.0, -0.4, 0], [0.7, -0.2, 0], [0, 0, 0]]) * 1e-3
     st = State.reference(s2.x0, f2.nb)
@@ -143,7 +150,7 @@ def tipd_kernel(args):
     Fi = m.particle_force(st).ravel()
     eKu = float(np.abs(Fi + K @ (st.y - s2.x0).ravel()).max() / np.abs(Fi).max())
     rows.append({"check": "F_int + K u (stiffness = -dF/du)", "value": eKu, "target": "<= 1e-12"})
-    mc = TiPD(D)
+    mc = TiPD(D, surface="none")
     mc.prepare(s2, f2)
     K = mc.tangent()
     perm = np.empty(2 * s2.n, dtype=int)
@@ -155,15 +162,98 @@ def tipd_kernel(args):
     eAl = float(abs(K2 + Vv * appendix_a_stiffness(s2, f2, D, literal=True)).max() / abs(K2).max())
     rows.append({"check": "stiffness vs Appendix A corrected", "value": eA, "target": "<= 1e-13"})
     rows.append({"check": "stiffness vs Appendix A as printed", "value": eAl, "target": "reported (typos)"})
+    sc = _surface_kernel_checks(s2, f2, D, rows)
     print(table(rows, ["check", "value", "target"], floatfmt=".3e"))
-    res = {"lattice_moment_rel_err": max(lm), "pmb_equiv_rel_err": max(pm),
+    res = {"surface_correction": sc, "lattice_moment_rel_err": max(lm), "pmb_equiv_rel_err": max(pm),
            "induced_vs_47_rel_err": e47, "induced_vs_remark5_rel_err": e5,
            "linear_field_interior_force_rel": elin, "stiffness_asymmetry_rel": esym,
            "stiffness_vs_appendix_a_corrected_rel": eA, "stiffness_vs_appendix_a_printed_rel": eAl,
            "stiffness_vs_minus_dF_du_rel": eKu}
     res["pass"] = bool(max(lm) <= 1e-12 and max(pm) <= 1e-12 and elin <= 1e-12 and esym <= 1e-14
-                       and eA <= 1e-13 and e47 <= 1e-14 and e5 <= 1e-14 and eKu <= 1e-12)
+                       and eA <= 1e-13 and e47 <= 1e-14 and e5 <= 1e-14 and eKu <= 1e-12
+                       and sc["homogeneous_energy_every_particle_rel"] <= 1e-10
+                       and sc["linear_field_interior_force_rel"] <= 1e-12 and sc["stiffness_asymmetry_rel"] <= 1e-14
+                       and sc["stiffness_vs_minus_dF_du_rel"] <= 1e-12 and sc["pmb_equiv_beyond_2delta_rel"] <= 1e-12)
     return res
+
+
+def _surface_kernel_checks(s2, f2, D, rows):
+    """The kernel checks on Ti-PD with the surface correction: energy of homogeneous
+    gradients at every particle, PMB equivalence at D12 = D66 away from the surfaces
+    (discrete calibration: the bulk correction vanishes there), zero interior force of a
+    linear field, symmetric stiffness equal to -dF/du."""
+    from upscale.engine import State, build_family, cubic_lattice
+    from upscale.models.tipd import TiPD
+
+    rng = np.random.default_rng(1)
+    out = {}
+    m = TiPD(D, calibration="discrete", angle=0.7, warn=False, surface="correspondence")
+    m.prepare(s2, f2)
+    err = 0.0
+    for _ in range(3):
+        H = rng.normal(size=(2, 2)) * 1e-3
+        st = State.reference(s2.x0, f2.nb)
+        st.y[:, :2] += s2.x0[:, :2] @ H.T
+        W = m.energy_density(st)
+        eps = 0.5 * (H + H.T)
+        W0 = 0.5 * np.einsum("pa,paqb,qb->", eps, m.C, eps)
+        err = max(err, float(np.abs(W - W0).max() / W0))
+    out["homogeneous_energy_every_particle_rel"] = err
+    rows.append({"check": "surface correction: energy of a homogeneous gradient, every particle (2D aniso)",
+                 "value": err, "target": "<= 1e-10"})
+    # linear field: interior force; stiffness symmetric and = -dF/du
+    H = np.array([[1.0, -0.4, 0], [0.7, -0.2, 0], [0, 0, 0]]) * 1e-3
+    st = State.reference(s2.x0, f2.nb)
+    st.y += s2.x0 @ H.T
+    F = m.force(st)
+    x = s2.x0[:, :2]
+    far = np.all(np.abs(x - x.mean(0)) < (np.ptp(x, axis=0) / 2 + 1e-3 - 2 * f2.horizon), axis=1)
+    m0 = TiPD(D, calibration="discrete", angle=0.7, warn=False, surface="none")
+    m0.prepare(s2, f2)
+    eta = (st.y - s2.x0)[f2.neighbors] - (st.y - s2.x0)[f2.owner]
+    mag = np.bincount(f2.owner, weights=np.linalg.norm(np.einsum("kpq,kq->kp", m0.bond_matrices(),
+                                                                  eta[:, :2]), axis=1), minlength=s2.n)
+    out["linear_field_interior_force_rel"] = float((np.linalg.norm(F[far], axis=1) / mag[far]).max())
+    rows.append({"check": "surface correction: linear field, |b_i| / sum_j |M eta| beyond 2 delta of the edges",
+                 "value": out["linear_field_interior_force_rel"], "target": "<= 1e-12"})
+    K = m.tangent()
+    out["stiffness_asymmetry_rel"] = float(abs(K - K.T).max() / abs(K).max())
+    st = State.reference(s2.x0, f2.nb)
+    st.y[:, :2] += rng.normal(size=(s2.n, 2)) * 1e-6
+    Fi = m.particle_force(st).ravel()
+    out["stiffness_vs_minus_dF_du_rel"] = float(np.abs(Fi + K @ (st.y - s2.x0).ravel()).max() / np.abs(Fi).max())
+    rows.append({"check": "surface correction: |K - K^T| / |K|", "value": out["stiffness_asymmetry_rel"],
+                 "target": "<= 1e-14"})
+    rows.append({"check": "surface correction: F_int + K u", "value": out["stiffness_vs_minus_dF_du_rel"],
+                 "target": "<= 1e-12"})
+    # PMB at D12 = D66 (= the uncorrected model, checked above): equal beyond 2 delta of the
+    # surfaces (discrete calibration), not at them
+    s3 = cubic_lattice(14, 14, 14, 1e-3)        # has particles 2 delta from every face (dx = 1 mm)
+    f3 = build_family(s3, 3.015e-3)
+    pm_far, pm_all = [], []
+    for (s, f, nuv) in ((s2, f2, 1 / 3), (s3, f3, 0.25)):
+        t = TiPD(E=70e9, nu=nuv, calibration="discrete", surface="correspondence")
+        t.prepare(s, f)
+        u = rng.normal(size=s.x0.shape) * 1e-6
+        if s.dim == 2:
+            u[:, 2] = 0
+        st = State.reference(s.x0, f.nb)
+        st.y += u
+        t0 = TiPD(E=70e9, nu=nuv, calibration="discrete", surface="none")
+        t0.prepare(s, f)
+        Ft, F0 = t.force(st), t0.force(st)
+        xd = s.x0[:, :s.dim]
+        # the nearest lattice site outside the body is (ptp/2 + dx) from the centre
+        far = np.all(np.abs(xd - xd.mean(0)) < (np.ptp(xd, axis=0) / 2 + 1e-3 - 2 * f.horizon), axis=1)
+        pm_far.append(float(np.abs(Ft - F0)[far].max() / np.abs(F0).max()))
+        pm_all.append(float(np.abs(Ft - F0).max() / np.abs(F0).max()))
+    out["pmb_equiv_beyond_2delta_rel"] = max(pm_far)
+    out["pmb_equiv_at_surfaces_rel"] = max(pm_all)
+    rows.append({"check": "surface correction, discrete, D12 = D66: force vs uncorrected (= PMB) beyond 2 delta "
+                          "of the surfaces, 2D / 3D max", "value": max(pm_far), "target": "<= 1e-12"})
+    rows.append({"check": "same, within 2 delta of the surfaces (the correction acts there)",
+                 "value": max(pm_all), "target": "reported"})
+    return out
 
 
 # ---------------------------------------------------------------------------- MMS
@@ -197,18 +287,22 @@ def tipd_mms(args):
     for dim, dxs, dxn in ((2, dx2, dx2_nosb), (3, dx3, dx3_nosb)):
         for (mod, cal, stab) in variants:
             for dx in (dxs if mod == "tipd" else dxn):
-                jobs.append((dim, mod, cal, stab, dx, "none"))
-    for cal in ("discrete", "continuum"):      # Ti-PD with the surface correction, 2D
-        jobs += [(2, "tipd", cal, None, dx, "correspondence") for dx in dx2 if dx >= 0.00625]
+                jobs.append((dim, mod, cal, stab, dx, "none", 1.0))
+    # Ti-PD with the surface correction, 2D: exact displacement in a layer of two horizons
+    # (every gradient that reaches a free particle on a full family) and of one
+    for cal in ("discrete", "continuum"):
+        for lay in (2.0, 1.0):
+            jobs += [(2, "tipd", cal, None, dx, "correspondence", lay) for dx in dx2 if dx >= 0.00625]
     # bond-associated NOSB (2D, assembled stiffness)
-    jobs += [(2, "nosb", None, "bond-associated", dx, "none") for dx in dx2_nosb if dx >= 0.00625]
-    for dim, mod, cal, stab, dx, surf in tqdm(jobs, desc="tipd-mms solves"):
+    jobs += [(2, "nosb", None, "bond-associated", dx, "none", 1.0) for dx in dx2_nosb if dx >= 0.00625]
+    for dim, mod, cal, stab, dx, surf, lay in tqdm(jobs, desc="tipd-mms solves"):
         ba = stab == "bond-associated"
         r = mms(mod, dim=dim, dx=dx, calibration=cal or "discrete", stabilisation=None if ba else stab,
-                surface=surf, bond_associated=ba)
+                surface=surf, bond_associated=ba, layer=lay)
         r["label"] = mod if mod == "tipd" else ("nosb" if stab is None else f"nosb-{stab}")
         if mod == "tipd":
-            r["label"] += f"-{cal}" + ("-surface" if surf != "none" else "")
+            r["label"] += f"-{cal}" + ("-surface" if surf != "none" else "") + ("-layer1" if surf != "none"
+                                                                                and lay == 1.0 else "")
         runs.append(r)
     rows = [{"dim": r["dim"], "model": r["label"], "dx": r["dx_m"], "particles": r["particles"],
              "rel_L2": r["rel_l2"], "oscillation": r["oscillation"], "wall_s": r["wall_time_s"]}
@@ -243,6 +337,12 @@ def tipd_mms(args):
            "rel_l2_continuum_2d": cont["rel_l2"], "rel_l2_continuum_2d_dx_m": cont["dx_m"],
            "order_discrete_3d": orders["tipd-discrete_3d"],
            "order_discrete_2d_surface": orders["tipd-discrete-surface_2d"],
+           "order_continuum_2d_surface": orders["tipd-continuum-surface_2d"],
+           "order_discrete_2d_surface_layer1": orders["tipd-discrete-surface-layer1_2d"],
+           "rel_l2_2d_surface_at_dx": {"dx_m": min(d for d in dx2 if d >= 0.00625), **{
+               lab: get(2, lab, min(d for d in dx2 if d >= 0.00625))["rel_l2"]
+               for lab in ("tipd-discrete", "tipd-continuum", "tipd-discrete-surface", "tipd-continuum-surface",
+                           "tipd-discrete-surface-layer1", "tipd-continuum-surface-layer1")}},
            "order_nosb_bond_associated_2d": orders["nosb-bond-associated_2d"],
            "bond_associated_vs_nosb_at_dx": {"dx_m": fin_ba, **ba_cmp},
            "orders": orders,
@@ -305,8 +405,7 @@ def tipd_poisson(args):
                 appE[lab][key] = None
                 continue
             kw = {"C": ortho} if key == "orthotropic" else {"E": E, "nu": nu}
-            if lab.endswith("-surface"):
-                kw["surface"] = "correspondence"
+            kw["surface"] = "correspondence" if lab.endswith("-surface") else "none"
             r = strip(mod, nx=nx, ny=ny, stabilisation=stab, calibration=cal or "discrete", **kw)
             app[lab][key] = r["nu_apparent"]
             Ein = 144.8e9 if key == "orthotropic" else E
@@ -321,7 +420,7 @@ def tipd_poisson(args):
     for dim, nus in ((2, (0.1, 0.25, 1 / 3, 0.4)), (3, (0.1, 0.2, 0.25, 0.3))):
         for nu in nus:
             for cal in ("discrete", "continuum"):
-                r = eigen_counts("tipd", dim=dim, nu=nu, calibration=cal,
+                r = eigen_counts("tipd", dim=dim, nu=nu, calibration=cal, surface="none",
                                  n=(8 if dim == 2 else 4) if args.quick else None)
                 erows.append({"dim": dim, "model": f"tipd {cal}", "nu": nu, "zero": r["zero"],
                               "negative": r["negative"], "rigid": r["rigid_modes"],
@@ -336,7 +435,7 @@ def tipd_poisson(args):
             erows.append({"dim": dim, "model": "tipd continuum + surface", "nu": nu, "zero": r["zero"],
                           "negative": r["negative"], "rigid": r["rigid_modes"],
                           "min/max": r["min_over_max"]})
-    r = eigen_counts("tipd", dim=2, C=ortho, n=8 if args.quick else None)
+    r = eigen_counts("tipd", dim=2, C=ortho, n=8 if args.quick else None, surface="none")
     erows.append({"dim": 2, "model": "tipd ortho", "nu": 0.21, "zero": r["zero"], "negative": r["negative"],
                   "rigid": 3, "min/max": r["min_over_max"]})
     r = eigen_counts("tipd", dim=2, C=ortho, n=8 if args.quick else None, surface="correspondence")
@@ -413,7 +512,7 @@ def tipd_hole(args):
     for mat in ("iso", "ortho"):
         F = fem["materials"][mat]
         for dx in dxs:
-            r = hole("tipd", material=mat, dx=dx)
+            r = hole("tipd", material=mat, dx=dx, surface="none")
             smp = F["samples"][f"{dx:g}"]
             try:
                 up, uf = _match(r["mid_xy_m"], r["mid_u_m"], smp["mid"])
@@ -548,7 +647,7 @@ def _bench_tipd(args):
     for nx, lab, ker in tqdm(jobs, desc="bench-tipd"):
         stab = "silling" if lab == "nosb-silling" else None
         r = hole_adr("nosb" if lab.startswith("nosb") else "tipd", nx=nx, steps=steps_run[nx],
-                     stabilisation=stab, kernel=ker)
+                     stabilisation=stab, kernel=ker, surface="none")
         per_step = r["adr_cpu_s"] / r["steps"]
         t4000 = 4000 * per_step
         paper = PAPER_TABLE1_S[nx][lab]
@@ -571,101 +670,270 @@ def _bench_tipd(args):
     fam = build_family(s, 1.5e-3 * (1 + 1e-9))
     st = State.reference(s.x0, fam.nb)
     st.y += 1e-7
-    t = make_model("tipd", material_voigt("ortho"))
+    t = make_model("tipd", material_voigt("ortho"), surface="none")      # the paper's model
     t.prepare(s, fam)
+    ts = make_model("tipd", material_voigt("ortho"), surface="correspondence")
+    ts.prepare(s, fam)
     p = PMB(E=210e9)
     p.prepare(s, fam)
     out = np.zeros_like(st.y)
-    times = {"tipd": [], "pmb": []}
-    for m in (t, p):
+    times = {"tipd": [], "pmb": [], "tipd_surface": []}
+    for m in (t, p, ts):
         m.step_force(st, out, failure=False)
     for _ in range(7):
-        for lab, m in (("tipd", t), ("pmb", p)):
+        for lab, m in (("tipd", t), ("pmb", p), ("tipd_surface", ts)):
             c0 = time.process_time()
             for _ in range(5):
                 m.step_force(st, out, failure=False)
             times[lab].append((time.process_time() - c0) / 5)
     ratio = float(np.median(times["tipd"]) / np.median(times["pmb"]))
+    ratio_s = float(np.median(times["tipd_surface"]) / np.median(times["pmb"]))
     print(f"force evaluation, 300 x 100 plate ({fam.nb} bonds): Ti-PD {np.median(times['tipd']):.4g} s, "
-          f"PMB {np.median(times['pmb']):.4g} s, ratio {ratio:.3f} (median of 7 interleaved CPU-time repeats)")
+          f"PMB {np.median(times['pmb']):.4g} s, ratio {ratio:.3f}; Ti-PD with the surface correction "
+          f"{np.median(times['tipd_surface']):.4g} s, ratio {ratio_s:.3f} (median of 7 interleaved CPU-time repeats)")
     load1 = os.getloadavg()[0]
     print(f"load average {load0:.1f} -> {load1:.1f} on {os.cpu_count()} cores")
     res = {"speedup_vs_paper_min": float(min(speed)),
            "speedup_vs_paper_min_bond_kernel": float(min(r["speedup"] for r in rows if r["kernel"] == "bond")),
-           "tipd_step_over_pmb": ratio, "rows": rows,
+           "tipd_step_over_pmb": ratio, "tipd_surface_step_over_pmb": ratio_s, "rows": rows,
            "load_average": [load0, load1], "cpu_count": os.cpu_count(),
            "note": "4000-step times extrapolated from the measured CPU time per ADR step"}
     res["pass"] = bool(min(speed) >= 10 and ratio <= 1.5)
     return res
 
 
+# ---------------------------------------------------------------------------- surface default
+@case("tipd-surface", "Ti-PD surface correction as the default: clamped-body eigenvalues, force cost, "
+      "MMS order with a one- and two-horizon layer")
+def tipd_surface(args):
+    """The figures behind ``TiPD(surface=None)`` meaning the correction for elastic models."""
+    import time
+
+    from upscale.engine import State, build_family
+    from upscale.experiments.tipd import eigen_counts, make_model, mms
+    from upscale.experiments.tipd_hole import hole_body, material_voigt
+
+    _threads()
+    rows, res = [], {"clamped_min_over_max": {}, "clamped_negative": {}}
+    ortho = material_voigt("ortho")
+    cases = [(2, 0.1, None), (2, 0.25, None), (2, 0.4, None), (2, None, ortho)]
+    cases += [] if args.quick else [(3, 0.1, None), (3, 0.2, None), (3, 0.3, None)]
+    for dim, nu, C in cases:
+        for surf in ("none", "correspondence"):
+            r = eigen_counts("tipd", dim=dim, nu=nu if nu is not None else 0.25, C=C, calibration="continuum",
+                             surface=surf, shape=(20, 10) if dim == 2 else (10, 5, 5), clamped=True)
+            key = f"{dim}d_{'ortho' if C is not None else f'nu{nu:g}'}_{surf}"
+            res["clamped_min_over_max"][key] = r["min_over_max"]
+            res["clamped_negative"][key] = r["negative"]
+            rows.append({"dim": dim, "material": "ortho" if C is not None else f"nu={nu:g}", "surface": surf,
+                         "negative": r["negative"], "min/max": r["min_over_max"]})
+    print("stiffness of a body held at one end (20 x 10 / 10 x 5 x 5 particles, delta = 3.015 dx, "
+          "continuum calibration)")
+    print(table(rows, ["dim", "material", "surface", "negative", "min/max"], ".3e"))
+    # force evaluation cost, 300 x 100 orthotropic plate with a hole, one process, CPU time
+    dx = 0.15 / 300
+    s, _, _ = hole_body(dx, 3.0)
+    fam = build_family(s, 3 * dx * (1 + 1e-9))
+    st = State.reference(s.x0, fam.nb)
+    st.y[:, :2] += 1e-6 * np.random.default_rng(0).normal(size=(s.n, 2))
+    out = np.zeros_like(st.y)
+    mods = {}
+    for surf in ("none", "correspondence"):
+        m = make_model("tipd", ortho, calibration="continuum", surface=surf)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            m.prepare(s, fam)
+        m.step_force(st, out, failure=False)
+        mods[surf] = m
+    times = {k: [] for k in mods}
+    for _ in range(9):
+        for k, m in mods.items():
+            c0 = time.process_time()
+            for _ in range(3):
+                m.step_force(st, out, failure=False)
+            times[k].append((time.process_time() - c0) / 3)
+    t0, t1 = (float(np.median(times[k])) for k in ("none", "correspondence"))
+    nnz = {k: int(m.tangent(st).nnz) for k, m in mods.items()}
+    res.update({"force_eval_s": {"none": t0, "correspondence": t1}, "force_cost_ratio": t1 / t0,
+                "stiffness_nnz_ratio": nnz["correspondence"] / nnz["none"]})
+    print(f"force evaluation ({fam.nb} bonds): uncorrected {t0 * 1e3:.3f} ms, corrected {t1 * 1e3:.3f} ms, "
+          f"ratio {t1 / t0:.2f} (median of 9 interleaved CPU-time repeats); stiffness nnz ratio "
+          f"{res['stiffness_nnz_ratio']:.2f}")
+    # MMS: the layer of exact displacement one or two horizons wide
+    dxs = [0.025, 0.0125] if args.quick else [0.025, 0.0125, 0.00625]
+    mrows = []
+    for cal in ("discrete", "continuum"):
+        for surf, lay in (("none", 1.0), ("correspondence", 1.0), ("correspondence", 2.0)):
+            e = [mms("tipd", dim=2, dx=h, calibration=cal, surface=surf, layer=lay)["rel_l2"] for h in dxs]
+            order = float(np.polyfit(np.log(dxs), np.log(e), 1)[0])
+            key = f"{cal}_{surf}_layer{lay:g}"
+            res.setdefault("mms_order", {})[key] = order
+            res.setdefault("mms_rel_l2_finest", {})[key] = e[-1]
+            mrows.append({"calibration": cal, "surface": surf, "layer (horizons)": lay,
+                          **{f"dx={h:g}": v for h, v in zip(dxs, e)}, "order": order})
+    print("manufactured solution 5.1.1 (2D)")
+    print(table(mrows, list(mrows[0]), ".4g"))
+    res["pass"] = bool(all(v == 0 for k, v in res["clamped_negative"].items() if k.endswith("correspondence"))
+                       and res["mms_order"]["discrete_correspondence_layer2"] >= 1.9
+                       and res["mms_order"]["continuum_correspondence_layer2"] >= 1.9)
+    return res
+
+
 # ---------------------------------------------------------------------------- branching
-@case("tipd-branching", "crack branching in glass (5.3): Ti-PD (60)/(62), LPS, PMB at 12 and 24 MPa; tip speed, branching, angle, dx vs dx/2")
+def _branching_args(p):
+    p.add_argument("--refine", default="both", choices=["both", "fixed-delta", "delta-3dx", "none"],
+                   help="dx/2 runs besides the runs at dx: at the same horizon (m = 6, the loaded "
+                        "layer kept at the coarse dx), at delta = 3 dx/2, both (default) or none")
+
+
+def _branch_key(r):
+    return f"{r['model']}{'_' + r['critical'] if r['critical'] else ''}_{r['stress_Pa'] / 1e6:g}MPa"
+
+
+@case("tipd-branching", "crack branching in glass (5.3): Ti-PD (60)/(62), LPS, PMB at 12 and 24 MPa; tip speed, "
+      "branching, angle; dx/2 at fixed delta (m-convergence) and at delta = 3 dx", _branching_args)
 def tipd_branching(args):
+    """Every variant at dx (delta = 3 dx) and, unless ``--quick`` or ``--no-refine``, at dx/2
+    twice: with the horizon held (m = 6, the same nonlocal model on a finer grid: the
+    discretisation convergence) and with delta = 3 (dx/2) (the horizon and the critical
+    stretch change with the grid: a different nonlocal model)."""
+    import json
+    import time
+
     from tqdm import tqdm
 
     from upscale.experiments.tipd_branching import branching
 
     _threads()
     dx = 1e-3 if args.quick else 5e-4
+    refine = "none" if args.quick else getattr(args, "refine", "both")
+    tags = {"both": ("fixed_delta", "delta_3dx"), "fixed-delta": ("fixed_delta",),
+            "delta-3dx": ("delta_3dx",), "none": ()}[refine]
     variants = [("tipd", "tipd"), ("tipd", "osb"), ("lps", None), ("pmb", None)]
-    jobs = [(mod, crit, sig, dx) for sig in (12e6, 24e6) for mod, crit in variants]
-    if not args.quick:   # the convergence pair at 12 MPa for the default model
-        jobs += [("tipd", "tipd", 12e6, dx / 2)]
+    jobs = [(mod, crit, sig, dx, 3.0, None) for sig in (12e6, 24e6) for mod, crit in variants]
+    if "fixed_delta" in tags:      # same horizon, same loaded layer (two rows of dx/2)
+        jobs += [(mod, crit, sig, dx / 2, 6.0, dx) for sig in (12e6, 24e6) for mod, crit in variants]
+    if "delta_3dx" in tags:
+        jobs += [(mod, crit, sig, dx / 2, 3.0, None) for sig in (12e6, 24e6) for mod, crit in variants]
     runs = []
-    for mod, crit, sig, h in tqdm(jobs, desc="tipd-branching runs"):
-        runs.append(branching(mod, stress=sig, dx=h, critical=crit or "tipd", outdir=args.outdir))
+    for mod, crit, sig, h, m, lw in tqdm(jobs, desc="tipd-branching runs"):
+        c0 = time.process_time()
+        r = branching(mod, stress=sig, dx=h, m=m, critical=crit or "tipd", load_width=lw, outdir=args.outdir)
+        r["m"], r["cpu_s"] = m, time.process_time() - c0
+        runs.append(r)
+        np.savez_compressed(args.outdir / f"damage_run{len(runs):02d}.npz", positions_m=r["positions_m"],
+                            damage=r["damage"])
+        with open(args.outdir / "tipd-branching-runs.jsonl", "a" if len(runs) > 1 else "w") as fh:
+            fh.write(json.dumps({k: v for k, v in r.items()
+                                 if not k.endswith("_xy_m") and k not in ("positions_m", "damage")}) + "\n")
     rows = []
     for r in runs:
         lab = r["model"] + (f"({r['critical']})" if r["critical"] else "")
-        rows.append({"model": lab, "MPa": r["stress_Pa"] / 1e6, "dx_mm": r["dx_m"] * 1e3, "s0": r["s0"],
+        rows.append({"model": lab, "MPa": r["stress_Pa"] / 1e6, "dx_mm": r["dx_m"] * 1e3, "m": r["m"],
+                     "load_rows": r["load_rows"],
+                     "delta_mm": r["horizon_m"] * 1e3, "s0": r["s0"],
                      "v_max/cR": r["v_max_over_cR"], "branch_t_us": None if r["branching_t_s"] is None
                      else r["branching_t_s"] * 1e6,
                      "branch_x_mm": None if r["branching_x_m"] is None else r["branching_x_m"] * 1e3,
                      "angle_deg": r["branch_angle_deg"], "asym": r["asymmetry_fraction"],
                      "off_crack": r["damaged_off_crack"],
-                     "steps": r["steps"], "wall_s": r["wall_time_s"]})
-    print(f"Ha & Bobaru plate 100 x 40 mm, pre-crack to the centre, delta = 3 dx, cR = {runs[0]['cR_m_per_s']:.1f} m/s")
-    print(table(rows, ["model", "MPa", "dx_mm", "s0", "v_max/cR", "branch_t_us", "branch_x_mm", "angle_deg",
-                       "asym", "off_crack", "steps", "wall_s"], ".4g"))
+                     "steps": r["steps"], "cpu_s": r["cpu_s"]})
+    print(f"Ha & Bobaru plate 100 x 40 mm, pre-crack to the centre, cR = {runs[0]['cR_m_per_s']:.1f} m/s")
+    print(table(rows, ["model", "MPa", "dx_mm", "m", "load_rows", "delta_mm", "s0", "v_max/cR", "branch_t_us", "branch_x_mm",
+                       "angle_deg", "asym", "off_crack", "steps", "cpu_s"], ".4g"))
     _plot_tips(runs, args.outdir)
+    _plot_damage(runs, args.outdir)
+    base = [r for r in runs if np.isclose(r["dx_m"], dx)]
     out = {"v_max_over_cR": {}, "branching_x_m": {}, "branching_t_s": {}, "branch_angle_deg": {}}
-    for r in runs:
-        if not np.isclose(r["dx_m"], dx):
-            continue
-        key = f"{r['model']}{'_' + r['critical'] if r['critical'] else ''}_{r['stress_Pa'] / 1e6:g}MPa"
+    for r in base:
+        key = _branch_key(r)
         out["v_max_over_cR"][key] = r["v_max_over_cR"]
         out["branching_x_m"][key] = r["branching_x_m"]
         out["branching_t_s"][key] = r["branching_t_s"]
         out["branch_angle_deg"][key] = r["branch_angle_deg"]
     res = {**out, "dx_m": dx, "rows": rows}
-    if not args.quick:
-        a = [r for r in runs if r["model"] == "tipd" and r["critical"] == "tipd" and r["stress_Pa"] == 12e6]
-        coarse, fine = sorted(a, key=lambda r: -r["dx_m"])
-        res["convergence_12MPa_tipd"] = {
-            "branching_x_diff_over_delta": None if None in (coarse["branching_x_m"], fine["branching_x_m"])
-            else abs(coarse["branching_x_m"] - fine["branching_x_m"]) / coarse["horizon_m"],
-            "v_max_rel_diff": abs(coarse["v_max_m_per_s"] - fine["v_max_m_per_s"]) / max(fine["v_max_m_per_s"], 1e-300)}
+    if tags:
+        # branching position in horizons (the coarse run's delta; equal for m = 6), peak speed
+        for tag, m in (("fixed_delta", 6.0), ("delta_3dx", 3.0)):
+            if tag not in tags:
+                continue
+            conv = {}
+            for c in base:
+                f = next(r for r in runs if not np.isclose(r["dx_m"], dx) and r["m"] == m
+                         and _branch_key(r) == _branch_key(c))
+                bx = None if None in (c["branching_x_m"], f["branching_x_m"]) \
+                    else abs(c["branching_x_m"] - f["branching_x_m"]) / c["horizon_m"]
+                conv[_branch_key(c)] = {
+                    "branching_x_m": [c["branching_x_m"], f["branching_x_m"]],
+                    "branching_x_diff_over_delta": bx,
+                    "v_max_rel_diff": abs(c["v_max_m_per_s"] - f["v_max_m_per_s"]) / max(f["v_max_m_per_s"], 1e-300),
+                    "cpu_ratio": f["cpu_s"] / c["cpu_s"]}
+            res[f"convergence_{tag}"] = conv
+            ok = [v["branching_x_diff_over_delta"] is not None and v["branching_x_diff_over_delta"] <= 2
+                  and v["v_max_rel_diff"] <= 0.1 for v in conv.values()]
+            res[f"converged_{tag}"] = f"{sum(ok)} of {len(ok)}"
     res["pass"] = bool(all(v < 1 for v in out["v_max_over_cR"].values()))
     return res
 
 
+def _variant_label(r):
+    return r["model"] + (f"({r['critical']})" if r["critical"] else "") + f" {r['stress_Pa'] / 1e6:g} MPa"
+
+
 def _plot_tips(runs, outdir):
+    """Crack-tip position against time, one panel per model and stress, every spacing."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
-    for ax, sig in zip(axes, (12e6, 24e6)):
+    labels = list(dict.fromkeys(_variant_label(r) for r in runs))
+    ncol = 4 if len(labels) > 4 else len(labels)
+    nrow = int(np.ceil(len(labels) / ncol))
+    fig, axes = plt.subplots(nrow, ncol, figsize=(3.2 * ncol, 2.6 * nrow), sharex=True, sharey=True,
+                             squeeze=False)
+    for ax, lab in zip(axes.flat, labels):
         for r in runs:
-            if r["stress_Pa"] == sig:
-                lab = r["model"] + (f"({r['critical']})" if r["critical"] else "") + f" dx={r['dx_m'] * 1e3:g}mm"
-                ax.plot(np.array(r["tip_t_s"]) * 1e6, np.array(r["tip_x_m"]) * 1e3, label=lab)
-        ax.set_title(f"crack-tip position, {sig / 1e6:g} MPa")
+            if _variant_label(r) == lab:
+                ax.plot(np.array(r["tip_t_s"]) * 1e6, np.array(r["tip_x_m"]) * 1e3,
+                        label=f"dx={r['dx_m'] * 1e3:g}mm, delta={r['horizon_m'] * 1e3:.3g}mm")
+                if r["branching_t_s"] is not None:
+                    ax.plot(r["branching_t_s"] * 1e6, r["branching_x_m"] * 1e3, "k+")
+        ax.set_title(lab, fontsize=9)
+        ax.legend(fontsize=6)
+    for ax in axes[-1]:
         ax.set_xlabel("t (us)")
+    for ax in axes[:, 0]:
         ax.set_ylabel("tip x (mm)")
-        ax.legend(fontsize=7)
     fig.tight_layout()
     fig.savefig(outdir / "tipd_branching_tip.png", dpi=130)
+    plt.close(fig)
+
+
+def _plot_damage(runs, outdir):
+    """Final damage maps: one row per model and stress, one column per spacing / horizon."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    labels = list(dict.fromkeys(_variant_label(r) for r in runs))
+    cols = list(dict.fromkeys((round(r["dx_m"], 12), r.get("m", 3.0)) for r in runs))
+    fig, axes = plt.subplots(len(labels), len(cols), figsize=(3.4 * len(cols), 1.55 * len(labels)),
+                             squeeze=False)
+    for r in runs:
+        ax = axes[labels.index(_variant_label(r)), cols.index((round(r["dx_m"], 12), r.get("m", 3.0)))]
+        x, h = r["positions_m"], r["dx_m"]
+        ix = np.rint((x[:, 0] - x[:, 0].min()) / h).astype(int)
+        iy = np.rint((x[:, 1] - x[:, 1].min()) / h).astype(int)
+        g = np.zeros((iy.max() + 1, ix.max() + 1))
+        g[iy, ix] = r["damage"]
+        ext = np.array([x[:, 0].min() - h / 2, x[:, 0].max() + h / 2, x[:, 1].min() - h / 2, x[:, 1].max() + h / 2]) * 1e3
+        ax.imshow(g, origin="lower", extent=ext, cmap="inferno", vmin=0, vmax=1, interpolation="nearest")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.set_title(f"{_variant_label(r)}, dx {h * 1e3:g} mm, delta {r['horizon_m'] * 1e3:.3g} mm, "
+                     f"{r['t_end_s'] * 1e6:.0f} us", fontsize=6)
+    fig.tight_layout()
+    fig.savefig(outdir / "tipd_branching_damage.png", dpi=150)
     plt.close(fig)
