@@ -195,7 +195,6 @@ def grip_band_tube(n: int, m: int, length: float, coarsening: float, grip: float
     model = DCBRDefectTube(n, m, length, coarsening=coarsening, vacancy=vacancy,
                            r_atomistic=r_atomistic, band_z=(z.min() + grip, z.max() - grip),
                            **kw)
-    model.skip_empty_links = True  # (DCBRDefectTube.update_links)
     return model
 
 
@@ -607,7 +606,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
                     progress=None, gtol: float = 1e-4, temperature: float = 10.0,
                     tdamp: float = 100.0, seed: int = 12345, ghost: str = "local",
                     monitor=None, clamp: bool | None = None, stability: bool = False,
-                    planes=None, gauge_planes=None, rigid_shifts=None, engine: bool = True,
+                    planes=None, gauge_planes=None, engine: bool = True,
                     checkpoint=None, checkpoint_every: int = 500, resume: bool = False,
                     output=None, engine_progress: bool = False, integrator: str = "verlet",
                     outer_dt: float | None = None, inner: int | None = None) -> dict:
@@ -623,8 +622,8 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     stress)``, if given, is called at every sample; ``ghost`` picks the correction's stretch
     (module docstring); ``temperature=0`` runs NVE from rest; ``clamp``: as
     :func:`open_tube_with_grips`; ``planes``, ``gauge_planes``: the grip and gauge planes
-    (:func:`open_tube_with_grips`); ``rigid_shifts``: hold the grips' particles' sublattice
-    shifts (default: with bands across the planes only, see the code); ``stability`` also applies
+    (:func:`open_tube_with_grips`); the grips' particles' sublattice shifts are held with
+    them (see the code); ``stability`` also applies
     the lattice-stability rule (:meth:`DCBRDefectTube.check_stability`) every ``sample``
     steps (its time in ``stability_s``).
 
@@ -724,17 +723,13 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
         # slave particles carry at most half their atoms (often none): their shifts have
         # next to no stiffness and would drift with any velocity given to them
         vd[model.slave_idx] = 0.0
-    # with atomistic bands across the planes the grips are LAMMPS's rigid bodies: their
-    # particles' sublattice shifts (B atoms against A atoms) are held too. Left free, the
-    # shift of an end row at coarsening 1 (few links, little stiffness) drifted with its
-    # thermal velocity and broke links 40 Å inside a grip at 0.8 % strain, which the
-    # strength rule then took as the first damage ((10,10), (17,0): strength 8-9 % low).
-    # (The vacancy scene, whose results are stored, keeps them free: rigid_shifts=False.)
-    rigid_shifts = banded if rigid_shifts is None else bool(rigid_shifts)
+    # the grips are LAMMPS's rigid bodies: their particles' sublattice shifts (B atoms
+    # against A atoms) are held too. Left free, the shift of an end row at coarsening 1 (few
+    # links, little stiffness) drifts with its thermal velocity and breaks links inside a
+    # grip, which the strength rule then takes as the first damage.
     dfree = np.ones(model.N, bool)
-    if rigid_shifts:
-        dfree[model.dof_idx[grips[:nd]]] = False
-        vd[~dfree] = 0.0
+    dfree[model.dof_idx[grips[:nd]]] = False
+    vd[~dfree] = 0.0
     ndf = 2 * int(movable.sum()) + 3 * int((dfree & ~model.is_slave).sum())
     xi = 0.0
 
