@@ -274,8 +274,7 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | N
     # spacing inside the plane: it is the grip's node at the plane (DCBRDefectTube.
     # clamp_grips), and the gauge's first free row is then at least h/2 from it
     # (not a row that pad atoms of the atomistic region follow: holding it would hold them,
-    # gauge atoms, too; (12,6) coarsening 4, whose 50 Å gauge is then all atomistic but for
-    # those two rows, was 19 % too stiff)
+    # gauge atoms, too, and stiffen a gauge that is all atomistic but for those rows)
     hold = 0.5 * h if clamp else 0.0
     carrier = np.zeros(model.N, bool)
     carrier[model._pad["c"]] = True
@@ -298,8 +297,8 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | N
     grips = bottom | top
     # the set-up minimisation holds the grips' x and y: the ghost-force dead load is not
     # invariant under a rigid turn about the axis (its energy goes as -A cos(phi)), and left
-    # free the minimiser turned some open tubes by ~180 deg ((10,10) K3 179 deg, (12,6) K4
-    # 171 deg), after which the dead loads pushed on the wrong atoms; the grips hold x and y
+    # free the minimiser turned some open tubes by about half a turn, after which the dead
+    # loads pushed on the wrong atoms; the grips hold x and y
     # during the pull anyway, as LAMMPS's do
     fixed = np.zeros_like(y, bool)
     fixed[grips, :2] = True
@@ -335,7 +334,7 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | N
     # the gauge is LAMMPS's: the initial distance between its grip planes (gauge_planes), so
     # that strain(t) = 2 v t / gauge is the same function of time in both runs (the distance
     # between the innermost grip rows is 0 to 2 h longer and would lower the strain at a
-    # given grip separation, by up to 19 % at coarsening 4).
+    # given grip separation, most at coarsening 4).
     gb, gt = zb + db, zt + dt_
     return {"y": y, "delta": d, "L0": float(L0), "R": R, "area": 2 * math.pi * R * WALL_THICKNESS,
             "bottom": bottom, "top": top, "zb": zb, "zt": zt, "gb": gb, "gt": gt,
