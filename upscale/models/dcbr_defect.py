@@ -1132,8 +1132,8 @@ class DCBRDefectTube(DCBRTube):
         carrying particle's mapped bond. The same holds for a particle that carries no atoms
         at all (at coarsening 1 a few cells of the particle Voronoi tiling hold no atom,
         anywhere along the tube; weights before any grip clamp): its shift has no stiffness
-        and drifts with its thermal velocity (coarsening 1 only: coarsening 2-4 have no empty
-        particle); its own mapped bonds are left out too."""
+        and drifts with its thermal velocity, so its own mapped bonds are left out as well
+        (coarsening 1 only: coarsening 2-4 have no empty particle)."""
         a = self.alive
         masked = a & ~self.is_slave & (getattr(self, "_natoms_unclamped", self.natoms_n) > 0)
         self.alive = masked

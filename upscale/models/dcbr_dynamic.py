@@ -90,7 +90,8 @@ Masses (:meth:`DCBRDefectTube.masses`): a free atom 12.011 amu; a particle carri
 max(w_c, N_c/2) (its atoms, at least half its nominal share, so that interface particles
 with few atoms do not set a tiny stable step); the sublattice shift of a particle is a
 dynamic unknown with the reduced mass of the two sublattices, m_C max(w_c, N_c/2) / 4 (the
-optical mode).
+optical mode), held with the grip on a grip's particles (a rigid grip moves its B atoms with
+its A atoms; clamped and banded grips alike).
 
 Thermostat, as the LAMMPS runs: Gaussian velocities at ``temperature`` (default 10 K) on the
 free part, and a Nose-Hoover thermostat (damping ``tdamp``, default 100 fs) whose temperature
