@@ -152,7 +152,6 @@ class DCBRDefectTube(DCBRTube):
                              "the step cutoff crosses it when that lowers the energy) or 'always' "
                              "(it crosses, as damped dynamics would)")
         self.step_crossing = step_crossing
-        self.skip_empty_links = False  # (update_links)
         if region not in ("band", "disc", "ellipse"):
             raise ValueError(f"region={region!r}; valid: 'band' (|z - z_vacancy| < r_atomistic, "
                              "all around the tube), 'disc' (distance on the wall < r_atomistic) "
@@ -1133,14 +1132,10 @@ class DCBRDefectTube(DCBRTube):
         carrying particle's mapped bond. The same holds for a particle that carries no atoms
         at all (at coarsening 1 a few cells of the particle Voronoi tiling hold no atom,
         anywhere along the tube; weights before any grip clamp): its shift has no stiffness
-        and drifts with its thermal velocity. That exclusion is on with ``skip_empty_links``
-        (set by the banded dynamic scenes); it is off by default so that the stored vacancy
-        results reproduce (coarsening 1 only: coarsening 2-4 have no empty particle; figures
-        in ``validation/results/engine.md``)."""
+        and drifts with its thermal velocity, so its own mapped bonds are left out as well
+        (coarsening 1 only: coarsening 2-4 have no empty particle)."""
         a = self.alive
-        masked = a & ~self.is_slave
-        if self.skip_empty_links:
-            masked &= getattr(self, "_natoms_unclamped", self.natoms_n) > 0
+        masked = a & ~self.is_slave & (getattr(self, "_natoms_unclamped", self.natoms_n) > 0)
         self.alive = masked
         try:
             return super().update_links()

@@ -90,7 +90,8 @@ Masses (:meth:`DCBRDefectTube.masses`): a free atom 12.011 amu; a particle carri
 max(w_c, N_c/2) (its atoms, at least half its nominal share, so that interface particles
 with few atoms do not set a tiny stable step); the sublattice shift of a particle is a
 dynamic unknown with the reduced mass of the two sublattices, m_C max(w_c, N_c/2) / 4 (the
-optical mode).
+optical mode), held with the grip on a grip's particles (a rigid grip moves its B atoms with
+its A atoms; clamped and banded grips alike).
 
 Thermostat, as the LAMMPS runs: Gaussian velocities at ``temperature`` (default 10 K) on the
 free part, and a Nose-Hoover thermostat (damping ``tdamp``, default 100 fs) whose temperature
@@ -195,7 +196,6 @@ def grip_band_tube(n: int, m: int, length: float, coarsening: float, grip: float
     model = DCBRDefectTube(n, m, length, coarsening=coarsening, vacancy=vacancy,
                            r_atomistic=r_atomistic, band_z=(z.min() + grip, z.max() - grip),
                            **kw)
-    model.skip_empty_links = True  # (DCBRDefectTube.update_links)
     return model
 
 
@@ -275,8 +275,7 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | N
     # spacing inside the plane: it is the grip's node at the plane (DCBRDefectTube.
     # clamp_grips), and the gauge's first free row is then at least h/2 from it
     # (not a row that pad atoms of the atomistic region follow: holding it would hold them,
-    # gauge atoms, too; (12,6) coarsening 4, whose 50 Å gauge is then all atomistic but for
-    # those two rows, was 19 % too stiff)
+    # gauge atoms, too, and stiffen a gauge that is all atomistic but for those rows)
     hold = 0.5 * h if clamp else 0.0
     carrier = np.zeros(model.N, bool)
     carrier[model._pad["c"]] = True
@@ -299,8 +298,8 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | N
     grips = bottom | top
     # the set-up minimisation holds the grips' x and y: the ghost-force dead load is not
     # invariant under a rigid turn about the axis (its energy goes as -A cos(phi)), and left
-    # free the minimiser turned some open tubes by ~180 deg ((10,10) K3 179 deg, (12,6) K4
-    # 171 deg), after which the dead loads pushed on the wrong atoms; the grips hold x and y
+    # free the minimiser turned some open tubes by about half a turn, after which the dead
+    # loads pushed on the wrong atoms; the grips hold x and y
     # during the pull anyway, as LAMMPS's do
     fixed = np.zeros_like(y, bool)
     fixed[grips, :2] = True
@@ -336,7 +335,7 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | N
     # the gauge is LAMMPS's: the initial distance between its grip planes (gauge_planes), so
     # that strain(t) = 2 v t / gauge is the same function of time in both runs (the distance
     # between the innermost grip rows is 0 to 2 h longer and would lower the strain at a
-    # given grip separation, by up to 19 % at coarsening 4).
+    # given grip separation, most at coarsening 4).
     gb, gt = zb + db, zt + dt_
     return {"y": y, "delta": d, "L0": float(L0), "R": R, "area": 2 * math.pi * R * WALL_THICKNESS,
             "bottom": bottom, "top": top, "zb": zb, "zt": zt, "gb": gb, "gt": gt,
@@ -607,7 +606,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
                     progress=None, gtol: float = 1e-4, temperature: float = 10.0,
                     tdamp: float = 100.0, seed: int = 12345, ghost: str = "local",
                     monitor=None, clamp: bool | None = None, stability: bool = False,
-                    planes=None, gauge_planes=None, rigid_shifts=None, engine: bool = True,
+                    planes=None, gauge_planes=None, engine: bool = True,
                     checkpoint=None, checkpoint_every: int = 500, resume: bool = False,
                     output=None, engine_progress: bool = False, integrator: str = "verlet",
                     outer_dt: float | None = None, inner: int | None = None) -> dict:
@@ -623,8 +622,8 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     stress)``, if given, is called at every sample; ``ghost`` picks the correction's stretch
     (module docstring); ``temperature=0`` runs NVE from rest; ``clamp``: as
     :func:`open_tube_with_grips`; ``planes``, ``gauge_planes``: the grip and gauge planes
-    (:func:`open_tube_with_grips`); ``rigid_shifts``: hold the grips' particles' sublattice
-    shifts (default: with bands across the planes only, see the code); ``stability`` also applies
+    (:func:`open_tube_with_grips`); the grips' particles' sublattice shifts are held with
+    them (see the code); ``stability`` also applies
     the lattice-stability rule (:meth:`DCBRDefectTube.check_stability`) every ``sample``
     steps (its time in ``stability_s``).
 
@@ -724,17 +723,13 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
         # slave particles carry at most half their atoms (often none): their shifts have
         # next to no stiffness and would drift with any velocity given to them
         vd[model.slave_idx] = 0.0
-    # with atomistic bands across the planes the grips are LAMMPS's rigid bodies: their
-    # particles' sublattice shifts (B atoms against A atoms) are held too. Left free, the
-    # shift of an end row at coarsening 1 (few links, little stiffness) drifted with its
-    # thermal velocity and broke links 40 Å inside a grip at 0.8 % strain, which the
-    # strength rule then took as the first damage ((10,10), (17,0): strength 8-9 % low).
-    # (The vacancy scene, whose results are stored, keeps them free: rigid_shifts=False.)
-    rigid_shifts = banded if rigid_shifts is None else bool(rigid_shifts)
+    # the grips are LAMMPS's rigid bodies: their particles' sublattice shifts (B atoms
+    # against A atoms) are held too. Left free, the shift of an end row at coarsening 1 (few
+    # links, little stiffness) drifts with its thermal velocity and breaks links inside a
+    # grip, which the strength rule then takes as the first damage.
     dfree = np.ones(model.N, bool)
-    if rigid_shifts:
-        dfree[model.dof_idx[grips[:nd]]] = False
-        vd[~dfree] = 0.0
+    dfree[model.dof_idx[grips[:nd]]] = False
+    vd[~dfree] = 0.0
     ndf = 2 * int(movable.sum()) + 3 * int((dfree & ~model.is_slave).sum())
     xi = 0.0
 

@@ -693,7 +693,69 @@ class DCBRDefectTubeModel:
         return np.r_[self.tube.damage, self.tube.atom_damage(y, d, self.Lz)]
 
     def stiffness_bound(self):
-        return None
+        """Per-row stiffness (n,) eV/Å^2 for the engine's stable step: R_i = lambda_max m_i,
+        lambda_max the largest eigenvalue of M^-1 K at the initial state
+        (:meth:`largest_eigenvalue`), so that the engine's max_i R_i / m_i is lambda_max
+        and its step 2 / sqrt(lambda_max) (fs with the default ``unit``) is velocity
+        Verlet's critical step of the motion linearised there, the rows and the shift
+        field together. Not a Gershgorin row sum: that needs every entry of K, which the
+        tube gives only as a gradient; the Lanczos value is the sharp one instead (a
+        Gershgorin bound is above it). Computed once per set of links and initial state."""
+        key = (self._version, self.y0.tobytes(), self.delta0.tobytes(), self.Lz)
+        if getattr(self, "_bound", None) is None or self._bound[0] != key:
+            self._bound = (key, self.largest_eigenvalue())
+        return self._bound[1] * self.masses()
+
+    def largest_eigenvalue(self, y=None, delta=None, *, tol: float = 1e-6,
+                           h: float = 1e-5) -> float:
+        """Largest eigenvalue lambda_max of M^-1 K (1/fs^2 with the default ``unit``) at
+        unknowns ``y`` (nd + nf, 3) and shifts ``delta`` (N, 3) (default the initial
+        state), K the Hessian of the tube's energy (with its ghost-force load) in the
+        unknowns and the shifts, M the rows' masses and the shifts' inertia (:meth:`masses`,
+        :meth:`fields`). Lanczos (ARPACK ``eigsh``, relative tolerance ``tol``) on the
+        symmetric M^-1/2 K M^-1/2, its products by central differences of the gradient
+        (largest displacement ``h`` Å). The slave rows, which the engine ties to their
+        atoms, are not unknowns (their stiffness is in their atoms' rows). Velocity Verlet
+        is stable for dt < 2 / sqrt(lambda_max) (linearised). The tube's history (its last
+        maps, its Verlet list) is put back afterwards."""
+        from scipy.sparse.linalg import LinearOperator, eigsh
+
+        t = self.tube
+        y = self.y0 if y is None else np.asarray(y, dtype=np.float64)
+        d = self.delta0 if delta is None else np.asarray(delta, dtype=np.float64)
+        if y.shape != (self.nd + self.nf, 3) or d.shape != (self.N, 3):
+            raise ValueError(f"y {y.shape}, delta {d.shape}; valid: y ({self.nd + self.nf}, 3) "
+                             f"and delta ({self.N}, 3)")
+        if not (tol > 0 and h > 0):
+            raise ValueError(f"tol={tol!r}, h={h!r}; valid: both > 0")
+        m = self.masses()
+        s = 1.0 / np.sqrt(np.r_[np.repeat(m[self.y_rows], 3), np.repeat(0.25 * m[:self.N], 3)])
+        ny, n = y.size, y.size + d.size
+        fs = t.last_maps.copy()
+        ref = t.neighbour_reference
+        ref = None if ref is None else ref.copy()
+
+        def grad(z):
+            _, gy, gd, _ = t.energy_and_gradient(y + z[:ny].reshape(y.shape),
+                                                 d + z[ny:].reshape(d.shape), self.Lz)
+            return np.r_[gy.ravel(), gd.ravel()]
+
+        def product(v):
+            p = s * np.ravel(v)
+            c = h / max(float(np.abs(p).max()), 1e-300)
+            return s * (grad(c * p) - grad(-c * p)) / (2.0 * c)
+
+        try:
+            grad(np.zeros(n))  # a first Verlet list is built at the state itself
+            v0 = np.random.default_rng(0).standard_normal(n)
+            lam = eigsh(LinearOperator((n, n), matvec=product, dtype=np.float64), k=1,
+                        which="LA", tol=tol, v0=v0, return_eigenvectors=False)[0]
+        finally:
+            t.last_maps = fs
+            if ref is not None:
+                t.rebuild_neighbours(ref)
+            self._cache = self._slow_cache = self._fast_cache = None
+        return float(lam)
 
     def describe(self) -> dict:
         t = self.tube
