@@ -851,6 +851,29 @@ def plot_damage_maps(res, path, title=""):
     return save_figure(fig, path, dpi=130)
 
 
+def add_run_options(p) -> None:
+    """The options of a dynamic bundle run shared by ``upscale bundle`` and the validation
+    case ``bundle-tension``: overlap, vdW schedule, coarse pairs, strain, time stepping,
+    thermostat."""
+    p.add_argument("--allow-overlap", action="store_true",
+                   help="run tubes closer than the van der Waals wall (the seed's hexagon)")
+    p.add_argument("--max-strain", type=float, default=0.40,
+                   help="stop the pull at this strain (default 0.40, the references')")
+    p.add_argument("--integrator", choices=("verlet", "respa"), default="verlet",
+                   help="velocity Verlet at 1 fs (default) or multiple time stepping (the "
+                   "coarse tubes' lattice and the vdW at an outer step of --inner fs)")
+    p.add_argument("--inner", type=int, default=5,
+                   help="1 fs inner steps per outer step with respa: 1, 2, 5, 10 (default 5)")
+    p.add_argument("--thermostat", choices=("bundle", "per-tube"), default="bundle",
+                   help="one Nose-Hoover on all tubes' free parts (default) or one per tube")
+    p.add_argument("--coarse-pairs", choices=("atoms", "sites"), default="atoms",
+                   help="two coarse tubes interact through reconstructed atoms (default) or "
+                   "through their particles as lumped sites")
+    p.add_argument("--vdw-every", type=int, default=1,
+                   help="vdW forces recomputed every N steps, held in between (velocity "
+                   "Verlet only; default 1)")
+
+
 # ---------------------------------------------------------------------- command line
 def register(subparsers):
     p = subparsers.add_parser("bundle", help="a bundle of tubes (atomistic and coarse) in "
@@ -866,23 +889,9 @@ def register(subparsers):
     p.add_argument("--spacing", choices=("vdw", "seed"), default="vdw",
                    help="walls --gap apart (default) or centres 2.2 R apart (the seed's)")
     p.add_argument("--gap", type=float, default=3.4, help="wall gap, Å (default 3.4)")
-    p.add_argument("--allow-overlap", action="store_true",
-                   help="run tubes closer than the van der Waals wall (the seed's hexagon)")
     p.add_argument("--no-vacancy", action="store_true", help="no vacancy in the central tube")
     p.add_argument("--seed", type=int, default=4928459, help="thermal velocity seed")
-    p.add_argument("--max-strain", type=float, default=0.40)
-    p.add_argument("--integrator", choices=("verlet", "respa"), default="verlet",
-                   help="velocity Verlet at 1 fs (default) or multiple time stepping (the "
-                   "coarse tubes' lattice and the vdW at an outer step of --inner fs)")
-    p.add_argument("--inner", type=int, default=5,
-                   help="1 fs inner steps per outer step with respa: 1, 2, 5, 10 (default 5)")
-    p.add_argument("--thermostat", choices=("bundle", "per-tube"), default="bundle",
-                   help="one Nose-Hoover on all tubes (default) or one per tube")
-    p.add_argument("--coarse-pairs", choices=("atoms", "sites"), default="atoms",
-                   help="two coarse tubes interact through reconstructed atoms (default) or "
-                   "through their particles as lumped sites")
-    p.add_argument("--vdw-every", type=int, default=1,
-                   help="vdW forces recomputed every N steps (velocity Verlet only; default 1)")
+    add_run_options(p)
     p.add_argument("--compare", choices=["lammps"], default=None,
                    help="overlay the stored LAMMPS reference (data/reference/)")
     p.add_argument("--outdir", type=Path, default=Path("out/bundle"))

@@ -175,24 +175,9 @@ def _args_tension(p):
     p.add_argument("--seed-start", type=int, default=4928459,
                    help="first thermal seed; the runs use seed-start, seed-start + 1, ... "
                    "(default 4928459, the references' default seed number)")
-    p.add_argument("--allow-overlap", action="store_true",
-                   help="run tubes closer than the van der Waals wall (the seed's hexagon)")
-    p.add_argument("--vdw-every", type=int, default=1,
-                   help="vdW forces recomputed every N steps, held in between (default 1)")
-    p.add_argument("--coarse-pairs", choices=("atoms", "sites"), default="atoms",
-                   help="two coarse tubes interact through reconstructed atoms (default) or "
-                   "their particles as lumped sites")
-    p.add_argument("--max-strain", type=float, default=0.40,
-                   help="stop the pull at this strain (default 0.40, the references')")
-    p.add_argument("--integrator", choices=("verlet", "respa"), default="verlet",
-                   help="velocity Verlet at 1 fs (default), or multiple time stepping: the "
-                   "coarse tubes' lattice and the vdW at an outer step of --inner fs")
-    p.add_argument("--thermostat", choices=("bundle", "per-tube"), default="bundle",
-                   help="one Nose-Hoover on all tubes' free parts (default), or one per tube "
-                   "(each tube held at the temperature)")
-    p.add_argument("--inner", type=int, default=5,
-                   help="inner (1 fs) steps per outer step with --integrator respa: 1, 2, 5 "
-                   "or 10 (default 5)")
+    from upscale.experiments.bundle import add_run_options  # noqa: PLC0415
+
+    add_run_options(p)
 
 
 def lammps_bundle_references(n, m, length, spacing, gap, compute=True):
