@@ -34,8 +34,6 @@ def nd(ids, depth=0):
     sep = np.abs(p[:, ax] - med) <= 1.01 * w   # stencil reach ~ 2 horizons -> half on each side
     left = ids[(p[:, ax] < med) & ~sep]; right = ids[(p[:, ax] >= med) & ~sep]
     return np.concatenate([nd(left, depth+1), nd(right, depth+1), ids[sep]])
-def order_for(w):
-    pass
 def run(name, lu, Kp=None):
     t = time.perf_counter()
     for _ in range(3): xx = lu.solve(bb if Kp is not None else b)
