@@ -3,6 +3,13 @@ r_s = 1 mm) for SuperLU's MMD ordering, a geometric nested dissection (separator
 horizons) and a single-precision factor, in one process. Usage: lu_orderings.py DX
 
 Run from the repository root with PYTHONPATH=$PWD (diagnostics behind validation/results/scb.md)."""
+import sys
+import time
+
+import numpy as np
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
 from upscale.experiments.scb import SCBScene
 from upscale.engine.quasistatic import Equilibrium
 dx = float(sys.argv[1])
