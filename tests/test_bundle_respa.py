@@ -99,10 +99,10 @@ class _Springs:
         self.c, self.k = np.asarray(c, float), np.asarray(k, float)
 
     def prepare(self, system, family=None, **kw):
-        pass
+        """Nothing to prepare: the springs need no family and no pair list."""
 
     def init_state(self, state):
-        pass
+        """Nothing to add to the state: the springs carry no history."""
 
     def add_force(self, state, out):
         out -= self.k[:, None] * (state.y - self.c)
