@@ -298,12 +298,17 @@ class DCBRDefectTubeModel:
         self._version += 1
         self._cache = self._slow_cache = self._fast_cache = None
 
+    def _is_current(self, c, y, d) -> bool:
+        """Whether cache entry ``c`` = (version, y, delta, value) holds for these links and
+        this state."""
+        return (c is not None and c[0] == self._version and np.array_equal(c[1], y)
+                and np.array_equal(c[2], d))
+
     def _evaluate(self, state):
         self._sync(state)
         y, d = self.unknowns(state)
         c = self._cache
-        if c is not None and c[0] == self._version and np.array_equal(c[1], y) and \
-                np.array_equal(c[2], d):
+        if self._is_current(c, y, d):
             return c[3]
         t = self.tube
         E, gy, gd, _ = t.energy_and_gradient(y, d, self.Lz)
@@ -351,8 +356,7 @@ class DCBRDefectTubeModel:
         self._sync(state)
         y, d = self.unknowns(state)
         c = self._slow_cache
-        if c is not None and c[0] == self._version and np.array_equal(c[1], y) and \
-                np.array_equal(c[2], d):
+        if self._is_current(c, y, d):
             return c[3]
         E, gy, gd = self._coarse_eval(y, d)
         q = self._transfer(y, d)
@@ -549,8 +553,7 @@ class DCBRDefectTubeModel:
         self._sync(state)
         y, d = self.unknowns(state)
         c = self._fast_cache
-        if c is not None and c[0] == self._version and np.array_equal(c[1], y) and \
-                np.array_equal(c[2], d):
+        if self._is_current(c, y, d):
             return c[3]
         t, nd, nf, N = self.tube, self.nd, self.nf, self.N
         rows, loc, sg = self._carriers()
