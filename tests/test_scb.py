@@ -61,3 +61,33 @@ def test_williams_fit_recovers_closed_form_tip_field():
     assert abs(ki / KI - 1) < 1e-6 and abs(kii / -KII - 1) < 1e-6 and abs(t / T - 1) < 1e-6
     with pytest.raises(ValueError, match="annulus"):
         williams_fit(pts, u, ex, ey, mu, kap, 0.00910, 0.00911, n_terms=6)
+
+
+def test_explicit_rise_bad_input():
+    sc = SCBScene(0.0, dx=3e-3)
+    with pytest.raises(ValueError, match="rise"):
+        sc.explicit(1e-4, 1e-5, rise=2e-4)
+    with pytest.raises(ValueError, match="rise"):
+        sc.explicit(1e-4, 1e-5, rise=-1e-5)
+
+
+@pytest.mark.slow
+def test_explicit_smooth_rise_removes_the_start_vibration():
+    """Elastic SCB driven at constant rate: a velocity jump at t = 0 leaves the load-patch
+    reaction vibrating about the static line k d; a smooth rise over a few periods leaves a
+    much smaller vibration (SCBScene.explicit docstring), and the patch follows the ramp."""
+    sc = SCBScene(0.0, dx=3e-3)
+    _, P_static = sc.elastic(d=1e-6)
+    k = P_static / 1e-6
+    T, u_end = 1e-3, 1e-5
+    dev = {}
+    for rise in (0.0, 0.5 * T):
+        t, d, P, _, _ = sc.explicit(T, u_end, every=1, rise=rise)
+        late = t > 0.75 * T
+        dev[rise] = np.max(np.abs(P[late] - k * d[late])) / (k * u_end)
+        if rise:
+            v = u_end / T
+            j = np.searchsorted(t, 0.25 * T)
+            assert np.isclose(d[j], 0.5 * v * (t[j] - rise / np.pi * np.sin(np.pi * t[j] / rise)), rtol=1e-12)
+    assert dev[0.0] > 0.01
+    assert dev[0.5 * T] < 0.3 * dev[0.0]

@@ -286,11 +286,23 @@ class SCBScene:
         return st, curve
 
     def explicit(self, loading_time, u_end, *, every=10, stop_fraction=0.5, progress=False,
-                 safety=0.4):
+                 safety=0.4, rise=0.0):
         """Explicit dynamics (velocity Verlet, the engine's stable step) with the load patch
-        driven as u_y = -u_end t / loading_time: (times (k,), displacement (k,), load (k,) N,
-        state, run info). The load is the internal force on the load patch (along +y); the run
-        stops when it falls below ``stop_fraction`` of its peak or at ``loading_time``."""
+        driven at v = u_end / loading_time: (times (k,), displacement (k,), load (k,) N, state,
+        run info). The load is the internal force on the load patch (along +y); the run stops
+        when it falls below ``stop_fraction`` of its peak or when the patch reaches u_end.
+
+        ``rise`` (s, default 0: the velocity jumps to v at t = 0): the patch velocity rises as
+        v (1 - cos(pi t / rise)) / 2, so u = v [t - (rise / pi) sin(pi t / rise)] / 2 for t <
+        rise and v (t - rise / 2) after. A velocity jump at t = 0 starts an undamped vibration
+        of the specimen whose load amplitude is about k v / omega_1 (k the load-point stiffness,
+        omega_1 the lowest mode the patch drives): relative to the load at the peak, 1 /
+        (omega_1 t_c), t_c the time to the peak, so it falls only as 1 / loading time; a rise
+        over several periods 2 pi / omega_1 leaves a residual vibration smaller by about
+        1 / (omega_1 rise)^2 (the spectrum of the smoothed jump).
+
+        ``info`` gains ``first_break`` = (t, displacement, load) of the first step that broke a
+        bond (None if none broke)."""
         from upscale.engine import Simulation
         from upscale.engine.conditions import Displacement, Fixed, Region
         from upscale.engine.integrators import VelocityVerlet
@@ -298,27 +310,40 @@ class SCBScene:
         T = float(loading_time)
         if not T > 0:
             raise ValueError(f"loading_time={loading_time!r} s; valid: > 0")
+        rise = float(rise)
+        if not (0.0 <= rise <= T):
+            raise ValueError(f"rise={rise!r} s; valid: 0 <= rise <= loading_time ({T:g} s)")
+        v = u_end / T
+
+        def u_of(t):
+            if t < rise:
+                return 0.5 * v * (t - rise / np.pi * np.sin(np.pi * t / rise))
+            return min(v * (t - 0.5 * rise), u_end)
+
         load = Region("load", self.load)
-        conds = [Displacement(load, value=lambda t: np.array([0.0, -u_end * min(t / T, 1.0), 0.0]),
-                              components=(0, 1)),
+        conds = [Displacement(load, value=lambda t: np.array([0.0, -u_of(t), 0.0]), components=(0, 1)),
                  Fixed(Region("support", self.support), components=(1,) if self.supports == "rollers" else (0, 1))]
         # breaking bonds shrinks a particle's family and stiffens its G: a step below the
         # reference estimate (``safety``) keeps the damaged state stable
         sim = Simulation(self.system, self.family, [self.model], conds, VelocityVerlet(safety=safety))
         rec_t, rec_d, rec_P = [], [], []
+        first = []
 
         def cb(s):
+            if not first and s.broken_total > 0:
+                first.append((s.state.t, u_of(s.state.t), float(s.reactions[self.load, 1].sum())))
             if s.state.step % every:
                 return False
             P = float(s.reactions[self.load, 1].sum())   # the body pushes the patch up
             rec_t.append(s.state.t)
-            rec_d.append(u_end * min(s.state.t / T, 1.0))
+            rec_d.append(u_of(s.state.t))
             rec_P.append(P)
             return max(rec_P) > 0 and P < stop_fraction * max(rec_P) and s.state.t > 0.1 * T
 
         sim.prepare()
-        steps = int(np.ceil(T / sim.integrator.dt))
+        steps = int(np.ceil((T + 0.5 * rise) / sim.integrator.dt))
         info = sim.run(steps, callback=cb, progress=progress)
+        info["first_break"] = first[0] if first else None
         return np.array(rec_t), np.array(rec_d), np.array(rec_P), sim.state, info
 
     def initiation_angle(self, curve, n_first=None):

@@ -14,7 +14,11 @@
                      through the FE factors, errors against the experiment, the paper's errors
                      recomputed from its own values; initiation angles against MTS and GMTS
 ``scb-convergence``  P_c at several spacings with r_s fixed in metres and with r_s / dx fixed
-``scb-rate``         explicit dynamics at three loading times against the quasi-static P_c
+``scb-rate``         explicit dynamics at three loading times against the quasi-static P_c; the
+                     load patch's velocity rises smoothly over ``--rise`` (0.3) of the loading
+                     time (a velocity jump leaves an undamped vibration of the specimen that
+                     shifts the first failure by about 1 / (omega_1 t_c) of the load);
+                     ``monotone``: |error| does not grow with the loading time
 
 P_c is the peak before the load first falls below ``--stop-fraction`` (0.5) of it: the load
 of the crack's first instability.
@@ -33,6 +37,7 @@ ROOT = Path(__file__).resolve().parents[2]
 TABLE = ROOT / "data" / "experiments" / "scb_table_6_2.json"
 ALPHAS = (0.0, 10.0, 20.0, 30.0, 40.0, 43.0, 47.0, 50.0)
 R, A_CRACK, T_THICK = 0.05, 0.015, 0.005
+RATE_RISE = 0.3        # scb-rate: load-patch velocity rise time / loading time (SCBScene.explicit)
 R_C_GMTS = 1.5e-4      # GMTS critical distance (m): (K_Ic / sigma_t)^2 / 2 pi, sigma_t = 70 MPa (assumed)
 
 
@@ -360,6 +365,10 @@ def _conv_args(p):
     p.add_argument("--ms", default="",
                    help="extra horizon / spacing ratios (default 3 only), run with r_s fixed at --m-dx")
     p.add_argument("--m-dx", type=float, default=None, help="spacing in m of the --ms runs (default the coarsest)")
+    p.add_argument("--deltas", default="",
+                   help="comma list of horizons in m held fixed while the spacing is refined (m = delta / dx "
+                        "at each of --dxs, r_s fixed in metres): the refinement of the nonlocal model at fixed "
+                        "material lengths (default none)")
 
 
 @case("scb-convergence", "SCB: P_c versus spacing, r_s fixed in metres and r_s / dx fixed, and versus horizon / "
@@ -368,7 +377,14 @@ def run_convergence(args):
     """P_c and the initiation angle per run. ``P_c_change_pct_max``: the largest |change| of P_c
     between the two finest spacings with r_s held in metres (the criterion's r_s is a length of
     the material); ``P_c_change_pct_max_fixed_ratio`` the same with r_s / dx fixed;
-    ``P_c_change_pct_max_m``: the largest |change| over the horizon ratios against m = 3."""
+    ``P_c_change_pct_max_m``: the largest |change| over the horizon ratios against m = 3;
+    ``P_c_change_pct_max_delta``: the largest |change| between the two finest spacings with the
+    horizon delta and r_s both held in metres (``--deltas``; m = delta / dx grows as dx falls).
+
+    Refining dx at fixed m = delta / dx shrinks the horizon with the spacing: it converges to
+    the local limit of the gain model (delta -> 0) only once delta is small against r_s, the
+    one length left in the criterion. Refining at fixed delta (in metres) keeps both lengths
+    of the nonlocal model and converges to its nonlocal continuum."""
     from upscale.experiments.scb import run_scb
 
     quick = getattr(args, "quick", False)
@@ -381,6 +397,10 @@ def run_convergence(args):
     ra = getattr(args, "ratio_alphas", None)
     ratio_alphas = alphas if ra is None else [float(v) for v in ra.split(",")]
     ms = [float(v) for v in (getattr(args, "ms", "") or "").split(",") if v.strip()]
+    deltas = [float(v) for v in (getattr(args, "deltas", "") or "").split(",") if v.strip()]
+    for dl in deltas:
+        if not dl > 0:
+            raise ValueError(f"--deltas entry {dl!r} m; valid: > 0")
     m_dx = getattr(args, "m_dx", None) or dxs[0]
     ex = _exp()
     r_s = getattr(args, "r_s", None)
@@ -402,6 +422,10 @@ def run_convergence(args):
                      "stop": c["stop_reason"], "wall s": res["wall_s"]})
         print(rows[-1], flush=True)
 
+    def have(al, dx, m, r):
+        return any(r_["alpha"] == al and abs(r_["dx mm"] - dx * 1e3) < 1e-9 and abs(r_["delta/dx"] - m) < 1e-9
+                   and abs(r_["r_s mm"] - r * 1e3) < 1e-9 for r_ in rows)
+
     for al in alphas:
         for dx in dxs:
             for mode in modes:
@@ -411,7 +435,18 @@ def run_convergence(args):
         for m in ms:
             if m != 3.0:
                 one(al, m_dx, m, "fixed m", r_s)
+        for dl in deltas:
+            for dx in dxs:
+                if not have(al, dx, dl / dx, r_s):
+                    one(al, dx, dl / dx, f"fixed delta {dl * 1e3:g} mm", r_s)
     print(table(rows, floatfmt=".4f"))
+
+    def P_delta(al, dx, dl):
+        for r in rows:
+            if (r["alpha"] == al and abs(r["dx mm"] - dx * 1e3) < 1e-9 and abs(r["delta/dx"] * dx - dl) < 1e-12
+                    and abs(r["r_s mm"] - r_s * 1e3) < 1e-9):
+                return r["P_c kN"]
+        return None
 
     def P_of(al, dx, mode, m=3.0):
         for r in rows:
@@ -433,6 +468,13 @@ def run_convergence(args):
             if a is not None and b is not None and m != 3.0:
                 ch.append({"alpha": al, "mode": f"delta/dx {m:g} vs 3", "dx mm": f"{m_dx * 1e3:g}", "finest": False,
                            "change_pct": 100 * (b / a - 1)})
+        for dl in deltas:
+            for d0, d1 in zip(dxs, dxs[1:]):
+                a, b = P_delta(al, d0, dl), P_delta(al, d1, dl)
+                if a is not None and b is not None:
+                    ch.append({"alpha": al, "mode": f"fixed delta {dl * 1e3:g} mm",
+                               "dx mm": f"{d0 * 1e3:g} -> {d1 * 1e3:g}", "finest": d1 == dxs[-1],
+                               "change_pct": 100 * (b / a - 1)})
     print(table(ch, floatfmt=".2f"))
 
     def worst(sel):
@@ -444,7 +486,9 @@ def run_convergence(args):
            "r_s_m_coarsest": r_s, "criterion": crit, "rows": rows, "changes": ch,
            "P_c_change_pct_max": fixed_m,
            "P_c_change_pct_max_fixed_ratio": worst(lambda c: c["mode"] == "fixed r_s/dx" and c["finest"]),
-           "P_c_change_pct_max_m": worst(lambda c: c["mode"].startswith("delta/dx"))}
+           "P_c_change_pct_max_m": worst(lambda c: c["mode"].startswith("delta/dx")),
+           "deltas_m": deltas,
+           "P_c_change_pct_max_delta": worst(lambda c: c["mode"].startswith("fixed delta") and c["finest"])}
     out["pass"] = bool(fixed_m is not None and fixed_m < 5 and dxs[-1] <= 0.25e-3)
     return out
 
@@ -458,6 +502,9 @@ def _rate_args(p):
                    help="failure rule (default %(default)s)")
     p.add_argument("--times", default=None, help="comma list of loading times in s to 1 mm "
                    "(default 2e-3,5e-3,1.5e-2; quick 1e-3,2e-3,4e-3)")
+    p.add_argument("--rise", type=float, default=RATE_RISE,
+                   help="velocity rise time of the load patch as a fraction of the loading time "
+                        "(SCBScene.explicit; 0: a velocity jump at t = 0; default %(default)s)")
 
 
 @case("scb-rate", "SCB: explicit dynamics at three loading times against the quasi-static P_c", _rate_args)
@@ -470,6 +517,9 @@ def run_rate(args):
     if r_s is None:
         r_s = 0.075 if crit == "energy" else 1e-3
     times = [float(v) for v in (getattr(args, "times", None) or ("1e-3,2e-3,4e-3" if quick else "2e-3,5e-3,1.5e-2")).split(",")]
+    rise = float(getattr(args, "rise", RATE_RISE))
+    if not 0.0 <= rise <= 1.0:
+        raise ValueError(f"--rise={rise!r}; valid: 0 <= rise <= 1 (a fraction of the loading time)")
     qs = run_scb(0.0, dx=dx, r_s=r_s, stop_fraction=0.5, keep=True, criterion=crit)
     P_qs = qs["P_c_N"]
     mu_qs = qs.pop("_damage")
@@ -479,13 +529,15 @@ def run_rate(args):
     u_end = 1e-3
     for T in times:
         sc = SCBScene(0.0, dx=dx, r_s=r_s, criterion=crit)
-        t, d, P, st, info = sc.explicit(T, u_end)
+        t, d, P, st, info = sc.explicit(T, u_end, every=1, rise=rise * T)
         from upscale.engine import damage
 
         mu = damage(sc.family, st.intact)
         k = int(np.argmax(P))
         overlap = float(np.sum((mu > 0.35) & (mu_qs > 0.35)) / max(1, np.sum(mu_qs > 0.35)))
+        fb = info["first_break"]
         rows.append({"loading time to 1 mm (s)": T, "rate mm/s": u_end / T * 1e3, "P_c kN": P[k] / 1e3,
+                     "first break kN": fb[2] / 1e3 if fb else None,
                      "err %": 100 * (P[k] / P_qs - 1), "d at P_c mm": d[k] * 1e3,
                      "damaged overlap with QS": overlap, "steps": info["steps"], "wall s": info["wall_s"]})
         print(rows[-1], flush=True)
@@ -493,8 +545,11 @@ def run_rate(args):
     errs = [r["err %"] for r in rows]
     mono = all(abs(b) <= abs(a) + 1e-9 for a, b in zip(errs, errs[1:]))
     return {"dx_m": dx, "r_s_m": r_s, "criterion": crit, "P_c_quasi_static_kN": P_qs / 1e3, "loading_times_s": times,
+            "rise_fraction": rise,
             "P_c_kN": [r["P_c kN"] for r in rows], "P_c_rate_err_pct": errs,
             "P_c_rate_err_pct_slowest": float(errs[-1]), "monotone": bool(mono),
+            "P_c_falls_with_loading_time": bool(all(b <= a for a, b in zip(errs, errs[1:]))),
+            "first_break_kN": [r["first break kN"] for r in rows],
             "damaged_overlap": [r["damaged overlap with QS"] for r in rows],
             "pass": bool(abs(errs[-1]) < 2 and mono)}
 
