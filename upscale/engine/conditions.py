@@ -22,6 +22,7 @@ import dataclasses
 from typing import Callable
 
 import numpy as np
+from numba import njit
 
 __all__ = ["Region", "region", "Condition", "Fixed", "Displacement", "Velocity", "Force",
            "BodyForce", "Grip", "constrained_dofs"]
@@ -191,9 +192,9 @@ class Grip(Displacement):
             self._x0 = (state.x0, state.x0[idx][:, c], len(c) == 3)
         x0r, full = self._x0[1], self._x0[2]
         if full:
-            state.y[idx] = x0r + u
+            _rigid_rows(state.y, idx, x0r, u)
             if dt:
-                state.v[idx] = (u - (u0 + vel * (t - dt))) / dt
+                _rigid_rows(state.v, idx, None, (u - (u0 + vel * (t - dt))) / dt)
             return
         if dt:
             state.v[np.ix_(idx, c)] = ((u - (u0 + vel * (t - dt))) / dt)[c]
@@ -232,3 +233,15 @@ def constrained_dofs(n: int, conditions) -> np.ndarray:
         if cnd.kinematic:
             m[np.ix_(cnd.region.index, cnd.components)] = True
     return m
+
+
+@njit(cache=True)
+def _rigid_rows(a_nc, idx_i, x0_ic, u_c):
+    """a[idx] = x0 + u (x0 None: a[idx] = u), u one 3-vector for every row."""
+    for i in range(idx_i.shape[0]):
+        r = idx_i[i]
+        for k in range(3):
+            if x0_ic is None:
+                a_nc[r, k] = u_c[k]
+            else:
+                a_nc[r, k] = x0_ic[i, k] + u_c[k]

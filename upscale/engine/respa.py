@@ -19,7 +19,9 @@ stays clear of the resonances at half periods of the fast motion the slow forces
 The split is the models' (the contract, :mod:`upscale.engine`): a model may provide
 ``add_group_force(state, out, group)`` and ``add_group_field_force(state, out, group)``
 for ``group`` in ``("fast", "slow")`` (and ``group_energy(state, group)``), whose sums
-over the groups are its ``add_force`` / ``add_field_force`` / ``energy``; a model without
+over the groups are its ``add_force`` / ``add_field_force`` / ``energy`` (a model with
+per-particle forces may also give ``add_group_forces(state, out, fields_out, group)``, the
+two at once from one evaluation, which is then used instead); a model without
 them is fast as a whole (evaluated every inner step: always correct, never cheaper). A
 model may also re-choose its split about the current state in ``prepare_split(state)``
 (the sum unchanged), which :meth:`RESPA.update_forces` calls.
@@ -33,6 +35,7 @@ order of velocity Verlet). A thermostat acts on the outer step (its half steps a
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 from upscale.engine.integrators import stable_time_step
 
@@ -137,6 +140,10 @@ class RESPA:
             density = m.force_kind == "density"
             if split is None and not fast:
                 continue
+            both = getattr(m, "add_group_forces", None)
+            if both is not None and not density:
+                both(st, F, G, group)
+                continue
             tmp = np.zeros_like(F) if density else F
             if split is None:
                 m.add_force(st, tmp)
@@ -158,11 +165,9 @@ class RESPA:
                             G[k] += v * vol
         if fast and getattr(sim, "_loads", True):
             F += sim.external_forces()
-        R = self._R[group]
-        np.multiply(F, sim.constrained, out=R)
-        np.copyto(F, 0.0, where=sim.constrained)
+        _split_constrained(F, sim.constrained, self._R[group])
         for k, mask in sim.field_constrained.items():
-            G[k][mask] = 0.0
+            _zero_where(G[k], mask)
 
     def _finish(self, sim) -> int:
         """Both groups at the end positions: the total into ``sim.F`` / ``sim.G`` /
@@ -251,3 +256,25 @@ class RESPA:
         return {"integrator": self.name, "outer_dt": self.outer_dt, "inner": self.inner,
                 "inner_dt": self.dt,
                 "thermostat": None if self.thermostat is None else self.thermostat.describe()}
+
+
+@njit(cache=True)
+def _split_constrained(F_nc, mask_nc, R_nc):
+    """R = F * mask (the group's force on the constrained dofs), then F = 0 there (one
+    pass for ``np.multiply(F, mask, out=R)`` and ``np.copyto(F, 0, where=mask)``)."""
+    for i in range(F_nc.shape[0]):
+        for k in range(F_nc.shape[1]):
+            if mask_nc[i, k]:
+                R_nc[i, k] = F_nc[i, k] * 1.0
+                F_nc[i, k] = 0.0
+            else:
+                R_nc[i, k] = F_nc[i, k] * 0.0
+
+
+@njit(cache=True)
+def _zero_where(a_nk, mask_nk):
+    """a[mask] = 0."""
+    for i in range(a_nk.shape[0]):
+        for k in range(a_nk.shape[1]):
+            if mask_nk[i, k]:
+                a_nk[i, k] = 0.0

@@ -27,8 +27,11 @@ import math
 import numpy as np
 from numba import njit
 
+from upscale.engine.fields import pairwise_sum
+
 __all__ = ["map_frames", "frame_adjoint", "stab_links", "pad_positions", "pad_backward",
-           "max_displacement2"]
+           "max_displacement2", "take_rows", "sub_rows", "particle_positions", "fold_gradient",
+           "transfer", "same"]
 
 
 @njit(cache=True, error_model="numpy")
@@ -355,3 +358,135 @@ def max_displacement2(x, x_ref):
         if d2 > m:
             m = d2
     return m, -1
+
+
+# --------------------------------------------------------------------------- row glue
+# The engine model's per-step array glue (gathering the unknown rows, scattering their
+# forces, the slaves' interpolation y_s = Phi (x - X) + X_s and its transpose) in single
+# loops: numpy's fancy indexing and scipy's sparse products cost tens of microseconds of
+# overhead each at these sizes, a few times per inner step. Every sum runs in the order
+# of the numpy / scipy expression it replaces (``csr_matvecs``: zero, then each stored
+# entry in turn), so the numbers are the same to the last bit.
+
+@njit(cache=True)
+def take_rows(a_nc, rows_i):
+    """a[rows] (a new (k, 3) array)."""
+    out = np.empty((rows_i.shape[0], 3))
+    for i in range(rows_i.shape[0]):
+        r = rows_i[i]
+        out[i, 0] = a_nc[r, 0]
+        out[i, 1] = a_nc[r, 1]
+        out[i, 2] = a_nc[r, 2]
+    return out
+
+
+@njit(cache=True)
+def sub_rows(out_nc, rows_i, g_ic):
+    """out[rows] -= g (rows distinct)."""
+    for i in range(rows_i.shape[0]):
+        r = rows_i[i]
+        out_nc[r, 0] = out_nc[r, 0] - g_ic[i, 0]
+        out_nc[r, 1] = out_nc[r, 1] - g_ic[i, 1]
+        out_nc[r, 2] = out_nc[r, 2] - g_ic[i, 2]
+
+
+@njit(cache=True)
+def particle_positions(y_uc, nd, dof_i, slave_i, indptr, indices, data, off_sc, yp_nc):
+    """All particle positions into ``yp_nc`` (N, 3) from the unknowns y (nd non-slave
+    particles, then the free atoms): yp[dof] = y[:nd], yp[slave_s] = sum_a Phi_sa
+    y[nd + a] + off_s (Phi in CSR: ``indptr``, ``indices``, ``data``)."""
+    for i in range(dof_i.shape[0]):
+        r = dof_i[i]
+        for k in range(3):
+            yp_nc[r, k] = y_uc[i, k]
+    for s in range(slave_i.shape[0]):
+        a0 = 0.0
+        a1 = 0.0
+        a2 = 0.0
+        for jj in range(indptr[s], indptr[s + 1]):
+            w = data[jj]
+            j = nd + indices[jj]
+            a0 += w * y_uc[j, 0]
+            a1 += w * y_uc[j, 1]
+            a2 += w * y_uc[j, 2]
+        r = slave_i[s]
+        yp_nc[r, 0] = a0 + off_sc[s, 0]
+        yp_nc[r, 1] = a1 + off_sc[s, 1]
+        yp_nc[r, 2] = a2 + off_sc[s, 2]
+
+
+@njit(cache=True)
+def fold_gradient(gyp_nc, gx_ac, nd, dof_i, slave_i, indptrT, indicesT, dataT, gy_uc):
+    """dE/d(unknowns) into ``gy_uc`` (nd + nf, 3) from dE/d(particle positions) ``gyp_nc``
+    and dE/d(free atoms) ``gx_ac`` (nf, 3; or an empty (0, 3) array: zero): gy[:nd] =
+    gyp[dof], gy[nd + a] = gx_a + sum_s Phi_sa gyp[slave_s] (Phi^T in CSR)."""
+    for i in range(dof_i.shape[0]):
+        r = dof_i[i]
+        for k in range(3):
+            gy_uc[i, k] = gyp_nc[r, k]
+    nf = gy_uc.shape[0] - nd
+    have = gx_ac.shape[0] > 0
+    for a in range(nf):
+        b0 = gx_ac[a, 0] if have else 0.0
+        b1 = gx_ac[a, 1] if have else 0.0
+        b2 = gx_ac[a, 2] if have else 0.0
+        if slave_i.shape[0] > 0:
+            a0 = 0.0
+            a1 = 0.0
+            a2 = 0.0
+            for jj in range(indptrT[a], indptrT[a + 1]):
+                w = dataT[jj]
+                r = slave_i[indicesT[jj]]
+                a0 += w * gyp_nc[r, 0]
+                a1 += w * gyp_nc[r, 1]
+                a2 += w * gyp_nc[r, 2]
+            b0 = b0 + a0
+            b1 = b1 + a1
+            b2 = b2 + a2
+        gy_uc[nd + a, 0] = b0
+        gy_uc[nd + a, 1] = b1
+        gy_uc[nd + a, 2] = b2
+
+
+@njit(cache=True)
+def transfer(y_uc, yr_uc, d_nc, dr_nc, gy_uc, gd_nc, H_n33, gq_nc):
+    """The split's transfer (:meth:`DCBRDefectTubeModel.prepare_split`): returns
+    Q = g_y . (y - y_r) + g_d . (delta - delta_r) + 1/2 (delta - delta_r) . H (delta -
+    delta_r) and writes dQ/d delta = g_d + H (delta - delta_r) into ``gq_nc``. The sums in
+    numpy's order (``np.sum`` of the products, pairwise; H dd as ``np.einsum`` pairs it,
+    (H_0 dd_0 + H_2 dd_2) + H_1 dd_1), so the numbers equal the numpy expression's."""
+    nu = y_uc.shape[0]
+    n = d_nc.shape[0]
+    a = np.empty(3 * nu)
+    for i in range(nu):
+        for k in range(3):
+            a[3 * i + k] = gy_uc[i, k] * (y_uc[i, k] - yr_uc[i, k])
+    s1 = pairwise_sum(a, 3 * nu)
+    b = np.empty(3 * n)
+    c = np.empty(3 * n)
+    for i in range(n):
+        e0 = d_nc[i, 0] - dr_nc[i, 0]
+        e1 = d_nc[i, 1] - dr_nc[i, 1]
+        e2 = d_nc[i, 2] - dr_nc[i, 2]
+        for k in range(3):
+            hd = (H_n33[i, k, 0] * e0 + H_n33[i, k, 2] * e2) + H_n33[i, k, 1] * e1
+            gq_nc[i, k] = gd_nc[i, k] + hd
+            ek = e0 if k == 0 else (e1 if k == 1 else e2)
+            b[3 * i + k] = gd_nc[i, k] * ek
+            c[3 * i + k] = ek * hd
+    s2 = pairwise_sum(b, 3 * n)
+    s3 = pairwise_sum(c, 3 * n)
+    return s1 + s2 + 0.5 * s3
+
+
+@njit(cache=True)
+def same(a, b):
+    """Whether a == b everywhere (``np.array_equal`` of two arrays of one shape)."""
+    fa = a.ravel()
+    fb = b.ravel()
+    if fa.shape[0] != fb.shape[0]:
+        return False
+    for i in range(fa.shape[0]):
+        if not fa[i] == fb[i]:
+            return False
+    return True

@@ -148,7 +148,9 @@ class DCBRDefectTubeModel:
 
     def unknowns(self, state):
         """(y, delta): the tube's unknowns (a new array) and shifts (a view) of ``state``."""
-        return state.y[self.y_rows], state.fields[FIELD][:self.N]
+        from upscale.models.dcbr_coupling_kernels import take_rows  # noqa: PLC0415
+
+        return take_rows(state.y, self.y_rows), state.fields[FIELD][:self.N]
 
     def masses(self) -> np.ndarray:
         """Mass of every row (n,), amu / ``unit``: a particle m_C max(w_c, N_c/2) (slaves
@@ -301,8 +303,10 @@ class DCBRDefectTubeModel:
     def _is_current(self, c, y, d) -> bool:
         """Whether cache entry ``c`` = (version, y, delta, value) holds for these links and
         this state."""
-        return (c is not None and c[0] == self._version and np.array_equal(c[1], y)
-                and np.array_equal(c[2], d))
+        from upscale.models.dcbr_coupling_kernels import same  # noqa: PLC0415
+
+        return (c is not None and c[0] == self._version and c[1].shape == y.shape
+                and c[2].shape == d.shape and same(c[1], y) and same(c[2], d))
 
     def _evaluate(self, state):
         self._sync(state)
@@ -324,7 +328,7 @@ class DCBRDefectTubeModel:
 
     def add_force(self, state, out) -> None:
         """Adds -dE/dy to the unknown rows (a slave's part is in its atoms' rows)."""
-        out[self.y_rows] -= self._evaluate(state)[1]
+        _sub_rows(out, self.y_rows, self._evaluate(state)[1])
 
     def add_field_force(self, state, out) -> None:
         """Adds -dE/d delta to the particle rows of the shift field."""
@@ -340,7 +344,7 @@ class DCBRDefectTubeModel:
         transfer of :meth:`prepare_split`.)"""
         t = self.tube
         d = np.ascontiguousarray(d, dtype=float)
-        yp = t.particle_positions(y)
+        yp = self._particle_positions(y)
         E, _, P, gd, gys, _ = t._coarse_part(yp, d, self.Lz)
         gyp = gys - t.gain.forces(P)
         b = self._interface_part(yp, d)
@@ -379,13 +383,15 @@ class DCBRDefectTubeModel:
 
     def _transfer(self, y, d):
         """(Q, dQ/dy, dQ/d delta) of the split's transfer, or None (:meth:`prepare_split`)."""
+        from upscale.models.dcbr_coupling_kernels import transfer  # noqa: PLC0415
+
         r = self._split_ref
         if r is None:
             return None
-        dd = d - r["d"]
-        Hd = np.einsum("nij,nj->ni", r["H"], dd)
-        Q = float(np.sum(r["gy"] * (y - r["y"])) + np.sum(r["gd"] * dd) + 0.5 * np.sum(dd * Hd))
-        return Q, r["gy"], r["gd"] + Hd
+        gq = np.empty((self.N, 3))
+        Q = transfer(np.ascontiguousarray(y, dtype=float), r["y"],
+                     np.ascontiguousarray(d, dtype=float), r["d"], r["gy"], r["gd"], r["H"], gq)
+        return float(Q), r["gy"], gq
 
     def prepare_split(self, state, h: float = 1e-4) -> None:
         """Choose the force split about the current state (the engine's split contract,
@@ -427,13 +433,46 @@ class DCBRDefectTubeModel:
         """dE/d(unknowns) (nd + nf, 3) from dE/d(particle positions) ``gyp`` (N, 3) and
         dE/d(free atoms) ``gx`` (nf, 3) or None: a slave's gradient goes to its atoms by
         Phi^T (y_s = Phi (x - X) + X_s)."""
-        t, nd = self.tube, self.nd
+        from upscale.models.dcbr_coupling_kernels import fold_gradient  # noqa: PLC0415
+
+        c = self._csr()
         gy = np.empty_like(y)
-        gy[:nd] = gyp[t.dof_idx]
-        gy[nd:] = 0.0 if gx is None else gx
-        if len(t.slave_idx):
-            gy[nd:] += t._PhiT @ gyp[t.slave_idx]
+        fold_gradient(np.ascontiguousarray(gyp, dtype=float),
+                      np.zeros((0, 3)) if gx is None else np.ascontiguousarray(gx, dtype=float),
+                      self.nd, c["dof"], c["slave"], c["pT"], c["iT"], c["dT"], gy)
         return gy
+
+    def _csr(self):
+        """The slaves' interpolation Phi and Phi^T as flat CSR arrays (for the kernels of
+        :meth:`_particle_positions` and :meth:`_fold`), rebuilt when the tube's Phi is."""
+        t = self.tube
+        c = getattr(self, "_csr_cache", None)
+        key = (t.Phi, t._PhiT, t.dof_idx, t.slave_idx, t.slave_off)
+        if c is not None and all(a is b for a, b in zip(c["key"], key)):
+            return c
+        phi, phit = t.Phi.tocsr(), t._PhiT.tocsr()
+        c = {"key": key,
+             "dof": np.ascontiguousarray(t.dof_idx, dtype=np.int64),
+             "slave": np.ascontiguousarray(t.slave_idx, dtype=np.int64),
+             "p": np.ascontiguousarray(phi.indptr, dtype=np.int64),
+             "i": np.ascontiguousarray(phi.indices, dtype=np.int64),
+             "d": np.ascontiguousarray(phi.data, dtype=float),
+             "pT": np.ascontiguousarray(phit.indptr, dtype=np.int64),
+             "iT": np.ascontiguousarray(phit.indices, dtype=np.int64),
+             "dT": np.ascontiguousarray(phit.data, dtype=float),
+             "off": np.ascontiguousarray(np.reshape(t.slave_off, (-1, 3)), dtype=float)}
+        self._csr_cache = c
+        return c
+
+    def _particle_positions(self, y):
+        """:meth:`DCBRDefectTube.particle_positions` (the same numbers) in one kernel."""
+        from upscale.models.dcbr_coupling_kernels import particle_positions  # noqa: PLC0415
+
+        c = self._csr()
+        yp = np.empty((self.N, 3))
+        particle_positions(np.ascontiguousarray(y, dtype=float), self.nd, c["dof"], c["slave"],
+                           c["p"], c["i"], c["d"], c["off"], yp)
+        return yp
 
     def _restricted_gain(self, rows):
         """G restricted to the rows ``rows`` (a :class:`~upscale.models.gain.GainOperator`
@@ -560,7 +599,7 @@ class DCBRDefectTubeModel:
         nc = len(rows)
         dc = np.ascontiguousarray(d, dtype=float)
         ds = np.ascontiguousarray(dc[rows])
-        yp = t.particle_positions(y)
+        yp = self._particle_positions(y)
         F = sg.deformation(yp, np.array([0.0, 0.0, self.Lz]))
         FS = np.empty((nc, 3, 2))
         par = np.empty((nc, 3))
@@ -600,8 +639,10 @@ class DCBRDefectTubeModel:
         if self.fast_ghost:
             E, gy, gd = self._ghost_term(y, dc, E, gy, gd)
         q = self._transfer(y, dc)
-        if q is not None:
-            E, gy, gd = E + q[0], gy + q[1], gd + q[2]
+        if q is not None:  # (gy, gd are this evaluation's own arrays: added in place)
+            E = E + q[0]
+            np.add(gy, q[1], out=gy)
+            np.add(gd, q[2], out=gd)
         out = (float(E), gy, gd)
         self._fast_cache = (self._version, y, np.array(d, copy=True), out)
         return out
@@ -623,7 +664,16 @@ class DCBRDefectTubeModel:
         contract, :mod:`upscale.engine.respa`): ``"slow"`` the particles' lattice energy
         and hourglass term, ``"fast"`` the atomistic region with its pads and the
         ghost-force dead load; the two add up to the total (the same energy, split)."""
-        out[self.y_rows] -= self._group(state, group)[1]
+        _sub_rows(out, self.y_rows, self._group(state, group)[1])
+
+    def add_group_forces(self, state, out, fields_out, group: str) -> None:
+        """:meth:`add_group_force` into ``out`` and :meth:`add_group_field_force` into
+        ``fields_out`` (if it has the shift field) from one evaluation (the engine's
+        split contract: one state check per group evaluation instead of two)."""
+        _, gy, gd = self._group(state, group)
+        _sub_rows(out, self.y_rows, gy)
+        if FIELD in fields_out:
+            fields_out[FIELD][:self.N] -= gd
 
     def add_group_field_force(self, state, out, group: str) -> None:
         """The ``group``'s part of :meth:`add_field_force` (the shifts)."""
@@ -805,6 +855,13 @@ class DCBRDefectTubeModel:
         G = np.zeros((self.n, 3))
         G[:self.N] = -gd
         return F, G
+
+
+def _sub_rows(out, rows, g):
+    """out[rows] -= g (:func:`~upscale.models.dcbr_coupling_kernels.sub_rows`)."""
+    from upscale.models import dcbr_coupling_kernels as CK  # noqa: PLC0415
+
+    CK.sub_rows(out, rows, np.ascontiguousarray(g, dtype=float))
 
 
 def _register():
