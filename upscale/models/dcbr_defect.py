@@ -843,7 +843,8 @@ class DCBRDefectTube(DCBRTube):
         counting as sitting at its plane (:func:`upscale.models.gain.build_gain`, ``clamp``):
         the held particles deep in a grip have G fixed, those next to the gauge (an edge:
         a link to a particle that is not held) stand for the material between the plane
-        and the gauge, and the gauge's particles see its strain exactly. The weights are the
+        and the gauge (``grip_edges`` (N,) bool: those edges with a positive weight), and the
+        gauge's particles see its strain exactly. The weights are the
         gauge's length shares: along each column of particles (one theta), every gauge
         particle and edge (at its plane) gets the part of the gauge nearer to it than to
         its neighbours in the column, times the particle's atoms per unit length; a held
@@ -896,6 +897,9 @@ class DCBRDefectTube(DCBRTube):
         self._build_gain(None)  # the clamped G, whose coefficients the weights balance
         self.natoms_n = self._balanced_grip_weights(self.natoms_n)
         self._build_gain(None)
+        # the edges that carry energy: their W(F_c, delta_c) is the gauge material's between
+        # the plane and the first free row (free atoms in LAMMPS, whose sublattices relax)
+        self.grip_edges = rigid & edge & (self.natoms_n > 0)
         tw = getattr(self, "_twin", None)
         if tw is not None and Lz0 is not None:  # the ghost forces' twin: opened and clamped
             # alike, linearised about its own uniform lattice at the set-up stretch
