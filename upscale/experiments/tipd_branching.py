@@ -18,10 +18,15 @@ models             Ti-PD with s0 from (60) or (62); LPS (s0 of (62)); PMB (bond-
 Crack tip: the largest x of a particle with damage >= 0.35 in the damaged cluster
 (8-connected on the lattice) that reaches within delta of the notch tip (every ``record_dt``; damage that
 starts elsewhere, e.g. at the loaded edges, is reported apart as ``edge_damage``);
-speed from a least-squares slope over a sliding window of 2 us. Branching: the first record
-at which the crack holds particles farther than 2 delta from the notch line on both sides
-(the main crack may go on between the branches); branching position x_b: the smallest x
-of those off-line particles then (where the branches leave the line). Branch angle (half the
+speed from a least-squares slope over a sliding window of 2 us. Coalescence: damage grown
+apart from the crack (particles damaged at the previous record, not connected to it then,
+some more than delta from it: nearer is the tip's own process zone) that joins it; such a
+join that moves the tip forward by more than delta is a jump, not a crack speed, so the
+peak speed ``v_max`` leaves out the windows that hold one (``v_max_with_coalescence``
+keeps them). Branching: the first record at which the crack, less the particles that
+joined it by coalescence, holds particles farther than 2 delta from the notch line on both
+sides (the main crack may go on between the branches); branching position x_b: the
+smallest x of those off-line particles then (where the branches are 2 delta off the line). Branch angle (half the
 angle between the branches): atan(y / (x - x_b)) of the crack's particle farthest above the
 line at the end of the run. Symmetry: the fraction of damaged particles (>= 0.35) whose mirror image about
 y = 0 is not damaged.
@@ -108,7 +113,10 @@ def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
     steps = int(np.ceil(t_end / dt))
     record_every = max(1, int(round(record_dt / dt)))
     rec_t, rec_tip, rec_up, rec_lo = [], [], [], []
-    state = {"branch": None}
+    state = {"branch": None, "cluster": np.zeros(s.n, dtype=bool), "damaged": np.zeros(s.n, dtype=bool)}
+    onset = np.full(s.n, np.inf)          # first record time at which a particle's damage >= 0.35
+    merges = []                           # records at which damage grown apart joined the crack
+    merged = np.zeros(s.n, dtype=bool)    # the particles that joined the crack that way
 
     # lattice indices of the particles (regular grid, x slowest) for cluster labelling
     ix = np.rint((x0[:, 0] - x0[:, 0].min()) / dx).astype(int)
@@ -131,7 +139,25 @@ def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
         if st.step % record_every:
             return False
         d = sm.damage()
-        ahead = crack_cluster(d >= 0.35) & (x0[:, 0] > -dx)
+        dmg = d >= 0.35
+        onset[dmg & np.isinf(onset)] = st.t
+        cl = crack_cluster(dmg)
+        # coalescence: particles damaged at the previous record, apart from the crack then
+        joined = cl & state["damaged"] & ~state["cluster"]
+        if joined.any() and state["cluster"].any():
+            # damage within a horizon of the crack is its own process zone; farther, a crack apart
+            from scipy.spatial import cKDTree
+
+            gap = cKDTree(x0[state["cluster"], :2]).query(x0[joined, :2])[0].max()
+            if gap > delta:
+                prev_tip = rec_tip[-1] if rec_tip else 0.0
+                merges.append({"t_s": float(st.t), "particles": int(joined.sum()), "gap_m": float(gap),
+                               "x_m": [float(x0[joined, 0].min()), float(x0[joined, 0].max())],
+                               "y_m": [float(x0[joined, 1].min()), float(x0[joined, 1].max())],
+                               "advances_tip": bool(x0[joined, 0].max() > prev_tip + delta)})
+                merged[joined] = True
+        state["cluster"], state["damaged"] = cl, dmg
+        ahead = cl & (x0[:, 0] > -dx)
         if not ahead.any():
             tip, up, lo = 0.0, (0.0, 0.0), (0.0, 0.0)
         else:
@@ -142,11 +168,12 @@ def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
             # branch tips: the cluster's particles farthest from the notch line
             up = (float(x0[u[np.argmax(x0[u, 1])], 0]), float(x0[u, 1].max())) if u.size else (0.0, 0.0)
             lo = (float(x0[lw[np.argmin(x0[lw, 1])], 0]), float(x0[lw, 1].min())) if lw.size else (0.0, 0.0)
-            if state["branch"] is None:
-                yy = x0[xi, 1]
+            grown = xi[~merged[xi]]       # a branch grows from the crack; coalesced damage is not one
+            if state["branch"] is None and grown.size:
+                yy = x0[grown, 1]
                 off = np.abs(yy) > 2 * delta
                 if (yy > 2 * delta).any() and (yy < -2 * delta).any():
-                    state["branch"] = (float(st.t), float(x0[xi[off], 0].min()))
+                    state["branch"] = (float(st.t), float(x0[grown[off], 0].min()))
         rec_t.append(float(st.t))
         rec_tip.append(tip)
         rec_up.append(up)
@@ -163,7 +190,13 @@ def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
         if sel.sum() >= 3 and np.ptp(t_arr[sel]) > 0:
             v[k] = np.polyfit(t_arr[sel], tip_arr[sel], 1)[0]
     inside = tip_arr < LX / 2 - 2 * delta            # before the tip reaches the far edge
-    vmax = float(v[inside].max()) if inside.any() else float(v.max())
+    vmax_all = float(v[inside].max()) if inside.any() else float(v.max())
+    # running tip: windows holding a coalescence that moved the tip forward are not a speed
+    jumps = np.array([c["t_s"] for c in merges if c["advances_tip"]])
+    running = inside.copy()
+    for tj in jumps:
+        running &= np.abs(t_arr - tj) > w / 2 + 0.5 * record_every * dt
+    vmax = float(v[running].max()) if running.any() else vmax_all
     cR = rayleigh_speed()
     br = state["branch"]
     angle = None
@@ -182,12 +215,14 @@ def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
            "dx_m": dx, "horizon_m": fam.horizon, "load_rows": rows, "particles": s.n, "dt_s": float(dt), "steps": run["steps"],
            "t_end_s": float(sim.state.t), "s0": float(mdl.s0), "cR_m_per_s": cR,
            "v_max_m_per_s": vmax, "v_max_over_cR": vmax / cR,
+           "v_max_with_coalescence_m_per_s": vmax_all, "v_max_with_coalescence_over_cR": vmax_all / cR,
            "branching_t_s": None if br is None else br[0], "branching_x_m": None if br is None else br[1],
            "branch_angle_deg": angle, "asymmetry_fraction": asym,
            "damaged_off_crack": edge_damage,
            "broken_bonds": run["broken_bonds"], "tip_t_s": rec_t, "tip_x_m": rec_tip,
-           "upper_tip_xy_m": rec_up, "lower_tip_xy_m": rec_lo, "wall_time_s": time.perf_counter() - t0,
-           "positions_m": x0[:, :2].copy(), "damage": d}
+           "upper_tip_xy_m": rec_up, "lower_tip_xy_m": rec_lo, "coalescence": merges,
+           "wall_time_s": time.perf_counter() - t0,
+           "positions_m": x0[:, :2].copy(), "damage": d, "damage_onset_s": onset}
     if outdir is not None:
         import matplotlib
 
