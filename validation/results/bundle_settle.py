@@ -3,7 +3,7 @@ with given set-up and thermostat settings, the breathing of each tube's cross-se
 each tube's kinetic temperature before failure, and the run's metrics.
 
     python validation/results/bundle_settle.py [--seed 4928459] [--max-strain 0.40]
-        [--runs settle=0,settle=10] [--integrator respa] [--inner 5]
+        [--runs "settle_ps=0;chain=1,settle_ps=1.0;chain=3"] [--integrator respa] [--inner 5]
 
 ``--runs``: comma-separated settings, each ``key=value[;key=value]`` of
 :func:`upscale.experiments.bundle.dynamic_tension` (``settle_ps``: the quench of every tube
@@ -30,7 +30,7 @@ p.add_argument("--seed", type=int, default=4928459)
 p.add_argument("--max-strain", type=float, default=0.40)
 p.add_argument("--integrator", default="respa")
 p.add_argument("--inner", type=int, default=5)
-p.add_argument("--runs", default="settle_ps=0,settle_ps=10")
+p.add_argument("--runs", default="settle_ps=0;chain=1,settle_ps=1.0;chain=1,settle_ps=1.0;chain=3")
 p.add_argument("--out", default="validation/results/bundle_settle.json")
 a = p.parse_args()
 n, m = (int(v) for v in a.chirality.split(","))
