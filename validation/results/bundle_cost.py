@@ -16,6 +16,7 @@ import argparse
 import json
 import os
 import time
+from pathlib import Path
 
 from upscale.experiments.bundle import BundleScene, dynamic_tension, parse_specs
 from validation.cases.references import build_structure
@@ -65,4 +66,5 @@ for r in out["runs"][1:]:
     r["wall_ratio"] = lw / r["wall_s"]
     r["cpu_ratio"] = lc / r["cpu_s"]
 print(json.dumps(out, indent=1))
+Path("validation/out").mkdir(parents=True, exist_ok=True)
 json.dump(out, open(f"validation/out/bundle_cost_{n}-{m}.json", "w"), indent=1)
