@@ -21,8 +21,12 @@ matching time unit, in which ``m v^2`` is an energy).
     Nose-Hoover chain of length M (G. J. Martyna, M. L. Klein, M. Tuckerman, J. Chem. Phys.
     97, 2635 (1992)), integrated by the Trotter factorisation of Martyna, Tuckerman, Tobias,
     Klein, Mol. Phys. 87, 1117 (1996): a half step of the chain before and after the
-    velocity Verlet step, thermostat masses ``Q_1 = N_f k_B T tau^2``,
-    ``Q_j = k_B T tau^2``. Conserved:
+    velocity Verlet step (or the r-RESPA outer step), thermostat masses
+    ``Q_1 = N_f k_B T tau^2``, ``Q_j = k_B T tau^2`` (LAMMPS ``fix nvt``, whose default
+    chain is M = 3), on chosen components and fields as :class:`NoseHoover`. The second
+    thermostat of the chain thermostats the first, so the first variable's own
+    oscillation (the period ~ 2 pi tau / sqrt(2) of a single Nose-Hoover variable on a
+    system far from ergodic) is damped. Conserved:
 
         H' = E_kin + E_pot + sum_j Q_j p_j^2 / 2 + N_f k_B T eta_1 + k_B T sum_{j>1} eta_j  (2)
 
@@ -39,6 +43,16 @@ matching time unit, in which ``m v^2`` is an energy).
     ``fix nvt`` with ``compute temp/partial 1 1 0`` (the temperature of x, y only: an
     axial stretching flow is not heat), in the single-variable form. ``ndf`` overrides
     the number of degrees of freedom in eq. (1) (as LAMMPS's ``compute_modify extra/dof``).
+:class:`Quench`
+    Damped dynamics to the nearest minimum (no temperature): after every step the power
+    of the forces on the region's rates (translations and fields),
+    ``P = sum F . v + sum_fields G . w``, decides: ``P < 0``, the rates are set to zero;
+    else they are turned toward the force, ``u <- (1 - alpha) u + alpha |u| F / |F|`` over
+    all of them together (u = (v, w), F = (F, G)), with ``alpha`` from ``alpha0`` shrinking
+    by ``f_alpha`` after ``n_min`` steps downhill and reset on a zeroing: FIRE's mixing
+    (Bitzek et al., Phys. Rev. Lett. 97, 170201 (2006)) at the integrator's fixed step.
+    It moves whatever the integrator moves, so bodies whose kinematic ties (slaves,
+    fields) a static minimiser does not carry relax with the rest.
 :class:`ThermostatGroup`
     Several thermostats on disjoint regions, each with its own variable (e.g. one per body
     of an assembly: bodies of different models, whose heat capacities and heating differ,
@@ -51,7 +65,7 @@ import json
 
 import numpy as np
 
-__all__ = ["Langevin", "NoseHooverChain", "NoseHoover", "ThermostatGroup",
+__all__ = ["Langevin", "NoseHooverChain", "NoseHoover", "ThermostatGroup", "Quench",
            "kinetic_temperature"]
 
 
@@ -155,50 +169,80 @@ class Langevin:
 
 
 class NoseHooverChain:
-    """Nose-Hoover chain on a region (module docstring).
+    """Nose-Hoover chain on a region, on chosen components and fields (module docstring,
+    eq. (2)).
 
     Parameters
     ----------
     temperature : float
         K (> 0).
     tau : float
-        Relaxation time (time unit of the scene).
+        Relaxation time (time unit of the scene): ``Q_1 = N_f k_B T tau^2``,
+        ``Q_j = k_B T tau^2`` (LAMMPS ``fix nvt`` with ``Tdamp = tau``).
     region : Region or (N,) bool, optional
+        The particles whose translations are thermostatted (their free dofs on
+        ``components``).
     chain : int
-        Chain length M (1 = plain Nose-Hoover).
+        Chain length M (default 3, LAMMPS's ``tchain``; 1 = a single Nose-Hoover variable
+        in the same Trotter splitting).
+    components, fields, field_region, ndf :
+        As :class:`NoseHoover`: the translation components in eq. (1), fields with inertia
+        whose rates count and are scaled too, and the number of degrees of freedom
+        ``N_f`` (default: the free dofs it acts on).
     k_B : float, optional
         Boltzmann constant in the scene's units (default SI, J/K).
+
+    One half step (h = dt/2, at the start and at the end of the step), LAMMPS's
+    ``nhc_temp_integrate`` with one sub-step: ``G_1 = (2K - N_f k_B T) / Q_1``,
+    ``G_j = (Q_{j-1} p_{j-1}^2 - k_B T) / Q_j``; from the chain's end down,
+    ``p_j <- (p_j e + (h/2) G_j) e`` with ``e = exp(-(h/4) p_{j+1})``; the rates scaled
+    by ``exp(-h p_1)``, ``eta_j += h p_j``; then up the chain again with the new G.
     """
 
     name = "nose-hoover-chain"
 
     def __init__(self, temperature: float, tau: float, *, region=None, chain: int = 3,
-                 k_B: float | None = None):
+                 components=(0, 1, 2), fields=(), field_region=None,
+                 ndf: int | None = None, k_B: float | None = None):
         from upscale.constants import K_B_SI
 
         _check(temperature, "tau", tau)
         if not temperature > 0:
             raise ValueError(f"Nose-Hoover needs temperature > 0 K, got {temperature!r}")
-        if int(chain) < 1:
-            raise ValueError(f"chain length must be >= 1, got {chain!r}")
+        if not (isinstance(chain, (int, np.integer)) and int(chain) >= 1):
+            raise ValueError(f"chain length {chain!r}; valid: an integer >= 1")
         self.T, self.tau, self.region, self.M = float(temperature), float(tau), region, int(chain)
+        self.components, self.field_names = _components(components), tuple(str(f) for f in fields)
+        if ndf is not None and not int(ndf) > 0:
+            raise ValueError(f"ndf={ndf!r}; valid: a positive number of degrees of freedom")
+        self.field_region, self._ndf = field_region, ndf
         self.k_B = K_B_SI if k_B is None else float(k_B)
         self.eta = np.zeros(self.M)
         self.p = np.zeros(self.M)   # thermostat velocities d eta / dt
 
     def prepare(self, sim) -> None:
-        self.dof = _region_dofs(sim, self.region)
-        self.nf = int(self.dof.sum())
+        _prepare_dofs(self, sim)
         kT = self.k_B * self.T
         self.Q = np.full(self.M, kT * self.tau ** 2)
         self.Q[0] *= self.nf
-        self.m = sim.system.mass[:, None]
+
+    def _K2(self, sim) -> float:
+        """2 x the kinetic energy of the thermostatted rates."""
+        vi = sim.state.v.reshape(-1)[self.idx]
+        K2 = float(np.dot(self.m_idx * vi, vi))
+        for f in self.field_names:
+            fv = sim.state.field_v[f][self.frows[f]]
+            K2 += float(np.sum(self.finert[f] * fv * fv))
+        return K2
+
+    def temperature(self, sim) -> float:
+        """Eq. (1) on the thermostat's dofs (K)."""
+        return self._K2(sim) / (self.nf * self.k_B)
 
     def _half(self, sim, h) -> None:
-        """Mutates the chain and ``sim.state.v`` (region dofs): a chain step of h = dt/2."""
-        v = sim.state.v
+        """Mutates the chain and the thermostatted rates: a chain step of h = dt/2."""
         kT = self.k_B * self.T
-        K2 = float(np.sum(self.m * v * v * self.dof))   # 2 x kinetic energy
+        K2 = self._K2(sim)
         M, p, Q = self.M, self.p, self.Q
         h2, h4 = 0.5 * h, 0.25 * h
 
@@ -209,8 +253,13 @@ class NoseHooverChain:
         for j in range(M - 2, -1, -1):
             e = np.exp(-h4 * p[j + 1])
             p[j] = (p[j] * e + h2 * G(j, K2)) * e
-        s = np.exp(-h * p[0])
-        v[self.dof] *= s
+        s = float(np.exp(-h * p[0]))
+        v = sim.state.v.reshape(-1)
+        if not np.shares_memory(v, sim.state.v):  # (a non-contiguous velocity array)
+            raise ValueError("the state's velocities must be one contiguous array")
+        v[self.idx] *= s
+        for f in self.field_names:
+            sim.state.field_v[f][self.frows[f]] *= s
         K2 *= s * s
         self.eta += h * p
         for j in range(M - 1):
@@ -240,7 +289,47 @@ class NoseHooverChain:
 
     def describe(self) -> dict:
         return {"thermostat": self.name, "temperature_K": self.T, "tau": self.tau,
-                "chain": self.M}
+                "chain": self.M, "components": self.components.tolist(),
+                "fields": list(self.field_names)}
+
+
+def _components(components) -> np.ndarray:
+    comps = np.atleast_1d(np.asarray(components, dtype=np.int64))
+    if comps.size == 0 or comps.min() < 0 or comps.max() > 2 or len(set(comps)) != comps.size:
+        raise ValueError(f"components={components!r}; valid: a subset of (0, 1, 2)")
+    return comps
+
+
+def _prepare_dofs(th, sim) -> None:
+    """The Nose-Hoover thermostats' dofs on ``sim``: ``th.idx`` (flat indices of the
+    thermostatted translation dofs), ``th.m_idx`` (their masses), ``th.frows`` /
+    ``th.finert`` (per field: the rows it is thermostatted on, their inertia) and
+    ``th.nf`` (N_f of eq. (1))."""
+    dof = _region_dofs(sim, th.region)
+    keep = np.zeros(3, bool)
+    keep[th.components] = True
+    th.dof = dof & keep[None, :]
+    th.m = sim.system.mass[:, None]
+    n = sim.system.n
+    fr = np.ones(n, bool) if th.field_region is None else \
+        np.asarray(getattr(th.field_region, "mask", th.field_region), dtype=bool)
+    if fr.shape != (n,):
+        raise ValueError(f"field_region of shape {fr.shape}; valid: ({n},) or a Region")
+    specs = getattr(sim, "field_specs", {})
+    missing = [f for f in th.field_names if f not in specs]
+    if missing:
+        raise ValueError(f"thermostat fields {missing}; valid: the simulation's fields "
+                         f"{sorted(specs)}")
+    # per field: the rows of field_region that carry it (FieldSpec.rows; elsewhere a
+    # field is at rest), as a slice where they are contiguous (one body's rows)
+    th.frows = {f: _rows(np.flatnonzero(fr), specs[f].span, n) for f in th.field_names}
+    th.finert = {f: (specs[f].inertia * sim.system.volume)[th.frows[f], None]
+                 for f in th.field_names}
+    nfield = sum(int((~sim.field_constrained[f][th.frows[f]]).sum())
+                 for f in th.field_names)
+    th.nf = int(th._ndf) if th._ndf is not None else int(th.dof.sum()) + nfield
+    th.idx = np.flatnonzero(th.dof.ravel())  # the thermostatted translation dofs
+    th.m_idx = np.repeat(sim.system.mass, 3)[th.idx]
 
 
 class NoseHoover:
@@ -278,9 +367,7 @@ class NoseHoover:
         _check(temperature, "tau", tau)
         if not temperature > 0:
             raise ValueError(f"Nose-Hoover needs temperature > 0 K, got {temperature!r}")
-        comps = np.atleast_1d(np.asarray(components, dtype=np.int64))
-        if comps.size == 0 or comps.min() < 0 or comps.max() > 2 or len(set(comps)) != comps.size:
-            raise ValueError(f"components={components!r}; valid: a subset of (0, 1, 2)")
+        comps = _components(components)
         if ndf is not None and not int(ndf) > 0:
             raise ValueError(f"ndf={ndf!r}; valid: a positive number of degrees of freedom")
         self.T, self.tau, self.region = float(temperature), float(tau), region
@@ -290,31 +377,7 @@ class NoseHoover:
         self.xi = 0.0
 
     def prepare(self, sim) -> None:
-        dof = _region_dofs(sim, self.region)
-        keep = np.zeros(3, bool)
-        keep[self.components] = True
-        self.dof = dof & keep[None, :]
-        self.m = sim.system.mass[:, None]
-        n = sim.system.n
-        fr = np.ones(n, bool) if self.field_region is None else \
-            np.asarray(getattr(self.field_region, "mask", self.field_region), dtype=bool)
-        if fr.shape != (n,):
-            raise ValueError(f"field_region of shape {fr.shape}; valid: ({n},) or a Region")
-        specs = getattr(sim, "field_specs", {})
-        missing = [f for f in self.field_names if f not in specs]
-        if missing:
-            raise ValueError(f"thermostat fields {missing}; valid: the simulation's fields "
-                             f"{sorted(specs)}")
-        # per field: the rows of field_region that carry it (FieldSpec.rows; elsewhere a
-        # field is at rest), as a slice where they are contiguous (one body's rows)
-        self.frows = {f: _rows(np.flatnonzero(fr), specs[f].span, n) for f in self.field_names}
-        self.finert = {f: (specs[f].inertia * sim.system.volume)[self.frows[f], None]
-                       for f in self.field_names}
-        nfield = sum(int((~sim.field_constrained[f][self.frows[f]]).sum())
-                     for f in self.field_names)
-        self.nf = int(self._ndf) if self._ndf is not None else int(self.dof.sum()) + nfield
-        self.idx = np.flatnonzero(self.dof.ravel())  # the thermostatted translation dofs
-        self.m_idx = np.repeat(sim.system.mass, 3)[self.idx]
+        _prepare_dofs(self, sim)
 
     def temperature(self, sim) -> float:
         """Eq. (1) on the thermostat's dofs (K)."""
@@ -352,6 +415,89 @@ class NoseHoover:
     def describe(self) -> dict:
         return {"thermostat": self.name, "temperature_K": self.T, "tau": self.tau,
                 "components": self.components.tolist(), "fields": list(self.field_names)}
+
+
+class Quench:
+    """The molecular-dynamics quench with FIRE's mixing on a region (module docstring).
+
+    Parameters
+    ----------
+    region : Region or (N,) bool, optional
+        The particles whose free translation dofs are quenched (default every particle).
+    fields : sequence of str or None
+        Fields with inertia quenched too (default: every field of the simulation), on
+        ``field_region`` (default every particle).
+    alpha0, f_alpha, n_min : FIRE's mixing constants (0.1, 0.99, 5); ``alpha0 = 0``: the
+        plain quench (zeroing only).
+    """
+
+    name = "quench"
+
+    def __init__(self, *, region=None, fields=None, field_region=None, alpha0: float = 0.1,
+                 f_alpha: float = 0.99, n_min: int = 5):
+        if not 0.0 <= alpha0 < 1.0:
+            raise ValueError(f"alpha0={alpha0!r}; valid: 0 <= alpha0 < 1")
+        self.region, self.field_region = region, field_region
+        self.field_names = None if fields is None else tuple(str(f) for f in fields)
+        self.alpha0, self.f_alpha, self.n_min = float(alpha0), float(f_alpha), int(n_min)
+        self.alpha, self.n_pos = self.alpha0, 0
+        self.zeroed = 0  # steps at which the rates were set to zero
+
+    def prepare(self, sim) -> None:
+        specs = getattr(sim, "field_specs", {})
+        if self.field_names is None:
+            self.field_names = tuple(specs)
+        self.components, self._ndf = np.arange(3), None
+        _prepare_dofs(self, sim)
+
+    def begin(self, sim, dt) -> None:
+        pass
+
+    def _parts(self, sim):
+        """[(rates view, force)] of the region: the flat translation dofs, then each field."""
+        v = sim.state.v.reshape(-1)
+        if not np.shares_memory(v, sim.state.v):
+            raise ValueError("the state's velocities must be one contiguous array")
+        out = [(v, self.idx, sim.F.reshape(-1)[self.idx])]
+        for f in self.field_names:
+            r = self.frows[f]
+            out.append((sim.state.field_v[f], r, sim.G[f][r]))
+        return out
+
+    def power(self, sim) -> float:
+        """P of the module docstring (energy / time), from the forces of the last step."""
+        return float(sum(np.sum(u[r] * F) for u, r, F in self._parts(sim)))
+
+    def end(self, sim, dt) -> None:
+        """Mutates the region's rates: zeroed if the power is negative, else mixed."""
+        parts = self._parts(sim)
+        P = float(sum(np.sum(u[r] * F) for u, r, F in parts))
+        if P < 0.0:
+            for u, r, _ in parts:
+                u[r] = 0.0
+            self.zeroed += 1
+            self.alpha, self.n_pos = self.alpha0, 0
+            return
+        if self.alpha > 0.0:
+            un = np.sqrt(sum(float(np.sum(u[r] * u[r])) for u, r, _ in parts))
+            fn = np.sqrt(sum(float(np.sum(F * F)) for _, _, F in parts))
+            if fn > 0.0:
+                for u, r, F in parts:
+                    u[r] = (1.0 - self.alpha) * u[r] + (self.alpha * un / fn) * F
+            if self.n_pos > self.n_min:
+                self.alpha *= self.f_alpha
+        self.n_pos += 1
+
+    def checkpoint_arrays(self) -> dict:
+        return {"alpha": np.float64(self.alpha), "n_pos": np.int64(self.n_pos)}
+
+    def restore_arrays(self, d: dict) -> None:
+        if "alpha" in d:
+            self.alpha, self.n_pos = float(d["alpha"]), int(d["n_pos"])
+
+    def describe(self) -> dict:
+        return {"thermostat": self.name, "fields": list(self.field_names or ()),
+                "alpha0": self.alpha0}
 
 
 class ThermostatGroup:

@@ -23,14 +23,20 @@ Dynamic tension (the LAMMPS references' protocol, ``validation.lammps.tension``)
 
 1. every tube starts from the zero-stress lattice of the atomistic tube (axial and radial
    ratios of a short periodic tube relaxed at zero axial stress: the same lattice for every
-   model), then the open bundle is minimised (L-BFGS on every body and the vdW);
+   model), then the open bundle is minimised (L-BFGS on the atomistic tubes and the vdW,
+   the coarse tubes held: a static minimiser does not carry their slave ties and shifts),
+   optionally every tube, the coarse ones too, is quenched toward rest for up to
+   ``settle_ps`` (default 0: none; :class:`~upscale.engine.thermostats.Quench` on the
+   run's integrator), so that the coarse tubes, set up alone, start nearer equilibrium
+   with the vdW of their neighbours, as the references' minimisation of the whole bundle
+   leaves them;
 2. grips: on every tube the material within ``grip`` Å (default 50) of the bundle's end
    atoms, moved rigidly apart at ``speed`` Å/ps each (default 1); the free part starts on
    the linear axial velocity ramp between the grip speeds plus Gaussian thermal velocities
    at ``temperature`` (default 10 K; the x, y temperature set to it exactly, zero total
-   momentum), under a Nose-Hoover thermostat on the free part's x and y velocities and
-   the coarse tubes' shifts (damping 0.1 ps: LAMMPS ``fix nvt`` with ``compute
-   temp/partial 1 1 0``), or one per tube (``thermostat="per-tube"``). LAMMPS's single
+   momentum), under a Nose-Hoover chain (``chain`` long, default 3) on the free part's
+   x and y velocities and the coarse tubes' shifts (damping 0.1 ps: LAMMPS ``fix nvt``
+   with ``compute temp/partial 1 1 0``, whose chain is 3 long), or one per tube (``thermostat="per-tube"``). LAMMPS's single
    thermostat holds each tube at the temperature because its tubes are alike; the tubes
    of a mixed bundle are not (a coarse tube's x, y motion carries a breathing
    oscillation, its shifts take up heat), so one thermostat holds only their mean and
@@ -423,7 +429,8 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
                     snapshot_every: int = 500, integrator: str = "verlet",
                     inner: int = 5, record_readings: bool = False,
                     thermostat: str = "bundle",
-                    per_tube_damping_ps: float | None = None) -> dict:
+                    per_tube_damping_ps: float | None = None,
+                    settle_ps: float = 0.0, chain: int = 3) -> dict:
     """The references' dynamic tension of ``scene`` (module docstring). Returns the result
     dict: ``curve`` (strain, stress_GPa, stress_per_tube_GPa, time_ps), metrics, per-tube
     failure strains and order, damage per tube, timings.
@@ -448,6 +455,10 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
     from upscale.engine.integrators import VelocityVerlet
     from upscale.engine.minimisers import LBFGS
 
+    if not (isinstance(chain, (int, np.integer)) and chain >= 1):
+        raise ValueError(f"chain={chain!r}; valid: a Nose-Hoover chain length >= 1")
+    if not (np.isfinite(settle_ps) and settle_ps >= 0):
+        raise ValueError(f"settle_ps={settle_ps!r}; valid: a quench time >= 0 ps")
     if thermostat not in ("bundle", "per-tube"):
         raise ValueError(f"thermostat={thermostat!r}; valid: 'bundle' or 'per-tube'")
     if integrator not in ("verlet", "respa"):
@@ -483,6 +494,12 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
     t_min0 = time.perf_counter()
     res_min = sim0.minimise(LBFGS(ftol=ftol, max_iter=500), raise_on_fail=False) \
         if not hold.all() else None
+    settle = None
+    if coarse and settle_ps > 0:
+        # ... then every tube together, the coarse ones too, by the molecular-dynamics
+        # quench (their slave ties and shifts move as in the run): the start in equilibrium
+        # with the vdW that the references' minimisation of the whole bundle gives
+        sim0, settle = _settle(asm, scene, sim0, dt_fs, settle_ps, ftol, per)
     t_min = time.perf_counter() - t_min0
     y = sim0.state.y.copy()
     # grips: the atomistic tubes' atoms beyond a plane `grip` inside the bundle's end atoms
@@ -560,7 +577,7 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
     thermo = None
     tau_tube = tdamp_ps
     if temperature > 0:
-        from upscale.engine.thermostats import NoseHoover
+        from upscale.engine.thermostats import NoseHooverChain
 
         # degrees of freedom: x, y of the moving rows, and the coarse tubes' free shifts
         ndf = 2 * int(moving.sum()) + sum(3 * (bm.model.N - len(bm.model.tube.slave_idx))
@@ -569,9 +586,10 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
         for k in coarse_of:
             frows[tubes[k]] = True
         if thermostat == "bundle":
-            thermo = NoseHoover(temperature, 1e3 * tdamp_ps, region=free, components=(0, 1),
-                                fields=tuple(fields), field_region=frows if fields else None,
-                                ndf=ndf, k_B=K_B_EV)
+            thermo = NoseHooverChain(temperature, 1e3 * tdamp_ps, region=free, chain=chain,
+                                     components=(0, 1), fields=tuple(fields),
+                                     field_region=frows if fields else None, ndf=ndf,
+                                     k_B=K_B_EV)
         else:  # one per tube, each on its own free rows (and shifts)
             from upscale.engine.thermostats import ThermostatGroup
 
@@ -587,10 +605,10 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
                     em = coarse_of[k][0].model
                     nk += 3 * (em.N - len(em.tube.slave_idx))
                     fk = (f"{scene.bodies[k].name}/{_FIELD}",)
-                members.append(NoseHoover(temperature, 1e3 * tau_tube, region=free & mk,
-                                          components=(0, 1), fields=fk,
-                                          field_region=mk if fk else None, ndf=nk,
-                                          k_B=K_B_EV))
+                members.append(NoseHooverChain(temperature, 1e3 * tau_tube, region=free & mk,
+                                               chain=chain, components=(0, 1), fields=fk,
+                                               field_region=mk if fk else None, ndf=nk,
+                                               k_B=K_B_EV))
             thermo = ThermostatGroup(members)
     if integrator == "respa":
         from upscale.engine.respa import RESPA
@@ -639,8 +657,19 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
             out.append((txy, tsh))
         return out
 
+    def tube_radii():
+        # each tube's mean radius (Å) of its moving rows about their own x, y centre: the
+        # breathing of a tube's cross-section
+        out = []
+        for i in t_rows:
+            p = sim.state.y[i, :2]
+            c = p.mean(axis=0)
+            out.append(float(np.hypot(p[:, 0] - c[0], p[:, 1] - c[1]).mean()))
+        return out
+
     # 3. the pull
     strains, stresses, per_tube, times, temps, readings = [], [], [], [], [], []
+    radii = []
     smax, failed = -np.inf, False
     bar = tqdm(disable=not progress, unit="sample", desc="bundle tension", mininterval=1.0)
     t_dyn0 = time.perf_counter()
@@ -686,6 +715,7 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
             per_tube.append(sk)
             times.append(tmid)
             temps.append((tacc / nread).tolist())
+            radii.append(tube_radii())
             smax = max(smax, s)
             bar.update(1)
             bar.set_postfix_str(f"strain {100 * eps:.1f}%  stress {s:.1f} GPa")
@@ -703,8 +733,8 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
                                "timestep_fs": dt_fs, "temperature_K": temperature,
                                "integrator": integ.name,
                                "outer_step_fs": dt_fs * per,
-                               "thermostat": f"Nose-Hoover on the free part's vx, vy, damping "
-                                             f"{tdamp_ps} ps"
+                               "thermostat": f"Nose-Hoover chain of {chain} on the free "
+                                             f"part's vx, vy, damping {tdamp_ps} ps"
                                              + (f", one per tube (damping {tau_tube:.4g} ps)"
                                                 if thermostat == "per-tube" else ""),
                                "seed": seed,
@@ -713,12 +743,13 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
                                    "converged": bool(res_min.converged),
                                    "fmax": float(res_min.fmax),
                                    "iterations": int(res_min.iterations),
-                                   "coarse_tubes_held": bool(hold.any())}},
+                                   "coarse_tubes_held": bool(hold.any())},
+                               "settle": settle},
            "stress_convention": {"wall_thickness_A": WALL_THICKNESS_A, "radius_A": R,
                                  "area": "per tube 2 pi R t; bundle: mean over the tubes"},
            "curve": {"strain": strains, "stress_GPa": stresses,
                      "stress_per_tube_GPa": per_tube, "time_ps": times,
-                     "temperature_per_tube_K": temps}}
+                     "temperature_per_tube_K": temps, "radius_per_tube_A": radii}}
     if record_readings:  # every reading: (time fs, per-tube tension eV/Å)
         res["curve"]["readings"] = readings
     res.update(curve_metrics(strains, stresses))
@@ -733,6 +764,55 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
     res["_final_y"] = sim.state.y
     res["_start_y"] = y
     return res
+
+
+def _settle(asm, scene, sim0, dt_fs, settle_ps, ftol, inner):
+    """The bundle after ``sim0``'s minimisation quenched to rest with every tube free
+    (:class:`~upscale.engine.thermostats.Quench` on the run's integrator: velocity Verlet at
+    ``dt_fs``, or r-RESPA with ``inner`` steps of ``dt_fs`` when ``inner > 1``) until the
+    largest force on a free dof or shift is at most ``ftol`` (eV/Å), or for ``settle_ps``.
+    Returns the quenched simulation and its record."""
+    from upscale.engine.integrators import VelocityVerlet
+    from upscale.engine.thermostats import Quench
+
+    q = Quench()
+    if inner > 1:
+        from upscale.engine.respa import RESPA
+
+        integ = RESPA(float(dt_fs) * inner, int(inner), thermostat=q, force=True)
+    else:
+        integ = VelocityVerlet(float(dt_fs), force=True, thermostat=q)
+    sim = asm.simulation(conditions=list(scene.extra_conditions()), integrator=integ)
+    sim.state.y[...] = sim0.state.y
+    _copy_fields(sim0.state, sim.state)
+    sim.state.v[...] = 0.0
+    for w in sim.state.field_v.values():
+        w[...] = 0.0
+    fm = [np.inf]
+    every = max(1, 20 // inner)
+
+    def fmax(s):
+        f = float(np.sqrt(np.einsum("nc,nc->n", s.F, s.F)).max())
+        for g in s.G.values():
+            f = max(f, float(np.abs(g).max()) if g.size else 0.0)
+        return f
+
+    def done(s):
+        if s.state.step % every:
+            return False
+        fm[0] = fmax(s)
+        return fm[0] <= ftol
+
+    sim.prepare()
+    f0 = fmax(sim)
+    out = sim.run(int(round(1e3 * settle_ps / (dt_fs * inner))), callback=done)
+    fm[0] = fmax(sim)
+    sim.state.v[...] = 0.0
+    for w in sim.state.field_v.values():
+        w[...] = 0.0
+    return sim, {"method": "md quench (FIRE mixing)", "time_ps": float(sim.state.t) * 1e-3,
+                 "fmax_start_eV_A": f0, "fmax_eV_A": fm[0], "converged": bool(fm[0] <= ftol),
+                 "zeroed": int(q.zeroed), "wall_s": out["wall_s"]}
 
 
 def tube_failures(strains, per_tube, drop: float = 0.05) -> dict:
@@ -866,6 +946,12 @@ def add_run_options(p) -> None:
                    help="1 fs inner steps per outer step with respa: 1, 2, 5, 10 (default 5)")
     p.add_argument("--thermostat", choices=("bundle", "per-tube"), default="bundle",
                    help="one Nose-Hoover on all tubes' free parts (default) or one per tube")
+    p.add_argument("--chain", type=int, default=3,
+                   help="Nose-Hoover chain length (default 3, LAMMPS's fix nvt; 1 = one "
+                   "thermostat variable)")
+    p.add_argument("--settle", type=float, default=0.0,
+                   help="ps of quench of every tube (the coarse ones too) after the set-up "
+                   "minimisation, before the pull (default 0: the coarse tubes as set up)")
     p.add_argument("--coarse-pairs", choices=("atoms", "sites"), default="atoms",
                    help="two coarse tubes interact through reconstructed atoms (default) or "
                    "through their particles as lumped sites")
@@ -926,7 +1012,8 @@ def run(args) -> int:
                                coarse_pairs=args.coarse_pairs)
     res = dynamic_tension(scene, seed=args.seed, max_strain=args.max_strain,
                           integrator=args.integrator, inner=args.inner,
-                          thermostat=args.thermostat)
+                          thermostat=args.thermostat, chain=args.chain,
+                          settle_ps=args.settle)
     out = Path(args.outdir)
     tag = f"{n}_{m}_{'-'.join(s.model + (f'{s.coarsening:g}' if s.model != 'tersoff' else '') for s in specs)}"
     lam = None

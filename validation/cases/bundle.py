@@ -262,7 +262,8 @@ def run_bundle_tension(args):
             runs.append(dynamic_tension(scene, seed=seed, progress=not args.quick,
                                         max_strain=args.max_strain,
                                         integrator=args.integrator, inner=args.inner,
-                                        thermostat=args.thermostat))
+                                        thermostat=args.thermostat, chain=args.chain,
+                                        settle_ps=args.settle))
         except ValueError as exc:
             raise SystemExit(f"bundle-tension: {exc}") from None
     wall = (time.perf_counter() - t0) / args.seeds
@@ -289,6 +290,7 @@ def run_bundle_tension(args):
                 "cpu_s": _mean(runs, "cpu_s"), "lammps_cpu_s": _mean(refs, "cpu_s"),
                 "vdw_every": args.vdw_every, "coarse_pairs": args.coarse_pairs,
                 "integrator": args.integrator, "thermostat": args.thermostat,
+                "chain": args.chain, "settle_ps": args.settle,
                 "inner": args.inner if args.integrator == "respa" else 1,
                 "failure_order": [r["failure_order"] for r in runs],
                 "tube_failure_strain": [r["tube_failure_strain"] for r in runs],

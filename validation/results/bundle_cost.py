@@ -9,12 +9,14 @@ per outer step, the vdW in the slow group). Figures in
 validation/out/bundle_cost_<N>-<M>.json.
 
     python validation/results/bundle_cost.py [--chirality 10,10] [--coarsening 2,4]
-        [--integrators verlet,respa] [--inner 5] [--thermostat per-tube]
+        [--integrators verlet,respa] [--inner 5] [--thermostat per-tube] [--chain 3]
+        [--settle 1]
 """
 import argparse
 import json
 import os
 import time
+from pathlib import Path
 
 from upscale.experiments.bundle import BundleScene, dynamic_tension, parse_specs
 from validation.cases.references import build_structure
@@ -27,6 +29,8 @@ p.add_argument("--max-strain", type=float, default=0.16)
 p.add_argument("--integrators", default="verlet")
 p.add_argument("--inner", type=int, default=5)
 p.add_argument("--thermostat", default="bundle", choices=("bundle", "per-tube"))
+p.add_argument("--chain", type=int, default=3)
+p.add_argument("--settle", type=float, default=0.0)
 a = p.parse_args()
 n, m = (int(v) for v in a.chirality.split(","))
 out = {"chirality": [n, m], "load_start": list(os.getloadavg()), "runs": []}
@@ -47,9 +51,10 @@ for K, integ in runs:
     scene = BundleScene.create((n, m), 150.0, parse_specs(None, 7, K),
                                vdw_every=1 if integ == "respa" else 4, coarse_pairs="sites")
     r = dynamic_tension(scene, max_strain=strain_end, progress=False, integrator=integ,
-                        inner=a.inner, thermostat=a.thermostat)
+                        inner=a.inner, thermostat=a.thermostat, chain=a.chain,
+                        settle_ps=a.settle)
     row = {"run": f"engine K={K:g} {integ}" + (f" {a.inner}x1 fs" if integ == "respa" else "")
-           + f", thermostat {a.thermostat}",
+           + f", thermostat {a.thermostat}, chain {a.chain}, settle {a.settle:g} ps",
            "wall_s": time.perf_counter() - t0,
            "cpu_s": time.process_time() - c0, "steps": r["timing_s"]["steps"],
            "timing_s": r["timing_s"], "final_strain": r["curve"]["strain"][-1],
@@ -61,4 +66,5 @@ for r in out["runs"][1:]:
     r["wall_ratio"] = lw / r["wall_s"]
     r["cpu_ratio"] = lc / r["cpu_s"]
 print(json.dumps(out, indent=1))
+Path("validation/out").mkdir(parents=True, exist_ok=True)
 json.dump(out, open(f"validation/out/bundle_cost_{n}-{m}.json", "w"), indent=1)
