@@ -451,7 +451,7 @@ class Quench:
         _prepare_dofs(self, sim)
 
     def begin(self, sim, dt) -> None:
-        pass
+        """Nothing at the start of a step: the quench acts only after the forces (``end``)."""
 
     def _parts(self, sim):
         """[(rates view, force)] of the region: the flat translation dofs, then each field."""
