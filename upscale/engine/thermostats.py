@@ -228,12 +228,7 @@ class NoseHooverChain:
 
     def _K2(self, sim) -> float:
         """2 x the kinetic energy of the thermostatted rates."""
-        vi = sim.state.v.reshape(-1)[self.idx]
-        K2 = float(np.dot(self.m_idx * vi, vi))
-        for f in self.field_names:
-            fv = sim.state.field_v[f][self.frows[f]]
-            K2 += float(np.sum(self.finert[f] * fv * fv))
-        return K2
+        return _twice_kinetic(self, sim)
 
     def temperature(self, sim) -> float:
         """Eq. (1) on the thermostat's dofs (K)."""
@@ -332,6 +327,17 @@ def _prepare_dofs(th, sim) -> None:
     th.m_idx = np.repeat(sim.system.mass, 3)[th.idx]
 
 
+def _twice_kinetic(th, sim) -> float:
+    """2 x the kinetic energy of the rates ``th`` thermostats (the dofs of
+    :func:`_prepare_dofs`): translations and fields."""
+    vi = sim.state.v.reshape(-1)[th.idx]
+    K2 = float(np.dot(th.m_idx * vi, vi))
+    for f in th.field_names:
+        fv = sim.state.field_v[f][th.frows[f]]
+        K2 += float(np.sum(th.finert[f] * fv * fv))
+    return K2
+
+
 class NoseHoover:
     """Single Nose-Hoover thermostat on a region, on chosen components and fields (module
     docstring, eq. (3)).
@@ -381,12 +387,7 @@ class NoseHoover:
 
     def temperature(self, sim) -> float:
         """Eq. (1) on the thermostat's dofs (K)."""
-        vi = sim.state.v.reshape(-1)[self.idx]
-        K2 = float(np.dot(self.m_idx * vi, vi))
-        for f in self.field_names:
-            fv = sim.state.field_v[f][self.frows[f]]
-            K2 += float(np.sum(self.finert[f] * fv * fv))
-        return K2 / (self.nf * self.k_B)
+        return _twice_kinetic(self, sim) / (self.nf * self.k_B)
 
     def _half(self, sim, dt) -> None:
         """Mutates xi and the thermostatted rates: eq. (3) with h = dt/2."""
