@@ -939,9 +939,9 @@ def add_run_options(p) -> None:
                    help="run tubes closer than the van der Waals wall (the seed's hexagon)")
     p.add_argument("--max-strain", type=float, default=0.40,
                    help="stop the pull at this strain (default 0.40, the references')")
-    p.add_argument("--integrator", choices=("verlet", "respa"), default="verlet",
-                   help="velocity Verlet at 1 fs (default) or multiple time stepping (the "
-                   "coarse tubes' lattice and the vdW at an outer step of --inner fs)")
+    p.add_argument("--integrator", choices=("verlet", "respa"), default="respa",
+                   help="multiple time stepping (default: the coarse tubes' lattice and the "
+                   "vdW at an outer step of --inner fs) or velocity Verlet at 1 fs")
     p.add_argument("--inner", type=int, default=5,
                    help="1 fs inner steps per outer step with respa: 1, 2, 5, 10 (default 5)")
     p.add_argument("--thermostat", choices=("bundle", "per-tube"), default="bundle",
@@ -952,9 +952,9 @@ def add_run_options(p) -> None:
     p.add_argument("--settle", type=float, default=0.0,
                    help="ps of quench of every tube (the coarse ones too) after the set-up "
                    "minimisation, before the pull (default 0: the coarse tubes as set up)")
-    p.add_argument("--coarse-pairs", choices=("atoms", "sites"), default="atoms",
-                   help="two coarse tubes interact through reconstructed atoms (default) or "
-                   "through their particles as lumped sites")
+    p.add_argument("--coarse-pairs", choices=("atoms", "sites"), default="sites",
+                   help="two coarse tubes interact through their particles as lumped sites "
+                   "(default) or through reconstructed atoms")
     p.add_argument("--vdw-every", type=int, default=1,
                    help="vdW forces recomputed every N steps, held in between (velocity "
                    "Verlet only; default 1)")
