@@ -107,6 +107,11 @@ def test_bad_input():
                            ratios=RATIOS)
     with pytest.raises(ValueError, match="coarsening 0.5"):
         TubeSpec("dcbr", 0.5)
+    with pytest.raises(ValueError, match=r"grip=80 Å on a 150\.\d Å tube; valid: 0 <= grip"):
+        BundleScene.create((10, 10), 150.0, [TubeSpec("tersoff")], ratios=RATIOS, grip=80.0)
+    with pytest.raises(ValueError, match=r"grip=74 Å leaves a \d\.\d Å gauge .* valid: grip <="):
+        BundleScene.create((10, 10), 150.0, [TubeSpec("tersoff"), TubeSpec("dcbr", 2.0)],
+                           ratios=RATIOS, grip=74.0)
 
 
 @pytest.mark.slow

@@ -33,3 +33,7 @@ def test_bad_chain_and_settle():
         dynamic_tension(_mixed(), chain=0, progress=False)
     with pytest.raises(ValueError, match="settle_ps=-1"):
         dynamic_tension(_mixed(), settle_ps=-1.0, progress=False)
+    with pytest.raises(ValueError, match="max_strain=-0.1; valid: a number > 0"):
+        dynamic_tension(_mixed(), max_strain=-0.1, progress=False)
+    with pytest.raises(ValueError, match="max_strain=0.001 gives fewer than 3 samples"):
+        dynamic_tension(_mixed(), max_strain=0.001, progress=False)

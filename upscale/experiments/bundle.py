@@ -219,12 +219,21 @@ class BundleScene:
             atoms.set_positions(x)
             atoms.info["tube_centres"] = c.tolist()
         _check_overlap(atoms, sigma, allow_overlap)
-        L_free = atoms.info["length"] - 2.0 * grip
+        L = atoms.info["length"]
+        L_free = L - 2.0 * grip
+        if not (np.isfinite(grip) and 0.0 <= grip and L_free > 0.0):
+            raise ValueError(f"grip={grip:g} Å on a {L:.1f} Å tube; valid: 0 <= grip < "
+                             f"{0.5 * L:.1f} Å (half the length)")
         for k, s in enumerate(specs):
             if s.model != "tersoff":
                 rows = L_free / (s.coarsening * LATTICE_A)
                 if rows < 3.0:
                     kmax = L_free / (3.0 * LATTICE_A)
+                    if kmax < 1.0:
+                        raise ValueError(
+                            f"grip={grip:g} Å leaves a {L_free:.1f} Å gauge of a {L:.1f} Å "
+                            f"tube, less than the 3 particle rows of tube {k + 1}; valid: "
+                            f"grip <= {0.5 * (L - 3.0 * LATTICE_A):.1f} Å")
                     raise ValueError(
                         f"tube {k + 1}: coarsening {s.coarsening:g} leaves {rows:.1f} particle "
                         f"rows in the {L_free:.1f} Å gauge of a {atoms.info['length']:.1f} Å "
@@ -461,6 +470,11 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
         raise ValueError(f"settle_ps={settle_ps!r}; valid: a quench time >= 0 ps")
     if thermostat not in ("bundle", "per-tube"):
         raise ValueError(f"thermostat={thermostat!r}; valid: 'bundle' or 'per-tube'")
+    for name, val in (("max_strain", max_strain), ("speed", speed), ("dt_fs", dt_fs)):
+        if not (np.isfinite(val) and val > 0):
+            raise ValueError(f"{name}={val!r}; valid: a number > 0")
+    if not (isinstance(sample_every, (int, np.integer)) and sample_every >= 1):
+        raise ValueError(f"sample_every={sample_every!r}; valid: an integer >= 1 (steps)")
     if integrator not in ("verlet", "respa"):
         raise ValueError(f"integrator={integrator!r}; valid: 'verlet' or 'respa'")
     per = 1
@@ -513,6 +527,12 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
     if sep0 < 10.0:
         raise ValueError(f"grip={grip} Å leaves a gauge of {sep0:.2f} Å; valid: 2 grip <= "
                          "L - 10 Å")
+    # the curve's metrics need three samples (a sample every `sample_every` steps)
+    per_sample = 2.0 * speed * sample_every * dt_fs * 1e-3 / sep0
+    if max_strain < 3.0 * per_sample:
+        raise ValueError(f"max_strain={max_strain:g} gives fewer than 3 samples of the curve "
+                         f"(one every {per_sample:.3g} strain); valid: max_strain >= "
+                         f"{3.0 * per_sample:.3g}, or a smaller sample_every")
     v = speed * 1e-3                        # Å/fs (the scene's time unit is the fs)
     dt = float(dt_fs)
     tubes = [asm.rows(b.name) for b in scene.bodies]
