@@ -46,6 +46,30 @@ def test_stable_estimate_is_a_safe_bound_and_refusal_names_it():
     forced.run(3)
 
 
+def test_messages_carry_the_systems_time_unit():
+    """A body in Å, fs, eV (the tube scenes) names its steps in fs, not s."""
+    from upscale.engine.system import ParticleSystem
+
+    with pytest.raises(ValueError, match="units='metal'; valid: 'si' or 'atomic'"):
+        ParticleSystem(np.zeros((1, 3)), 1.0, units="metal")
+    sysm, fam = plate()
+    ref = Simulation(sysm, fam, PMB(E=70e9))
+    ref.prepare()
+    est = ref.integrator.estimate
+    atomic = ParticleSystem(sysm.x0, sysm.volume, sysm.density, dim=sysm.dim,
+                            thickness=sysm.thickness, spacing=sysm.spacing, units="atomic")
+    bad = Simulation(atomic, build_family(atomic, 3.015e-3), PMB(E=70e9),
+                     integrator=VelocityVerlet(dt=1.01 * est))
+    with pytest.raises(ValueError, match=f"time step {1.01 * est:.6g} fs exceeds the stable "
+                                         f"estimate {est:.6g} fs"):
+        bad.run(1)
+    forced = Simulation(atomic, build_family(atomic, 3.015e-3), PMB(E=70e9),
+                        integrator=VelocityVerlet(dt=50 * est, force=True))
+    forced.state.v[:] = np.random.default_rng(0).standard_normal(forced.state.v.shape)
+    with pytest.raises(BlowUp, match=r"\(t = [\d.e+-]+ fs\).* fs vs stable estimate [\d.e+-]+ fs"):
+        forced.run(200)
+
+
 def test_nve_energy_drift_over_10000_steps():
     from validation.cases.peridynamics import nve_drift
 

@@ -3,14 +3,16 @@
 CONTRACT (stable; changes are additive only)
 ============================================
 
-Units: whatever a scene uses, consistently; continuum scenes are SI (m, kg, s, Pa, J).
+Units: whatever a scene uses, consistently; continuum scenes are SI (m, kg, s, Pa, J),
+the tube scenes Å, fs, eV (``ParticleSystem(units="atomic")``, which labels the messages).
 Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bond,
 ``_c`` Cartesian component. Positions always have 3 components (2D: z = 0, 1D: y = z = 0).
 
 ``upscale.engine.system``
     ``ParticleSystem(x0 (N,3), volume (N,)|scalar, density=(N,)|scalar, material=None,
-    *, dim=3, thickness=None, plane="stress", spacing=None)``. Attributes ``x0, volume,
-    density, material (int32), dim, thickness, plane, n, mass, spacing``.
+    *, dim=3, thickness=None, plane="stress", spacing=None, units="si")``. Attributes
+    ``x0, volume, density, material (int32), dim, thickness, plane, n, mass, spacing,
+    units, time_unit, energy_unit``.
     2D: ``volume`` = area x ``thickness`` (m^3). Bad input (NaN position, non-positive
     volume/density, wrong shape) -> one-line ``ValueError`` naming the value.
     ``system.select(where=pred, box=(lo, hi), name=...) -> bool (N,)`` raises if the

@@ -295,10 +295,12 @@ def assemble(bodies, interactions=()) -> Assembly:
     s0 = bodies[0].system
     for b in bodies[1:]:
         s = b.system
-        if s.dim != s0.dim or s.plane != s0.plane or s.thickness != s0.thickness:
+        if (s.dim != s0.dim or s.plane != s0.plane or s.thickness != s0.thickness
+                or s.units != s0.units):
             raise ValueError(f"body {b.name!r} has dim {s.dim}, plane {s.plane!r}, thickness "
-                             f"{s.thickness}; body {bodies[0].name!r} has dim {s0.dim}, plane "
-                             f"{s0.plane!r}, thickness {s0.thickness}: all bodies must agree")
+                             f"{s.thickness}, units {s.units!r}; body {bodies[0].name!r} has dim "
+                             f"{s0.dim}, plane {s0.plane!r}, thickness {s0.thickness}, units "
+                             f"{s0.units!r}: all bodies must agree")
     n = np.cumsum([0] + [b.system.n for b in bodies])
     nb = np.cumsum([0] + [(b.family.nb if b.family is not None else 0) for b in bodies])
     system = ParticleSystem(np.concatenate([b.system.x0 for b in bodies]),
@@ -306,7 +308,7 @@ def assemble(bodies, interactions=()) -> Assembly:
                             np.concatenate([b.system.density for b in bodies]),
                             np.concatenate([b.system.material for b in bodies]),
                             dim=s0.dim, thickness=s0.thickness, plane=s0.plane,
-                            spacing=min(b.system.spacing for b in bodies))
+                            spacing=min(b.system.spacing for b in bodies), units=s0.units)
     system.body_n = np.repeat(np.arange(len(bodies), dtype=np.int32), np.diff(n))
     models = []
     for k, b in enumerate(bodies):

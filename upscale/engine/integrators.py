@@ -125,8 +125,9 @@ class VelocityVerlet:
                 raise ValueError("no stable time step estimate for these models: give dt explicitly")
             self.dt = self.safety * self.estimate
         elif self.estimate is not None and self.dt > self.estimate and not self.force:
-            raise ValueError(f"time step {self.dt:.6g} s exceeds the stable estimate "
-                             f"{self.estimate:.6g} s (Silling-Askari/Gershgorin bound); use "
+            tu = sim.system.time_unit
+            raise ValueError(f"time step {self.dt:.6g} {tu} exceeds the stable estimate "
+                             f"{self.estimate:.6g} {tu} (Silling-Askari/Gershgorin bound); use "
                              f"dt <= {self.estimate:.6g} or pass force=True (--force-dt)")
         if self.thermostat is not None:
             self.thermostat.prepare(sim)

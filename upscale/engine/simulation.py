@@ -326,7 +326,7 @@ class Simulation:
                     f"(|v| = {vmax:.4g})")
         if len(ke_hist) >= 20 and all(b > 1.5 * a > 0 for a, b in zip(ke_hist[-20:-1], ke_hist[-19:])):
             return (f"kinetic energy grew by more than 1.5x per step for 20 steps "
-                    f"(now {ke:.4g} J)")
+                    f"(now {ke:.4g} {self.system.energy_unit})")
         return None
 
     def run(self, steps: int, *, output=None, checkpoint: Checkpoint | None = None,
@@ -378,9 +378,10 @@ class Simulation:
                     ck = (f"last good checkpoint: {checkpoint.path} (step {checkpoint.last_step})"
                           if checkpoint is not None and checkpoint.last_step is not None
                           else "no checkpoint was written")
-                    est_s = f"{est:.4g} s" if est else "unknown"
-                    raise BlowUp(f"run blew up at step {st.step} (t = {st.t:.6g} s): {why}; "
-                                 f"time step {dt:.4g} s vs stable estimate {est_s}"
+                    tu = self.system.time_unit
+                    est_s = f"{est:.4g} {tu}" if est else "unknown"
+                    raise BlowUp(f"run blew up at step {st.step} (t = {st.t:.6g} {tu}): {why}; "
+                                 f"time step {dt:.4g} {tu} vs stable estimate {est_s}"
                                  f"{' (forced past it)' if est and dt > est else ''}; {ck}")
                 if checkpoint is not None and st.step % checkpoint.every == 0:
                     growing = len(ke_hist) >= 5 and all(

@@ -22,6 +22,10 @@ def _fmt(v) -> str:
     return np.format_float_positional(float(v), precision=6, trim="-") if np.isfinite(v) else str(v)
 
 
+#: unit system -> (time unit, energy unit), the labels of the engine's messages
+UNITS = {"si": ("s", "J"), "atomic": ("fs", "eV")}
+
+
 class ParticleSystem:
     """A body of particles in its reference configuration.
 
@@ -45,6 +49,10 @@ class ParticleSystem:
     spacing : float, optional
         Nominal particle spacing (lattice constant). Used for the horizon check and the
         partial-volume factors; estimated from nearest-neighbour distances if omitted.
+    units : {"si", "atomic"}
+        The unit system the arrays are in, used only to label times and energies in
+        messages: ``"si"`` (m, kg, s, J; default) or ``"atomic"`` (Å, fs, eV, the mass in
+        eV fs^2/Å^2: the atomistic and coarse tube scenes).
 
     Raises
     ------
@@ -55,7 +63,11 @@ class ParticleSystem:
 
     def __init__(self, x0, volume, density=1.0, material=None, *, dim: int = 3,
                  thickness: float | None = None, plane: str = "stress",
-                 spacing: float | None = None):
+                 spacing: float | None = None, units: str = "si"):
+        if units not in UNITS:
+            raise ValueError(f"units={units!r}; valid: " + " or ".join(map(repr, UNITS)))
+        self.units = units
+        self.time_unit, self.energy_unit = UNITS[units]
         if dim not in (1, 2, 3):
             raise ValueError(f"dim must be 1, 2 or 3, got {dim!r}")
         if plane not in ("stress", "strain"):

@@ -135,7 +135,7 @@ def zero_stress_ratios(n: int, m: int, potential: str = "BNC.tersoff", cells: in
     def relax(lz, x_start):
         x = x_start.copy()
         x[:, 2] *= lz / L
-        sim = Simulation(ParticleSystem(x, 1.0, CARBON_MASS_AMU),
+        sim = Simulation(ParticleSystem(x, 1.0, CARBON_MASS_AMU, units="atomic"),
                          models=[TersoffModel(potential, period_z=lz)])
         sim.minimise(LBFGS(ftol=ftol, max_iter=5000))
         return sim.energy(), sim.state.y.copy()
@@ -256,7 +256,8 @@ class BundleScene:
             name = f"tube{k + 1}"
             if s.model == "tersoff":
                 x = atoms.get_positions()[mol == k + 1]
-                bodies.append(Body(ParticleSystem(x, 1.0, ATOM_MASS, spacing=1.42),
+                bodies.append(Body(ParticleSystem(x, 1.0, ATOM_MASS, spacing=1.42,
+                                                  units="atomic"),
                                    None, [TersoffModel()], name=name))
             else:
                 c = np.asarray(atoms.info["tube_centres"][k], dtype=float)

@@ -624,7 +624,7 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
     area = 2 * math.pi * R * WALL_THICKNESS_A
     # a particle's mass: its atoms (volume = atoms, density = the carbon mass)
     system = ParticleSystem(tube.x0, tube.natoms_n, CARBON_MASS_AMU,
-                            spacing=float(min(tube.spacing)))
+                            spacing=float(min(tube.spacing)), units="atomic")
     model = DCBRTubeModel(tube, shift_gtol=shift_gtol)
     sim = Simulation(system, None, model)
     sim.state.y[...] = y

@@ -175,7 +175,7 @@ class DCBRDefectTubeModel:
         from upscale.engine.system import ParticleSystem
 
         return ParticleSystem(self.rows(self.y0), 1.0, density=self.masses(),
-                              spacing=float(self.tube.lattice.bond))
+                              spacing=float(self.tube.lattice.bond), units="atomic")
 
     def body(self, name: str = "tube"):
         """This model on its :meth:`system` as an :class:`~upscale.engine.bodies.Body`."""
