@@ -249,12 +249,7 @@ class NoseHooverChain:
             e = np.exp(-h4 * p[j + 1])
             p[j] = (p[j] * e + h2 * G(j, K2)) * e
         s = float(np.exp(-h * p[0]))
-        v = sim.state.v.reshape(-1)
-        if not np.shares_memory(v, sim.state.v):  # (a non-contiguous velocity array)
-            raise ValueError("the state's velocities must be one contiguous array")
-        v[self.idx] *= s
-        for f in self.field_names:
-            sim.state.field_v[f][self.frows[f]] *= s
+        _scale_rates(self, sim, s)
         K2 *= s * s
         self.eta += h * p
         for j in range(M - 1):
@@ -327,6 +322,16 @@ def _prepare_dofs(th, sim) -> None:
     th.m_idx = np.repeat(sim.system.mass, 3)[th.idx]
 
 
+def _scale_rates(th, sim, s: float) -> None:
+    """Multiply the rates ``th`` thermostats (translations and fields) by ``s``, in place."""
+    v = sim.state.v.reshape(-1)
+    if not np.shares_memory(v, sim.state.v):  # (a non-contiguous velocity array)
+        raise ValueError("the state's velocities must be one contiguous array")
+    v[th.idx] *= s
+    for f in th.field_names:
+        sim.state.field_v[f][th.frows[f]] *= s
+
+
 def _twice_kinetic(th, sim) -> float:
     """2 x the kinetic energy of the rates ``th`` thermostats (the dofs of
     :func:`_prepare_dofs`): translations and fields."""
@@ -392,13 +397,7 @@ class NoseHoover:
     def _half(self, sim, dt) -> None:
         """Mutates xi and the thermostatted rates: eq. (3) with h = dt/2."""
         self.xi += 0.5 * dt * (self.temperature(sim) / self.T - 1.0) / self.tau ** 2
-        s = float(np.exp(-0.5 * dt * self.xi))
-        v = sim.state.v.reshape(-1)
-        if not np.shares_memory(v, sim.state.v):  # (a non-contiguous velocity array)
-            raise ValueError("the state's velocities must be one contiguous array")
-        v[self.idx] *= s
-        for f in self.field_names:
-            sim.state.field_v[f][self.frows[f]] *= s
+        _scale_rates(self, sim, float(np.exp(-0.5 * dt * self.xi)))
 
     def begin(self, sim, dt) -> None:
         self._half(sim, dt)
