@@ -16,11 +16,13 @@ $(VENV)/.installed: pyproject.toml
 demo: $(VENV)/.installed
 	$(VENV)/bin/upscale demo
 
+# two pytest workers, one per core (pytest-xdist): the suite is mostly single-threaded
+# Python, LAMMPS and numba compilation
 test: $(VENV)/.installed
-	$(PY) -m pytest -q
+	$(PY) -m pytest -q -n 2
 
 test-slow: $(VENV)/.installed
-	$(PY) -m pytest -q -m slow
+	$(PY) -m pytest -q -n 2 -m slow
 
 validate-list: $(VENV)/.installed
 	$(PY) -m validation --list

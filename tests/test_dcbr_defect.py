@@ -300,7 +300,6 @@ def test_static_grip_stiffness_is_linear_and_bounded():
         static_grip_stiffness(DCBRDefectTube(6, 6, 60.0, vacancy=4, **KW), strain=0.1)
 
 
-@pytest.mark.slow
 def test_static_grip_stiffness_does_not_count_the_setup_reaction():
     """Clamping the grips leaves a small reaction at zero strain ((10,10), coarsening 3:
     -0.013 eV/Å; before the clamped twin, coarsening 4: -0.05 eV/Å); k = F / separation
@@ -493,7 +492,6 @@ def test_clamped_grip_edge_carries_the_gauge_strain():
     assert np.abs(gauge / eps - 1).max() < 0.05, np.sort(gauge / eps)[[0, -1]]
 
 
-@pytest.mark.slow
 def test_clamped_grip_edge_does_not_fail_first():
     """Pristine (10,10), coarsening 2, clamped grips, NVE from rest: up to 17 % strain no
     coarse link breaks (LAMMPS's tube fails at 22 %; before the grip-edge weights were

@@ -30,10 +30,10 @@ def test_dynamic_17_0_vacancy_k2():
     assert out["ejected_atoms"] == 0
 
 
-# one to two minutes each: with the slow checks (the default run compares the dynamic (17,0)
-# tube above; `upscale demo` runs the (10,10) K2 quasi-static comparison)
-@pytest.mark.slow
-@pytest.mark.parametrize("n, m, k", [(12, 6, 2.0), (17, 0, 3.0), (10, 10, 2.0)])
+# one tube in the default run; the other two (about a minute each) with the slow checks
+@pytest.mark.parametrize("n, m, k", [pytest.param(12, 6, 2.0, marks=pytest.mark.slow),
+                                     pytest.param(17, 0, 3.0, marks=pytest.mark.slow),
+                                     (10, 10, 2.0)])
 def test_quasi_static_vacancy(n, m, k):
     """Quasi-static tension of the periodic 100 Å tube with the vacancy (0.5 % steps), with
     the references' damped-dynamics fallback at the step cutoff ((10,10): with energy
