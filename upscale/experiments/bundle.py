@@ -788,6 +788,13 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
     return res
 
 
+def _at_rest(state) -> None:
+    """Zero every rate of ``state``: velocities and the fields' rates."""
+    state.v[...] = 0.0
+    for w in state.field_v.values():
+        w[...] = 0.0
+
+
 def _settle(asm, scene, sim0, dt_fs, settle_ps, ftol, inner):
     """The bundle after ``sim0``'s minimisation quenched to rest with every tube free
     (:class:`~upscale.engine.thermostats.Quench` on the run's integrator: velocity Verlet at
@@ -807,9 +814,7 @@ def _settle(asm, scene, sim0, dt_fs, settle_ps, ftol, inner):
     sim = asm.simulation(conditions=list(scene.extra_conditions()), integrator=integ)
     sim.state.y[...] = sim0.state.y
     _copy_fields(sim0.state, sim.state)
-    sim.state.v[...] = 0.0
-    for w in sim.state.field_v.values():
-        w[...] = 0.0
+    _at_rest(sim.state)
     fm = [np.inf]
     every = max(1, 20 // inner)
 
@@ -829,9 +834,7 @@ def _settle(asm, scene, sim0, dt_fs, settle_ps, ftol, inner):
     f0 = fmax(sim)
     out = sim.run(int(round(1e3 * settle_ps / (dt_fs * inner))), callback=done)
     fm[0] = fmax(sim)
-    sim.state.v[...] = 0.0
-    for w in sim.state.field_v.values():
-        w[...] = 0.0
+    _at_rest(sim.state)
     return sim, {"method": "md quench (FIRE mixing)", "time_ps": float(sim.state.t) * 1e-3,
                  "fmax_start_eV_A": f0, "fmax_eV_A": fm[0], "converged": bool(fm[0] <= ftol),
                  "zeroed": int(q.zeroed), "wall_s": out["wall_s"]}
