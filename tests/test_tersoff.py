@@ -405,3 +405,34 @@ def test_overlapping_atoms():
     a.calc = Tersoff.from_lammps("BNC.tersoff", elements=["C"])
     with pytest.raises(OverlappingAtomsError, match=r"atoms 3 and 7 overlap: distance 0.01"):
         a.get_forces()
+
+
+@pytest.mark.parametrize("n", [0.72751, 22.956])  # BNC.tersoff carbon, Si.tersoff
+def test_bond_order_and_derivative_on_every_branch(n):
+    """b_ij and db_ij/dzeta from the one kernel call: the same values as the separate
+    functions on both sides of every threshold c1..c4, and, where the full expression is
+    used, the closed form (1 + t^n)^(-1/(2n)) (t = beta zeta) and its derivative evaluated
+    another way (exp / log1p) to 1e-14."""
+    import math
+
+    from potentials import tersoff_kernels as tk
+
+    beta = 1.5724e-7 if n < 1 else 0.33675
+    c1 = (2 * n * 1e-16) ** (-1 / n)
+    c2 = (2 * n * 1e-8) ** (-1 / n)
+    c3, c4 = 1 / c2, 1 / c1
+    ts = sorted({c * f for c in (c1, c2, c3, c4) for f in (0.7, 1.3)} | {1.0, 0.05, 3.0})
+    full = 0
+    for t in ts:
+        zeta = t / beta
+        b, bd = tk.ters_bij_and_d(zeta, beta, n, c1, c2, c3, c4)
+        assert b == tk.ters_bij(zeta, beta, n, c1, c2, c3, c4)
+        assert bd == tk.ters_bij_d(zeta, beta, n, c1, c2, c3, c4)
+        if c3 <= t <= c2:  # the full expression
+            full += 1
+            tn = math.exp(n * math.log(t))
+            b_ref = math.exp(-math.log1p(tn) / (2 * n))
+            bd_ref = -0.5 * b_ref / (1 + tn) * tn / zeta
+            assert abs(b - b_ref) <= 1e-14 * b_ref
+            assert abs(bd - bd_ref) <= 1e-14 * abs(bd_ref)
+    assert full >= 3
