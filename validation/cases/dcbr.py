@@ -499,7 +499,7 @@ def _mts_nve(args, n, m):
             cpu = time.process_time() - t0
             es = np.array(es) - e0
             fit, tenths = drift_estimates(ts, es)
-            records[(name, seed)] = es / k0
+            records[(name, seed)] = (np.asarray(ts) * 1e-3, es / k0)  # (ps, KE0)
             rows.append({"integrator": name, "seed": seed, "drift_fit_rel": fit / k0,
                          "drift_tenths_rel": tenths / k0, "max_dev_rel": float(np.abs(es).max() / k0),
                          "drift_fit_rel_to_cohesive": fit / abs(tube.e0 * tube.n_atoms),
@@ -520,12 +520,13 @@ def _mts_nve(args, n, m):
     out["mts_pass_resolved"] = bool(nseeds > 1 and abs(out["mts_drift_rel"])
                                     + 2 * out["mts_drift_rel_sem"] < 1e-4)
     print(table(rows, floatfmt=".4g"))
-    _plot_energy_records(records, Dt * steps, getattr(args, "outdir", None))
+    _plot_energy_records(records, getattr(args, "outdir", None))
     return out
 
 
-def _plot_energy_records(records, duration_fs, outdir):
-    """(E - E0) / KE0 against time for every run, MTS and Verlet side by side."""
+def _plot_energy_records(records, outdir):
+    """(E - E0) / KE0 against time for every run (``records[(integrator, seed)] = (t_ps,
+    e)``), MTS and Verlet side by side."""
     if not outdir:
         return
     import matplotlib
@@ -533,9 +534,9 @@ def _plot_energy_records(records, duration_fs, outdir):
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
-    for (name, seed), e in records.items():
+    for (name, seed), (t, e) in records.items():
         ax = axes[0 if name == "mts" else 1]
-        ax.plot(np.linspace(0, duration_fs * 1e-3, len(e)), e, lw=0.8, label=f"seed {seed}")
+        ax.plot(t, e, lw=0.8, label=f"seed {seed}")
     for ax, title in zip(axes, ("r-RESPA (outer / inner step)", "velocity Verlet (inner step)")):
         ax.set_xlabel("t (ps)")
         ax.set_title(title)
