@@ -41,5 +41,19 @@ def test_validation_cases_register():
         assert c.summary and "\n" not in c.summary, name
 
 
+def test_validation_help_builds(capsys):
+    """The command line's help lists every case (a summary with a literal '%' once broke
+    argparse's formatting of the whole help)."""
+    from validation.__main__ import main
+    from validation.registry import discover
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--help"])
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    for name in discover():
+        assert name in out, name
+
+
 def test_lammps_error_type_is_runtime_error():
     assert issubclass(LammpsUnavailable, RuntimeError)

@@ -16,7 +16,7 @@ def main(argv=None) -> int:
     parser.add_argument("--list", action="store_true", help="list the cases, one a line")
     sub = parser.add_subparsers(dest="case", metavar="CASE")
     for name, c in sorted(cases.items()):
-        p = sub.add_parser(name, help=c.summary, description=c.summary)
+        p = sub.add_parser(name, help=c.summary.replace("%", "%%"), description=c.summary)
         p.add_argument("--quick", action="store_true", help="reduced version, about a minute")
         p.add_argument("--outdir", type=Path, default=Path("validation/out") / name,
                        help="where plots and the JSON result go (default: %(default)s)")
