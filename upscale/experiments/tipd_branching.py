@@ -15,21 +15,26 @@ time               velocity Verlet at 0.8 of the stable estimate, to 46 us (12 M
 models             Ti-PD with s0 from (60) or (62); LPS (s0 of (62)); PMB (bond-based s0)
 =================  ==========================================================================
 
-Crack tip: the largest x of a particle with damage >= 0.35 in the damaged cluster
-(8-connected on the lattice) that reaches within delta of the notch tip (every ``record_dt``; damage that
-starts elsewhere, e.g. at the loaded edges, is reported apart as ``edge_damage``);
-speed from a least-squares slope over a sliding window of 2 us. Coalescence: damage grown
+Crack tip: the largest x of a particle with damage >= ``tip_damage`` (default 0.35) in the
+damaged cluster (8-connected on the lattice) that reaches within delta of the notch tip
+(every ``record_dt``, default 0.25 us; damage that starts elsewhere, e.g. at the loaded
+edges, is reported apart as ``edge_damage``); speed from a least-squares slope over a sliding
+window of ``speed_window`` (default 2 us). Coalescence: damage grown
 apart from the crack (particles damaged at the previous record, not connected to it then,
 some more than delta from it: nearer is the tip's own process zone) that joins it; such a
 join that moves the tip forward by more than delta is a jump, not a crack speed, so the
 peak speed ``v_max`` leaves out the windows that hold one (``v_max_with_coalescence``
-keeps them). Branching: the first record at which the crack, less the particles that
+keeps them); ``v_mean`` is the mean of the same slopes from 2 delta to branching (the peak
+of slopes of a tip that moves in steps of dx is biased high by up to ~dx / window). Branching: the first record at which the crack, less the particles that
 joined it by coalescence, holds particles farther than 2 delta from the notch line on both
 sides (the main crack may go on between the branches); branching position x_b: the
-smallest x of those off-line particles then (where the branches are 2 delta off the line). Branch angle (half the
-angle between the branches): atan(y / (x - x_b)) of the crack's particle farthest above the
-line at the end of the run. Symmetry: the fraction of damaged particles (>= 0.35) whose mirror image about
-y = 0 is not damaged.
+smallest x of those off-line particles then (where the branches are 2 delta off the line).
+Branch angle: the mean over the two branches of the angle to the notch line of the segment
+from the branch's first particle 2 delta off the line to its particle farthest from the line
+at the end of the run; ``branch_origin_x_m``: where those segments, extended, meet the line.
+(The angle from that farthest particle to x_b on the line is biased high: x_b lies
+2 delta / tan(theta) past the branch point.) Symmetry: the fraction of damaged
+particles (>= ``tip_damage``) whose mirror image about y = 0 is not damaged.
 """
 from __future__ import annotations
 
@@ -39,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["branching", "rayleigh_speed", "GLASS"]
+__all__ = ["branching", "simulate", "measure", "branch_angle", "plot_damage", "rayleigh_speed", "GLASS"]
 
 GLASS = {"rho": 2440.0, "E": 72e9, "nu": 0.22, "G0": 135.0}
 LX, LY = 0.1, 0.04
@@ -62,19 +67,58 @@ def rayleigh_speed(E=GLASS["E"], nu=GLASS["nu"], rho=GLASS["rho"]) -> float:
 
 def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
               critical: str = "tipd", t_end: float | None = None, m: float = 3.0,
-              record_dt: float = 0.25e-6, load_width: float | None = None, progress: bool = False,
-              outdir=None) -> dict:
-    """Run the branching scene (module docstring) with horizon ``delta = m dx``; the traction
-    acts on the rows within ``load_width`` (m, a multiple of dx; default dx: the outer row)
-    of the top and bottom edges, shared equally between them (a grid refinement at a fixed
-    horizon keeps the loaded layer with ``load_width`` = the coarse dx). Returns the
+              record_dt: float = 0.25e-6, load_width: float | None = None, tip_damage: float = 0.35,
+              speed_window: float = 2e-6, progress: bool = False, outdir=None) -> dict:
+    """Run the branching scene (module docstring) and measure it: :func:`simulate` followed
+    by :func:`measure`, with the damage sampled at the record interval only. Returns the
     crack-tip history and its measures (SI units), and the final ``damage`` (n,) with the
-    reference ``positions_m`` (n, 2) as arrays (not JSON)."""
+    reference ``positions_m`` (n, 2) as arrays (not JSON); with ``outdir`` also the damage map."""
+    t0 = time.perf_counter()
+    _check_measure(tip_damage, record_dt, speed_window)
+    run = simulate(model, stress=stress, dx=dx, critical=critical, t_end=t_end, m=m,
+                   load_width=load_width, sample_dt=record_dt, thresholds=(tip_damage,), progress=progress)
+    res = measure(run, tip_damage=tip_damage, record_dt=record_dt, speed_window=speed_window)
+    res["wall_time_s"] = time.perf_counter() - t0
+    if outdir is not None:
+        res["damage_png"] = plot_damage(res, run, outdir)
+    return res
+
+
+def _check_measure(tip_damage, record_dt, speed_window):
+    if not 0.0 < tip_damage < 1.0:
+        raise ValueError(f"tip_damage must lie in (0, 1), got {tip_damage!r}")
+    if not (np.isfinite(record_dt) and record_dt > 0):
+        raise ValueError(f"record_dt must be a positive time in s, got {record_dt!r}")
+    if not (np.isfinite(speed_window) and speed_window > 0):
+        raise ValueError(f"speed_window must be a positive time in s, got {speed_window!r}")
+
+
+def simulate(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4, critical: str = "tipd",
+             t_end: float | None = None, m: float = 3.0, load_width: float | None = None,
+             sample_dt: float | None = None, thresholds=(0.35,), progress: bool = False) -> dict:
+    """Run the branching scene with horizon ``delta = m dx``; the traction acts on the rows
+    within ``load_width`` (m, a multiple of dx; default dx: the outer row) of the top and
+    bottom edges, shared equally between them (a grid refinement at a fixed horizon keeps the
+    loaded layer with ``load_width`` = the coarse dx).
+
+    Bonds only break, so a particle's damage never decreases and the damaged set at any time
+    is fixed by the step at which the damage first reached each threshold. The run keeps
+    that step, ``onset_step[thr]`` (n,) (``steps + 1`` where never), for every threshold in
+    ``thresholds``, sampling the damage every ``sample_every = round(sample_dt / dt)`` steps
+    (every step with ``sample_dt`` None). :func:`measure` then rebuilds the crack at any record
+    interval that is a multiple of the sampling, for any of those thresholds, without
+    rerunning the dynamics."""
     from upscale import models
     from upscale.engine import Simulation, bonds_crossing_segment, build_family, square_lattice
     from upscale.engine.conditions import Force, region
     from upscale.engine.integrators import VelocityVerlet
 
+    thresholds = tuple(float(v) for v in thresholds)
+    for v in thresholds:
+        if not 0.0 < v < 1.0:
+            raise ValueError(f"a damage threshold must lie in (0, 1), got {v!r}")
+    if sample_dt is not None and not (np.isfinite(sample_dt) and sample_dt > 0):
+        raise ValueError(f"sample_dt must be a positive time in s or None (every step), got {sample_dt!r}")
     t0 = time.perf_counter()
     if t_end is None:
         t_end = 46e-6 if stress < 18e6 else 32e-6
@@ -111,12 +155,59 @@ def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
     sim.prepare()
     dt = sim.integrator.dt
     steps = int(np.ceil(t_end / dt))
+    every = 1 if sample_dt is None else max(1, int(round(sample_dt / dt)))
+    never = steps + 1
+    onset = {v: np.full(s.n, never, dtype=np.int64) for v in thresholds}
+    times = {}                            # step -> time of the sampled steps
+
+    def cb(sm):
+        st = sm.state
+        if st.step % every:
+            return False
+        d = sm.damage()
+        for v, on in onset.items():
+            on[(d >= v) & (on == never)] = st.step
+        times[int(st.step)] = float(st.t)
+        return False
+
+    out = sim.run(steps, progress=progress, callback=cb)
+    return {"model": model, "critical": critical if model == "tipd" else None, "stress_Pa": stress,
+            "dx_m": dx, "m": m, "delta_m": delta, "horizon_m": fam.horizon, "nx": nx, "ny": ny,
+            "load_rows": rows, "particles": s.n, "dt_s": float(dt), "steps": out["steps"],
+            "t_end_s": float(sim.state.t), "s0": float(mdl.s0), "broken_bonds": out["broken_bonds"],
+            "sample_every": every, "sample_times": times, "onset_step": onset,
+            "positions_m": x0[:, :2].copy(), "damage": sim.damage(),
+            "run_wall_s": time.perf_counter() - t0}
+
+
+def measure(run: dict, *, tip_damage: float = 0.35, record_dt: float = 0.25e-6,
+            speed_window: float = 2e-6) -> dict:
+    """The crack measures of the module docstring from a :func:`simulate` run: the crack is
+    the set of particles with damage >= ``tip_damage`` (one of the run's thresholds), recorded
+    every ``record_every = round(record_dt / dt)`` steps (a multiple of the run's sampling),
+    the speed the least-squares slope over a sliding window of ``speed_window`` (s). These
+    three are choices of the measurement, not of the model; ``tipd-branching-sensitivity``
+    measures what they change."""
+    from scipy.ndimage import label
+    from scipy.spatial import cKDTree
+
+    _check_measure(tip_damage, record_dt, speed_window)
+    if float(tip_damage) not in run["onset_step"]:
+        raise ValueError(f"tip_damage {tip_damage!r} was not sampled by the run; valid: "
+                         f"{sorted(run['onset_step'])}")
+    on = run["onset_step"][float(tip_damage)]
+    dt, every = run["dt_s"], run["sample_every"]
     record_every = max(1, int(round(record_dt / dt)))
+    if record_every % every:
+        raise ValueError(f"record_dt {record_dt!r} s is {record_every} steps, not a multiple of the "
+                         f"run's sampling ({every} steps of {dt!r} s)")
+    x0, dx, delta, nx, ny = run["positions_m"], run["dx_m"], run["delta_m"], run["nx"], run["ny"]
+    n = x0.shape[0]
     rec_t, rec_tip, rec_up, rec_lo = [], [], [], []
-    state = {"branch": None, "cluster": np.zeros(s.n, dtype=bool), "damaged": np.zeros(s.n, dtype=bool)}
-    onset = np.full(s.n, np.inf)          # first record time at which a particle's damage >= 0.35
+    state = {"branch": None, "cluster": np.zeros(n, dtype=bool), "damaged": np.zeros(n, dtype=bool)}
+    onset = np.full(n, np.inf)            # first record time at which a particle's damage >= tip_damage
     merges = []                           # records at which damage grown apart joined the crack
-    merged = np.zeros(s.n, dtype=bool)    # the particles that joined the crack that way
+    merged = np.zeros(n, dtype=bool)      # the particles that joined the crack that way
 
     # lattice indices of the particles (regular grid, x slowest) for cluster labelling
     ix = np.rint((x0[:, 0] - x0[:, 0].min()) / dx).astype(int)
@@ -126,32 +217,25 @@ def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
     def crack_cluster(dam):
         """Damaged particles 8-connected to the notch tip (damage elsewhere, e.g. at the
         loaded edges, is not the crack)."""
-        from scipy.ndimage import label
-
         g = np.zeros((nx, ny), dtype=bool)
         g[ix, iy] = dam
         lab, _ = label(g, structure=np.ones((3, 3), dtype=int))
         ids = {int(lab[ix[k], iy[k]]) for k in notch} - {0}
         return dam & np.isin(lab[ix, iy], list(ids)) if ids else np.zeros_like(dam)
 
-    def cb(sm):
-        st = sm.state
-        if st.step % record_every:
-            return False
-        d = sm.damage()
-        dmg = d >= 0.35
-        onset[dmg & np.isinf(onset)] = st.t
+    for step in sorted(k for k in run["sample_times"] if k % record_every == 0):
+        t = run["sample_times"][step]
+        dmg = on <= step
+        onset[dmg & np.isinf(onset)] = t
         cl = crack_cluster(dmg)
         # coalescence: particles damaged at the previous record, apart from the crack then
         joined = cl & state["damaged"] & ~state["cluster"]
         if joined.any() and state["cluster"].any():
             # damage within a horizon of the crack is its own process zone; farther, a crack apart
-            from scipy.spatial import cKDTree
-
-            gap = cKDTree(x0[state["cluster"], :2]).query(x0[joined, :2])[0].max()
+            gap = cKDTree(x0[state["cluster"]]).query(x0[joined])[0].max()
             if gap > delta:
                 prev_tip = rec_tip[-1] if rec_tip else 0.0
-                merges.append({"t_s": float(st.t), "particles": int(joined.sum()), "gap_m": float(gap),
+                merges.append({"t_s": t, "particles": int(joined.sum()), "gap_m": float(gap),
                                "x_m": [float(x0[joined, 0].min()), float(x0[joined, 0].max())],
                                "y_m": [float(x0[joined, 1].min()), float(x0[joined, 1].max())],
                                "advances_tip": bool(x0[joined, 0].max() > prev_tip + delta)})
@@ -173,18 +257,21 @@ def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
                 yy = x0[grown, 1]
                 off = np.abs(yy) > 2 * delta
                 if (yy > 2 * delta).any() and (yy < -2 * delta).any():
-                    state["branch"] = (float(st.t), float(x0[grown[off], 0].min()))
-        rec_t.append(float(st.t))
+                    # where each branch first lies 2 delta off the line: its particle of least x
+                    starts = []
+                    for side in (grown[yy > 2 * delta], grown[yy < -2 * delta]):
+                        k = side[np.argmin(x0[side, 0])]
+                        starts.append((float(x0[k, 0]), float(x0[k, 1])))
+                    state["branch"] = (t, float(x0[grown[off], 0].min()), starts)
+        rec_t.append(t)
         rec_tip.append(tip)
         rec_up.append(up)
         rec_lo.append(lo)
-        return False
 
-    run = sim.run(steps, progress=progress, callback=cb)
     t_arr, tip_arr = np.array(rec_t), np.array(rec_tip)
-    # speed: sliding least-squares slope over 2 us windows
+    # speed: sliding least-squares slope over the window
     v = np.zeros_like(t_arr)
-    w = 2e-6
+    w = speed_window
     for k in range(t_arr.size):
         sel = np.abs(t_arr - t_arr[k]) <= w / 2
         if sel.sum() >= 3 and np.ptp(t_arr[sel]) > 0:
@@ -197,50 +284,76 @@ def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
     for tj in jumps:
         running &= np.abs(t_arr - tj) > w / 2 + 0.5 * record_every * dt
     vmax = float(v[running].max()) if running.any() else vmax_all
-    cR = rayleigh_speed()
+    # mean running speed before branching: the peak is the largest of many noisy slopes of a
+    # tip that moves in steps of dx (biased high by up to ~dx / speed_window); their mean is not
     br = state["branch"]
-    angle = None
+    before = running & (tip_arr > 2 * delta) & (t_arr <= (br[0] if br is not None else np.inf))
+    vmean = float(v[before].mean()) if before.any() else None
+    cR = rayleigh_speed()
+    angle, origin = None, None
     if br is not None:
-        x_end, y_end = rec_up[-1]
-        if x_end > br[1]:
-            angle = float(np.degrees(np.arctan2(abs(y_end), x_end - br[1])))
-    d = sim.damage()
-    dam = d >= 0.35
-    # symmetry about y = 0: lattice rows are mirror images (ny even, centred)
-    key = {(round(a / dx), round(b / dx * 2)): k for k, (a, b) in enumerate(x0[:, :2])}
-    mirror = np.array([key.get((round(a / dx), round(-b / dx * 2)), k) for k, (a, b) in enumerate(x0[:, :2])])
+        sides = [branch_angle(start, tip) for start, tip in zip(br[2], (rec_up[-1], rec_lo[-1]))]
+        sides = [v for v in sides if v is not None]
+        if sides:
+            angle = float(np.mean([v[0] for v in sides]))
+            origin = float(np.mean([v[1] for v in sides]))
+    d = run["damage"]
+    dam = d >= tip_damage
+    # symmetry about y = 0: lattice row iy mirrors row ny - 1 - iy (ny even, centred)
+    index = np.empty((nx, ny), dtype=np.int64)
+    index[ix, iy] = np.arange(n)
+    mirror = index[ix, ny - 1 - iy]
     asym = float((dam & ~dam[mirror]).sum() / max(dam.sum(), 1))
     edge_damage = int((dam & ~crack_cluster(dam)).sum())
-    res = {"model": model, "critical": critical if model == "tipd" else None, "stress_Pa": stress,
-           "dx_m": dx, "horizon_m": fam.horizon, "load_rows": rows, "particles": s.n, "dt_s": float(dt), "steps": run["steps"],
-           "t_end_s": float(sim.state.t), "s0": float(mdl.s0), "cR_m_per_s": cR,
-           "v_max_m_per_s": vmax, "v_max_over_cR": vmax / cR,
-           "v_max_with_coalescence_m_per_s": vmax_all, "v_max_with_coalescence_over_cR": vmax_all / cR,
-           "branching_t_s": None if br is None else br[0], "branching_x_m": None if br is None else br[1],
-           "branch_angle_deg": angle, "asymmetry_fraction": asym,
-           "damaged_off_crack": edge_damage,
-           "broken_bonds": run["broken_bonds"], "tip_t_s": rec_t, "tip_x_m": rec_tip,
-           "upper_tip_xy_m": rec_up, "lower_tip_xy_m": rec_lo, "coalescence": merges,
-           "wall_time_s": time.perf_counter() - t0,
-           "positions_m": x0[:, :2].copy(), "damage": d, "damage_onset_s": onset}
-    if outdir is not None:
-        import matplotlib
+    keep = ("model", "critical", "stress_Pa", "dx_m", "horizon_m", "load_rows", "particles", "dt_s",
+            "steps", "t_end_s", "s0", "broken_bonds")
+    return {**{k: run[k] for k in keep}, "tip_damage": float(tip_damage),
+            "record_dt_s": record_every * dt, "speed_window_s": float(w), "cR_m_per_s": cR,
+            "v_max_m_per_s": vmax, "v_max_over_cR": vmax / cR,
+            "v_max_with_coalescence_m_per_s": vmax_all, "v_max_with_coalescence_over_cR": vmax_all / cR,
+            "v_mean_m_per_s": vmean, "v_mean_over_cR": None if vmean is None else vmean / cR,
+            "branching_t_s": None if br is None else br[0], "branching_x_m": None if br is None else br[1],
+            "branch_angle_deg": angle, "branch_origin_x_m": origin, "asymmetry_fraction": asym,
+            "damaged_off_crack": edge_damage,
+            "tip_t_s": rec_t, "tip_x_m": rec_tip, "tip_v_m_per_s": v.tolist(),
+            "upper_tip_xy_m": rec_up, "lower_tip_xy_m": rec_lo, "coalescence": merges,
+            "positions_m": x0.copy(), "damage": d, "damage_onset_s": onset}
 
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
 
-        out = Path(outdir)
-        out.mkdir(parents=True, exist_ok=True)
-        fig, ax = plt.subplots(figsize=(6, 2.6))
-        sc = ax.scatter(x0[:, 0] * 1e3, x0[:, 1] * 1e3, c=d, s=0.3, cmap="inferno", vmin=0, vmax=1)
-        ax.set_aspect("equal")
-        ax.set_title(f"{model}{'(' + critical + ')' if model == 'tipd' else ''} {stress / 1e6:g} MPa, "
-                     f"t = {sim.state.t * 1e6:.1f} us")
-        fig.colorbar(sc, ax=ax, label="damage")
-        fig.tight_layout()
-        tag = (f"{model}{'_' + critical if model == 'tipd' else ''}_{stress / 1e6:g}MPa_dx{dx * 1e3:g}mm"
-               + ("" if m == 3 else f"_m{m:g}") + ("" if rows == 1 else f"_load{rows}"))
-        fig.savefig(out / f"damage_{tag}.png", dpi=150)
-        plt.close(fig)
-        res["damage_png"] = str(out / f"damage_{tag}.png")
-    return res
+def branch_angle(start, tip):
+    """Angle (degrees) of a branch to the notch line, and the x (m) at which the branch's
+    line meets it, from two of its points: ``start`` (x, y), where it first lies 2 delta
+    off the line, and its ``tip`` (x, y), the crack's particle farthest from the line on that
+    side. None when the tip is not beyond the start."""
+    (xs, ys), (xt, yt) = start, tip
+    rise, run = abs(yt) - abs(ys), xt - xs
+    if run <= 0 or rise <= 0:
+        return None
+    return float(np.degrees(np.arctan2(rise, run))), float(xs - abs(ys) * run / rise)
+
+
+def plot_damage(res: dict, run: dict, outdir) -> str:
+    """The final damage map of a run as ``damage_<model>_<stress>_dx<dx>.png`` in ``outdir``;
+    returns the path."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    x0, d, model, critical = run["positions_m"], run["damage"], run["model"], run["critical"]
+    stress, dx, m, rows = run["stress_Pa"], run["dx_m"], run["m"], run["load_rows"]
+    out = Path(outdir)
+    out.mkdir(parents=True, exist_ok=True)
+    fig, ax = plt.subplots(figsize=(6, 2.6))
+    sc = ax.scatter(x0[:, 0] * 1e3, x0[:, 1] * 1e3, c=d, s=0.3, cmap="inferno", vmin=0, vmax=1)
+    ax.set_aspect("equal")
+    ax.set_title(f"{model}{'(' + critical + ')' if model == 'tipd' else ''} {stress / 1e6:g} MPa, "
+                 f"t = {run['t_end_s'] * 1e6:.1f} us")
+    fig.colorbar(sc, ax=ax, label="damage")
+    fig.tight_layout()
+    tag = (f"{model}{'_' + critical if model == 'tipd' else ''}_{stress / 1e6:g}MPa_dx{dx * 1e3:g}mm"
+           + ("" if m == 3 else f"_m{m:g}") + ("" if rows == 1 else f"_load{rows}"))
+    path = out / f"damage_{tag}.png"
+    fig.savefig(path, dpi=150)
+    plt.close(fig)
+    return str(path)

@@ -23,6 +23,9 @@ Kirsch / Lekhnitskii stress concentrations.
 ``tipd-hole``, ``bench-tipd``, ``tipd-branching``
     Plate with a hole against FE; speed against Table 1; crack branching in glass with two
     refinements (dx/2 at the same horizon, dx/2 at delta = 3 dx).
+``tipd-branching-sensitivity``
+    What the crack-tip measurement's choices (damage threshold, record interval, speed
+    window) change in the branching results, on the same dynamics.
 """
 from __future__ import annotations
 
@@ -842,23 +845,26 @@ def tipd_branching(args):
                      "load_rows": r["load_rows"],
                      "delta_mm": r["horizon_m"] * 1e3, "s0": r["s0"],
                      "v_max/cR": r["v_max_over_cR"], "v_coal/cR": r["v_max_with_coalescence_over_cR"],
-                     "jumps": sum(c["advances_tip"] for c in r["coalescence"]), "branch_t_us": None if r["branching_t_s"] is None
+                     "v_mean/cR": r["v_mean_over_cR"], "jumps": sum(c["advances_tip"] for c in r["coalescence"]), "branch_t_us": None if r["branching_t_s"] is None
                      else r["branching_t_s"] * 1e6,
                      "branch_x_mm": None if r["branching_x_m"] is None else r["branching_x_m"] * 1e3,
                      "angle_deg": r["branch_angle_deg"], "asym": r["asymmetry_fraction"],
                      "off_crack": r["damaged_off_crack"],
                      "steps": r["steps"], "cpu_s": r["cpu_s"]})
     print(f"Ha & Bobaru plate 100 x 40 mm, pre-crack to the centre, cR = {runs[0]['cR_m_per_s']:.1f} m/s")
-    print(table(rows, ["model", "MPa", "dx_mm", "m", "load_rows", "delta_mm", "s0", "v_max/cR", "v_coal/cR", "jumps", "branch_t_us", "branch_x_mm",
+    print(table(rows, ["model", "MPa", "dx_mm", "m", "load_rows", "delta_mm", "s0", "v_max/cR", "v_coal/cR", "v_mean/cR", "jumps", "branch_t_us", "branch_x_mm",
                        "angle_deg", "asym", "off_crack", "steps", "cpu_s"], ".4g"))
     _plot_tips(runs, args.outdir)
     _plot_damage(runs, args.outdir)
     base = [r for r in runs if np.isclose(r["dx_m"], dx)]
-    out = {"v_max_over_cR": {}, "branching_x_m": {}, "branching_t_s": {}, "branch_angle_deg": {},
-           "v_max_with_coalescence_over_cR": {}, "coalescence_jumps": {}}
+    out = {"v_max_over_cR": {}, "v_mean_over_cR": {}, "branching_x_m": {}, "branching_t_s": {},
+           "branch_angle_deg": {}, "branch_origin_x_m": {}, "v_max_with_coalescence_over_cR": {},
+           "coalescence_jumps": {}}
     for r in base:
         key = _branch_key(r)
         out["v_max_over_cR"][key] = r["v_max_over_cR"]
+        out["v_mean_over_cR"][key] = r["v_mean_over_cR"]
+        out["branch_origin_x_m"][key] = r["branch_origin_x_m"]
         out["v_max_with_coalescence_over_cR"][key] = r["v_max_with_coalescence_over_cR"]
         out["coalescence_jumps"][key] = sum(c["advances_tip"] for c in r["coalescence"])
         out["branching_x_m"][key] = r["branching_x_m"]
@@ -880,6 +886,8 @@ def tipd_branching(args):
                     "branching_x_m": [c["branching_x_m"], f["branching_x_m"]],
                     "branching_x_diff_over_delta": bx,
                     "v_max_rel_diff": abs(c["v_max_m_per_s"] - f["v_max_m_per_s"]) / max(f["v_max_m_per_s"], 1e-300),
+                    "v_mean_rel_diff": None if None in (c["v_mean_m_per_s"], f["v_mean_m_per_s"])
+                    else abs(c["v_mean_m_per_s"] - f["v_mean_m_per_s"]) / f["v_mean_m_per_s"],
                     "cpu_ratio": f["cpu_s"] / c["cpu_s"]}
             res[f"convergence_{tag}"] = conv
             # agreement: both branch within two horizons of each other, or neither branches
@@ -892,9 +900,145 @@ def tipd_branching(args):
     # the must-show: crack speed below c_R, and (with the refinement at the same horizon) the
     # branching position within two horizons and the peak speed within 10 % between dx and dx/2
     res["below_cR"] = bool(all(v < 1 for v in out["v_max_over_cR"].values()))
+    # the peak of sliding slopes of a tip stepping by dx reads high (tests/test_tipd_branching.py)
+    res["below_cR_mean"] = bool(all(v is None or v < 1 for v in out["v_mean_over_cR"].values()))
     res["pass"] = bool(res["below_cR"] and res.get("converged_fixed_delta_all", True))
     return res
 
+
+
+# ------------------------------------------------------------------ branching: the measurement
+_SENS_BASE = {"tip_damage": 0.35, "record_dt": 0.25e-6, "speed_window": 2e-6}
+_SENS_VARIANTS = {"default": {}, "damage 0.25": {"tip_damage": 0.25}, "damage 0.45": {"tip_damage": 0.45},
+                  "record 0.125 us": {"record_dt": 0.125e-6}, "record 0.5 us": {"record_dt": 0.5e-6},
+                  "window 1 us": {"speed_window": 1e-6}, "window 4 us": {"speed_window": 4e-6}}
+
+
+def _sensitivity_args(p):
+    p.add_argument("--fine", action="store_true",
+                   help="also the dx/2 runs at the same horizon (m = 6), and the dx / dx/2 agreement "
+                        "of tipd-branching under every variant of the measurement")
+
+
+@case("tipd-branching-sensitivity", "crack branching in glass: what the crack-tip measurement's choices "
+      "(damage threshold, record interval, speed window) change in the peak speed, the branching "
+      "position and the dx / dx/2 verdict", _sensitivity_args)
+def tipd_branching_sensitivity(args):
+    """Each variant of ``tipd-branching`` runs once, sampling the damage every step at the
+    thresholds 0.25, 0.35 and 0.45 (bonds only break, so the step at which each particle
+    first reaches a threshold fixes the crack at every record); the measurement is then
+    repeated with one of its three choices changed at a time: damage threshold 0.25 / 0.45
+    (default 0.35), record interval 0.125 / 0.5 us (0.25), speed window 1 / 4 us (2). The
+    dynamics are the same in every variant; only what is read from them changes."""
+    import time
+
+    from tqdm import tqdm
+
+    from upscale.experiments.tipd_branching import measure, simulate
+
+    _threads()
+    dx = 1e-3 if args.quick else 5e-4
+    models_ = [("tipd", "tipd"), ("tipd", "osb"), ("lps", None), ("pmb", None)]
+    jobs = [(mod, crit, sig, dx, 3.0, None) for sig in (12e6, 24e6) for mod, crit in models_]
+    if args.fine and not args.quick:
+        jobs += [(mod, crit, sig, dx / 2, 6.0, dx) for sig in (12e6, 24e6) for mod, crit in models_]
+    thresholds = sorted({v.get("tip_damage", _SENS_BASE["tip_damage"]) for v in _SENS_VARIANTS.values()})
+    per = {}                  # (key, coarse/fine) -> {variant: measures}
+    rows = []
+    for mod, crit, sig, h, m, lw in tqdm(jobs, desc="tipd-branching-sensitivity runs"):
+        c0 = time.process_time()
+        run = simulate(mod, stress=sig, dx=h, m=m, critical=crit or "tipd", load_width=lw,
+                       sample_dt=None, thresholds=thresholds)
+        grid = "coarse" if np.isclose(h, dx) else "fine"
+        key = _branch_key({"model": mod, "critical": run["critical"], "stress_Pa": sig})
+        got = {name: measure(run, **{**_SENS_BASE, **v}) for name, v in _SENS_VARIANTS.items()}
+        per[(key, grid)] = got
+        for name, r in got.items():
+            rows.append({"run": key, "grid": f"dx {h * 1e3:g} mm, m {m:g}", "measure": name,
+                         "record_us": r["record_dt_s"] * 1e6, "v_max/cR": r["v_max_over_cR"],
+                         "v_mean/cR": r["v_mean_over_cR"],
+                         "branch_x_mm": None if r["branching_x_m"] is None else r["branching_x_m"] * 1e3,
+                         "branch_t_us": None if r["branching_t_s"] is None else r["branching_t_s"] * 1e6,
+                         "angle_deg": r["branch_angle_deg"], "asym": r["asymmetry_fraction"]})
+        rows[-1]["cpu_s"] = time.process_time() - c0
+    print(table(rows, ["run", "grid", "measure", "record_us", "v_max/cR", "v_mean/cR", "branch_x_mm", "branch_t_us",
+                       "angle_deg", "asym", "cpu_s"], ".4g"))
+    delta = 3 * dx
+    res = {"dx_m": dx, "variants": {k: {**_SENS_BASE, **v} for k, v in _SENS_VARIANTS.items()},
+           "v_max_over_cR": {}, "v_mean_over_cR": {}, "branching_x_m": {}, "v_max_spread": {},
+           "v_mean_spread": {}, "branching_x_spread_over_delta": {}, "branches_in_every_variant": {}}
+    for (key, grid), got in per.items():
+        if grid != "coarse":
+            continue
+        v = {n: r["v_max_over_cR"] for n, r in got.items()}
+        bx = {n: r["branching_x_m"] for n, r in got.items()}
+        res["v_max_over_cR"][key], res["branching_x_m"][key] = v, bx
+        # spread over the variants, relative to the default's peak speed
+        res["v_max_spread"][key] = (max(v.values()) - min(v.values())) / v["default"]
+        vm = {n: r["v_mean_over_cR"] for n, r in got.items()}
+        res["v_mean_over_cR"][key] = vm
+        known = [x for x in vm.values() if x is not None]
+        res["v_mean_spread"][key] = ((max(known) - min(known)) / vm["default"]
+                                     if known and vm["default"] else None)
+        found = [x for x in bx.values() if x is not None]
+        res["branches_in_every_variant"][key] = len(found) == len(bx)
+        res["branching_x_spread_over_delta"][key] = (max(found) - min(found)) / delta if found else None
+    res["below_cR_by_variant"] = {n: bool(all(res["v_max_over_cR"][k][n] < 1 for k in res["v_max_over_cR"]))
+                                  for n in _SENS_VARIANTS}
+    res["below_cR_mean_by_variant"] = {n: bool(all(res["v_mean_over_cR"][k][n] is None
+                                                   or res["v_mean_over_cR"][k][n] < 1
+                                                   for k in res["v_mean_over_cR"]))
+                                       for n in _SENS_VARIANTS}
+    if any(g == "fine" for _, g in per):
+        verdict = {}
+        for n in _SENS_VARIANTS:
+            ok = []
+            for (key, grid), got in per.items():
+                if grid != "coarse" or (key, "fine") not in per:
+                    continue
+                c, f = got[n], per[(key, "fine")][n]
+                if None in (c["branching_x_m"], f["branching_x_m"]):
+                    same = c["branching_x_m"] is None and f["branching_x_m"] is None
+                else:
+                    same = abs(c["branching_x_m"] - f["branching_x_m"]) / c["horizon_m"] <= 2
+                ok.append(bool(same and abs(c["v_max_m_per_s"] - f["v_max_m_per_s"]) / f["v_max_m_per_s"] <= 0.1))
+            verdict[n] = f"{sum(ok)} of {len(ok)}"
+        res["converged_fixed_delta_by_variant"] = verdict
+    res["rows"] = rows
+    _plot_sensitivity(res, args.outdir)
+    return res
+
+
+def _plot_sensitivity(res, outdir):
+    """Peak speed over c_R and branching position of each run under each variant of the
+    measurement (coarse grid)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    keys = list(res["v_max_over_cR"])
+    names = list(res["variants"])
+    fig, (a1, a0, a2) = plt.subplots(1, 3, figsize=(14, 3.6), sharey=True)
+    for j, n in enumerate(names):
+        yk = np.arange(len(keys)) + (j - (len(names) - 1) / 2) * 0.1
+        a1.plot([res["v_max_over_cR"][k][n] for k in keys], yk, "o", ms=4, label=n)
+        vm = [res["v_mean_over_cR"][k][n] for k in keys]
+        a0.plot([np.nan if v is None else v for v in vm], yk, "o", ms=4)
+        bx = [res["branching_x_m"][k][n] for k in keys]
+        a2.plot([np.nan if b is None else b * 1e3 for b in bx], yk, "o", ms=4)
+    for ax in (a1, a0):
+        ax.axvline(1.0, color="k", lw=0.8)
+        ax.set_xlim(0, max(1.1, ax.get_xlim()[1]))
+    a1.set_yticks(range(len(keys)))
+    a1.set_yticklabels(keys, fontsize=7)
+    a1.set_xlabel("peak crack speed / c_R")
+    a0.set_xlabel("mean speed before branching / c_R")
+    a2.set_xlabel("branching position x_b (mm)")
+    a1.legend(fontsize=6, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(outdir / "tipd_branching_sensitivity.png", dpi=130)
+    plt.close(fig)
 
 def _variant_label(r):
     return r["model"] + (f"({r['critical']})" if r["critical"] else "") + f" {r['stress_Pa'] / 1e6:g} MPa"

@@ -1,9 +1,11 @@
 """The branching runs that missed the dx / dx/2 (fixed horizon) agreement, rerun with the
 scene's coalescence bookkeeping:
-``python validation/results/tipd_branching_subset.py OUT.json [coarse|fine|both]``.
+``python validation/results/tipd_branching_subset.py OUT.json [coarse|fine|both|quarter] [KEY,...]``.
 
 Each variant at dx = 0.5 mm (m = 3) and dx/2 (m = 6, the traction on the same 0.5 mm layer),
-as in ``python -m validation tipd-branching --refine fixed-delta``."""
+as in ``python -m validation tipd-branching --refine fixed-delta``; ``quarter`` is dx/4
+(m = 12, the same horizon and loaded layer: one more step of the fixed-horizon refinement).
+KEY (e.g. ``pmb_12MPa``, ``tipd_osb_24MPa``) picks variants; default all three."""
 import json
 import sys
 import time
@@ -16,17 +18,25 @@ VARIANTS = [("tipd", "osb", 24e6), ("tipd", "osb", 12e6), ("pmb", "tipd", 12e6)]
 DX = 5e-4
 
 
-def main(out, which="both"):
+def _key(mod, crit, sig):
+    return f"{mod}{'_' + crit if mod == 'tipd' else ''}_{sig / 1e6:g}MPa"
+
+
+def main(out, which="both", keys=None):
     res = []
-    grids = {"coarse": [(DX, 3.0, None)], "fine": [(DX / 2, 6.0, DX)],
+    grids = {"coarse": [(DX, 3.0, None)], "fine": [(DX / 2, 6.0, DX)], "quarter": [(DX / 4, 12.0, DX)],
              "both": [(DX, 3.0, None), (DX / 2, 6.0, DX)]}[which]
-    for mod, crit, sig in VARIANTS:
+    chosen = [v for v in VARIANTS if keys is None or _key(*v) in keys]
+    if not chosen:
+        raise SystemExit(f"no variant among {keys}; valid: {[_key(*v) for v in VARIANTS]}")
+    for mod, crit, sig in chosen:
         for h, m, lw in grids:
             c0 = time.process_time()
             r = branching(mod, stress=sig, dx=h, m=m, critical=crit, load_width=lw)
             keep = {k: r[k] for k in ("model", "critical", "stress_Pa", "dx_m", "horizon_m", "s0",
-                                      "v_max_over_cR", "v_max_with_coalescence_over_cR", "branching_t_s",
-                                      "branching_x_m", "branch_angle_deg", "asymmetry_fraction",
+                                      "v_max_over_cR", "v_max_with_coalescence_over_cR", "v_mean_over_cR",
+                                      "branching_t_s", "branching_x_m", "branch_angle_deg",
+                                      "branch_origin_x_m", "asymmetry_fraction",
                                       "damaged_off_crack", "coalescence", "steps")}
             keep["cpu_s"] = time.process_time() - c0
             keep["critical"] = keep["critical"] if mod == "tipd" else None
@@ -44,4 +54,5 @@ def main(out, which="both"):
 if __name__ == "__main__":
     np.seterr(all="ignore")
     main(sys.argv[1] if len(sys.argv) > 1 else "tipd_branching_subset.json",
-         sys.argv[2] if len(sys.argv) > 2 else "both")
+         sys.argv[2] if len(sys.argv) > 2 else "both",
+         sys.argv[3].split(",") if len(sys.argv) > 3 else None)
