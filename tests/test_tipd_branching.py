@@ -24,7 +24,7 @@ def _run(onset_time, dx=0.5e-3, dt=0.05e-6, t_end=30e-6):
     on = np.clip(on, 1, steps + 1)
     final = np.where(on <= steps, 0.6, 0.0)
     return {"model": "pmb", "critical": None, "stress_Pa": 12e6, "dx_m": dx, "m": 3.0,
-            "delta_m": 3 * dx, "horizon_m": 3 * dx, "nx": nx, "ny": ny, "load_rows": 1,
+            "delta_m": 3 * dx, "horizon_m": 3 * dx, "partial_volume": None, "nx": nx, "ny": ny, "load_rows": 1,
             "particles": x.shape[0], "dt_s": dt, "steps": steps, "t_end_s": steps * dt, "s0": 0.0,
             "broken_bonds": 0, "sample_every": 1,
             "sample_times": {k: k * dt for k in range(1, steps + 1)}, "onset_step": {0.35: on},

@@ -9,7 +9,8 @@ pre-crack          from the left edge to the centre along y = 0 (bonds crossing 
 material           rho = 2440 kg/m^3, E = 72 GPa, nu = 0.22, G0 = 135 J/m^2
 loading            traction sigma (12 or 24 MPa) on the top and bottom edges from t = 0
                    (a force sigma dx t on each particle of the outer rows)
-discretisation     dx = 0.5 mm (200 x 80) and dx/2; horizon delta = 3 dx
+discretisation     dx = 0.5 mm (200 x 80) and dx/2; horizon delta = 3 dx; the partial-volume
+                   factor of the "linear" rule (:func:`upscale.engine.build_family`) by default
 time               velocity Verlet at 0.8 of the stable estimate, to 46 us (12 MPa) or
                    32 us (24 MPa, the text's 3.2e-5 s)
 models             Ti-PD with s0 from (60) or (62); LPS (s0 of (62)); PMB (bond-based s0)
@@ -19,16 +20,17 @@ Crack tip: the largest x of a particle with damage >= ``tip_damage`` (default 0.
 damaged cluster (8-connected on the lattice) that reaches within delta of the notch tip
 (every ``record_dt``, default 0.25 us; damage that starts elsewhere, e.g. at the loaded
 edges, is reported apart as ``edge_damage``); speed from a least-squares slope over a sliding
-window of ``speed_window`` (default 2 us). Coalescence: damage grown
-apart from the crack (particles damaged at the previous record, not connected to it then,
+window of ``speed_window`` (default 2 us). Coalescence: damage grown apart from the crack
+(particles damaged at the previous record, not connected to it then,
 some more than delta from it: nearer is the tip's own process zone) that joins it; such a
 join that moves the tip forward by more than delta is a jump, not a crack speed, so the
 peak speed ``v_max`` leaves out the windows that hold one (``v_max_with_coalescence``
 keeps them); ``v_mean`` is the mean of the same slopes from 2 delta to branching (the peak
-of slopes of a tip that moves in steps of dx is biased high by up to ~dx / window). Branching: the first record at which the crack, less the particles that
-joined it by coalescence, holds particles farther than 2 delta from the notch line on both
-sides (the main crack may go on between the branches); branching position x_b: the
-smallest x of those off-line particles then (where the branches are 2 delta off the line).
+of slopes of a tip that moves in steps of dx is biased high by up to ~dx / window).
+Branching: the first record at which the crack, less the particles that joined it by
+coalescence, holds particles farther than 2 delta from the notch line on both sides (the
+main crack may go on between the branches); branching position x_b: the smallest x of those
+off-line particles then (where the branches are 2 delta off the line).
 Branch angle: the mean over the two branches of the angle to the notch line of the segment
 from the branch's first particle 2 delta off the line to its particle farthest from the line
 at the end of the run; ``branch_origin_x_m``: where those segments, extended, meet the line.
@@ -68,7 +70,8 @@ def rayleigh_speed(E=GLASS["E"], nu=GLASS["nu"], rho=GLASS["rho"]) -> float:
 def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
               critical: str = "tipd", t_end: float | None = None, m: float = 3.0,
               record_dt: float = 0.25e-6, load_width: float | None = None, tip_damage: float = 0.35,
-              speed_window: float = 2e-6, progress: bool = False, outdir=None) -> dict:
+              speed_window: float = 2e-6, partial_volume: str | None = "linear", progress: bool = False,
+              outdir=None) -> dict:
     """Run the branching scene (module docstring) and measure it: :func:`simulate` followed
     by :func:`measure`, with the damage sampled at the record interval only. Returns the
     crack-tip history and its measures (SI units), and the final ``damage`` (n,) with the
@@ -76,7 +79,8 @@ def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
     t0 = time.perf_counter()
     _check_measure(tip_damage, record_dt, speed_window)
     run = simulate(model, stress=stress, dx=dx, critical=critical, t_end=t_end, m=m,
-                   load_width=load_width, sample_dt=record_dt, thresholds=(tip_damage,), progress=progress)
+                   load_width=load_width, sample_dt=record_dt, thresholds=(tip_damage,),
+                   partial_volume=partial_volume, progress=progress)
     res = measure(run, tip_damage=tip_damage, record_dt=record_dt, speed_window=speed_window)
     res["wall_time_s"] = time.perf_counter() - t0
     if outdir is not None:
@@ -95,7 +99,8 @@ def _check_measure(tip_damage, record_dt, speed_window):
 
 def simulate(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4, critical: str = "tipd",
              t_end: float | None = None, m: float = 3.0, load_width: float | None = None,
-             sample_dt: float | None = None, thresholds=(0.35,), progress: bool = False) -> dict:
+             sample_dt: float | None = None, thresholds=(0.35,), partial_volume: str | None = "linear",
+             progress: bool = False) -> dict:
     """Run the branching scene with horizon ``delta = m dx``; the traction acts on the rows
     within ``load_width`` (m, a multiple of dx; default dx: the outer row) of the top and
     bottom edges, shared equally between them (a grid refinement at a fixed horizon keeps the
@@ -107,7 +112,14 @@ def simulate(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4, cri
     ``thresholds``, sampling the damage every ``sample_every = round(sample_dt / dt)`` steps
     (every step with ``sample_dt`` None). :func:`measure` then rebuilds the crack at any record
     interval that is a multiple of the sampling, for any of those thresholds, without
-    rerunning the dynamics."""
+    rerunning the dynamics.
+
+    ``partial_volume`` is the family's edge correction (:func:`upscale.engine.build_family`):
+    "linear" (default), "lammps" or None. The default is the rule under which the branching
+    positions and speeds agree best between dx and dx/2 at the same horizon (m = 3 and 6):
+    without it the lattice sum at m = 3 misses the bonds' volume at the horizon's edge, and
+    the coarse grid is effectively a different material near the tip
+    (``validation/results/tipd.md``)."""
     from upscale import models
     from upscale.engine import Simulation, bonds_crossing_segment, build_family, square_lattice
     from upscale.engine.conditions import Force, region
@@ -131,7 +143,7 @@ def simulate(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4, cri
     def crack(i, j, xi):          # both directions of a bond, whatever the rounding
         return cross(i, j, xi) | cross(j, i, -xi)
 
-    fam = build_family(s, delta, exclude=crack)
+    fam = build_family(s, delta, exclude=crack, partial_volume=partial_volume)
     E, nu, G0 = GLASS["E"], GLASS["nu"], GLASS["G0"]
     if model == "tipd":
         mdl = models.create("tipd", E=E, nu=nu, G0=G0, critical=critical)
@@ -172,7 +184,8 @@ def simulate(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4, cri
 
     out = sim.run(steps, progress=progress, callback=cb)
     return {"model": model, "critical": critical if model == "tipd" else None, "stress_Pa": stress,
-            "dx_m": dx, "m": m, "delta_m": delta, "horizon_m": fam.horizon, "nx": nx, "ny": ny,
+            "dx_m": dx, "m": m, "delta_m": delta, "horizon_m": fam.horizon, "partial_volume": partial_volume,
+            "nx": nx, "ny": ny,
             "load_rows": rows, "particles": s.n, "dt_s": float(dt), "steps": out["steps"],
             "t_end_s": float(sim.state.t), "s0": float(mdl.s0), "broken_bonds": out["broken_bonds"],
             "sample_every": every, "sample_times": times, "onset_step": onset,
@@ -305,8 +318,8 @@ def measure(run: dict, *, tip_damage: float = 0.35, record_dt: float = 0.25e-6,
     mirror = index[ix, ny - 1 - iy]
     asym = float((dam & ~dam[mirror]).sum() / max(dam.sum(), 1))
     edge_damage = int((dam & ~crack_cluster(dam)).sum())
-    keep = ("model", "critical", "stress_Pa", "dx_m", "horizon_m", "load_rows", "particles", "dt_s",
-            "steps", "t_end_s", "s0", "broken_bonds")
+    keep = ("model", "critical", "stress_Pa", "dx_m", "horizon_m", "partial_volume", "load_rows", "particles",
+            "dt_s", "steps", "t_end_s", "s0", "broken_bonds")
     return {**{k: run[k] for k in keep}, "tip_damage": float(tip_damage),
             "record_dt_s": record_every * dt, "speed_window_s": float(w), "cR_m_per_s": cR,
             "v_max_m_per_s": vmax, "v_max_over_cR": vmax / cR,
