@@ -42,8 +42,8 @@ def _line_crack(v, dx):
 def test_straight_crack_speed_is_recovered():
     v, dx = 1500.0, 0.5e-3
     r = measure(_run(_line_crack(v, dx), dx=dx))
-    # the tip moves in steps of dx: a 2 us least-squares window resolves the slope to ~dx / 2 us
-    assert r["v_max_m_per_s"] == pytest.approx(v, rel=0.1)
+    # the path's points are timed to the step (0.05 us): ~dt / (window / 2) = 5 %
+    assert r["v_max_m_per_s"] == pytest.approx(v, rel=0.05)
     assert r["branching_x_m"] is None and r["branch_angle_deg"] is None
     assert r["asymmetry_fraction"] == 0.0
     assert r["v_max_over_cR"] == pytest.approx(r["v_max_m_per_s"] / rayleigh_speed())
@@ -90,16 +90,20 @@ def test_coalescence_jump_is_not_a_speed():
     assert r["v_max_m_per_s"] == pytest.approx(v, rel=0.15)
 
 
-def test_peak_of_a_stepped_tip_is_biased_high_and_the_mean_is_not():
-    """At 1000 m/s the tip crosses a 0.5 mm particle every 0.5 us, two records: the sliding
-    2 us slope of that staircase peaks ~29 % high; the 4 us window cuts that to ~7 %; the mean
-    of the slopes is within 2 %."""
-    v, dx = 1000.0, 0.5e-3
-    run = _run(_line_crack(v, dx), dx=dx)
-    r2, r4 = measure(run), measure(run, speed_window=4e-6)
-    assert 1.15 * v < r2["v_max_m_per_s"] < 1.35 * v
-    assert r4["v_max_m_per_s"] - v < 0.6 * (r2["v_max_m_per_s"] - v)
-    assert r2["v_mean_m_per_s"] == pytest.approx(v, rel=0.02)
+@pytest.mark.parametrize("v", [1000.0, 1500.0, 2500.0, 3000.0])
+def test_peak_of_the_recorded_tip_is_biased_and_the_path_is_not(v):
+    """The recorded tip crosses a 0.5 mm particle every dx / v: the largest sliding 2 us slope
+    of that staircase reads high (+29 % at 1000 m/s). The path's points are exact in x and
+    timed to the step, dt = 0.05 us: their slope errs by at most ~dt / (window / 2) = 5 %
+    (measured +2.5 to +4.1 %); the mean of the recorded slopes is within 2 %."""
+    dx = 0.5e-3
+    r = measure(_run(_line_crack(v, dx), dx=dx))
+    assert r["v_max_m_per_s"] == pytest.approx(v, rel=0.05)
+    assert r["v_mean_m_per_s"] == pytest.approx(v, rel=0.02)
+    assert r["v_max_records_m_per_s"] >= r["v_max_m_per_s"] - 1e-9 * v
+    if v == 1000.0:
+        assert r["v_max_records_m_per_s"] > 1.2 * v
+        assert measure(_run(_line_crack(v, dx), dx=dx), speed_window=4e-6)["v_max_records_m_per_s"] < 1.1 * v
 
 
 def test_branch_angle_from_two_points():

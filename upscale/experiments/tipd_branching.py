@@ -19,14 +19,18 @@ models             Ti-PD with s0 from (60) or (62); LPS (s0 of (62)); PMB (bond-
 Crack tip: the largest x of a particle with damage >= ``tip_damage`` (default 0.35) in the
 damaged cluster (8-connected on the lattice) that reaches within delta of the notch tip
 (every ``record_dt``, default 0.25 us; damage that starts elsewhere, e.g. at the loaded
-edges, is reported apart as ``edge_damage``); speed from a least-squares slope over a sliding
-window of ``speed_window`` (default 2 us). Coalescence: damage grown apart from the crack
-(particles damaged at the previous record, not connected to it then,
+edges, is reported apart as ``edge_damage``). Speed: least-squares slopes over a sliding
+window of ``speed_window`` (default 2 us), of the recorded tip (``v_max_records``, ``v_mean``)
+and of the tip's path (``v_max``): the points (t, x) at which a particle beyond every earlier
+one joined the crack, timed to the step (:func:`front_events`), from 2 delta past the notch
+to 2 delta before the far edge. Coalescence: damage grown
+apart from the crack (particles damaged at the previous record, not connected to it then,
 some more than delta from it: nearer is the tip's own process zone) that joins it; such a
 join that moves the tip forward by more than delta is a jump, not a crack speed, so the
-peak speed ``v_max`` leaves out the windows that hold one (``v_max_with_coalescence``
-keeps them); ``v_mean`` is the mean of the same slopes from 2 delta to branching (the peak
-of slopes of a tip that moves in steps of dx is biased high by up to ~dx / window).
+peak speeds leave out the windows that hold one (``v_max_with_coalescence`` keeps them);
+``v_mean`` is the mean of the recorded tip's slopes from 2 delta to branching. The recorded
+tip moves in steps of dx, and the largest of its slopes is biased high by up to ~dx / window;
+the path's points carry no such staircase.
 Branching: the first record at which the crack, less the particles that joined it by
 coalescence, holds particles farther than 2 delta from the notch line on both sides (the
 main crack may go on between the branches); branching position x_b: the smallest x of those
@@ -46,7 +50,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["branching", "simulate", "measure", "branch_angle", "plot_damage", "rayleigh_speed", "GLASS"]
+__all__ = ["branching", "simulate", "measure", "front_events", "branch_angle", "plot_damage", "rayleigh_speed", "GLASS"]
 
 GLASS = {"rho": 2440.0, "E": 72e9, "nu": 0.22, "G0": 135.0}
 LX, LY = 0.1, 0.04
@@ -73,13 +77,14 @@ def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
               speed_window: float = 2e-6, partial_volume: str | None = "linear", progress: bool = False,
               outdir=None) -> dict:
     """Run the branching scene (module docstring) and measure it: :func:`simulate` followed
-    by :func:`measure`, with the damage sampled at the record interval only. Returns the
+    by :func:`measure`, with the damage sampled every step (the tip's path is timed to the
+    step). Returns the
     crack-tip history and its measures (SI units), and the final ``damage`` (n,) with the
     reference ``positions_m`` (n, 2) as arrays (not JSON); with ``outdir`` also the damage map."""
     t0 = time.perf_counter()
     _check_measure(tip_damage, record_dt, speed_window)
     run = simulate(model, stress=stress, dx=dx, critical=critical, t_end=t_end, m=m,
-                   load_width=load_width, sample_dt=record_dt, thresholds=(tip_damage,),
+                   load_width=load_width, sample_dt=None, thresholds=(tip_damage,),
                    partial_volume=partial_volume, progress=progress)
     res = measure(run, tip_damage=tip_damage, record_dt=record_dt, speed_window=speed_window)
     res["wall_time_s"] = time.perf_counter() - t0
@@ -218,6 +223,8 @@ def measure(run: dict, *, tip_damage: float = 0.35, record_dt: float = 0.25e-6,
     n = x0.shape[0]
     rec_t, rec_tip, rec_up, rec_lo = [], [], [], []
     state = {"branch": None, "cluster": np.zeros(n, dtype=bool), "damaged": np.zeros(n, dtype=bool)}
+    never = np.iinfo(np.int64).max
+    in_crack = np.full(n, never, dtype=np.int64)   # first record step at which a particle is in the crack
     onset = np.full(n, np.inf)            # first record time at which a particle's damage >= tip_damage
     merges = []                           # records at which damage grown apart joined the crack
     merged = np.zeros(n, dtype=bool)      # the particles that joined the crack that way
@@ -254,6 +261,7 @@ def measure(run: dict, *, tip_damage: float = 0.35, record_dt: float = 0.25e-6,
                                "advances_tip": bool(x0[joined, 0].max() > prev_tip + delta)})
                 merged[joined] = True
         state["cluster"], state["damaged"] = cl, dmg
+        in_crack[cl & (in_crack == never)] = step
         ahead = cl & (x0[:, 0] > -dx)
         if not ahead.any():
             tip, up, lo = 0.0, (0.0, 0.0), (0.0, 0.0)
@@ -296,7 +304,24 @@ def measure(run: dict, *, tip_damage: float = 0.35, record_dt: float = 0.25e-6,
     running = inside.copy()
     for tj in jumps:
         running &= np.abs(t_arr - tj) > w / 2 + 0.5 * record_every * dt
-    vmax = float(v[running].max()) if running.any() else vmax_all
+    vmax_rec = float(v[running].max()) if running.any() else vmax_all
+    # peak from the tip's path: the crack's particles (less those joined by coalescence) in
+    # the order they joined it; each beyond every earlier one is a point (t, x) of the path,
+    # exact in x and timed by the run's sampling (by the record where a particle was damaged
+    # before it joined). The least-squares slope over the window through these points has no
+    # dx staircase in it.
+    ev_t, ev_x = front_events(x0[:, 0], on, in_crack, state["cluster"] & ~merged & (x0[:, 0] > -dx),
+                              run["sample_times"], record_every)
+    # from 2 delta past the notch (its start-up) to 2 delta before the far edge
+    keep_ev = (ev_x > 2 * delta) & (ev_x < LX / 2 - 2 * delta)
+    ev_t, ev_x = ev_t[keep_ev], ev_x[keep_ev]
+    vf = np.full(ev_t.size, -np.inf)
+    for k in range(ev_t.size):
+        sel = np.abs(ev_t - ev_t[k]) <= w / 2
+        if sel.sum() >= 3 and np.ptp(ev_t[sel]) > 0.5 * w \
+                and not np.any(np.abs(jumps - ev_t[k]) <= w / 2 + 0.5 * record_every * dt):
+            vf[k] = np.polyfit(ev_t[sel], ev_x[sel], 1)[0]
+    vmax = float(vf.max()) if np.isfinite(vf).any() else vmax_rec
     # mean running speed before branching: the peak is the largest of many noisy slopes of a
     # tip that moves in steps of dx (biased high by up to ~dx / speed_window); their mean is not
     br = state["branch"]
@@ -323,6 +348,7 @@ def measure(run: dict, *, tip_damage: float = 0.35, record_dt: float = 0.25e-6,
     return {**{k: run[k] for k in keep}, "tip_damage": float(tip_damage),
             "record_dt_s": record_every * dt, "speed_window_s": float(w), "cR_m_per_s": cR,
             "v_max_m_per_s": vmax, "v_max_over_cR": vmax / cR,
+            "v_max_records_m_per_s": vmax_rec, "v_max_records_over_cR": vmax_rec / cR,
             "v_max_with_coalescence_m_per_s": vmax_all, "v_max_with_coalescence_over_cR": vmax_all / cR,
             "v_mean_m_per_s": vmean, "v_mean_over_cR": None if vmean is None else vmean / cR,
             "branching_t_s": None if br is None else br[0], "branching_x_m": None if br is None else br[1],
@@ -331,6 +357,22 @@ def measure(run: dict, *, tip_damage: float = 0.35, record_dt: float = 0.25e-6,
             "tip_t_s": rec_t, "tip_x_m": rec_tip, "tip_v_m_per_s": v.tolist(),
             "upper_tip_xy_m": rec_up, "lower_tip_xy_m": rec_lo, "coalescence": merges,
             "positions_m": x0.copy(), "damage": d, "damage_onset_s": onset}
+
+
+def front_events(x, onset, in_crack, crack, sample_times, record_every):
+    """Points (t, x) of the crack tip's path: the particles of ``crack`` (n,) bool in the
+    order they joined the crack (``onset`` (n,) step at which the damage reached the
+    threshold, or, where the particle was damaged more than ``record_every`` steps before
+    ``in_crack`` (n,), the record step at which it joined), each kept when it lies beyond
+    every earlier one. Returns times (s) and x (m), both (k,)."""
+    idx = np.flatnonzero(crack)
+    if idx.size == 0:
+        return np.zeros(0), np.zeros(0)
+    step = np.where(in_crack[idx] - onset[idx] < record_every, onset[idx], in_crack[idx])
+    order = np.lexsort((x[idx], step))
+    st, xs = step[order], x[idx][order]
+    ahead = np.r_[True, xs[1:] > np.maximum.accumulate(xs)[:-1]]
+    return np.array([sample_times[int(k)] for k in st[ahead]]), xs[ahead]
 
 
 def branch_angle(start, tip):
