@@ -136,3 +136,19 @@ def test_sampling_every_step_gives_the_recorded_crack():
     assert ra["v_max_m_per_s"] == rb["v_max_m_per_s"]
     assert max(ra["tip_x_m"]) > 5e-3          # the crack ran
     assert measure(a, tip_damage=0.25)["tip_x_m"][-1] >= ra["tip_x_m"][-1]
+
+
+def test_command_line_branching_writes_result_and_map(tmp_path, capsys):
+    """``upscale tipd branching`` at dx = 1 mm: the printed summary, the JSON and the map."""
+    import json
+
+    from upscale.cli import main
+
+    out = tmp_path / "br"
+    assert main(["tipd", "branching", "--stress", "24e6", "--quiet", "--out", str(out)]) == 0
+    printed = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert printed["partial_volume"] == "linear" and 0 < printed["v_max_over_cR"] < 1
+    saved = json.loads((out / "tipd_branching.json").read_text())
+    saved = saved.get("result", saved)
+    assert saved["v_max_over_cR"] == printed["v_max_over_cR"]
+    assert (out / "damage_tipd_tipd_24MPa_dx1mm.png").read_bytes()[:4] == b"\x89PNG"

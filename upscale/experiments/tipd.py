@@ -367,7 +367,8 @@ def _run(args) -> int:
 
         res = branching(args.model, stress=args.stress, dx=args.dx[0] if args.dx else 1e-3,
                         critical=args.critical, progress=not args.quiet, outdir=out)
-        print(json.dumps({k: v for k, v in res.items() if not isinstance(v, (list, dict))}, default=float))
+        print(json.dumps({k: v for k, v in res.items() if not isinstance(v, (list, dict, np.ndarray))},
+                         default=float))
     from upscale.io import write_json
 
     write_json(out / f"tipd_{args.scene_tipd}.json", res)
