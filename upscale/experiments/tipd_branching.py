@@ -50,7 +50,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["branching", "simulate", "measure", "front_events", "branch_angle", "plot_damage", "rayleigh_speed", "GLASS"]
+__all__ = ["branching", "simulate", "measure", "front_events", "path_peak", "branch_angle", "plot_damage", "rayleigh_speed", "GLASS"]
 
 GLASS = {"rho": 2440.0, "E": 72e9, "nu": 0.22, "G0": 135.0}
 LX, LY = 0.1, 0.04
@@ -310,18 +310,16 @@ def measure(run: dict, *, tip_damage: float = 0.35, record_dt: float = 0.25e-6,
     # exact in x and timed by the run's sampling (by the record where a particle was damaged
     # before it joined). The least-squares slope over the window through these points has no
     # dx staircase in it.
-    ev_t, ev_x = front_events(x0[:, 0], on, in_crack, state["cluster"] & ~merged & (x0[:, 0] > -dx),
-                              run["sample_times"], record_every)
-    # from 2 delta past the notch (its start-up) to 2 delta before the far edge
-    keep_ev = (ev_x > 2 * delta) & (ev_x < LX / 2 - 2 * delta)
-    ev_t, ev_x = ev_t[keep_ev], ev_x[keep_ev]
-    vf = np.full(ev_t.size, -np.inf)
-    for k in range(ev_t.size):
-        sel = np.abs(ev_t - ev_t[k]) <= w / 2
-        if sel.sum() >= 3 and np.ptp(ev_t[sel]) > 0.5 * w \
-                and not np.any(np.abs(jumps - ev_t[k]) <= w / 2 + 0.5 * record_every * dt):
-            vf[k] = np.polyfit(ev_t[sel], ev_x[sel], 1)[0]
-    vmax = float(vf.max()) if np.isfinite(vf).any() else vmax_rec
+    lo_x, hi_x = 2 * delta, LX / 2 - 2 * delta     # past the notch's start-up, before the far edge
+    crack_x = state["cluster"] & (x0[:, 0] > -dx)
+    ev = front_events(x0[:, 0], on, in_crack, crack_x & ~merged, run["sample_times"], record_every)
+    pad = w / 2 + 0.5 * record_every * dt
+    vmax = path_peak(*ev, w, lo_x, hi_x, exclude=jumps, pad=pad)
+    vmax = vmax_rec if vmax is None else vmax
+    # with the coalesced particles on the path (timed by the record at which they joined)
+    ev_all = front_events(x0[:, 0], on, in_crack, crack_x, run["sample_times"], record_every)
+    peak_all = path_peak(*ev_all, w, lo_x, hi_x)
+    vmax_all = vmax_all if peak_all is None else peak_all
     # mean running speed before branching: the peak is the largest of many noisy slopes of a
     # tip that moves in steps of dx (biased high by up to ~dx / speed_window); their mean is not
     br = state["branch"]
@@ -373,6 +371,26 @@ def front_events(x, onset, in_crack, crack, sample_times, record_every):
     st, xs = step[order], x[idx][order]
     ahead = np.r_[True, xs[1:] > np.maximum.accumulate(xs)[:-1]]
     return np.array([sample_times[int(k)] for k in st[ahead]]), xs[ahead]
+
+
+def path_peak(t, x, window, x_lo, x_hi, exclude=(), pad=0.0):
+    """Largest least-squares slope dx/dt (m/s) of the path points (t, x) with x_lo < x < x_hi
+    over windows of ``window`` (s) centred on each point, holding at least three points
+    spread over more than half the window; windows whose centre lies within ``pad`` of a
+    time in ``exclude`` are left out. None when no window qualifies."""
+    keep = (x > x_lo) & (x < x_hi)
+    t, x = t[keep], x[keep]
+    exclude = np.asarray(exclude, dtype=float)
+    best = None
+    for k in range(t.size):
+        sel = np.abs(t - t[k]) <= window / 2
+        if sel.sum() < 3 or np.ptp(t[sel]) <= 0.5 * window:
+            continue
+        if exclude.size and np.any(np.abs(exclude - t[k]) <= pad):
+            continue
+        v = float(np.polyfit(t[sel], x[sel], 1)[0])
+        best = v if best is None else max(best, v)
+    return best
 
 
 def branch_angle(start, tip):
