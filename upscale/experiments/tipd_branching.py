@@ -50,7 +50,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["branching", "simulate", "measure", "front_events", "path_peak", "branch_angle", "plot_damage", "rayleigh_speed", "GLASS"]
+__all__ = ["branching", "simulate", "measure", "front_events", "sliding_slopes", "path_peak",
+           "branch_angle", "plot_damage", "rayleigh_speed", "GLASS"]
 
 GLASS = {"rho": 2440.0, "E": 72e9, "nu": 0.22, "G0": 135.0}
 LX, LY = 0.1, 0.04
@@ -89,7 +90,7 @@ def branching(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4,
     res = measure(run, tip_damage=tip_damage, record_dt=record_dt, speed_window=speed_window)
     res["wall_time_s"] = time.perf_counter() - t0
     if outdir is not None:
-        res["damage_png"] = plot_damage(res, run, outdir)
+        res["damage_png"] = plot_damage(run, outdir)
     return res
 
 
@@ -290,13 +291,9 @@ def measure(run: dict, *, tip_damage: float = 0.35, record_dt: float = 0.25e-6,
         rec_lo.append(lo)
 
     t_arr, tip_arr = np.array(rec_t), np.array(rec_tip)
-    # speed: sliding least-squares slope over the window
-    v = np.zeros_like(t_arr)
+    # speed: sliding least-squares slope over the window (0 where too few records)
     w = speed_window
-    for k in range(t_arr.size):
-        sel = np.abs(t_arr - t_arr[k]) <= w / 2
-        if sel.sum() >= 3 and np.ptp(t_arr[sel]) > 0:
-            v[k] = np.polyfit(t_arr[sel], tip_arr[sel], 1)[0]
+    v = np.nan_to_num(sliding_slopes(t_arr, tip_arr, w), nan=0.0)
     inside = tip_arr < LX / 2 - 2 * delta            # before the tip reaches the far edge
     vmax_all = float(v[inside].max()) if inside.any() else float(v.max())
     # running tip: windows holding a coalescence that moved the tip forward are not a speed
@@ -320,8 +317,8 @@ def measure(run: dict, *, tip_damage: float = 0.35, record_dt: float = 0.25e-6,
     ev_all = front_events(x0[:, 0], on, in_crack, crack_x, run["sample_times"], record_every)
     peak_all = path_peak(*ev_all, w, lo_x, hi_x)
     vmax_all = vmax_all if peak_all is None else peak_all
-    # mean running speed before branching: the peak is the largest of many noisy slopes of a
-    # tip that moves in steps of dx (biased high by up to ~dx / speed_window); their mean is not
+    # mean running speed before branching: the records' peak is the largest of many noisy
+    # slopes of a tip that moves in steps of dx (biased high by up to ~dx / window); their mean is not
     br = state["branch"]
     before = running & (tip_arr > 2 * delta) & (t_arr <= (br[0] if br is not None else np.inf))
     vmean = float(v[before].mean()) if before.any() else None
@@ -373,6 +370,18 @@ def front_events(x, onset, in_crack, crack, sample_times, record_every):
     return np.array([sample_times[int(k)] for k in st[ahead]]), xs[ahead]
 
 
+def sliding_slopes(t, x, window, min_span=0.0):
+    """Least-squares slope dx/dt of the points (t, x) (k,) over the window of ``window`` (s)
+    centred on each point: (k,), NaN where the window holds fewer than three points or
+    spans no more than ``min_span`` (s)."""
+    out = np.full(t.size, np.nan)
+    for k in range(t.size):
+        sel = np.abs(t - t[k]) <= window / 2
+        if sel.sum() >= 3 and np.ptp(t[sel]) > min_span:
+            out[k] = np.polyfit(t[sel], x[sel], 1)[0]
+    return out
+
+
 def path_peak(t, x, window, x_lo, x_hi, exclude=(), pad=0.0):
     """Largest least-squares slope dx/dt (m/s) of the path points (t, x) with x_lo < x < x_hi
     over windows of ``window`` (s) centred on each point, holding at least three points
@@ -380,17 +389,11 @@ def path_peak(t, x, window, x_lo, x_hi, exclude=(), pad=0.0):
     time in ``exclude`` are left out. None when no window qualifies."""
     keep = (x > x_lo) & (x < x_hi)
     t, x = t[keep], x[keep]
+    v = sliding_slopes(t, x, window, 0.5 * window)
     exclude = np.asarray(exclude, dtype=float)
-    best = None
-    for k in range(t.size):
-        sel = np.abs(t - t[k]) <= window / 2
-        if sel.sum() < 3 or np.ptp(t[sel]) <= 0.5 * window:
-            continue
-        if exclude.size and np.any(np.abs(exclude - t[k]) <= pad):
-            continue
-        v = float(np.polyfit(t[sel], x[sel], 1)[0])
-        best = v if best is None else max(best, v)
-    return best
+    if exclude.size:
+        v[np.any(np.abs(t[:, None] - exclude[None, :]) <= pad, axis=1)] = np.nan
+    return float(np.nanmax(v)) if np.isfinite(v).any() else None
 
 
 def branch_angle(start, tip):
@@ -405,7 +408,7 @@ def branch_angle(start, tip):
     return float(np.degrees(np.arctan2(rise, run))), float(xs - abs(ys) * run / rise)
 
 
-def plot_damage(res: dict, run: dict, outdir) -> str:
+def plot_damage(run: dict, outdir) -> str:
     """The final damage map of a run as ``damage_<model>_<stress>_dx<dx>.png`` in ``outdir``;
     returns the path."""
     import matplotlib
