@@ -54,7 +54,7 @@ from __future__ import annotations
 import numba as nb
 import numpy as np
 
-from upscale.engine.families import Family
+from upscale.engine.families import Family, reverse_in_sorted_rows, rows_sorted
 
 __all__ = ["BondList", "reduce_buffers", "reduce_buffers_scalar"]
 
@@ -87,28 +87,6 @@ def reduce_buffers_scalar(buf_tn, out_n):
         for t in range(nt):
             s += buf_tn[t, i]
         out_n[i] += s
-
-
-@nb.njit(parallel=True, cache=True)
-def _reverse_in_sorted_rows(offsets, neighbors, row_n, j_p):
-    """Directed index of j->i for every pair (i, j) by bisection in row j (the family's
-    rows sorted by neighbour); -1 where row j does not hold i."""
-    n = offsets.shape[0] - 1
-    rev = np.empty(j_p.shape[0], dtype=np.int64)
-    for i in nb.prange(n):
-        for p in range(row_n[i], row_n[i + 1]):
-            j = j_p[p]
-            lo = offsets[j]
-            end = offsets[j + 1]
-            hi = end
-            while lo < hi:
-                mid = (lo + hi) // 2
-                if neighbors[mid] < i:
-                    lo = mid + 1
-                else:
-                    hi = mid
-            rev[p] = lo if (lo < end and neighbors[lo] == i) else -1
-    return rev
 
 
 def _class_index(columns) -> tuple[np.ndarray, np.ndarray]:
@@ -188,13 +166,9 @@ class BondList:
         """Directed index of j->i per pair: bisection when the rows are sorted (as
         ``build_family`` makes them), else the family's own ``reverse``."""
         nbr, off = family.neighbors, family.offsets
-        step = np.diff(nbr)
-        row_end = np.zeros(step.size, dtype=bool)
-        ends = off[1:-1] - 1
-        row_end[ends[(ends >= 0) & (ends < step.size)]] = True
-        if not np.all((step > 0) | row_end):
+        if not rows_sorted(off, nbr):
             return family.reverse[self._fwd]
-        rev = _reverse_in_sorted_rows(off, nbr, self.row_n, self.j_p)
+        rev = reverse_in_sorted_rows(off, nbr, self.row_n, self.j_p)
         if np.any(rev < 0):
             raise ValueError("family is not symmetric: some bond has no reverse")
         return rev

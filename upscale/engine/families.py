@@ -27,6 +27,7 @@ from __future__ import annotations
 import dataclasses
 from functools import cached_property
 
+import numba as nb
 import numpy as np
 
 from upscale.engine.system import ParticleSystem
@@ -34,6 +35,9 @@ from upscale.engine.system import ParticleSystem
 __all__ = ["Family", "build_family", "damage", "bonds_crossing_segment"]
 
 PARTIAL_VOLUME = (None, "lammps", "linear")
+# candidate bonds per block of rows in build_family: bounds its temporaries (about
+# 150 bytes per candidate) independently of the system size
+_BLOCK_BONDS = 2_000_000
 
 
 @dataclasses.dataclass(eq=False)
@@ -91,12 +95,21 @@ class Family:
 
     @cached_property
     def reverse(self) -> np.ndarray:
-        """Index of the reverse bond j->i for each bond i->j (nb,)."""
+        """Index of the reverse bond j->i for each bond i->j (nb,).
+
+        Rows sorted by neighbour (as :func:`build_family` makes them): bisection for i in row
+        j, no memory beyond the result. Otherwise a sort of the keys i N + j (five (nb,)
+        int64 temporaries)."""
+        if rows_sorted(self.offsets, self.neighbors):
+            rev = reverse_in_sorted_rows(self.offsets, self.neighbors, self.offsets, self.neighbors)
+            if np.any(rev < 0):
+                raise ValueError("family is not symmetric: some bond has no reverse")
+            return rev
         i, j = self.owner, self.neighbors
         key_fwd = i * self.n + j
         key_rev = j * self.n + i
         order = np.argsort(key_fwd, kind="stable")
-        pos = np.searchsorted(key_fwd[order], key_rev)
+        pos = np.minimum(np.searchsorted(key_fwd[order], key_rev), max(self.nb - 1, 0))
         rev = order[pos]
         if not np.array_equal(key_fwd[rev], key_rev):
             raise ValueError("family is not symmetric: some bond has no reverse")
@@ -148,9 +161,49 @@ def _lammps_beta(length: np.ndarray, horizon: float, h: float) -> np.ndarray:
     return beta
 
 
+@nb.njit(cache=True)
+def rows_sorted(offsets, neighbors) -> bool:
+    """True when every row ``offsets[i]:offsets[i+1]`` of ``neighbors`` is strictly
+    increasing."""
+    for i in range(offsets.shape[0] - 1):
+        for k in range(offsets[i] + 1, offsets[i + 1]):
+            if neighbors[k] <= neighbors[k - 1]:
+                return False
+    return True
+
+
+@nb.njit(parallel=True, cache=True)
+def reverse_in_sorted_rows(offsets, neighbors, row_n, j_p):
+    """Directed index of j->i for every entry p of rows ``row_n`` (``j_p[p]`` = j, the row
+    i the one holding p), by bisection for i in row j of the family ``(offsets,
+    neighbors)``, whose rows must be sorted; -1 where row j does not hold i. With ``row_n =
+    offsets`` and ``j_p = neighbors`` this is the family's whole reverse index."""
+    n = row_n.shape[0] - 1
+    rev = np.empty(j_p.shape[0], dtype=np.int64)
+    for i in nb.prange(n):
+        for p in range(row_n[i], row_n[i + 1]):
+            j = j_p[p]
+            lo = offsets[j]
+            end = offsets[j + 1]
+            hi = end
+            while lo < hi:
+                mid = (lo + hi) // 2
+                if neighbors[mid] < i:
+                    lo = mid + 1
+                else:
+                    hi = mid
+            rev[p] = lo if (lo < end and neighbors[lo] == i) else -1
+    return rev
+
+
 def build_family(system: ParticleSystem, horizon: float, *, partial_volume: str | None = None,
                  spacing: float | None = None, exclude=None) -> Family:
     """Build the pair family of ``system`` within ``horizon`` (cKDTree).
+
+    Rows are found block by block (a tree of each block of rows against the whole system)
+    and written into arrays allocated once, so the memory needed is the family's own
+    (48 bytes per directed bond) plus one block's temporaries: about 1 GB at any size,
+    instead of about 100 bytes per bond for a list of all pairs at once.
 
     Parameters
     ----------
@@ -185,40 +238,57 @@ def build_family(system: ParticleSystem, horizon: float, *, partial_volume: str 
     x = system.x0
     n = system.n
     rmax = delta + 0.5 * h if partial_volume == "linear" else delta
+    r_query = rmax * (1.0 + 1e-9) + 1e-300
     tree = cKDTree(x)
-    pairs = tree.query_pairs(rmax * (1.0 + 1e-9) + 1e-300, output_type="ndarray").astype(np.int64)
-    i = np.concatenate([pairs[:, 0], pairs[:, 1]])
-    j = np.concatenate([pairs[:, 1], pairs[:, 0]])
-    # reference vectors and lengths evaluated as LAMMPS does (dx*dx + dy*dy + dz*dz)
-    d = x[j] - x[i]
-    rsq = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
-    if partial_volume == "linear":
-        keep = np.sqrt(rsq) < rmax
-    else:
-        keep = rsq <= delta * delta
-    if exclude is not None:
-        ex = np.asarray(exclude(i, j, d), dtype=bool)
-        if ex.shape != i.shape:
-            raise ValueError(f"exclude returned shape {ex.shape}, expected {i.shape}")
-        # symmetric whatever the callable did (a bond through a segment's end point can test
-        # differently from its two ends): candidate k and k + P are the two directions
-        P = pairs.shape[0]
-        ex_pair = ex[:P] | ex[P:]
-        keep &= ~np.concatenate([ex_pair, ex_pair])
-    i, j, d, rsq = i[keep], j[keep], d[keep], rsq[keep]
-    order = np.lexsort((j, i))
-    i, j, d, rsq = i[order], j[order], d[order], rsq[order]
-    counts = np.bincount(i, minlength=n).astype(np.int64)
+    # capacity: every candidate within a slightly larger ball (self included), so the
+    # output arrays are allocated once and rows are written block by block
+    cap = int(tree.query_ball_point(x, r_query * (1.0 + 1e-9), return_length=True).sum()) - n
+    neighbors = np.empty(cap, dtype=np.int64)
+    xi = np.empty((cap, 3))
+    rsq_b = np.empty(cap)
+    counts = np.zeros(n, dtype=np.int64)
+    per_row = max(1.0, cap / max(n, 1))
+    block = max(1, int(_BLOCK_BONDS // per_row))
+    pos = 0
+    for a in range(0, n, block):
+        b = min(n, a + block)
+        sdm = cKDTree(x[a:b]).sparse_distance_matrix(tree, r_query, output_type="ndarray")
+        i = sdm["i"].astype(np.int64) + a
+        j = sdm["j"].astype(np.int64)
+        del sdm
+        off = i != j
+        i, j = i[off], j[off]
+        # reference vectors and lengths evaluated as LAMMPS does (dx*dx + dy*dy + dz*dz)
+        d = x[j] - x[i]
+        rsq = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
+        keep = np.sqrt(rsq) < rmax if partial_volume == "linear" else rsq <= delta * delta
+        if exclude is not None:
+            # symmetric whatever the callable did (a bond through a segment's end point can
+            # test differently from its two ends): both directions of each candidate
+            ex = np.asarray(exclude(i, j, d), dtype=bool)
+            if ex.shape != i.shape:
+                raise ValueError(f"exclude returned shape {ex.shape}, expected {i.shape}")
+            ex_back = np.asarray(exclude(j, i, -d), dtype=bool)
+            keep &= ~(ex | ex_back)
+        i, j, d, rsq = i[keep], j[keep], d[keep], rsq[keep]
+        order = np.lexsort((j, i))
+        k = order.shape[0]
+        neighbors[pos:pos + k] = j[order]
+        xi[pos:pos + k] = d[order]
+        rsq_b[pos:pos + k] = rsq[order]
+        counts[a:b] = np.bincount(i - a, minlength=b - a)
+        pos += k
+    if pos < cap:                         # shrink in place (realloc): no second copy
+        for arr, shape in ((neighbors, (pos,)), (xi, (pos, 3)), (rsq_b, (pos,))):
+            arr.resize(shape, refcheck=False)
     offsets = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(counts, out=offsets[1:])
-    length = np.sqrt(rsq)
+    length = np.sqrt(rsq_b, out=rsq_b)
     if partial_volume is None:
         beta = np.ones_like(length)
     else:
         beta = _lammps_beta(length, delta, h)
-    fam = Family(offsets, np.ascontiguousarray(j), np.ascontiguousarray(d),
-                 np.ascontiguousarray(length), np.ascontiguousarray(beta), delta, h,
-                 partial_volume)
+    fam = Family(offsets, neighbors, xi, length, beta, delta, h, partial_volume)
     return fam
 
 

@@ -123,6 +123,9 @@ class IndefiniteWarning(UserWarning):
 
 
 # ---------------------------------------------------------------------------- tensors
+# pairs (or bonds) per block where per-bond matrices are formed (bounds the temporaries)
+_PAIR_BLOCK = 1 << 20
+
 _VOIGT = {2: {"standard": [(0, 0), (1, 1), (0, 1)]},
           3: {"standard": [(0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)],
               "tian": [(0, 0), (1, 1), (2, 2), (0, 1), (1, 2), (0, 2)]}}
@@ -730,14 +733,13 @@ class TiPD(Model):
         q = np.zeros((family.nb, 3))
         q[:, :d] = xi * np.sqrt(w / L ** 3)[:, None]
         self.q_bc = np.ascontiguousarray(q)
-        # the 2D kernel reads only (q_x, q_y): a contiguous (nb, 2) copy halves its traffic
-        self._q_kernel = np.ascontiguousarray(q[:, :2]) if d == 2 else self.q_bc
+        self._q_kernel_b = None
         if self.G0 is not None:
             self.s0 = self._critical_stretch()
         self.rc2_b = np.ascontiguousarray((L * (1.0 + self.s0)) ** 2) if self.needs.failure \
             else np.zeros(1)
         self._u = np.zeros((system.n, 3))
-        self._set_pair_stiffness(self.bond_matrices())
+        self._set_pair_stiffness()
         if self.surface == "correspondence":
             self._prepare_surface()
 
@@ -866,25 +868,34 @@ class TiPD(Model):
                             self._cB, state.y, 3, False, self._cbufF)
         reduce_buffers(self._cbufF, self._cinv_vol, out, d)
 
-    def _set_pair_stiffness(self, M_b) -> None:
-        """The pair form of the force from the bond matrices ``M_b`` (nb, d, d): on the
+    def _set_pair_stiffness(self) -> None:
+        """The pair form of the force from the bond matrices (:meth:`bond_matrices`): on the
         half-pair list (:mod:`upscale.engine.pairs`) ``K_p = V_i M_ij``, which equals
         ``V_j M_ji`` when the bond weights are symmetric (then each pair is computed once);
-        otherwise the directed-bond kernel is used."""
+        otherwise the directed-bond kernel is used. Evaluated in blocks of pairs, so the
+        temporaries stay bounded (the (nb, d, d) matrices of every bond are never held)."""
         from upscale.engine.pairs import half_pairs
 
         fam, d, V = self.family, self.dim, self.system.volume
         pr = half_pairs(fam)
-        Ki = M_b[pr.b] * V[pr.i][:, None, None]
-        Kj = M_b[pr.rb] * V[pr.j][:, None, None]
-        scale = max(np.abs(Ki).max(), 1e-300)
-        self._pair = self.kernel == "pair" and bool(np.abs(Ki - Kj).max() <= 1e-12 * scale)
+        comp = [(0, 0), (0, 1), (1, 1)] if d == 2 else [(0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)]
+        npair = pr.b.shape[0]
+        K_p = np.empty((npair, len(comp)))
+        big, asym = 1e-300, 0.0
+        for a in range(0, npair, _PAIR_BLOCK):
+            blk = slice(a, min(npair, a + _PAIR_BLOCK))
+            Ki = self.bond_matrices(pr.b[blk]) * V[pr.i[blk]][:, None, None]
+            Kj = self.bond_matrices(pr.rb[blk]) * V[pr.j[blk]][:, None, None]
+            big = max(big, np.abs(Ki).max(initial=0.0))
+            asym = max(asym, np.abs(Ki - Kj).max(initial=0.0))
+            for c, (p, q) in enumerate(comp):
+                K_p[blk, c] = 0.5 * (Ki[:, p, q] + Kj[:, p, q])
+        self._pair = self.kernel == "pair" and bool(asym <= 1e-12 * big)
         if not self._pair:
             self.pairs = None
             return
         self.pairs = pr
-        comp = [(0, 0), (0, 1), (1, 1)] if d == 2 else [(0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)]
-        self.K_p = np.ascontiguousarray(np.stack([0.5 * (Ki[:, a, b] + Kj[:, a, b]) for a, b in comp], 1))
+        self.K_p = K_p
         self.rc2_p = np.ascontiguousarray(self.rc2_b[pr.b]) if self.needs.failure else np.zeros(1)
         self._inv_vol = np.ascontiguousarray(1.0 / V)
         self._buf = pr.buffers(self.system.n, d)
@@ -913,11 +924,11 @@ class TiPD(Model):
         return float(np.sqrt(10 * self.G0 / (np.pi * c * fam.horizon ** 5)))
 
     # ------------------------------------------------------------------ checks
-    def bond_matrices(self) -> np.ndarray:
-        """M_b V_j beta (nb, d, d) of every directed bond (N/m^5 per unit volume weight;
-        ``b_i = sum_b M_b eta_b``)."""
+    def bond_matrices(self, bonds=None) -> np.ndarray:
+        """M_b V_j beta (nb, d, d) of every directed bond, or (k, d, d) of the directed bonds
+        ``bonds`` (N/m^5 per unit volume weight; ``b_i = sum_b M_b eta_b``)."""
         d = self.dim
-        q = self.q_bc[:, :d]
+        q = self.q_bc[:, :d] if bonds is None else self.q_bc[bonds, :d]
         return np.einsum("pqab,ka,kb->kpq", self.A4, q, q)
 
     def lattice_moment(self, particle: int | None = None) -> np.ndarray:
@@ -952,7 +963,11 @@ class TiPD(Model):
             reduce_buffers(buf, self._inv_vol, out, self.dim)
             return k
         kern = tipd_force_kernel_2d if self.dim == 2 else tipd_force_kernel_3d
-        return int(kern(f.offsets, f.neighbors, self._q_kernel, self.A, u, state.y,
+        if self._q_kernel_b is None:
+            # the 2D kernel reads only (q_x, q_y): a contiguous (nb, 2) copy halves its
+            # traffic (made on first use: the pair kernel does not need it)
+            self._q_kernel_b = np.ascontiguousarray(self.q_bc[:, :2]) if self.dim == 2 else self.q_bc
+        return int(kern(f.offsets, f.neighbors, self._q_kernel_b, self.A, u, state.y,
                         state.intact, self.rc2_b, fail, out))
 
     def add_force(self, state, out):
@@ -1029,7 +1044,10 @@ class TiPD(Model):
         correction's correspondence bound, as in
         :meth:`upscale.models.correspondence.Correspondence.stiffness_bound`)."""
         f = self.family
-        M = np.abs(self.bond_matrices()).sum(axis=2).max(axis=1)
+        M = np.empty(f.nb)
+        for a in range(0, f.nb, _PAIR_BLOCK):          # blocks: no (nb, d, d) temporaries
+            blk = np.arange(a, min(f.nb, a + _PAIR_BLOCK))
+            M[blk] = np.abs(self.bond_matrices(blk)).sum(axis=2).max(axis=1)
         R = 2.0 * np.bincount(f.owner, weights=M, minlength=f.n)
         if self.surface != "none":
             d = self.dim

@@ -5,7 +5,8 @@ scene's coalescence bookkeeping:
 Each variant at dx = 0.5 mm (m = 3) and dx/2 (m = 6, the traction on the same 0.5 mm layer),
 as in ``python -m validation tipd-branching --refine fixed-delta``; ``quarter`` is dx/4
 (m = 12, the same horizon and loaded layer: one more step of the fixed-horizon refinement).
-KEY (e.g. ``pmb_12MPa``, ``tipd_osb_24MPa``) picks variants; default all three. The last
+KEY (e.g. ``pmb_12MPa``, ``tipd_osb_24MPa``) picks variants; default all four (the last,
+``tipd_tipd_24MPa``, is the pair that misses with the partial-volume rule). The last
 argument is the partial-volume rule (default linear, the scene's; the stored
 ``tipd_branching_subset_{coarse,fine}.json`` were made with none)."""
 import json
@@ -16,7 +17,7 @@ import numpy as np
 
 from upscale.experiments.tipd_branching import branching
 
-VARIANTS = [("tipd", "osb", 24e6), ("tipd", "osb", 12e6), ("pmb", "tipd", 12e6)]
+VARIANTS = [("tipd", "osb", 24e6), ("tipd", "osb", 12e6), ("pmb", "tipd", 12e6), ("tipd", "tipd", 24e6)]
 DX = 5e-4
 
 
