@@ -91,3 +91,23 @@ def test_explicit_smooth_rise_removes_the_start_vibration():
             assert np.isclose(d[j], 0.5 * v * (t[j] - rise / np.pi * np.sin(np.pi * t[j] / rise)), rtol=1e-12)
     assert dev[0.0] > 0.01
     assert dev[0.5 * T] < 0.3 * dev[0.0]
+
+
+def test_convergence_fixed_ratio_alone_runs_the_coarsest_spacing():
+    """``scb-convergence --modes "fixed r_s/dx"``: the coarsest spacing is the start of both
+    modes, so it is run under the one mode asked for, and the change to the finer spacing
+    is reported (r_s = ratio * dx at both)."""
+    import argparse
+
+    from validation.cases.scb import run_convergence
+
+    args = argparse.Namespace(quick=True, dxs="3e-3,2e-3", alphas="0", r_s=6e-3,
+                              modes="fixed r_s/dx", criterion="principal")
+    out = run_convergence(args)
+    assert [(r["dx mm"], r["r_s mm"], r["mode"]) for r in out["rows"]] == [
+        (3.0, 6.0, "fixed r_s/dx"), (2.0, 4.0, "fixed r_s/dx")]
+    (c,) = out["changes"]
+    a, b = (r["P_c kN"] for r in out["rows"])
+    assert c["mode"] == "fixed r_s/dx" and np.isclose(c["change_pct"], 100 * (b / a - 1))
+    assert out["P_c_change_pct_max_fixed_ratio"] == abs(c["change_pct"])
+    assert out["P_c_change_pct_max"] is None

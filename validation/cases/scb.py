@@ -429,7 +429,10 @@ def run_convergence(args):
     for al in alphas:
         for dx in dxs:
             for mode in modes:
-                if mode == "fixed r_s/dx" and (dx == dxs[0] or al not in ratio_alphas):
+                # (the coarsest spacing is both modes' start: run once, as "fixed m" when
+                # that mode is asked for)
+                if mode == "fixed r_s/dx" and (al not in ratio_alphas
+                                               or (dx == dxs[0] and "fixed m" in modes)):
                     continue
                 one(al, dx, 3.0, mode, r_s if mode == "fixed m" else ratio * dx)
         for m in ms:
