@@ -1,12 +1,13 @@
 """Profile and CPU time of the bench-dcbr-seed coarse run (clamped grips, 8 Å band, RESPA
 5 x 1 fs, seed 12345, one process). Usage:
-  dcbr_seed_profile.py N M K run|prof OUT
+  dcbr_seed_profile.py N M K run|prof|groups OUT
 (from the repository root with PYTHONPATH=$PWD NUMBA_NUM_THREADS=1). ``run`` prints the
 dynamics' wall and CPU time per simulated ps (CPU: the engine loop, Simulation.run) and
 the strength, modulus and strain at peak to 15 digits, and saves the final positions,
 shifts and stress curve to OUT.npz (compare two trees' files with np.array_equal);
 ``prof`` also writes a cProfile of the whole run to OUT.prof and prints the engine loop's
-parts (figures in validation/results/engine.md)."""
+parts (figures in validation/results/engine.md); ``groups`` prints the time of one evaluation
+of each force group under the default and the atoms-free split."""
 import sys
 import time
 
@@ -23,6 +24,27 @@ ref = lammps_reference_or_run(n, m, DYN_LENGTH, vacancy=True, protocol="dynamic"
 model, dyn = dynamic_scene(n, m, DYN_LENGTH, K, ref, grips="clamped", region="band",
                            r_atomistic=8.0)
 dyn.pop("grips")
+if mode == "groups":
+    # median wall time of one evaluation of each force group, default split and atoms-free
+    # split (fast_interface, fast_ghost), at the reference lattice moved by 1e-4 Å noise
+    from upscale.engine.respa import RESPA
+    from upscale.engine.simulation import Simulation
+    from upscale.models.dcbr_engine import DCBRDefectTubeModel
+
+    for free in (False, True):
+        em = DCBRDefectTubeModel(model, fast_interface=free, fast_ghost=free)
+        st = Simulation(em.system(), None, em, em.conditions(), RESPA(5.0, 5, force=True)).state
+        rng = np.random.default_rng(0)
+        em._group(st, "fast"), em._group(st, "slow")  # (compilation)
+        for g in ("fast", "slow"):
+            ts = []
+            for _ in range(50):
+                st.y[em.y_rows] += 1e-4 * rng.standard_normal((len(em.y_rows), 3))
+                t0 = time.perf_counter()
+                em._group(st, g)
+                ts.append(time.perf_counter() - t0)
+            print(f"| {'atoms-free' if free else 'default'} | {g} | {1e3 * np.median(ts):.3f} ms |")
+    sys.exit(0)
 dyn.update(integrator="respa", outer_dt=5.0, inner=5)
 _run, CPU = S.Simulation.run, [0.0]
 
