@@ -26,7 +26,8 @@ model, dyn = dynamic_scene(n, m, DYN_LENGTH, K, ref, grips="clamped", region="ba
 dyn.pop("grips")
 if mode == "groups":
     # median wall time of one evaluation of each force group, default split and atoms-free
-    # split (fast_interface, fast_ghost), at the reference lattice moved by 1e-4 Å noise
+    # split (fast_interface, fast_ghost), at the reference lattice moved by 1e-4 Å noise, without the
+    # transfer of prepare_split
     from upscale.engine.respa import RESPA
     from upscale.engine.simulation import Simulation
     from upscale.models.dcbr_engine import DCBRDefectTubeModel
