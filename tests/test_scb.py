@@ -111,3 +111,22 @@ def test_convergence_fixed_ratio_alone_runs_the_coarsest_spacing():
     assert c["mode"] == "fixed r_s/dx" and np.isclose(c["change_pct"], 100 * (b / a - 1))
     assert out["P_c_change_pct_max_fixed_ratio"] == abs(c["change_pct"])
     assert out["P_c_change_pct_max"] is None
+
+
+def test_convergence_both_modes_share_the_coarsest_spacing():
+    """With both modes the coarsest spacing runs once (stored as "fixed m") and is the start
+    of both changes; the finer spacing runs once per mode."""
+    import argparse
+
+    from validation.cases.scb import run_convergence
+
+    args = argparse.Namespace(quick=True, dxs="3e-3,2e-3", alphas="0", r_s=6e-3,
+                              modes="fixed m,fixed r_s/dx", criterion="principal")
+    out = run_convergence(args)
+    assert [(r["dx mm"], r["r_s mm"], r["mode"]) for r in out["rows"]] == [
+        (3.0, 6.0, "fixed m"), (2.0, 6.0, "fixed m"), (2.0, 4.0, "fixed r_s/dx")]
+    P = [r["P_c kN"] for r in out["rows"]]
+    by_mode = {c["mode"]: c["change_pct"] for c in out["changes"]}
+    assert set(by_mode) == {"fixed m", "fixed r_s/dx"}
+    assert np.isclose(by_mode["fixed m"], 100 * (P[1] / P[0] - 1))
+    assert np.isclose(by_mode["fixed r_s/dx"], 100 * (P[2] / P[0] - 1))

@@ -422,6 +422,11 @@ def run_convergence(args):
                      "stop": c["stop_reason"], "wall s": res["wall_s"]})
         print(rows[-1], flush=True)
 
+    def stored_mode(dx, mode):
+        """The mode a run is made and stored under: the coarsest spacing is the start of
+        both modes and runs once, as "fixed m" when that mode is asked for."""
+        return "fixed m" if dx == dxs[0] and "fixed m" in modes else mode
+
     def have(al, dx, m, r):
         return any(r_["alpha"] == al and abs(r_["dx mm"] - dx * 1e3) < 1e-9 and abs(r_["delta/dx"] - m) < 1e-9
                    and abs(r_["r_s mm"] - r * 1e3) < 1e-9 for r_ in rows)
@@ -429,10 +434,8 @@ def run_convergence(args):
     for al in alphas:
         for dx in dxs:
             for mode in modes:
-                # (the coarsest spacing is both modes' start: run once, as "fixed m" when
-                # that mode is asked for)
-                if mode == "fixed r_s/dx" and (al not in ratio_alphas
-                                               or (dx == dxs[0] and "fixed m" in modes)):
+                if stored_mode(dx, mode) != mode or (mode == "fixed r_s/dx"
+                                                     and al not in ratio_alphas):
                     continue
                 one(al, dx, 3.0, mode, r_s if mode == "fixed m" else ratio * dx)
         for m in ms:
@@ -453,8 +456,8 @@ def run_convergence(args):
 
     def P_of(al, dx, mode, m=3.0):
         for r in rows:
-            if r["alpha"] == al and r["dx mm"] == dx * 1e3 and r["delta/dx"] == m and (
-                    r["mode"] == mode or (dx == dxs[0] and r["mode"] == "fixed m")):
+            if (r["alpha"] == al and r["dx mm"] == dx * 1e3 and r["delta/dx"] == m
+                    and r["mode"] == stored_mode(dx, mode)):
                 return r["P_c kN"]
         return None
 
