@@ -81,7 +81,7 @@ def test_slow_group_without_the_atoms(tube):
     m0 = _perturbed_model(tube, 5)
     m = DCBRDefectTubeModel(tube, y=m0.y0, delta=m0.delta0, Lz=m0.Lz, fast_interface=True,
                             fast_ghost=True)
-    assert len(m._interface()[0]) > 0
+    assert len(m._interface()[0][0]) > 0  # (interface rows)
     sims = [Simulation(k.system(), None, k, k.conditions(), VelocityVerlet(1.0, force=True))
             for k in (m0, m)]
     s0 = _split(m0, sims[0].state)
@@ -95,6 +95,31 @@ def test_slow_group_without_the_atoms(tube):
         s, F = _assert_split_adds_up(m, st)
         assert np.abs(s["slow"][0][m.atom_rows]).max() == 0.0
         assert np.abs(s["slow"][0]).max() > 1e-3 * np.abs(F).max()
+
+
+def test_interface_rows_and_the_rest_add_up_to_the_coarse_part(tube):
+    """The interface particles and all the others partition the particles, own every
+    hourglass link between them, and their restricted parts (G, maps and G^T on their rows
+    only) add up to the whole coarse part: energy, dE/d(particle positions), dE/d delta."""
+    m0 = _perturbed_model(tube, 4)
+    m = DCBRDefectTubeModel(tube, y=m0.y0, delta=m0.delta0, Lz=m0.Lz, fast_interface=True,
+                            fast_ghost=True)
+    iface, rest = m._interface()
+    rows = np.sort(np.r_[iface[0], rest[0]])
+    assert np.array_equal(rows, np.arange(m.N)) and len(iface[0]) and len(rest[0])
+    st = tube._st
+    nl = [len(p[2]["c"]) if p[2] is not None else 0 for p in (iface, rest)]
+    assert sum(nl) == len(st["c"]) and min(nl) > 0
+    yp = m._particle_positions(m.y0)
+    d = np.ascontiguousarray(m.delta0)
+    E, _, P, gd, gys, _ = tube._coarse_part(yp, d, m.Lz)
+    gy = gys - tube.gain.forces(P)
+    parts = [m._rows_part(yp, d, p) for p in (iface, rest)]
+    scale = np.abs(gy).max()
+    assert parts[0][0] + parts[1][0] == pytest.approx(E, rel=1e-12, abs=1e-10)
+    assert np.abs(parts[0][1] + parts[1][1] - gy).max() < 1e-12 * scale
+    assert np.abs(parts[0][2] + parts[1][2] - gd).max() < 1e-12 * max(np.abs(gd).max(), 1.0)
+    assert np.abs(parts[0][1]).max() > 1e-6 * scale
 
 
 def test_transfer_takes_the_constant_part_of_the_slow_forces(tube):

@@ -341,15 +341,17 @@ class DCBRDefectTubeModel:
         :mod:`upscale.models.dcbr_defect`), with the ghost-force dead load, at unknowns
         ``y`` and shifts ``d``; a slave's part folded into its atoms as in the total. (The
         dead load is nearly constant: its constant part goes to the fast group with the
-        transfer of :meth:`prepare_split`.)"""
+        transfer of :meth:`prepare_split`.) With ``fast_interface`` the sum runs over the
+        particles other than the interface ones (:meth:`_rows_part`), which are fast."""
         t = self.tube
         d = np.ascontiguousarray(d, dtype=float)
         yp = self._particle_positions(y)
-        E, _, P, gd, gys, _ = t._coarse_part(yp, d, self.Lz)
-        gyp = gys - t.gain.forces(P)
-        b = self._interface_part(yp, d)
-        if b is not None:  # (fast: :meth:`_fast_eval`)
-            E, gyp, gd = E - b[0], gyp - b[1], gd - b[2]
+        it = self._interface()
+        if it is None:
+            E, _, P, gd, gys, _ = t._coarse_part(yp, d, self.Lz)
+            gyp = gys - t.gain.forces(P)
+        else:  # the interface particles are fast (:meth:`_fast_eval`): the rest only
+            E, gyp, gd = self._rows_part(yp, d, it[1])
         if self.fast_ghost:
             return float(E), self._fold(y, gyp, None), gd
         return self._ghost_term(y, d, float(E), self._fold(y, gyp, None), gd)
@@ -483,8 +485,8 @@ class DCBRDefectTubeModel:
         cnt = np.diff(g.offsets)[rows]
         offs = np.zeros(len(rows) + 1, np.int64)
         np.cumsum(cnt, out=offs[1:])
-        ent = np.concatenate([np.arange(g.offsets[i], g.offsets[i + 1]) for i in rows]) \
-            if len(rows) else np.zeros(0, np.int64)
+        ent = (np.repeat(g.offsets[rows] - offs[:-1], cnt)
+               + np.arange(offs[-1], dtype=np.int64))  # (each row's stencil entries)
         sel = {k: (None if getattr(g, k) is None else getattr(g, k)[rows])
                for k in ("F0", "frame", "normal", "n_family", "alive", "offset")}
         return dataclasses.replace(g, offsets=offs, neighbors=g.neighbors[ent],
@@ -510,8 +512,10 @@ class DCBRDefectTubeModel:
     def _interface(self):
         """The interface particles (``fast_interface``): the coarse particles with a slave
         particle in their G stencil, whose maps (and hourglass links) therefore move with
-        the atoms; (rows (nb,), their hourglass links (a dict of the link arrays)) or None;
-        rebuilt with G and the links."""
+        the atoms. Returns None, or ``(iface, rest)``: each a tuple (rows (n,), G restricted
+        to them (:meth:`_restricted_gain`), the hourglass links they own (a dict of the link
+        arrays, or None)) for the interface particles and for all the others; rebuilt with
+        G and the links."""
         t = self.tube
         g = t.gain
         if not self.fast_interface or not len(t.slave_idx):
@@ -526,56 +530,68 @@ class DCBRDefectTubeModel:
         hit = np.zeros(self.N, bool)
         np.logical_or.at(hit, owner, slave[g.neighbors])
         hit = (hit | slave) & (t.natoms_n > 0)  # (a slave with atoms of its own: itself)
-        rows = np.nonzero(hit)[0]
-        links = None
-        if st is not None and t.k_stab != 0.0 and len(st["c"]):
-            keep = hit[st["c"]]
-            links = {k: np.ascontiguousarray(v[keep]) if isinstance(v, np.ndarray)
-                     and len(v) == len(keep) else v for k, v in st.items()}
-        out = (rows, links) if len(rows) else None
+        out = None
+        if hit.any():
+            parts = []
+            for sel in (hit, ~hit):
+                rows = np.nonzero(sel)[0]
+                links = None
+                if st is not None and t.k_stab != 0.0 and len(st["c"]):
+                    keep = sel[st["c"]]
+                    if keep.any():
+                        links = {k: np.ascontiguousarray(v[keep]) if isinstance(v, np.ndarray)
+                                 and len(v) == len(keep) else v for k, v in st.items()}
+                parts.append((rows, self._restricted_gain(rows), links))
+            out = tuple(parts)
         self._iface = (key, out)
         return out
 
-    def _interface_part(self, yp, d):
-        """(E_b, dE_b/d(particle positions) (N,3), dE_b/d delta (N,3)) of the interface
-        particles' lattice energy and hourglass links, sum_{c in b} w_c (e(C_c, delta_c)
-        - e0) + W_stab,c, or None (the same kernels and maps as the whole coarse part, on
-        these owners only, so that E_c - E_b + E_b = E_c to round-off)."""
+    def _rows_part(self, yp, d, part):
+        """(E_r, dE_r/d(particle positions) (N,3), dE_r/d delta (N,3)) of the lattice energy
+        and the hourglass links of the particles of ``part`` (one of :meth:`_interface`),
+        sum_{c in part} w_c (e(C_c, delta_c) - e0) + W_stab,c: the kernels of the whole
+        coarse part (:meth:`DCBRTube._coarse_part`) on these owners only, with G, the maps
+        and G^T restricted to their rows, so that the interface part and the rest add up
+        to the whole to round-off."""
         from upscale.models import dcbr_coupling_kernels as CK  # noqa: PLC0415
         from upscale.models import dcbr_kernels as K  # noqa: PLC0415
 
-        it = self._interface()
-        if it is None:
-            return None
-        rows, links = it
+        rows, sg, links = part
         t, N = self.tube, self.N
         lat = t.lattice
-        F = t.gain.deformation(yp, np.array([0.0, 0.0, self.Lz]))
-        nb = len(rows)
-        Pb = np.empty((nb, 3, 2))
-        gds = np.empty((nb, 3))
-        e = np.empty(nb)
-        q = np.zeros((nb, 6))
-        E = K.coarse_energy(np.ascontiguousarray(F[rows]), np.ascontiguousarray(t.S[rows]),
-                            np.ascontiguousarray(d[rows]), np.ascontiguousarray(t.natoms_n[rows]),
+        F = sg.deformation(yp, np.array([0.0, 0.0, self.Lz]))
+        nr = len(rows)
+        P = np.empty((nr, 3, 2))
+        gds = np.empty((nr, 3))
+        S = np.ascontiguousarray(t.S[rows])
+        E = K.coarse_energy(F, S, np.ascontiguousarray(d[rows]),
+                            np.ascontiguousarray(t.natoms_n[rows]),
                             np.ascontiguousarray(t.alive[rows]), lat.s, lat.z, lat.sub, lat.R0,
-                            lat.iA, lat.iB, lat.candA, lat.candB, t.p, t.e0, Pb, gds, e, q)
+                            lat.iA, lat.iB, lat.candA, lat.candB, t.p, t.e0, P, gds,
+                            np.empty(nr), np.zeros((nr, 6)))
         if not t.relax_shift:
             gds[:] = 0.0
-        P = np.zeros((N, 3, 2))
         gys = np.zeros((N, 3))
         if links is not None:
-            _, par, Q3, _ = t._map_frames(F)
+            ga = sg.alive if sg.alive is not None else np.ones(nr, bool)
+            par_r = np.empty((nr, 3))
+            Q3_r = np.empty((nr, 3, 3))
+            CK.map_frames(F, S, ga, np.ascontiguousarray(t.alive[rows]), np.empty((nr, 3, 2)),
+                          par_r, Q3_r, np.empty(nr, np.int8))
+            par = np.zeros((N, 3))  # (the links index their owners among all N)
+            Q3 = np.zeros((N, 3, 3))
+            par[rows] = par_r
+            Q3[rows] = Q3_r
             gQ3 = np.zeros((N, 3, 3))
             gpar = np.zeros((N, 3))
             Es, _ = CK.stab_links(np.ascontiguousarray(yp, dtype=float), float(self.Lz),
                                   links["c"], links["j"], links["imz"], links["w"], links["ds"],
                                   links["dz"], links["r0"], links["a"], links["s"], t.k_stab,
                                   lat.R0, par, Q3, gys, np.zeros(N), gQ3, gpar)
-            CK.frame_adjoint(np.ascontiguousarray(F), t.S, t.gain.alive, par, Q3, gQ3, gpar, P)
+            CK.frame_adjoint(F, S, ga, par_r, Q3_r, np.ascontiguousarray(gQ3[rows]),
+                             np.ascontiguousarray(gpar[rows]), P)
             E += Es
-        P[rows] += Pb
-        gyp = gys - t.gain.forces(P)
+        gyp = gys - sg.forces(P, out=np.empty((N, 3)))
         gd = np.zeros((N, 3))
         gd[rows] = gds
         return float(E), gyp, gd
@@ -632,8 +648,9 @@ class DCBRDefectTubeModel:
         gyp[rows] += gys
         gd = np.zeros((N, 3))
         gd[rows] = gds
-        b = self._interface_part(yp, dc)
-        if b is not None:
+        it = self._interface()
+        if it is not None:
+            b = self._rows_part(yp, dc, it[0])
             E, gyp, gd = E + b[0], gyp + b[1], gd + b[2]
         gy = self._fold(y, gyp, gx[:nf])
         if self.fast_ghost:
