@@ -44,6 +44,10 @@ def _args(p):
                    help="respa: outer step of the coarse forces, fs (default 5)")
     p.add_argument("--inner", type=int, default=5,
                    help="respa: 1 fs steps of the atomistic region per outer step (default 5)")
+    p.add_argument("--mts-split", choices=("default", "atoms-free"), default="default",
+                   help="respa: which forces are slow (default: every coarse particle's; "
+                        "atoms-free: those of the particles without a slave in their G "
+                        "stencil, and the ghost-force dead load fast)")
     p.add_argument("--region", choices=("band", "disc", "ellipse"), default="band",
                    help="the coarse model's atomistic region about the vacancy (default band, "
                         "the one whose crack path is atomistic; ellipse: --r-atomistic along "
@@ -149,7 +153,11 @@ def _bench(args):
         dyn.pop("grips")
         build = time.perf_counter() - t0
         if args.integrator == "respa":
-            dyn.update(integrator="respa", outer_dt=args.outer_dt, inner=args.inner)
+            dyn.update(integrator="respa", outer_dt=args.outer_dt, inner=args.inner,
+                       split=args.mts_split)
+        elif args.mts_split != "default":
+            raise SystemExit(f"--mts-split {args.mts_split} with --integrator "
+                             f"{args.integrator}; valid: --mts-split needs --integrator respa")
         rc = coarse_dynamic(model, **dyn)
         wall_c, cpu_c = time.perf_counter() - t0, time.process_time() - c0
         atoms = build_structure(_spec("dynamic", n, m, True, DYN_LENGTH))
@@ -175,6 +183,7 @@ def _bench(args):
         # per simulated picosecond (LAMMPS at its 1 fs step, the coarse model at its own:
         # with multiple time stepping one outer step of dt_fs)
         row.update({"coarse_integrator": args.integrator, "coarse_dt_fs": rc["dt_fs"],
+                    "coarse_mts_split": args.mts_split if args.integrator == "respa" else None,
                     "coarse_inner_steps": rc.get("inner_steps"), "region": args.region,
                     "r_atomistic_A": args.r_atomistic,
                     "free_atoms": model.nf,
