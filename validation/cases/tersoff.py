@@ -223,6 +223,11 @@ def run_tersoff_vs_lammps(args) -> dict:
 
 
 # -- case: bench-tersoff --------------------------------------------------------------------
+#: ``bench-tersoff`` passes when every structure's one-core time per atom-step through the
+#: calculator is at most this fraction of LAMMPS ``pair_style tersoff``'s (the speed target
+#: the project holds Tersoff to)
+TIME_RATIO_TARGET = 0.6
+
 def bench_structure(kind: str, n_target: int):
     """Diamond (cubic cells) or AB graphite with about ``n_target`` atoms, rattled 0.02 A."""
     from ase.build import bulk, graphene
@@ -405,5 +410,6 @@ def run_bench_tersoff(args) -> dict:
         out[f"us_per_atom_step_{tag}"] = round(r["ours_1t_us"], 4)
         out[f"lammps_us_per_atom_step_{tag}"] = round(r["lammps_1t_us"], 4)
     out["max_time_ratio_vs_lammps"] = round(max(r["ratio_1t"] for r in rows), 4)
-    out["pass"] = bool(out["max_time_ratio_vs_lammps"] <= 1.5)
+    out["time_ratio_target"] = TIME_RATIO_TARGET
+    out["pass"] = bool(out["max_time_ratio_vs_lammps"] <= TIME_RATIO_TARGET)
     return out
