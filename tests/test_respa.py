@@ -97,6 +97,16 @@ def test_slow_group_without_the_atoms(tube):
         assert np.abs(s["slow"][0]).max() > 1e-3 * np.abs(F).max()
 
 
+def test_split_by_name(tube):
+    """``split=`` sets both flags of the split by name; an unknown name is a one-line error."""
+    m = DCBRDefectTubeModel(tube, split="atoms-free")
+    assert m.fast_interface and m.fast_ghost
+    m = DCBRDefectTubeModel(tube, fast_interface=True, split="default")
+    assert not (m.fast_interface or m.fast_ghost)
+    with pytest.raises(ValueError, match="split='none'; valid: 'default', 'atoms-free'"):
+        DCBRDefectTubeModel(tube, split="none")
+
+
 def test_interface_rows_and_the_rest_add_up_to_the_coarse_part(tube):
     """The interface particles and all the others partition the particles, own every
     hourglass link between them, and their restricted parts (G, maps and G^T on their rows

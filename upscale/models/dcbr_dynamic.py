@@ -368,9 +368,9 @@ def _engine_loop(tube, st, y, d, v, vd, L0, mass, mass_d, movable, dfree, ndf, t
     multiple-time-step integrator :class:`~upscale.engine.respa.RESPA` instead, ``dt``
     its outer step and ``inner`` fast steps in each (the force split of
     :meth:`~upscale.models.dcbr_engine.DCBRDefectTubeModel.add_group_force`), the steps
-    counted and sampled as outer steps; ``split="atoms-free"`` moves the interface particles
-    and the ghost-force dead load to the fast group (the model's ``fast_interface``,
-    ``fast_ghost``). Returns (steps, y, delta, wall s of the dynamics)."""
+    counted and sampled as outer steps; ``split`` names the model's force split
+    (:data:`~upscale.models.dcbr_engine.SPLITS`). Returns (steps, y, delta, wall s of the
+    dynamics)."""
     import json  # noqa: PLC0415
     import time as _time  # noqa: PLC0415
     from pathlib import Path  # noqa: PLC0415
@@ -384,8 +384,7 @@ def _engine_loop(tube, st, y, d, v, vd, L0, mass, mass_d, movable, dfree, ndf, t
     from upscale.models.dcbr_engine import FIELD, DCBRDefectTubeModel  # noqa: PLC0415
 
     t0 = _time.perf_counter()
-    free = split == "atoms-free"
-    em = DCBRDefectTubeModel(tube, y=y, delta=d, Lz=L0, fast_interface=free, fast_ghost=free)
+    em = DCBRDefectTubeModel(tube, y=y, delta=d, Lz=L0, split=split)
     system = em.system()
     n, N = em.n, em.N
     rows = em.y_rows
@@ -664,8 +663,10 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     if not (temperature >= 0 and tdamp > 0):
         raise ValueError(f"temperature={temperature!r} K, tdamp={tdamp!r} fs; valid: "
                          "temperature >= 0 (0: no thermostat), tdamp > 0")
-    if split not in ("default", "atoms-free"):
-        raise ValueError(f"split={split!r}; valid: 'default' or 'atoms-free'")
+    from upscale.models.dcbr_engine import SPLITS  # noqa: PLC0415
+
+    if split not in SPLITS:
+        raise ValueError(f"split={split!r}; valid: {', '.join(map(repr, SPLITS))}")
     if split != "default" and integrator != "respa":
         raise ValueError(f"split={split!r} with integrator={integrator!r}; valid: a split "
                          "other than 'default' needs integrator='respa'")

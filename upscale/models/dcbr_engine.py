@@ -55,6 +55,10 @@ FIELD = "dcbr.delta"
 
 _GHOST = ("y", "d", "gy", "gd")
 
+#: the force splits by name (``DCBRDefectTubeModel(split=...)``): the flags each sets
+SPLITS = {"default": {"fast_interface": False, "fast_ghost": False},
+          "atoms-free": {"fast_interface": True, "fast_ghost": True}}
+
 
 class DCBRDefectTubeModel:
     """A :class:`~upscale.models.dcbr_defect.DCBRDefectTube` as an engine model (module
@@ -86,6 +90,9 @@ class DCBRDefectTubeModel:
         group; ``fast_ghost`` the ghost-force dead load (in cylindrical components, so not
         constant on a vibrating atom). Without them (default) those forces reach the atoms
         as impulses once per outer step. Both cost their terms at every inner step.
+    split : str, optional
+        The two flags by name (:data:`SPLITS`): ``"default"`` neither, ``"atoms-free"``
+        both; given, it overrides them.
     """
 
     name = "dcbr-defect-tube"
@@ -94,13 +101,18 @@ class DCBRDefectTubeModel:
     def __init__(self, tube, *, y=None, delta=None, Lz: float | None = None,
                  failure: bool = False, stability: bool = False,
                  unit: float = ACC_EV_A_AMU_IN_A_FS2, fast_interface: bool = False,
-                 fast_ghost: bool = False):
+                 fast_ghost: bool = False, split: str | None = None):
         from upscale.models.base import Needs
         from upscale.models.dcbr_defect import DCBRDefectTube
 
         if not isinstance(tube, DCBRDefectTube):
             raise ValueError(f"DCBRDefectTubeModel takes a DCBRDefectTube, got "
                              f"{type(tube).__name__}")
+        if split is not None:
+            if split not in SPLITS:
+                raise ValueError(f"split={split!r}; valid: {', '.join(map(repr, SPLITS))}")
+            fast_interface, fast_ghost = (SPLITS[split][k] for k in ("fast_interface",
+                                                                   "fast_ghost"))
         if not (np.isfinite(unit) and unit > 0):
             raise ValueError(f"unit={unit!r}; valid: a positive mass unit factor")
         self.tube = tube

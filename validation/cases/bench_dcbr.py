@@ -44,7 +44,9 @@ def _args(p):
                    help="respa: outer step of the coarse forces, fs (default 5)")
     p.add_argument("--inner", type=int, default=5,
                    help="respa: 1 fs steps of the atomistic region per outer step (default 5)")
-    p.add_argument("--mts-split", choices=("default", "atoms-free"), default="default",
+    from upscale.models.dcbr_engine import SPLITS
+
+    p.add_argument("--mts-split", choices=tuple(SPLITS), default="default",
                    help="respa: which forces are slow (default: every coarse particle's; "
                         "atoms-free: those of the particles without a slave in their G "
                         "stencil, and the ghost-force dead load fast)")

@@ -476,8 +476,7 @@ def _mts_nve(args, n, m):
                                                         / mass_d)[:, None]
             vd[tube.slave_idx] = 0.0
             em = DCBRDefectTubeModel(tube, y=y, delta=d, Lz=Lz,
-                                     fast_interface=args.mts_atoms_fast,
-                                     fast_ghost=args.mts_atoms_fast)
+                                     split="atoms-free" if args.mts_atoms_fast else "default")
             sim = Simulation(em.system(), None, em, em.conditions(), integ)
             st = sim.state
             st.v[em.y_rows] = v

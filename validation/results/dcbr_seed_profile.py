@@ -32,8 +32,8 @@ if mode == "groups":
     from upscale.engine.simulation import Simulation
     from upscale.models.dcbr_engine import DCBRDefectTubeModel
 
-    for free in (False, True):
-        em = DCBRDefectTubeModel(model, fast_interface=free, fast_ghost=free)
+    for split in ("default", "atoms-free"):
+        em = DCBRDefectTubeModel(model, split=split)
         st = Simulation(em.system(), None, em, em.conditions(), RESPA(5.0, 5, force=True)).state
         rng = np.random.default_rng(0)
         em._group(st, "fast"), em._group(st, "slow")  # (compilation)
@@ -44,7 +44,7 @@ if mode == "groups":
                 t0 = time.perf_counter()
                 em._group(st, g)
                 ts.append(time.perf_counter() - t0)
-            print(f"| {'atoms-free' if free else 'default'} | {g} | {1e3 * np.median(ts):.3f} ms |")
+            print(f"| {split} | {g} | {1e3 * np.median(ts):.3f} ms |")
     sys.exit(0)
 dyn.update(integrator="respa", outer_dt=5.0, inner=5)
 _run, CPU = S.Simulation.run, [0.0]
