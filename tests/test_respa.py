@@ -97,12 +97,39 @@ def test_slow_group_without_the_atoms(tube):
         assert np.abs(s["slow"][0]).max() > 1e-3 * np.abs(F).max()
 
 
+@pytest.mark.parametrize("split", ["interface", "ghost"])
+def test_one_flag_splits_add_up(tube, split):
+    """The two one-flag splits add up to the total too (with the transfer), and the ghost
+    split's slow group is the default's less the ghost-force dead load: the slow forces of
+    the two differ by exactly the dead load's (the tube's own apply_ghost_load)."""
+    m0 = _perturbed_model(tube, 6)
+    m = DCBRDefectTubeModel(tube, y=m0.y0, delta=m0.delta0, Lz=m0.Lz, split=split)
+    sim = Simulation(m.system(), None, m, m.conditions(), VelocityVerlet(1.0, force=True))
+    st = sim.state
+    m.prepare_split(st)
+    st.y[m.y_rows] += 0.01 * np.random.default_rng(2).standard_normal((len(m.y_rows), 3))
+    s, F = _assert_split_adds_up(m, st)
+    if split == "ghost":
+        y, d = m.unknowns(st)
+        _, gy, gd = m0._coarse_eval(y, d)
+        _, gys, gds = m._coarse_eval(y, d)
+        _, gy_ghost, gd_ghost, applied = tube.apply_ghost_load(
+            y, d, m.Lz, 0.0, np.zeros_like(y), np.zeros_like(d))
+        assert applied and np.abs(gy_ghost).max() > 1e-6
+        assert np.abs(gy - gys - gy_ghost).max() < 1e-12 * np.abs(gy).max()
+        assert np.abs(gd - gds - gd_ghost).max() < 1e-12 * max(np.abs(gd).max(), 1.0)
+
+
 def test_split_by_name(tube):
-    """``split=`` sets both flags of the split by name; an unknown name is a one-line error."""
+    """``split=`` sets both flags of the split by name (each of the four); an unknown name is a one-line error."""
     m = DCBRDefectTubeModel(tube, split="atoms-free")
     assert m.fast_interface and m.fast_ghost
     m = DCBRDefectTubeModel(tube, fast_interface=True, split="default")
     assert not (m.fast_interface or m.fast_ghost)
+    m = DCBRDefectTubeModel(tube, split="interface")
+    assert m.fast_interface and not m.fast_ghost
+    m = DCBRDefectTubeModel(tube, fast_interface=True, split="ghost")
+    assert m.fast_ghost and not m.fast_interface
     with pytest.raises(ValueError, match="split='none'; valid: 'default', 'atoms-free'"):
         DCBRDefectTubeModel(tube, split="none")
 
@@ -286,19 +313,21 @@ def test_dynamic_tension_respa_bad_input():
         dynamic_tension(t, grip=10.0, split="atoms-free")
 
 
-def test_dynamic_tension_atoms_free_split():
-    """split='atoms-free' reaches the model: the same tension test (NVE from rest, 15 outer
-    steps of 4 fs) gives another trajectory, within 1 % of the largest stress of the default
-    split's."""
+def test_dynamic_tension_splits():
+    """split= reaches the model: the same tension test (NVE from rest, 15 outer steps of
+    4 fs) gives another trajectory under 'atoms-free' and 'ghost', within 1 % of the largest
+    stress of the 'default' split's; no split given is 'ghost' (MTS_SPLIT)."""
     from upscale.models.dcbr_dynamic import dynamic_tension
 
     t = DCBRDefectTube(6, 6, 60.0, coarsening=2.0, vacancy=4, r_atomistic=5.0)
     s = {sp: np.asarray(dynamic_tension(t, grip=10.0, integrator="respa", outer_dt=4.0,
                                         inner=4, sample=20, max_strain=0.01, speed=5.0,
                                         temperature=0.0, split=sp)["curve"]["stress_GPa"])
-         for sp in ("default", "atoms-free")}
-    diff = np.abs(s["default"] - s["atoms-free"]).max()
-    assert 0.0 < diff < 0.01 * np.abs(s["default"]).max()
+         for sp in ("default", "atoms-free", "ghost", None)}
+    for sp in ("atoms-free", "ghost"):
+        diff = np.abs(s["default"] - s[sp]).max()
+        assert 0.0 < diff < 0.01 * np.abs(s["default"]).max()
+    assert np.array_equal(s[None], s["ghost"])  # the scene's split when none is given
 
 
 def test_drift_estimates():

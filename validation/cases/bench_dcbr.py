@@ -44,12 +44,14 @@ def _args(p):
                    help="respa: outer step of the coarse forces, fs (default 5)")
     p.add_argument("--inner", type=int, default=5,
                    help="respa: 1 fs steps of the atomistic region per outer step (default 5)")
-    from upscale.models.dcbr_engine import SPLITS
+    from upscale.models.dcbr_engine import MTS_SPLIT, SPLITS
 
-    p.add_argument("--mts-split", choices=tuple(SPLITS), default="default",
-                   help="respa: which forces are slow (default: every coarse particle's; "
-                        "atoms-free: those of the particles without a slave in their G "
-                        "stencil, and the ghost-force dead load fast)")
+    p.add_argument("--mts-split", choices=tuple(SPLITS), default=None,
+                   help=f"respa: which forces are slow (DCBRDefectTubeModel split, default "
+                        f"{MTS_SPLIT}): default every coarse particle's and the ghost-force "
+                        "dead load; ghost the same less the dead load, which is fast; "
+                        "interface the particles with a slave in their G stencil fast; "
+                        "atoms-free both fast")
     p.add_argument("--region", choices=("band", "disc", "ellipse"), default="band",
                    help="the coarse model's atomistic region about the vacancy (default band, "
                         "the one whose crack path is atomistic; ellipse: --r-atomistic along "
@@ -130,6 +132,7 @@ def fair_whole_run(atoms, rc, coarse_wall_s: float, coarse_build_s: float,
       add_arguments=_args)
 def _bench(args):
     from upscale.models.dcbr_dynamic import dynamic_tension as coarse_dynamic
+    from upscale.models.dcbr_engine import MTS_SPLIT
     from validation.cases.dcbr import _chirality, lammps_reference_or_run, dynamic_scene
     from validation.cases.references import DYN_LENGTH, _spec, build_structure
     from validation.lammps.tension import dynamic_tension as lammps_dynamic
@@ -157,7 +160,7 @@ def _bench(args):
         if args.integrator == "respa":
             dyn.update(integrator="respa", outer_dt=args.outer_dt, inner=args.inner,
                        split=args.mts_split)
-        elif args.mts_split != "default":
+        elif args.mts_split is not None:
             raise SystemExit(f"--mts-split {args.mts_split} with --integrator "
                              f"{args.integrator}; valid: --mts-split needs --integrator respa")
         rc = coarse_dynamic(model, **dyn)
@@ -185,7 +188,8 @@ def _bench(args):
         # per simulated picosecond (LAMMPS at its 1 fs step, the coarse model at its own:
         # with multiple time stepping one outer step of dt_fs)
         row.update({"coarse_integrator": args.integrator, "coarse_dt_fs": rc["dt_fs"],
-                    "coarse_mts_split": args.mts_split if args.integrator == "respa" else None,
+                    "coarse_mts_split": (args.mts_split or MTS_SPLIT)
+                    if args.integrator == "respa" else None,
                     "coarse_inner_steps": rc.get("inner_steps"), "region": args.region,
                     "r_atomistic_A": args.r_atomistic,
                     "free_atoms": model.nf,

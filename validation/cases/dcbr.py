@@ -380,6 +380,8 @@ case("dcbr-table", "run-time vs error table of the DCBR tube against LAMMPS (coa
 
 
 def _stability_args(p):
+    from upscale.models.dcbr_engine import MTS_SPLIT, SPLITS
+
     p.add_argument("--chirality", default="10,10")
     p.add_argument("--length", type=float, default=25.0)
     p.add_argument("--coarsening", type=float, default=2.0)
@@ -405,9 +407,12 @@ def _stability_args(p):
     p.add_argument("--mts-seeds", type=int, default=None,
                    help="velocity draws (seeds --mts-seed, +1, ...), each run by both "
                         "integrators (default 6; --quick 1)")
-    p.add_argument("--mts-atoms-fast", action="store_true",
-                   help="the split whose slow group does not act on the atoms "
-                        "(DCBRDefectTubeModel fast_interface and fast_ghost)")
+    p.add_argument("--mts-split", choices=tuple(SPLITS), default=MTS_SPLIT,
+                   help=f"the force split (DCBRDefectTubeModel split, default {MTS_SPLIT}): "
+                        "default every coarse force slow; ghost the ghost-force dead load "
+                        "fast; interface the lattice energy of the particles with a slave in "
+                        "their G stencil fast; atoms-free both, so that the slow group does "
+                        "not act on the atoms")
     p.add_argument("--no-mts", action="store_true", help="skip the multiple-time-step run")
 
 
@@ -463,7 +468,7 @@ def _mts_nve(args, n, m):
     out = {"mts_tube": f"({n},{m}) {args.mts_length:g} Å K={args.coarsening:g}, "
                        f"region {args.mts_region}", "mts_free_atoms": tube.nf,
            "mts_outer_dt_fs": Dt, "mts_inner": inner, "mts_outer_steps": steps,
-           "mts_seeds": seeds, "mts_atoms_fast": bool(args.mts_atoms_fast)}
+           "mts_seeds": seeds, "mts_split": args.mts_split}
     rows, records = [], {}
     for seed in seeds:
         for name, integ, nsteps in (("mts", RESPA(Dt, inner, force=True), steps),
@@ -476,7 +481,7 @@ def _mts_nve(args, n, m):
                                                         / mass_d)[:, None]
             vd[tube.slave_idx] = 0.0
             em = DCBRDefectTubeModel(tube, y=y, delta=d, Lz=Lz,
-                                     split="atoms-free" if args.mts_atoms_fast else "default")
+                                     split=args.mts_split)
             sim = Simulation(em.system(), None, em, em.conditions(), integ)
             st = sim.state
             st.v[em.y_rows] = v

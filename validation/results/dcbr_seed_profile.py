@@ -1,13 +1,14 @@
 """Profile and CPU time of the bench-dcbr-seed coarse run (clamped grips, 8 Å band, RESPA
 5 x 1 fs, seed 12345, one process). Usage:
-  dcbr_seed_profile.py N M K run|prof|groups OUT
+  dcbr_seed_profile.py N M K run|prof|groups OUT [SPLIT]
 (from the repository root with PYTHONPATH=$PWD NUMBA_NUM_THREADS=1). ``run`` prints the
 dynamics' wall and CPU time per simulated ps (CPU: the engine loop, Simulation.run) and
-the strength, modulus and strain at peak to 15 digits, and saves the final positions,
+the strength, modulus and strain at peak to 15 digits (the force split ``SPLIT``, a key of
+``upscale.models.dcbr_engine.SPLITS``, default ``default``), and saves the final positions,
 shifts and stress curve to OUT.npz (compare two trees' files with np.array_equal);
 ``prof`` also writes a cProfile of the whole run to OUT.prof and prints the engine loop's
 parts (figures in validation/results/engine.md); ``groups`` prints the time of one evaluation
-of each force group under the default and the atoms-free split."""
+of each force group under each of the splits (``SPLITS``)."""
 import sys
 import time
 
@@ -20,6 +21,7 @@ from validation.cases.references import DYN_LENGTH
 
 n, m, K = int(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3])
 mode, out = sys.argv[4], sys.argv[5]
+split = sys.argv[6] if len(sys.argv) > 6 else "default"
 ref = lammps_reference_or_run(n, m, DYN_LENGTH, vacancy=True, protocol="dynamic")
 model, dyn = dynamic_scene(n, m, DYN_LENGTH, K, ref, grips="clamped", region="band",
                            r_atomistic=8.0)
@@ -30,9 +32,9 @@ if mode == "groups":
     # transfer of prepare_split
     from upscale.engine.respa import RESPA
     from upscale.engine.simulation import Simulation
-    from upscale.models.dcbr_engine import DCBRDefectTubeModel
+    from upscale.models.dcbr_engine import SPLITS, DCBRDefectTubeModel
 
-    for split in ("default", "atoms-free"):
+    for split in SPLITS:
         em = DCBRDefectTubeModel(model, split=split)
         st = Simulation(em.system(), None, em, em.conditions(), RESPA(5.0, 5, force=True)).state
         rng = np.random.default_rng(0)
@@ -46,7 +48,7 @@ if mode == "groups":
                 ts.append(time.perf_counter() - t0)
             print(f"| {split} | {g} | {1e3 * np.median(ts):.3f} ms |")
     sys.exit(0)
-dyn.update(integrator="respa", outer_dt=5.0, inner=5)
+dyn.update(integrator="respa", outer_dt=5.0, inner=5, split=split)
 _run, CPU = S.Simulation.run, [0.0]
 
 
