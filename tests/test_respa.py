@@ -77,7 +77,7 @@ def test_slow_group_without_the_atoms(tube):
     """fast_interface + fast_ghost: the split still adds up to the total, and the slow group
     exerts no force at all on the atoms (the interface particles' lattice energy and
     hourglass links and the ghost-force dead load are fast), with and without the
-    transfer; the default split does act on them (through the slaves and the dead load)."""
+    transfer; the coarse split does act on them (through the slaves and the dead load)."""
     m0 = _perturbed_model(tube, 5)
     m = DCBRDefectTubeModel(tube, y=m0.y0, delta=m0.delta0, Lz=m0.Lz, fast_interface=True,
                             fast_ghost=True)
@@ -124,13 +124,13 @@ def test_split_by_name(tube):
     """``split=`` sets both flags of the split by name (each of the four); an unknown name is a one-line error."""
     m = DCBRDefectTubeModel(tube, split="atoms-free")
     assert m.fast_interface and m.fast_ghost
-    m = DCBRDefectTubeModel(tube, fast_interface=True, split="default")
+    m = DCBRDefectTubeModel(tube, fast_interface=True, split="coarse")
     assert not (m.fast_interface or m.fast_ghost)
     m = DCBRDefectTubeModel(tube, split="interface")
     assert m.fast_interface and not m.fast_ghost
     m = DCBRDefectTubeModel(tube, fast_interface=True, split="ghost")
     assert m.fast_ghost and not m.fast_interface
-    with pytest.raises(ValueError, match="split='none'; valid: 'default', 'atoms-free'"):
+    with pytest.raises(ValueError, match="split='none'; valid: 'coarse', 'atoms-free'"):
         DCBRDefectTubeModel(tube, split="none")
 
 
@@ -316,17 +316,17 @@ def test_dynamic_tension_respa_bad_input():
 def test_dynamic_tension_splits():
     """split= reaches the model: the same tension test (NVE from rest, 15 outer steps of
     4 fs) gives another trajectory under 'atoms-free' and 'ghost', within 1 % of the largest
-    stress of the 'default' split's; no split given is 'ghost' (MTS_SPLIT)."""
+    stress of the 'coarse' split's; no split given is 'ghost' (MTS_SPLIT)."""
     from upscale.models.dcbr_dynamic import dynamic_tension
 
     t = DCBRDefectTube(6, 6, 60.0, coarsening=2.0, vacancy=4, r_atomistic=5.0)
     s = {sp: np.asarray(dynamic_tension(t, grip=10.0, integrator="respa", outer_dt=4.0,
                                         inner=4, sample=20, max_strain=0.01, speed=5.0,
                                         temperature=0.0, split=sp)["curve"]["stress_GPa"])
-         for sp in ("default", "atoms-free", "ghost", None)}
+         for sp in ("coarse", "atoms-free", "ghost", None)}
     for sp in ("atoms-free", "ghost"):
-        diff = np.abs(s["default"] - s[sp]).max()
-        assert 0.0 < diff < 0.01 * np.abs(s["default"]).max()
+        diff = np.abs(s["coarse"] - s[sp]).max()
+        assert 0.0 < diff < 0.01 * np.abs(s["coarse"]).max()
     assert np.array_equal(s[None], s["ghost"])  # the scene's split when none is given
 
 

@@ -352,7 +352,7 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | N
 def _engine_loop(tube, st, y, d, v, vd, L0, mass, mass_d, movable, dfree, ndf, thermo,
                  temperature, tdamp, dt, vz, sample, max_strain, gauge, z_ext, ext, rec,
                  on_sample, stability, checkpoint, checkpoint_every, resume, output,
-                 engine_progress, inner=None, split="default"):
+                 engine_progress, inner=None, split="coarse"):
     """The time loop of :func:`dynamic_tension` on the engine.
 
     The tube as :class:`~upscale.models.dcbr_engine.DCBRDefectTubeModel` (rows: particles,
@@ -653,7 +653,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     counted in steps of ``dt`` (a multiple of ``inner``), so the stress samples are the
     same blocks of time; ``dt_fs`` in the result is then the outer step. ``split``: which
     forces are slow (:data:`~upscale.models.dcbr_engine.SPLITS`; default
-    :data:`~upscale.models.dcbr_engine.MTS_SPLIT`, ``"ghost"``): ``"default"`` all the
+    :data:`~upscale.models.dcbr_engine.MTS_SPLIT`, ``"ghost"``): ``"coarse"`` all the
     coarse particles' lattice energy and hourglass links and the ghost-force dead load;
     ``"ghost"`` the same less the dead load, which is fast (the energy drift at a 5 fs outer
     step comes from the dead load applied as an impulse); ``"interface"`` the lattice

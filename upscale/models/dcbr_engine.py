@@ -56,7 +56,7 @@ FIELD = "dcbr.delta"
 _GHOST = ("y", "d", "gy", "gd")
 
 #: the force splits by name (``DCBRDefectTubeModel(split=...)``): the flags each sets
-SPLITS = {"default": {"fast_interface": False, "fast_ghost": False},
+SPLITS = {"coarse": {"fast_interface": False, "fast_ghost": False},
           "atoms-free": {"fast_interface": True, "fast_ghost": True},
           "interface": {"fast_interface": True, "fast_ghost": False},
           "ghost": {"fast_interface": False, "fast_ghost": True}}
@@ -65,7 +65,7 @@ SPLITS = {"default": {"fast_interface": False, "fast_ghost": False},
 #: (:func:`upscale.models.dcbr_dynamic.dynamic_tension`, ``bench-dcbr-seed``,
 #: ``dcbr-stability``): the ghost-force dead load in the fast group. The dead load acts on
 #: the atoms in cylindrical components, so its direction turns with every vibrating atom;
-#: applied as an impulse once per outer step it is what makes the energy of the default
+#: applied as an impulse once per outer step it is what makes the energy of the ``"coarse"``
 #: split drift at a 5 fs outer step, while the interface particles' lattice energy, also
 #: felt by the atoms, does not. Moving only the dead load costs one more evaluation of it
 #: per inner step; the interface particles' energy would cost a share of the coarse part.
@@ -103,7 +103,7 @@ class DCBRDefectTubeModel:
         constant on a vibrating atom). Without them (default) those forces reach the atoms
         as impulses once per outer step. Both cost their terms at every inner step.
     split : str, optional
-        The two flags by name (:data:`SPLITS`): ``"default"`` neither, ``"atoms-free"``
+        The two flags by name (:data:`SPLITS`): ``"coarse"`` neither (every coarse force slow), ``"atoms-free"``
         both, ``"interface"`` and ``"ghost"`` one each; given, it overrides them.
     """
 

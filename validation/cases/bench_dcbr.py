@@ -48,7 +48,7 @@ def _args(p):
 
     p.add_argument("--mts-split", choices=tuple(SPLITS), default=None,
                    help=f"respa: which forces are slow (DCBRDefectTubeModel split, default "
-                        f"{MTS_SPLIT}): default every coarse particle's and the ghost-force "
+                        f"{MTS_SPLIT}): coarse every coarse particle's and the ghost-force "
                         "dead load; ghost the same less the dead load, which is fast; "
                         "interface the particles with a slave in their G stencil fast; "
                         "atoms-free both fast")

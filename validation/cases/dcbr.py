@@ -409,7 +409,7 @@ def _stability_args(p):
                         "integrators (default 6; --quick 1)")
     p.add_argument("--mts-split", choices=tuple(SPLITS), default=MTS_SPLIT,
                    help=f"the force split (DCBRDefectTubeModel split, default {MTS_SPLIT}): "
-                        "default every coarse force slow; ghost the ghost-force dead load "
+                        "coarse every coarse force slow; ghost the ghost-force dead load "
                         "fast; interface the lattice energy of the particles with a slave in "
                         "their G stencil fast; atoms-free both, so that the slow group does "
                         "not act on the atoms")

@@ -21,13 +21,13 @@ from validation.cases.references import DYN_LENGTH
 
 n, m, K = int(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3])
 mode, out = sys.argv[4], sys.argv[5]
-split = sys.argv[6] if len(sys.argv) > 6 else "default"
+split = sys.argv[6] if len(sys.argv) > 6 else "coarse"
 ref = lammps_reference_or_run(n, m, DYN_LENGTH, vacancy=True, protocol="dynamic")
 model, dyn = dynamic_scene(n, m, DYN_LENGTH, K, ref, grips="clamped", region="band",
                            r_atomistic=8.0)
 dyn.pop("grips")
 if mode == "groups":
-    # median wall time of one evaluation of each force group, default split and atoms-free
+    # median wall time of one evaluation of each force group, coarse split and atoms-free
     # split (fast_interface, fast_ghost), at the reference lattice moved by 1e-4 Å noise, without the
     # transfer of prepare_split
     from upscale.engine.respa import RESPA
