@@ -6,6 +6,7 @@ never sees half a file and a crash never destroys the previous version.
 """
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import platform
@@ -70,15 +71,12 @@ def cpu_model() -> str:
     Linux, else :func:`platform.processor`; "" when neither says): timings compare only on
     one model."""
     fields = {}
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if not line.strip():
-                    break  # the first processor's block
-                key, _, value = line.partition(":")
-                fields[key.strip()] = value.strip()
-    except OSError:
-        pass
+    with contextlib.suppress(OSError), open("/proc/cpuinfo") as f:  # (absent off Linux)
+        for line in f:
+            if not line.strip():
+                break  # the first processor's block
+            key, _, value = line.partition(":")
+            fields[key.strip()] = value.strip()
     if "model name" not in fields:
         return platform.processor()
     # a virtual machine may show only the vendor's brand: family and model tell them apart

@@ -119,8 +119,9 @@ class DCBRDefectTubeModel:
         constant on a vibrating atom). Without them (default) those forces reach the atoms
         as impulses once per outer step. Both cost their terms at every inner step.
     split : str, optional
-        The two flags by name (:data:`SPLITS`): ``"coarse"`` neither (every coarse force slow), ``"atoms-free"``
-        both, ``"interface"`` and ``"ghost"`` one each; given, it overrides them.
+        The two flags by name (:data:`SPLITS`): ``"coarse"`` neither (every coarse force
+        slow), ``"atoms-free"`` both, ``"interface"`` and ``"ghost"`` one each; given, it
+        overrides them.
     """
 
     name = "dcbr-defect-tube"
