@@ -152,3 +152,23 @@ def test_command_line_branching_writes_result_and_map(tmp_path, capsys):
     saved = saved.get("result", saved)
     assert saved["v_max_over_cR"] == printed["v_max_over_cR"]
     assert (out / "damage_tipd_tipd_24MPa_dx1mm.png").read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.parametrize("text", ["3e-4", "0", "-5e-4", "nan", "inf", "abc", "1e-2"])
+def test_branching_case_rejects_a_spacing_that_does_not_fit_the_plate(text):
+    """``python -m validation tipd-branching --dx``: a spacing must divide the 40 mm width
+    into at least 8 rows; anything else is a one-line error naming the value."""
+    import argparse
+
+    from validation.cases.tipd import _positive_spacing
+
+    with pytest.raises(argparse.ArgumentTypeError, match=repr(text)):
+        _positive_spacing(text)
+
+
+@pytest.mark.parametrize("text, dx", [("1e-3", 1e-3), ("5e-4", 5e-4), ("2.5e-4", 2.5e-4)])
+def test_branching_case_takes_the_paper_grid(text, dx):
+    """The paper's Figs. 9-10 grid (400 x 160 points, 0.25 mm) and the case's coarser ones."""
+    from validation.cases.tipd import _positive_spacing
+
+    assert _positive_spacing(text) == dx

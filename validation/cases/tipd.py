@@ -798,11 +798,39 @@ def _partial_volume_arg(p):
                         "inside the horizon counts its whole volume)")
 
 
+def _positive_spacing(text):
+    """argparse type: a finite spacing in m that divides the 100 x 40 mm plate into rows."""
+    import argparse
+
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"--dx {text!r} is not a number; valid: a spacing in m, e.g. 2.5e-4")
+    n = 0.04 / v if np.isfinite(v) and v > 0 else np.nan
+    if not (np.isfinite(n) and 8 <= n and abs(n - round(n)) < 1e-6):
+        raise argparse.ArgumentTypeError(
+            f"--dx {text!r}; valid: a spacing in m that divides the 40 mm plate width into at least "
+            "8 rows (e.g. 1e-3, 5e-4, 2.5e-4)")
+    return v
+
+
+def _dx_arg(p):
+    p.add_argument("--dx", type=_positive_spacing, default=None,
+                   help="the coarse spacing in m (default 5e-4, 200 x 80 points; quick 1e-3; the "
+                        "paper's Figs. 9-10 use 400 x 160 points, 2.5e-4)")
+
+
+def _base_dx(args) -> float:
+    """The coarse spacing of the branching cases: ``--dx``, else 1e-3 quick, 5e-4 full."""
+    return getattr(args, "dx", None) or (1e-3 if args.quick else 5e-4)
+
+
 def _branching_args(p):
     _partial_volume_arg(p)
     p.add_argument("--refine", default="both", choices=["both", "fixed-delta", "delta-3dx", "none"],
                    help="dx/2 runs besides the runs at dx: at the same horizon (m = 6, the loaded "
                         "layer kept at the coarse dx), at delta = 3 dx/2, both (default) or none")
+    _dx_arg(p)
 
 
 def _partial_volume(args):
@@ -840,7 +868,7 @@ def tipd_branching(args):
     from upscale.experiments.tipd_branching import branching
 
     _threads()
-    dx = 1e-3 if args.quick else 5e-4
+    dx = _base_dx(args)
     refine = "none" if args.quick else getattr(args, "refine", "both")
     tags = {"both": ("fixed_delta", "delta_3dx"), "fixed-delta": ("fixed_delta",),
             "delta-3dx": ("delta_3dx",), "none": ()}[refine]
@@ -944,6 +972,7 @@ _SENS_VARIANTS = {"default": {}, "damage 0.25": {"tip_damage": 0.25}, "damage 0.
 
 def _sensitivity_args(p):
     _partial_volume_arg(p)
+    _dx_arg(p)
     p.add_argument("--fine", action="store_true",
                    help="also the dx/2 runs at the same horizon (m = 6), and the dx / dx/2 agreement "
                         "of tipd-branching under every variant of the measurement")
@@ -966,7 +995,7 @@ def tipd_branching_sensitivity(args):
     from upscale.experiments.tipd_branching import measure, simulate
 
     _threads()
-    dx = 1e-3 if args.quick else 5e-4
+    dx = _base_dx(args)
     models_ = [("tipd", "tipd"), ("tipd", "osb"), ("lps", None), ("pmb", None)]
     jobs = [(mod, crit, sig, dx, 3.0, None) for sig in (12e6, 24e6) for mod, crit in models_]
     if args.fine and not args.quick:
