@@ -152,6 +152,28 @@ def test_verlet_list_rebuilds_and_stays_exact():
     assert m._nl["builds"] == b1 + 1
 
 
+def test_forces_do_not_depend_on_the_verlet_skin():
+    """The atomistic region's Verlet list sorts each atom's partners, so two tubes whose
+    lists have different skins (and are rebuilt at different steps of a walk) give the
+    same energy and gradients to the last bit; the narrow default holds the first
+    neighbours only."""
+    a = DCBRDefectTube(6, 6, 30.0, coarsening=2.0, vacancy=4, r_atomistic=5.0)
+    b = DCBRDefectTube(6, 6, 30.0, coarsening=2.0, vacancy=4, r_atomistic=5.0)
+    b.nl_skin = 1.0
+    lt, lz, sh = a.uniform_lattice(1.03)
+    y, d, Lz = a.uniform_state(lt, lz, sh)
+    nd = len(a.dof_idx)
+    rng = np.random.default_rng(3)
+    for _ in range(8):  # a walk of 0.05 Å steps: the two lists are rebuilt at other steps
+        y = y.copy()
+        y[nd:] += 0.05 / np.sqrt(3) * rng.uniform(-1, 1, size=(a.nf, 3))
+        ea, gya, gda, _ = a._raw_energy_and_gradient(y, d, Lz)
+        eb, gyb, gdb, _ = b._raw_energy_and_gradient(y, d, Lz)
+        assert ea == eb and np.array_equal(gya, gyb) and np.array_equal(gda, gdb)
+    assert a._nl["builds"] > b._nl["builds"]  # the narrow list was rebuilt more often
+    assert len(a._nl["jl"]) < 0.4 * len(b._nl["jl"])  # 3 partners an atom, not 12
+
+
 def test_method_is_validated_and_reaches_the_twin():
     m = DCBRDefectTube(6, 6, 30.0, coarsening=2.0, vacancy=4, r_atomistic=5.0,
                        method="numpy")
@@ -160,3 +182,25 @@ def test_method_is_validated_and_reaches_the_twin():
     assert m._twin.method == "numba"
     with pytest.raises(ValueError, match="method='fortran'.*valid"):
         m.method = "fortran"
+
+
+@pytest.mark.parametrize("n", [7, 1818])
+def test_ghost_gradient_kernel_equals_the_array_expression(n):
+    """The dead load's gradient kernel against its numpy expression (centroid offsets,
+    cylindrical components, the centroid's mean taken out), bit for bit."""
+    from upscale.models import dcbr_coupling_kernels as CK
+
+    rng = np.random.default_rng(n)
+    y = rng.standard_normal((n, 3)) * 30 + [3.0, -2.0, 50.0]
+    gr, gt, gz = rng.standard_normal((3, n))
+    gy, gd, gdl = rng.standard_normal((n, 3)), rng.standard_normal((n, 3)), rng.standard_normal((n, 3))
+    xc = y[:, :2] - y[:, :2].mean(axis=0)
+    rho = np.hypot(xc[:, 0], xc[:, 1])
+    corr = np.empty_like(gy)
+    corr[:, 0] = (gr * xc[:, 0] - gt * xc[:, 1] / rho) / rho
+    corr[:, 1] = (gr * xc[:, 1] + gt * xc[:, 0] / rho) / rho
+    corr[:, :2] -= corr[:, :2].mean(axis=0)
+    corr[:, 2] = gz
+    oy, od = np.empty_like(gy), np.empty_like(gd)
+    CK.ghost_gradient(y, gr, gt, gz, gy, gd, gdl, oy, od)
+    assert np.array_equal(oy, gy - corr) and np.array_equal(od, gd - gdl)

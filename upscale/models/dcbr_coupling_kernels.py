@@ -31,7 +31,7 @@ from upscale.engine.fields import pairwise_sum
 
 __all__ = ["map_frames", "frame_adjoint", "stab_links", "pad_positions", "pad_backward",
            "max_displacement2", "take_rows", "sub_rows", "particle_positions", "fold_gradient",
-           "transfer", "same"]
+           "transfer", "same", "ghost_gradient"]
 
 
 @njit(cache=True, error_model="numpy")
@@ -490,3 +490,46 @@ def same(a, b):
         if not fa[i] == fb[i]:
             return False
     return True
+
+
+@njit(cache=True, error_model="numpy")
+def ghost_gradient(y_uc, gr_u, gt_u, gz_u, gy_uc, gd_nc, gdl_nc, gy_out, gd_out):
+    """The gradient of the ghost-force dead load's work W
+    (:meth:`~upscale.models.dcbr_defect.DCBRDefectTube.ghost_load_work`) added to (gy, gd):
+    with each row's offset from the rows' centroid, x_u = y_u - mean(y) (x, y components),
+    rho_u = |x_u|, the load's components gr, gt (times the uniform radius) and gz,
+
+        c_u = (gr x_u + gt (-x_u,2, x_u,1) / rho_u) / rho_u,
+        gy_out = gy - (c_u - mean(c), gz_u),   gd_out = gd - g_delta
+
+    (the centroid's own dependence on y_u takes the mean of c out). The operations and the
+    order of every sum are numpy's (a column mean of an (n, 2) view sums row by row), so
+    the result equals the array expression bit for bit."""
+    n = y_uc.shape[0]
+    cx = y_uc[0, 0]
+    cy = y_uc[0, 1]
+    for u in range(1, n):
+        cx += y_uc[u, 0]
+        cy += y_uc[u, 1]
+    cx /= n
+    cy /= n
+    for u in range(n):
+        x0 = y_uc[u, 0] - cx
+        x1 = y_uc[u, 1] - cy
+        rho = math.hypot(x0, x1)
+        gy_out[u, 0] = (gr_u[u] * x0 - gt_u[u] * x1 / rho) / rho
+        gy_out[u, 1] = (gr_u[u] * x1 + gt_u[u] * x0 / rho) / rho
+    mx = gy_out[0, 0]
+    my = gy_out[0, 1]
+    for u in range(1, n):
+        mx += gy_out[u, 0]
+        my += gy_out[u, 1]
+    mx /= n
+    my /= n
+    for u in range(n):
+        gy_out[u, 0] = gy_uc[u, 0] - (gy_out[u, 0] - mx)
+        gy_out[u, 1] = gy_uc[u, 1] - (gy_out[u, 1] - my)
+        gy_out[u, 2] = gy_uc[u, 2] - gz_u[u]
+    for c in range(gd_nc.shape[0]):
+        for k in range(3):
+            gd_out[c, k] = gd_nc[c, k] - gdl_nc[c, k]

@@ -33,8 +33,8 @@ It is an energy-based concurrent coupling (in the spirit of the quasicontinuum m
   neighbours by the chain rule through the map, exact (the carrier's map and frame computed
   once per call and shared with its hourglass links, :mod:`upscale.models.dcbr_coupling_kernels`;
   ``method="numpy"``: the reference with complex-step derivatives).
-  The free atoms' pair list is a Verlet list (skin ``nl_skin`` = 1 Å) rebuilt only when an
-  atom (free or pad) has moved more than half the skin.
+  The free atoms' pair list is a Verlet list (skin ``nl_skin``, default :data:`NL_SKIN`)
+  rebuilt only when an atom (free or pad) has moved more than half the skin.
 * **Particle weights**: w_c = N_c - g_c (clipped to [0, N_c]; 0 when all its atoms are
   explicit), g_c the number of free or removed atoms among those nearest particle c (Voronoi
   on the unrolled wall, pristine tube), so the coarse energy counts only the atoms not
@@ -93,6 +93,13 @@ from upscale.models.dcbr import DCBRTube, TubeMinimum, uniform_map_frame
 
 CARBON_MASS = CARBON_MASS_AMU  # amu
 ACC_UNIT = ACC_EV_A_AMU_IN_A_FS2  # eV/(Å amu) in Å/fs^2
+#: skin (Å) of the atomistic region's Verlet list. The list reaches cutoff + skin =
+#: 2.4 Å with the 2.1 Å cutoff of BNC.tersoff, short of the wall's second-neighbour shell
+#: (sqrt(3) x 1.45 = 2.5 Å), so it holds the first neighbours only; a 1 Å skin (3.1 Å)
+#: also held the second and third shells (4x the pairs), which the kernel's short-list
+#: pass must read and skip at every call: 0.3 Å costs 17-23 % less Tersoff time on the
+#: seed-scale bands, the extra rebuilds included (``validation/results/engine.md``).
+NL_SKIN = 0.3
 
 __all__ = ["DCBRDefectTube"]
 
@@ -372,7 +379,7 @@ class DCBRDefectTube(DCBRTube):
         self._types = np.zeros(self.nf + npad, np.int64)
         self._cell0 = np.zeros((3, 3))
         self._nl = None  # Verlet list of the atomistic region (:meth:`_neighbours`)
-        self.nl_skin = 1.0  # Å
+        self.nl_skin = NL_SKIN
         # bonds of the free atoms at the start (< 2.0 Å), for the atoms' damage index
         fl, jl, _ = neighbour_list(np.vstack([Xf, X[self.pad_idx]]), np.zeros((3, 3)),
                                    (False, False, False), 2.0)
@@ -462,8 +469,9 @@ class DCBRDefectTube(DCBRTube):
         """Verlet list (CSR over the rows of x, rows only for the free atoms) of the pairs
         within cutoff + ``nl_skin``, rebuilt when some atom has moved more than half the
         skin since the last build (so every pair within the cutoff is in it; the Tersoff
-        kernel skips the pairs beyond the cutoff itself). Raises FloatingPointError for a
-        non-finite position."""
+        kernel skips the pairs beyond the cutoff itself), each row's partners in index
+        order, so that the forces do not depend on the skin or on when the list was built.
+        Raises FloatingPointError for a non-finite position."""
         from scipy.spatial import cKDTree  # noqa: PLC0415
 
         nl = self._nl
@@ -482,7 +490,10 @@ class DCBRDefectTube(DCBRTube):
         jj = np.concatenate([pr[:, 1], pr[:, 0]])
         keep = ii < self.nf  # the kernel visits the free atoms' rows only
         ii, jj = ii[keep], jj[keep]
-        order = np.argsort(ii, kind="stable")
+        # each row's partners in index order (the k-d tree's own order depends on where the
+        # list was built): the kernel then sums in the same order whatever the skin and
+        # whenever the list was rebuilt
+        order = np.lexsort((jj, ii))
         jl = jj[order].astype(np.int32)
         fl = np.zeros(len(x) + 1, np.int64)
         np.cumsum(np.bincount(ii, minlength=len(x)), out=fl[1:])
@@ -522,7 +533,7 @@ class DCBRDefectTube(DCBRTube):
         pr = cKDTree(x).query_pairs(self._tcut, output_type="ndarray")
         ii = np.concatenate([pr[:, 0], pr[:, 1]])
         jj = np.concatenate([pr[:, 1], pr[:, 0]])
-        order = np.argsort(ii, kind="stable")
+        order = np.lexsort((jj, ii))
         jl = jj[order].astype(np.int32)
         fl = np.zeros(len(x) + 1, np.int64)
         np.cumsum(np.bincount(ii, minlength=len(x)), out=fl[1:])
@@ -643,11 +654,11 @@ class DCBRDefectTube(DCBRTube):
         ``(E', gy', gd', applied)``, unchanged (and ``applied`` False) when no load is set
         for this cell length. E' = E - W (:meth:`ghost_load_work`), the gradients those of
         :meth:`ghost_load_gradient`."""
-        a = self._ghost_load(y, Lz)
+        a = self._ghost_load(Lz)
         if a is None:
             return E, gy, gd, False
         E -= self._ghost_work(a, y, delta)
-        gy, gd = self._ghost_gradient(a, gy, gd)
+        gy, gd = self._ghost_gradient(a, y, gy, gd)
         return E, gy, gd, True
 
     def ghost_load_work(self, y, delta, Lz) -> float:
@@ -655,7 +666,7 @@ class DCBRDefectTube(DCBRTube):
         length: sum over rows of g_r (rho - rho_u) + g_t rho_u (theta - theta_u) + g_z
         (z - z_u), plus sum g_delta . (delta - delta_u), the load's components g taken at
         the uniform state u (:meth:`apply_ghost_load` subtracts it from the energy)."""
-        a = self._ghost_load(y, Lz)
+        a = self._ghost_load(Lz)
         return 0.0 if a is None else self._ghost_work(a, y, delta)
 
     def ghost_load_gradient(self, y, Lz, gy, gd):
@@ -663,16 +674,15 @@ class DCBRDefectTube(DCBRTube):
         same arrays, bit for bit), for a force loop that never reads the energy: the work's
         angle needs an arctan2, a complex mean and a branch cut per row, about 40 % of the
         load's cost on a 1,818-row tube."""
-        a = self._ghost_load(y, Lz)
-        return (gy, gd) if a is None else self._ghost_gradient(a, gy, gd)
+        a = self._ghost_load(Lz)
+        return (gy, gd) if a is None else self._ghost_gradient(a, y, gy, gd)
 
-    def _ghost_load(self, y, Lz):
-        """The dead load's arrays at ``y`` for cell length ``Lz`` (None without one): the
-        rows' offsets ``xc`` (Ny, 2) from their centroid (so that a sideways shift is free as
-        well) and radii ``rho``, the components gr, gt rho_u, gz (Ny,) and g_delta (N, 3),
-        zero on failed particles (a dead load on a particle with no energy left is
-        unbounded below: the minimiser pushed such particles away without end, the energy
-        of a (10,10) K = 4 tube fell by 900 eV in one step)."""
+    def _ghost_load(self, Lz):
+        """The dead load's components for cell length ``Lz`` (None without one): gr,
+        gt rho_u, gz (Ny,) and g_delta (N, 3) in each row's cylindrical frame at the uniform
+        state (taken once per load), zero on failed particles (a dead load on a particle
+        with no energy left is unbounded below: the minimiser pushed such particles away
+        without end, the energy of a (10,10) K = 4 tube fell by 900 eV in one step)."""
         gc = self._ghost
         if gc is None or not abs(gc["Lz"] - Lz) < 1e-12 * Lz:
             return None
@@ -681,21 +691,23 @@ class DCBRDefectTube(DCBRTube):
             xu = yu[:, :2] - yu[:, :2].mean(axis=0)
             thu = np.arctan2(xu[:, 1], xu[:, 0])
             c, s_ = np.cos(thu), np.sin(thu)
-            gc.update(thu=thu, rhou=np.hypot(xu[:, 0], xu[:, 1]),
-                      gr=g[:, 0] * c + g[:, 1] * s_, gt=-g[:, 0] * s_ + g[:, 1] * c)
-        xc = y[:, :2] - y[:, :2].mean(axis=0)
-        rho = np.hypot(xc[:, 0], xc[:, 1])
-        gr, gt, rt = gc["gr"], gc["gt"] * gc["rhou"], gc["gy"][:, 2]
-        gdl = gc["gd"]
+            rhou = np.hypot(xu[:, 0], xu[:, 1])
+            gt = -g[:, 0] * s_ + g[:, 1] * c
+            gc.update(thu=thu, rhou=rhou, gr=g[:, 0] * c + g[:, 1] * s_, gt=gt,
+                      gtr=gt * rhou, gz=np.ascontiguousarray(g[:, 2]))
+        gr, gt, rt, gdl = gc["gr"], gc["gtr"], gc["gz"], gc["gd"]
         if not self.alive.all():
-            on = np.r_[self.alive[self.dof_idx].astype(float), np.ones(len(y) - len(self.dof_idx))]
+            on = np.r_[self.alive[self.dof_idx].astype(float), np.ones(len(gr) - len(self.dof_idx))]
             gr, gt, rt = gr * on, gt * on, rt * on
             gdl = gdl * self.alive[:, None]
-        return gc, xc, rho, gr, gt, rt, gdl
+        return gc, gr, gt, rt, gdl
 
     @staticmethod
     def _ghost_work(a, y, delta) -> float:
-        gc, xc, rho, gr, gt, rt, gdl = a
+        gc, gr, gt, rt, gdl = a
+        # each row's offset from the rows' centroid (so that a sideways shift is free too)
+        xc = y[:, :2] - y[:, :2].mean(axis=0)
+        rho = np.hypot(xc[:, 0], xc[:, 1])
         th = np.arctan2(xc[:, 1], xc[:, 0])
         # arc angle change, on the branch of the rows' mean turn (so that all rows agree
         # on it, even at a half turn; locally it is th - thu, the branch only picks 2 pi k)
@@ -705,14 +717,15 @@ class DCBRDefectTube(DCBRTube):
                      + np.sum(gdl * (delta - gc["d"])))
 
     @staticmethod
-    def _ghost_gradient(a, gy, gd):
-        _, xc, rho, gr, gt, rt, gdl = a
-        corr = np.empty_like(gy)
-        corr[:, 0] = (gr * xc[:, 0] - gt * xc[:, 1] / rho) / rho
-        corr[:, 1] = (gr * xc[:, 1] + gt * xc[:, 0] / rho) / rho
-        corr[:, :2] -= corr[:, :2].mean(axis=0)  # through the centroid
-        corr[:, 2] = rt
-        return gy - corr, gd - gdl
+    def _ghost_gradient(a, y, gy, gd):
+        """(gy + dW/dy, gd - g_delta) as new arrays (:func:`~upscale.models.
+        dcbr_coupling_kernels.ghost_gradient`)."""
+        _, gr, gt, rt, gdl = a
+        gy_out, gd_out = np.empty(gy.shape), np.empty(gd.shape)
+        CK.ghost_gradient(np.ascontiguousarray(y, dtype=float), gr, gt, rt,
+                          np.ascontiguousarray(gy, dtype=float), np.ascontiguousarray(gd, dtype=float),
+                          np.ascontiguousarray(gdl, dtype=float), gy_out, gd_out)
+        return gy_out, gd_out
 
     # ------------------------------------------------------------------ uniform states
     def uniform_lattice(self, lam_z=None):
@@ -1351,7 +1364,8 @@ class DCBRDefectTube(DCBRTube):
 
     def rebuild_neighbours(self, x) -> None:
         """Build the Verlet list at positions ``x`` (free then pad atoms): a resumed run
-        rebuilds the list it was interrupted with, so its pairs come in the same order."""
+        rebuilds the list where it was built before, so the rebuilds fall on the same steps
+        (the forces do not depend on where the list was built, :meth:`_neighbours`)."""
         self._nl = None
         self._neighbours(np.ascontiguousarray(x, dtype=float))
 

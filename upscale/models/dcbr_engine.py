@@ -34,7 +34,8 @@ History in ``state.extra`` (so a checkpoint carries it and a resumed run continu
 bit): the links (``dcbr.intact``, ``dcbr.alive``), each particle's last good map
 (``dcbr.fs_last``), the ghost-force dead load (``dcbr.ghost.*``) and the positions at which
 the atomistic Verlet list was built (``dcbr.nl_x``: the list is rebuilt there on resume, so
-the pairs come in the same order).
+the rebuilds fall on the same steps; its partners are sorted, so the forces do not depend on
+where it was built).
 
 Atoms for interactions between bodies (:meth:`DCBRDefectTubeModel.atoms`,
 :meth:`DCBRDefectTubeModel.atom_forces`): every atom of the tube, the free ones as they
