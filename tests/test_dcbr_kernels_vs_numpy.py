@@ -204,3 +204,33 @@ def test_ghost_gradient_kernel_equals_the_array_expression(n):
     oy, od = np.empty_like(gy), np.empty_like(gd)
     CK.ghost_gradient(y, gr, gt, gz, gy, gd, gdl, oy, od)
     assert np.array_equal(oy, gy - corr) and np.array_equal(od, gd - gdl)
+
+
+@pytest.mark.parametrize("rc", [2.4, 3.1])
+def test_cluster_pairs_equal_the_kd_tree_pairs(rc):
+    """The atomistic region's Verlet list builder against scipy's k-d tree: the same pairs,
+    each row's partners sorted, rows past n_rows empty; on a tube wall with two atoms flown
+    far off (the cells are keyed and sorted, not a grid over the box)."""
+    from ase.build import nanotube
+    from scipy.spatial import cKDTree
+
+    from upscale.models import dcbr_coupling_kernels as CK
+
+    x = nanotube(12, 6, length=3).positions
+    x = x + np.random.default_rng(0).normal(scale=0.05, size=x.shape)
+    x[3] += [400.0, -2500.0, 30.0]
+    x[-1] -= [0.0, 0.0, 900.0]
+    nf = int(0.7 * len(x))
+    pr = cKDTree(x).query_pairs(rc, output_type="ndarray")
+    ii = np.concatenate([pr[:, 0], pr[:, 1]])
+    jj = np.concatenate([pr[:, 1], pr[:, 0]])
+    keep = ii < nf
+    ii, jj = ii[keep], jj[keep]
+    order = np.lexsort((jj, ii))
+    first = np.zeros(len(x) + 1, np.int64)
+    np.cumsum(np.bincount(ii, minlength=len(x)), out=first[1:])
+    got_first, got = CK.cluster_pairs(x, nf, rc)
+    assert np.array_equal(got_first, first) and np.array_equal(got, jj[order])
+    assert first[nf + 1] - first[nf] == 0 and len(got) > 2 * nf
+    e_first, e = CK.cluster_pairs(x[:0], 0, rc)
+    assert e_first.tolist() == [0] and len(e) == 0

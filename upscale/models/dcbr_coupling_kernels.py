@@ -31,7 +31,7 @@ from upscale.engine.fields import pairwise_sum
 
 __all__ = ["map_frames", "frame_adjoint", "stab_links", "pad_positions", "pad_backward",
            "max_displacement2", "take_rows", "sub_rows", "particle_positions", "fold_gradient",
-           "transfer", "same", "ghost_gradient"]
+           "transfer", "same", "ghost_gradient", "cluster_pairs"]
 
 
 @njit(cache=True, error_model="numpy")
@@ -533,3 +533,108 @@ def ghost_gradient(y_uc, gr_u, gt_u, gz_u, gy_uc, gd_nc, gdl_nc, gy_out, gd_out)
     for c in range(gd_nc.shape[0]):
         for k in range(3):
             gd_out[c, k] = gd_nc[c, k] - gdl_nc[c, k]
+
+
+@njit(cache=True)
+def _lower_bound(a, v):
+    """The first index p with a[p] >= v in the sorted array a."""
+    lo = 0
+    hi = a.shape[0]
+    while lo < hi:
+        mid = (lo + hi) >> 1
+        if a[mid] < v:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo
+
+
+@njit(cache=True)
+def _collect_pairs(x_ac, n_rows, rc, c_ac, ny, nz, ks, order, buf, cnt):
+    """Each row's partners within rc into buf[i, :cnt[i]]; False when a row has more than
+    buf.shape[1] (the caller retries with room for more)."""
+    n = x_ac.shape[0]
+    cap = buf.shape[1]
+    rc2 = rc * rc
+    for i in range(n_rows):
+        for d0 in range(-1, 2):
+            for d1 in range(-1, 2):
+                c1 = c_ac[i, 1] + d1
+                if c1 < 0 or c1 >= ny:
+                    continue
+                # the three cells along z of this column have consecutive keys
+                base = ((c_ac[i, 0] + d0) * ny + c1) * nz
+                k_hi = base + min(c_ac[i, 2] + 1, nz - 1)
+                p = _lower_bound(ks, base + max(c_ac[i, 2] - 1, 0))
+                while p < n and ks[p] <= k_hi:
+                    j = order[p]
+                    p += 1
+                    if j == i:
+                        continue
+                    e0 = x_ac[j, 0] - x_ac[i, 0]
+                    e1 = x_ac[j, 1] - x_ac[i, 1]
+                    e2 = x_ac[j, 2] - x_ac[i, 2]
+                    if e0 * e0 + e1 * e1 + e2 * e2 <= rc2:
+                        if cnt[i] == cap:
+                            return False
+                        buf[i, cnt[i]] = j
+                        cnt[i] += 1
+    return True
+
+
+@njit(cache=True)
+def cluster_pairs(x_ac, n_rows, rc):
+    """Verlet list of an open cluster: CSR ``(first (n+1,) int64, partners int32)`` of the
+    pairs (i, j), i < ``n_rows``, j any row but i, with |x_j - x_i| <= ``rc``, each row's
+    partners in increasing order (rows from ``n_rows`` on have none): the pair set of a
+    k-d tree's ``query_pairs(rc)``. Cells of side rc keyed by their integer coordinates and
+    sorted, so the cost is O(n log n) however far a few atoms have flown (a dense grid
+    would grow with the cluster's box)."""
+    n = x_ac.shape[0]
+    if n == 0 or n_rows == 0:
+        return np.zeros(n + 1, np.int64), np.empty(0, np.int32)
+    inv = 1.0 / rc
+    lo0, lo1, lo2 = x_ac[0, 0], x_ac[0, 1], x_ac[0, 2]
+    for a in range(1, n):
+        lo0 = min(lo0, x_ac[a, 0])
+        lo1 = min(lo1, x_ac[a, 1])
+        lo2 = min(lo2, x_ac[a, 2])
+    c_ac = np.empty((n, 3), np.int64)
+    m1 = 0
+    m2 = 0
+    for a in range(n):
+        c_ac[a, 0] = int(math.floor((x_ac[a, 0] - lo0) * inv))
+        c_ac[a, 1] = int(math.floor((x_ac[a, 1] - lo1) * inv))
+        c_ac[a, 2] = int(math.floor((x_ac[a, 2] - lo2) * inv))
+        m1 = max(m1, c_ac[a, 1])
+        m2 = max(m2, c_ac[a, 2])
+    ny = m1 + 1
+    nz = m2 + 1
+    key = np.empty(n, np.int64)
+    for a in range(n):
+        key[a] = (c_ac[a, 0] * ny + c_ac[a, 1]) * nz + c_ac[a, 2]
+    order = np.argsort(key)
+    ks = key[order]
+    cap = 32
+    while True:
+        buf = np.empty((max(n_rows, 1), cap), np.int32)
+        cnt = np.zeros(max(n_rows, 1), np.int64)
+        if _collect_pairs(x_ac, n_rows, rc, c_ac, ny, nz, ks, order, buf, cnt):
+            break
+        cap *= 4
+    first = np.zeros(n + 1, np.int64)
+    for i in range(n_rows):
+        first[i + 1] = first[i] + cnt[i]
+    for i in range(n_rows, n):
+        first[i + 1] = first[i]
+    part = np.empty(first[n], np.int32)
+    for i in range(n_rows):  # each row's partners in increasing order (insertion sort)
+        b0 = first[i]
+        for b in range(cnt[i]):
+            v = buf[i, b]
+            c = b0 + b - 1
+            while c >= b0 and part[c] > v:
+                part[c + 1] = part[c]
+                c -= 1
+            part[c + 1] = v
+    return first, part

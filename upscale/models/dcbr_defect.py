@@ -472,8 +472,6 @@ class DCBRDefectTube(DCBRTube):
         kernel skips the pairs beyond the cutoff itself), each row's partners in index
         order, so that the forces do not depend on the skin or on when the list was built.
         Raises FloatingPointError for a non-finite position."""
-        from scipy.spatial import cKDTree  # noqa: PLC0415
-
         nl = self._nl
         if nl is not None and nl["x"].shape == x.shape:
             d2, bad = CK.max_displacement2(x, nl["x"])
@@ -485,18 +483,10 @@ class DCBRDefectTube(DCBRTube):
                                      f"position {x[bad].tolist()}")
         if d2 <= (0.5 * self.nl_skin) ** 2 and nl["skin"] == self.nl_skin:
             return nl
-        pr = cKDTree(x).query_pairs(self._tcut + self.nl_skin, output_type="ndarray")
-        ii = np.concatenate([pr[:, 0], pr[:, 1]])
-        jj = np.concatenate([pr[:, 1], pr[:, 0]])
-        keep = ii < self.nf  # the kernel visits the free atoms' rows only
-        ii, jj = ii[keep], jj[keep]
-        # each row's partners in index order (the k-d tree's own order depends on where the
-        # list was built): the kernel then sums in the same order whatever the skin and
+        # rows of the free atoms only (the kernel visits no other), each row's partners in
+        # index order: the kernel then sums in the same order whatever the skin and
         # whenever the list was rebuilt
-        order = np.lexsort((jj, ii))
-        jl = jj[order].astype(np.int32)
-        fl = np.zeros(len(x) + 1, np.int64)
-        np.cumsum(np.bincount(ii, minlength=len(x)), out=fl[1:])
+        fl, jl = CK.cluster_pairs(x, self.nf, self._tcut + self.nl_skin)
         self._nl = nl = {"x": x.copy(), "fl": fl, "jl": jl, "skin": self.nl_skin,
                          "sh": np.zeros((len(jl), 3), np.int32), "builds": 0 if nl is None
                          else nl["builds"] + 1}
