@@ -492,6 +492,19 @@ def same(a, b):
     return True
 
 
+@njit(cache=True, inline="always")
+def _mean_xy(a_uc):
+    """The means of columns 0 and 1 of a (n, >= 2) array, summed row by row from the first
+    (numpy's order for a column mean of an (n, 2) view)."""
+    n = a_uc.shape[0]
+    sx = a_uc[0, 0]
+    sy = a_uc[0, 1]
+    for u in range(1, n):
+        sx += a_uc[u, 0]
+        sy += a_uc[u, 1]
+    return sx / n, sy / n
+
+
 @njit(cache=True, error_model="numpy")
 def ghost_gradient(y_uc, gr_u, gt_u, gz_u, gy_uc, gd_nc, gdl_nc, gy_out, gd_out):
     """The gradient of the ghost-force dead load's work W
@@ -506,26 +519,14 @@ def ghost_gradient(y_uc, gr_u, gt_u, gz_u, gy_uc, gd_nc, gdl_nc, gy_out, gd_out)
     order of every sum are numpy's (a column mean of an (n, 2) view sums row by row), so
     the result equals the array expression bit for bit."""
     n = y_uc.shape[0]
-    cx = y_uc[0, 0]
-    cy = y_uc[0, 1]
-    for u in range(1, n):
-        cx += y_uc[u, 0]
-        cy += y_uc[u, 1]
-    cx /= n
-    cy /= n
+    cx, cy = _mean_xy(y_uc)
     for u in range(n):
         x0 = y_uc[u, 0] - cx
         x1 = y_uc[u, 1] - cy
         rho = math.hypot(x0, x1)
         gy_out[u, 0] = (gr_u[u] * x0 - gt_u[u] * x1 / rho) / rho
         gy_out[u, 1] = (gr_u[u] * x1 + gt_u[u] * x0 / rho) / rho
-    mx = gy_out[0, 0]
-    my = gy_out[0, 1]
-    for u in range(1, n):
-        mx += gy_out[u, 0]
-        my += gy_out[u, 1]
-    mx /= n
-    my /= n
+    mx, my = _mean_xy(gy_out)
     for u in range(n):
         gy_out[u, 0] = gy_uc[u, 0] - (gy_out[u, 0] - mx)
         gy_out[u, 1] = gy_uc[u, 1] - (gy_out[u, 1] - my)
