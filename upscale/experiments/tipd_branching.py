@@ -9,8 +9,9 @@ pre-crack          from the left edge to the centre along y = 0 (bonds crossing 
 material           rho = 2440 kg/m^3, E = 72 GPa, nu = 0.22, G0 = 135 J/m^2
 loading            traction sigma (12 or 24 MPa) on the top and bottom edges from t = 0
                    (a force sigma dx t on each particle of the outer rows)
-discretisation     dx = 0.5 mm (200 x 80) and dx/2; horizon delta = 3 dx; the partial-volume
-                   factor of the "linear" rule (:func:`upscale.engine.build_family`) by default
+discretisation     dx = 0.5 mm (200 x 80) and dx/2, or the paper's 400 x 160 points (0.25 mm);
+                   horizon delta = 3 dx; the partial-volume factor of the "linear" rule
+                   (:func:`upscale.engine.build_family`) by default
 time               velocity Verlet at 0.8 of the stable estimate, to 46 us (12 MPa) or
                    32 us (24 MPa, the text's 3.2e-5 s)
 models             Ti-PD with s0 from (60) or (62); LPS (s0 of (62)); PMB (bond-based s0)
