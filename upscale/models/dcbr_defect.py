@@ -97,8 +97,9 @@ ACC_UNIT = ACC_EV_A_AMU_IN_A_FS2  # eV/(Å amu) in Å/fs^2
 #: 2.4 Å with the 2.1 Å cutoff of BNC.tersoff, short of the wall's second-neighbour shell
 #: (sqrt(3) x 1.45 = 2.5 Å), so it holds the first neighbours only; a 1 Å skin (3.1 Å)
 #: also held the second and third shells (4x the pairs), which the kernel's short-list
-#: pass must read and skip at every call: 0.3 Å costs 17-23 % less Tersoff time on the
-#: seed-scale bands, the extra rebuilds included (``validation/results/engine.md``).
+#: pass must read and skip at every call: 0.3 Å costs about 15 % less per call on the
+#: seed-scale bands before failure, its extra rebuilds included; after failure the list is
+#: rebuilt at most calls whatever the skin (``validation/results/engine.md``).
 NL_SKIN = 0.3
 
 __all__ = ["DCBRDefectTube"]
