@@ -538,7 +538,8 @@ def ghost_gradient(y_uc, gr_u, gt_u, gz_u, gy_uc, gd_nc, gdl_nc, gy_out, gd_out)
 
 @njit(cache=True)
 def _lower_bound(a, v):
-    """The first index p with a[p] >= v in the sorted array a."""
+    """The first index p with a[p] >= v in the sorted array a (numba's np.searchsorted
+    measured about 2x slower per call on these short arrays)."""
     lo = 0
     hi = a.shape[0]
     while lo < hi:
