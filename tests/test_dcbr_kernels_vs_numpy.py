@@ -206,11 +206,13 @@ def test_ghost_gradient_kernel_equals_the_array_expression(n):
     assert np.array_equal(oy, gy - corr) and np.array_equal(od, gd - gdl)
 
 
+@pytest.mark.parametrize("far", [True, False])
 @pytest.mark.parametrize("rc", [2.4, 3.1])
-def test_cluster_pairs_equal_the_kd_tree_pairs(rc):
+def test_cluster_pairs_equal_the_kd_tree_pairs(rc, far):
     """The atomistic region's Verlet list builder against scipy's k-d tree: the same pairs,
-    each row's partners sorted, rows past n_rows empty; on a tube wall with two atoms flown
-    far off (the cells are keyed and sorted, not a grid over the box)."""
+    each row's partners sorted, rows past n_rows empty; on a tube wall (a dense grid over
+    its box) and with two atoms flown far off (the box's cells too many for a grid: the
+    cells are keyed and sorted)."""
     from ase.build import nanotube
     from scipy.spatial import cKDTree
 
@@ -218,8 +220,11 @@ def test_cluster_pairs_equal_the_kd_tree_pairs(rc):
 
     x = nanotube(12, 6, length=3).positions
     x = x + np.random.default_rng(0).normal(scale=0.05, size=x.shape)
-    x[3] += [400.0, -2500.0, 30.0]
-    x[-1] -= [0.0, 0.0, 900.0]
+    if far:
+        x[3] += [400.0, -2500.0, 30.0]
+        x[-1] -= [0.0, 0.0, 900.0]
+    cells = np.prod(np.floor((x.max(axis=0) - x.min(axis=0)) / rc) + 1)
+    assert (cells > CK.GRID_CELLS_PER_ATOM * len(x)) == far  # each path taken once
     nf = int(0.7 * len(x))
     pr = cKDTree(x).query_pairs(rc, output_type="ndarray")
     ii = np.concatenate([pr[:, 0], pr[:, 1]])

@@ -22,7 +22,9 @@ tension of the open vacancy tube on the engine
 scene``, the (10,10) 150 Å coarsening-2 tube of ``dcbr-seeds`` (clamped grips on LAMMPS's
 planes, 10 K, seed 1000) pulled to failure; ``--tube small``, a (6,6) 60 Å tube with 10 Å
 grips at 10 Å/ps, to failure (the atomistic region's bonds break, the ghost-force
-correction is refreshed every sample).
+correction is refreshed every sample); ``--tube small-grow``, the same tube starting with a
+disc about the vacancy that grows to the band when the crack starts (``grow``: the run
+moves to a second simulation, which a checkpoint after the switch resumes).
 """
 from __future__ import annotations
 
@@ -162,11 +164,18 @@ def _dcbr_vacancy(args) -> int:
     set_threads(args.threads)
     if args.kill_at:
         _patch_vv_kill(args.kill_at)
-    if args.tube == "small":
+    if args.tube in ("small", "small-grow"):
         from upscale.models.dcbr_defect import DCBRDefectTube
 
-        model = DCBRDefectTube(6, 6, 60.0, coarsening=2.0, vacancy=4, r_atomistic=5.0)
-        dyn = dict(grip=10.0, speed=10.0, max_strain=0.3, sample=20, seed=7)
+        if args.tube == "small":
+            model = DCBRDefectTube(6, 6, 60.0, coarsening=2.0, vacancy=4, r_atomistic=5.0)
+            dyn = {}
+        else:
+            model = DCBRDefectTube(6, 6, 60.0, coarsening=2.0, vacancy=4, r_atomistic=4.0,
+                                   region="disc")
+            dyn = {"grow": DCBRDefectTube(6, 6, 60.0, coarsening=2.0, vacancy=4,
+                                          r_atomistic=5.0)}
+        dyn |= dict(grip=10.0, speed=10.0, max_strain=0.3, sample=20, seed=7)
     else:
         from upscale.experiments.tube_tension import dynamic_scene
         from validation.cases.dcbr import lammps_reference_or_run
@@ -181,8 +190,8 @@ def _dcbr_vacancy(args) -> int:
     r = dynamic_tension(model, engine=True, checkpoint=out / "checkpoint.npz",
                         checkpoint_every=args.checkpoint_every, resume=args.resume, **dyn)
     keep = {k: r[k] for k in ("steps", "strength_GPa", "youngs_modulus_TPa", "strain_at_peak",
-                              "first_damage", "curve")}
-    keep["broken_links"] = int((~model.intact).sum())
+                              "first_damage", "curve", "grown_at", "region_free_atoms")}
+    keep["broken_links"] = int((~dyn.get("grow", model).intact).sum())
     atomic_write_bytes(out / "result.json", json.dumps(keep, cls=NumpyJSON).encode())
     print(keep["broken_links"], "broken links", r["steps"], "steps", flush=True)
     return 0
@@ -307,7 +316,8 @@ def dcbr_kill_resume(workdir, *, steps: int = 300, every: int = 20, strain_rate:
 
 
 def dcbr_vacancy_kill_resume(workdir, *, tube: str = "small", every: int = 50,
-                             kill_at: int | None = None, threads: int = 1, seed=None) -> dict:
+                             kill_at: int | None = None, threads: int = 1, seed=None,
+                             after_growth: bool = False) -> dict:
     """The open vacancy tube's dynamic tension on the engine (module docstring)
     uninterrupted, killed at step ``kill_at`` (default: a random step after the first
     checkpoint) and resumed; compares the final states (positions, velocities, shifts and
@@ -322,8 +332,9 @@ def dcbr_vacancy_kill_resume(workdir, *, tube: str = "small", every: int = 50,
     _check(_run(["dcbr-vacancy", str(w / "full"), *common], threads))
     ja = json.loads((w / "full" / "result.json").read_text())
     steps = int(ja["steps"])
-    if kill_at is None:
-        kill_at = int(np.random.default_rng(seed).integers(every + 1, steps))
+    if kill_at is None:  # (after_growth: after the step at which the region grew)
+        lo = int(ja["grown_at"]["step"]) + 1 if after_growth else every + 1
+        kill_at = int(np.random.default_rng(seed).integers(lo, steps))
     if not 1 <= kill_at < steps:
         raise ValueError(f"kill_at={kill_at}; valid: 1 <= kill_at < {steps} (the run's steps)")
     _check(_run(["dcbr-vacancy", str(w / "cut"), *common, "--kill-at", str(kill_at)],
@@ -340,6 +351,7 @@ def dcbr_vacancy_kill_resume(workdir, *, tube: str = "small", every: int = 50,
                   and all(np.array_equal(sa.fields[k], sb.fields[k]) and
                           np.array_equal(sa.field_v[k], sb.field_v[k]) for k in sa.fields))
     return {"tube": tube, "steps": steps, "killed_at_step": kill_at,
+            "grown_at_step": (ja.get("grown_at") or {}).get("step"),
             "resumed_from_step": ck_step,
             "broken_links_uninterrupted": ja["broken_links"],
             "broken_links_resumed": jb["broken_links"],
@@ -368,8 +380,10 @@ def main(argv=None) -> int:
     p.add_argument("--strain-rate", type=float, default=1e-3, help="dcbr: per fs")
     p.add_argument("--dx", type=float, default=2e-3, help="cpd: spacing (m)")
     p.add_argument("--strain", type=float, default=0.05, help="cpd: nominal strain of the load")
-    p.add_argument("--tube", choices=("small", "scene"), default="small",
-                   help="dcbr-vacancy: a (6,6) 60 Å tube or the (10,10) 150 Å K2 seed scene")
+    p.add_argument("--tube", choices=("small", "small-grow", "scene"), default="small",
+                   help="dcbr-vacancy: a (6,6) 60 Å tube (small-grow: its disc region "
+                        "grows to the band when the crack starts) or the (10,10) 150 Å K2 "
+                        "seed scene")
     args = p.parse_args(argv)
     if args.steps is None:
         args.steps = 8 if args.scene == "cpd" else 300

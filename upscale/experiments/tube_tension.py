@@ -162,7 +162,7 @@ GRIPS = ("bands", "clamped")
 
 
 def dynamic_scene(n, m, length, coarsening, ref, vacancy=True, grips=None,
-                  r_atomistic=8.0, **kw):
+                  r_atomistic=8.0, grow=None, r_grow=None, **kw):
     """The coarse model of the dynamic protocol and the keywords of its
     :func:`upscale.models.dcbr_dynamic.dynamic_tension` call, as every case builds it.
 
@@ -185,7 +185,11 @@ def dynamic_scene(n, m, length, coarsening, ref, vacancy=True, grips=None,
     likewise), so the gauge would no longer be coarse at all; measured that way (4 seeds)
     the small tubes were within 3.5 % (strength), 1.9 % (modulus) and 4.3 % (strain at
     peak) of LAMMPS, but that tests the atoms, not the coarse model. ``kw`` goes to the
-    model (hourglass, step_crossing, ...). ``dyn["grips"]`` records the grips chosen."""
+    model (hourglass, step_crossing, region, ...). ``dyn["grips"]`` records the grips chosen.
+
+    ``grow`` (clamped grips): the region the run grows to when the crack starts (e.g.
+    ``"band"`` about a ``region="disc"``; :func:`upscale.models.dcbr_dynamic.dynamic_tension`,
+    ``grow``), of half-width ``r_grow`` (default ``r_atomistic``); its tube is ``dyn["grow"]``."""
     from upscale.models.dcbr_defect import DCBRDefectTube  # noqa: PLC0415
     from upscale.models.dcbr_dynamic import grip_band_tube  # noqa: PLC0415
 
@@ -194,6 +198,8 @@ def dynamic_scene(n, m, length, coarsening, ref, vacancy=True, grips=None,
     if grips not in GRIPS or (grips == "clamped" and not vacancy):
         raise ValueError(f"grips={grips!r} (vacancy={vacancy}); valid: 'bands', or 'clamped' "
                          "with the vacancy")
+    if grow is not None and grips != "clamped":
+        raise ValueError(f"grow={grow!r} with grips={grips!r}; valid: grow with clamped grips")
     pd = ref.get("protocol_detail", {})
     grip = pd.get("grip_A", 50.0)
     dyn = {"grip": grip, "speed": pd.get("speed_A_per_ps_each_grip", 1.0)}
@@ -206,6 +212,13 @@ def dynamic_scene(n, m, length, coarsening, ref, vacancy=True, grips=None,
         model = DCBRDefectTube(n, m, length, coarsening=coarsening, vacancy=4,
                                r_atomistic=r_atomistic, **kw)
         dyn.update(clamp=True)
+        if grow is not None:
+            big = kw | {"region": grow}
+            if grow != "ellipse":
+                big.pop("r_arc", None)
+            dyn["grow"] = DCBRDefectTube(n, m, length, coarsening=coarsening, vacancy=4,
+                                         r_atomistic=r_atomistic if r_grow is None else r_grow,
+                                         **big)
         if "extensometer" in pd:  # LAMMPS's planes, and its held atoms (:func:`reference_held_planes`)
             dyn["gauge_planes"] = reference_grip_planes(ref)
             dyn["planes"] = reference_held_planes(model.X_atoms[:, 2], dyn["gauge_planes"])

@@ -536,6 +536,12 @@ def ghost_gradient(y_uc, gr_u, gt_u, gz_u, gy_uc, gd_nc, gdl_nc, gy_out, gd_out)
             gd_out[c, k] = gd_nc[c, k] - gdl_nc[c, k]
 
 
+#: largest number of grid cells per atom for which :func:`cluster_pairs` uses a dense grid
+#: (a tube wall fills a few per cent of its box's cells of side 2.4 Å: a 62 Å tube's 24 Å
+#: band, about 2,800 atoms, has some 9,000 cells)
+GRID_CELLS_PER_ATOM = 16
+
+
 @njit(cache=True)
 def _lower_bound(a, v):
     """The first index p with a[p] >= v in the sorted array a (numba's np.searchsorted
@@ -585,13 +591,49 @@ def _collect_pairs(x_ac, n_rows, rc, c_ac, ny, nz, ks, order, buf, cnt):
 
 
 @njit(cache=True)
+def _collect_pairs_grid(x_ac, n_rows, rc, c_ac, nx, ny, nz, start, order, buf, cnt):
+    """As :func:`_collect_pairs` on a dense grid: ``start`` (nx ny nz + 1) the first
+    position in ``order`` of every cell (z the fastest index, so a column's three cells
+    along z are one run of ``order``)."""
+    cap = buf.shape[1]
+    rc2 = rc * rc
+    for i in range(n_rows):
+        z_lo = max(c_ac[i, 2] - 1, 0)
+        z_hi = min(c_ac[i, 2] + 1, nz - 1)
+        for d0 in range(-1, 2):
+            c0 = c_ac[i, 0] + d0
+            if c0 < 0 or c0 >= nx:
+                continue
+            for d1 in range(-1, 2):
+                c1 = c_ac[i, 1] + d1
+                if c1 < 0 or c1 >= ny:
+                    continue
+                base = (c0 * ny + c1) * nz
+                for p in range(start[base + z_lo], start[base + z_hi + 1]):
+                    j = order[p]
+                    if j == i:
+                        continue
+                    e0 = x_ac[j, 0] - x_ac[i, 0]
+                    e1 = x_ac[j, 1] - x_ac[i, 1]
+                    e2 = x_ac[j, 2] - x_ac[i, 2]
+                    if e0 * e0 + e1 * e1 + e2 * e2 <= rc2:
+                        if cnt[i] == cap:
+                            return False
+                        buf[i, cnt[i]] = j
+                        cnt[i] += 1
+    return True
+
+
+@njit(cache=True)
 def cluster_pairs(x_ac, n_rows, rc):
     """Verlet list of an open cluster: CSR ``(first (n+1,) int64, partners int32)`` of the
     pairs (i, j), i < ``n_rows``, j any row but i, with |x_j - x_i| <= ``rc``, each row's
     partners in increasing order (rows from ``n_rows`` on have none): the pair set of a
-    k-d tree's ``query_pairs(rc)``. Cells of side rc keyed by their integer coordinates and
-    sorted, so the cost is O(n log n) however far a few atoms have flown (a dense grid
-    would grow with the cluster's box)."""
+    k-d tree's ``query_pairs(rc)``. Cells of side rc: a dense grid over the cluster's box
+    (each cell's atoms found by a counting sort, O(n + cells)) while the box holds at most
+    :data:`GRID_CELLS_PER_ATOM` cells per atom; beyond that (a few atoms flown far off,
+    after failure) the cells are keyed by their integer coordinates and sorted, O(n log
+    n) however far they have flown. Both give the same list."""
     n = x_ac.shape[0]
     if n == 0 or n_rows == 0:
         return np.zeros(n + 1, np.int64), np.empty(0, np.int32)
@@ -602,26 +644,49 @@ def cluster_pairs(x_ac, n_rows, rc):
         lo1 = min(lo1, x_ac[a, 1])
         lo2 = min(lo2, x_ac[a, 2])
     c_ac = np.empty((n, 3), np.int64)
+    m0 = 0
     m1 = 0
     m2 = 0
     for a in range(n):
         c_ac[a, 0] = int(math.floor((x_ac[a, 0] - lo0) * inv))
         c_ac[a, 1] = int(math.floor((x_ac[a, 1] - lo1) * inv))
         c_ac[a, 2] = int(math.floor((x_ac[a, 2] - lo2) * inv))
+        m0 = max(m0, c_ac[a, 0])
         m1 = max(m1, c_ac[a, 1])
         m2 = max(m2, c_ac[a, 2])
+    nx = m0 + 1
     ny = m1 + 1
     nz = m2 + 1
     key = np.empty(n, np.int64)
     for a in range(n):
         key[a] = (c_ac[a, 0] * ny + c_ac[a, 1]) * nz + c_ac[a, 2]
-    order = np.argsort(key)
-    ks = key[order]
+    # (the cell count as a float: a far-flung atom can make it overflow an integer)
+    grid = float(nx) * float(ny) * float(nz) <= GRID_CELLS_PER_ATOM * n
+    if grid:  # counting sort of the atoms by cell
+        ncell = nx * ny * nz
+        start = np.zeros(ncell + 1, np.int64)
+        for a in range(n):
+            start[key[a] + 1] += 1
+        for c in range(ncell):
+            start[c + 1] += start[c]
+        fill = start[:ncell].copy()
+        order = np.empty(n, np.int64)
+        for a in range(n):
+            order[fill[key[a]]] = a
+            fill[key[a]] += 1
+    else:
+        order = np.argsort(key)
+        ks = key[order]
     cap = 32
     while True:
         buf = np.empty((max(n_rows, 1), cap), np.int32)
         cnt = np.zeros(max(n_rows, 1), np.int64)
-        if _collect_pairs(x_ac, n_rows, rc, c_ac, ny, nz, ks, order, buf, cnt):
+        if grid:
+            ok = _collect_pairs_grid(x_ac, n_rows, rc, c_ac, nx, ny, nz, start, order, buf,
+                                     cnt)
+        else:
+            ok = _collect_pairs(x_ac, n_rows, rc, c_ac, ny, nz, ks, order, buf, cnt)
+        if ok:
             break
         cap *= 4
     first = np.zeros(n + 1, np.int64)

@@ -1320,6 +1320,75 @@ class DCBRDefectTube(DCBRTube):
             gy[nd:] += self._PhiT @ gyp[self.slave_idx]
         return gy, gd
 
+    def carry_state(self, other: "DCBRDefectTube", y, delta, v=None, vdelta=None,
+                    Lz: float | None = None, h: float = 1e-3):
+        """This tube's unknowns continuing the state of ``other``, a tube of the same lattice
+        whose atomistic region lies inside this one's (the region grown about the crack:
+        :func:`upscale.models.dcbr_dynamic.dynamic_tension`, ``grow``).
+
+        Particles that stay coarse keep their positions, velocities and shifts; the atoms
+        that become free take the positions ``other`` gives them through their carriers'
+        maps (:meth:`mapped_atoms`, the pad atoms' rule) and the velocities of those maps,
+        x'_a = (x_a(y + h v, delta + h w) - x_a(y - h v, delta - h w)) / 2h (central
+        difference, error O(h^2 |v|^3), with ``h`` fs); atoms free in both keep theirs.
+        The map carries the coarse state's deformation and sublattice shift, not the
+        atoms' own thermal motion (the coarse model has none), so the new atoms start at
+        the local lattice with the local flow. Also copied: the links (broken links stay
+        broken) and the carriers' last good maps.
+
+        Parameters: ``y`` (nd_other + nf_other, 3) and ``delta`` (N, 3) of ``other``;
+        ``v``, ``vdelta`` their rates (optional); ``Lz`` the cell length the energy is
+        called with (default ``other.L``). Returns ``(y, delta)``, or ``(y, delta, v,
+        vdelta)`` with ``v``: this tube's unknowns (nd + nf, 3) and shifts (N, 3); the
+        shift rates of this tube's slave particles are zero (as at a run's start)."""
+        if not (isinstance(other, DCBRDefectTube) and other.N == self.N
+                and len(other.X_atoms) == len(self.X_atoms)
+                and np.array_equal(other.removed, self.removed)
+                and np.allclose(other.X_atoms, self.X_atoms, rtol=0, atol=1e-9)):
+            raise ValueError("carry_state needs a tube of the same lattice and vacancy; got "
+                             f"{getattr(other, 'N', None)} particles, this one {self.N}")
+        free_o = np.zeros(len(self.X_atoms), bool)
+        free_o[other.free_idx] = True
+        if not (np.all(np.isin(other.free_idx, self.free_idx))
+                and np.all(np.isin(self.dof_idx, other.dof_idx))):
+            raise ValueError("carry_state: the other tube's atomistic region is not inside "
+                             "this one's; valid: a region that contains it (e.g. the band "
+                             "about a disc)")
+        y = np.asarray(y, dtype=float)
+        delta = np.ascontiguousarray(delta, dtype=float)
+        Lz = float(other.L if Lz is None else Lz)
+        ndo = len(other.dof_idx)
+        rank = np.full(len(self.X_atoms), -1, np.int64)
+        rank[other.free_idx] = np.arange(other.nf)
+        kept = rank[self.free_idx] >= 0
+        new = self.free_idx[~kept]
+        table = other.atom_map(new)
+
+        def unknowns(y_, d_):
+            yn = np.empty((len(self.dof_idx) + self.nf, 3))
+            yn[:len(self.dof_idx)] = other.particle_positions(y_)[self.dof_idx]
+            xa = yn[len(self.dof_idx):]
+            xa[kept] = y_[ndo:][rank[self.free_idx[kept]]]
+            xa[~kept] = other.mapped_atoms(y_, d_, Lz, table)
+            return yn
+        yn, dn = unknowns(y, delta), delta.copy()
+        self.set_links(other.intact, other.alive)
+        self._FS_last[...] = other._FS_last
+        if v is None:
+            return yn, dn
+        v = np.asarray(v, dtype=float)
+        vd = np.zeros_like(delta) if vdelta is None else np.asarray(vdelta, dtype=float)
+        vn = (unknowns(y + h * v, np.ascontiguousarray(delta + h * vd))
+              - unknowns(y - h * v, np.ascontiguousarray(delta - h * vd))) / (2 * h)
+        # the exact rates where they are unknowns of both (the map's difference is not)
+        vp = np.zeros((self.N, 3))
+        vp[other.dof_idx] = v[:ndo]
+        vn[:len(self.dof_idx)] = vp[self.dof_idx]
+        vn[len(self.dof_idx):][kept] = v[ndo:][rank[self.free_idx[kept]]]
+        vdn = vd.copy()
+        vdn[self.slave_idx] = 0.0
+        return yn, dn, vn, vdn
+
     @property
     def ghost_correction(self) -> dict | None:
         """The ghost-force dead load of the current load step (:meth:`prepare_step`,

@@ -155,6 +155,18 @@ runaway atom. The atomistic region may be shaped around the vacancy
 region's edge, where the coarse link rule does not carry its tip and arrests it; the band
 keeps the crack's whole path atomistic (``validation/results/engine.md``).
 
+A region that grows with the crack (``grow``, :func:`grow_region`). Up to the crack a disc
+about the vacancy is enough: the loading is elastic outside it, and the crack starts at
+the vacancy (the vacancy's first bonds break at the peak on (30,60) and about 0.02 strain
+before it on (50,50)). The band costs its atoms at every inner step all along. So the run
+starts on the disc and, at the first sample at which one of its bonds has broken, moves
+to the band: the tube with the band is set up beside the disc's (same grips, same clamp,
+no minimisation of its own), and the state is carried over
+(:meth:`~upscale.models.dcbr_defect.DCBRDefectTube.carry_state`: the new atoms where the
+carriers' maps put them, with those maps' velocities plus thermal ones at the scene's
+temperature). From there the run is the band's; a checkpoint written after the switch
+resumes on the band, bit for bit.
+
 Other differences from the LAMMPS runs, stated: the coarse failure rule is the link rule
 only (checked every ``sample`` steps; the lattice-stability rule needs a Hessian, the coarse
 region stays far below its instability strain when the vacancy fails, and the pristine
@@ -173,7 +185,7 @@ from upscale.constants import K_B_EV
 from upscale.models.dcbr import EV_PER_A3_IN_GPA, WALL_THICKNESS, uniform_map_frame
 from upscale.models.dcbr_defect import ACC_UNIT, CARBON_MASS
 
-__all__ = ["dynamic_tension", "open_tube_with_grips", "static_grip_stiffness",
+__all__ = ["dynamic_tension", "open_tube_with_grips", "grow_region", "static_grip_stiffness",
            "grip_band_tube", "pristine_grip_tube", "run_metrics", "CARBON_MASS"]
 
 
@@ -209,7 +221,7 @@ def pristine_grip_tube(n: int, m: int, length: float, coarsening: float, grip: f
     return grip_band_tube(n, m, length, coarsening, grip, r_atomistic, vacancy=0, **kw)
 
 def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | None = None,
-                         planes=None, gauge_planes=None) -> dict:
+                         planes=None, gauge_planes=None, grows_to=None) -> dict:
     """Steps 1-3 of the module docstring: the open tube relaxed with its grips.
 
     ``clamp``: clamped coarse grips (module docstring); ``None`` (default): clamped unless
@@ -221,13 +233,17 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | N
     clamp takes hold (a held row counts as sitting there: the innermost held material,
     module docstring, "The gauge"). ``gauge_planes`` (reference z, default ``planes``):
     the planes whose distance is the gauge of the strain, and between which the
-    extensometer and the velocity ramp lie.
+    extensometer and the velocity ramp lie. ``grows_to``: the tube the run may grow its
+    region to (:func:`grow_region`); the rows its pad atoms follow are not held by a
+    clamp's half-row rule either, so that both tubes have the same grips.
 
     Returns a dict: ``y``, ``delta`` (the relaxed unknowns), ``L0``, ``R`` (mean atom radius),
     ``area`` (2 pi R t), the grip masks ``bottom`` and ``top`` over the rows of ``y``, the grip
     planes ``zb`` < ``zt`` (Å, after the set-up relaxation), the gauge planes ``gb`` < ``gt``
-    (likewise), ``gauge`` = gt - gb and ``grip_rows`` (the innermost grip rows'
-    distance)."""
+    (likewise), ``gauge`` = gt - gb, ``grip_rows`` (the innermost grip rows'
+    distance) and ``clamped`` (the clamp's planes, rigid particles and the particle
+    positions G was linearised about; None without a clamp), which :func:`grow_region`
+    repeats on a larger region."""
     # the zero-stress uniform lattice (an open tube relaxes its own length, so the periodic
     # zero-stress iteration of the quasi-static scene is not needed), then the tube is
     # opened (G without links across the cell boundary) and minimised once
@@ -283,6 +299,8 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | N
     hold = 0.5 * h if clamp else 0.0
     carrier = np.zeros(model.N, bool)
     carrier[model._pad["c"]] = True
+    if grows_to is not None:
+        carrier[grows_to._pad["c"]] = True
     inner = carrier[model.dof_idx]
     bottom[:nd] = (z[:nd] < zb) | ((z[:nd] < zb + hold) & ~inner)
     top[:nd] = (z[:nd] > zt) | ((z[:nd] > zt - hold) & ~inner)
@@ -325,11 +343,13 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | N
     else:
         zb += float(np.mean(y[:nd][end_lo, 2] - z_pre[end_lo]))
         zt += float(np.mean(y[:nd][end_hi, 2] - z_pre[end_hi]))
+    clamped = None
     if clamp:  # the grips' particles held rigid in G from here on (DCBRDefectTube.clamp_grips)
         yp = model.particle_positions(y)
         rigid = np.zeros(model.N, bool)
         rigid[model.dof_idx] = bottom[:nd] | top[:nd]
         model.clamp_grips(zb_ref, zt_ref, rigid, yp, Lz0=L0)  # (rebuilds G and its twin)
+        clamped = {"planes_ref": (zb_ref, zt_ref), "rigid": rigid, "y_ref": yp}
         model.prepare_step(L0)
         fixed[grips] = True
         r = model.minimise(y, d, L0, gtol=gtol, fixed=fixed)
@@ -344,15 +364,56 @@ def open_tube_with_grips(model, grip: float, gtol: float = 1e-4, clamp: bool | N
     return {"y": y, "delta": d, "L0": float(L0), "R": R, "area": 2 * math.pi * R * WALL_THICKNESS,
             "bottom": bottom, "top": top, "zb": zb, "zt": zt, "gb": gb, "gt": gt,
             "gauge": float(gt - gb),
-            "grip_rows": float(z[top].min() - z[bottom].max()),
+            "grip_rows": float(z[top].min() - z[bottom].max()), "clamped": clamped,
             "ghost0": {k: np.array(v, copy=True) if isinstance(v, np.ndarray) else v
                        for k, v in model._ghost.items()}}
+
+
+def grow_region(big, model, st) -> dict:
+    """Set up ``big``, a tube of ``model``'s lattice with an atomistic region containing
+    ``model``'s (:meth:`~upscale.models.dcbr_defect.DCBRDefectTube.carry_state`), as
+    :func:`open_tube_with_grips` set up ``model`` (``st`` its result), so that a run can
+    continue on it: opened, its grips clamped about the same particle positions (G is
+    linearised about the relaxed open tube of ``model``; the particles are the same, and
+    the grown region's own relaxation would only move the atoms of the region), the
+    ghost-force correction at the set-up length. No minimisation: the state comes from
+    ``model``'s (``carry_state``). Returns ``st`` for ``big``: its set-up state carried
+    over (``y``, ``delta``, the extensometer's reference) and the grip masks over its rows;
+    the planes, gauge and area are ``model``'s. Clamped grips only (the scene of the vacancy
+    tubes)."""
+    cl = st.get("clamped")
+    if cl is None:
+        raise ValueError("grow_region needs clamped grips (the vacancy scene); valid: "
+                         "open_tube_with_grips(..., clamp=True) on the smaller region")
+    if getattr(big, "band_z", None) is not None:
+        raise ValueError("grow_region: a tube with atomistic bands across the grips; valid: "
+                         "the vacancy's own region only")
+    L0 = st["L0"]
+    big.periodic, big.clamp = False, None
+    big._build_gain(None)
+    big.prepare_step(L0)
+    nd = len(model.dof_idx)
+    bottom_p, top_p = np.zeros(model.N, bool), np.zeros(model.N, bool)
+    bottom_p[model.dof_idx], top_p[model.dof_idx] = st["bottom"][:nd], st["top"][:nd]
+    held = bottom_p | top_p
+    if held[big.slave_idx].any() or len(big._pad["c"]) and held[big._pad["c"]].any():
+        raise ValueError("the grown atomistic region reaches into a grip; valid: a longer "
+                         "tube, shorter grips or a smaller region")
+    big.clamp_grips(*cl["planes_ref"], cl["rigid"], cl["y_ref"], Lz0=L0)
+    big.prepare_step(L0)
+    y, d = big.carry_state(model, st["y"], st["delta"], Lz=L0)
+    ndb = len(big.dof_idx)
+    bottom, top = np.zeros(len(y), bool), np.zeros(len(y), bool)
+    bottom[:ndb], top[:ndb] = bottom_p[big.dof_idx], top_p[big.dof_idx]
+    return st | {"y": y, "delta": d, "bottom": bottom, "top": top,
+                 "ghost0": {k: np.array(v, copy=True) if isinstance(v, np.ndarray) else v
+                            for k, v in big._ghost.items()}}
 
 
 def _engine_loop(tube, st, y, d, v, vd, L0, mass, mass_d, movable, dfree, ndf, thermo,
                  temperature, tdamp, dt, vz, sample, max_strain, gauge, z_ext, ext, rec,
                  on_sample, stability, checkpoint, checkpoint_every, resume, output,
-                 engine_progress, inner=None, split="coarse"):
+                 engine_progress, inner=None, split="coarse", grow=None):
     """The time loop of :func:`dynamic_tension` on the engine.
 
     The tube as :class:`~upscale.models.dcbr_engine.DCBRDefectTubeModel` (rows: particles,
@@ -372,46 +433,86 @@ def _engine_loop(tube, st, y, d, v, vd, L0, mass, mass_d, movable, dfree, ndf, t
     its outer step and ``inner`` fast steps in each (the force split of
     :meth:`~upscale.models.dcbr_engine.DCBRDefectTubeModel.add_group_force`), the steps
     counted and sampled as outer steps; ``split`` names the model's force split
-    (:data:`~upscale.models.dcbr_engine.SPLITS`). Returns (steps, y, delta, wall s of the
-    dynamics)."""
+    (:data:`~upscale.models.dcbr_engine.SPLITS`).
+
+    ``grow`` (the grown region of :func:`dynamic_tension`): a callable ``grow(y, d, v, vd)``
+    that, when a sample has set ``rec["grow_pending"]``, moves the scene to the larger
+    tube and returns its ``{"tube", "st", "y", "delta", "v", "vdelta", "dfree", "ndf",
+    "ext"}`` (``y`` None on a resumed run). The run goes on in a new simulation of that
+    tube from the same step and time, its reference rows the grown tube's set-up state (so
+    the grips move and the displacements count as before), the thermostat keeps its
+    variable; the extra ``dcbr.grown`` (the step) marks
+    a checkpoint written after the switch, which resumes on the larger tube. Returns
+    (steps, y, delta, wall s of the dynamics)."""
     import json  # noqa: PLC0415
     import time as _time  # noqa: PLC0415
     from pathlib import Path  # noqa: PLC0415
 
     from upscale.engine.checkpoint import Checkpoint  # noqa: PLC0415
     from upscale.engine.conditions import Grip, Region  # noqa: PLC0415
-    from upscale.engine.integrators import VelocityVerlet  # noqa: PLC0415
+    from upscale.engine.integrators import BlowUp, VelocityVerlet  # noqa: PLC0415
     from upscale.engine.simulation import Simulation  # noqa: PLC0415
     from upscale.engine.thermostats import NoseHoover  # noqa: PLC0415
     from upscale.io import NumpyJSON  # noqa: PLC0415
     from upscale.models.dcbr_engine import FIELD, DCBRDefectTubeModel  # noqa: PLC0415
 
     t0 = _time.perf_counter()
-    em = DCBRDefectTubeModel(tube, y=y, delta=d, Lz=L0, split=split)
-    system = em.system()
-    n, N = em.n, em.N
-    rows = em.y_rows
-    bottom, top = np.zeros(n, bool), np.zeros(n, bool)
-    bottom[rows], top[rows] = st["bottom"], st["top"]
-    held = np.zeros(N, bool)
-    held[~dfree] = True
-    grips = [Grip(Region("grip bottom", bottom), velocity=(0.0, 0.0, -vz), record_every=0),
-             Grip(Region("grip top", top), velocity=(0.0, 0.0, vz), record_every=0)]
-    conds = em.conditions(held_shifts=held) + grips
-    thermostat = NoseHoover(temperature, tdamp, components=(0, 1), fields=(FIELD,), ndf=ndf,
-                            k_B=K_B_EV) if thermo else None
-    if inner is None:
-        integrator = VelocityVerlet(dt, force=True, thermostat=thermostat)
-    else:
-        from upscale.engine.respa import RESPA  # noqa: PLC0415
+    cur = {}  # the simulation and what the bookkeeping reads of it
 
-        integrator = RESPA(dt, int(inner), thermostat=thermostat, force=True)
-    sim = Simulation(system, None, [em], conds, integrator)
-    state = sim.state
-    state.v[rows] = v
-    if len(tube.slave_idx):
-        state.v[tube.slave_idx] = tube.Phi @ v[em.nd:]
-    state.field_v[FIELD][:N] = vd
+    def build(tube, st, y, d, v, vd, dfree, ndf, t=0.0, step=0):
+        """A simulation of ``tube``, its reference rows the set-up state ``st`` (the start
+        of the pull, so that the grips' rigid motion and the displacements are the same
+        functions of time on either tube), at unknowns y, shifts d, rates v, vd (None:
+        at the reference, at rest), time ``t`` and ``step``."""
+        em = DCBRDefectTubeModel(tube, y=st["y"], delta=st["delta"], Lz=L0, split=split)
+        system = em.system()
+        n, N = em.n, em.N
+        rows = em.y_rows
+        bottom, top = np.zeros(n, bool), np.zeros(n, bool)
+        bottom[rows], top[rows] = st["bottom"], st["top"]
+        held = np.zeros(N, bool)
+        held[~dfree] = True
+        grips = [Grip(Region("grip bottom", bottom), velocity=(0.0, 0.0, -vz), record_every=0),
+                 Grip(Region("grip top", top), velocity=(0.0, 0.0, vz), record_every=0)]
+        conds = em.conditions(held_shifts=held) + grips
+        thermostat = NoseHoover(temperature, tdamp, components=(0, 1), fields=(FIELD,),
+                                ndf=ndf, k_B=K_B_EV) if thermo else None
+        if inner is None:
+            integrator = VelocityVerlet(dt, force=True, thermostat=thermostat)
+        else:
+            from upscale.engine.respa import RESPA  # noqa: PLC0415
+
+            integrator = RESPA(dt, int(inner), thermostat=thermostat, force=True)
+        sim = Simulation(system, None, [em], conds, integrator)
+        state = sim.state
+        state.t, state.step = float(t), int(step)
+        if y is not None and step > 0:  # (a state carried over)
+            state.y[...] = em.rows(y)
+            state.fields[FIELD][:N] = d
+        if v is not None:
+            state.v[rows] = v
+            if len(tube.slave_idx):
+                state.v[tube.slave_idx] = tube.Phi @ v[em.nd:]
+            state.field_v[FIELD][:N] = vd
+        cur.update(sim=sim, em=em, rows=rows, N=N, bottom=bottom, top=top, tube=tube)
+        return sim
+
+    def grown(y_, d_, v_, vd_, t, step, xi):
+        g = grow(y_, d_, v_, vd_)
+        cur["ext"] = g["ext"]
+        sim = build(g["tube"], g["st"], g["y"], g["delta"], g["v"], g["vdelta"], g["dfree"],
+                    g["ndf"], t, step)
+        sim.state.extra["dcbr.grown"] = np.int64(step)
+        # (the correction set at the switch, under a new version: a run resumed from a
+        # checkpoint of this simulation takes it from the extras, not from its set-up)
+        cur["em"].store_ghost(sim.state)
+        th = getattr(sim.integrator, "thermostat", None)
+        if th is not None:
+            th.xi = xi
+        return sim
+
+    cur["ext"] = ext
+    build(tube, st, y, d, v, vd, dfree, ndf)
     ck = None
     if checkpoint is not None:
         ck = Checkpoint(checkpoint, int(checkpoint_every))
@@ -419,19 +520,19 @@ def _engine_loop(tube, st, y, d, v, vd, L0, mass, mass_d, movable, dfree, ndf, t
 
     def save_rec(step):
         rec["step"] = int(step)
-        state_ = sim.state
-        state_.extra["dcbr.scene"] = np.frombuffer(json.dumps(rec, cls=NumpyJSON).encode(),
-                                                   dtype=np.uint8)
+        cur["sim"].state.extra["dcbr.scene"] = np.frombuffer(
+            json.dumps(rec, cls=NumpyJSON).encode(), dtype=np.uint8)
 
     def bookkeeping(sim_) -> bool:
         s_ = sim_.state
         step = int(s_.step)
+        rows, N, em = cur["rows"], cur["N"], cur["em"]
         # the grips' reaction (what they exert on the tube, -sum F over the region, here
         # from the unzeroed forces on the prescribed rows)
         R = sim_.reactions
-        rec["blk"].append(0.5 * (-R[top, 2].sum() + R[bottom, 2].sum()))
+        rec["blk"].append(0.5 * (-R[cur["top"], 2].sum() + R[cur["bottom"], 2].sum()))
         yk = s_.y[rows]
-        rec["eblk"].append(ext.strain(z_ext(yk)))
+        rec["eblk"].append(cur["ext"].strain(z_ext(yk)))
         stop = False
         if step % sample == 0:
             d_ = s_.fields[FIELD][:N]
@@ -454,6 +555,13 @@ def _engine_loop(tube, st, y, d, v, vd, L0, mass, mass_d, movable, dfree, ndf, t
 
     steps_max = int(np.ceil(max_strain * gauge / (2 * vz * dt))) + 2 * sample
     if resume and ck is not None and Path(checkpoint).is_file():
+        with np.load(checkpoint) as z:  # a checkpoint written after the region grew
+            grown_ck = "extra__dcbr.grown" in z.files
+        if grown_ck:
+            g = grow(None, None, None, None)
+            cur["ext"] = g["ext"]
+            build(g["tube"], g["st"], None, None, None, None, g["dfree"], g["ndf"])
+        sim = cur["sim"]
         sim.resume(checkpoint)
         sc = json.loads(bytes(sim.state.extra["dcbr.scene"]).decode()) \
             if "dcbr.scene" in sim.state.extra else None
@@ -463,15 +571,28 @@ def _engine_loop(tube, st, y, d, v, vd, L0, mass, mass_d, movable, dfree, ndf, t
         ck.last_step = None
         if int(sim.state.step) > 0 and rec["step"] < sim.state.step:
             if bookkeeping(sim):  # the interrupted step's own bookkeeping
-                steps_max = 0
+                steps_max = 0 if not rec.get("grow_pending") else steps_max
         if steps_max:
             save_rec(sim.state.step)
     else:
         save_rec(0)
-    left = max(steps_max - int(sim.state.step), 0)
-    if left:
-        from upscale.engine.integrators import BlowUp  # noqa: PLC0415
-
+    while True:
+        sim = cur["sim"]
+        if rec.get("grow_pending"):  # the crack reached the region: continue on the larger one
+            s_ = sim.state
+            em = cur["em"]
+            yk, dk = em.unknowns(s_)
+            th = getattr(sim.integrator, "thermostat", None)
+            rec["grow_pending"] = False
+            sim = grown(yk, np.array(dk, copy=True), s_.v[cur["rows"]].copy(),
+                        np.array(s_.field_v[FIELD][:cur["N"]], copy=True), s_.t, s_.step,
+                        0.0 if th is None else th.xi)
+            save_rec(sim.state.step)
+            if ck is not None:  # (the first checkpoint of the larger tube, at once)
+                ck.last_step = None
+        left = max(steps_max - int(sim.state.step), 0)
+        if not left:
+            break
         try:
             sim.run(left, output=output, checkpoint=ck, progress=engine_progress,
                     callback=bookkeeping, meta={"scene": "dcbr dynamic tension"})
@@ -482,7 +603,11 @@ def _engine_loop(tube, st, y, d, v, vd, L0, mass, mass_d, movable, dfree, ndf, t
             if not rec["failed"]:
                 raise
             rec["blowup_after_failure"] = str(e)
-    yk, dk = em.unknowns(sim.state)
+            break
+        if not rec.get("grow_pending"):
+            break
+    sim = cur["sim"]
+    yk, dk = cur["em"].unknowns(sim.state)
     return int(sim.state.step), yk, np.array(dk, copy=True), _time.perf_counter() - t0
 
 
@@ -615,7 +740,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
                     checkpoint=None, checkpoint_every: int = 500, resume: bool = False,
                     output=None, engine_progress: bool = False, integrator: str = "verlet",
                     outer_dt: float | None = None, inner: int | None = None,
-                    split: str | None = None) -> dict:
+                    split: str | None = None, grow=None, grow_thermal: bool = True) -> dict:
     """Dynamic tension of an open coarse tube with end grips (module docstring).
 
     Returns a dict like the LAMMPS runner's: ``curve`` (strain, stress_GPa, time_ps,
@@ -659,6 +784,21 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     step comes from the dead load applied as an impulse); ``"interface"`` the lattice
     energy of the particles with a slave in their G stencil fast; ``"atoms-free"`` both
     fast, so that the slow forces never act on the atoms (more work per fast step).
+
+    ``grow`` (engine only, clamped grips): a :class:`~upscale.models.dcbr_defect.DCBRDefectTube`
+    of the same tube whose atomistic region contains ``model``'s, e.g. the band about a
+    disc. The run starts on ``model``; at the first sample at which one of its atoms has a
+    broken bond (the crack has started, and a crack cannot leave an atomistic region: at
+    its edge the coarse link rule does not carry the tip, ``validation/results/engine.md``)
+    the state is carried over to ``grow`` (:meth:`~upscale.models.dcbr_defect.DCBRDefectTube.
+    carry_state`, set up by :func:`grow_region`) and the run continues on it. A disc
+    carries the loading up to the crack at a fraction of the band's cost; the band then
+    carries the crack around the tube. The result's ``grown_at`` gives the step, time and
+    strain of the switch (None if it did not happen), ``region_free_atoms`` the free atoms
+    before and after, ``dynamics_before_growth_s`` the wall time of the dynamics up to the
+    switch. ``grow_thermal`` (default): the atoms that become free get thermal velocities at
+    ``temperature`` on top of their carried ones (drawn as at the start, from ``seed`` and
+    the step), which the coarse state cannot carry.
     """
     from upscale.analysis.stress import Extensometer  # noqa: PLC0415
 
@@ -699,10 +839,14 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     if ghost not in ("local", "grips"):
         raise ValueError(f"ghost={ghost!r}; valid: 'local' (each side's correction at the "
                          "stretch its interface particles carry) or 'grips' (at the grips' strain)")
+    if grow is not None and not (engine and model.nf):
+        raise ValueError(f"grow with engine={engine!r} and {model.nf} free atoms; valid: "
+                         "engine=True and a model with an atomistic region")
     t0 = time.perf_counter()
     acc = ACC_UNIT
     st = open_tube_with_grips(model, grip, gtol, clamp=clamp, planes=planes,
-                              gauge_planes=gauge_planes)
+                              gauge_planes=gauge_planes, grows_to=grow)
+    st_grow = None if grow is None else grow_region(grow, model, st)
     y, d, L0, R, area = st["y"], st["delta"], st["L0"], st["R"], st["area"]
     bottom, top, zb, zt, gauge = st["bottom"], st["top"], st["zb"], st["zt"], st["gauge"]
     grips, nd, grip_rows = bottom | top, len(model.dof_idx), st["grip_rows"]
@@ -713,11 +857,17 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     at_planes = banded and not np.any(model.removed)
     t_relax = time.perf_counter() - t0
     c_relax = time.process_time()
+    t_grown = None  # wall time of the dynamics when the region grew (this process's)
 
     def z_ext(y):  # the extensometer's points: every particle, then the free atoms
         return np.r_[model.particle_positions(y)[:, 2], y[nd:, 2]]
-    ext = Extensometer(z_ext(y), *Extensometer.window(st["gb"], st["gt"]),
-                       weights=np.r_[model.natoms_n, np.ones(model.nf)])
+
+    def extensometer(tube, st_):  # (on the set-up state, the start of the pull)
+        return Extensometer(np.r_[tube.particle_positions(st_["y"])[:, 2],
+                                  st_["y"][len(tube.dof_idx):, 2]],
+                            *Extensometer.window(st["gb"], st["gt"]),
+                            weights=np.r_[tube.natoms_n, np.ones(tube.nf)])
+    ext = extensometer(model, st)
     z = y[:, 2]
     zlo, zhi = model.particle_positions(y)[:, 2].min(), model.particle_positions(y)[:, 2].max()
     mass, mass_d = model.masses()
@@ -754,12 +904,15 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     # their shifts stay free; held, that gap would take the unrelaxed (stiffer) response
     # (``python -m validation dcbr-energy``: without the shift relaxation the strain energy
     # is several per cent high). The static grip stiffness relaxes them likewise.
-    dfree = np.ones(model.N, bool)
-    dfree[model.dof_idx[grips[:nd]]] = False
-    if getattr(model, "clamp", None) is not None:
-        dfree[model.grip_edges] = True
+    def free_shifts(tube, grips):
+        """(shifts free (N,) bool, thermostat degrees of freedom)."""
+        df = np.ones(tube.N, bool)
+        df[tube.dof_idx[grips[:len(tube.dof_idx)]]] = False
+        if getattr(tube, "clamp", None) is not None:
+            df[tube.grip_edges] = True
+        return df, 2 * int((~grips).sum()) + 3 * int((df & ~tube.is_slave).sum())
+    dfree, ndf = free_shifts(model, grips)
     vd[~dfree] = 0.0
-    ndf = 2 * int(movable.sum()) + 3 * int((dfree & ~model.is_slave).sum())
     xi = 0.0
 
     def temp_xy():
@@ -778,12 +931,14 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     # each half as it relaxes after the tube breaks
     # (a carrier held by a grip does not stretch: with bands across the grip planes only
     # the gauge's carriers measure a side's stretch)
-    zc_vac = model.vacancy_theta_z[1]
-    held = np.zeros(model.N, bool)
-    held[model.dof_idx] = grips[:nd]
-    pc = model._pad["c"]
-    pad_lo = model.x0[pc, 2] < zc_vac
-    c_lo, c_hi = np.unique(pc[pad_lo & ~held[pc]]), np.unique(pc[~pad_lo & ~held[pc]])
+    def sides(tube, grips):
+        """The carriers of the pads below and above the vacancy, less the grips' (c_lo, c_hi)."""
+        held = np.zeros(tube.N, bool)
+        held[tube.dof_idx] = grips[:len(tube.dof_idx)]
+        pc = tube._pad["c"]
+        pad_lo = tube.x0[pc, 2] < tube.vacancy_theta_z[1]
+        return np.unique(pc[pad_lo & ~held[pc]]), np.unique(pc[~pad_lo & ~held[pc]])
+    c_lo, c_hi = sides(model, grips)
 
     def refresh_ghost(y, strain):
         if ghost == "grips" or model.nf == 0:
@@ -864,7 +1019,46 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
         refresh_forces()
         if s < 0.95 * smax:
             rec["failed"] = True
-        return (rec["failed"] and s < 0.2 * smax) or strain >= max_strain
+        stop = (rec["failed"] and s < 0.2 * smax) or strain >= max_strain
+        if (grow is not None and not stop and rec.get("grown_at") is None
+                and model.atom_damage(y, d, L0).max() > 0):  # the crack has started
+            rec["grown_at"] = {"step": int(step), "time_ps": step * dt * 1e-3,
+                               "strain": float(strain)}
+            rec["grow_pending"] = True
+            nonlocal t_grown
+            t_grown = time.perf_counter() - t0 - t_relax
+            return True
+        return stop
+
+    model0 = model
+
+    def grow_to(y_, d_, v_, vd_):
+        """The scene moved to ``grow`` (:func:`_engine_loop`): its state carried over
+        from the current tube's (none on a resumed run, whose state is the checkpoint's),
+        then its ghost-force correction at that state."""
+        nonlocal model, st, nd, grips, mass, mass_d, movable, dfree, ndf, c_lo, c_hi, ext
+        old, model, st = model, grow, st_grow
+        nd, grips = len(model.dof_idx), st["bottom"] | st["top"]
+        mass, mass_d = model.masses()
+        movable = ~grips
+        dfree, ndf = free_shifts(model, grips)
+        c_lo, c_hi = sides(model, grips)
+        ext = extensometer(model, st)
+        out = {"tube": model, "st": st, "dfree": dfree, "ndf": ndf, "ext": ext,
+               "y": None, "delta": None, "v": None, "vdelta": None}
+        if y_ is not None:
+            yn, dn, vn, vdn = model.carry_state(old, y_, d_, v_, vd_, Lz=L0)
+            vdn[~dfree] = 0.0
+            if thermo and grow_thermal:  # the new atoms' thermal velocities (the coarse
+                # state has none), drawn as at the start, from the seed and the step
+                new = nd + np.nonzero(~np.isin(model.free_idx, old.free_idx))[0]
+                rg = np.random.default_rng([seed, int(rec["grown_at"]["step"])])
+                vt = rg.standard_normal((len(new), 3)) * np.sqrt(
+                    kB * temperature * acc / mass[new])[:, None]
+                vn[new] += vt - vt.mean(axis=0)
+            refresh_ghost(yn, 0.0)
+            out.update(y=yn, delta=dn, v=vn, vdelta=vdn)
+        return out
 
     def links_old():
         broke = model.update_links()
@@ -879,7 +1073,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
             model, st, y, d, v, vd, L0, mass, mass_d, movable, dfree, ndf, thermo,
             temperature, tdamp, dt, vz, sample, max_strain, gauge, z_ext, ext, rec, on_sample,
             stability, checkpoint, checkpoint_every, resume, output, engine_progress,
-            inner=inner, split=split)
+            inner=inner, split=split, grow=None if grow is None else grow_to)
     else:
         gy, gd = forces(y, d, 0.0)
         step = 0
@@ -933,6 +1127,9 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     res.update(run_metrics(strains, stresses, exts, first, fit_max_strain,
                            plateau_fraction=0.0 if model.cutoff == "step" else 0.05))
     res["first_damage"] = first
+    res["grown_at"] = rec.get("grown_at")
+    res["dynamics_before_growth_s"] = t_grown
+    res["region_free_atoms"] = [int(model0.nf)] + ([int(grow.nf)] if grow is not None else [])
     res["blowup_after_failure"] = rec.get("blowup_after_failure")
     res["positions"], res["delta"] = y, d
     res["damage"] = model.damage
