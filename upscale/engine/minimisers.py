@@ -65,6 +65,9 @@ energy and gradient, these functions own the iterations. Each returns an
 :func:`bfgs`
     Unbounded BFGS (``scipy.optimize.minimize(method="BFGS")``) for a few unknowns (a
     lattice cell's parameters).
+:func:`newton`
+    Newton's method with a finite-difference Hessian of the gradient, for a few unknowns
+    whose minimum must be found to round-off (where BFGS's line search stops short).
 :func:`quick_min_blocks`
     Quick-min on a list of arrays (positions, shifts, ...), each with its masses and an
     optional symmetric bound: the velocity projected on the force over all blocks, a step
@@ -93,7 +96,7 @@ import time
 import numpy as np
 
 __all__ = ["MinimiseResult", "NotConverged", "FIRE", "QuickMin", "LBFGS", "total_energy",
-           "ArrayMinimum", "lbfgs_b", "one_blas_thread", "bfgs", "quick_min_blocks",
+           "ArrayMinimum", "lbfgs_b", "one_blas_thread", "bfgs", "newton", "quick_min_blocks",
            "restarted", "first_lower", "zero_cell_force"]
 
 
@@ -614,6 +617,46 @@ def bfgs(fun, x0, *, gtol: float, max_iter: int) -> ArrayMinimum:
                    options={"gtol": gtol, "maxiter": int(max_iter)})
     return ArrayMinimum(res.x, float(res.fun), int(res.nit), int(res.njev), bool(res.success),
                         str(res.message))
+
+
+def newton(fun, x0, *, gtol: float, max_iter: int = 50, h: float = 1e-6) -> ArrayMinimum:
+    """Newton's method for ``fun(x) -> (E, dE/dx)`` of a few unknowns, the Hessian by
+    central differences of the gradient (step ``h``, symmetrised): x <- x - H^-1 g until the
+    gradient's largest component is at most ``gtol`` (``success``), or the step has fallen
+    to round-off (1e-15 |x|) or ``max_iter`` iterations have passed (then not). Quadratic
+    convergence reaches a gradient at round-off in a few iterations where BFGS's line search
+    stops short of it ("precision loss"); so the result depends only on ``x0`` and ``fun``.
+    A Hessian that is not positive definite (Cholesky fails), or a non-finite step, ends
+    it unsuccessful at the last iterate: the caller decides (e.g. falls back to
+    :func:`bfgs`)."""
+    x = np.array(x0, dtype=float, copy=True)
+    E, g = fun(x)
+    nf, n = 1, len(x)
+    it = 0
+    while np.abs(g).max() > gtol and it < int(max_iter):
+        H = np.empty((n, n))
+        for k in range(n):
+            xp, xm = x.copy(), x.copy()
+            xp[k] += h
+            xm[k] -= h
+            H[:, k] = (fun(xp)[1] - fun(xm)[1]) / (2.0 * h)
+        nf += 2 * n
+        try:
+            c = np.linalg.cholesky(0.5 * (H + H.T))
+        except np.linalg.LinAlgError:
+            return ArrayMinimum(x, float(E), it, nf, False, "Hessian not positive definite")
+        dx = -np.linalg.solve(c.T, np.linalg.solve(c, g))
+        if not np.all(np.isfinite(dx)):
+            return ArrayMinimum(x, float(E), it, nf, False, "non-finite Newton step")
+        x = x + dx
+        E, g = fun(x)
+        nf += 1
+        it += 1
+        if np.abs(dx).max() <= 1e-15 * max(1.0, np.abs(x).max()):
+            break
+    ok = bool(np.abs(g).max() <= gtol)
+    return ArrayMinimum(x, float(E), it, nf, ok, "converged" if ok else
+                        f"gradient {np.abs(g).max():.3g} > gtol {gtol:g} after {it} iterations")
 
 
 def quick_min_blocks(forces, x, mass, *, dt: float, steps: int, max_step: float, ftol: float,
