@@ -594,7 +594,9 @@ def _collect_pairs(x_ac, n_rows, rc, c_ac, ny, nz, ks, order, buf, cnt):
 def _collect_pairs_grid(x_ac, n_rows, rc, c_ac, nx, ny, nz, start, order, buf, cnt):
     """As :func:`_collect_pairs` on a dense grid: ``start`` (nx ny nz + 1) the first
     position in ``order`` of every cell (z the fastest index, so a column's three cells
-    along z are one run of ``order``)."""
+    along z are one run of ``order``). (The distance test and append are written out in
+    both collectors: a shared numba helper, even with ``inline="always"``, made this
+    build 4x slower, 0.74 -> 3.0 ms on a 3,660-atom wall.)"""
     cap = buf.shape[1]
     rc2 = rc * rc
     for i in range(n_rows):
