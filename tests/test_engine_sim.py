@@ -44,6 +44,9 @@ def test_stable_estimate_is_a_safe_bound_and_refusal_names_it():
     assert "\n" not in str(exc.value)
     forced = Simulation(sysm, fam, PMB(E=70e9), integrator=VelocityVerlet(dt=1.01 * est, force=True))
     forced.run(3)
+    # a forced step needs no estimate before the run: it is computed when first read
+    assert forced.integrator._estimate_of is not None
+    assert forced.integrator.estimate == est and forced.integrator._estimate_of is None
 
 
 def test_messages_carry_the_systems_time_unit():

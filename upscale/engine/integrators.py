@@ -87,7 +87,43 @@ def linearised_critical_dt(sim, iters: int = 60, seed: int = 0) -> float:
     return float("inf") if lam <= 0 else 2.0 / np.sqrt(lam)
 
 
-class VelocityVerlet:
+class StableEstimate:
+    """The stable-step estimate of an integrator (:func:`stable_time_step`), as the
+    attribute ``estimate``. With a given step and ``force=True`` nothing needs it before a
+    run, so :meth:`_check_step` only records the simulation and the estimate is computed
+    when first read (a blow-up's diagnosis, ``describe``): on a coarse tube it is a Lanczos
+    eigenvalue solve, 0.15 s, as long as a tenth of a picosecond of its dynamics."""
+
+    _estimate: float | None = None
+    _estimate_of = None
+
+    @property
+    def estimate(self) -> float | None:
+        if self._estimate_of is not None:
+            system, models = self._estimate_of
+            self._estimate_of = None
+            self._estimate = stable_time_step(system, models)
+        return self._estimate
+
+    @estimate.setter
+    def estimate(self, value) -> None:
+        self._estimate, self._estimate_of = value, None
+
+    def _check_step(self, sim, dt, what: str = "time step") -> None:
+        """The estimate for ``sim``, deferred when the step ``dt`` is given and forced;
+        else a step above it is refused."""
+        if dt is not None and self.force:
+            self._estimate_of = (sim.system, sim.models)
+            return
+        self.estimate = stable_time_step(sim.system, sim.models)
+        if dt is not None and self.estimate is not None and dt > self.estimate:
+            tu = sim.system.time_unit
+            raise ValueError(f"{what} {dt:.6g} {tu} exceeds the stable estimate "
+                             f"{self.estimate:.6g} {tu} (Silling-Askari/Gershgorin bound); use "
+                             f"a {what} <= {self.estimate:.6g} or pass force=True (--force-dt)")
+
+
+class VelocityVerlet(StableEstimate):
     """Velocity Verlet (kick-drift-kick), LAMMPS ``fix nve`` order.
 
     Parameters
@@ -115,20 +151,15 @@ class VelocityVerlet:
         self.dt = dt
         self.safety = float(safety)
         self.force = bool(force)
-        self.estimate: float | None = None
+        self.estimate = None
 
     def prepare(self, sim) -> None:
-        """Check (or choose) the step against the stable estimate."""
-        self.estimate = stable_time_step(sim.system, sim.models)
+        """Check (or choose) the step against the stable estimate (:class:`StableEstimate`)."""
+        self._check_step(sim, self.dt)
         if self.dt is None:
             if self.estimate is None:
                 raise ValueError("no stable time step estimate for these models: give dt explicitly")
             self.dt = self.safety * self.estimate
-        elif self.estimate is not None and self.dt > self.estimate and not self.force:
-            tu = sim.system.time_unit
-            raise ValueError(f"time step {self.dt:.6g} {tu} exceeds the stable estimate "
-                             f"{self.estimate:.6g} {tu} (Silling-Askari/Gershgorin bound); use "
-                             f"dt <= {self.estimate:.6g} or pass force=True (--force-dt)")
         if self.thermostat is not None:
             self.thermostat.prepare(sim)
 

@@ -37,7 +37,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from upscale.engine.integrators import stable_time_step
+from upscale.engine.integrators import StableEstimate
 
 __all__ = ["RESPA", "GROUPS"]
 
@@ -45,7 +45,7 @@ __all__ = ["RESPA", "GROUPS"]
 GROUPS = ("fast", "slow")
 
 
-class RESPA:
+class RESPA(StableEstimate):
     """r-RESPA (impulse) multiple time stepping (module docstring).
 
     Parameters
@@ -77,7 +77,7 @@ class RESPA:
         self.dt = self.outer_dt / self.inner
         self.thermostat = thermostat
         self.force = bool(force)
-        self.estimate: float | None = None
+        self.estimate = None
         self._F = None  # {group: (N,3)} constrained dofs zeroed
         self._R = None  # {group: (N,3)} the group's force on the constrained dofs
         self._G = None  # {group: {field: (N,k)}}
@@ -87,11 +87,7 @@ class RESPA:
     def prepare(self, sim) -> None:
         """Check the inner step against the stable estimate (if the models give one) and
         allocate the group forces."""
-        self.estimate = stable_time_step(sim.system, sim.models)
-        if self.estimate is not None and self.dt > self.estimate and not self.force:
-            raise ValueError(f"inner time step {self.dt:.6g} exceeds the stable estimate "
-                             f"{self.estimate:.6g}; use a smaller outer step or more inner "
-                             "steps, or pass force=True")
+        self._check_step(sim, self.dt, "inner time step")
         n = sim.system.n
         if self._F is None or self._F["fast"].shape[0] != n:
             self._F = {g: np.zeros((n, 3)) for g in GROUPS}
