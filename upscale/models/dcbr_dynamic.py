@@ -990,8 +990,10 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
         if monitor is not None:  # monitor(step, y, v, delta, stress): a look inside
             monitor(step, y, v, d, s)
         first = rec["first"]
+        # the atoms' damage, read by the first-damage record and the growth trigger
+        grows = grow is not None and rec.get("grown_at") is None
+        mu = model.atom_damage(y, d, L0) if model.nf and (first is None or grows) else None
         if first is None and model.nf:
-            mu = model.atom_damage(y, d, L0)
             if mu.max() > 0 and at_planes:  # where: each atom's signed distance into
                 # the gauge from the nearer grip plane (negative: inside the grip)
                 first = _where(y[nd:][mu > 0, 2], strain, 0.5 * sep0 * step * dt, zb, zt)
@@ -1020,8 +1022,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
         if s < 0.95 * smax:
             rec["failed"] = True
         stop = (rec["failed"] and s < 0.2 * smax) or strain >= max_strain
-        if (grow is not None and not stop and rec.get("grown_at") is None
-                and model.atom_damage(y, d, L0).max() > 0):  # the crack has started
+        if grows and not stop and mu.max() > 0:  # the crack has started
             rec["grown_at"] = {"step": int(step), "time_ps": step * dt * 1e-3,
                                "strain": float(strain)}
             rec["grow_pending"] = True
