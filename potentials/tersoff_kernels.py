@@ -123,8 +123,14 @@ def ters_bij_d(zeta, beta, n, c1, c2, c3, c4):
 
 @njit(cache=True, inline="always")
 def ters_bij_and_d(zeta, beta, n, c1, c2, c3, c4):
-    """``(ters_bij(...), ters_bij_d(...))`` with the same branches and expressions, the power
-    of ``beta zeta`` shared between the two (bit for bit the values of the two functions)."""
+    """``(ters_bij(...), ters_bij_d(...))`` with the same branches, the power of ``beta zeta``
+    shared between the two. In the central branch the derivative reuses b_ij,
+
+        d b_ij / d zeta = -1/2 b_ij (beta zeta)^n / ((1 + (beta zeta)^n) zeta),
+
+    one ``pow`` instead of two (LAMMPS evaluates ``(1 + t^n)^(-1 - 1/(2n))`` separately); the
+    value agrees with :func:`ters_bij_d` to round-off. ``pow`` is most of the kernel's
+    library time (about 14 ns a call here, against 6 ns for ``exp``)."""
     tmp = beta * zeta
     if tmp > c1:
         return 1.0 / math.sqrt(tmp), beta * -0.5 * tmp ** -1.5
@@ -137,8 +143,8 @@ def ters_bij_and_d(zeta, beta, n, c1, c2, c3, c4):
     if tmp < c3:
         return 1.0 - tmp ** n / (2.0 * n), -0.5 * beta * tmp ** (n - 1.0)
     tmp_n = tmp ** n
-    return ((1.0 + tmp_n) ** (-1.0 / (2.0 * n)),
-            -0.5 * (1.0 + tmp_n) ** (-1.0 - 1.0 / (2.0 * n)) * tmp_n / zeta)
+    bij = (1.0 + tmp_n) ** (-1.0 / (2.0 * n))
+    return bij, -0.5 * bij * tmp_n / ((1.0 + tmp_n) * zeta)
 
 
 @njit(cache=True, inline="always")
