@@ -45,55 +45,74 @@ def _fc(r, R, D):
 def site_energy_grad(pos, i, cand, p, grad):
     """Site energy E_i of atom ``i`` (eV); adds dE_i/dpos to ``grad`` (P, 3).
 
-    ``cand``: indices of candidate neighbours of i (within some radius > R + D).
+    ``cand``: indices of candidate neighbours of i (within some radius > R + D). The
+    neighbours inside the outer cutoff (usually the three bonded ones) are found first, with
+    their distance, f_C and f_C' computed once for every bond and triplet that uses them;
+    with lambda3 = 0 (the carbon entries of BNC.tersoff and SiC.tersoff) the exponential
+    factor of zeta is 1 and is not evaluated.
     """
+    n = cand.shape[0]
+    return site_energy_grad_ws(pos, i, cand, p, grad, np.empty(n, np.int64),
+                               np.empty((n, 3)), np.empty((3, n)))
+
+
+@numba.njit(cache=True)
+def site_energy_grad_ws(pos, i, cand, p, grad, near, v, w):
+    """:func:`site_energy_grad` with its work arrays given (the caller's, reused over many
+    sites): ``near`` (n,) int64, ``v`` (n, 3), ``w`` (3, n), n >= len(cand)."""
     m_, gam, lam3, c, d, h, nn, beta, lam2, B, R, D, lam1, A = (
         p[0], p[1], p[2], p[3], p[4], p[5], p[6], p[7], p[8], p[9], p[10], p[11], p[12], p[13])
     c2 = c * c
     d2 = d * d
+    c2_d2 = c2 / d2
+    rc2 = (R + D) * (R + D)
     E = 0.0
-    # keep only candidates inside the outer cutoff (usually the three bonded neighbours)
-    near = np.empty(cand.shape[0], dtype=np.int64)
+    nmax = cand.shape[0]
+    rr = w[0]      # |r_ik|
+    fcs = w[1]     # f_C(r_ik)
+    dfcs = w[2]    # f_C'(r_ik)
     nc = 0
-    for a in range(cand.shape[0]):
+    for a in range(nmax):
         j = cand[a]
         dx = pos[j, 0] - pos[i, 0]
         dy = pos[j, 1] - pos[i, 1]
         dz = pos[j, 2] - pos[i, 2]
-        if dx * dx + dy * dy + dz * dz < (R + D) * (R + D):
+        if dx * dx + dy * dy + dz * dz < rc2:
+            r = math.sqrt(dx * dx + dy * dy + dz * dz)
+            if r >= R + D:
+                continue
             near[nc] = j
+            v[nc, 0] = dx
+            v[nc, 1] = dy
+            v[nc, 2] = dz
+            rr[nc] = r
+            fcs[nc], dfcs[nc] = _fc(r, R, D)
             nc += 1
-    cand = near[:nc]
     for a in range(nc):
-        j = cand[a]
-        rij0 = pos[j, 0] - pos[i, 0]
-        rij1 = pos[j, 1] - pos[i, 1]
-        rij2 = pos[j, 2] - pos[i, 2]
-        r = math.sqrt(rij0 * rij0 + rij1 * rij1 + rij2 * rij2)
-        if r >= R + D:
-            continue
-        fc, dfc = _fc(r, R, D)
+        j = near[a]
+        rij0 = v[a, 0]
+        rij1 = v[a, 1]
+        rij2 = v[a, 2]
+        r = rr[a]
+        fc = fcs[a]
+        dfc = dfcs[a]
         # zeta
         zeta = 0.0
         for b in range(nc):
-            k = cand[b]
-            if k == j:
+            if b == a:
                 continue
-            rik0 = pos[k, 0] - pos[i, 0]
-            rik1 = pos[k, 1] - pos[i, 1]
-            rik2 = pos[k, 2] - pos[i, 2]
-            rk = math.sqrt(rik0 * rik0 + rik1 * rik1 + rik2 * rik2)
-            if rk >= R + D:
-                continue
-            fck, _ = _fc(rk, R, D)
-            cs = (rij0 * rik0 + rij1 * rik1 + rij2 * rik2) / (r * rk)
+            rk = rr[b]
+            cs = (rij0 * v[b, 0] + rij1 * v[b, 1] + rij2 * v[b, 2]) / (r * rk)
             hc = h - cs
-            g = gam * (1.0 + c2 / d2 - c2 / (d2 + hc * hc))
-            if m_ == 3.0:
-                arg = (lam3 * (r - rk)) ** 3
+            g = gam * (1.0 + c2_d2 - c2 / (d2 + hc * hc))
+            if lam3 == 0.0:
+                zeta += fcs[b] * g
             else:
-                arg = lam3 * (r - rk)
-            zeta += fck * g * math.exp(arg)
+                if m_ == 3.0:
+                    arg = (lam3 * (r - rk)) ** 3
+                else:
+                    arg = lam3 * (r - rk)
+                zeta += fcs[b] * g * math.exp(arg)
         fR = A * math.exp(-lam1 * r)
         dfR = -lam1 * fR
         fA = -B * math.exp(-lam2 * r)
@@ -117,28 +136,31 @@ def site_energy_grad(pos, i, cand, p, grad):
         if dVdz == 0.0:
             continue
         for b in range(nc):
-            k = cand[b]
-            if k == j:
+            if b == a:
                 continue
-            rik0 = pos[k, 0] - pos[i, 0]
-            rik1 = pos[k, 1] - pos[i, 1]
-            rik2 = pos[k, 2] - pos[i, 2]
-            rk = math.sqrt(rik0 * rik0 + rik1 * rik1 + rik2 * rik2)
-            if rk >= R + D:
-                continue
-            fck, dfck = _fc(rk, R, D)
+            k = near[b]
+            rik0 = v[b, 0]
+            rik1 = v[b, 1]
+            rik2 = v[b, 2]
+            rk = rr[b]
+            fck = fcs[b]
+            dfck = dfcs[b]
             cs = (rij0 * rik0 + rij1 * rik1 + rij2 * rik2) / (r * rk)
             hc = h - cs
             den = d2 + hc * hc
-            g = gam * (1.0 + c2 / d2 - c2 / den)
+            g = gam * (1.0 + c2_d2 - c2 / den)
             dg = -2.0 * gam * c2 * hc / (den * den)
-            if m_ == 3.0:
-                arg = (lam3 * (r - rk)) ** 3
-                dex = 3.0 * lam3 ** 3 * (r - rk) ** 2
+            if lam3 == 0.0:
+                ex = 1.0
+                dex = 0.0
             else:
-                arg = lam3 * (r - rk)
-                dex = lam3
-            ex = math.exp(arg)
+                if m_ == 3.0:
+                    arg = (lam3 * (r - rk)) ** 3
+                    dex = 3.0 * lam3 ** 3 * (r - rk) ** 2
+                else:
+                    arg = lam3 * (r - rk)
+                    dex = lam3
+                ex = math.exp(arg)
             # d(cos)/d r_ij and d(cos)/d r_ik (vectors)
             inv = 1.0 / (r * rk)
             dcj0 = rik0 * inv - cs * rij0 / (r * r)
@@ -175,6 +197,18 @@ def cell_energy_grad(q, s_p, z_p, sub_p, R0, iA, iB, candA, candB, p, pos, gpos,
 
     q = (lam_t, gam, lam_z, d_rho, d_s, d_z); ``pos``/``gpos`` are (P, 3) work arrays.
     """
+    n = max(candA.shape[0], candB.shape[0])
+    return cell_energy_grad_ws(q, s_p, z_p, sub_p, R0, iA, iB, candA, candB, p, pos, gpos,
+                               out_g, np.empty(n, np.int64), np.empty((n, 3)),
+                               np.empty((3, n)), np.empty((2, s_p.shape[0])))
+
+
+@numba.njit(cache=True)
+def cell_energy_grad_ws(q, s_p, z_p, sub_p, R0, iA, iB, candA, candB, p, pos, gpos, out_g,
+                        near, v, w, trig):
+    """:func:`cell_energy_grad` with the work arrays given: the site energies'
+    (:func:`site_energy_grad_ws`, n >= the longer candidate list) and ``trig`` (2, P), the
+    cosine and sine of each patch atom's angle, kept for the chain rule."""
     lt, gm, lz, drho, ds, dz = q[0], q[1], q[2], q[3], q[4], q[5]
     rho0 = lt * R0
     P = s_p.shape[0]
@@ -182,21 +216,23 @@ def cell_energy_grad(q, s_p, z_p, sub_p, R0, iA, iB, candA, candB, p, pos, gpos,
         rho = rho0 + sub_p[a] * drho
         sp = lt * s_p[a] + gm * z_p[a] + sub_p[a] * ds
         th = sp / rho0
-        pos[a, 0] = rho * math.cos(th)
-        pos[a, 1] = rho * math.sin(th)
+        trig[0, a] = math.cos(th)
+        trig[1, a] = math.sin(th)
+        pos[a, 0] = rho * trig[0, a]
+        pos[a, 1] = rho * trig[1, a]
         pos[a, 2] = lz * z_p[a] + sub_p[a] * dz
         gpos[a, 0] = 0.0
         gpos[a, 1] = 0.0
         gpos[a, 2] = 0.0
-    e = 0.5 * (site_energy_grad(pos, iA, candA, p, gpos) + site_energy_grad(pos, iB, candB, p, gpos))
+    e = 0.5 * (site_energy_grad_ws(pos, iA, candA, p, gpos, near, v, w)
+               + site_energy_grad_ws(pos, iB, candB, p, gpos, near, v, w))
     for k in range(NPARAM):
         out_g[k] = 0.0
     for a in range(P):
         rho = rho0 + sub_p[a] * drho
         sp = lt * s_p[a] + gm * z_p[a] + sub_p[a] * ds
-        th = sp / rho0
-        ct = math.cos(th)
-        st = math.sin(th)
+        ct = trig[0, a]
+        st = trig[1, a]
         gx = 0.5 * gpos[a, 0]
         gy = 0.5 * gpos[a, 1]
         gz = 0.5 * gpos[a, 2]
@@ -240,6 +276,11 @@ def coarse_energy(F_nck, S_nab, delta_n, natoms_n, alive_n, s_p, z_p, sub_p, R0,
     FtF = np.empty((2, 2))
     C = np.empty((2, 2))
     SDS = np.empty((2, 2))
+    n_cand = max(candA.shape[0], candB.shape[0])
+    wk_near = np.empty(n_cand, np.int64)
+    wk_v = np.empty((n_cand, 3))
+    wk_w = np.empty((3, n_cand))
+    wk_trig = np.empty((2, P))
     for c in range(N):
         for i in range(3):
             P_out[c, i, 0] = 0.0
@@ -272,7 +313,8 @@ def coarse_energy(F_nck, S_nab, delta_n, natoms_n, alive_n, s_p, z_p, sub_p, R0,
         q[3] = delta_n[c, 0]
         q[4] = delta_n[c, 1]
         q[5] = delta_n[c, 2]
-        e = cell_energy_grad(q, s_p, z_p, sub_p, R0, iA, iB, candA, candB, p, pos, gpos, g)
+        e = cell_energy_grad_ws(q, s_p, z_p, sub_p, R0, iA, iB, candA, candB, p, pos, gpos, g,
+                                wk_near, wk_v, wk_w, wk_trig)
         Nc = natoms_n[c]
         Etot += Nc * (e - e0)
         e_out[c] = e
