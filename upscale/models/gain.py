@@ -104,6 +104,26 @@ def _deformation_kernel(y_nc, offsets, neighbors, shift_ec, coef_ek, F0_nck, out
 
 
 @numba.njit(cache=True)
+def _deformation_image_kernel(y_nc, offsets, neighbors, image_ed, cell_d, coef_ek, out):
+    """out[c] = sum_e (y[j_e] + image_e * cell) (x) a_e: :func:`_deformation_kernel` with
+    F0 = 0 and the shift image_e * cell formed per entry instead of as an (nnz, 3) array
+    (the same products, the same sums)."""
+    n = offsets.shape[0] - 1
+    k = coef_ek.shape[1]
+    for c in range(n):
+        for i in range(3):
+            for a in range(k):
+                out[c, i, a] = 0.0
+        for e in range(offsets[c], offsets[c + 1]):
+            j = neighbors[e]
+            for i in range(3):
+                d = y_nc[j, i] + image_ed[e, i] * cell_d[i]
+                for a in range(k):
+                    out[c, i, a] += d * coef_ek[e, a]
+    return out
+
+
+@numba.njit(cache=True)
 def _force_kernel(P_nck, offsets, neighbors, coef_ek, out):
     """out[j] = -sum_{e: j_e = j} P[c_e] a_e (serial: entries of different rows share j)."""
     n = offsets.shape[0] - 1
@@ -226,8 +246,9 @@ class GainOperator:
         y = np.ascontiguousarray(y, dtype=float)
         if out is None:
             out = np.empty((self.n, 3, self.k))
-        zero = np.zeros_like(self.F0)
-        _deformation_kernel(y, self.offsets, self.neighbors, self._shift(cell), self.coef, zero, out)
+        cell = self.cell if cell is None else cell
+        _deformation_image_kernel(y, self.offsets, self.neighbors, self.image,
+                                  np.ascontiguousarray(cell, dtype=float), self.coef, out)
         if self.offset is not None:  # clamped grips (build_gain's ``clamp``)
             out += self.offset
         return out
