@@ -369,6 +369,24 @@ def max_displacement2(x, x_ref):
 # entry in turn), so the numbers are the same to the last bit.
 
 @njit(cache=True)
+def keep_maps(FS_ck, flag_c, rows_c, last_nck, out_ck):
+    """The carriers' maps for their pads: a carrier whose map is valid (``flag > 0``) records
+    it as its last map, ``last[rows[c]] = FS[c]``; every carrier's pads then use
+    ``out[c] = last[rows[c]]`` (its last valid map if the current one failed). ``rows``
+    distinct."""
+    for c in range(rows_c.shape[0]):
+        r = rows_c[c]
+        if flag_c[c] > 0:
+            for i in range(FS_ck.shape[1]):
+                for a in range(FS_ck.shape[2]):
+                    last_nck[r, i, a] = FS_ck[c, i, a]
+        for i in range(FS_ck.shape[1]):
+            for a in range(FS_ck.shape[2]):
+                out_ck[c, i, a] = last_nck[r, i, a]
+    return out_ck
+
+
+@njit(cache=True)
 def take_rows(a_nc, rows_i):
     """a[rows] (a new (k, 3) array)."""
     out = np.empty((rows_i.shape[0], 3))

@@ -48,6 +48,9 @@ from __future__ import annotations
 import numpy as np
 
 from upscale.constants import ACC_EV_A_AMU_IN_A_FS2, CARBON_MASS_AMU
+# (the kernels at module level: an import statement in a method costs microseconds per call,
+# and the fast group's methods run thousands of times per simulated ps)
+from upscale.models import dcbr_coupling_kernels as CK
 
 __all__ = ["DCBRDefectTubeModel", "FIELD"]
 
@@ -190,9 +193,8 @@ class DCBRDefectTubeModel:
 
     def unknowns(self, state):
         """(y, delta): the tube's unknowns (a new array) and shifts (a view) of ``state``."""
-        from upscale.models.dcbr_coupling_kernels import take_rows  # noqa: PLC0415
 
-        return take_rows(state.y, self.y_rows), state.fields[FIELD][:self.N]
+        return CK.take_rows(state.y, self.y_rows), state.fields[FIELD][:self.N]
 
     def masses(self) -> np.ndarray:
         """Mass of every row (n,), amu / ``unit``: a particle m_C max(w_c, N_c/2) (slaves
@@ -345,10 +347,9 @@ class DCBRDefectTubeModel:
     def _is_current(self, c, y, d) -> bool:
         """Whether cache entry ``c`` = (version, y, delta, value) holds for these links and
         this state."""
-        from upscale.models.dcbr_coupling_kernels import same  # noqa: PLC0415
 
         return (c is not None and c[0] == self._version and c[1].shape == y.shape
-                and c[2].shape == d.shape and same(c[1], y) and same(c[2], d))
+                and c[2].shape == d.shape and CK.same(c[1], y) and CK.same(c[2], d))
 
     def _evaluate(self, state):
         self._sync(state)
@@ -427,13 +428,12 @@ class DCBRDefectTubeModel:
 
     def _transfer(self, y, d):
         """(Q, dQ/dy, dQ/d delta) of the split's transfer, or None (:meth:`prepare_split`)."""
-        from upscale.models.dcbr_coupling_kernels import transfer  # noqa: PLC0415
 
         r = self._split_ref
         if r is None:
             return None
         gq = np.empty((self.N, 3))
-        Q = transfer(np.ascontiguousarray(y, dtype=float), r["y"],
+        Q = CK.transfer(np.ascontiguousarray(y, dtype=float), r["y"],
                      np.ascontiguousarray(d, dtype=float), r["d"], r["gy"], r["gd"], r["H"], gq)
         return float(Q), r["gy"], gq
 
@@ -477,11 +477,10 @@ class DCBRDefectTubeModel:
         """dE/d(unknowns) (nd + nf, 3) from dE/d(particle positions) ``gyp`` (N, 3) and
         dE/d(free atoms) ``gx`` (nf, 3) or None: a slave's gradient goes to its atoms by
         Phi^T (y_s = Phi (x - X) + X_s)."""
-        from upscale.models.dcbr_coupling_kernels import fold_gradient  # noqa: PLC0415
 
         c = self._csr()
         gy = np.empty_like(y)
-        fold_gradient(np.ascontiguousarray(gyp, dtype=float),
+        CK.fold_gradient(np.ascontiguousarray(gyp, dtype=float),
                       np.zeros((0, 3)) if gx is None else np.ascontiguousarray(gx, dtype=float),
                       self.nd, c["dof"], c["slave"], c["pT"], c["iT"], c["dT"], gy)
         return gy
@@ -510,11 +509,10 @@ class DCBRDefectTubeModel:
 
     def _particle_positions(self, y):
         """:meth:`DCBRDefectTube.particle_positions` (the same numbers) in one kernel."""
-        from upscale.models.dcbr_coupling_kernels import particle_positions  # noqa: PLC0415
 
         c = self._csr()
         yp = np.empty((self.N, 3))
-        particle_positions(np.ascontiguousarray(y, dtype=float), self.nd, c["dof"], c["slave"],
+        CK.particle_positions(np.ascontiguousarray(y, dtype=float), self.nd, c["dof"], c["slave"],
                            c["p"], c["i"], c["d"], c["off"], yp)
         return yp
 
@@ -595,7 +593,6 @@ class DCBRDefectTubeModel:
         coarse part (:meth:`DCBRTube._coarse_part`) on these owners only, with G, the maps
         and G^T restricted to their rows, so that the interface part and the rest add up
         to the whole to round-off."""
-        from upscale.models import dcbr_coupling_kernels as CK  # noqa: PLC0415
         from upscale.models import dcbr_kernels as K  # noqa: PLC0415
 
         rows, sg, links = part
@@ -645,7 +642,6 @@ class DCBRDefectTubeModel:
         particles' lattice energies: the carriers' maps (G on their rows only), the pads
         and the chain rule back through G^T are all it needs of the coarse part, so it
         is the cheap group."""
-        from upscale.models import dcbr_coupling_kernels as CK  # noqa: PLC0415
 
         self._sync(state)
         y, d = self.unknowns(state)
@@ -666,10 +662,7 @@ class DCBRDefectTubeModel:
         S = t.S[rows]
         ga = sg.alive if sg.alive is not None else np.ones(nc, bool)
         CK.map_frames(F, S, ga, t.alive[rows], FS, par, Q3, flag)
-        ok = flag > 0
-        fsl = t._FS_last[rows]
-        fsl[ok] = FS[ok]
-        t._FS_last[rows[ok]] = FS[ok]
+        fsl = CK.keep_maps(FS, flag, rows, t._FS_last, np.empty((nc, 3, 2)))
         pd, R0 = t._pad, t.lattice.R0
         x = np.empty((nf + len(t.pad_idx), 3))
         x[:nf] = y[nd:]
@@ -930,7 +923,6 @@ class DCBRDefectTubeModel:
 
 def _sub_rows(out, rows, g):
     """out[rows] -= g (:func:`~upscale.models.dcbr_coupling_kernels.sub_rows`)."""
-    from upscale.models import dcbr_coupling_kernels as CK  # noqa: PLC0415
 
     CK.sub_rows(out, rows, np.ascontiguousarray(g, dtype=float))
 
