@@ -41,6 +41,17 @@ def _fc(r, R, D):
     return 0.5 - 0.5 * math.sin(a), -0.25 * math.pi / D * math.cos(a)
 
 
+@numba.njit(cache=True, inline="always")
+def _exp_term(r, rk, m_, lam3):
+    """exp[(lambda3 (r - rk))^m] (m = 3, else 1) and its derivative with respect to r; 1 and
+    0 without an exponential when lambda3 = 0."""
+    if lam3 == 0.0:
+        return 1.0, 0.0
+    if m_ == 3.0:
+        return math.exp((lam3 * (r - rk)) ** 3), 3.0 * lam3 ** 3 * (r - rk) ** 2
+    return math.exp(lam3 * (r - rk)), lam3
+
+
 @numba.njit(cache=True)
 def site_energy_grad(pos, i, cand, p, grad):
     """Site energy E_i of atom ``i`` (eV); adds dE_i/dpos to ``grad`` (P, 3).
@@ -105,14 +116,7 @@ def site_energy_grad_ws(pos, i, cand, p, grad, near, v, w):
             cs = (rij0 * v[b, 0] + rij1 * v[b, 1] + rij2 * v[b, 2]) / (r * rk)
             hc = h - cs
             g = gam * (1.0 + c2_d2 - c2 / (d2 + hc * hc))
-            if lam3 == 0.0:
-                zeta += fcs[b] * g
-            else:
-                if m_ == 3.0:
-                    arg = (lam3 * (r - rk)) ** 3
-                else:
-                    arg = lam3 * (r - rk)
-                zeta += fcs[b] * g * math.exp(arg)
+            zeta += fcs[b] * g * _exp_term(r, rk, m_, lam3)[0]
         fR = A * math.exp(-lam1 * r)
         dfR = -lam1 * fR
         fA = -B * math.exp(-lam2 * r)
@@ -150,17 +154,7 @@ def site_energy_grad_ws(pos, i, cand, p, grad, near, v, w):
             den = d2 + hc * hc
             g = gam * (1.0 + c2_d2 - c2 / den)
             dg = -2.0 * gam * c2 * hc / (den * den)
-            if lam3 == 0.0:
-                ex = 1.0
-                dex = 0.0
-            else:
-                if m_ == 3.0:
-                    arg = (lam3 * (r - rk)) ** 3
-                    dex = 3.0 * lam3 ** 3 * (r - rk) ** 2
-                else:
-                    arg = lam3 * (r - rk)
-                    dex = lam3
-                ex = math.exp(arg)
+            ex, dex = _exp_term(r, rk, m_, lam3)
             # d(cos)/d r_ij and d(cos)/d r_ik (vectors)
             inv = 1.0 / (r * rk)
             dcj0 = rik0 * inv - cs * rij0 / (r * r)

@@ -86,28 +86,10 @@ def kappa(r, horizon, kind: str = "quartic"):
 
 
 @numba.njit(cache=True)
-def _deformation_kernel(y_nc, offsets, neighbors, shift_ec, coef_ek, F0_nck, out):
-    """out[c] = F0[c] + sum_e (y[j_e] + shift_e) (x) a_e (shift: periodic image vector)."""
-    n = offsets.shape[0] - 1
-    k = coef_ek.shape[1]
-    for c in range(n):
-        for i in range(3):
-            for a in range(k):
-                out[c, i, a] = 0.0
-        for e in range(offsets[c], offsets[c + 1]):
-            j = neighbors[e]
-            for i in range(3):
-                d = y_nc[j, i] + shift_ec[e, i]
-                for a in range(k):
-                    out[c, i, a] += d * coef_ek[e, a]
-    return out
-
-
-@numba.njit(cache=True)
-def _deformation_image_kernel(y_nc, offsets, neighbors, image_ed, cell_d, coef_ek, out):
-    """out[c] = sum_e (y[j_e] + image_e * cell) (x) a_e: :func:`_deformation_kernel` with
-    F0 = 0 and the shift image_e * cell formed per entry instead of as an (nnz, 3) array
-    (the same products, the same sums)."""
+def _deformation_kernel(y_nc, offsets, neighbors, image_ed, cell_d, coef_ek, out):
+    """out[c] = sum_e (y[j_e] + image_e * cell) (x) a_e (image_e: the periodic image of j_e,
+    integer multiples of the cell lengths ``cell``; the shift formed per entry, not as an
+    (nnz, 3) array per call)."""
     n = offsets.shape[0] - 1
     k = coef_ek.shape[1]
     for c in range(n):
@@ -222,10 +204,6 @@ class GainOperator:
     def k(self) -> int:
         return self.coef.shape[1]
 
-    def _shift(self, cell):
-        cell = self.cell if cell is None else np.asarray(cell, dtype=float)
-        return self.image * cell[None, :]
-
     def gain(self, u, cell=None):
         """G of every particle for displacements ``u`` (N, 3) [length] -> (N, 3, k).
 
@@ -233,10 +211,10 @@ class GainOperator:
         n (cell - cell0) enters the relative displacement of periodic neighbours.
         """
         u = np.ascontiguousarray(u, dtype=float)
-        shift = self._shift(cell) - self._shift(None)
+        dcell = np.zeros(3) if cell is None else np.asarray(cell, dtype=float) - self.cell
         out = np.empty((self.n, 3, self.k))
-        zero = np.zeros_like(self.F0)
-        return _deformation_kernel(u, self.offsets, self.neighbors, shift, self.coef, zero, out)
+        return _deformation_kernel(u, self.offsets, self.neighbors, self.image, dcell,
+                                   self.coef, out)
 
     def deformation(self, y, cell=None, out=None):
         """F_c = F0_c + G_c from deformed positions ``y`` (N, 3) and deformed ``cell``.
@@ -247,8 +225,8 @@ class GainOperator:
         if out is None:
             out = np.empty((self.n, 3, self.k))
         cell = self.cell if cell is None else cell
-        _deformation_image_kernel(y, self.offsets, self.neighbors, self.image,
-                                  np.ascontiguousarray(cell, dtype=float), self.coef, out)
+        _deformation_kernel(y, self.offsets, self.neighbors, self.image,
+                            np.ascontiguousarray(cell, dtype=float), self.coef, out)
         if self.offset is not None:  # clamped grips (build_gain's ``clamp``)
             out += self.offset
         return out
