@@ -3,13 +3,14 @@ against the stored LAMMPS seed, printed per seed and as means.
 
     PYTHONPATH=$PWD python validation/results/bench_dcbr_seed_means.py N M K [R_ATOMISTIC]
         [--split S] [--region band|disc|ellipse] [--grow band] [--r-grow R]
-        [--no-grow-thermal]
+        [--no-grow-thermal] [--outer-dt FS --inner N]
 
 ``--split``: the force split (default the scene's, upscale.models.dcbr_engine.MTS_SPLIT);
 ``--region`` (default band) the atomistic region at the start, of half-width R_ATOMISTIC
 (default 8 Å); ``--grow`` the region the run grows to when the crack starts, of half-width
 ``--r-grow`` (default R_ATOMISTIC); ``--no-grow-thermal``: the atoms that become free keep
-their carried velocities only. Figures in validation/results/engine.md."""
+their carried velocities only; ``--outer-dt`` / ``--inner``: the RESPA outer step (fs) and
+the 1 fs inner steps per outer step (default 5 / 5, the bench's). Figures in validation/results/engine.md."""
 import argparse
 import time
 
@@ -28,6 +29,8 @@ p.add_argument("--split", default=None)
 p.add_argument("--region", default="band")
 p.add_argument("--grow", default=None)
 p.add_argument("--r-grow", type=float, default=None)
+p.add_argument("--outer-dt", type=float, default=5.0)
+p.add_argument("--inner", type=int, default=5)
 p.add_argument("--no-grow-thermal", action="store_true")
 a = p.parse_args()
 ref = lammps_reference_or_run(a.n, a.m, DYN_LENGTH, vacancy=True, protocol="dynamic")
@@ -37,7 +40,7 @@ for s in (12345, 1, 2, 3):
     model, dyn = dynamic_scene(a.n, a.m, DYN_LENGTH, a.K, ref, grips="clamped", region=a.region,
                                r_atomistic=a.r_atomistic, grow=a.grow, r_grow=a.r_grow)
     dyn.pop("grips")
-    dyn.update(integrator="respa", outer_dt=5.0, inner=5, seed=s, split=a.split)
+    dyn.update(integrator="respa", outer_dt=a.outer_dt, inner=a.inner, seed=s, split=a.split)
     if a.grow is not None:
         dyn["grow_thermal"] = not a.no_grow_thermal
     r = dynamic_tension(model, **dyn)
