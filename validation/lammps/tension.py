@@ -824,6 +824,7 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
                 if between_rounds is not None:
                     between_rounds(rnd - 1)
                 lmp.close()
+                lmp = None
                 opened = relaxed.copy()
                 opened.set_positions(x_open)
                 lmp, _ = _setup(opened, pot, "s s s", box=box)
@@ -934,7 +935,8 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
         if pull_rounds > 1:
             extra_wall, extra_cpu = time.perf_counter() - te, time.process_time() - ce
     finally:
-        lmp.close()
+        if lmp is not None:
+            lmp.close()
     strains, stresses, times, exts, per_tube, aborted, step, t_dyn = first
     res = _common(atoms, pot, "dynamic", rinfo, types)
     res["protocol_detail"] = {
