@@ -1022,7 +1022,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
         if s < 0.95 * smax:
             rec["failed"] = True
         stop = (rec["failed"] and s < 0.2 * smax) or strain >= max_strain
-        if grows and not stop and mu.max() > 0:  # the crack has started
+        if grows and not stop and mu is not None and mu.max() > 0:  # the crack started
             rec["grown_at"] = {"step": int(step), "time_ps": step * dt * 1e-3,
                                "strain": float(strain)}
             rec["grow_pending"] = True

@@ -193,7 +193,6 @@ class DCBRDefectTubeModel:
 
     def unknowns(self, state):
         """(y, delta): the tube's unknowns (a new array) and shifts (a view) of ``state``."""
-
         return CK.take_rows(state.y, self.y_rows), state.fields[FIELD][:self.N]
 
     def masses(self) -> np.ndarray:
@@ -347,7 +346,6 @@ class DCBRDefectTubeModel:
     def _is_current(self, c, y, d) -> bool:
         """Whether cache entry ``c`` = (version, y, delta, value) holds for these links and
         this state."""
-
         return (c is not None and c[0] == self._version and c[1].shape == y.shape
                 and c[2].shape == d.shape and CK.same(c[1], y) and CK.same(c[2], d))
 
@@ -428,13 +426,13 @@ class DCBRDefectTubeModel:
 
     def _transfer(self, y, d):
         """(Q, dQ/dy, dQ/d delta) of the split's transfer, or None (:meth:`prepare_split`)."""
-
         r = self._split_ref
         if r is None:
             return None
         gq = np.empty((self.N, 3))
         Q = CK.transfer(np.ascontiguousarray(y, dtype=float), r["y"],
-                     np.ascontiguousarray(d, dtype=float), r["d"], r["gy"], r["gd"], r["H"], gq)
+                        np.ascontiguousarray(d, dtype=float), r["d"], r["gy"], r["gd"], r["H"],
+                        gq)
         return float(Q), r["gy"], gq
 
     def prepare_split(self, state, h: float = 1e-4) -> None:
@@ -477,12 +475,11 @@ class DCBRDefectTubeModel:
         """dE/d(unknowns) (nd + nf, 3) from dE/d(particle positions) ``gyp`` (N, 3) and
         dE/d(free atoms) ``gx`` (nf, 3) or None: a slave's gradient goes to its atoms by
         Phi^T (y_s = Phi (x - X) + X_s)."""
-
         c = self._csr()
         gy = np.empty_like(y)
         CK.fold_gradient(np.ascontiguousarray(gyp, dtype=float),
-                      np.zeros((0, 3)) if gx is None else np.ascontiguousarray(gx, dtype=float),
-                      self.nd, c["dof"], c["slave"], c["pT"], c["iT"], c["dT"], gy)
+                         np.zeros((0, 3)) if gx is None else np.ascontiguousarray(gx, dtype=float),
+                         self.nd, c["dof"], c["slave"], c["pT"], c["iT"], c["dT"], gy)
         return gy
 
     def _csr(self):
@@ -509,11 +506,10 @@ class DCBRDefectTubeModel:
 
     def _particle_positions(self, y):
         """:meth:`DCBRDefectTube.particle_positions` (the same numbers) in one kernel."""
-
         c = self._csr()
         yp = np.empty((self.N, 3))
-        CK.particle_positions(np.ascontiguousarray(y, dtype=float), self.nd, c["dof"], c["slave"],
-                           c["p"], c["i"], c["d"], c["off"], yp)
+        CK.particle_positions(np.ascontiguousarray(y, dtype=float), self.nd, c["dof"],
+                              c["slave"], c["p"], c["i"], c["d"], c["off"], yp)
         return yp
 
     def _restricted_gain(self, rows):
@@ -642,7 +638,6 @@ class DCBRDefectTubeModel:
         particles' lattice energies: the carriers' maps (G on their rows only), the pads
         and the chain rule back through G^T are all it needs of the coarse part, so it
         is the cheap group."""
-
         self._sync(state)
         y, d = self.unknowns(state)
         c = self._fast_cache
@@ -923,7 +918,6 @@ class DCBRDefectTubeModel:
 
 def _sub_rows(out, rows, g):
     """out[rows] -= g (:func:`~upscale.models.dcbr_coupling_kernels.sub_rows`)."""
-
     CK.sub_rows(out, rows, np.ascontiguousarray(g, dtype=float))
 
 
