@@ -349,3 +349,113 @@ def test_failure_bad_input():
         UnifiedModel(E=1e9, nu=0.3, K_Ic=1e6, r_s=1e-3, sequential=0.0)
     with pytest.raises(ValueError, match="tip_factor"):
         UnifiedModel(E=1e9, nu=0.3, K_Ic=1e6, r_s=1e-3, tip_factor="exact")
+
+
+def _edge_cracked_plate(nx=30, ny=24, a=10, growth="free", r_s=4e-3):
+    """Plate with an edge crack along the row gap at mid-height, from the left edge to a
+    cell corner ``a`` spacings in, pulled apart by its top and bottom rows (mode I)."""
+    from upscale.engine import bonds_crossing_segment
+    from upscale.engine.quasistatic import Equilibrium
+
+    s = square_lattice(nx, ny, H, thickness=5e-3)
+    x = s.x0[:, :2]
+    yc = 0.5 * (x[:, 1].min() + x[:, 1].max())
+    tip = np.array([x[:, 0].min() + (a - 0.5) * H, yc])
+    fam = build_family(s, 3 * H * (1 + 1e-9))
+    cut = bonds_crossing_segment(s.x0, (x[:, 0].min() - H, yc), tip)(fam.owner, fam.neighbors, fam.xi)
+    fam = fam.remove_bonds(cut | cut[fam.reverse])
+    model = UnifiedModel(E=3.75e9, nu=0.35, stabilisation=1.0, K_Ic=2.13e6, r_s=r_s, growth=growth)
+    model.prepare(s, fam)
+    st = State.reference(s.x0, fam.nb)
+    fixed = np.zeros((s.n, 3), bool)
+    top, bot = x[:, 1] > x[:, 1].max() - 0.5 * H, x[:, 1] < x[:, 1].min() + 0.5 * H
+    fixed[top | bot, :2] = True
+    u = np.zeros((s.n, 3))
+    u[top, 1], u[bot, 1] = 1e-6, -1e-6
+    Equilibrium(model, fixed, preconditioner="lu").solve(st, u)
+    return s, fam, model, st, tip
+
+
+def test_crack_front_is_the_particles_next_to_the_cut():
+    """The front: particles with a cut nearest-neighbour bond (both crack faces, the tip);
+    not the free edges; and, once a particle loses every bond, its neighbours."""
+    from upscale.models.unified import crack_front, front_pairs
+
+    s, fam, model, st, tip = _edge_cracked_plate()
+    x = s.x0[:, :2]
+    pairs = front_pairs(x, H, fam.owner, fam.neighbors, s.n)
+    fr = crack_front(pairs, st.intact, model.alive, s.n)
+    faces = (np.abs(x[:, 1] - tip[1]) < H) & (x[:, 0] < tip[0])
+    assert fr[faces].all()
+    assert (np.abs(x[fr, 1] - tip[1]) < H).all() and (x[fr, 0] < tip[0] + H).all()
+    c = np.argmin(np.linalg.norm(x - [tip[0] + 5.5 * H, tip[1] + 0.5 * H], axis=1))
+    st.intact[(fam.owner == c) | (fam.neighbors == c)] = False
+    model.update_bonds(st.intact)
+    fr2 = crack_front(pairs, st.intact, model.alive, s.n)
+    ring = (np.linalg.norm(x - x[c], axis=1) < 1.5 * H)
+    assert fr2[ring].all() and (fr2 & ~fr).sum() == ring.sum()
+
+
+def test_front_growth_fails_next_to_the_tip_where_free_growth_fails_ahead():
+    """r_s = 4 dx in mode I: the largest averaged principal stress lies about 0.72 r_s
+    ahead of the tip, so the free rule opens a void there with an intact ligament behind
+    it; the front rule fails a particle next to the tip."""
+    out = {}
+    for growth in ("free", "front"):
+        s, fam, model, st, tip = _edge_cracked_plate(growth=growth)
+        ip = model.failure_index(st)
+        deg = np.bincount(fam.owner, minlength=s.n)
+        model.break_bonds(st, threshold=0.999 * ip.max())
+        void = np.bincount(fam.owner[~st.intact], minlength=s.n) == deg
+        assert 0 < void.sum() <= 2
+        out[growth] = np.linalg.norm(s.x0[void, :2] - tip, axis=1).min()
+    assert out["free"] > 2.0 * H
+    assert out["front"] < 1.0 * H
+
+
+def test_front_tip_factor_tends_to_the_tip_centred_disc():
+    """growth='front': beta at the particles next to the tip, tending to the continuum
+    tip-centred disc average 0.40636 (not the 0.50497 of the disc 0.72 r_s ahead)."""
+    from upscale.models.unified import disc_average_factor, lattice_tip_factor
+
+    b0 = disc_average_factor(p=0.0)[0]
+    assert abs(b0 - 0.40636) < 1e-4
+    b16 = lattice_tip_factor(16e-3, 1e-3, 3e-3 * (1 + 1e-9), growth="front")[0]
+    b4 = lattice_tip_factor(4e-3, 1e-3, 3e-3 * (1 + 1e-9), growth="front")[0]
+    assert abs(b16 / b0 - 1) < 0.04 < abs(b4 / b0 - 1)
+    with pytest.raises(ValueError, match="growth"):
+        lattice_tip_factor(4e-3, 1e-3, 3e-3, growth="ahead")
+
+
+def test_growth_bad_input():
+    with pytest.raises(ValueError, match="growth"):
+        UnifiedModel(E=1e9, nu=0.3, K_Ic=1e6, r_s=1e-3, growth="tip")
+    with pytest.raises(ValueError, match="criterion='principal'"):
+        UnifiedModel(E=1e9, nu=0.3, K_Ic=1e6, r_s=1e-3, growth="front", criterion="energy")
+
+
+def test_tip_disc_stress_matches_a_quadrature_of_the_williams_field():
+    """The closed-form tip-centred disc average of the K_I, K_II, T field against a direct
+    polar quadrature (r = s^2 removes the r^-1/2 singularity)."""
+    from upscale.models.unified import tip_disc_stress
+
+    KI, KII, T, rs = 1.3e6, -0.7e6, 2.0e6, 1.5e-3
+    sq, ws = np.polynomial.legendre.leggauss(40)
+    s_, ws = 0.5 * np.sqrt(rs) * (sq + 1), 0.5 * np.sqrt(rs) * ws
+    tq, wt = np.polynomial.legendre.leggauss(200)
+    t, wt = np.pi * tq, np.pi * wt
+    S, TT = np.meshgrid(s_, t, indexing="ij")
+    r = S ** 2
+    w = (ws[:, None] * wt[None, :]) * r * 2 * S          # r dr dt, dr = 2 s ds
+    g = 1 / np.sqrt(2 * np.pi * r)
+    c2, s2, c32, s32 = np.cos(TT / 2), np.sin(TT / 2), np.cos(1.5 * TT), np.sin(1.5 * TT)
+    sxx = g * (KI * c2 * (1 - s2 * s32) - KII * s2 * (2 + c2 * c32)) + T
+    syy = g * (KI * c2 * (1 + s2 * s32) + KII * s2 * c2 * c32)
+    sxy = g * (KI * c2 * s2 * c32 + KII * c2 * (1 - s2 * s32))
+    area = np.pi * rs ** 2
+    ref = [np.sum(w * f) / area for f in (sxx, syy, sxy)]
+    got = tip_disc_stress(KI, KII, T, rs)
+    for a, b in zip(got[:3], ref):
+        assert abs(a - b) < 1e-6 * max(abs(v) for v in ref)
+    with pytest.raises(ValueError, match="r_s"):
+        tip_disc_stress(1.0, 0.0, 0.0, 0.0)

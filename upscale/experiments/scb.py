@@ -154,7 +154,7 @@ class SCBScene:
                  R=R_DEFAULT, t=5e-3, r_s=None, supports="rollers", stabilisation=1.0,
                  no_fail=3.0, force="energy", failure_energy="tensile", rcond=1e-2, min_bonds=6, E=PMMA["E"], nu=PMMA["nu"], K_Ic=PMMA["K_Ic"],
                  rho=PMMA["rho"], gain_order=1, criterion="principal", sequential=0.99,
-                 tip_factor="lattice"):
+                 tip_factor="lattice", growth="free"):
         from upscale.engine import ParticleSystem, bonds_crossing_segment, build_family
         from upscale.models.unified import UnifiedModel
 
@@ -203,7 +203,7 @@ class SCBScene:
                                   no_fail=near, force=force, failure_energy=failure_energy,
                                   rcond=rcond, min_bonds=min_bonds, gain_order=gain_order,
                                   criterion=criterion, sequential=sequential,
-                                  tip_factor=tip_factor)
+                                  tip_factor=tip_factor, growth=growth)
         self.model.prepare(self.system, self.family)
         self.fixed = np.zeros((self.system.n, 3), bool)
         self.fixed[self.load, :2] = True
@@ -411,7 +411,7 @@ def run_scb(alpha_deg=30.0, *, dx=1e-3, m=3.0, r_s=1e-3, supports="rollers", sta
             no_fail=3.0, force="energy", failure_energy="tensile", progress=False, outdir=None,
             a_over_R=0.3, S_over_R=0.43, u_max=None, d_lambda=None, stop_fraction=0.2,
             keep: bool = False, max_equilibria: int = 3000, criterion: str = "principal",
-            sequential: float = 0.99, tip_factor: str = "lattice") -> dict:
+            sequential: float = 0.99, tip_factor: str = "lattice", growth: str = "free") -> dict:
     """Build and run the SCB fracture scene; returns a JSON-able result (and writes files
     under ``outdir`` when given); ``keep`` adds the scene, final state and damage under
     the keys ``_scene``, ``_state``, ``_damage`` (not JSON-able)."""
@@ -419,7 +419,7 @@ def run_scb(alpha_deg=30.0, *, dx=1e-3, m=3.0, r_s=1e-3, supports="rollers", sta
     sc = SCBScene(alpha_deg, dx=dx, m=m, r_s=r_s, supports=supports, stabilisation=stabilisation,
                   no_fail=no_fail, force=force, failure_energy=failure_energy, a_over_R=a_over_R,
                   S_over_R=S_over_R, criterion=criterion, sequential=sequential,
-                  tip_factor=tip_factor)
+                  tip_factor=tip_factor, growth=growth)
     st, curve = sc.fracture(progress=progress, u_max=u_max, d_lambda=d_lambda, stop_fraction=stop_fraction,
                             max_equilibria=max_equilibria)
     pts, mu = sc.crack_path(st)
@@ -467,6 +467,8 @@ def register(sub) -> None:
     p.add_argument("--criterion", default="principal", choices=("principal", "normal", "energy"),
                    help="failure rule: largest principal stress averaged over r_s (default), the averaged stress "
                         "resolved on each bond, or the particle energies of 6.28")
+    p.add_argument("--growth", default="free", choices=("free", "front"),
+                   help="principal criterion: any particle may fail (default), or only those on the crack front")
     p.add_argument("--out", default="out/scb", help="output directory (default: %(default)s)")
     p.add_argument("--stop-fraction", type=float, default=0.5,
                    help="stop when the load falls below this fraction of its peak (default %(default)s: "
@@ -490,7 +492,8 @@ def _main(args) -> int:
             r_s = c["principal"]["r_s_m"]              # a length in metres
     res = run_scb(args.alpha, dx=args.dx, m=args.m, r_s=r_s, supports=args.supports,
                   stabilisation=args.stabilisation, force=args.force, progress=not args.quiet,
-                  outdir=args.out, stop_fraction=args.stop_fraction, criterion=args.criterion)
+                  outdir=args.out, stop_fraction=args.stop_fraction, criterion=args.criterion,
+                  growth=args.growth)
     print(f"alpha = {args.alpha:g} deg, dx = {args.dx:g} m, r_s = {r_s:g} m: P_c = {res['P_c_kN']:.4f} kN, "
           f"initiation angle {res['initiation_angle_deg']} deg, {res['broken_bonds']} bonds broken, "
           f"{res['wall_s']:.1f} s -> {args.out}/scb.json")

@@ -82,6 +82,21 @@ same operations applied to the exact mode-I tip displacement field on the model'
 lattice (:func:`lattice_tip_factor`; it depends on r_s / spacing and the horizon, and
 tends to the continuum value as r_s / spacing grows); ``"continuum"`` uses 0.50497.
 
+Crack growth (``growth``, principal criterion). ``"free"`` (default): any particle may
+fail. The disc average of the tip field is largest 0.72 r_s ahead of the tip, so once
+r_s spans several spacings the first void opens there, with an intact ligament between
+it and the crack; the ligament and the voids ahead keep loading and failing over several
+equilibria, so the model has a resistance that rises over a length of order r_s, i.e. of
+more spacings the finer the grid at a fixed r_s. ``"front"``: only particles on the crack
+front may fail, those with a nearest neighbour (closer than :data:`FRONT_RADIUS`
+spacings) to which the bond is cut or broken or which is a void (:func:`crack_front`; a
+free edge is not a front). The crack then advances particle by particle from its tip
+toward the largest averaged principal stress among the front particles, and beta is the
+average at the particles next to the tip: the tip-centred disc (p -> 0), 0.40636
+K / sqrt(r_s) in the continuum, from the lattice by :func:`lattice_tip_factor` with
+``growth="front"``. Nucleation away from a crack is then impossible; the load and
+support patches stay protected by ``no_fail`` either way.
+
 ``criterion="normal"``: per bond, the averaged stress resolved on the bond, s_b = n_b .
 (S_bar_c + S_bar_j)/2 . n_b (n_b the unit reference bond vector), with the same sigma_c.
 A bond crossing a crack at an angle phi to its normal carries only about s_1 cos^2 phi, so
@@ -136,7 +151,7 @@ from upscale.models.base import Model, Needs
 from upscale.models.gain import gain_coefficients, gain_coefficients_quadratic, kappa
 
 __all__ = ["UnifiedModel", "elastic_tensor", "orthotropic_tensor", "critical_energy_release_rate",
-           "disc_average_factor", "lattice_tip_factor"]
+           "disc_average_factor", "lattice_tip_factor", "front_pairs", "crack_front", "tip_disc_stress"]
 
 
 # ---------------------------------------------------------------------------- material
@@ -260,10 +275,12 @@ def critical_energy_release_rate(K_Ic: float, E: float, nu: float = 0.0, plane: 
     return K_Ic ** 2 / E if plane == "stress" else K_Ic ** 2 * (1 - nu * nu) / E
 
 
-def disc_average_factor(dim: int = 2, n_quad: int = 400) -> tuple[float, float]:
+def disc_average_factor(dim: int = 2, n_quad: int = 400, p: float | None = None) -> tuple[float, float]:
     """(beta, p): the largest average of the mode-I tip stress sigma_yy over a disc (dim 2)
     or ball (dim 3, the plane-strain field constant along z) of radius r_s, in units K /
     sqrt(r_s), and the distance p / r_s of its centre ahead of the tip (module docstring).
+    With ``p`` given, the average about the centre p r_s ahead of the tip instead of the
+    largest (p = 0: the tip-centred disc, 0.40636 in 2D; the factor of ``growth="front"``).
 
     2D: sigma_bar_yy(p) = int_{-pi}^{pi} f_yy(t) (2/3) r_2^(3/2) dt / (pi sqrt(2 pi)),
     r_2 = p cos t + sqrt(1 - p^2 sin^2 t), Gauss-Legendre in t, maximised over p in [0, 1).
@@ -299,8 +316,71 @@ def disc_average_factor(dim: int = 2, n_quad: int = 400) -> tuple[float, float]:
 
         def f(p):
             return -np.sum(wq * np.pi * rho ** 2 * np.array([disc(p, r) for r in rho])) / (4 * np.pi / 3)
+    if p is not None:
+        if not (0.0 <= p < 1.0):
+            raise ValueError(f"p={p!r}; valid: 0 <= p < 1 (the centre's distance ahead of the tip / r_s)")
+        return float(-f(p)), float(p)
     r = minimize_scalar(f, bounds=(0.0, 0.99), method="bounded", options={"xatol": 1e-9})
     return float(-r.fun), float(r.x)
+
+
+def tip_disc_stress(K_I, K_II, T, r_s):
+    """The near-tip field K_I, K_II (Pa m^0.5), T (Pa) averaged over the disc of radius
+    r_s (m) centred at the tip, in the crack frame (x ahead of the tip, y normal): the
+    continuum limit of what ``growth="front"`` compares with sigma_c as the spacing falls.
+    Returns (s_xx, s_yy, s_xy, s_1): the averaged components and their largest principal
+    value (Pa). (The direction of growth is not the principal direction of this average:
+    the front particle that fails first is the one whose disc, centred a fraction of a
+    spacing from the tip, has the largest s_1, i.e. it follows the gradient of s_1 with
+    the disc's centre.)
+
+    With sigma_ij = K f_ij(t) / sqrt(2 pi r) the average is (2/3) int_{-pi}^{pi} f_ij dt /
+    (pi sqrt(2 pi r_s)); the integrals are 4.8 (mode I, yy), 3.2 (mode I, xx), 3.2 (mode II,
+    xy) and zero for the odd ones (mode I xy, mode II xx and yy), and T adds to s_xx:
+
+        s_yy = c 4.8 K_I,  s_xx = c 3.2 K_I + T,  s_xy = c 3.2 K_II,  c = (2/3) / (pi sqrt(2 pi r_s)),
+
+    so in pure mode I s_1 = s_yy = 0.40636 K_I / sqrt(r_s) (:func:`disc_average_factor` at
+    p = 0), the criterion then met at K_I = K_Ic for every r_s; T and K_II enter over r_s,
+    like the critical distance of the generalised MTS criterion. Higher Williams terms are
+    left out (r_s small against the crack and the ligament)."""
+    if not (np.all(np.asarray(r_s) > 0)):
+        raise ValueError(f"r_s={r_s!r} m; valid: r_s > 0")
+    c = (2.0 / 3.0) / (np.pi * np.sqrt(2 * np.pi * np.asarray(r_s, float)))
+    sxx = c * 3.2 * np.asarray(K_I, float) + np.asarray(T, float)
+    syy = c * 4.8 * np.asarray(K_I, float)
+    sxy = c * 3.2 * np.asarray(K_II, float)
+    s1 = 0.5 * (sxx + syy) + np.sqrt(0.25 * (syy - sxx) ** 2 + sxy ** 2)
+    return sxx, syy, sxy, s1
+
+
+#: nearest-neighbour radius of the crack front, in spacings (the 8 / 18 lattice neighbours
+#: of a square / cubic lattice in 2D / 3D)
+FRONT_RADIUS = 1.5
+
+
+def front_pairs(x, spacing, owner, neighbors, n):
+    """Nearest-neighbour pairs of the crack-front rule: (i, j, b) for every pair closer
+    than :data:`FRONT_RADIUS` spacings in the reference positions ``x`` (N, dim), b the
+    directed bond i -> j of the family (``owner``, ``neighbors``) or -1 when the family has
+    no such bond (a bond cut by a pre-crack)."""
+    from scipy.spatial import cKDTree
+
+    pr = cKDTree(x).query_pairs(FRONT_RADIUS * spacing, output_type="ndarray")
+    keys = owner.astype(np.int64) * n + neighbors
+    o = np.argsort(keys)
+    want = pr[:, 0].astype(np.int64) * n + pr[:, 1]
+    k = np.minimum(np.searchsorted(keys[o], want), keys.size - 1)
+    b = np.where(keys[o][k] == want, o[k], -1)
+    return pr[:, 0], pr[:, 1], b
+
+
+def crack_front(pairs, intact, alive, n):
+    """(N,) bool: particles next to a crack, i.e. with a nearest neighbour (:func:`front_pairs`)
+    to which the bond is cut or broken, or which carries no stress (a void)."""
+    i, j, b = pairs
+    cut = (b < 0) | ~intact[np.maximum(b, 0)] | ~alive[i] | ~alive[j]
+    return (np.bincount(i[cut], minlength=n) + np.bincount(j[cut], minlength=n)) > 0
 
 
 def _averaging_matrix(x, volume, radius):
@@ -320,7 +400,7 @@ LATTICE_TIP_MAX_RATIO = 16.0
 
 def lattice_tip_factor(r_s: float, spacing: float, horizon: float, *, E: float = 3.75e9, nu: float = 0.35,
                        plane: str = "stress", kernel: str = "quartic", rcond: float = 1e-6,
-                       min_bonds: int = 0, gain_order: int = 1) -> tuple[float, float]:
+                       min_bonds: int = 0, gain_order: int = 1, growth: str = "free") -> tuple[float, float]:
     """(beta, p): :func:`disc_average_factor` on the model's own lattice. The exact mode-I
     tip displacement field (K = 1, isotropic E, nu; plane stress kappa = (3 - nu)/(1 + nu),
     plane strain 3 - 4 nu) is imposed on a square lattice of ``spacing`` (a disc of radius
@@ -329,7 +409,9 @@ def lattice_tip_factor(r_s: float, spacing: float, horizon: float, *, E: float =
     gradient over the horizon) is averaged over r_s as in the criterion, and beta is the
     largest principal value times sqrt(r_s) within r_s + horizon of the tip, p / r_s its
     distance ahead. With this beta the criterion reaches sigma_c exactly at K_I = K_Ic in
-    a K-dominated field at this spacing and horizon, for any r_s / spacing (2D only)."""
+    a K-dominated field at this spacing and horizon, for any r_s / spacing (2D only).
+    ``growth="front"``: the largest over the crack-front particles only (:func:`crack_front`,
+    the particles next to the cut), as the criterion then allows failure only there."""
     from upscale.engine import ParticleSystem, bonds_crossing_segment, build_family
     from upscale.engine.state import State
 
@@ -361,6 +443,11 @@ def lattice_tip_factor(r_s: float, spacing: float, horizon: float, *, E: float =
     Sb = (A @ (wv[:, None] * S.reshape(-1, 4))) / np.maximum(A @ wv, 1e-300)[:, None]
     s1 = np.linalg.eigvalsh(Sb.reshape(-1, 2, 2))[:, -1]
     near = r <= r_s + horizon
+    if growth == "front":
+        near &= crack_front(front_pairs(x0[:, :2], spacing, fam.owner, fam.neighbors, sysm.n),
+                            np.ones(fam.nb, bool), model.alive, sysm.n)
+    elif growth != "free":
+        raise ValueError(f"growth={growth!r}; valid: 'free', 'front'")
     i = np.flatnonzero(near)[np.argmax(s1[near])]
     return float(s1[i] * np.sqrt(r_s) / K), float(x0[i, 0] / r_s)
 
@@ -588,6 +675,9 @@ class UnifiedModel(Model):
         :func:`lattice_tip_factor`; the continuum value above r_s / spacing =
         :data:`LATTICE_TIP_MAX_RATIO`) or the continuum disc average
         (:func:`disc_average_factor`).
+    growth : {"free", "front"}
+        Which particles may fail under the principal criterion (module docstring): any
+        (default) or only those on the crack front.
     sequential : float
         In (0, 1]: per round only the bonds whose index is at least this fraction of the
         largest break (1: every bond over the threshold).
@@ -609,7 +699,7 @@ class UnifiedModel(Model):
                  no_fail=None, rcond: float = 1e-6, kernel: str = "quartic",
                  failure_energy: str = "tensile", min_bonds: int = 0, gain_order: int = 1,
                  qcond: float = 1e-8, criterion: str = "principal",
-                 sequential: float = 1.0, tip_factor: str = "lattice"):
+                 sequential: float = 1.0, tip_factor: str = "lattice", growth: str = "free"):
         if dim not in (2, 3):
             raise ValueError(f"dim={dim!r}; valid: 2, 3")
         if force not in ("energy", "printed"):
@@ -638,6 +728,12 @@ class UnifiedModel(Model):
         if tip_factor not in ("lattice", "continuum"):
             raise ValueError(f"tip_factor={tip_factor!r}; valid: 'lattice', 'continuum'")
         self.tip_factor_kind = tip_factor
+        if growth not in ("free", "front"):
+            raise ValueError(f"growth={growth!r}; valid: 'free' (any particle may fail), 'front' (only "
+                             "particles next to a cut or broken nearest-neighbour bond)")
+        if growth == "front" and criterion != "principal":
+            raise ValueError(f"growth='front' with criterion={criterion!r}; valid: criterion='principal'")
+        self.growth = growth
         self.criterion = criterion
         self.stabilisation = float(stabilisation)
         self.kernel = kernel
@@ -683,23 +779,31 @@ class UnifiedModel(Model):
         self._avg = None
         if self.needs.failure and self.criterion in ("normal", "principal"):
             self._avg = _averaging_matrix(system.x0[:, :self.dim], system.volume, self.r_s)
+        self._front_pairs = None
+        if self.needs.failure and self.growth == "front":
+            if system.spacing is None:
+                raise ValueError("growth='front' needs the particle system's spacing (ParticleSystem(spacing=...)); "
+                                 "valid otherwise: growth='free'")
+            self._front_pairs = front_pairs(system.x0[:, :self.dim], system.spacing, family.owner,
+                                            family.neighbors, n)
         self.update_bonds(np.ones(family.nb, dtype=bool))
 
     def tip_factor(self) -> float:
         """beta of sigma_c: :func:`disc_average_factor` (``tip_factor="continuum"``) or
         :func:`lattice_tip_factor` on this model's spacing and horizon (``"lattice"``, 2D)."""
+        p = 0.0 if self.growth == "front" else None
         if self.tip_factor_kind == "continuum" or self.dim == 3:
-            return disc_average_factor(self.dim)[0]
+            return disc_average_factor(self.dim, p=p)[0]
         if self.system.spacing is not None and self.r_s > LATTICE_TIP_MAX_RATIO * self.system.spacing:
             # the lattice factor has converged to the continuum one (within 1.2 % from
             # r_s / spacing = 4 on), and its lattice would hold ~(8 r_s / spacing)^2 particles
-            return disc_average_factor(self.dim)[0]
+            return disc_average_factor(self.dim, p=p)[0]
         if self.system.spacing is None:
             raise ValueError("tip_factor='lattice' needs the particle system's spacing (ParticleSystem(spacing=...)); "
                              "valid otherwise: tip_factor='continuum'")
         return lattice_tip_factor(self.r_s, self.system.spacing, self.family.horizon, E=self.E, nu=self.nu,
                                   plane=self.plane, kernel=self.kernel, rcond=self.rcond,
-                                  min_bonds=self.min_bonds, gain_order=self.gain_order)[0]
+                                  min_bonds=self.min_bonds, gain_order=self.gain_order, growth=self.growth)[0]
 
     def sigma_c(self) -> float:
         """Critical averaged stress beta K_Ic / sqrt(r_s) (Pa) of the ``"principal"`` and
@@ -892,6 +996,8 @@ class UnifiedModel(Model):
             s1 = np.linalg.eigvalsh(Sb)[:, -1]
             ip = (np.maximum(s1, 0.0) / self._sigma_c()) ** 2
             ip[self._no_fail] = 0.0
+            if self._front_pairs is not None:
+                ip[~crack_front(self._front_pairs, state.intact, self.alive, self.system.n)] = 0.0
             fam = self.family
             out[:] = np.where(state.intact, np.maximum(ip[fam.owner], ip[fam.neighbors]), 0.0)
             nf = self._no_fail[fam.owner] | self._no_fail[fam.neighbors]
@@ -952,7 +1058,7 @@ class UnifiedModel(Model):
     def describe(self) -> dict:
         d = {"model": self.name, "dim": self.dim, "plane": self.plane, "E_Pa": self.E, "nu": self.nu,
              "C_voigt_Pa": self.C.tolist(), "force": self.force_form,
-             "stabilisation": self.stabilisation, "criterion": self.criterion, "failure_energy": self.failure_energy, "r_s_m": self.r_s, "G_c_J_per_m2": self.G_c,
+             "stabilisation": self.stabilisation, "criterion": self.criterion, "growth": self.growth, "failure_energy": self.failure_energy, "r_s_m": self.r_s, "G_c_J_per_m2": self.G_c,
              "K_Ic_Pa_sqrt_m": self.K_Ic}
         if self.system is not None:
             d["particles_without_stress"] = int((~self.alive).sum())

@@ -207,9 +207,11 @@ def _table_args(p):
                    help="failure rule of the unified model (default %(default)s)")
     p.add_argument("--r-s-candidates", default="1e-3,2e-3,3e-3",
                    help="principal/normal criteria: r_s values (m) tried at alpha = 0 (default %(default)s)")
+    p.add_argument("--growth", default="free", choices=("free", "front"),
+                   help="principal criterion: any particle may fail (default) or only the crack front")
 
 
-def calibrate_r_s_scan(dx, P_target, candidates, stab=1.0, criterion="principal", log=print):
+def calibrate_r_s_scan(dx, P_target, candidates, stab=1.0, criterion="principal", log=print, growth="free"):
     """P_c at alpha = 0 for each candidate r_s (m); the closest to ``P_target``, refined by
     one linear interpolation when two candidates bracket it. For the averaged-stress
     criteria P_c depends on r_s only through the body's non-singular terms and the
@@ -219,14 +221,16 @@ def calibrate_r_s_scan(dx, P_target, candidates, stab=1.0, criterion="principal"
 
     hist = []
     for r in candidates:
-        res = run_scb(0.0, dx=dx, r_s=r, stabilisation=stab, stop_fraction=0.6, criterion=criterion)
+        res = run_scb(0.0, dx=dx, r_s=r, stabilisation=stab, stop_fraction=0.6, criterion=criterion,
+                      growth=growth)
         hist.append((r, res["P_c_N"], res["wall_s"]))
         log(f"  calibration: r_s = {r * 1e3:.4f} mm -> P_c = {res['P_c_N'] / 1e3:.4f} kN ({res['wall_s']:.0f} s)")
     hist.sort()
     for (r1, P1, _), (r2, P2, _) in zip(hist, hist[1:]):
         if (P1 - P_target) * (P2 - P_target) < 0:
             r = r1 + (P_target - P1) * (r2 - r1) / (P2 - P1)
-            res = run_scb(0.0, dx=dx, r_s=r, stabilisation=stab, stop_fraction=0.6, criterion=criterion)
+            res = run_scb(0.0, dx=dx, r_s=r, stabilisation=stab, stop_fraction=0.6, criterion=criterion,
+                      growth=growth)
             hist.append((r, res["P_c_N"], res["wall_s"]))
             log(f"  calibration: r_s = {r * 1e3:.4f} mm -> P_c = {res['P_c_N'] / 1e3:.4f} kN ({res['wall_s']:.0f} s)")
             break
@@ -242,7 +246,8 @@ def calibrate_r_s(dx, P_target, stab=1.0, r0=None, iters=4, tol=0.005, log=print
     r = r0 or 15 * dx
     hist = []
     for _ in range(iters):
-        res = run_scb(0.0, dx=dx, r_s=r, stabilisation=stab, stop_fraction=0.6, criterion=criterion)
+        res = run_scb(0.0, dx=dx, r_s=r, stabilisation=stab, stop_fraction=0.6, criterion=criterion,
+                      growth=growth)
         P = res["P_c_N"]
         hist.append((r, P, res["wall_s"]))
         log(f"  calibration: r_s = {r * 1e3:.4f} mm -> P_c = {P / 1e3:.4f} kN ({res['wall_s']:.0f} s)")
@@ -293,18 +298,20 @@ def run_table(args):
     t0 = time.perf_counter()
     r_s = getattr(args, "r_s", None)
     crit = getattr(args, "criterion", "principal")
+    growth = getattr(args, "growth", "free")
     cal = None
     if r_s is None and crit == "energy":
         r_s, cal = calibrate_r_s(dx, exP[0.0] * 1e3, stab=stab, iters=3 if quick else 5)
     elif r_s is None:
         cands = [float(v) for v in getattr(args, "r_s_candidates", "1e-3,2e-3,3e-3").split(",")]
-        r_s, cal = calibrate_r_s_scan(dx, exP[0.0] * 1e3, cands, stab=stab, criterion=crit)
+        r_s, cal = calibrate_r_s_scan(dx, exP[0.0] * 1e3, cands, stab=stab, criterion=crit, growth=growth)
     print(f"r_s = {r_s * 1e3:.4f} mm (calibrated at alpha = 0 only)" if cal else f"r_s = {r_s * 1e3:.4f} mm (given)")
     out = _outdir(args)
     rows, res_all, curves = [], [], []
     for al in alphas:
         res = run_scb(al, dx=dx, r_s=r_s, stabilisation=stab, stop_fraction=getattr(args, "stop_fraction", 0.5),
-                      keep=True, max_equilibria=getattr(args, "max_equilibria", 3000), criterion=crit)
+                      keep=True, max_equilibria=getattr(args, "max_equilibria", 3000), criterion=crit,
+                      growth=growth)
         fe = _fe(al, 3 * dx, quick=True)
         f = np.sqrt(np.pi * A_CRACK) / (2 * R * T_THICK)
         P = res["P_c_N"]
@@ -312,8 +319,10 @@ def run_table(args):
         T = fe["T_star"] * P / (2 * R * T_THICK)
         err = 100 * (res["P_c_kN"] / exP[al] - 1)
         perr = 100 * (thP[al] / exP[al] - 1)
+        P_lim = _front_limit_load(fe["Y_I"], fe["Y_II"], fe["T_star"], r_s) / 1e3
         row = {"alpha": al, "P_c kN": res["P_c_kN"], "exp kN": exP[al], "err %": err, "paper kN": thP[al],
-               "paper err %": perr, "K_I": KI / 1e6, "K_II": KII / 1e6,
+               "paper err %": perr, "front limit kN": P_lim, "front limit err %": 100 * (P_lim / exP[al] - 1),
+               "K_I": KI / 1e6, "K_II": KII / 1e6,
                "init deg": res["initiation_angle_deg"], "MTS deg": _mts_angle(KI, KII),
                "GMTS deg": _gmts_angle(KI, KII, T), "wall s": res["wall_s"],
                "equilibria": len(res["curve"]["load_N"]), "stop": res["curve"]["stop_reason"],
@@ -334,16 +343,19 @@ def run_table(args):
     _plot_curves(out / "scb_curves.png", curves)
     e = np.array([abs(r["err %"]) for r in rows])
     pe = np.array([abs(100 * (thP[a] / exP[a] - 1)) for a in ALPHAS])
-    res = {"dx_m": dx, "r_s_m": r_s, "criterion": crit, "calibration": cal, "alpha_deg": alphas,
+    res = {"dx_m": dx, "r_s_m": r_s, "criterion": crit, "growth": growth, "calibration": cal, "alpha_deg": alphas,
            "P_c_kN": [r["P_c kN"] for r in rows], "P_c_err_pct": [r["err %"] for r in rows],
            "P_c_err_pct_mean": float(e.mean()), "P_c_err_pct_max": float(e.max()),
            "paper_P_c_err_pct_mean": float(pe.mean()), "paper_P_c_err_pct_max": float(pe.max()),
            "K_I_MPa_sqrt_m": [r["K_I"] for r in rows], "K_II_MPa_sqrt_m": [r["K_II"] for r in rows],
            "initiation_angle_deg": [r["init deg"] for r in rows],
            "MTS_angle_deg": [r["MTS deg"] for r in rows], "GMTS_angle_deg": [r["GMTS deg"] for r in rows],
-           "GMTS_r_c_m": R_C_GMTS, "wall_s": time.perf_counter() - t0}
+           "GMTS_r_c_m": R_C_GMTS, "wall_s": time.perf_counter() - t0,
+           "front_limit_P_c_kN": [r["front limit kN"] for r in rows],
+           "front_limit_P_c_err_pct_mean": float(np.mean([abs(r["front limit err %"]) for r in rows])),
+           "front_limit_P_c_err_pct_max": float(np.max([abs(r["front limit err %"]) for r in rows]))}
     res["pass"] = bool(len(alphas) == 8 and e.mean() < pe.mean() and e.max() <= pe.max())
-    tag = f"{crit}_dx{dx * 1e3:g}mm_" + "_".join(f"{a:g}" for a in alphas)
+    tag = f"{crit}_" + ("front_" if growth == "front" else "") + f"dx{dx * 1e3:g}mm_" + "_".join(f"{a:g}" for a in alphas)
     (out / f"scb_table_{tag}.json").write_text(json.dumps({"rows": rows, "summary": res}, indent=1, default=float))
     return res
 
@@ -365,6 +377,8 @@ def _conv_args(p):
     p.add_argument("--ms", default="",
                    help="extra horizon / spacing ratios (default 3 only), run with r_s fixed at --m-dx")
     p.add_argument("--m-dx", type=float, default=None, help="spacing in m of the --ms runs (default the coarsest)")
+    p.add_argument("--growth", default="free", choices=("free", "front"),
+                   help="principal criterion: any particle may fail (default) or only the crack front")
     p.add_argument("--deltas", default="",
                    help="comma list of horizons in m held fixed while the spacing is refined (m = delta / dx "
                         "at each of --dxs, r_s fixed in metres): the refinement of the nonlocal model at fixed "
@@ -405,16 +419,17 @@ def run_convergence(args):
     ex = _exp()
     r_s = getattr(args, "r_s", None)
     crit = getattr(args, "criterion", "principal")
+    growth = getattr(args, "growth", "free")
     if r_s is None and crit == "energy":
         r_s, _ = calibrate_r_s(dxs[0], ex["exp_P_c_kN"][0] * 1e3, iters=3)
     elif r_s is None:
         cands = [float(v) for v in getattr(args, "r_s_candidates", "1e-3,2e-3").split(",")]
-        r_s, _ = calibrate_r_s_scan(dxs[0], ex["exp_P_c_kN"][0] * 1e3, cands, criterion=crit)
+        r_s, _ = calibrate_r_s_scan(dxs[0], ex["exp_P_c_kN"][0] * 1e3, cands, criterion=crit, growth=growth)
     ratio = r_s / dxs[0]
     rows = []
 
     def one(al, dx, m, mode, r):
-        res = run_scb(al, dx=dx, m=m, r_s=r, stop_fraction=0.6, criterion=crit)
+        res = run_scb(al, dx=dx, m=m, r_s=r, stop_fraction=0.6, criterion=crit, growth=growth)
         c = res["curve"]
         rows.append({"alpha": al, "dx mm": dx * 1e3, "delta/dx": m, "mode": mode, "r_s mm": r * 1e3,
                      "particles": res["scene"]["particles"], "P_c kN": res["P_c_kN"],
@@ -489,7 +504,7 @@ def run_convergence(args):
 
     fixed_m = worst(lambda c: c["mode"] == "fixed m" and c["finest"])
     out = {"dx_m": dxs, "alpha_deg": alphas, "horizon_over_dx": [3.0] + [m for m in ms if m != 3.0],
-           "r_s_m_coarsest": r_s, "criterion": crit, "rows": rows, "changes": ch,
+           "r_s_m_coarsest": r_s, "criterion": crit, "growth": growth, "rows": rows, "changes": ch,
            "P_c_change_pct_max": fixed_m,
            "P_c_change_pct_max_fixed_ratio": worst(lambda c: c["mode"] == "fixed r_s/dx" and c["finest"]),
            "P_c_change_pct_max_m": worst(lambda c: c["mode"].startswith("delta/dx")),
@@ -571,6 +586,18 @@ def _mts_load(YI, YII, K_Ic=2.13e6, T_star=None, rc=R_C_GMTS):
     if T_star is not None:
         s = s + np.sqrt(2 * np.pi * rc) * T_star / (2 * R * T_THICK) * np.sin(th) ** 2
     return K_Ic / s.max()
+
+
+def _front_limit_load(YI, YII, T_star, r_s, K_Ic=2.13e6):
+    """Initiation load (N) of the ``growth="front"`` criterion in its continuum limit
+    (spacing -> 0 at a fixed r_s): the largest principal value of the K_I, K_II, T field
+    averaged over the tip-centred disc of radius r_s reaches 0.40636 K_Ic / sqrt(r_s)
+    (:func:`upscale.models.unified.tip_disc_stress`), K and T from the FE factors."""
+    from upscale.models.unified import disc_average_factor, tip_disc_stress
+
+    f = np.sqrt(np.pi * A_CRACK) / (2 * R * T_THICK)
+    s1 = tip_disc_stress(YI * f, YII * f, T_star / (2 * R * T_THICK), r_s)[3]
+    return float(disc_average_factor(p=0.0)[0] * K_Ic / np.sqrt(r_s) / s1)
 
 
 def merge_tables(paths, out_png=None):
