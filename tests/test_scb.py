@@ -130,3 +130,16 @@ def test_convergence_both_modes_share_the_coarsest_spacing():
     assert set(by_mode) == {"fixed m", "fixed r_s/dx"}
     assert np.isclose(by_mode["fixed m"], 100 * (P[1] / P[0] - 1))
     assert np.isclose(by_mode["fixed r_s/dx"], 100 * (P[2] / P[0] - 1))
+
+
+def test_front_limit_kink_and_load():
+    """The front criterion's continuum limit: no kink in mode I, a kink that changes sign
+    with K_II, and a mode-I initiation load at K_I = K_Ic whatever r_s."""
+    from validation.cases.scb import A_CRACK, R, T_THICK, _front_limit_kink, _front_limit_load
+
+    assert _front_limit_kink(2.0, 0.0, -0.7, 1e-3) == 0.0
+    a, b = _front_limit_kink(1.0, 0.8, 1.2, 1e-3), _front_limit_kink(1.0, -0.8, 1.2, 1e-3)
+    assert -90 < a < -20 and abs(a + b) < 1e-9
+    P_lefm = 2.13e6 * 2 * R * T_THICK / (2.0 * np.sqrt(np.pi * A_CRACK))
+    for rs in (0.5e-3, 2e-3):
+        assert abs(_front_limit_load(2.0, 0.0, 0.0, rs) / P_lefm - 1) < 1e-4

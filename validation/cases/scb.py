@@ -322,6 +322,7 @@ def run_table(args):
         P_lim = _front_limit_load(fe["Y_I"], fe["Y_II"], fe["T_star"], r_s) / 1e3
         row = {"alpha": al, "P_c kN": res["P_c_kN"], "exp kN": exP[al], "err %": err, "paper kN": thP[al],
                "paper err %": perr, "front limit kN": P_lim, "front limit err %": 100 * (P_lim / exP[al] - 1),
+               "front limit deg": _front_limit_kink(fe["Y_I"], fe["Y_II"], fe["T_star"], r_s),
                "K_I": KI / 1e6, "K_II": KII / 1e6,
                "init deg": res["initiation_angle_deg"], "MTS deg": _mts_angle(KI, KII),
                "GMTS deg": _gmts_angle(KI, KII, T), "wall s": res["wall_s"],
@@ -352,6 +353,7 @@ def run_table(args):
            "MTS_angle_deg": [r["MTS deg"] for r in rows], "GMTS_angle_deg": [r["GMTS deg"] for r in rows],
            "GMTS_r_c_m": R_C_GMTS, "wall_s": time.perf_counter() - t0,
            "front_limit_P_c_kN": [r["front limit kN"] for r in rows],
+           "front_limit_angle_deg": [r["front limit deg"] for r in rows],
            "front_limit_P_c_err_pct_mean": float(np.mean([abs(r["front limit err %"]) for r in rows])),
            "front_limit_P_c_err_pct_max": float(np.max([abs(r["front limit err %"]) for r in rows]))}
     res["pass"] = bool(len(alphas) == 8 and e.mean() < pe.mean() and e.max() <= pe.max())
@@ -598,6 +600,33 @@ def _front_limit_load(YI, YII, T_star, r_s, K_Ic=2.13e6):
     f = np.sqrt(np.pi * A_CRACK) / (2 * R * T_THICK)
     s1 = tip_disc_stress(YI * f, YII * f, T_star / (2 * R * T_THICK), r_s)[3]
     return float(disc_average_factor(p=0.0)[0] * K_Ic / np.sqrt(r_s) / s1)
+
+
+def _front_limit_kink(YI, YII, T_star, r_s, eps=0.02, n_quad=4000):
+    """Kink angle (deg) of the ``growth="front"`` criterion in its continuum limit: the
+    front particles sit a vanishing distance eps r_s from the tip, and the first to fail is
+    the one whose disc has the largest s_1, so the crack leaves the tip along the direction
+    phi that maximises s_1 of the K_I, K_II, T field averaged over the disc centred at
+    eps r_s (cos phi, sin phi). With the tip inside that disc, a ray from the tip at angle t
+    leaves it at r_2 = q cos(t - phi) + sqrt(r_s^2 - q^2 sin^2(t - phi)), q = eps r_s, so the
+    singular part averages to int f_ij(t) (2/3) r_2^(3/2) dt / (sqrt(2 pi) pi r_s^2)
+    (Gauss-Legendre in t); phi on a 0.5 deg grid."""
+    f = np.sqrt(np.pi * A_CRACK) / (2 * R * T_THICK)
+    KI, KII, T = YI * f, YII * f, T_star / (2 * R * T_THICK)
+    x, w = np.polynomial.legendre.leggauss(n_quad)
+    t, w = np.pi * x, np.pi * w
+    c2, s2, c32, s32 = np.cos(t / 2), np.sin(t / 2), np.cos(1.5 * t), np.sin(1.5 * t)
+    fxx = KI * c2 * (1 - s2 * s32) - KII * s2 * (2 + c2 * c32)
+    fyy = KI * c2 * (1 + s2 * s32) + KII * s2 * c2 * c32
+    fxy = KI * c2 * s2 * c32 + KII * c2 * (1 - s2 * s32)
+    phi = np.radians(np.arange(-179.5, 180.0, 0.5))
+    q = eps * r_s
+    d = t[None, :] - phi[:, None]
+    r2 = q * np.cos(d) + np.sqrt(r_s ** 2 - (q * np.sin(d)) ** 2)
+    g = w * (2.0 / 3.0) * r2 ** 1.5 / (np.sqrt(2 * np.pi) * np.pi * r_s ** 2)
+    sxx, syy, sxy = g @ fxx + T, g @ fyy, g @ fxy
+    s1 = 0.5 * (sxx + syy) + np.sqrt(0.25 * (syy - sxx) ** 2 + sxy ** 2)
+    return float(np.degrees(phi[np.argmax(s1)]))
 
 
 def merge_tables(paths, out_png=None):
