@@ -143,3 +143,19 @@ def test_front_limit_kink_and_load():
     P_lefm = 2.13e6 * 2 * R * T_THICK / (2.0 * np.sqrt(np.pi * A_CRACK))
     for rs in (0.5e-3, 2e-3):
         assert abs(_front_limit_load(2.0, 0.0, 0.0, rs) / P_lefm - 1) < 1e-4
+
+
+def test_path_offset_against_the_experimental_path():
+    """The experimental alpha = 30 deg path read as a model path is 0 mm off; shifted 1 mm
+    sideways it is 1 mm off at every height; the heights skip 2 mm at each end."""
+    import json
+
+    from validation.cases.scb import PATH_30, path_offset
+
+    exp = json.loads(PATH_30.read_text())
+    pts = np.column_stack([exp["x_m"], exp["y_m"]])
+    y, xe, xm, off = path_offset(pts, 1e-4)
+    assert len(y) >= 10 and y.min() >= exp["y_m"][0] + 2e-3 and y.max() <= exp["y_m"][-1] - 2e-3
+    assert np.allclose(off, 0.0, atol=1e-12)
+    off1 = path_offset(pts + [1e-3, 0.0], 1e-4)[3]
+    assert np.allclose(off1, 1e-3, atol=1e-12)

@@ -339,6 +339,12 @@ def run_table(args):
         pts = np.asarray(res["crack_path_m"]) if res["crack_path_m"] else None
         damage_png(out / f"scb_damage_{al:g}.png", sc, mu,
                    f"alpha = {al:g} deg, dx = {dx * 1e3:g} mm, P_c = {res['P_c_kN']:.3f} kN", pts)
+        if al == 30.0 and pts is not None:
+            y_, xe_, xm_, off = path_offset(pts, dx)
+            row["path offset mm mean"] = float(np.nanmean(np.abs(off)) * 1e3)
+            row["path offset mm max"] = float(np.nanmax(np.abs(off)) * 1e3)
+            path_png(out / "scb_path_30_vs_experiment.png", sc, mu, pts,
+                     f"alpha = 30 deg, dx = {dx * 1e3:g} mm: mean |offset| {row['path offset mm mean']:.2f} mm")
         curves.append((al, res["curve"]))
     print(table(rows, floatfmt=".3f"))
     _plot_curves(out / "scb_curves.png", curves)
@@ -352,6 +358,8 @@ def run_table(args):
            "initiation_angle_deg": [r["init deg"] for r in rows],
            "MTS_angle_deg": [r["MTS deg"] for r in rows], "GMTS_angle_deg": [r["GMTS deg"] for r in rows],
            "GMTS_r_c_m": R_C_GMTS, "wall_s": time.perf_counter() - t0,
+           "path_alpha30_offset_mm_mean": next((r["path offset mm mean"] for r in rows if "path offset mm mean" in r), None),
+           "path_alpha30_offset_mm_max": next((r["path offset mm max"] for r in rows if "path offset mm max" in r), None),
            "front_limit_P_c_kN": [r["front limit kN"] for r in rows],
            "front_limit_angle_deg": [r["front limit deg"] for r in rows],
            "front_limit_P_c_err_pct_mean": float(np.mean([abs(r["front limit err %"]) for r in rows])),
@@ -600,6 +608,65 @@ def _front_limit_load(YI, YII, T_star, r_s, K_Ic=2.13e6):
     f = np.sqrt(np.pi * A_CRACK) / (2 * R * T_THICK)
     s1 = tip_disc_stress(YI * f, YII * f, T_star / (2 * R * T_THICK), r_s)[3]
     return float(disc_average_factor(p=0.0)[0] * K_Ic / np.sqrt(r_s) / s1)
+
+
+PATH_30 = ROOT / "data" / "experiments" / "scb_path_alpha30_ayatollahi2006.json"
+
+
+def path_offset(pts, dx, y_lo=None, y_hi=None):
+    """Horizontal distance (m) between a model crack path and the experimental alpha = 30 deg
+    path (``PATH_30``) at the experiment's points: at each point's height y, the model's x
+    is the mean x of the path particles ``pts`` (k, 2) within dx / 2 of y (a band one row
+    high); points between ``y_lo`` and ``y_hi`` (default: 2 mm above the first point to
+    2 mm below the last, i.e. clear of the tip and of the load patch). Returns (y (n,),
+    x_exp (n,), x_model (n,), offset (n,)), NaN where the model has no particle at that height."""
+    exp = json.loads(PATH_30.read_text())
+    xe, ye = np.asarray(exp["x_m"]), np.asarray(exp["y_m"])
+    y_lo = ye[0] + 2e-3 if y_lo is None else y_lo
+    y_hi = ye[-1] - 2e-3 if y_hi is None else y_hi
+    sel = (ye >= y_lo) & (ye <= y_hi)
+    pts = np.asarray(pts, float).reshape(-1, 2)
+    xm = np.full(sel.sum(), np.nan)
+    for k, y in enumerate(ye[sel]):
+        band = np.abs(pts[:, 1] - y) <= 0.5 * dx * (1 + 1e-9)
+        if band.any():
+            xm[k] = pts[band, 0].mean()
+    return ye[sel], xe[sel], xm, xm - xe[sel]
+
+
+def path_png(path, scene, mu, pts, title):
+    """Damage map near the crack (``scene``, ``mu``; None: none) with the model's path
+    particles and the experimental alpha = 30 deg path of ``PATH_30`` (Ayatollahi et al.
+    2006) overlaid."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    exp = json.loads(PATH_30.read_text())
+    fig, ax = plt.subplots(figsize=(4.2, 5.6))
+    if scene is not None:
+        x = scene.system.x0
+        win = (np.abs(x[:, 0]) < 0.02) & (x[:, 1] > 0.005)
+        ax.scatter(x[win, 0] * 1e3, x[win, 1] * 1e3, c=mu[win], s=(scene.dx * 5e3) ** 2, cmap="Greys", vmin=0,
+                   vmax=1, marker="s", linewidths=0)
+    tip = 15.0 * np.array([np.sin(np.radians(30.0)), np.cos(np.radians(30.0))])
+    ax.plot([0, tip[0]], [0, tip[1]], "b-", lw=1.5, label="pre-crack")
+    if pts is not None and len(pts):
+        ax.plot(np.asarray(pts)[:, 0] * 1e3, np.asarray(pts)[:, 1] * 1e3, "r.", ms=1.5, label="model path (damage >= 0.35)")
+    ax.plot(np.asarray(exp["x_m"]) * 1e3, np.asarray(exp["y_m"]) * 1e3, "g-o", ms=3, lw=1.2,
+            label="experiment (Ayatollahi et al. 2006)")
+    ax.set_xlim(-20, 20)
+    ax.set_ylim(5, 50)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (mm)")
+    ax.set_ylabel("y (mm)")
+    ax.set_title(title, fontsize=9)
+    ax.legend(fontsize=7, loc="lower left")
+    fig.tight_layout()
+    fig.savefig(path, dpi=150)
+    plt.close(fig)
+    return Path(path)
 
 
 def _front_limit_kink(YI, YII, T_star, r_s, eps=0.02, n_quad=4000):
