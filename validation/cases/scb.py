@@ -696,10 +696,11 @@ def _front_limit_kink(YI, YII, T_star, r_s, eps=0.02, n_quad=4000):
     return float(np.degrees(phi[np.argmax(s1)]))
 
 
-def merge_tables(paths, out_png=None):
+def merge_tables(paths, out_png=None, r_s=None):
     """Merge ``scb_table_*.json`` parts of one r_s into the eight-angle summary (the keys of
-    ``scb-table``), with MTS and GMTS critical loads from the FE factors; optionally the
-    K_I/K_Ic - K_II/K_Ic envelope plot."""
+    ``scb-table``), with MTS and GMTS critical loads from the FE factors and, given ``r_s``
+    (m), the front criterion's continuum limit; optionally the K_I/K_Ic - K_II/K_Ic
+    envelope plot."""
     rows = []
     for p in paths:
         rows += json.loads(Path(p).read_text())["rows"]
@@ -713,6 +714,10 @@ def merge_tables(paths, out_png=None):
         f = fe[r["alpha"]]
         r["MTS P_c kN"] = _mts_load(f["Y_I"], f["Y_II"]) / 1e3
         r["GMTS P_c kN"] = _mts_load(f["Y_I"], f["Y_II"], T_star=f["T_star"]) / 1e3
+        if r_s is not None:
+            r["front limit kN"] = _front_limit_load(f["Y_I"], f["Y_II"], f["T_star"], r_s) / 1e3
+            r["front limit err %"] = 100 * (r["front limit kN"] / exP[r["alpha"]] - 1)
+            r["front limit deg"] = _front_limit_kink(f["Y_I"], f["Y_II"], f["T_star"], r_s)
     e = np.array([abs(r["err %"]) for r in rows])
     pe = np.array([abs(100 * (thP[a] / exP[a] - 1)) for a in ALPHAS])
     summary = {"alpha_deg": [r["alpha"] for r in rows], "P_c_kN": [r["P_c kN"] for r in rows],
@@ -725,6 +730,10 @@ def merge_tables(paths, out_png=None):
                "MTS_P_c_err_pct_mean": float(np.mean([abs(100 * (r["MTS P_c kN"] / exP[r["alpha"]] - 1)) for r in rows])),
                "GMTS_P_c_err_pct_mean": float(np.mean([abs(100 * (r["GMTS P_c kN"] / exP[r["alpha"]] - 1)) for r in rows]))}
     summary["pass"] = bool(len(rows) == 8 and e.mean() < pe.mean() and e.max() <= pe.max())
+    limit = all("front limit kN" in r for r in rows)
+    if limit:
+        summary["front_limit_P_c_kN"] = [r["front limit kN"] for r in rows]
+        summary["front_limit_P_c_err_pct_mean"] = float(np.mean([abs(r["front limit err %"]) for r in rows]))
     if out_png is not None:
         import matplotlib
 
@@ -735,8 +744,11 @@ def merge_tables(paths, out_png=None):
         fig, ax = plt.subplots(figsize=(5, 4.2))
         ax.plot(np.array(ex["exp_K_II"]) / 2.13, np.array(ex["exp_K_I"]) / 2.13, "ro", label="experiment [112]")
         ax.plot(np.array(ex["theo_K_II"]) / 2.13, np.array(ex["theo_K_I"]) / 2.13, "gs", mfc="none", label="seed ch. 6")
-        for key, mk, lab in (("P_c kN", "b^", "this model"), ("MTS P_c kN", "k--", "MTS"),
-                             ("GMTS P_c kN", "m-.", f"GMTS r_c = {R_C_GMTS * 1e3:g} mm")):
+        curves = [("P_c kN", "b^", "this model"), ("MTS P_c kN", "k--", "MTS"),
+                  ("GMTS P_c kN", "m-.", f"GMTS r_c = {R_C_GMTS * 1e3:g} mm")]
+        if limit:
+            curves.append(("front limit kN", "c:", "front criterion, continuum limit"))
+        for key, mk, lab in curves:
             kii = [fe[r["alpha"]]["Y_II"] * r[key] * 1e3 * fs for r in rows]
             ki = [fe[r["alpha"]]["Y_I"] * r[key] * 1e3 * fs for r in rows]
             ax.plot(kii, ki, mk, label=lab)
