@@ -151,7 +151,7 @@ from upscale.models.base import Model, Needs
 from upscale.models.gain import gain_coefficients, gain_coefficients_quadratic, kappa
 
 __all__ = ["UnifiedModel", "elastic_tensor", "orthotropic_tensor", "critical_energy_release_rate",
-           "disc_average_factor", "lattice_tip_factor", "front_pairs", "crack_front", "tip_disc_stress"]
+           "disc_average_factor", "lattice_tip_factor", "front_pairs", "crack_front", "tip_disc_stress", "williams_angular"]
 
 
 # ---------------------------------------------------------------------------- material
@@ -275,6 +275,17 @@ def critical_energy_release_rate(K_Ic: float, E: float, nu: float = 0.0, plane: 
     return K_Ic ** 2 / E if plane == "stress" else K_Ic ** 2 * (1 - nu * nu) / E
 
 
+def williams_angular(K_I, K_II, t):
+    """Angular part of the near-tip stress: (f_xx, f_yy, f_xy) with sigma_ij = f_ij /
+    sqrt(2 pi r) (Pa m^0.5 per K), t the polar angle from the crack line ahead of the tip
+    (crack faces at t = +-pi), x ahead and y normal to the crack; T adds to sigma_xx."""
+    c2, s2, c32, s32 = np.cos(t / 2), np.sin(t / 2), np.cos(1.5 * t), np.sin(1.5 * t)
+    fxx = K_I * c2 * (1 - s2 * s32) - K_II * s2 * (2 + c2 * c32)
+    fyy = K_I * c2 * (1 + s2 * s32) + K_II * s2 * c2 * c32
+    fxy = K_I * c2 * s2 * c32 + K_II * c2 * (1 - s2 * s32)
+    return fxx, fyy, fxy
+
+
 def disc_average_factor(dim: int = 2, n_quad: int = 400, p: float | None = None) -> tuple[float, float]:
     """(beta, p): the largest average of the mode-I tip stress sigma_yy over a disc (dim 2)
     or ball (dim 3, the plane-strain field constant along z) of radius r_s, in units K /
@@ -294,7 +305,7 @@ def disc_average_factor(dim: int = 2, n_quad: int = 400, p: float | None = None)
         raise ValueError(f"dim={dim!r}; valid: 2, 3")
     x, w = np.polynomial.legendre.leggauss(n_quad)
     t, w = np.pi * x, np.pi * w
-    fyy = np.cos(t / 2) * (1 + np.sin(t / 2) * np.sin(1.5 * t))
+    fyy = williams_angular(1.0, 0.0, t)[1]
 
     def disc(p, rho):
         # disc of radius rho centred at p ahead of the tip, average in units K / sqrt(rho)
@@ -415,6 +426,8 @@ def lattice_tip_factor(r_s: float, spacing: float, horizon: float, *, E: float =
     from upscale.engine import ParticleSystem, bonds_crossing_segment, build_family
     from upscale.engine.state import State
 
+    if growth not in ("free", "front"):
+        raise ValueError(f"growth={growth!r}; valid: 'free', 'front'")
     L = 4.0 * (r_s + horizon + spacing)
     n = int(np.ceil(L / spacing))
     g = (np.arange(-n, n) + 0.5) * spacing
@@ -446,8 +459,6 @@ def lattice_tip_factor(r_s: float, spacing: float, horizon: float, *, E: float =
     if growth == "front":
         near &= crack_front(front_pairs(x0[:, :2], spacing, fam.owner, fam.neighbors, sysm.n),
                             np.ones(fam.nb, bool), model.alive, sysm.n)
-    elif growth != "free":
-        raise ValueError(f"growth={growth!r}; valid: 'free', 'front'")
     i = np.flatnonzero(near)[np.argmax(s1[near])]
     return float(s1[i] * np.sqrt(r_s) / K), float(x0[i, 0] / r_s)
 

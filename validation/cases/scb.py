@@ -680,12 +680,11 @@ def _front_limit_kink(YI, YII, T_star, r_s, eps=0.02, n_quad=4000):
     (Gauss-Legendre in t); phi on a 0.5 deg grid."""
     f = np.sqrt(np.pi * A_CRACK) / (2 * R * T_THICK)
     KI, KII, T = YI * f, YII * f, T_star / (2 * R * T_THICK)
+    from upscale.models.unified import williams_angular
+
     x, w = np.polynomial.legendre.leggauss(n_quad)
     t, w = np.pi * x, np.pi * w
-    c2, s2, c32, s32 = np.cos(t / 2), np.sin(t / 2), np.cos(1.5 * t), np.sin(1.5 * t)
-    fxx = KI * c2 * (1 - s2 * s32) - KII * s2 * (2 + c2 * c32)
-    fyy = KI * c2 * (1 + s2 * s32) + KII * s2 * c2 * c32
-    fxy = KI * c2 * s2 * c32 + KII * c2 * (1 - s2 * s32)
+    fxx, fyy, fxy = williams_angular(KI, KII, t)
     phi = np.radians(np.arange(-179.5, 180.0, 0.5))
     q = eps * r_s
     d = t[None, :] - phi[:, None]

@@ -8,15 +8,13 @@ Run from the repository root with PYTHONPATH=$PWD (diagnostics behind validation
 import json, numpy as np
 from scipy.signal import fftconvolve
 from validation.cases.scb import _exp
+from upscale.models.unified import williams_angular
 fe=json.load(open('data/reference/scb_fem.json'))['rollers']
 exP=np.array(_exp()['exp_P_c_kN'])
 def field(KI,KII,T,X,Y):
-    r=np.hypot(X,Y); th=np.arctan2(Y,X); f=1/np.sqrt(2*np.pi*r)
-    c,s,c3,s3=np.cos(th/2),np.sin(th/2),np.cos(1.5*th),np.sin(1.5*th)
-    sxx=KI*f*c*(1-s*s3) - KII*f*s*(2+c*c3) + T
-    syy=KI*f*c*(1+s*s3) + KII*f*s*c*c3
-    sxy=KI*f*c*s*c3 + KII*f*c*(1-s*s3)
-    return sxx,syy,sxy
+    f=1/np.sqrt(2*np.pi*np.hypot(X,Y))
+    fxx,fyy,fxy=williams_angular(KI,KII,np.arctan2(Y,X))
+    return f*fxx+T,f*fyy,f*fxy
 n=160; h=1.0/40   # units of r_s
 g=(np.arange(-n,n)+0.5)*h
 X,Y=np.meshgrid(g,g,indexing='ij')
