@@ -159,3 +159,41 @@ def test_path_offset_against_the_experimental_path():
     assert np.allclose(off, 0.0, atol=1e-12)
     off1 = path_offset(pts + [1e-3, 0.0], 1e-4)[3]
     assert np.allclose(off1, 1e-3, atol=1e-12)
+
+
+def test_convergence_reuses_a_finished_run(tmp_path):
+    """``scb-convergence --reuse``: an ``upscale scb`` run (stopped later, at half the peak)
+    stands in for the sweep's run of the same alpha, dx, m, r_s and gives the P_c the sweep
+    computes itself; a run of another growth rule is refused with a one-line error."""
+    import argparse
+
+    from upscale.experiments.scb import run_scb
+    from validation.cases.scb import run_convergence
+
+    run_scb(0.0, dx=3e-3, r_s=6e-3, stop_fraction=0.5, outdir=tmp_path / "a", growth="free")
+    kw = dict(quick=True, dxs="3e-3", alphas="0", r_s=6e-3, modes="fixed m", criterion="principal",
+              growth="free")
+    fresh = run_convergence(argparse.Namespace(**kw, reuse=""))
+    reused = run_convergence(argparse.Namespace(**kw, reuse=str(tmp_path / "a")))
+    (r0,), (r1,) = fresh["rows"], reused["rows"]
+    assert r0["source"] == "run" and r1["source"].endswith("scb.json")
+    assert np.isclose(r1["P_c kN"], r0["P_c kN"], rtol=1e-9, atol=0) and r1["equilibria"] == r0["equilibria"]
+    with pytest.raises(ValueError, match="growth='free'"):
+        run_convergence(argparse.Namespace(**{**kw, "growth": "front"}, reuse=str(tmp_path / "a")))
+
+
+def test_calibration_scan_prefers_the_candidate_in_a_tie(monkeypatch):
+    """At dx = 1 mm, r_s = 1 and 1.2 mm hold the same particles in the disc and give P_c
+    equal to round-off: the scan keeps the scanned candidate, not the interpolant."""
+    import upscale.experiments.scb as scb
+    from validation.cases.scb import calibrate_r_s_scan
+
+    def fake(alpha, *, r_s, **kw):
+        P = 2339.342037639868 + max(0.0, r_s - 1.3e-3) / 0.7e-3 * 203.7
+        return {"P_c_N": P + (1e-10 if r_s > 1e-3 else 0.0), "wall_s": 0.0}
+
+    monkeypatch.setattr(scb, "run_scb", fake)
+    r, hist = calibrate_r_s_scan(1e-3, 2380.0, [1e-3, 2e-3], log=lambda *a: None)
+    assert len(hist) == 3 and r == 1e-3
+    r, _ = calibrate_r_s_scan(1e-3, 2450.0, [1e-3, 2e-3], log=lambda *a: None)
+    assert r not in (1e-3, 2e-3)        # no tie: the interpolant, closer to the target

@@ -82,8 +82,8 @@ same operations applied to the exact mode-I tip displacement field on the model'
 lattice (:func:`lattice_tip_factor`; it depends on r_s / spacing and the horizon, and
 tends to the continuum value as r_s / spacing grows); ``"continuum"`` uses 0.50497.
 
-Crack growth (``growth``, principal criterion). ``"free"`` (default): any particle may
-fail. The disc average of the tip field is largest 0.72 r_s ahead of the tip, so once
+Crack growth (``growth``, principal criterion). ``"free"`` (default here; the seed's
+literal rule): any particle may fail. The disc average of the tip field is largest 0.72 r_s ahead of the tip, so once
 r_s spans several spacings the first void opens there, with an intact ligament between
 it and the crack; the ligament and the voids ahead keep loading and failing over several
 equilibria, so the model has a resistance that rises over a length of order r_s, i.e. of
@@ -95,7 +95,9 @@ toward the largest averaged principal stress among the front particles, and beta
 average at the particles next to the tip: the tip-centred disc (p -> 0), 0.40636
 K / sqrt(r_s) in the continuum, from the lattice by :func:`lattice_tip_factor` with
 ``growth="front"``. Nucleation away from a crack is then impossible; the load and
-support patches stay protected by ``no_fail`` either way.
+support patches stay protected by ``no_fail`` either way. The SCB scenes default to
+``"front"`` (``upscale.experiments.scb.default_growth``): with it P_c converges under
+refinement at a fixed r_s, with ``"free"`` it drifts upward (``validation/results/scb.md``).
 
 ``criterion="normal"``: per bond, the averaged stress resolved on the bond, s_b = n_b .
 (S_bar_c + S_bar_j)/2 . n_b (n_b the unit reference bond vector), with the same sigma_c.

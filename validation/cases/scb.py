@@ -207,11 +207,11 @@ def _table_args(p):
                    help="failure rule of the unified model (default %(default)s)")
     p.add_argument("--r-s-candidates", default="1e-3,2e-3,3e-3",
                    help="principal/normal criteria: r_s values (m) tried at alpha = 0 (default %(default)s)")
-    p.add_argument("--growth", default="free", choices=("free", "front"),
-                   help="principal criterion: any particle may fail (default) or only the crack front")
+    p.add_argument("--growth", default=None, choices=("front", "free"),
+                   help="which particles may fail: the crack front (default for the principal criterion) or any")
 
 
-def calibrate_r_s_scan(dx, P_target, candidates, stab=1.0, criterion="principal", log=print, growth="free"):
+def calibrate_r_s_scan(dx, P_target, candidates, stab=1.0, criterion="principal", log=print, growth=None):
     """P_c at alpha = 0 for each candidate r_s (m); the closest to ``P_target``, refined by
     one linear interpolation when two candidates bracket it. For the averaged-stress
     criteria P_c depends on r_s only through the body's non-singular terms and the
@@ -234,7 +234,9 @@ def calibrate_r_s_scan(dx, P_target, candidates, stab=1.0, criterion="principal"
             hist.append((r, res["P_c_N"], res["wall_s"]))
             log(f"  calibration: r_s = {r * 1e3:.4f} mm -> P_c = {res['P_c_N'] / 1e3:.4f} kN ({res['wall_s']:.0f} s)")
             break
-    best = min(hist, key=lambda h: abs(h[1] / P_target - 1))
+    # A disc of radius r_s holds the same particles over a range of r_s, so the interpolated
+    # r_s can tie with a candidate to round-off: a tie (1e-9 relative) goes to the candidate.
+    best = min(hist, key=lambda h: (round(abs(h[1] / P_target - 1), 9), h[0] not in candidates))
     return best[0], hist
 
 
@@ -261,7 +263,9 @@ def calibrate_r_s(dx, P_target, stab=1.0, r0=None, iters=4, tol=0.005, log=print
         else:
             slope = -0.5
         r = float(np.exp(np.log(r) + (np.log(P_target) - np.log(P)) / slope))
-    best = min(hist, key=lambda h: abs(h[1] / P_target - 1))
+    # A disc of radius r_s holds the same particles over a range of r_s, so the interpolated
+    # r_s can tie with a candidate to round-off: a tie (1e-9 relative) goes to the candidate.
+    best = min(hist, key=lambda h: (round(abs(h[1] / P_target - 1), 9), h[0] not in candidates))
     return best[0], hist
 
 
@@ -285,7 +289,7 @@ def _plot_curves(path, curves):
 
 @case("scb-table", "SCB Table 6.2: P_c at the eight angles with r_s calibrated at alpha = 0 only", _table_args)
 def run_table(args):
-    from upscale.experiments.scb import damage_png, run_scb
+    from upscale.experiments.scb import damage_png, default_growth, run_scb
 
     quick = getattr(args, "quick", False)
     dx = getattr(args, "dx", None) or 2e-3
@@ -298,7 +302,7 @@ def run_table(args):
     t0 = time.perf_counter()
     r_s = getattr(args, "r_s", None)
     crit = getattr(args, "criterion", "principal")
-    growth = getattr(args, "growth", "free")
+    growth = getattr(args, "growth", None) or default_growth(crit)
     cal = None
     if r_s is None and crit == "energy":
         r_s, cal = calibrate_r_s(dx, exP[0.0] * 1e3, stab=stab, iters=3 if quick else 5)
@@ -387,12 +391,51 @@ def _conv_args(p):
     p.add_argument("--ms", default="",
                    help="extra horizon / spacing ratios (default 3 only), run with r_s fixed at --m-dx")
     p.add_argument("--m-dx", type=float, default=None, help="spacing in m of the --ms runs (default the coarsest)")
-    p.add_argument("--growth", default="free", choices=("free", "front"),
-                   help="principal criterion: any particle may fail (default) or only the crack front")
+    p.add_argument("--growth", default=None, choices=("front", "free"),
+                   help="which particles may fail: the crack front (default for the principal criterion) or any")
     p.add_argument("--deltas", default="",
                    help="comma list of horizons in m held fixed while the spacing is refined (m = delta / dx "
                         "at each of --dxs, r_s fixed in metres): the refinement of the nonlocal model at fixed "
                         "material lengths (default none)")
+    p.add_argument("--reuse", default="",
+                   help="comma list of scb.json files written by 'upscale scb' (or their directories): a run "
+                        "of the sweep with the same alpha, dx, delta/dx, r_s, criterion and growth is read "
+                        "from the file instead of being repeated (default none)")
+
+
+CONV_STOP = 0.6        # scb-convergence: stop fraction of its runs
+
+
+def reused_run(path, criterion="principal", growth="free", stop_fraction=CONV_STOP):
+    """A finished ``upscale scb`` run (its ``scb.json``, or the directory holding it) as a row
+    of ``scb-convergence``, or a ValueError naming what does not match the sweep.
+
+    The stored curve is cut where the sweep's own run would have stopped (the first load below
+    ``stop_fraction`` of the peak so far, the rule of ``upscale.engine.quasistatic``), so the
+    row's P_c is the one the sweep computes; a run that ended at its displacement or solve
+    cap is taken whole (``run_scb``'s defaults, the sweep's too). The scene must be the
+    sweep's: rollers, c_s = 1, energy force, lattice tip factor."""
+    f = Path(path)
+    f = f / "scb.json" if f.is_dir() else f
+    d = json.loads(f.read_text())
+    sc, mo = d["scene"], d["scene"]["model"]
+    want = {"criterion": criterion, "growth": growth,
+            "supports": "rollers", "stabilisation": 1.0, "force": "energy", "tip_factor": "lattice"}
+    have = {"criterion": mo["criterion"], "growth": mo.get("growth", "free"), "supports": sc["supports"],
+            "stabilisation": mo["stabilisation"], "force": mo["force"], "tip_factor": mo.get("tip_factor")}
+    bad = [f"{k}={have[k]!r} (sweep: {want[k]!r})" for k in want if have[k] != want[k]]
+    if bad:
+        raise ValueError(f"--reuse {f}: " + ", ".join(bad))
+    P = np.asarray(d["curve"]["load_N"], float)
+    pk = np.maximum.accumulate(P)
+    drop = np.nonzero((pk > 0) & (P < stop_fraction * pk))[0]
+    end = int(drop[0]) + 1 if len(drop) else len(P)
+    k = int(np.argmax(P[:end]))
+    return {"alpha": float(sc["alpha_deg"]), "dx mm": sc["dx_m"] * 1e3, "delta/dx": float(sc["horizon_over_dx"]),
+            "r_s mm": mo["r_s_m"] * 1e3, "particles": sc["particles"], "P_c kN": float(P[k]) / 1e3,
+            "initiation deg": d["initiation_angle_deg"], "equilibria": end,
+            "stop": "load dropped" if len(drop) else d["curve"]["stop_reason"],
+            "wall s": d["wall_s"], "source": str(f)}
 
 
 @case("scb-convergence", "SCB: P_c versus spacing, r_s fixed in metres and r_s / dx fixed, and versus horizon / "
@@ -409,7 +452,7 @@ def run_convergence(args):
     the local limit of the gain model (delta -> 0) only once delta is small against r_s, the
     one length left in the criterion. Refining at fixed delta (in metres) keeps both lengths
     of the nonlocal model and converges to its nonlocal continuum."""
-    from upscale.experiments.scb import run_scb
+    from upscale.experiments.scb import default_growth, run_scb
 
     quick = getattr(args, "quick", False)
     dxs = [float(v) for v in (getattr(args, "dxs", None) or ("2e-3,1.5e-3" if quick else "2e-3,1e-3")).split(",")]
@@ -429,7 +472,7 @@ def run_convergence(args):
     ex = _exp()
     r_s = getattr(args, "r_s", None)
     crit = getattr(args, "criterion", "principal")
-    growth = getattr(args, "growth", "free")
+    growth = getattr(args, "growth", None) or default_growth(crit)
     if r_s is None and crit == "energy":
         r_s, _ = calibrate_r_s(dxs[0], ex["exp_P_c_kN"][0] * 1e3, iters=3)
     elif r_s is None:
@@ -438,13 +481,22 @@ def run_convergence(args):
     ratio = r_s / dxs[0]
     rows = []
 
+    reused = [reused_run(f.strip(), crit, growth) for f in (getattr(args, "reuse", "") or "").split(",")
+              if f.strip()]
+
     def one(al, dx, m, mode, r):
-        res = run_scb(al, dx=dx, m=m, r_s=r, stop_fraction=0.6, criterion=crit, growth=growth)
+        for rr in reused:
+            if (rr["alpha"] == al and abs(rr["dx mm"] - dx * 1e3) < 1e-9 and abs(rr["delta/dx"] - m) < 1e-9
+                    and abs(rr["r_s mm"] - r * 1e3) < 1e-9):
+                rows.append({k: rr[k] for k in ("alpha", "dx mm", "delta/dx")} | {"mode": mode} | rr)
+                print(rows[-1], flush=True)
+                return
+        res = run_scb(al, dx=dx, m=m, r_s=r, stop_fraction=CONV_STOP, criterion=crit, growth=growth)
         c = res["curve"]
         rows.append({"alpha": al, "dx mm": dx * 1e3, "delta/dx": m, "mode": mode, "r_s mm": r * 1e3,
                      "particles": res["scene"]["particles"], "P_c kN": res["P_c_kN"],
                      "initiation deg": res["initiation_angle_deg"], "equilibria": len(c["load_N"]),
-                     "stop": c["stop_reason"], "wall s": res["wall_s"]})
+                     "stop": c["stop_reason"], "wall s": res["wall_s"], "source": "run"})
         print(rows[-1], flush=True)
 
     def stored_mode(dx, mode):
@@ -533,6 +585,8 @@ def _rate_args(p):
                    help="failure rule (default %(default)s)")
     p.add_argument("--times", default=None, help="comma list of loading times in s to 1 mm "
                    "(default 2e-3,5e-3,1.5e-2; quick 1e-3,2e-3,4e-3)")
+    p.add_argument("--growth", default=None, choices=("front", "free"),
+                   help="which particles may fail: the crack front (default for the principal criterion) or any")
     p.add_argument("--rise", type=float, default=RATE_RISE,
                    help="velocity rise time of the load patch as a fraction of the loading time "
                         "(SCBScene.explicit; 0: a velocity jump at t = 0; default %(default)s)")
@@ -540,10 +594,11 @@ def _rate_args(p):
 
 @case("scb-rate", "SCB: explicit dynamics at three loading times against the quasi-static P_c", _rate_args)
 def run_rate(args):
-    from upscale.experiments.scb import SCBScene, run_scb
+    from upscale.experiments.scb import SCBScene, default_growth, run_scb
 
     quick = getattr(args, "quick", False)
     crit = getattr(args, "criterion", "principal")
+    growth = getattr(args, "growth", None) or default_growth(crit)
     dx, r_s = getattr(args, "dx", 2e-3), getattr(args, "r_s", None)
     if r_s is None:
         r_s = 0.075 if crit == "energy" else 1e-3
@@ -551,7 +606,7 @@ def run_rate(args):
     rise = float(getattr(args, "rise", RATE_RISE))
     if not 0.0 <= rise <= 1.0:
         raise ValueError(f"--rise={rise!r}; valid: 0 <= rise <= 1 (a fraction of the loading time)")
-    qs = run_scb(0.0, dx=dx, r_s=r_s, stop_fraction=0.5, keep=True, criterion=crit)
+    qs = run_scb(0.0, dx=dx, r_s=r_s, stop_fraction=0.5, keep=True, criterion=crit, growth=growth)
     P_qs = qs["P_c_N"]
     mu_qs = qs.pop("_damage")
     qs.pop("_scene"), qs.pop("_state")
@@ -559,7 +614,7 @@ def run_rate(args):
     rows = []
     u_end = 1e-3
     for T in times:
-        sc = SCBScene(0.0, dx=dx, r_s=r_s, criterion=crit)
+        sc = SCBScene(0.0, dx=dx, r_s=r_s, criterion=crit, growth=growth)
         t, d, P, st, info = sc.explicit(T, u_end, every=1, rise=rise * T)
         from upscale.engine import damage
 
@@ -575,7 +630,7 @@ def run_rate(args):
     print(table(rows, floatfmt=".4f"))
     errs = [r["err %"] for r in rows]
     mono = all(abs(b) <= abs(a) + 1e-9 for a, b in zip(errs, errs[1:]))
-    return {"dx_m": dx, "r_s_m": r_s, "criterion": crit, "P_c_quasi_static_kN": P_qs / 1e3, "loading_times_s": times,
+    return {"dx_m": dx, "r_s_m": r_s, "criterion": crit, "growth": growth, "P_c_quasi_static_kN": P_qs / 1e3, "loading_times_s": times,
             "rise_fraction": rise,
             "P_c_kN": [r["P_c kN"] for r in rows], "P_c_rate_err_pct": errs,
             "P_c_rate_err_pct_slowest": float(errs[-1]), "monotone": bool(mono),
