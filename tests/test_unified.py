@@ -427,6 +427,28 @@ def test_front_tip_factor_tends_to_the_tip_centred_disc():
         lattice_tip_factor(4e-3, 1e-3, 3e-3, growth="ahead")
 
 
+def test_solved_tip_factor_carries_the_bond_penalty():
+    """field='solved': the front stress of the model's own solution of a disc driven by the
+    mode-I field on its rim. The bond penalty enters it (not the imposed factor), and with
+    c_s = 1 it lies above the imposed factor at r_s = dx and below it at r_s = 4 dx: the
+    imposed factor puts the first failure before K_Ic on the coarse grid and after it on the
+    fine one, the drift measured in the SCB (K_I at first failure 0.97 -> 1.07 K_Ic)."""
+    from upscale.models.unified import lattice_tip_factor
+
+    h = 3e-3 * (1 + 1e-9)
+    kw = dict(growth="front")
+    imp1 = lattice_tip_factor(1e-3, 1e-3, h, **kw)[0]
+    assert lattice_tip_factor(1e-3, 1e-3, h, stabilisation=1.0, **kw)[0] == imp1
+    sol1 = lattice_tip_factor(1e-3, 1e-3, h, field="solved", stabilisation=1.0, **kw)[0]
+    sol1_soft = lattice_tip_factor(1e-3, 1e-3, h, field="solved", stabilisation=0.1, **kw)[0]
+    imp4 = lattice_tip_factor(4e-3, 1e-3, h, **kw)[0]
+    sol4 = lattice_tip_factor(4e-3, 1e-3, h, field="solved", stabilisation=1.0, **kw)[0]
+    assert abs(sol1_soft / sol1 - 1) > 0.02
+    assert sol1 > 1.05 * imp1 and sol4 < 0.97 * imp4
+    with pytest.raises(ValueError, match="field"):
+        lattice_tip_factor(1e-3, 1e-3, h, field="exact")
+
+
 def test_growth_bad_input():
     with pytest.raises(ValueError, match="growth"):
         UnifiedModel(E=1e9, nu=0.3, K_Ic=1e6, r_s=1e-3, growth="tip")

@@ -135,9 +135,10 @@ class SCBScene:
     sequential : float
         Per round only the bonds within this fraction of the largest index break
         (default 0.99: the most loaded particle first, then re-equilibrium).
-    tip_factor : {"lattice", "continuum"}
-        beta of the critical stress (``UnifiedModel``): from the mode-I tip field on this
-        lattice (default) or the continuum disc average.
+    tip_factor : {"lattice", "solved", "continuum"}
+        beta of the critical stress (``UnifiedModel``): from the mode-I tip field imposed on
+        this lattice (default), from the model's own solution of a disc driven by that field
+        on its rim, or the continuum disc average.
     growth : {"front", "free"} or None
         Which particles may fail (``UnifiedModel``). None (default): :func:`default_growth`,
         ``"front"`` for the principal criterion -- only the crack front fails, so the crack
@@ -484,6 +485,9 @@ def register(sub) -> None:
     p.add_argument("--growth", default=None, choices=("front", "free"),
                    help="which particles may fail: only those on the crack front (default for the principal "
                         "criterion) or any (the seed's literal rule; the default of the other criteria)")
+    p.add_argument("--tip-factor", default="lattice", choices=("lattice", "solved", "continuum"),
+                   help="beta of the critical stress: from the mode-I tip field imposed on the lattice (default), "
+                        "from the model's own solution of a disc driven by it, or the continuum disc average")
     p.add_argument("--out", default="out/scb", help="output directory (default: %(default)s)")
     p.add_argument("--stop-fraction", type=float, default=0.5,
                    help="stop when the load falls below this fraction of its peak (default %(default)s: "
@@ -508,7 +512,7 @@ def _main(args) -> int:
     res = run_scb(args.alpha, dx=args.dx, m=args.m, r_s=r_s, supports=args.supports,
                   stabilisation=args.stabilisation, force=args.force, progress=not args.quiet,
                   outdir=args.out, stop_fraction=args.stop_fraction, criterion=args.criterion,
-                  growth=args.growth)
+                  growth=args.growth, tip_factor=args.tip_factor)
     print(f"alpha = {args.alpha:g} deg, dx = {args.dx:g} m, r_s = {r_s:g} m: P_c = {res['P_c_kN']:.4f} kN, "
           f"initiation angle {res['initiation_angle_deg']} deg, {res['broken_bonds']} bonds broken, "
           f"{res['wall_s']:.1f} s -> {args.out}/scb.json")

@@ -209,9 +209,12 @@ def _table_args(p):
                    help="principal/normal criteria: r_s values (m) tried at alpha = 0 (default %(default)s)")
     p.add_argument("--growth", default=None, choices=("front", "free"),
                    help="which particles may fail: the crack front (default for the principal criterion) or any")
+    p.add_argument("--tip-factor", default="lattice", choices=("lattice", "solved", "continuum"),
+                   help="beta of the critical stress (UnifiedModel tip_factor; default %(default)s)")
 
 
-def calibrate_r_s_scan(dx, P_target, candidates, stab=1.0, criterion="principal", log=print, growth=None):
+def calibrate_r_s_scan(dx, P_target, candidates, stab=1.0, criterion="principal", log=print, growth=None,
+                       tip_factor="lattice"):
     """P_c at alpha = 0 for each candidate r_s (m); the closest to ``P_target``, refined by
     one linear interpolation when two candidates bracket it. For the averaged-stress
     criteria P_c depends on r_s only through the body's non-singular terms and the
@@ -222,7 +225,7 @@ def calibrate_r_s_scan(dx, P_target, candidates, stab=1.0, criterion="principal"
     hist = []
     for r in candidates:
         res = run_scb(0.0, dx=dx, r_s=r, stabilisation=stab, stop_fraction=0.6, criterion=criterion,
-                      growth=growth)
+                      growth=growth, tip_factor=tip_factor)
         hist.append((r, res["P_c_N"], res["wall_s"]))
         log(f"  calibration: r_s = {r * 1e3:.4f} mm -> P_c = {res['P_c_N'] / 1e3:.4f} kN ({res['wall_s']:.0f} s)")
     hist.sort()
@@ -230,7 +233,7 @@ def calibrate_r_s_scan(dx, P_target, candidates, stab=1.0, criterion="principal"
         if (P1 - P_target) * (P2 - P_target) < 0:
             r = r1 + (P_target - P1) * (r2 - r1) / (P2 - P1)
             res = run_scb(0.0, dx=dx, r_s=r, stabilisation=stab, stop_fraction=0.6, criterion=criterion,
-                      growth=growth)
+                      growth=growth, tip_factor=tip_factor)
             hist.append((r, res["P_c_N"], res["wall_s"]))
             log(f"  calibration: r_s = {r * 1e3:.4f} mm -> P_c = {res['P_c_N'] / 1e3:.4f} kN ({res['wall_s']:.0f} s)")
             break
@@ -248,8 +251,7 @@ def calibrate_r_s(dx, P_target, stab=1.0, r0=None, iters=4, tol=0.005, log=print
     r = r0 or 15 * dx
     hist = []
     for _ in range(iters):
-        res = run_scb(0.0, dx=dx, r_s=r, stabilisation=stab, stop_fraction=0.6, criterion=criterion,
-                      growth=growth)
+        res = run_scb(0.0, dx=dx, r_s=r, stabilisation=stab, stop_fraction=0.6, criterion=criterion)
         P = res["P_c_N"]
         hist.append((r, P, res["wall_s"]))
         log(f"  calibration: r_s = {r * 1e3:.4f} mm -> P_c = {P / 1e3:.4f} kN ({res['wall_s']:.0f} s)")
@@ -303,19 +305,21 @@ def run_table(args):
     r_s = getattr(args, "r_s", None)
     crit = getattr(args, "criterion", "principal")
     growth = getattr(args, "growth", None) or default_growth(crit)
+    tipf = getattr(args, "tip_factor", "lattice")
     cal = None
     if r_s is None and crit == "energy":
         r_s, cal = calibrate_r_s(dx, exP[0.0] * 1e3, stab=stab, iters=3 if quick else 5)
     elif r_s is None:
         cands = [float(v) for v in getattr(args, "r_s_candidates", "1e-3,2e-3,3e-3").split(",")]
-        r_s, cal = calibrate_r_s_scan(dx, exP[0.0] * 1e3, cands, stab=stab, criterion=crit, growth=growth)
+        r_s, cal = calibrate_r_s_scan(dx, exP[0.0] * 1e3, cands, stab=stab, criterion=crit, growth=growth,
+                                      tip_factor=tipf)
     print(f"r_s = {r_s * 1e3:.4f} mm (calibrated at alpha = 0 only)" if cal else f"r_s = {r_s * 1e3:.4f} mm (given)")
     out = _outdir(args)
     rows, res_all, curves = [], [], []
     for al in alphas:
         res = run_scb(al, dx=dx, r_s=r_s, stabilisation=stab, stop_fraction=getattr(args, "stop_fraction", 0.5),
                       keep=True, max_equilibria=getattr(args, "max_equilibria", 3000), criterion=crit,
-                      growth=growth)
+                      growth=growth, tip_factor=tipf)
         fe = _fe(al, 3 * dx, quick=True)
         f = np.sqrt(np.pi * A_CRACK) / (2 * R * T_THICK)
         P = res["P_c_N"]
@@ -354,7 +358,7 @@ def run_table(args):
     _plot_curves(out / "scb_curves.png", curves)
     e = np.array([abs(r["err %"]) for r in rows])
     pe = np.array([abs(100 * (thP[a] / exP[a] - 1)) for a in ALPHAS])
-    res = {"dx_m": dx, "r_s_m": r_s, "criterion": crit, "growth": growth, "calibration": cal, "alpha_deg": alphas,
+    res = {"dx_m": dx, "r_s_m": r_s, "criterion": crit, "growth": growth, "tip_factor": tipf, "calibration": cal, "alpha_deg": alphas,
            "P_c_kN": [r["P_c kN"] for r in rows], "P_c_err_pct": [r["err %"] for r in rows],
            "P_c_err_pct_mean": float(e.mean()), "P_c_err_pct_max": float(e.max()),
            "paper_P_c_err_pct_mean": float(pe.mean()), "paper_P_c_err_pct_max": float(pe.max()),
@@ -401,12 +405,14 @@ def _conv_args(p):
                    help="comma list of scb.json files written by 'upscale scb' (or their directories): a run "
                         "of the sweep with the same alpha, dx, delta/dx, r_s, criterion and growth is read "
                         "from the file instead of being repeated (default none)")
+    p.add_argument("--tip-factor", default="lattice", choices=("lattice", "solved", "continuum"),
+                   help="beta of the critical stress (UnifiedModel tip_factor; default %(default)s)")
 
 
 CONV_STOP = 0.6        # scb-convergence: stop fraction of its runs
 
 
-def reused_run(path, criterion="principal", growth="free", stop_fraction=CONV_STOP):
+def reused_run(path, criterion="principal", growth="free", stop_fraction=CONV_STOP, tip_factor="lattice"):
     """A finished ``upscale scb`` run (its ``scb.json``, or the directory holding it) as a row
     of ``scb-convergence``, or a ValueError naming what does not match the sweep.
 
@@ -414,13 +420,13 @@ def reused_run(path, criterion="principal", growth="free", stop_fraction=CONV_ST
     ``stop_fraction`` of the peak so far, the rule of ``upscale.engine.quasistatic``), so the
     row's P_c is the one the sweep computes; a run that ended at its displacement or solve
     cap is taken whole (``run_scb``'s defaults, the sweep's too). The scene must be the
-    sweep's: rollers, c_s = 1, energy force, lattice tip factor."""
+    sweep's: rollers, c_s = 1, energy force, the sweep's tip factor."""
     f = Path(path)
     f = f / "scb.json" if f.is_dir() else f
     d = json.loads(f.read_text())
     sc, mo = d["scene"], d["scene"]["model"]
     want = {"criterion": criterion, "growth": growth,
-            "supports": "rollers", "stabilisation": 1.0, "force": "energy", "tip_factor": "lattice"}
+            "supports": "rollers", "stabilisation": 1.0, "force": "energy", "tip_factor": tip_factor}
     have = {"criterion": mo["criterion"], "growth": mo.get("growth", "free"), "supports": sc["supports"],
             "stabilisation": mo["stabilisation"], "force": mo["force"], "tip_factor": mo.get("tip_factor")}
     bad = [f"{k}={have[k]!r} (sweep: {want[k]!r})" for k in want if have[k] != want[k]]
@@ -473,16 +479,18 @@ def run_convergence(args):
     r_s = getattr(args, "r_s", None)
     crit = getattr(args, "criterion", "principal")
     growth = getattr(args, "growth", None) or default_growth(crit)
+    tipf = getattr(args, "tip_factor", "lattice")
     if r_s is None and crit == "energy":
         r_s, _ = calibrate_r_s(dxs[0], ex["exp_P_c_kN"][0] * 1e3, iters=3)
     elif r_s is None:
         cands = [float(v) for v in getattr(args, "r_s_candidates", "1e-3,2e-3").split(",")]
-        r_s, _ = calibrate_r_s_scan(dxs[0], ex["exp_P_c_kN"][0] * 1e3, cands, criterion=crit, growth=growth)
+        r_s, _ = calibrate_r_s_scan(dxs[0], ex["exp_P_c_kN"][0] * 1e3, cands, criterion=crit, growth=growth,
+                                    tip_factor=tipf)
     ratio = r_s / dxs[0]
     rows = []
 
-    reused = [reused_run(f.strip(), crit, growth) for f in (getattr(args, "reuse", "") or "").split(",")
-              if f.strip()]
+    reused = [reused_run(f.strip(), crit, growth, tip_factor=tipf)
+              for f in (getattr(args, "reuse", "") or "").split(",") if f.strip()]
 
     def one(al, dx, m, mode, r):
         for rr in reused:
@@ -491,7 +499,8 @@ def run_convergence(args):
                 rows.append({k: rr[k] for k in ("alpha", "dx mm", "delta/dx")} | {"mode": mode} | rr)
                 print(rows[-1], flush=True)
                 return
-        res = run_scb(al, dx=dx, m=m, r_s=r, stop_fraction=CONV_STOP, criterion=crit, growth=growth)
+        res = run_scb(al, dx=dx, m=m, r_s=r, stop_fraction=CONV_STOP, criterion=crit, growth=growth,
+                      tip_factor=tipf)
         c = res["curve"]
         rows.append({"alpha": al, "dx mm": dx * 1e3, "delta/dx": m, "mode": mode, "r_s mm": r * 1e3,
                      "particles": res["scene"]["particles"], "P_c kN": res["P_c_kN"],
@@ -566,7 +575,8 @@ def run_convergence(args):
 
     fixed_m = worst(lambda c: c["mode"] == "fixed m" and c["finest"])
     out = {"dx_m": dxs, "alpha_deg": alphas, "horizon_over_dx": [3.0] + [m for m in ms if m != 3.0],
-           "r_s_m_coarsest": r_s, "criterion": crit, "growth": growth, "rows": rows, "changes": ch,
+           "r_s_m_coarsest": r_s, "criterion": crit, "growth": growth, "tip_factor": tipf, "rows": rows,
+           "changes": ch,
            "P_c_change_pct_max": fixed_m,
            "P_c_change_pct_max_fixed_ratio": worst(lambda c: c["mode"] == "fixed r_s/dx" and c["finest"]),
            "P_c_change_pct_max_m": worst(lambda c: c["mode"].startswith("delta/dx")),
