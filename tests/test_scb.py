@@ -180,6 +180,14 @@ def test_convergence_reuses_a_finished_run(tmp_path):
     assert np.isclose(r1["P_c kN"], r0["P_c kN"], rtol=1e-9, atol=0) and r1["equilibria"] == r0["equilibria"]
     with pytest.raises(ValueError, match="growth='free'"):
         run_convergence(argparse.Namespace(**{**kw, "growth": "front"}, reuse=str(tmp_path / "a")))
+    # an earlier sweep's JSON (as the case writes it) serves too, row by row
+    import json
+
+    (tmp_path / "conv.json").write_text(json.dumps({"result": fresh}))
+    again = run_convergence(argparse.Namespace(**kw, reuse=str(tmp_path / "conv.json")))
+    assert again["rows"][0]["P_c kN"] == r0["P_c kN"] and "row 0" in again["rows"][0]["source"]
+    with pytest.raises(ValueError, match="tip_factor='lattice'"):
+        run_convergence(argparse.Namespace(**kw, tip_factor="solved", reuse=str(tmp_path / "conv.json")))
 
 
 def test_calibration_scan_prefers_the_candidate_in_a_tie(monkeypatch):

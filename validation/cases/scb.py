@@ -402,7 +402,8 @@ def _conv_args(p):
                         "at each of --dxs, r_s fixed in metres): the refinement of the nonlocal model at fixed "
                         "material lengths (default none)")
     p.add_argument("--reuse", default="",
-                   help="comma list of scb.json files written by 'upscale scb' (or their directories): a run "
+                   help="comma list of scb.json files written by 'upscale scb' (or their directories) or "
+                        "earlier scb-convergence JSONs: a run "
                         "of the sweep with the same alpha, dx, delta/dx, r_s, criterion and growth is read "
                         "from the file instead of being repeated (default none)")
     p.add_argument("--tip-factor", default="lattice", choices=("lattice", "solved", "continuum"),
@@ -442,6 +443,27 @@ def reused_run(path, criterion="principal", growth="free", stop_fraction=CONV_ST
             "initiation deg": d["initiation_angle_deg"], "equilibria": end,
             "stop": "load dropped" if len(drop) else d["curve"]["stop_reason"],
             "wall s": d["wall_s"], "source": str(f)}
+
+
+def reused_runs(path, criterion="principal", growth="free", stop_fraction=CONV_STOP, tip_factor="lattice"):
+    """Rows for ``--reuse`` from one file: an ``upscale scb`` result (:func:`reused_run`) or an
+    earlier ``scb-convergence`` JSON, whose rows are taken as they are when its criterion,
+    growth rule and tip factor are the sweep's (its runs used the same scene and stop)."""
+    f = Path(path)
+    f = f / "scb.json" if f.is_dir() else f
+    d = json.loads(f.read_text())
+    if "scene" in d:
+        return [reused_run(f, criterion, growth, stop_fraction, tip_factor)]
+    r = d.get("result", d)
+    if "rows" not in r:
+        raise ValueError(f"--reuse {f}: neither an 'upscale scb' result nor an scb-convergence JSON")
+    want = {"criterion": criterion, "growth": growth, "tip_factor": tip_factor}
+    have = {"criterion": r.get("criterion"), "growth": r.get("growth", "free"),
+            "tip_factor": r.get("tip_factor", "lattice")}
+    bad = [f"{k}={have[k]!r} (sweep: {want[k]!r})" for k in want if have[k] != want[k]]
+    if bad:
+        raise ValueError(f"--reuse {f}: " + ", ".join(bad))
+    return [{**row, "source": f"{f} row {i}"} for i, row in enumerate(r["rows"])]
 
 
 @case("scb-convergence", "SCB: P_c versus spacing, r_s fixed in metres and r_s / dx fixed, and versus horizon / "
@@ -489,14 +511,15 @@ def run_convergence(args):
     ratio = r_s / dxs[0]
     rows = []
 
-    reused = [reused_run(f.strip(), crit, growth, tip_factor=tipf)
-              for f in (getattr(args, "reuse", "") or "").split(",") if f.strip()]
+    reused = [row for f in (getattr(args, "reuse", "") or "").split(",") if f.strip()
+              for row in reused_runs(f.strip(), crit, growth, tip_factor=tipf)]
 
     def one(al, dx, m, mode, r):
         for rr in reused:
             if (rr["alpha"] == al and abs(rr["dx mm"] - dx * 1e3) < 1e-9 and abs(rr["delta/dx"] - m) < 1e-9
                     and abs(rr["r_s mm"] - r * 1e3) < 1e-9):
-                rows.append({k: rr[k] for k in ("alpha", "dx mm", "delta/dx")} | {"mode": mode} | rr)
+                rows.append({k: rr[k] for k in ("alpha", "dx mm", "delta/dx")} | {"mode": mode} | rr
+                            | {"mode": mode})
                 print(rows[-1], flush=True)
                 return
         res = run_scb(al, dx=dx, m=m, r_s=r, stop_fraction=CONV_STOP, criterion=crit, growth=growth,
@@ -588,7 +611,9 @@ def run_convergence(args):
 
 # ---------------------------------------------------------------------------- scb-rate
 def _rate_args(p):
-    p.add_argument("--dx", type=float, default=2e-3)
+    p.add_argument("--dx", type=float, default=None,
+                   help="spacing in m (default 1e-3, the calibrated one; quick 2e-3, where the alpha = 0 tip "
+                        "lies on a particle row, a/dx = 7.5, so the front rule's P_c is not the 1 mm one)")
     p.add_argument("--r-s", type=float, default=None,
                    help="r_s in m (default: 1e-3 for the averaged-stress criteria, 0.075 for 'energy')")
     p.add_argument("--criterion", default="principal", choices=("principal", "normal", "energy"),
@@ -609,7 +634,7 @@ def run_rate(args):
     quick = getattr(args, "quick", False)
     crit = getattr(args, "criterion", "principal")
     growth = getattr(args, "growth", None) or default_growth(crit)
-    dx, r_s = getattr(args, "dx", 2e-3), getattr(args, "r_s", None)
+    dx, r_s = getattr(args, "dx", None) or (2e-3 if quick else 1e-3), getattr(args, "r_s", None)
     if r_s is None:
         r_s = 0.075 if crit == "energy" else 1e-3
     times = [float(v) for v in (getattr(args, "times", None) or ("1e-3,2e-3,4e-3" if quick else "2e-3,5e-3,1.5e-2")).split(",")]
