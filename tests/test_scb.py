@@ -186,8 +186,8 @@ def test_convergence_reuses_a_finished_run(tmp_path):
     (tmp_path / "conv.json").write_text(json.dumps({"result": fresh}))
     again = run_convergence(argparse.Namespace(**kw, reuse=str(tmp_path / "conv.json")))
     assert again["rows"][0]["P_c kN"] == r0["P_c kN"] and "row 0" in again["rows"][0]["source"]
-    with pytest.raises(ValueError, match="tip_factor='lattice'"):
-        run_convergence(argparse.Namespace(**kw, tip_factor="solved", reuse=str(tmp_path / "conv.json")))
+    with pytest.raises(ValueError, match="tip_factor='solved'"):
+        run_convergence(argparse.Namespace(**kw, tip_factor="lattice", reuse=str(tmp_path / "conv.json")))
 
 
 def test_calibration_scan_prefers_the_candidate_in_a_tie(monkeypatch):

@@ -135,10 +135,14 @@ class SCBScene:
     sequential : float
         Per round only the bonds within this fraction of the largest index break
         (default 0.99: the most loaded particle first, then re-equilibrium).
-    tip_factor : {"lattice", "solved", "continuum"}
-        beta of the critical stress (``UnifiedModel``): from the mode-I tip field imposed on
-        this lattice (default), from the model's own solution of a disc driven by that field
-        on its rim, or the continuum disc average.
+    tip_factor : {"solved", "lattice", "continuum"}
+        beta of the critical stress (``UnifiedModel``): from the model's own solution (with
+        this scene's c_s) of a disc driven by the mode-I tip field on its rim (default), from
+        that field imposed on every particle of the lattice, or the continuum disc average.
+        With the imposed field the first failure comes at K_I = 0.92 to 1.06 K_Ic for
+        r_s / dx = 1 to 4 (c_s = 1), and P_c at alpha = 0 drifts by +4.5 % per halving of dx
+        (1 -> 0.5 -> 0.25 mm); with the solved one -2.9 % then -1.4 %
+        (``validation/results/scb.md``, revision 11).
     growth : {"front", "free"} or None
         Which particles may fail (``UnifiedModel``). None (default): :func:`default_growth`,
         ``"front"`` for the principal criterion -- only the crack front fails, so the crack
@@ -168,7 +172,7 @@ class SCBScene:
                  R=R_DEFAULT, t=5e-3, r_s=None, supports="rollers", stabilisation=1.0,
                  no_fail=3.0, force="energy", failure_energy="tensile", rcond=1e-2, min_bonds=6, E=PMMA["E"], nu=PMMA["nu"], K_Ic=PMMA["K_Ic"],
                  rho=PMMA["rho"], gain_order=1, criterion="principal", sequential=0.99,
-                 tip_factor="lattice", growth=None):
+                 tip_factor="solved", growth=None):
         from upscale.engine import ParticleSystem, bonds_crossing_segment, build_family
         from upscale.models.unified import UnifiedModel
 
@@ -426,7 +430,7 @@ def run_scb(alpha_deg=30.0, *, dx=1e-3, m=3.0, r_s=1e-3, supports="rollers", sta
             no_fail=3.0, force="energy", failure_energy="tensile", progress=False, outdir=None,
             a_over_R=0.3, S_over_R=0.43, u_max=None, d_lambda=None, stop_fraction=0.2,
             keep: bool = False, max_equilibria: int = 3000, criterion: str = "principal",
-            sequential: float = 0.99, tip_factor: str = "lattice", growth: str | None = None) -> dict:
+            sequential: float = 0.99, tip_factor: str = "solved", growth: str | None = None) -> dict:
     """Build and run the SCB fracture scene; returns a JSON-able result (and writes files
     under ``outdir`` when given); ``keep`` adds the scene, final state and damage under
     the keys ``_scene``, ``_state``, ``_damage`` (not JSON-able)."""
@@ -485,9 +489,10 @@ def register(sub) -> None:
     p.add_argument("--growth", default=None, choices=("front", "free"),
                    help="which particles may fail: only those on the crack front (default for the principal "
                         "criterion) or any (the seed's literal rule; the default of the other criteria)")
-    p.add_argument("--tip-factor", default="lattice", choices=("lattice", "solved", "continuum"),
-                   help="beta of the critical stress: from the mode-I tip field imposed on the lattice (default), "
-                        "from the model's own solution of a disc driven by it, or the continuum disc average")
+    p.add_argument("--tip-factor", default="solved", choices=("solved", "lattice", "continuum"),
+                   help="beta of the critical stress: from the model's own solution of a disc driven by the mode-I "
+                        "tip field on its rim (default), from that field imposed on the lattice, or the continuum "
+                        "disc average")
     p.add_argument("--out", default="out/scb", help="output directory (default: %(default)s)")
     p.add_argument("--stop-fraction", type=float, default=0.5,
                    help="stop when the load falls below this fraction of its peak (default %(default)s: "

@@ -81,6 +81,12 @@ continuum's disc average. ``tip_factor="lattice"`` (default in 2D) takes beta fr
 same operations applied to the exact mode-I tip displacement field on the model's own
 lattice (:func:`lattice_tip_factor`; it depends on r_s / spacing and the horizon, and
 tends to the continuum value as r_s / spacing grows); ``"continuum"`` uses 0.50497.
+``"solved"`` applies them to the model's own equilibrium of a disc driven by that field on
+its rim, with the model's bond penalty c_s: the penalty resists the non-affine near-tip
+deformation, so the solved front stress is not the imposed one (c_s = 1: +8 % at
+r_s = dx, -5 % at r_s = 4 dx), and only the solved factor puts the first failure at
+K_I = K_Ic on every grid (SCB at alpha = 0: K_I 1.006 K_Ic at dx = r_s; the SCB scenes'
+default).
 
 Crack growth (``growth``, principal criterion). ``"free"`` (default here; the seed's
 literal rule): any particle may fail. The disc average of the tip field is largest 0.72 r_s ahead of the tip, so once

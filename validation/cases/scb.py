@@ -209,12 +209,12 @@ def _table_args(p):
                    help="principal/normal criteria: r_s values (m) tried at alpha = 0 (default %(default)s)")
     p.add_argument("--growth", default=None, choices=("front", "free"),
                    help="which particles may fail: the crack front (default for the principal criterion) or any")
-    p.add_argument("--tip-factor", default="lattice", choices=("lattice", "solved", "continuum"),
+    p.add_argument("--tip-factor", default="solved", choices=("solved", "lattice", "continuum"),
                    help="beta of the critical stress (UnifiedModel tip_factor; default %(default)s)")
 
 
 def calibrate_r_s_scan(dx, P_target, candidates, stab=1.0, criterion="principal", log=print, growth=None,
-                       tip_factor="lattice"):
+                       tip_factor="solved"):
     """P_c at alpha = 0 for each candidate r_s (m); the closest to ``P_target``, refined by
     one linear interpolation when two candidates bracket it. For the averaged-stress
     criteria P_c depends on r_s only through the body's non-singular terms and the
@@ -305,7 +305,7 @@ def run_table(args):
     r_s = getattr(args, "r_s", None)
     crit = getattr(args, "criterion", "principal")
     growth = getattr(args, "growth", None) or default_growth(crit)
-    tipf = getattr(args, "tip_factor", "lattice")
+    tipf = getattr(args, "tip_factor", "solved")
     cal = None
     if r_s is None and crit == "energy":
         r_s, cal = calibrate_r_s(dx, exP[0.0] * 1e3, stab=stab, iters=3 if quick else 5)
@@ -406,14 +406,14 @@ def _conv_args(p):
                         "earlier scb-convergence JSONs: a run "
                         "of the sweep with the same alpha, dx, delta/dx, r_s, criterion and growth is read "
                         "from the file instead of being repeated (default none)")
-    p.add_argument("--tip-factor", default="lattice", choices=("lattice", "solved", "continuum"),
+    p.add_argument("--tip-factor", default="solved", choices=("solved", "lattice", "continuum"),
                    help="beta of the critical stress (UnifiedModel tip_factor; default %(default)s)")
 
 
 CONV_STOP = 0.6        # scb-convergence: stop fraction of its runs
 
 
-def reused_run(path, criterion="principal", growth="free", stop_fraction=CONV_STOP, tip_factor="lattice"):
+def reused_run(path, criterion="principal", growth="free", stop_fraction=CONV_STOP, tip_factor="solved"):
     """A finished ``upscale scb`` run (its ``scb.json``, or the directory holding it) as a row
     of ``scb-convergence``, or a ValueError naming what does not match the sweep.
 
@@ -445,7 +445,7 @@ def reused_run(path, criterion="principal", growth="free", stop_fraction=CONV_ST
             "wall s": d["wall_s"], "source": str(f)}
 
 
-def reused_runs(path, criterion="principal", growth="free", stop_fraction=CONV_STOP, tip_factor="lattice"):
+def reused_runs(path, criterion="principal", growth="free", stop_fraction=CONV_STOP, tip_factor="solved"):
     """Rows for ``--reuse`` from one file: an ``upscale scb`` result (:func:`reused_run`) or an
     earlier ``scb-convergence`` JSON, whose rows are taken as they are when its criterion,
     growth rule and tip factor are the sweep's (its runs used the same scene and stop)."""
@@ -501,7 +501,7 @@ def run_convergence(args):
     r_s = getattr(args, "r_s", None)
     crit = getattr(args, "criterion", "principal")
     growth = getattr(args, "growth", None) or default_growth(crit)
-    tipf = getattr(args, "tip_factor", "lattice")
+    tipf = getattr(args, "tip_factor", "solved")
     if r_s is None and crit == "energy":
         r_s, _ = calibrate_r_s(dxs[0], ex["exp_P_c_kN"][0] * 1e3, iters=3)
     elif r_s is None:
