@@ -444,7 +444,8 @@ def run_scb(alpha_deg=30.0, *, dx=1e-3, m=3.0, r_s=1e-3, supports="rollers", sta
     pts, mu = sc.crack_path(st)
     P_c, d_c = curve.peak
     res = {"scene": sc.describe(), "P_c_N": P_c, "P_c_kN": P_c / 1e3, "displacement_at_P_c_m": d_c,
-           "initiation_angle_deg": sc.initiation_angle(curve), "broken_bonds": int((~st.intact).sum() // 2),
+           "initiation_angle_deg": sc.initiation_angle(curve), "stop_fraction": stop_fraction,
+           "broken_bonds": int((~st.intact).sum() // 2),
            "particles_without_stress": int((~sc.model.alive).sum()), "curve": curve.as_dict(),
            "crack_path_m": pts[:400].tolist(), "wall_s": time.perf_counter() - t0}
     if outdir is not None:

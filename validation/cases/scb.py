@@ -419,8 +419,8 @@ def reused_run(path, criterion="principal", growth="free", stop_fraction=CONV_ST
 
     The stored curve is cut where the sweep's own run would have stopped (the first load below
     ``stop_fraction`` of the peak so far, the rule of ``upscale.engine.quasistatic``), so the
-    row's P_c is the one the sweep computes; a run that ended at its displacement or solve
-    cap is taken whole (``run_scb``'s defaults, the sweep's too). The scene must be the
+    row's P_c is the one the sweep computes; a run that ended earlier (its own higher stop
+    fraction, or its displacement or solve cap) is taken whole and its stop says so. The scene must be the
     sweep's: rollers, c_s = 1, energy force, the sweep's tip factor."""
     f = Path(path)
     f = f / "scb.json" if f.is_dir() else f
@@ -441,7 +441,8 @@ def reused_run(path, criterion="principal", growth="free", stop_fraction=CONV_ST
     return {"alpha": float(sc["alpha_deg"]), "dx mm": sc["dx_m"] * 1e3, "delta/dx": float(sc["horizon_over_dx"]),
             "r_s mm": mo["r_s_m"] * 1e3, "particles": sc["particles"], "P_c kN": float(P[k]) / 1e3,
             "initiation deg": d["initiation_angle_deg"], "equilibria": end,
-            "stop": "load dropped" if len(drop) else d["curve"]["stop_reason"],
+            "stop": "load dropped" if len(drop) else f"{d['curve']['stop_reason']} (the stored run's stop"
+            + (f" {d['stop_fraction']:g})" if "stop_fraction" in d else ")"),
             "wall s": d["wall_s"], "source": str(f)}
 
 
