@@ -447,6 +447,8 @@ def test_solved_tip_factor_carries_the_bond_penalty():
     assert sol1 > 1.05 * imp1 and sol4 < 0.97 * imp4
     with pytest.raises(ValueError, match="field"):
         lattice_tip_factor(1e-3, 1e-3, h, field="exact")
+    with pytest.raises(ValueError, match="radius"):
+        lattice_tip_factor(1e-3, 1e-3, h, radius=5e-3)
 
 
 def test_growth_bad_input():
