@@ -666,7 +666,8 @@ def run_rate(args):
     print(table(rows, floatfmt=".4f"))
     errs = [r["err %"] for r in rows]
     mono = all(abs(b) <= abs(a) + 1e-9 for a, b in zip(errs, errs[1:]))
-    return {"dx_m": dx, "r_s_m": r_s, "criterion": crit, "growth": growth, "P_c_quasi_static_kN": P_qs / 1e3, "loading_times_s": times,
+    return {"dx_m": dx, "r_s_m": r_s, "criterion": crit, "growth": growth,
+            "tip_factor": qs["scene"]["model"].get("tip_factor"), "P_c_quasi_static_kN": P_qs / 1e3, "loading_times_s": times,
             "rise_fraction": rise,
             "P_c_kN": [r["P_c kN"] for r in rows], "P_c_rate_err_pct": errs,
             "P_c_rate_err_pct_slowest": float(errs[-1]), "monotone": bool(mono),
