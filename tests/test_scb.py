@@ -205,3 +205,15 @@ def test_calibration_scan_prefers_the_candidate_in_a_tie(monkeypatch):
     assert len(hist) == 3 and r == 1e-3
     r, _ = calibrate_r_s_scan(1e-3, 2450.0, [1e-3, 2e-3], log=lambda *a: None)
     assert r not in (1e-3, 2e-3)        # no tie: the interpolant, closer to the target
+
+
+def test_energy_calibration_secant_reaches_the_target(monkeypatch):
+    """The particle-energy criterion's secant on log P_c(log r_s): with P_c ~ r_s^-1/2 it lands
+    on the target r_s."""
+    import upscale.experiments.scb as scb
+    from validation.cases.scb import calibrate_r_s
+
+    monkeypatch.setattr(scb, "run_scb", lambda alpha, *, r_s, **kw: {"P_c_N": 2380.0 * (0.07 / r_s) ** 0.5,
+                                                                      "wall_s": 0.0})
+    r, hist = calibrate_r_s(2e-3, 2380.0, log=lambda *a: None)
+    assert abs(r / 0.07 - 1) < 0.01 and len(hist) <= 4

@@ -146,9 +146,10 @@ class SCBScene:
     growth : {"front", "free"} or None
         Which particles may fail (``UnifiedModel``). None (default): :func:`default_growth`,
         ``"front"`` for the principal criterion -- only the crack front fails, so the crack
-        advances from its tip and P_c converges as the spacing falls at a fixed r_s (+4.5 %
-        and +2.5 % from 0.5 to 0.25 mm at 0 and 30 deg, against +11.9 % and +12.5 % for
-        ``"free"``; ``validation/results/scb.md``) -- and ``"free"`` for the others.
+        advances from its tip and, with ``tip_factor="solved"``, P_c converges as the spacing
+        falls at a fixed r_s (-1.4 / -3.2 / +1.4 % from 0.5 to 0.25 mm at 0 / 30 / 50 deg,
+        against +11.9 % at 0 deg for ``"free"``; ``validation/results/scb.md``) -- and
+        ``"free"`` for the others.
         ``"free"`` is the seed's literal rule (any particle over the criterion fails).
     failure_energy : {"tensile", "total"}
     rcond : float

@@ -89,7 +89,8 @@ K_I = K_Ic on every grid (SCB at alpha = 0: K_I 1.006 K_Ic at dx = r_s; the SCB 
 default).
 
 Crack growth (``growth``, principal criterion). ``"free"`` (default here; the seed's
-literal rule): any particle may fail. The disc average of the tip field is largest 0.72 r_s ahead of the tip, so once
+literal rule): any particle may fail. The disc average of the tip field is largest 0.72
+r_s ahead of the tip, so once
 r_s spans several spacings the first void opens there, with an intact ligament between
 it and the crack; the ligament and the voids ahead keep loading and failing over several
 equilibria, so the model has a resistance that rises over a length of order r_s, i.e. of
@@ -437,11 +438,11 @@ def lattice_tip_factor(r_s: float, spacing: float, horizon: float, *, E: float =
     field on the outer ring (one horizon thick) only, the rest relaxed to equilibrium with
     the model's bond penalty ``stabilisation``: the field the criterion meets in a fracture
     run, where the penalty resists the non-affine part of the near-tip deformation. With
-    c_s = 1 the solved front stress differs from the imposed one by -8 % to +6 % for
-    r_s / spacing = 1 to 4 (so the imposed beta puts the first failure at K_I = 0.92 to
-    1.06 K_Ic; ``validation/scb_diag/beta_solved.py``). ``radius``: the lattice disc's radius
-    (default 4 (r_s + horizon + spacing); a 20 mm disc changes the solved factor at r_s = 1 mm
-    by 0.1 %)."""
+    c_s = 1 the solved front stress is 8 % above the imposed one at r_s = spacing and 5 %
+    below it at r_s = 4 spacings (so the imposed beta puts the first failure at K_I = 0.92
+    to 1.06 K_Ic; ``validation/scb_diag/beta_solved.py``). ``radius``: the lattice disc's
+    radius (default 4 (r_s + horizon + spacing); a larger disc changes beta by up to 0.35 %,
+    through the one bond that passes exactly through the tip, cut or kept by rounding)."""
     from upscale.engine import ParticleSystem, bonds_crossing_segment, build_family
     from upscale.engine.quasistatic import Equilibrium
     from upscale.engine.state import State

@@ -265,9 +265,7 @@ def calibrate_r_s(dx, P_target, stab=1.0, r0=None, iters=4, tol=0.005, log=print
         else:
             slope = -0.5
         r = float(np.exp(np.log(r) + (np.log(P_target) - np.log(P)) / slope))
-    # A disc of radius r_s holds the same particles over a range of r_s, so the interpolated
-    # r_s can tie with a candidate to round-off: a tie (1e-9 relative) goes to the candidate.
-    best = min(hist, key=lambda h: (round(abs(h[1] / P_target - 1), 9), h[0] not in candidates))
+    best = min(hist, key=lambda h: abs(h[1] / P_target - 1))
     return best[0], hist
 
 
@@ -413,58 +411,54 @@ def _conv_args(p):
 CONV_STOP = 0.6        # scb-convergence: stop fraction of its runs
 
 
-def reused_run(path, criterion="principal", growth="free", stop_fraction=CONV_STOP, tip_factor="solved"):
-    """A finished ``upscale scb`` run (its ``scb.json``, or the directory holding it) as a row
-    of ``scb-convergence``, or a ValueError naming what does not match the sweep.
+def _same_run(row, alpha, dx, m, r_s):
+    """A sweep row of this alpha, spacing dx (m), horizon ratio m and r_s (m)."""
+    return (row["alpha"] == alpha and abs(row["dx mm"] - dx * 1e3) < 1e-9 and abs(row["delta/dx"] - m) < 1e-9
+            and abs(row["r_s mm"] - r_s * 1e3) < 1e-9)
 
-    The stored curve is cut where the sweep's own run would have stopped (the first load below
-    ``stop_fraction`` of the peak so far, the rule of ``upscale.engine.quasistatic``), so the
-    row's P_c is the one the sweep computes; a run that ended earlier (its own higher stop
-    fraction, or its displacement or solve cap) is taken whole and its stop says so. The scene must be the
-    sweep's: rollers, c_s = 1, energy force, the sweep's tip factor."""
+
+def reused_runs(path, criterion="principal", growth="free", stop_fraction=CONV_STOP, tip_factor="solved"):
+    """Rows for ``--reuse`` from one file, or a ValueError naming what does not match the sweep.
+
+    An ``upscale scb`` result (its ``scb.json``, or the directory holding it): its curve is cut
+    where the sweep's own run would have stopped (the first load below ``stop_fraction`` of
+    the peak so far, the rule of ``upscale.engine.quasistatic``), so the row's P_c is the one
+    the sweep computes; a run that ended earlier (its own higher stop fraction, or its
+    displacement or solve cap) is taken whole and its stop says so. Its scene must be the
+    sweep's (rollers, c_s = 1, energy force). An earlier ``scb-convergence`` JSON: its rows as
+    they are (same scene and stop). Either way criterion, growth rule and tip factor must be
+    the sweep's."""
     f = Path(path)
     f = f / "scb.json" if f.is_dir() else f
     d = json.loads(f.read_text())
-    sc, mo = d["scene"], d["scene"]["model"]
-    want = {"criterion": criterion, "growth": growth,
-            "supports": "rollers", "stabilisation": 1.0, "force": "energy", "tip_factor": tip_factor}
-    have = {"criterion": mo["criterion"], "growth": mo.get("growth", "free"), "supports": sc["supports"],
-            "stabilisation": mo["stabilisation"], "force": mo["force"], "tip_factor": mo.get("tip_factor")}
+    want = {"criterion": criterion, "growth": growth, "tip_factor": tip_factor}
+    if "scene" in d:
+        sc, mo = d["scene"], d["scene"]["model"]
+        want |= {"supports": "rollers", "stabilisation": 1.0, "force": "energy"}
+        have = {"criterion": mo["criterion"], "growth": mo.get("growth", "free"), "tip_factor": mo.get("tip_factor"),
+                "supports": sc["supports"], "stabilisation": mo["stabilisation"], "force": mo["force"]}
+    else:
+        d = d.get("result", d)
+        if "rows" not in d:
+            raise ValueError(f"--reuse {f}: neither an 'upscale scb' result nor an scb-convergence JSON")
+        have = {"criterion": d.get("criterion"), "growth": d.get("growth", "free"),
+                "tip_factor": d.get("tip_factor", "lattice")}
     bad = [f"{k}={have[k]!r} (sweep: {want[k]!r})" for k in want if have[k] != want[k]]
     if bad:
         raise ValueError(f"--reuse {f}: " + ", ".join(bad))
+    if "rows" in d:
+        return [{**row, "source": f"{f} row {i}"} for i, row in enumerate(d["rows"])]
     P = np.asarray(d["curve"]["load_N"], float)
     pk = np.maximum.accumulate(P)
     drop = np.nonzero((pk > 0) & (P < stop_fraction * pk))[0]
     end = int(drop[0]) + 1 if len(drop) else len(P)
     k = int(np.argmax(P[:end]))
-    return {"alpha": float(sc["alpha_deg"]), "dx mm": sc["dx_m"] * 1e3, "delta/dx": float(sc["horizon_over_dx"]),
-            "r_s mm": mo["r_s_m"] * 1e3, "particles": sc["particles"], "P_c kN": float(P[k]) / 1e3,
-            "initiation deg": d["initiation_angle_deg"], "equilibria": end,
-            "stop": "load dropped" if len(drop) else f"{d['curve']['stop_reason']} (the stored run's stop"
-            + (f" {d['stop_fraction']:g})" if "stop_fraction" in d else ")"),
-            "wall s": d["wall_s"], "source": str(f)}
-
-
-def reused_runs(path, criterion="principal", growth="free", stop_fraction=CONV_STOP, tip_factor="solved"):
-    """Rows for ``--reuse`` from one file: an ``upscale scb`` result (:func:`reused_run`) or an
-    earlier ``scb-convergence`` JSON, whose rows are taken as they are when its criterion,
-    growth rule and tip factor are the sweep's (its runs used the same scene and stop)."""
-    f = Path(path)
-    f = f / "scb.json" if f.is_dir() else f
-    d = json.loads(f.read_text())
-    if "scene" in d:
-        return [reused_run(f, criterion, growth, stop_fraction, tip_factor)]
-    r = d.get("result", d)
-    if "rows" not in r:
-        raise ValueError(f"--reuse {f}: neither an 'upscale scb' result nor an scb-convergence JSON")
-    want = {"criterion": criterion, "growth": growth, "tip_factor": tip_factor}
-    have = {"criterion": r.get("criterion"), "growth": r.get("growth", "free"),
-            "tip_factor": r.get("tip_factor", "lattice")}
-    bad = [f"{k}={have[k]!r} (sweep: {want[k]!r})" for k in want if have[k] != want[k]]
-    if bad:
-        raise ValueError(f"--reuse {f}: " + ", ".join(bad))
-    return [{**row, "source": f"{f} row {i}"} for i, row in enumerate(r["rows"])]
+    stored = f"{d['curve']['stop_reason']} (the stored run's stop" + (
+        f" {d['stop_fraction']:g})" if "stop_fraction" in d else ")")
+    return [{"alpha": float(sc["alpha_deg"]), "dx mm": sc["dx_m"] * 1e3, "delta/dx": float(sc["horizon_over_dx"]),
+             "mode": "", "r_s mm": mo["r_s_m"] * 1e3, "particles": sc["particles"], "P_c kN": float(P[k]) / 1e3,
+             "initiation deg": d["initiation_angle_deg"], "equilibria": end,
+             "stop": "load dropped" if len(drop) else stored, "wall s": d["wall_s"], "source": str(f)}]
 
 
 @case("scb-convergence", "SCB: P_c versus spacing, r_s fixed in metres and r_s / dx fixed, and versus horizon / "
@@ -517,10 +511,8 @@ def run_convergence(args):
 
     def one(al, dx, m, mode, r):
         for rr in reused:
-            if (rr["alpha"] == al and abs(rr["dx mm"] - dx * 1e3) < 1e-9 and abs(rr["delta/dx"] - m) < 1e-9
-                    and abs(rr["r_s mm"] - r * 1e3) < 1e-9):
-                rows.append({k: rr[k] for k in ("alpha", "dx mm", "delta/dx")} | {"mode": mode} | rr
-                            | {"mode": mode})
+            if _same_run(rr, al, dx, m, r):
+                rows.append({**rr, "mode": mode})
                 print(rows[-1], flush=True)
                 return
         res = run_scb(al, dx=dx, m=m, r_s=r, stop_fraction=CONV_STOP, criterion=crit, growth=growth,
@@ -538,8 +530,7 @@ def run_convergence(args):
         return "fixed m" if dx == dxs[0] and "fixed m" in modes else mode
 
     def have(al, dx, m, r):
-        return any(r_["alpha"] == al and abs(r_["dx mm"] - dx * 1e3) < 1e-9 and abs(r_["delta/dx"] - m) < 1e-9
-                   and abs(r_["r_s mm"] - r * 1e3) < 1e-9 for r_ in rows)
+        return any(_same_run(r_, al, dx, m, r) for r_ in rows)
 
     for al in alphas:
         for dx in dxs:
