@@ -34,6 +34,13 @@ def test_geometry():
     assert np.all(np.abs(x[sc.load, 0]) <= 1.5 * 3e-3 + 1e-12)
     assert np.all(np.abs(np.abs(x[sc.support, 0]) - 0.43 * 0.05) <= 1.5 * 3e-3 + 1e-12)
     assert sc.fixed[sc.support, 1].all() and not sc.fixed[sc.support, 0].any()   # rollers
+    # the unbreakable zones are one box per patch: none reaches the mode-I crack's tip or
+    # its ligament even at this coarsest allowed spacing (a box over both supports did)
+    s0 = SCBScene(0.0, dx=3e-3)
+    x = s0.system.x0
+    assert not s0.no_fail[np.linalg.norm(x[:, :2] - s0.tip[:2], axis=1) <= 2 * 3e-3].any()
+    assert not s0.no_fail[(np.abs(x[:, 0]) < 0.43 * 0.05 - 5 * 3e-3) & (x[:, 1] < 0.03)].any()
+    assert s0.no_fail[s0.load | s0.support].all()
 
 
 def test_williams_fit_recovers_closed_form_tip_field():

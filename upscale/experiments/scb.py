@@ -213,7 +213,9 @@ class SCBScene:
         self.support = (np.abs(np.abs(x) - S) <= h) & (y <= 3 * dx)
         near = np.zeros(len(x), bool)
         if no_fail > 0:
-            for msk in (self.load, self.support):
+            # one box per patch: a box over both supports would span the ligament and the
+            # crack tip (at dx = 3 mm it made every crack-front particle unbreakable)
+            for msk in (self.load, self.support & (x < 0), self.support & (x > 0)):
                 lo = x0[msk, :2].min(0) - no_fail * dx
                 hi = x0[msk, :2].max(0) + no_fail * dx
                 near |= np.all((x0[:, :2] >= lo) & (x0[:, :2] <= hi), axis=1)

@@ -1,0 +1,173 @@
+"""bench-scb: run time of the SCB fracture scene (seed 004 ch. 6) per angle, to full crack.
+
+For every angle the scene is built (particles, family, crack cut, gain matrices, the tip
+factor's own elastic solve: ``scene``), then driven by :func:`quasi_static_fracture` until
+the load has fallen below ``--stop-fraction`` (default 0.1) of its peak: the crack has cut
+the ligament up to the load patch's no-fail zone ("full crack", ``crack_reach_y_over_R``
+the crack path's highest point over R; P_c is the peak on the way). Past that point the
+load rises again on the no-fail zone's hinge, so ``--u-max`` must reach the fall (about
+4 mm of load-point displacement at alpha = 0). Reported per angle: wall and CPU
+time of each part, the equilibria (Newton solves at a new load or after bonds broke), and
+where the time went inside the solves (tangent assembly, sparse LU factorisation,
+preconditioned CG with its matrix-free products, residuals at the Newton iterates) and in
+the failure checks (failure index, breaking, Upsilon recomputation).
+
+Reference measured in the same run, per angle: one direct sparse solve of the intact
+body's tangent on the free dofs (``scipy.sparse.linalg.spsolve``, SuperLU with its default
+column ordering), the cost a plain Newton iteration would pay. ``equilibrium_over_direct``
+is the mean wall time of one equilibrium in units of that solve: below 1 the solver's
+factor reuse more than pays for the several Newton steps an equilibrium takes.
+
+The whole-table time (``table_wall_s``) is the sum over the angles run. All kernels run on
+one thread (the machine has two cores; a second job on the other core is allowed and the
+load average is reported: wall / CPU close to 1 means the run had its core).
+``--profile`` adds a cProfile of the first angle's fracture (top functions by own time).
+"""
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+
+from validation.registry import case, table
+
+ALPHAS = (0.0, 10.0, 20.0, 30.0, 40.0, 43.0, 47.0, 50.0)
+
+
+def _args(p):
+    p.add_argument("--dx", type=float, default=None, help="spacing in m (default 5e-4; quick 1e-3)")
+    p.add_argument("--alphas", default=None, help="comma list of angles (default the eight; quick 0,30)")
+    p.add_argument("--r-s", type=float, default=1e-3, help="r_s in m (default %(default)s, the calibrated one)")
+    p.add_argument("--stop-fraction", type=float, default=0.1,
+                   help="full crack: the run ends when the load falls below this fraction of its peak")
+    p.add_argument("--u-max", type=float, default=1e-2,
+                   help="largest load-point displacement, m (default %(default)s; the crack reaches the "
+                        "load patch near 4 mm at dx = 1 mm)")
+    p.add_argument("--max-equilibria", type=int, default=3000, help="cap on the solves of one run")
+    p.add_argument("--profile", action="store_true", help="cProfile the first angle's fracture")
+
+
+def direct_solve_time(scene, repeats=2):
+    """(seconds, free dofs, nonzeros): best of ``repeats`` direct solves of the intact
+    tangent restricted to the free dofs, with a unit load on the load patch."""
+    import scipy.sparse.linalg as spla
+
+    st = scene.state()
+    K = scene.model.tangent(st).tocsr()
+    mask = scene.fixed.copy()
+    mask[:, scene.system.dim:] = True
+    free = np.flatnonzero(~mask.ravel())
+    Kff = K[free][:, free].tocsc()
+    b = -(K[free][:, np.flatnonzero(scene.u_dir.ravel())] @ np.ones(int(np.count_nonzero(scene.u_dir))))
+    best = np.inf
+    for _ in range(repeats):
+        t = time.perf_counter()
+        x = spla.spsolve(Kff, b)
+        best = min(best, time.perf_counter() - t)
+    rel = float(np.linalg.norm(Kff @ x - b) / np.linalg.norm(b))
+    if not rel < 1e-8:
+        raise RuntimeError(f"the reference direct solve left a relative residual {rel:.2e} (valid: < 1e-8)")
+    return best, int(free.size), int(Kff.nnz)
+
+
+def _profile_rows(prof, n=12):
+    import pstats
+
+    s = pstats.Stats(prof)
+    tot = sum(v[2] for v in s.stats.values())
+    rows = []
+    for (fn, line, name), (cc, nc, tt, ct, _) in sorted(s.stats.items(), key=lambda kv: -kv[1][2])[:n]:
+        rows.append({"function": f"{os.path.basename(fn)}:{line}({name})", "calls": nc,
+                     "own s": tt, "own %": 100 * tt / tot, "cumulative s": ct})
+    return rows
+
+
+@case("bench-scb", "SCB speed: wall time per angle to full crack at dx = 0.5 mm, the whole table, where the time goes",
+      _args)
+def bench_scb(args):
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(limits=1):
+        return _bench(args)
+
+
+def _bench(args):
+    import cProfile
+
+    from tqdm import tqdm
+
+    from upscale.engine.kernels import set_threads
+    from upscale.experiments.scb import SCBScene
+    from upscale.io import write_json
+
+    set_threads(1)
+    quick = bool(getattr(args, "quick", False))
+    dx = args.dx or (1e-3 if quick else 5e-4)
+    alphas = [float(a) for a in args.alphas.split(",")] if args.alphas else ([0.0, 30.0] if quick else list(ALPHAS))
+    load0 = os.getloadavg()[0]
+    rows, prof_rows = [], None
+    shares = {k: 0.0 for k in ("scene", "assembly", "factorisation", "cg", "residual", "failure", "other")}
+    for i, al in enumerate(tqdm(alphas, desc="bench-scb", unit="angle")):
+        w0, c0 = time.perf_counter(), time.process_time()
+        sc = SCBScene(al, dx=dx, r_s=args.r_s)
+        t_scene = time.perf_counter() - w0
+        t_direct, nfree, nnz = direct_solve_time(sc)
+        prof = cProfile.Profile() if (args.profile and i == 0) else None
+        w1, c1 = time.perf_counter(), time.process_time()
+        if prof is not None:
+            prof.enable()
+        st, curve = sc.fracture(stop_fraction=args.stop_fraction, max_equilibria=args.max_equilibria,
+                                u_max=args.u_max)
+        if prof is not None:
+            prof.disable()
+            prof_rows = _profile_rows(prof)
+        t_frac, c_frac = time.perf_counter() - w1, time.process_time() - c1
+        pts, _ = sc.crack_path(st)
+        reach = float(np.max(pts[:, 1]) / sc.R) if len(pts) else 0.0
+        wall = time.perf_counter() - w0 - t_direct      # the reference solve is not the scene's
+        cpu = time.process_time() - c0
+        sv = curve.time_split_s["solver"]
+        eqs = len(curve.load)
+        split = {"scene": t_scene, "assembly": sv["assembly_s"], "factorisation": sv["factor_s"],
+                 "cg": sv["cg_s"], "residual": sv["residual_s"], "failure": curve.time_split_s["failure"]}
+        split["other"] = wall - sum(split.values())
+        for k, v in split.items():
+            shares[k] += v
+        P_c = curve.peak[0]
+        rows.append({"alpha": al, "particles": sc.system.n, "free dofs": nfree, "K nnz": nnz,
+                     "wall s": wall, "cpu s": cpu, "scene s": t_scene, "fracture s": t_frac,
+                     "fracture cpu s": c_frac, "equilibria": eqs, "stop": curve.stop_reason,
+                     "final/peak": float(curve.load[-1] / P_c), "crack y/R": reach, "P_c kN": P_c / 1e3,
+                     "s/equilibrium": t_frac / eqs, "direct solve s": t_direct,
+                     "eq/direct": t_frac / eqs / t_direct,
+                     "factorisations": sv["factorisations"], "cg iterations": sv["cg_iterations"],
+                     "newton iterations": sv["outer_iterations"],
+                     **{f"{k} %": 100 * v / wall for k, v in split.items()}})
+        write_json(args.outdir / "bench-scb_partial.json", {"rows": rows})   # survives a stopped run
+    print(f"SCB to full crack (load < {args.stop_fraction:g} of the peak), dx = {dx * 1e3:g} mm, "
+          f"delta = 3 dx, r_s = {args.r_s * 1e3:g} mm, one thread; load average at the start {load0:.2f}")
+    print(table(rows, ["alpha", "particles", "free dofs", "wall s", "cpu s", "scene s", "fracture s",
+                       "equilibria", "stop", "final/peak", "crack y/R", "P_c kN", "s/equilibrium", "direct solve s",
+                       "eq/direct"], ".4g"))
+    print("where the time goes (% of each angle's wall time)")
+    print(table(rows, ["alpha", "scene %", "assembly %", "factorisation %", "cg %", "residual %", "failure %",
+                       "other %", "factorisations", "newton iterations", "cg iterations"], ".3g"))
+    if prof_rows:
+        print(f"cProfile of the fracture at alpha = {alphas[0]:g} deg (own time; numba kernels are one entry each)")
+        print(table(prof_rows, floatfmt=".4g"))
+    total = sum(r["wall s"] for r in rows)
+    res = {"dx_m": dx, "r_s_m": args.r_s, "stop_fraction": args.stop_fraction, "alpha_deg": alphas,
+           "particles": [r["particles"] for r in rows],
+           "wall_s_per_angle": [r["wall s"] for r in rows], "cpu_s_per_angle": [r["cpu s"] for r in rows],
+           "table_wall_s": total, "table_cpu_s": sum(r["cpu s"] for r in rows),
+           "equilibria": [r["equilibria"] for r in rows], "stop_reason": [r["stop"] for r in rows],
+           "final_over_peak": [r["final/peak"] for r in rows], "crack_reach_y_over_R": [r["crack y/R"] for r in rows], "P_c_kN": [r["P_c kN"] for r in rows],
+           "s_per_equilibrium": [r["s/equilibrium"] for r in rows],
+           "direct_solve_s": [r["direct solve s"] for r in rows],
+           "equilibrium_over_direct": float(np.mean([r["eq/direct"] for r in rows])),
+           "time_share_pct": {k: 100 * v / total for k, v in shares.items()},
+           "loadavg_start": load0, "loadavg_end": os.getloadavg()[0], "profile": prof_rows,
+           "full_crack": all(r["stop"] == "load dropped" for r in rows)}
+    res["pass"] = res["full_crack"]
+    return res
