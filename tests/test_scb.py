@@ -224,3 +224,14 @@ def test_energy_calibration_secant_reaches_the_target(monkeypatch):
                                                                       "wall_s": 0.0})
     r, hist = calibrate_r_s(2e-3, 2380.0, log=lambda *a: None)
     assert abs(r / 0.07 - 1) < 0.01 and len(hist) <= 4
+
+
+def test_coarse_fracture_scene_warns():
+    import warnings
+
+    with pytest.warns(UserWarning, match="a/dx = 15"):
+        SCBScene(0.0, dx=2e-3, r_s=1e-3)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        SCBScene(0.0, dx=2e-3)              # elastic: no failure, no warning
+        SCBScene(0.0, dx=1e-3, r_s=1e-3)
