@@ -30,9 +30,8 @@ import time
 
 import numpy as np
 
+from validation.cases.scb import ALPHAS
 from validation.registry import case, table
-
-ALPHAS = (0.0, 10.0, 20.0, 30.0, 40.0, 43.0, 47.0, 50.0)
 
 
 def _args(p):
