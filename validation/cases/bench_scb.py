@@ -49,16 +49,16 @@ def _args(p):
 
 def direct_solve_time(scene, repeats=2):
     """(seconds, free dofs, nonzeros): best of ``repeats`` direct solves of the intact
-    tangent restricted to the free dofs, with a unit load on the load patch."""
+    tangent on the free dofs of the run's own :class:`Equilibrium`, the right-hand side
+    that of the driven dofs moved by ``u_dir``."""
     import scipy.sparse.linalg as spla
 
-    st = scene.state()
-    K = scene.model.tangent(st).tocsr()
-    mask = scene.fixed.copy()
-    mask[:, scene.system.dim:] = True
-    free = np.flatnonzero(~mask.ravel())
+    from upscale.engine.quasistatic import Equilibrium
+
+    free = Equilibrium(scene.model, scene.fixed).free
+    K = scene.model.tangent(scene.state()).tocsr()
     Kff = K[free][:, free].tocsc()
-    b = -(K[free][:, np.flatnonzero(scene.u_dir.ravel())] @ np.ones(int(np.count_nonzero(scene.u_dir))))
+    b = -(K[free] @ scene.u_dir.ravel())
     best = np.inf
     for _ in range(repeats):
         t = time.perf_counter()

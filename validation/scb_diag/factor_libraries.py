@@ -17,15 +17,14 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from upscale.engine.quasistatic import Equilibrium
 from upscale.experiments.scb import SCBScene
 
 dx = float(sys.argv[1])
 repeats = int(sys.argv[2]) if len(sys.argv) > 2 else 2
 sc = SCBScene(0.0, dx=dx, r_s=1e-3)
 K = sc.model.tangent(sc.state()).tocsr()
-mask = sc.fixed.copy()
-mask[:, 2:] = True
-free = np.flatnonzero(~mask.ravel())
+free = Equilibrium(sc.model, sc.fixed).free
 Kff = K[free][:, free].tocsr()
 b = np.random.default_rng(0).standard_normal(free.size)
 opts = dict(diag_pivot_thresh=0.0, options=dict(SymmetricMode=True))
