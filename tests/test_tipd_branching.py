@@ -172,3 +172,63 @@ def test_branching_case_takes_the_paper_grid(text, dx):
     from validation.cases.tipd import _positive_spacing
 
     assert _positive_spacing(text) == dx
+
+
+def test_lattice_fracture_energy_by_hand():
+    """m = 1 without partial volumes keeps only the four nearest neighbours: along the lattice
+    axis one bond of length dx crosses the cut per dx, so G = (1/2) c s0^2 dx^4 t, twice the
+    continuum c s0^2 t delta^4 / 4; along the diagonal sqrt(2)/dx bonds per length cross:
+    2 sqrt(2). The isotropic Ti-PD bond energy is PMB's, so the two ratios are equal."""
+    from upscale.experiments.tipd_branching import lattice_fracture_energy
+
+    for model in ("pmb", "tipd"):
+        r = lattice_fracture_energy(model, dx=5e-4, m=1.0, partial_volume=None)
+        assert r["G_lattice_over_G0"] == pytest.approx(2.0, rel=1e-8)
+        r = lattice_fracture_energy(model, dx=5e-4, m=1.0, partial_volume=None, angle_deg=45.0)
+        assert r["G_lattice_over_G0"] == pytest.approx(2 * np.sqrt(2), rel=3e-3)
+
+
+def test_lattice_fracture_energy_tends_to_the_continuum():
+    from upscale.experiments.tipd_branching import lattice_fracture_energy
+
+    err = {}
+    for m in (3.0, 6.0):
+        g = [lattice_fracture_energy("tipd", dx=1.5e-3 / m, m=m, angle_deg=a)["G_lattice_over_G0"]
+             for a in (0.0, 30.0)]
+        err[m] = max(abs(v - 1) for v in g)
+    assert err[6.0] < 0.02 < err[3.0] < 0.08
+    tipd = lattice_fracture_energy("tipd", dx=5e-4, m=3.0, angle_deg=30.0)
+    pmb = lattice_fracture_energy("pmb", dx=5e-4, m=3.0, angle_deg=30.0)
+    assert tipd["G_lattice_over_G0"] == pytest.approx(pmb["G_lattice_over_G0"], rel=1e-10)
+    assert tipd["stiffness_1111_over_continuum"] == pytest.approx(1.0316, abs=1e-3)
+
+
+@pytest.mark.parametrize("kw, match", [({"model": "lps"}, "pair model"), ({"window": 2.5}, "whole number"),
+                                       ({"angle_deg": float("nan")}, "finite"), ({"offsets": 0}, "positive")])
+def test_lattice_fracture_energy_rejects_bad_input(kw, match):
+    from upscale.experiments.tipd_branching import lattice_fracture_energy
+
+    with pytest.raises(ValueError, match=match):
+        lattice_fracture_energy(**kw)
+
+
+@pytest.mark.parametrize("text", ["0.98,x", "0.98,-1", "nan"])
+def test_conditioning_case_rejects_bad_factors(text):
+    from validation.cases.tipd import _factor_list
+
+    with pytest.raises(SystemExit, match="--factors"):
+        _factor_list(text)
+
+
+def test_ensemble_median_counts_no_branch_as_beyond_the_plate():
+    from validation.cases.tipd import _ensemble_median, _ensemble_verdict
+
+    assert _ensemble_median([0.027, None, 0.015, 0.026, 0.028]) == pytest.approx(0.027)
+    assert _ensemble_median([None, None, 0.02, None]) is None
+    assert _ensemble_median([0.01, 0.02, 0.03, None]) == pytest.approx(0.025)
+    run = lambda x, v: {"branching_x_m": x, "v_max_over_cR": v}   # noqa: E731
+    per = {"k": {"coarse": {0.99: run(0.027, 0.70), 1.0: run(0.015, 0.70), 1.01: run(0.026, 0.71)},
+                 "fine": {0.99: run(0.027, 0.72), 1.0: run(0.028, 0.73), 1.01: run(0.0265, 0.72)}}}
+    e = _ensemble_verdict(per, 7.5e-4)["k"]
+    assert e["agree"] and not e["agree_nominal"]
+    assert e["median_apart_over_delta"] == pytest.approx(1.0 / 0.75, rel=1e-9)
