@@ -226,9 +226,10 @@ def test_ensemble_median_counts_no_branch_as_beyond_the_plate():
     assert _ensemble_median([0.027, None, 0.015, 0.026, 0.028]) == pytest.approx(0.027)
     assert _ensemble_median([None, None, 0.02, None]) is None
     assert _ensemble_median([0.01, 0.02, 0.03, None]) == pytest.approx(0.025)
-    run = lambda x, v: {"branching_x_m": x, "v_max_over_cR": v}   # noqa: E731
+    run = lambda x, v: {"branching_x_m": x, "v_max_over_cR": v, "v_mean_over_cR": 0.9 * v}   # noqa: E731
     per = {"k": {"coarse": {0.99: run(0.027, 0.70), 1.0: run(0.015, 0.70), 1.01: run(0.026, 0.71)},
                  "fine": {0.99: run(0.027, 0.72), 1.0: run(0.028, 0.73), 1.01: run(0.0265, 0.72)}}}
     e = _ensemble_verdict(per, 7.5e-4)["k"]
-    assert e["agree"] and not e["agree_nominal"]
+    assert e["agree"] and e["agree_mean_speed"] and not e["agree_nominal"]
+    assert e["paired_agree"] == "2 of 3" and e["paired_agree_position"] == "2 of 3"
     assert e["median_apart_over_delta"] == pytest.approx(1.0 / 0.75, rel=1e-9)

@@ -1295,8 +1295,10 @@ def _ensemble_median(values):
 
 def _ensemble_verdict(per, delta):
     """dx against dx/2 over the traction ensemble: the median branching position (within two
-    horizons, or neither branches in most runs) and the median peak speed (within 10 %),
-    beside the same test on the nominal runs alone (factor 1)."""
+    horizons, or neither branches in most runs) and the median peak speed (within 10 %;
+    ``agree_mean_speed`` with the mean running speed instead), beside the same test on the
+    nominal runs alone (factor 1) and run by run at equal factors (``paired_agree``; on the
+    position alone ``paired_agree_position``)."""
     out = {}
     for key, bg in per.items():
         if "coarse" not in bg or "fine" not in bg:
@@ -1306,12 +1308,22 @@ def _ensemble_verdict(per, delta):
             _ensemble_median([v["branching_x_m"] for v in f.values()])
         vc = float(np.median([v["v_max_over_cR"] for v in c.values()]))
         vf = float(np.median([v["v_max_over_cR"] for v in f.values()]))
+        mc = [v["v_mean_over_cR"] for v in c.values() if v["v_mean_over_cR"] is not None]
+        mf = [v["v_mean_over_cR"] for v in f.values() if v["v_mean_over_cR"] is not None]
+        mc, mf = (float(np.median(mc)) if mc else None), (float(np.median(mf)) if mf else None)
         e = {"median_branching_x_m": [bc, bf],
              "branching_fraction": [sum(v["branching_x_m"] is not None for v in c.values()) / len(c),
                                     sum(v["branching_x_m"] is not None for v in f.values()) / len(f)],
-             "median_v_max_over_cR": [vc, vf],
+             "median_v_max_over_cR": [vc, vf], "median_v_mean_over_cR": [mc, mf],
+             "v_max_over_cR_range": [[min(v["v_max_over_cR"] for v in g.values()),
+                                      max(v["v_max_over_cR"] for v in g.values())] for g in (c, f)],
              "median_apart_over_delta": None if None in (bc, bf) else abs(bc - bf) / delta}
         e["agree"] = _pair_agrees(bc, bf, delta, vc, vf)
+        e["agree_mean_speed"] = _pair_agrees(bc, bf, delta, mc, mf)
+        # the same factor on both grids, run by run
+        both = [k for k in c if k in f]
+        e["paired_agree"] = f"{sum(_pair_agrees(c[k]['branching_x_m'], f[k]['branching_x_m'], delta, c[k]['v_max_over_cR'], f[k]['v_max_over_cR']) for k in both)} of {len(both)}"
+        e["paired_agree_position"] = f"{sum(_pair_agrees(c[k]['branching_x_m'], f[k]['branching_x_m'], delta, 1.0, 1.0) for k in both)} of {len(both)}"
         if 1.0 in c and 1.0 in f:
             e["agree_nominal"] = _pair_agrees(c[1.0]["branching_x_m"], f[1.0]["branching_x_m"], delta,
                                               c[1.0]["v_max_over_cR"], f[1.0]["v_max_over_cR"])
