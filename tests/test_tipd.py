@@ -10,7 +10,8 @@ import pytest
 from upscale.engine import State, build_family, cubic_lattice, square_lattice
 from upscale.models import create
 from upscale.models.bond_based import PMB, pmb_critical_stretch, pmb_micromodulus
-from upscale.models.tipd import (IndefiniteWarning, TiPD, appendix_a_stiffness, induced_tensor,
+from upscale.models.tipd import (IndefiniteWarning, TiPD, appendix_a_stiffness, appendix_b_stiffness,
+                                 induced_tensor,
                                  isotropic_voigt, orthotropic_voigt_2d, paper_induced_voigt_2d,
                                  tipd_critical_stretch, voigt_to_tensor)
 
@@ -132,6 +133,21 @@ def test_stiffness_is_corrected_appendix_a():
     assert abs(K2 + V * A).max() <= 1e-13 * abs(K2).max()
     A_lit = appendix_a_stiffness(s, f, D_ANISO, literal=True)
     assert abs(K2 + V * A_lit).max() > 1e-2 * abs(K2).max()   # the printed typos matter
+
+
+def test_stiffness_is_corrected_appendix_b():
+    """Fully anisotropic 3D material (all 21 constants): the assembled stiffness is -V A with
+    A of Appendix B corrected (the dz^2 restored), not as printed."""
+    s, f = _body(3, 5)
+    B = np.random.default_rng(3).normal(size=(6, 6))
+    m = TiPD(B @ B.T * 1e9 + np.eye(6) * 5e9, surface="none", warn=False)
+    m.prepare(s, f)
+    K = m.tangent().tocsr()
+    V = s.volume[0]
+    assert abs(K + V * appendix_b_stiffness(s, f, m.C)).max() <= 1e-13 * abs(K).max()
+    assert abs(K + V * appendix_b_stiffness(s, f, m.C, literal=True)).max() > 1e-2 * abs(K).max()
+    with pytest.raises(ValueError, match="3D elastic tensor"):
+        appendix_b_stiffness(s, f, np.eye(6))
 
 
 @pytest.mark.parametrize("dim", [2, 3])

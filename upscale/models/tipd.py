@@ -114,7 +114,7 @@ from upscale.models.base import Model, Needs
 
 __all__ = ["TiPD", "IndefiniteWarning", "voigt_to_tensor", "tensor_to_voigt", "isotropic_voigt",
            "orthotropic_voigt_2d", "rotate_tensor", "symmetrised_tensor", "induced_tensor",
-           "paper_induced_voigt_2d", "appendix_a_stiffness", "indefiniteness",
+           "paper_induced_voigt_2d", "appendix_a_stiffness", "appendix_b_stiffness", "indefiniteness",
            "tipd_critical_stretch", "surface_stress_kernel", "default_surface"]
 
 
@@ -548,6 +548,63 @@ def appendix_a_stiffness(system, family, D, *, literal: bool = False):
         vals += [v, -v]
     return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
                          shape=(2 * n, 2 * n))
+
+
+# Appendix B's own Voigt order, read off its entries (e.g. the dz^2 coefficient of
+# A_{3p-2,3q-2} is 4 D55 - D11 - D44, so 5 is 13): (11, 22, 33, 12, 13, 23), which is
+# neither the standard order nor the (11, 22, 33, 12, 23, 13) of the paper's (8)-(9), (98).
+_APPENDIX_B_ORDER = [(0, 0), (1, 1), (2, 2), (0, 1), (0, 2), (1, 2)]
+
+
+def appendix_b_stiffness(system, family, C, *, literal: bool = False):
+    """The 3D stiffness ``A`` of Appendix B (``rho u'' = A u``) entry by entry, from the
+    elastic tensor ``C`` (3, 3, 3, 3) (Pa; e.g. :func:`voigt_to_tensor`), written in
+    Appendix B's Voigt order (11, 22, 33, 12, 13, 23) (``_APPENDIX_B_ORDER``). For p != q
+
+    ``A_{xx} = [3(4D11-D44-D55) dx^2 + 3(4D44-D11-D55) dy^2 + 3(4D55-D11-D44) dz^2
+    + 30 D14 dx dy + 30 D15 dx dz + 30 D45 dy dz] V_q / (pi delta^4 |xi|^3)``
+
+    and likewise the five other blocks (xy, xz, yy, yz, zz); the diagonal blocks are minus
+    the row sums. As printed (``literal=True``) the dz^2 is missing from the third term of
+    every block but A_xx (the term stands alone); corrected (default) it is there, and then
+    ``A`` equals the stiffness of :func:`induced_tensor`'s compact form. (The printed p = q
+    line of A_{3p,3q} sums A_{3p-1,3q}: a typo not reproduced; both forms use the row sum.)
+    Rows are force densities (N/m^3) per displacement (m), dofs (x, y, z) per particle:
+    scipy.sparse (3N, 3N). For comparison with :meth:`TiPD.tangent` (``K = -V A``)."""
+    import scipy.sparse as sp
+
+    C = np.asarray(C, dtype=np.float64)
+    if C.shape != (3, 3, 3, 3):
+        raise ValueError(f"Appendix B needs the 3D elastic tensor C (3, 3, 3, 3), got shape {C.shape}")
+    P = _APPENDIX_B_ORDER
+    D = {(I + 1) * 10 + (J + 1): C[P[I] + P[J]] for I in range(6) for J in range(6)}
+    dx, dy, dz = family.xi[:, 0], family.xi[:, 1], family.xi[:, 2]
+    z2 = np.ones_like(dz) if literal else dz ** 2
+
+    def block(a, b, c, same, xy, xz, yz):
+        """3(4a-b-c) dx^2 + 3(4b-a-c) dy^2 + 3(4c-a-b) dz^2 + cross terms."""
+        return (3 * (4 * a - b - c) * dx ** 2 + 3 * (4 * b - a - c) * dy ** 2 + 3 * (4 * c - a - b) * same
+                + xy * dx * dy + xz * dx * dz + yz * dy * dz)
+
+    a_xx = block(D[11], D[44], D[55], dz ** 2, 30 * D[14], 30 * D[15], 30 * D[45])
+    a_xz = block(D[15], D[46], D[35], z2, 15 * (D[16] + D[45]), 15 * (D[13] + D[55]), 15 * (D[34] + D[56]))
+    a_xy = block(D[14], D[24], D[56], z2, 15 * (D[12] + D[44]), 15 * (D[16] + D[45]), 15 * (D[46] + D[25]))
+    a_yy = block(D[44], D[22], D[66], z2, 30 * D[24], 30 * D[46], 30 * D[26])
+    a_yz = block(D[45], D[26], D[36], z2, 15 * (D[46] + D[25]), 15 * (D[34] + D[56]), 15 * (D[23] + D[66]))
+    a_zz = block(D[55], D[66], D[33], z2, 30 * D[56], 30 * D[35], 30 * D[36])
+    w = system.volume[family.neighbors] * family.volume_factor
+    den = np.pi * family.horizon ** 4 * family.length ** 3
+    i, j = family.owner, family.neighbors
+    n = system.n
+    rows, cols, vals = [], [], []
+    for r, c, a in ((0, 0, a_xx), (0, 1, a_xy), (1, 0, a_xy), (0, 2, a_xz), (2, 0, a_xz),
+                    (1, 1, a_yy), (1, 2, a_yz), (2, 1, a_yz), (2, 2, a_zz)):
+        v = a * w / den
+        rows += [3 * i + r, 3 * i + r]
+        cols += [3 * j + c, 3 * i + c]
+        vals += [v, -v]
+    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
+                         shape=(3 * n, 3 * n))
 
 
 # ---------------------------------------------------------------------------- model
