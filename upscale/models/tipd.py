@@ -522,8 +522,6 @@ def appendix_a_stiffness(system, family, D, *, literal: bool = False):
     ``3(D26 - 3 D16)`` and ``3(3 D66 - D26)``. Rows are force densities (N/m^3) per
     displacement (m), dofs (x, y) per particle: scipy.sparse (2N, 2N). For comparison with
     :meth:`TiPD.tangent` (``K = -V A``)."""
-    import scipy.sparse as sp
-
     D = np.asarray(D, dtype=np.float64)
     D11, D12, D16 = D[0, 0], D[0, 1], D[0, 2]
     D22, D26, D66 = D[1, 1], D[1, 2], D[2, 2]
@@ -538,16 +536,26 @@ def appendix_a_stiffness(system, family, D, *, literal: bool = False):
     else:
         a12 = 3 * (3 * D16 - D26) * dx ** 2 + 12 * (D12 + D66) * dx * dy + 3 * (3 * D26 - D16) * dy ** 2
         a22 = 3 * (3 * D66 - D22) * dx ** 2 + 3 * (3 * D22 - D66) * dy ** 2 + 24 * D26 * dx * dy
+    return _assemble_pair_blocks(system, family, {(0, 0): a11, (0, 1): a12, (1, 1): a22}, w / den, 2)
+
+
+def _assemble_pair_blocks(system, family, blocks, scale, d):
+    """scipy.sparse (dN, dN) of a pair stiffness given per directed bond: block (r, c) of
+    the bond's matrix is ``blocks[(r, c)] * scale`` (the lower blocks mirror the upper),
+    entered at (i, j) and, negated, at (i, i): ``A u`` is then sum_j M (u_j - u_i)."""
+    import scipy.sparse as sp
+
     i, j = family.owner, family.neighbors
     n = system.n
     rows, cols, vals = [], [], []
-    for (r, c, a) in ((0, 0, a11), (0, 1, a12), (1, 0, a12), (1, 1, a22)):
-        v = a * w / den
-        rows += [2 * i + r, 2 * i + r]
-        cols += [2 * j + c, 2 * i + c]
-        vals += [v, -v]
+    for (r, c), a in blocks.items():
+        v = a * scale
+        for rr, cc in {(r, c), (c, r)}:
+            rows += [d * i + rr, d * i + rr]
+            cols += [d * j + cc, d * i + cc]
+            vals += [v, -v]
     return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                         shape=(2 * n, 2 * n))
+                         shape=(d * n, d * n))
 
 
 # Appendix B's own Voigt order, read off its entries (e.g. the dz^2 coefficient of
@@ -571,8 +579,6 @@ def appendix_b_stiffness(system, family, C, *, literal: bool = False):
     line of A_{3p,3q} sums A_{3p-1,3q}: a typo not reproduced; both forms use the row sum.)
     Rows are force densities (N/m^3) per displacement (m), dofs (x, y, z) per particle:
     scipy.sparse (3N, 3N). For comparison with :meth:`TiPD.tangent` (``K = -V A``)."""
-    import scipy.sparse as sp
-
     C = np.asarray(C, dtype=np.float64)
     if C.shape != (3, 3, 3, 3):
         raise ValueError(f"Appendix B needs the 3D elastic tensor C (3, 3, 3, 3), got shape {C.shape}")
@@ -594,17 +600,8 @@ def appendix_b_stiffness(system, family, C, *, literal: bool = False):
     a_zz = block(D[55], D[66], D[33], z2, 30 * D[56], 30 * D[35], 30 * D[36])
     w = system.volume[family.neighbors] * family.volume_factor
     den = np.pi * family.horizon ** 4 * family.length ** 3
-    i, j = family.owner, family.neighbors
-    n = system.n
-    rows, cols, vals = [], [], []
-    for r, c, a in ((0, 0, a_xx), (0, 1, a_xy), (1, 0, a_xy), (0, 2, a_xz), (2, 0, a_xz),
-                    (1, 1, a_yy), (1, 2, a_yz), (2, 1, a_yz), (2, 2, a_zz)):
-        v = a * w / den
-        rows += [3 * i + r, 3 * i + r]
-        cols += [3 * j + c, 3 * i + c]
-        vals += [v, -v]
-    return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                         shape=(3 * n, 3 * n))
+    return _assemble_pair_blocks(system, family, {(0, 0): a_xx, (0, 1): a_xy, (0, 2): a_xz, (1, 1): a_yy,
+                                                  (1, 2): a_yz, (2, 2): a_zz}, w / den, 3)
 
 
 # ---------------------------------------------------------------------------- model
