@@ -104,6 +104,10 @@ def lattice_fracture_energy(model: str = "tipd", *, dx: float = 5e-4, m: float =
         raise ValueError(f"lattice_fracture_energy needs a pair model; got {model!r}, valid: 'tipd', 'pmb'")
     if int(window) != window or window < 1:
         raise ValueError(f"window must be a whole number of spacings >= 1, got {window!r}")
+    if not np.isfinite(angle_deg):
+        raise ValueError(f"angle_deg must be finite, got {angle_deg!r}")
+    if int(offsets) < 1:
+        raise ValueError(f"offsets must be a positive count, got {offsets!r}")
     delta = m * dx * (1 + 1e-9)
     n = 2 * (int(window) + int(np.ceil(3 * m)) + 2)
     s = square_lattice(n, n, dx, thickness=dx, density=GLASS["rho"], plane="stress", centered=True)
@@ -112,10 +116,6 @@ def lattice_fracture_energy(model: str = "tipd", *, dx: float = 5e-4, m: float =
     mdl = (models.create("tipd", E=E, nu=nu, G0=G0, critical=critical) if model == "tipd"
            else models.create("pmb", E=E, nu=nu, Gc=G0))
     mdl.prepare(s, fam)
-    if not np.isfinite(angle_deg):
-        raise ValueError(f"angle_deg must be finite, got {angle_deg!r}")
-    if int(offsets) < 1:
-        raise ValueError(f"offsets must be a positive count, got {offsets!r}")
     th = np.deg2rad(angle_deg)
     tan, nrm = np.array([np.cos(th), np.sin(th)]), np.array([-np.sin(th), np.cos(th)])
     x0 = s.x0[:, :2]

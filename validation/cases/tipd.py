@@ -1308,9 +1308,8 @@ def tipd_branching_conditioning(args):
 def _ensemble_median(values):
     """Median of branching positions with "no branch" as +inf (the crack branches, if at all,
     beyond the plate): None when at least half the runs do not branch."""
-    v = sorted(np.inf if x is None else x for x in values)
-    mid = v[(len(v) - 1) // 2] if len(v) % 2 else 0.5 * (v[len(v) // 2 - 1] + v[len(v) // 2])
-    return None if not np.isfinite(mid) else float(mid)
+    mid = float(np.median([np.inf if x is None else x for x in values]))
+    return mid if np.isfinite(mid) else None
 
 
 def _ensemble_verdict(per, delta):
@@ -1340,15 +1339,15 @@ def _ensemble_verdict(per, delta):
              "median_apart_over_delta": None if None in (bc, bf) else abs(bc - bf) / delta}
         e["agree"] = _pair_agrees(bc, bf, delta, vc, vf)
         e["agree_mean_speed"] = _pair_agrees(bc, bf, delta, mc, mf)
-        # the same factor on both grids, run by run
+        # the same factor on both grids, run by run (with the speeds, and on the position alone)
+        def pair(k, speed=True):
+            vk = (c[k]["v_max_over_cR"], f[k]["v_max_over_cR"]) if speed else (1.0, 1.0)
+            return _pair_agrees(c[k]["branching_x_m"], f[k]["branching_x_m"], delta, *vk)
+
         both = [k for k in c if k in f]
-        e["paired_agree"] = f"{sum(_pair_agrees(c[k]['branching_x_m'], f[k]['branching_x_m'], delta, c[k]['v_max_over_cR'], f[k]['v_max_over_cR']) for k in both)} of {len(both)}"
-        e["paired_agree_position"] = f"{sum(_pair_agrees(c[k]['branching_x_m'], f[k]['branching_x_m'], delta, 1.0, 1.0) for k in both)} of {len(both)}"
-        if 1.0 in c and 1.0 in f:
-            e["agree_nominal"] = _pair_agrees(c[1.0]["branching_x_m"], f[1.0]["branching_x_m"], delta,
-                                              c[1.0]["v_max_over_cR"], f[1.0]["v_max_over_cR"])
-        else:
-            e["agree_nominal"] = None
+        e["paired_agree"] = f"{sum(pair(k) for k in both)} of {len(both)}"
+        e["paired_agree_position"] = f"{sum(pair(k, speed=False) for k in both)} of {len(both)}"
+        e["agree_nominal"] = pair(1.0) if 1.0 in both else None
         out[key] = e
     return out
 
