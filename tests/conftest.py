@@ -36,7 +36,7 @@ def _matches_lammps_small(style):
     forces and displacements to round-off, the same bonds broken, and no bond so close to
     its critical stretch that round-off could decide whether it breaks."""
     from upscale.engine.kernels import set_threads
-    from upscale.experiments.peri_lammps import compare
+    from upscale.experiments.scenes.peri_lammps import compare
 
     set_threads(1)
     r = compare(style, counts=(8, 8, 4), steps=200)

@@ -3,7 +3,7 @@ import argparse
 
 
 def test_bench_scb_accounts_for_the_whole_run(tmp_path):
-    from upscale.experiments.scb import SCBScene
+    from upscale.experiments.scenes.scb import SCBScene
     from validation.cases.bench_scb import bench_scb, direct_solve_time
 
     args = argparse.Namespace(quick=True, dx=3e-3, alphas="0", r_s=3e-3, stop_fraction=0.1, u_max=2e-2,

@@ -1,7 +1,7 @@
 """CPD scenes: bar and cantilever against closed-form solutions (small, fast versions), CLI."""
 import pytest
 
-from upscale.experiments import cpd_bar
+from upscale.experiments.scenes import cpd_bar
 
 
 def test_bar_2d_poisson_and_elongation():

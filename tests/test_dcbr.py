@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from upscale.experiments.tube_tension import quasi_static_tension
+from upscale.experiments.scenes.tube_tension import quasi_static_tension
 from upscale.models.dcbr import DCBRTube, TubeLattice, tersoff_params
 
 

@@ -316,7 +316,7 @@ def test_static_grip_stiffness_does_not_count_the_setup_reaction():
 def test_clamped_grips_stiffness_is_lammps_at_every_coarsening():
     """The tube held by clamped grips, with the ghost forces of a twin opened and clamped
     alike (DCBRDefectTube.clamp_grips, prepare_step), taking hold where LAMMPS's grips do
-    (upscale.experiments.tube_tension.dynamic_scene: its innermost held atoms, and its planes for the
+    (upscale.experiments.scenes.tube_tension.dynamic_scene: its innermost held atoms, and its planes for the
     gauge): the static stiffness between the grips (150 Å (10,10) with the vacancy, 50 Å
     grips, 0.25 %) is LAMMPS's within 1.5 % at coarsening 2 and 4
     (data/reference/grip_stiffness.json, LAMMPS's own run), and so is the gauge (the strain's
@@ -328,7 +328,7 @@ def test_clamped_grips_stiffness_is_lammps_at_every_coarsening():
     from pathlib import Path
 
     from upscale.models.dcbr_dynamic import static_grip_stiffness
-    from upscale.experiments.tube_tension import dynamic_scene, lammps_reference
+    from upscale.experiments.scenes.tube_tension import dynamic_scene, lammps_reference
 
     ref = json.loads((Path(__file__).resolve().parents[1] / "data" / "reference" /
                       "grip_stiffness.json").read_text())["tubes"]["10,10"]
@@ -348,7 +348,7 @@ def testreference_held_planes():
     """The clamp of a coarse grip goes to LAMMPS's innermost held atoms: the nearest atom
     below (above) each plane, of a lattice given by its axial coordinates; a plane past
     the tube's end is a one-line error naming the planes."""
-    from upscale.experiments.tube_tension import reference_held_planes
+    from upscale.experiments.scenes.tube_tension import reference_held_planes
 
     z = np.array([0.0, 0.71, 2.13, 2.84, 4.26, 4.97, 6.39])
     assert reference_held_planes(z, (1.0, 4.5)) == (0.71, 4.97)
@@ -395,7 +395,7 @@ def test_tube_extent_ignores_particles_that_left():
     """The crack fit and the damage map take the tube's axial extent from its living carrying
     particles: a failed particle flown 1,300 Å away (a (50,50) K = 4 run) neither stretches
     the map nor lets the atoms it carried into the crack fit (which then read 3 deg)."""
-    from upscale.experiments.tube_tension import tube_z_range
+    from upscale.experiments.scenes.tube_tension import tube_z_range
 
     m = DCBRDefectTube(6, 6, 30.0, vacancy=4, **KW)
     lt, lz, sh = m.uniform_lattice(1.0)

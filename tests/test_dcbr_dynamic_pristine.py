@@ -24,7 +24,7 @@ def test_pristine_scene_grips_and_linear_rise():
       few % on a gauge this short (40 Å); measured here -2.6 % (0.940 vs 0.966 TPa). A
       gauge one row spacing (2.1 Å) off, a wrong area or held rows that do not move miss
       by more."""
-    from upscale.experiments.tube_tension import quasi_static_tension
+    from upscale.experiments.scenes.tube_tension import quasi_static_tension
     from upscale.models.dcbr import DCBRTube
 
     m = pristine_grip_tube(6, 6, 70.0, 2.0, grip=GRIP, **KW)
@@ -75,7 +75,7 @@ def test_pristine_dynamic_vs_lammps_12_6():
     """One full comparison with the stored reference (data/reference/dyn_12-6_pristine.json),
     at coarsening 2, against the issue's targets; LAMMPS's tube fails at a grip plane, so
     the coarse one must too (its first damage within 5 Å of a plane)."""
-    from upscale.experiments.tube_tension import run_tension_comparison
+    from upscale.experiments.scenes.tube_tension import run_tension_comparison
 
     o = run_tension_comparison(12, 6, 150.0, 2.0, dynamic=True, verbose=False, plot=False)
     assert o["strength_err_pct"] < 5 and o["modulus_err_pct"] < 3

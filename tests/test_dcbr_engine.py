@@ -78,8 +78,8 @@ def test_engine_driver_reproduces_the_tubes_own_driver(tmp_path):
     checkpoint and a frame (with damage) per load step."""
     from upscale.engine.checkpoint import Checkpoint, load_checkpoint
     from upscale.engine.output import Output
-    from upscale.experiments.tube_tension import quasi_static_tension_engine
-    from upscale.experiments.tube_tension import quasi_static_tension
+    from upscale.experiments.scenes.tube_tension import quasi_static_tension_engine
+    from upscale.experiments.scenes.tube_tension import quasi_static_tension
 
     a = quasi_static_tension(DCBRTube(6, 6, 20.0, coarsening=2), max_strain=0.02)
     b = quasi_static_tension_engine(DCBRTube(6, 6, 20.0, coarsening=2), max_strain=0.02,
@@ -99,7 +99,7 @@ def test_engine_driver_resumes_bit_for_bit(tmp_path):
     a kill) and resumed from the checkpoint: the curve and the final state are the
     uninterrupted run's, bit for bit."""
     from upscale.engine.checkpoint import Checkpoint
-    from upscale.experiments.tube_tension import quasi_static_tension_engine
+    from upscale.experiments.scenes.tube_tension import quasi_static_tension_engine
 
     a = quasi_static_tension_engine(DCBRTube(6, 6, 20.0, coarsening=2), max_strain=0.03)
 
@@ -124,7 +124,7 @@ def test_experiments_tension_api(tmp_path):
     engine and the tube's own driver agree; an unknown model is a one-line error."""
     import json
 
-    from upscale.experiments.tube_tension import tension
+    from upscale.experiments.scenes.tube_tension import tension
 
     a = tension(6, 6, 20.0, coarsening=2, max_strain=0.02)
     b = tension(6, 6, 20.0, coarsening=2, max_strain=0.02, engine=True)

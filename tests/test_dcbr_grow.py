@@ -102,7 +102,7 @@ def test_killed_after_the_switch_resumes_bit_for_bit(tmp_path):
 
 
 def test_scene_grow_needs_clamped_grips():
-    from upscale.experiments.tube_tension import dynamic_scene
+    from upscale.experiments.scenes.tube_tension import dynamic_scene
 
     with pytest.raises(ValueError, match="grow='band' with grips='bands'"):
         dynamic_scene(6, 6, 60.0, 2.0, {}, grips="bands", grow="band")

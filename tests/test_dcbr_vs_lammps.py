@@ -7,7 +7,7 @@ tubes over) fails here. The references are LAMMPS runs nobody here tuned against
 """
 import pytest
 
-from upscale.experiments.tube_tension import run_tension_comparison
+from upscale.experiments.scenes.tube_tension import run_tension_comparison
 
 
 def _check(out):

@@ -10,7 +10,7 @@ from upscale.engine.mass import ConsistentMass, edge_coupling
 def test_rayleigh_dispersion_matches_closed_form():
     """omega^2 = D(k)/M(k) of the EB beam with the rotary mass tends to the Rayleigh beam
     EI k^4/(rho (A + I k^2)); at k h = 1 the rotary inertia is 8.3 % of omega^2."""
-    from upscale.experiments.tridyn import rayleigh_dispersion
+    from upscale.experiments.scenes.tridyn import rayleigh_dispersion
 
     r = rayleigh_dispersion(ratio=1)
     assert r["rel_err_max"] < 1e-4
@@ -21,7 +21,7 @@ def test_mass_matrix_verlet_mode_frequency_and_energy():
     """A sine mode of the supported chain oscillates at sqrt(D(k)/M(k)) (to the time
     step's error) with the mass matrix, 1.6 % below the lumped-mass frequency; NVE drift
     stays small."""
-    from upscale.experiments.tridyn import beam_nve, rayleigh_mode
+    from upscale.experiments.scenes.tridyn import beam_nve, rayleigh_mode
 
     r = rayleigh_mode(rotary=True, periods=2.0)
     lumped = rayleigh_mode(rotary=False, periods=2.0)

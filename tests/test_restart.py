@@ -38,7 +38,7 @@ def test_cpd_newton_killed_and_resumed_is_bit_identical(tmp_path):
 
 def test_cpd_checkpoint_of_another_solve_is_refused(tmp_path):
     """A checkpoint of a solve with other load steps: a one-line error naming both."""
-    from upscale.experiments.cpd_bar import bar_tension
+    from upscale.experiments.scenes.cpd_bar import bar_tension
 
     ck = tmp_path / "newton.npz"
     bar_tension(dim=2, dx=4e-3, strain=0.01, steps=2, checkpoint=ck)

@@ -3,7 +3,7 @@ seed 004 sec. 6.6."""
 import numpy as np
 import pytest
 
-from upscale.experiments.scb import SCBScene
+from upscale.experiments.scenes.scb import SCBScene
 
 
 @pytest.mark.parametrize("kw,match", [
@@ -47,7 +47,7 @@ def test_williams_fit_recovers_closed_form_tip_field():
     """K_I, K_II, T of the textbook near-tip field (plane stress, right-handed frame (ex, -ey))
     plus a rigid motion, recovered by the Williams least-squares fit; K_II comes back with the
     sign of the mirrored frame of crack_frame."""
-    from upscale.experiments.scb import crack_frame, williams_fit
+    from upscale.experiments.scenes.scb import crack_frame, williams_fit
 
     E, nu = 3.75e9, 0.35
     mu, kap = E / (2 * (1 + nu)), (3 - nu) / (1 + nu)
@@ -174,7 +174,7 @@ def test_convergence_reuses_a_finished_run(tmp_path):
     computes itself; a run of another growth rule is refused with a one-line error."""
     import argparse
 
-    from upscale.experiments.scb import run_scb
+    from upscale.experiments.scenes.scb import run_scb
     from validation.cases.scb import run_convergence
 
     run_scb(0.0, dx=3e-3, r_s=6e-3, stop_fraction=0.5, outdir=tmp_path / "a", growth="free")
@@ -200,7 +200,7 @@ def test_convergence_reuses_a_finished_run(tmp_path):
 def test_calibration_scan_prefers_the_candidate_in_a_tie(monkeypatch):
     """At dx = 1 mm, r_s = 1 and 1.2 mm hold the same particles in the disc and give P_c
     equal to round-off: the scan keeps the scanned candidate, not the interpolant."""
-    import upscale.experiments.scb as scb
+    import upscale.experiments.scenes.scb as scb
     from validation.cases.scb import calibrate_r_s_scan
 
     def fake(alpha, *, r_s, **kw):
@@ -217,7 +217,7 @@ def test_calibration_scan_prefers_the_candidate_in_a_tie(monkeypatch):
 def test_energy_calibration_secant_reaches_the_target(monkeypatch):
     """The particle-energy criterion's secant on log P_c(log r_s): with P_c ~ r_s^-1/2 it lands
     on the target r_s."""
-    import upscale.experiments.scb as scb
+    import upscale.experiments.scenes.scb as scb
     from validation.cases.scb import calibrate_r_s
 
     monkeypatch.setattr(scb, "run_scb", lambda alpha, *, r_s, **kw: {"P_c_N": 2380.0 * (0.07 / r_s) ** 0.5,

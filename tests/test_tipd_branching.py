@@ -1,10 +1,10 @@
-"""The branching scene's crack measurement (``upscale.experiments.tipd_branching.measure``) on
+"""The branching scene's crack measurement (``upscale.experiments.scenes.tipd_branching.measure``) on
 synthetic damage histories whose speed, branch point and angle are known, and the
 sampling that lets it be repeated without rerunning the dynamics."""
 import numpy as np
 import pytest
 
-from upscale.experiments.tipd_branching import LX, LY, branch_angle, measure, rayleigh_speed, simulate
+from upscale.experiments.scenes.tipd_branching import LX, LY, branch_angle, measure, rayleigh_speed, simulate
 
 
 def _lattice(dx):
@@ -179,7 +179,7 @@ def test_lattice_fracture_energy_by_hand():
     axis one bond of length dx crosses the cut per dx, so G = (1/2) c s0^2 dx^4 t, twice the
     continuum c s0^2 t delta^4 / 4; along the diagonal sqrt(2)/dx bonds per length cross:
     2 sqrt(2). The isotropic Ti-PD bond energy is PMB's, so the two ratios are equal."""
-    from upscale.experiments.tipd_branching import lattice_fracture_energy
+    from upscale.experiments.scenes.tipd_branching import lattice_fracture_energy
 
     for model in ("pmb", "tipd"):
         r = lattice_fracture_energy(model, dx=5e-4, m=1.0, partial_volume=None)
@@ -189,7 +189,7 @@ def test_lattice_fracture_energy_by_hand():
 
 
 def test_lattice_fracture_energy_tends_to_the_continuum():
-    from upscale.experiments.tipd_branching import lattice_fracture_energy
+    from upscale.experiments.scenes.tipd_branching import lattice_fracture_energy
 
     err = {}
     for m in (3.0, 6.0):
@@ -206,7 +206,7 @@ def test_lattice_fracture_energy_tends_to_the_continuum():
 @pytest.mark.parametrize("kw, match", [({"model": "lps"}, "pair model"), ({"window": 2.5}, "whole number"),
                                        ({"angle_deg": float("nan")}, "finite"), ({"offsets": 0}, "positive")])
 def test_lattice_fracture_energy_rejects_bad_input(kw, match):
-    from upscale.experiments.tipd_branching import lattice_fracture_energy
+    from upscale.experiments.scenes.tipd_branching import lattice_fracture_energy
 
     with pytest.raises(ValueError, match=match):
         lattice_fracture_energy(**kw)

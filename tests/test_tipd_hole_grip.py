@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from upscale.experiments.tipd_hole import L_PLATE, hole, hole_body
+from upscale.experiments.scenes.tipd_hole import L_PLATE, hole, hole_body
 
 
 @pytest.mark.parametrize("grip, rows", [(1.0, 3), (2.0, 6)])

@@ -6,7 +6,7 @@ import pytest
 
 from upscale.engine import State, build_family, square_lattice
 from upscale.engine.static import solve_linear
-from upscale.experiments.tipd import eigen_counts, mms
+from upscale.experiments.scenes.tipd import eigen_counts, mms
 from upscale.models.tipd import TiPD
 
 

@@ -148,7 +148,7 @@ def test_surface_correction_linear_field_zero_interior_force():
 
 @pytest.mark.parametrize("nu,C", [(0.1, None), (None, orthotropic_voigt_2d(144.8e9, 11.7e9, 9.66e9, 0.21))])
 def test_surface_correction_free_strip_poisson_ratio(nu, C):
-    from upscale.experiments.tipd import strip
+    from upscale.experiments.scenes.tipd import strip
 
     target = nu if C is None else 0.21
     r0 = strip("tipd", nu=nu, C=C, calibration="continuum", surface="none")

@@ -116,7 +116,7 @@ def test_text_dispersion_equals_printed_coefficients():
 
 
 def test_consistent_timoshenko_dispersion_long_wave():
-    from upscale.experiments.tridyn import beam_dispersion
+    from upscale.experiments.scenes.tridyn import beam_dispersion
 
     r = beam_dispersion(theory="timoshenko", variant="consistent", ratio=1,
                         kh=np.array([0.01, 0.1, 1.0]))
@@ -126,7 +126,7 @@ def test_consistent_timoshenko_dispersion_long_wave():
 
 
 def test_pd_bar_lattice_sum():
-    from upscale.experiments.tridyn import pd_bar_dispersion
+    from upscale.experiments.scenes.tridyn import pd_bar_dispersion
 
     r = pd_bar_dispersion(ratio=4)
     assert np.abs(r["omega2"] / r["lattice"] - 1).max() < 1e-12
@@ -136,7 +136,7 @@ def test_pd_bar_lattice_sum():
 
 @pytest.mark.parametrize("support,tol", [("ss", 0.02), ("cc", 0.1), ("cantilever", 0.02)])
 def test_static_eb_beam(support, tol):
-    from upscale.experiments.tridyn import beam_static
+    from upscale.experiments.scenes.tridyn import beam_static
 
     r = beam_static(theory="eb", support=support, n=100, ratio=1)
     assert abs(r["wmax_err_pct"]) < tol
@@ -146,7 +146,7 @@ def test_static_eb_beam(support, tol):
 def test_text_eb_calibration_stiffening():
     """Literal 2.19 with xi = dx: long-wave stiffness (m + 1)/2 x EI (derived in the
     module docstring), measured on the static simply supported beam."""
-    from upscale.experiments.tridyn import beam_static
+    from upscale.experiments.scenes.tridyn import beam_static
 
     for m in (2, 3):
         r = beam_static(theory="eb", support="ss", n=100, ratio=m, variant="text")
@@ -154,14 +154,14 @@ def test_text_eb_calibration_stiffening():
 
 
 def test_timoshenko_thick_beam_shear_correction():
-    from upscale.experiments.tridyn import beam_static
+    from upscale.experiments.scenes.tridyn import beam_static
 
     r = beam_static(theory="timoshenko", support="ss", n=100, ratio=1, height=0.1)
     assert abs(r["wmax_err_pct"]) < 1.0
 
 
 def test_nve_and_stable_step():
-    from upscale.experiments.tridyn import beam_nve
+    from upscale.experiments.scenes.tridyn import beam_nve
 
     r = beam_nve(theory="timoshenko", n=100, steps=400)
     assert r["estimate_over_critical"] <= 1.0
@@ -239,7 +239,7 @@ def test_plate_force_is_minus_energy_gradient():
 
 
 def test_plate_energy_positive_and_rigid_modes_only():
-    from upscale.experiments.tridyn import plate_energy_random
+    from upscale.experiments.scenes.tridyn import plate_energy_random
 
     r = plate_energy_random(n=6, ratio=2.0, samples=20)
     assert r["min_energy_J"] > 0
@@ -248,14 +248,14 @@ def test_plate_energy_positive_and_rigid_modes_only():
 
 
 def test_plate_dispersion_long_wave_mindlin():
-    from upscale.experiments.tridyn import plate_dispersion
+    from upscale.experiments.scenes.tridyn import plate_dispersion
 
     r = plate_dispersion(ratio=1, kdx=np.array([0.01, 0.05]), angles_deg=(0.0, 45.0))
     assert r["rel_err_max"] < 1e-3
 
 
 def test_plate_navier_mindlin():
-    from upscale.experiments.tridyn import plate_bending
+    from upscale.experiments.scenes.tridyn import plate_bending
 
     r = plate_bending(n=20)
     assert abs(r["err_pct"]) < 1.0
@@ -301,7 +301,7 @@ def test_plate_fast_kernel_equals_measure_tables():
 
 
 def test_critical_step_separates_stable_from_unstable():
-    from upscale.experiments.tridyn import step_scan
+    from upscale.experiments.scenes.tridyn import step_scan
 
     for r in step_scan(theory="timoshenko", steps=200):
         assert r["blew_up"] == (r["dt_over_critical"] > 1.0)
@@ -455,7 +455,7 @@ def test_kinetic_energy_and_output_include_rotations(tmp_path):
 def test_text_eb_cantilever_free_end_ghosts():
     """Text EB cantilever: the second-order free-end ghosts converge at order 2 to
     qL^4/8EI; the linear extrapolation (option) stays first order; a bad name is refused."""
-    from upscale.experiments.tridyn import beam_static
+    from upscale.experiments.scenes.tridyn import beam_static
 
     e = [beam_static(theory="eb", support="cantilever", n=n, variant="text")["wmax_err_pct"]
          for n in (50, 100)]
@@ -472,7 +472,7 @@ def test_text_plate_long_wave_departs_from_printed_limit():
     line enter each measure, V_T^2 counts all), its u-v coupling vanishes, its thickness
     shear is k_s/4 of Mindlin's (the 5/6 of the beam's missing edge factor); the operator
     is not symmetric; the cross reading has negative omega^2 at long waves."""
-    from upscale.experiments.tridyn import plate_long_wave
+    from upscale.experiments.scenes.tridyn import plate_long_wave
 
     r = plate_long_wave(variant="text", text_triplets="lines")
     t = r["terms"]
@@ -492,7 +492,7 @@ def test_timoshenko_bond_shear_integration_no_locking():
     """The bond-integrated shear measure: force = -grad energy, rigid motions free, and a
     thin simply supported beam (h/L = 0.001) at delta/dx = 3 within 0.1 % of EB + shear,
     where the end-rotation measure locks (-8 %)."""
-    from upscale.experiments.tridyn import beam_static
+    from upscale.experiments.scenes.tridyn import beam_static
 
     rng = np.random.default_rng(5)
     sim = _sim(_timo(shear_integration="bond"), n=25, ratio=3)

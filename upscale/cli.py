@@ -1,8 +1,10 @@
 """Command line: ``upscale SCENE [options]``.
 
-Scenes live in :mod:`upscale.experiments`; each module there that defines
-``register(subparsers)`` adds its sub-command. ``upscale demo`` runs the project's main job
-on its embedded default scene (see :data:`DEMO`).
+Every scene of :data:`upscale.experiments.registry.SCENES` is a sub-command whose options
+come from the scene function's signature (:func:`upscale.experiments.registry.add_scene_parser`);
+a module of :mod:`upscale.experiments.scenes` that still defines ``register(subparsers)``
+adds its own sub-command for a scene not yet in the registry. ``upscale demo`` runs the
+project's main job on its embedded default scene (see :data:`DEMO`).
 """
 from __future__ import annotations
 
@@ -17,7 +19,7 @@ DEMO: list[str] = ["tension", "--chirality", "10,10", "--length", "100", "--coar
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from upscale import experiments
+    from upscale.experiments import registry, scenes
 
     parser = argparse.ArgumentParser(
         prog="upscale",
@@ -26,16 +28,52 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="scene", metavar="SCENE")
     demo = sub.add_parser("demo", help=f"the main job on the default scene ({' '.join(DEMO)})")
     demo.set_defaults(func=None)
-    for mod in pkgutil.iter_modules(experiments.__path__):
+    done = set()
+    for name in registry.names():
+        if _scene_ready(registry, name):
+            registry.add_scene_parser(sub, name)
+            done.add(name)
+    for mod in pkgutil.iter_modules(scenes.__path__):
         if mod.name.startswith("_"):
             continue
-        m = importlib.import_module(f"upscale.experiments.{mod.name}")
+        m = importlib.import_module(f"upscale.experiments.scenes.{mod.name}")
         if hasattr(m, "register"):
-            m.register(sub)
+            m.register(_Skip(sub, done))
+    from upscale.experiments import sweep
+
+    sweep.register(sub)
     return parser
 
 
+def _scene_ready(registry, name: str) -> bool:
+    try:
+        registry.get(name)
+    except (AttributeError, ImportError):  # a registered scene not written yet
+        return False
+    return True
+
+
+class _Skip:
+    """Sub-parser collection that ignores the old sub-commands the registry already made."""
+
+    def __init__(self, sub, done):
+        self._sub, self._done = sub, done
+
+    def add_parser(self, name, **kw):
+        if name in self._done:
+            return argparse.ArgumentParser(add_help=False)  # discarded
+        return self._sub.add_parser(name, **kw)
+
+
 def main(argv=None) -> int:
+    from upscale.experiments.registry import REMOVED_FLAGS
+
+    argv = list(sys.argv[1:] if argv is None else argv)
+    for word in argv:
+        flag = word.split("=")[0]
+        if flag in REMOVED_FLAGS:
+            print(f"upscale: error: {flag} was removed: {REMOVED_FLAGS[flag]}", file=sys.stderr)
+            return 2
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.scene is None:
@@ -44,6 +82,11 @@ def main(argv=None) -> int:
     if args.scene == "demo":
         args = parser.parse_args(DEMO)
     try:
+        if hasattr(args, "_scene"):
+            from upscale.experiments.registry import run_from_args
+
+            run_from_args(args)
+            return 0
         return int(args.func(args) or 0)
     except (ValueError, FileNotFoundError) as exc:  # bad input: one clear line, no traceback
         print(f"upscale {args.scene}: error: {exc}", file=sys.stderr)

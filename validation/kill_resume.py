@@ -70,7 +70,7 @@ def _plate(args) -> int:
 def _cpd(args) -> int:
     import upscale.engine.newton as newton
     from upscale.engine.kernels import set_threads
-    from upscale.experiments.cpd_bar import bar_tension
+    from upscale.experiments.scenes.cpd_bar import bar_tension
     from upscale.io import atomic_write_bytes
 
     set_threads(args.threads)
@@ -177,7 +177,7 @@ def _dcbr_vacancy(args) -> int:
                                           r_atomistic=5.0)}
         dyn |= dict(grip=10.0, speed=10.0, max_strain=0.3, sample=20, seed=7)
     else:
-        from upscale.experiments.tube_tension import dynamic_scene
+        from upscale.experiments.scenes.tube_tension import dynamic_scene
         from validation.cases.dcbr import lammps_reference_or_run
 
         ref = lammps_reference_or_run(10, 10, 150.0, protocol="dynamic", vacancy=True,

@@ -203,7 +203,7 @@ Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bon
 
 ``upscale.engine.lammps_peri``
     LAMMPS PERI (peri/pmb, peri/lps) as a reference: every convention and how the engine
-    matches it (``LammpsPeri``); ``upscale.experiments.peri_lammps.compare(style, ...)``
+    matches it (``LammpsPeri``); ``upscale.experiments.scenes.peri_lammps.compare(style, ...)``
     runs both.
 
 Layering: ``upscale.engine`` imports neither ``upscale.models`` nor

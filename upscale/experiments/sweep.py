@@ -88,8 +88,8 @@ __all__ = ["SCENES", "Spec", "load_spec", "resolve_scene", "code_version", "run_
 #: scene names usable in a spec, each the ``"module:function"`` it stands for; any other
 #: importable ``"module:function"`` works too (the registry only shortens names)
 SCENES: dict[str, str] = {
-    "cpd-bar": "upscale.experiments.cpd_bar:bar_tension",
-    "cpd-cantilever": "upscale.experiments.cpd_bar:cantilever",
+    "cpd-bar": "upscale.experiments.scenes.cpd_bar:bar_tension",
+    "cpd-cantilever": "upscale.experiments.scenes.cpd_bar:cantilever",
 }
 
 SPEC_KEYS = ("scene", "output", "params", "grid", "seeds", "repeats", "seed_start",

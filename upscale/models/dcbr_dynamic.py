@@ -30,7 +30,7 @@ on a :class:`~upscale.models.dcbr_defect.DCBRDefectTube`:
    extensometer (:class:`upscale.analysis.stress.Extensometer`, the same in the LAMMPS
    runner) also reads the strain between two marks inside the gauge.
 
-Grips (:func:`upscale.experiments.tube_tension.dynamic_scene`). The pristine tubes get an
+Grips (:func:`upscale.experiments.scenes.tube_tension.dynamic_scene`). The pristine tubes get an
 atomistic band across each grip plane (:func:`grip_band_tube`, "Atomistic bands" below): the
 grip then holds atoms as LAMMPS's does, where those tubes break. The vacancy tubes keep
 clamped coarse grips (``clamp=True``, the default of this function for a model without
@@ -45,7 +45,7 @@ separation smaller and the modulus by grip separation higher at the same static 
 stiffness. The validation scenes therefore take LAMMPS's planes as the gauge (the strain's
 length, the extensometer's window and the velocity ramp), and put each clamp where LAMMPS's
 grip takes hold, at its innermost held atoms
-(:func:`upscale.experiments.tube_tension.reference_held_planes`): a lattice stretched
+(:func:`upscale.experiments.scenes.tube_tension.reference_held_planes`): a lattice stretched
 uniformly between held layers strains the bonds across them as the rest, and a clamped
 coarse grip counts its held rows as sitting at its plane.
 

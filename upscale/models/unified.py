@@ -103,7 +103,7 @@ average at the particles next to the tip: the tip-centred disc (p -> 0), 0.40636
 K / sqrt(r_s) in the continuum, from the lattice by :func:`lattice_tip_factor` with
 ``growth="front"``. Nucleation away from a crack is then impossible; the load and
 support patches stay protected by ``no_fail`` either way. The SCB scenes default to
-``"front"`` (``upscale.experiments.scb.default_growth``): with it P_c converges under
+``"front"`` (``upscale.experiments.scenes.scb.default_growth``): with it P_c converges under
 refinement at a fixed r_s, with ``"free"`` it drifts upward (``validation/results/scb.md``).
 
 ``criterion="normal"``: per bond, the averaged stress resolved on the bond, s_b = n_b .

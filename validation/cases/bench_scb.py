@@ -97,7 +97,7 @@ def _bench(args):
     from tqdm import tqdm
 
     from upscale.engine.kernels import set_threads
-    from upscale.experiments.scb import SCBScene
+    from upscale.experiments.scenes.scb import SCBScene
     from upscale.io import write_json
 
     set_threads(1)

@@ -7,7 +7,7 @@ Cases
                     LAMMPS (``pair_style hybrid tersoff lj/cut``, the references' pair,
                     cutoff and parameters), and the mixed bundle (coarse outer tubes, atoms
                     reconstructed from their particles) against the all-atomistic one.
-``bundle-tension``  the bundle scene (:mod:`upscale.experiments.bundle`) against the
+``bundle-tension``  the bundle scene (:mod:`upscale.experiments.scenes.bundle`) against the
                     full-atomistic LAMMPS bundle in dynamic tension (stored reference, or
                     computed on the fly with the same protocol).
 """
@@ -64,7 +64,7 @@ def _args_vdw(p):
 def run_bundle_vdw(args):
     from potentials.lammps_runtime import lammps_potential_path  # noqa: PLC0415
     from potentials.tersoff import write_step_cutoff_file  # noqa: PLC0415
-    from upscale.experiments.bundle import BundleScene, TubeSpec  # noqa: PLC0415
+    from upscale.experiments.scenes.bundle import BundleScene, TubeSpec  # noqa: PLC0415
     from validation.cases.tersoff import lammps_evaluate  # noqa: PLC0415
     from validation.lammps.potential import LJ_CUTOFF, LJ_EPSILON_EV, LJ_SIGMA  # noqa: PLC0415
 
@@ -175,7 +175,7 @@ def _args_tension(p):
     p.add_argument("--seed-start", type=int, default=4928459,
                    help="first thermal seed; the runs use seed-start, seed-start + 1, ... "
                    "(default 4928459, the references' default seed number)")
-    from upscale.experiments.bundle import add_run_options  # noqa: PLC0415
+    from upscale.experiments.scenes.bundle import add_run_options  # noqa: PLC0415
 
     add_run_options(p)
 
@@ -186,7 +186,7 @@ def lammps_bundle_references(n, m, length, spacing, gap, compute=True):
     same protocol when none is stored (kept under validation/out/)."""
     import json  # noqa: PLC0415
 
-    from upscale.experiments.bundle import reference_name  # noqa: PLC0415
+    from upscale.experiments.scenes.bundle import reference_name  # noqa: PLC0415
 
     base = reference_name((n, m), spacing, True, 7)
     if gap is not None and abs(gap - 3.4) > 1e-9:
@@ -229,7 +229,7 @@ def _pct(a, b):
 def run_bundle_tension(args):
     import os  # noqa: PLC0415
 
-    from upscale.experiments.bundle import (BundleScene, dynamic_tension,  # noqa: PLC0415
+    from upscale.experiments.scenes.bundle import (BundleScene, dynamic_tension,  # noqa: PLC0415
                                             parse_specs, plot_curves, plot_damage_maps,
                                             tube_failures)
 

@@ -162,7 +162,7 @@ def _cal_args(p):
 @case("cpd-calibration", "CPD C1, C2, C3 from E, nu: interior energy density vs linear "
       "elasticity and Poisson contraction of a bar, 2D and 3D", add_arguments=_cal_args)
 def run_calibration(args):
-    from upscale.experiments import cpd_bar
+    from upscale.experiments.scenes import cpd_bar
     from upscale.models import cpd
 
     # ---- reachable ranges (derived in upscale/models/cpd.py)
@@ -304,7 +304,7 @@ def _newton_args(p):
       add_arguments=_newton_args)
 def run_newton(args):
     from upscale.engine.newton import convergence_order
-    from upscale.experiments import cpd_bar
+    from upscale.experiments.scenes import cpd_bar
 
     runs = []
     if args.quick:

@@ -1,6 +1,6 @@
 """Gain matrix and DCBR tube cases: gain-affine, dcbr-energy, dcbr-tension, dcbr-table.
 
-The scenes are :mod:`upscale.experiments.tube_tension`'s; these cases compare them. References:
+The scenes are :mod:`upscale.experiments.scenes.tube_tension`'s; these cases compare them. References:
 closed-form affine fields (gain-affine) and LAMMPS through the runners of
 :mod:`validation.lammps.tension` (same potential file, same tube, same protocol). A LAMMPS
 result is taken from ``data/reference/*.json`` when a record matches (chirality, atoms,
@@ -17,9 +17,9 @@ from pathlib import Path
 import numpy as np
 
 from upscale.constants import ACC_EV_A_AMU_IN_A_FS2, ASE_TIME_FS, CARBON_MASS_AMU, K_B_EV
-from upscale.experiments.tube_tension import (GRIPS, dynamic_scene, lammps_reference,
+from upscale.experiments.scenes.tube_tension import (GRIPS, dynamic_scene, lammps_reference,
                                               parse_chirality)
-from upscale.experiments.tube_tension import run_tension_comparison as _run_tension
+from upscale.experiments.scenes.tube_tension import run_tension_comparison as _run_tension
 from validation.registry import case, table
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -50,7 +50,7 @@ def _runner_tag() -> str:
 
 
 def lammps_reference_or_run(n, m, length, **kw) -> dict:
-    """:func:`upscale.experiments.tube_tension.lammps_reference`, computing a missing record
+    """:func:`upscale.experiments.scenes.tube_tension.lammps_reference`, computing a missing record
     with the LAMMPS runner and caching it in ``validation/out/lammps-cache/`` (ignored by
     git), keyed by the runner's source checksum."""
     return lammps_reference(n, m, length, cache_dir=CACHE, cache_tag=_runner_tag(),
@@ -58,7 +58,7 @@ def lammps_reference_or_run(n, m, length, **kw) -> dict:
 
 
 def run_tension_comparison(*args, **kw) -> dict:
-    """:func:`upscale.experiments.tube_tension.run_tension_comparison` with references
+    """:func:`upscale.experiments.scenes.tube_tension.run_tension_comparison` with references
     stored, cached or computed now (see :func:`lammps_reference_or_run`)."""
     return _run_tension(*args, cache_dir=CACHE, runner=_run_lammps, **kw)
 
@@ -150,7 +150,7 @@ def _energy_args(p):
 
 
 def _dcbr_energy(args):
-    from upscale.experiments.tube_tension import quasi_static_tension
+    from upscale.experiments.scenes.tube_tension import quasi_static_tension
     from upscale.models.dcbr import DCBRTube
 
     chis = [_chirality(c) for c in (args.chirality or (["10,10"] if args.quick else
@@ -665,8 +665,8 @@ def _defect_nve_args(p):
 
 def _dcbr_defect_nve(args):
     """NVE energy drift of the periodic coupled tube with the vacancy
-    (:func:`upscale.experiments.tube_tension.defect_nve`)."""
-    from upscale.experiments.tube_tension import defect_nve
+    (:func:`upscale.experiments.scenes.tube_tension.defect_nve`)."""
+    from upscale.experiments.scenes.tube_tension import defect_nve
 
     n, m = _chirality(args.chirality)
     steps = args.steps or (1000 if args.quick else 10000)
@@ -707,7 +707,7 @@ def _step_time(args) -> dict:
     grips on LAMMPS's planes, 10 K, seed 1000) with the scene's own loop and on the engine,
     the two alternating in this process (old, engine, old, engine, ...): wall and CPU time of
     the dynamics (set-up excluded), summed over the repeats."""
-    from upscale.experiments.tube_tension import dynamic_scene
+    from upscale.experiments.scenes.tube_tension import dynamic_scene
     from upscale.models.dcbr_dynamic import dynamic_tension
 
     n, m = _chirality(args.dynamic_chirality or ("10,10" if args.quick else "50,50"))
@@ -752,16 +752,16 @@ def _step_time(args) -> dict:
 
 def _dcbr_regression(args):
     """The quasi-static pristine tension of each tube by the model's own driver
-    (:func:`upscale.experiments.tube_tension.quasi_static_tension`, its joint L-BFGS over
+    (:func:`upscale.experiments.scenes.tube_tension.quasi_static_tension`, its joint L-BFGS over
     positions and
     shifts: the code before the port) and on the engine
-    (:func:`upscale.experiments.tube_tension.quasi_static_tension_engine`), one after the
+    (:func:`upscale.experiments.scenes.tube_tension.quasi_static_tension_engine`), one after the
     other in this process, on the same machine: the change of every figure, and the ratio of
     wall and of CPU times (this process's; CPU time is what a loaded machine does not
     change). Then the time per MD step of the dynamic vacancy tension, the scene's own loop
     against the engine's (:func:`_step_time`); ``step_time_ratio_after_over_before`` is its
     wall-time ratio (CPU-time ratio beside it)."""
-    from upscale.experiments.tube_tension import (quasi_static_tension,
+    from upscale.experiments.scenes.tube_tension import (quasi_static_tension,
                                                   quasi_static_tension_engine)
     from upscale.models.dcbr import DCBRTube
 

@@ -54,7 +54,7 @@ def _load() -> float:
 
 
 def _lammps_case(style: str, args) -> dict:
-    from upscale.experiments.peri_lammps import compare
+    from upscale.experiments.scenes.peri_lammps import compare
 
     _threads(1)
     counts = (10, 10, 4) if args.quick else (16, 16, 6)

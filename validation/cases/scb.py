@@ -111,7 +111,7 @@ def run_elastic(args):
     orders; keys ``Y_I_err_pct_max``, ``Y_II_err_pct_max``) and from the crack-face jump
     (keys ``*_jump``); the Williams fit applied to the FE field sampled at the particle
     positions gives the estimator's own error (keys ``*_estimator``)."""
-    from upscale.experiments.scb import SCBScene
+    from upscale.experiments.scenes.scb import SCBScene
 
     quick = getattr(args, "quick", False)
     dx = getattr(args, "dx", None) or (2e-3 if quick else 1e-3)
@@ -220,7 +220,7 @@ def calibrate_r_s_scan(dx, P_target, candidates, stab=1.0, criterion="principal"
     criteria P_c depends on r_s only through the body's non-singular terms and the
     discretisation (the criterion reproduces K_Ic in a K-dominated field), so the
     dependence is weak and need not be monotone: a scan, not a secant."""
-    from upscale.experiments.scb import run_scb
+    from upscale.experiments.scenes.scb import run_scb
 
     hist = []
     for r in candidates:
@@ -246,7 +246,7 @@ def calibrate_r_s_scan(dx, P_target, candidates, stab=1.0, criterion="principal"
 def calibrate_r_s(dx, P_target, stab=1.0, r0=None, iters=4, tol=0.005, log=print, criterion="energy"):
     """Secant on log P_c(log r_s) at alpha = 0 for the particle-energy criterion (slope -1/2
     to start: P_c ~ r_s^-1/2 for a linear elastic body up to the first failure)."""
-    from upscale.experiments.scb import run_scb
+    from upscale.experiments.scenes.scb import run_scb
 
     r = r0 or 15 * dx
     hist = []
@@ -289,7 +289,7 @@ def _plot_curves(path, curves):
 
 @case("scb-table", "SCB Table 6.2: P_c at the eight angles with r_s calibrated at alpha = 0 only", _table_args)
 def run_table(args):
-    from upscale.experiments.scb import damage_png, default_growth, run_scb
+    from upscale.experiments.scenes.scb import damage_png, default_growth, run_scb
 
     quick = getattr(args, "quick", False)
     dx = getattr(args, "dx", None) or 2e-3
@@ -475,7 +475,7 @@ def run_convergence(args):
     the local limit of the gain model (delta -> 0) only once delta is small against r_s, the
     one length left in the criterion. Refining at fixed delta (in metres) keeps both lengths
     of the nonlocal model and converges to its nonlocal continuum."""
-    from upscale.experiments.scb import default_growth, run_scb
+    from upscale.experiments.scenes.scb import default_growth, run_scb
 
     quick = getattr(args, "quick", False)
     dxs = [float(v) for v in (getattr(args, "dxs", None) or ("2e-3,1.5e-3" if quick else "2e-3,1e-3")).split(",")]
@@ -622,7 +622,7 @@ def _rate_args(p):
 
 @case("scb-rate", "SCB: explicit dynamics at three loading times against the quasi-static P_c", _rate_args)
 def run_rate(args):
-    from upscale.experiments.scb import SCBScene, default_growth, run_scb
+    from upscale.experiments.scenes.scb import SCBScene, default_growth, run_scb
 
     quick = getattr(args, "quick", False)
     crit = getattr(args, "criterion", "principal")

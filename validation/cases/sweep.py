@@ -51,7 +51,7 @@ def coarse_vacancy_seed(n: int = 10, m: int = 10, coarsening: float = 2.0, seed:
     reached through this one function so that the sweep follows the scene wherever it is
     kept. Returns the five figures ``dcbr-seeds`` stores, the grips and the DOF.
     """
-    from upscale.experiments.tube_tension import dynamic_scene
+    from upscale.experiments.scenes.tube_tension import dynamic_scene
     from upscale.models.dcbr_dynamic import dynamic_tension
     from validation.cases.dcbr import lammps_reference_or_run
 

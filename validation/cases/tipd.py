@@ -286,7 +286,7 @@ def _order(rows):
 def tipd_mms(args):
     from tqdm import tqdm
 
-    from upscale.experiments.tipd import mms
+    from upscale.experiments.scenes.tipd import mms
 
     _threads()
     if args.quick:
@@ -400,7 +400,7 @@ def _plot_mms(runs, outdir):
 # ---------------------------------------------------------------------------- Poisson
 @case("tipd-poisson", "free strip: apparent nu and E (Ti-PD, LPS, NOSB); free-body eigenvalue signs; angular momentum")
 def tipd_poisson(args):
-    from upscale.experiments.tipd import eigen_counts, rotation, strip
+    from upscale.experiments.scenes.tipd import eigen_counts, rotation, strip
     from upscale.models.tipd import orthotropic_voigt_2d
 
     _threads()
@@ -519,7 +519,7 @@ def _hole_args(p):
 @case("tipd-hole", "plate with a hole vs FE (scikit-fem P2, same clamped grips): u_x on y = 0, u_y at free edges, Kt",
       _hole_args)
 def tipd_hole(args):
-    from upscale.experiments.tipd_hole import hole
+    from upscale.experiments.scenes.tipd_hole import hole
 
     _threads()
     fem = _load_fem(args)
@@ -659,8 +659,8 @@ def _bench_tipd(args):
     from tqdm import tqdm
 
     from upscale.engine import State, build_family
-    from upscale.experiments.tipd import make_model
-    from upscale.experiments.tipd_hole import hole_adr, hole_body, material_voigt
+    from upscale.experiments.scenes.tipd import make_model
+    from upscale.experiments.scenes.tipd_hole import hole_adr, hole_body, material_voigt
     from upscale.models.bond_based import PMB
 
     _threads()
@@ -738,8 +738,8 @@ def tipd_surface(args):
     import time
 
     from upscale.engine import State, build_family
-    from upscale.experiments.tipd import eigen_counts, make_model, mms
-    from upscale.experiments.tipd_hole import hole_body, material_voigt
+    from upscale.experiments.scenes.tipd import eigen_counts, make_model, mms
+    from upscale.experiments.scenes.tipd_hole import hole_body, material_voigt
 
     _threads()
     rows, res = [], {"clamped_min_over_max": {}, "clamped_negative": {}}
@@ -881,7 +881,7 @@ def tipd_branching(args):
 
     from tqdm import tqdm
 
-    from upscale.experiments.tipd_branching import branching
+    from upscale.experiments.scenes.tipd_branching import branching
 
     _threads()
     dx = _base_dx(args)
@@ -1008,7 +1008,7 @@ def tipd_branching_sensitivity(args):
 
     from tqdm import tqdm
 
-    from upscale.experiments.tipd_branching import measure, simulate
+    from upscale.experiments.scenes.tipd_branching import measure, simulate
 
     _threads()
     dx = _base_dx(args)
@@ -1215,7 +1215,7 @@ def tipd_branching_conditioning(args):
 
     from tqdm import tqdm
 
-    from upscale.experiments.tipd_branching import branching, lattice_fracture_energy
+    from upscale.experiments.scenes.tipd_branching import branching, lattice_fracture_energy
 
     _threads()
     dx = _base_dx(args)

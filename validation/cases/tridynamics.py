@@ -70,7 +70,7 @@ def text_coefficients(offsets, dx, V, k, edge_factor=1.0, self_pairs=True):
 def _coeff_check(ratios, nks, edge_factors=(1.0, 2.0)):
     """Max relative difference between the force routine's D(k) and the printed
     coefficients (force density per amplitude: D = -K x coefficient x V)."""
-    from upscale.experiments.tridyn import beam_dispersion
+    from upscale.experiments.scenes.tridyn import beam_dispersion
 
     worst, rows = 0.0, []
     for ef in edge_factors:
@@ -101,7 +101,7 @@ def _coeff_check(ratios, nks, edge_factors=(1.0, 2.0)):
       "coefficients 3.42-3.51, Timoshenko C.16-C.17 and the PD bar (lattice sum, Cin, 3.55)",
       )
 def run_dispersion(args):
-    from upscale.experiments.tridyn import beam_dispersion, pd_bar_dispersion
+    from upscale.experiments.scenes.tridyn import beam_dispersion, pd_bar_dispersion
 
     quick = getattr(args, "quick", False)
     ratios = (1, 2) if quick else (1, 2, 3, 4)
@@ -180,7 +180,7 @@ def run_dispersion(args):
     print(f"convergence to the continuum relation: order {-p:.3f} in dx/delta; "
           f"3.55 vs Cin form for k delta <= 0.5: {e355:.3e}")
     # (iv) EB with the sections' rotary inertia (mass matrix) vs the Rayleigh beam
-    from upscale.experiments.tridyn import rayleigh_dispersion
+    from upscale.experiments.scenes.tridyn import rayleigh_dispersion
 
     rrow, ray = [], {}
     for m in ratios:
@@ -215,13 +215,13 @@ def run_dispersion(args):
 
 
 def STEEL_KS_G():
-    from upscale.experiments.tridyn import STEEL
+    from upscale.experiments.scenes.tridyn import STEEL
 
     return STEEL["ks"] * STEEL["E"] / (2 * (1 + STEEL["nu"])) / STEEL["rho"]
 
 
 def r_I_over_A():
-    from upscale.experiments.tridyn import STEEL
+    from upscale.experiments.scenes.tridyn import STEEL
 
     return STEEL["h"] ** 2 / 12.0
 
@@ -231,7 +231,7 @@ def r_I_over_A():
       "closed forms; convergence order; literal calibration; stable step and NVE drift",
       )
 def run_beam(args):
-    from upscale.experiments.tridyn import beam_static, beam_nve
+    from upscale.experiments.scenes.tridyn import beam_static, beam_nve
 
     quick = getattr(args, "quick", False)
     rows, errs = [], []
@@ -315,12 +315,12 @@ def run_beam(args):
     for th in ("eb", "timoshenko"):
         r = beam_nve(theory=th, steps=2000 if quick else 10000)
         nve.append(r)
-    from upscale.experiments.tridyn import step_scan
+    from upscale.experiments.scenes.tridyn import step_scan
 
     nve.append(beam_nve(theory="eb", rotary=True, steps=2000 if quick else 10000))
     bond_nve = [beam_nve(theory="timoshenko", shear_integration="bond", safety=sf,
                          steps=2000 if quick else 10000) for sf in (0.8, 0.5)]
-    from upscale.experiments.tridyn import rayleigh_mode
+    from upscale.experiments.scenes.tridyn import rayleigh_mode
 
     modes = [rayleigh_mode(rotary=rot) for rot in (True, False)]
     print("\nsimply supported EB beam (N = 100, h/L = 0.05) released in mode 4: angular "
@@ -526,7 +526,7 @@ def run_bench(args):
 @case("tridyn-plate", "tridynamic FSDT plate: printed local limit vs Mindlin 4.62, dispersion "
       "of the corrected plate along x, y, 45 deg, positivity, Navier-Mindlin square plate, NVE")
 def run_plate(args):
-    from upscale.experiments.tridyn import (plate_bending, plate_dispersion, plate_energy_random,
+    from upscale.experiments.scenes.tridyn import (plate_bending, plate_dispersion, plate_energy_random,
                                             plate_long_wave, plate_nve)
     from upscale.models.tridynamics import literal_local_coefficients
 

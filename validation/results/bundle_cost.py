@@ -18,7 +18,7 @@ import os
 import time
 from pathlib import Path
 
-from upscale.experiments.bundle import BundleScene, dynamic_tension, parse_specs
+from upscale.experiments.scenes.bundle import BundleScene, dynamic_tension, parse_specs
 from validation.cases.references import build_structure
 from validation.lammps.tension import dynamic_tension as lammps_tension
 

@@ -10,7 +10,7 @@ import json
 
 import numpy as np
 
-from upscale.experiments.bundle import BundleScene, TubeSpec, zero_stress_ratios
+from upscale.experiments.scenes.bundle import BundleScene, TubeSpec, zero_stress_ratios
 
 p = argparse.ArgumentParser()
 p.add_argument("--chirality", default="10,10")

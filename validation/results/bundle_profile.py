@@ -14,7 +14,7 @@ import os
 import pstats
 import time
 
-from upscale.experiments.bundle import BundleScene, dynamic_tension, parse_specs
+from upscale.experiments.scenes.bundle import BundleScene, dynamic_tension, parse_specs
 
 p = argparse.ArgumentParser()
 p.add_argument("--chirality", default="10,10")

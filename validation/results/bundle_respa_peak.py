@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from upscale.experiments.bundle import BundleScene, dynamic_tension, parse_specs
+from upscale.experiments.scenes.bundle import BundleScene, dynamic_tension, parse_specs
 
 p = argparse.ArgumentParser()
 p.add_argument("--chirality", default="10,10")

@@ -6,7 +6,7 @@ each tube's kinetic temperature before failure, and the run's metrics.
         [--runs "settle_ps=0;chain=1,settle_ps=1.0;chain=3"] [--integrator respa] [--inner 5]
 
 ``--runs``: comma-separated settings, each ``key=value[;key=value]`` of
-:func:`upscale.experiments.bundle.dynamic_tension` (``settle_ps``: the quench of every tube
+:func:`upscale.experiments.scenes.bundle.dynamic_tension` (``settle_ps``: the quench of every tube
 before the pull, 0 = the coarse tubes as set up; ``chain``: Nose-Hoover chain length).
 Window for the breathing and temperatures: strain 0.01-0.08 (after the first 0.1 ps of
 ramp-in, before any tube fails). Breathing amplitude: the standard deviation over the
@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from upscale.experiments.bundle import BundleScene, dynamic_tension, parse_specs
+from upscale.experiments.scenes.bundle import BundleScene, dynamic_tension, parse_specs
 
 p = argparse.ArgumentParser()
 p.add_argument("--chirality", default="10,10")

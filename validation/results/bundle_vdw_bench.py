@@ -14,7 +14,7 @@ import time
 import numpy as np
 from numba import njit
 
-from upscale.experiments.bundle import BundleScene, parse_specs, zero_stress_ratios
+from upscale.experiments.scenes.bundle import BundleScene, parse_specs, zero_stress_ratios
 from upscale.models.tube_vdw import lj_cut_pairs
 
 

@@ -15,7 +15,7 @@ import time
 
 import numpy as np
 
-from upscale.experiments.tipd_branching import branching
+from upscale.experiments.scenes.tipd_branching import branching
 
 VARIANTS = [("tipd", "osb", 24e6), ("tipd", "osb", 12e6), ("pmb", "tipd", 12e6), ("tipd", "tipd", 24e6)]
 DX = 5e-4

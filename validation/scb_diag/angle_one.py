@@ -2,7 +2,7 @@
 model against FE with the patch blocks, and the same fit on the FE field at the particles.
 Usage: angle_one.py DX ALPHA 'm=6.0' (scene keywords). Run from the repository root with PYTHONPATH=$PWD."""
 import sys, time
-from upscale.experiments.scb import SCBScene
+from upscale.experiments.scenes.scb import SCBScene
 from validation.fem_scb import solve_scb
 dx = float(sys.argv[1]); al = float(sys.argv[2]); kw = eval(f"dict({sys.argv[3]})")
 t = time.time()

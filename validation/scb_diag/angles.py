@@ -3,7 +3,7 @@ Williams fit on the FE field at the particles, compliance. Usage: angles.py DX '
 
 Run from the repository root with PYTHONPATH=$PWD (diagnostics behind validation/results/scb.md)."""
 import sys, time, numpy as np
-from upscale.experiments.scb import SCBScene
+from upscale.experiments.scenes.scb import SCBScene
 from validation.fem_scb import solve_scb
 dx = float(sys.argv[1]); specs = sys.argv[2:]
 als = (0.0, 10.0, 20.0, 30.0, 40.0, 43.0, 47.0, 50.0)

@@ -2,7 +2,7 @@
 
 Run from the repository root with PYTHONPATH=$PWD (diagnostics behind validation/results/scb.md)."""
 import sys, json, time
-from upscale.experiments.scb import run_scb
+from upscale.experiments.scenes.scb import run_scb
 out = []
 for spec in sys.argv[1:]:
     al, dx, rs = map(float, spec.split(","))

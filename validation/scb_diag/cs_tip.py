@@ -3,7 +3,7 @@ several model options, the FE solved once per angle. Usage: cs_tip.py DX ALPHAS 
 
 Run from the repository root with PYTHONPATH=$PWD (diagnostics behind validation/results/scb.md)."""
 import sys, time
-from upscale.experiments.scb import SCBScene
+from upscale.experiments.scenes.scb import SCBScene
 from validation.fem_scb import solve_scb
 dx = float(sys.argv[1]); als = [float(v) for v in sys.argv[2].split(",")]; specs = sys.argv[3:]
 for al in als:

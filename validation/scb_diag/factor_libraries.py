@@ -18,7 +18,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 from upscale.engine.quasistatic import Equilibrium
-from upscale.experiments.scb import SCBScene
+from upscale.experiments.scenes.scb import SCBScene
 
 dx = float(sys.argv[1])
 repeats = int(sys.argv[2]) if len(sys.argv) > 2 else 2

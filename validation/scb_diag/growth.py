@@ -5,7 +5,7 @@ Run from the repository root with PYTHONPATH=$PWD (diagnostic behind validation/
 import json
 import sys
 
-from upscale.experiments.scb import run_scb
+from upscale.experiments.scenes.scb import run_scb
 
 for spec in sys.argv[1:]:
     p = spec.split(",")

@@ -12,7 +12,7 @@ import sys
 
 import numpy as np
 
-from upscale.experiments.scb import SCBScene
+from upscale.experiments.scenes.scb import SCBScene
 
 alpha, dx = float(sys.argv[1]), float(sys.argv[2])
 rounds = int(sys.argv[3]) if len(sys.argv) > 3 else 6

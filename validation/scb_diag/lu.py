@@ -2,7 +2,7 @@
 
 Run from the repository root with PYTHONPATH=$PWD (diagnostics behind validation/results/scb.md)."""
 import time, numpy as np, scipy.sparse as sp, scipy.sparse.linalg as spla, sys
-from upscale.experiments.scb import SCBScene
+from upscale.experiments.scenes.scb import SCBScene
 from upscale.engine.quasistatic import Equilibrium
 dx = float(sys.argv[1])
 sc = SCBScene(0.0, dx=dx, r_s=39.26*dx)

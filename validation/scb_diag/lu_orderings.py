@@ -10,7 +10,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from upscale.experiments.scb import SCBScene
+from upscale.experiments.scenes.scb import SCBScene
 from upscale.engine.quasistatic import Equilibrium
 dx = float(sys.argv[1])
 sc = SCBScene(0.0, dx=dx, r_s=1e-3)

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from upscale.experiments.scb import damage_png, run_scb
+from upscale.experiments.scenes.scb import damage_png, run_scb
 
 out = Path("validation/out/scb_diag")
 out.mkdir(parents=True, exist_ok=True)

@@ -4,7 +4,7 @@
 Run from the repository root with PYTHONPATH=$PWD (diagnostics behind validation/results/scb.md)."""
 import sys, numpy as np
 from validation.fem_scb import solve_scb
-from upscale.experiments.scb import SCBScene
+from upscale.experiments.scenes.scb import SCBScene
 dx=1e-3
 ys = np.arange(0.5, 15, 1.0)*1e-3
 def cod(x0,u):

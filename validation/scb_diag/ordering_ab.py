@@ -13,7 +13,7 @@ import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
 import upscale.engine.quasistatic as q
-from upscale.experiments.scb import SCBScene
+from upscale.experiments.scenes.scb import SCBScene
 
 
 class PermutedLU:

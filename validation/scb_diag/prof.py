@@ -2,7 +2,7 @@
 
 Run from the repository root with PYTHONPATH=$PWD (diagnostics behind validation/results/scb.md)."""
 import cProfile, pstats, time, sys
-from upscale.experiments.scb import run_scb
+from upscale.experiments.scenes.scb import run_scb
 dx = float(sys.argv[1]); n = int(sys.argv[2])
 run_scb(0.0, dx=2e-3, r_s=0.0785, max_equilibria=3)   # compile
 t = time.perf_counter(); pr = cProfile.Profile(); pr.enable()

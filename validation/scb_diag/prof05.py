@@ -8,7 +8,7 @@ import pstats
 import sys
 import time
 
-from upscale.experiments.scb import run_scb
+from upscale.experiments.scenes.scb import run_scb
 
 al, dx, rs = map(float, sys.argv[1:4])
 n = int(sys.argv[4]) if len(sys.argv) > 4 else 600

@@ -12,7 +12,7 @@ import sys
 
 import numpy as np
 
-from upscale.experiments.scb import SCBScene, run_scb
+from upscale.experiments.scenes.scb import SCBScene, run_scb
 
 dx, r_s = float(sys.argv[1]), float(sys.argv[2])
 times = [float(v) for v in sys.argv[3].split(",")]

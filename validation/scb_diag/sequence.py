@@ -8,7 +8,7 @@ import sys
 
 import numpy as np
 
-from upscale.experiments.scb import SCBScene
+from upscale.experiments.scenes.scb import SCBScene
 
 al, dx, rs = map(float, sys.argv[1].split(","))
 m = float(sys.argv[2]) if len(sys.argv) > 2 else 3.0

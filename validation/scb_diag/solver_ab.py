@@ -13,7 +13,7 @@ CUR = {}
 def init(self, *a, **k):
     k.update(CUR); orig(self, *a, **k)
 qs.Equilibrium.__init__ = init
-from upscale.experiments.scb import run_scb
+from upscale.experiments.scenes.scb import run_scb
 run_scb(0.0, dx=2e-3, r_s=4e-3, max_equilibria=2)
 res = []
 for c in confs:

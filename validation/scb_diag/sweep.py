@@ -3,7 +3,7 @@ Usage: sweep.py 'dx=2e-3,stabilisation=0.1' 'al=30,stabilisation=1.0' ...
 
 Run from the repository root with PYTHONPATH=$PWD (diagnostics behind validation/results/scb.md)."""
 import sys, time, json, numpy as np
-from upscale.experiments.scb import SCBScene
+from upscale.experiments.scenes.scb import SCBScene
 from validation.fem_scb import solve_scb
 import functools
 @functools.lru_cache(None)

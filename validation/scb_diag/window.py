@@ -5,7 +5,7 @@ Usage: window.py DX ALPHA [ALPHA ...]
 Run from the repository root with PYTHONPATH=$PWD (diagnostics behind validation/results/scb.md)."""
 import sys
 
-from upscale.experiments.scb import SCBScene
+from upscale.experiments.scenes.scb import SCBScene
 from validation.fem_scb import solve_scb
 
 dx = float(sys.argv[1])

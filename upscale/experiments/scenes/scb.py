@@ -521,7 +521,7 @@ def _main(args) -> int:
 
     r_s = args.r_s
     if r_s is None:
-        cal = Path(__file__).resolve().parents[2] / "data" / "reference" / "scb_calibration.json"
+        cal = Path(__file__).resolve().parents[3] / "data" / "reference" / "scb_calibration.json"
         if not cal.exists():
             raise FileNotFoundError(f"{cal} is missing; pass --r-s")
         c = json.loads(cal.read_text())

@@ -76,7 +76,7 @@ def hole(model: str = "tipd", *, material: str = "iso", dx: float = 1e-3, m: flo
     ``Kt`` and the stress at the particle next to the hole's top."""
     from upscale.engine import State, build_family
     from upscale.engine.static import solve_linear
-    from upscale.experiments.tipd import surface_kw, make_model
+    from upscale.experiments.scenes.tipd import surface_kw, make_model
     from upscale.models.correspondence import Correspondence
 
     t0 = time.perf_counter()
@@ -141,7 +141,7 @@ def hole_adr(model: str = "tipd", *, material: str = "ortho", nx: int = 300, ste
     from upscale.engine.conditions import Displacement, Fixed, region
     from upscale.engine.adr import FusedAdaptiveDynamicRelaxation
     from upscale.engine.integrators import AdaptiveDynamicRelaxation
-    from upscale.experiments.tipd import surface_kw, make_model
+    from upscale.experiments.scenes.tipd import surface_kw, make_model
 
     t0 = time.perf_counter()
     dx = L_PLATE / nx

@@ -28,9 +28,9 @@ Each scene is a plain function of its parameters returning a JSON-able dict (SI 
 ``rotation``
     A free body spun rigidly about z (velocity Verlet, no loads): relative change of the
     angular momentum and the strain energy picked up over a given rotation angle.
-``hole`` (:mod:`upscale.experiments.tipd_hole`)
+``hole`` (:mod:`upscale.experiments.scenes.tipd_hole`)
     The plate with a hole 5.2.1 / 5.2.2 with clamped grips; ``hole_adr`` the Table 1 ADR run.
-``branching`` (:mod:`upscale.experiments.tipd_branching`)
+``branching`` (:mod:`upscale.experiments.scenes.tipd_branching`)
     Crack branching in glass 5.3 (Ha & Bobaru geometry).
 
 Command line: ``upscale tipd mms --dx 0.025 0.0125 [--dim 3] [--model nosb
@@ -356,14 +356,14 @@ def _run(args) -> int:
         print(f"{args.model} nu={args.nu}: apparent nu {res['nu_apparent']:.4f}, "
               f"E {res['E_apparent_Pa']:.4e} Pa")
     elif args.scene_tipd == "hole":
-        from upscale.experiments.tipd_hole import hole
+        from upscale.experiments.scenes.tipd_hole import hole
 
         res = hole(args.model, material=args.material, dx=args.dx[0] if args.dx else 1e-3,
                    surface=args.surface,
                    **({"calibration": args.calibration} if args.calibration else {}))
         print(json.dumps({k: v for k, v in res.items() if not isinstance(v, list)}, default=float))
     else:
-        from upscale.experiments.tipd_branching import branching
+        from upscale.experiments.scenes.tipd_branching import branching
 
         res = branching(args.model, stress=args.stress, dx=args.dx[0] if args.dx else 1e-3,
                         critical=args.critical, progress=not args.quiet, outdir=out)

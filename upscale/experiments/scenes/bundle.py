@@ -1026,7 +1026,7 @@ def reference_name(chirality, spacing="vdw", vacancy=True, ntubes=7, seed=None) 
 
 
 def run(args) -> int:
-    from upscale.experiments.tube_tension import parse_chirality
+    from upscale.experiments.scenes.tube_tension import parse_chirality
     from upscale.io import text_table, versions, write_json
 
     n, m = parse_chirality(args.chirality)
@@ -1045,7 +1045,7 @@ def run(args) -> int:
     if args.compare == "lammps":
         import json
 
-        root = Path(__file__).resolve().parents[2]
+        root = Path(__file__).resolve().parents[3]
         name = reference_name((n, m), args.spacing, not args.no_vacancy, len(specs))
         p = root / "data" / "reference" / f"{name}.json"
         if not p.is_file():

@@ -8,7 +8,7 @@ versions) and, with ``--compare lammps``, the overlay plot with the damage map, 
 comparison table. The LAMMPS side is a LAMMPS run of the same tube, potential file and
 protocol, read from ``data/reference/`` (or from ``validation/out/lammps-cache/``, where the
 validation cases cache the references they compute); the scene is
-:func:`upscale.experiments.tube_tension.run_tension_comparison`.
+:func:`upscale.experiments.scenes.tube_tension.run_tension_comparison`.
 """
 from __future__ import annotations
 
@@ -40,16 +40,16 @@ def register(subparsers):
 
 def run(args) -> int:
     from upscale.io import versions, write_json
-    from upscale.experiments.tube_tension import quasi_static_tension
+    from upscale.experiments.scenes.tube_tension import quasi_static_tension
     from upscale.models.dcbr import DCBRTube
 
-    from upscale.experiments.tube_tension import parse_chirality
+    from upscale.experiments.scenes.tube_tension import parse_chirality
 
     n, m = parse_chirality(args.chirality)
     out = Path(args.outdir)
     tag = f"{n}_{m}_K{args.coarsening:g}"
     if args.compare == "lammps":
-        from upscale.experiments.tube_tension import ROOT, run_tension_comparison
+        from upscale.experiments.scenes.tube_tension import ROOT, run_tension_comparison
         from upscale.io import text_table as table
 
         try:
@@ -85,7 +85,7 @@ def run(args) -> int:
     if args.engine:
         from upscale.engine.checkpoint import Checkpoint
         from upscale.engine.output import Output
-        from upscale.experiments.tube_tension import quasi_static_tension_engine
+        from upscale.experiments.scenes.tube_tension import quasi_static_tension_engine
 
         frames = out / f"engine_{tag}"
         res = quasi_static_tension_engine(

@@ -31,7 +31,7 @@ __all__ = ["parse_chirality", "lammps_reference", "GRIPS", "dynamic_scene",
            "tube_z_range", "crack_metrics", "plot_comparison", "ROOT", "REFERENCE_DIR"]
 
 #: the repository's root (``data/reference`` lives there)
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 #: the stored LAMMPS references
 REFERENCE_DIR = ROOT / "data" / "reference"
 
