@@ -322,3 +322,6 @@ def graphene(nx: int, ny: int, bond: float = 1.42, vacuum: float = 10.0) -> Atom
                   pbc=(True, True, False))
     atoms.info.update(bond=bond, sheet="graphene", nx=nx, ny=ny)
     return atoms
+# Defect builders by (zfrac, angle_deg); upscale.defects imports this module only lazily.
+from upscale.defects import (adatom, apply_defects, divacancy, monovacancy,  # noqa: E402,F401
+                             parse_defects, stone_wales, vacancy4)
