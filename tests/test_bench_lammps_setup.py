@@ -1,4 +1,4 @@
-"""LAMMPS set-up minimisers of the dynamic tension (validation.lammps.tension.MinSettings).
+"""LAMMPS set-up minimisers of the dynamic tension (upscale.experiments.lammps.tension.MinSettings).
 
 Small tube (20 Å (10,10) with the 4-atom vacancy, 316 atoms): every set-up minimiser stops
 on the force tolerance in the same minimum; ``min_modify norm inf`` bounds the largest force
@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from validation.cases.references import _spec, build_structure
-from validation.lammps.tension import (MinSettings, dynamic_tension, open_tube_setup,
+from upscale.experiments.lammps.tension import (MinSettings, dynamic_tension, open_tube_setup,
                                        relax_zero_stress)
 
 FTOL = 1e-4

@@ -119,7 +119,7 @@ def test_rigid_rotation_open_tube_costs_no_energy():
 def test_uniform_strain_energy_matches_lammps_within_one_percent():
     """E(strain) - E(0) per atom of the relaxed periodic (10,10) tube vs LAMMPS (issue #5)."""
     from upscale.build import swcnt
-    from validation.lammps.tension import quasi_static_tension as lammps_qs
+    from upscale.experiments.lammps.tension import quasi_static_tension as lammps_qs
 
     ref = lammps_qs(swcnt(10, 10, length=10.0), strain_step=0.04, max_strain=0.12, fit_max_strain=0.08)
     t = DCBRTube(10, 10, 10.0, coarsening=1)

@@ -36,8 +36,8 @@ def test_lammps_extensometer_commands_read_a_uniform_stretch():
     """The LAMMPS form (fix store/state + atom variable + compute reduce) of the same
     extensometer reads a uniform stretch of a short tube to 1e-12 and counts its atoms."""
     from upscale.build import swcnt
-    from validation.lammps.potential import resolve_potential
-    from validation.lammps.tension import _positions, _setup, extensometer_commands
+    from upscale.experiments.lammps.potential import resolve_potential
+    from upscale.experiments.lammps.tension import _positions, _setup, extensometer_commands
 
     tube = swcnt(5, 5, 30.0)
     lmp, _ = _setup(tube, resolve_potential("tersoff:BNC.tersoff", "step"), "s s s",

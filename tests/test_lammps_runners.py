@@ -14,7 +14,7 @@ pytestmark = pytest.mark.lammps
 
 @pytest.fixture(scope="module")
 def qs_result():
-    from validation.lammps.tension import quasi_static_tension
+    from upscale.experiments.lammps.tension import quasi_static_tension
 
     tube = swcnt(10, 10, 10.0)  # 4 unit cells, 160 atoms
     return quasi_static_tension(tube, "tersoff:BNC.tersoff", strain_step=0.01, max_strain=0.03,
@@ -36,7 +36,7 @@ def test_quasi_static_record_is_consistent(qs_result, tmp_path):
     # provenance: the step-cutoff file and its checksum, the LAMMPS version
     pot = back["potential"]
     assert pot["cutoff"] == "step" and pot["source_file"] == "BNC.tersoff"
-    from validation.lammps.potential import cache_dir
+    from upscale.experiments.lammps.potential import cache_dir
     f = cache_dir() / "potentials" / pot["file"]
     assert lammps_runtime.file_sha256(f) == pot["file_sha256"]
     assert back["lammps_version"] == lammps_runtime.lammps_version()
@@ -65,7 +65,7 @@ def test_virial_stress_equals_energy_derivative(qs_result):
 
 
 def test_step_cutoff_file_keeps_outer_cutoff():
-    from validation.lammps.potential import _write_step_tersoff, resolve_potential
+    from upscale.experiments.lammps.potential import _write_step_tersoff, resolve_potential
 
     pot = resolve_potential("BNC.tersoff", cutoff="step")
     std = resolve_potential("BNC.tersoff", cutoff="standard")
@@ -96,7 +96,7 @@ def test_step_cutoff_file_keeps_outer_cutoff():
 
 
 def test_dynamic_tiny_run_pulls_in_tension():
-    from validation.lammps.tension import dynamic_tension
+    from upscale.experiments.lammps.tension import dynamic_tension
 
     tube = swcnt(5, 5, 40.0)
     res = dynamic_tension(tube, "tersoff:BNC.tersoff", grip=12.0, speed=1.0, temperature=1.0,
@@ -118,7 +118,7 @@ def test_dynamic_pull_rounds_repeat_the_pull_from_the_set_up_state():
     # timing rounds of a race: the result is the first round's, each later round the same
     # pull on a new instance of the opened tube (the same curve before fracture, here to
     # 1e-9), with the other code's turn between rounds
-    from validation.lammps.tension import dynamic_tension
+    from upscale.experiments.lammps.tension import dynamic_tension
 
     tube = swcnt(5, 5, 40.0)
     kw = dict(grip=12.0, speed=1.0, temperature=1.0, max_strain=0.02, sample_every=50)
@@ -142,7 +142,7 @@ def test_dynamic_pull_rounds_repeat_the_pull_from_the_set_up_state():
 def test_dynamic_run_stops_when_the_box_grows_past_the_limit():
     # the guard against an atom thrown off the tube: here the box merely stretches past a
     # limit ~8 % above the open tube's volume, and the run stops there, recorded
-    from validation.lammps.tension import dynamic_tension
+    from upscale.experiments.lammps.tension import dynamic_tension
 
     tube = swcnt(5, 5, 80.0)
     full = dynamic_tension(tube, "tersoff:BNC.tersoff", grip=12.0, temperature=1.0,
@@ -158,7 +158,7 @@ def test_dynamic_run_stops_when_the_box_grows_past_the_limit():
 
 
 def test_two_mpi_ranks_give_the_same_curve(qs_result):
-    from validation.lammps.tension import quasi_static_tension
+    from upscale.experiments.lammps.tension import quasi_static_tension
 
     res = quasi_static_tension(swcnt(10, 10, 10.0), "tersoff:BNC.tersoff", strain_step=0.01,
                                max_strain=0.03, ftol=1e-10, relax_ftol=1e-10, nprocs=2)
@@ -168,8 +168,8 @@ def test_two_mpi_ranks_give_the_same_curve(qs_result):
 
 
 def test_bad_input_one_line_errors(monkeypatch):
-    from validation.lammps.potential import resolve_potential
-    from validation.lammps.tension import quasi_static_tension
+    from upscale.experiments.lammps.potential import resolve_potential
+    from upscale.experiments.lammps.tension import quasi_static_tension
 
     with pytest.raises(FileNotFoundError, match="does not exist") as ei:
         resolve_potential("tersoff:NoSuch.tersoff")
@@ -202,8 +202,8 @@ def test_bundle_hybrid_is_tersoff_within_tubes_plus_lj_between():
     from scipy.spatial.distance import cdist
 
     from upscale.build import bundle
-    from validation.lammps.potential import LJ_CUTOFF, LJ_EPSILON_EV, LJ_SIGMA, resolve_potential
-    from validation.lammps.tension import _setup
+    from upscale.experiments.lammps.potential import LJ_CUTOFF, LJ_EPSILON_EV, LJ_SIGMA, resolve_potential
+    from upscale.experiments.lammps.tension import _setup
 
     b = bundle(5, 5, 10.0, ntubes=3, gap=3.0)
     pot = resolve_potential("BNC.tersoff")
@@ -236,7 +236,7 @@ def test_bundle_hybrid_is_tersoff_within_tubes_plus_lj_between():
 
 @pytest.mark.parametrize("spec", ["rebo", "airebo"])
 def test_rebo_and_airebo_run_with_standard_cutoff(spec):
-    from validation.lammps.tension import quasi_static_tension
+    from upscale.experiments.lammps.tension import quasi_static_tension
 
     r = quasi_static_tension(swcnt(10, 10, 10.0), spec, cutoff="standard", strain_step=0.01,
                              max_strain=0.02)
@@ -250,7 +250,7 @@ def test_static_grip_stiffness_small_tube():
     """The dynamic protocol's grips, statically: a 40 Å (10,10) tube with 10 Å grips pulled
     by 0.25 % of its gauge; the tube between them carries ~1 TPa (its periodic modulus is
     0.98), and k = F / separation agrees with the modulus over the gauge."""
-    from validation.lammps.tension import static_grip_stiffness
+    from upscale.experiments.lammps.tension import static_grip_stiffness
 
     r = static_grip_stiffness(swcnt(10, 10, 40.0), "tersoff:BNC.tersoff", grip=10.0)
     assert 0.85 < r["modulus_TPa"] < 1.15

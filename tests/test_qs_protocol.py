@@ -28,7 +28,7 @@ class _Recorder:
 
 @pytest.fixture
 def recorded(monkeypatch):
-    from validation.lammps import tension
+    from upscale.experiments.lammps import tension
 
     log = []
     setup = tension._setup
@@ -42,7 +42,7 @@ def recorded(monkeypatch):
 
 
 def test_protocol_keywords_reach_lammps_and_the_record(recorded):
-    from validation.lammps.tension import quasi_static_tension
+    from upscale.experiments.lammps.tension import quasi_static_tension
 
     # fmax_tol 0: every strain step runs all its damped cycles, so each keyword is used
     res = quasi_static_tension(swcnt(10, 10, 10.0), strain_step=0.01, max_strain=0.02,
@@ -66,7 +66,7 @@ def test_protocol_keywords_reach_lammps_and_the_record(recorded):
 
 
 def test_cg_only_runs_no_damped_dynamics(recorded):
-    from validation.lammps.tension import quasi_static_tension
+    from upscale.experiments.lammps.tension import quasi_static_tension
 
     res = quasi_static_tension(swcnt(10, 10, 10.0), strain_step=0.01, max_strain=0.02,
                                fmax_tol=0.0, damped_cycles=0)
@@ -77,7 +77,7 @@ def test_cg_only_runs_no_damped_dynamics(recorded):
 
 
 def test_defaults_are_the_stored_protocol():
-    from validation.lammps.tension import quasi_static_tension
+    from upscale.experiments.lammps.tension import quasi_static_tension
 
     p = inspect.signature(quasi_static_tension).parameters
     assert {k: p[k].default for k in ("strain_step", "fmax_tol", "damped_style", "damped_dmax",
@@ -99,7 +99,7 @@ def test_defaults_are_the_stored_protocol():
     ({"fmax_tol": -1e-4}, "-0.0001", ">= 0"),
 ])
 def test_bad_protocol_one_line_error(kw, bad, valid):
-    from validation.lammps.tension import quasi_static_tension
+    from upscale.experiments.lammps.tension import quasi_static_tension
 
     with pytest.raises(ValueError) as ei:
         quasi_static_tension(swcnt(10, 10, 10.0), **kw)
@@ -110,7 +110,7 @@ def test_bad_protocol_one_line_error(kw, bad, valid):
 
 def test_sensitivity_case_is_registered_with_valid_variants():
     from validation.cases.qs_sensitivity import VARIANTS, _variants
-    from validation.lammps.tension import quasi_static_tension
+    from upscale.experiments.lammps.tension import quasi_static_tension
     from validation.registry import discover
 
     assert "reference-qs-sensitivity" in discover()

@@ -8,7 +8,7 @@ protocol in the loop written out in :func:`dynamic_tension`. Units: eV, Å, fs, 
 in GPa on the wall area 2 pi R t, t = 3.4 Å. The measurements behind the choices below are
 in ``validation/results/engine.md`` ("The dynamic tube tension's design measurements").
 
-:func:`dynamic_tension` follows ``validation.lammps.tension.dynamic_tension`` step for step,
+:func:`dynamic_tension` follows ``upscale.experiments.lammps.tension.dynamic_tension`` step for step,
 on a :class:`~upscale.models.dcbr_defect.DCBRDefectTube`:
 
 1. the tube on the zero-stress uniform lattice (L0; LAMMPS relaxes the periodic tube with
@@ -655,7 +655,7 @@ def static_grip_stiffness(model, grip: float = 50.0, strain: float = 0.0025,
     F (less its value at the set-up state, ``force_at_setup_eV_per_A``: clamping the grips
     leaves a small reaction, which would otherwise bias k at small strain) gives
     k = F / separation (eV/Å^2). k is free of any gauge convention, so it compares the coarse
-    grips with LAMMPS's (``validation.lammps.tension.static_grip_stiffness``) directly;
+    grips with LAMMPS's (``upscale.experiments.lammps.tension.static_grip_stiffness``) directly;
     ``modulus_TPa`` = (F / area) / strain with LAMMPS's gauge."""
     if not (0 < strain < 0.05):
         raise ValueError(f"strain={strain!r}; valid: 0 < strain < 0.05 (the linear range)")

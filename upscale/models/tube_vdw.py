@@ -1,7 +1,7 @@
 """Van der Waals between the tubes of a bundle, through the atoms each body represents.
 
 The 12-6 Lennard-Jones pair of LAMMPS ``pair_style lj/cut`` (plain truncation, no shift:
-the bundle references' pair, :mod:`validation.lammps.potential`)
+the bundle references' pair, :mod:`upscale.experiments.lammps.potential`)
 
     phi(r) = 4 eps [(sigma/r)^12 - (sigma/r)^6]   for r < rc,  0 beyond,            (1)
 

@@ -88,7 +88,7 @@ def _args(p):
 
 
 def fair_setup() -> dict:
-    """The keywords of LAMMPS's fair set-up (``validation.lammps.tension.dynamic_tension``):
+    """The keywords of LAMMPS's fair set-up (``upscale.experiments.lammps.tension.dynamic_tension``):
     the fastest of ``bench-lammps-setup`` (``BEST_SETUP``) to the coarse set-up's ``gtol``
     (its largest force component, ``min_modify norm inf``)."""
     import inspect  # noqa: PLC0415
@@ -110,7 +110,7 @@ def fair_whole_run(atoms, rc, coarse_wall_s: float, coarse_build_s: float,
     strength, modulus and strain at peak against ``lammps_default`` (the same MD after the
     default set-up, if run) and the stored reference ``ref`` (set-up ftol 1e-6): the set-up
     should not move them beyond the thermal noise."""
-    from validation.lammps.tension import dynamic_tension as lammps_dynamic  # noqa: PLC0415
+    from upscale.experiments.lammps.tension import dynamic_tension as lammps_dynamic  # noqa: PLC0415
 
     kw = fair_setup()
     if rl is None:
@@ -166,7 +166,7 @@ def _bench(args):
     from upscale.models.dcbr_engine import MTS_SPLIT
     from validation.cases.dcbr import _chirality, lammps_reference_or_run, dynamic_scene
     from validation.cases.references import DYN_LENGTH, _spec, build_structure
-    from validation.lammps.tension import dynamic_tension as lammps_dynamic
+    from upscale.experiments.lammps.tension import dynamic_tension as lammps_dynamic
 
     if not args.lammps_ftol > 0:
         raise SystemExit(f"--lammps-ftol {args.lammps_ftol}; valid: > 0")

@@ -1,6 +1,6 @@
 """bench-lammps-setup: LAMMPS's set-up minimisation of the dynamic tension, minimiser by minimiser.
 
-The set-up of ``validation.lammps.tension.dynamic_tension`` is (P) the periodic zero-stress
+The set-up of ``upscale.experiments.lammps.tension.dynamic_tension`` is (P) the periodic zero-stress
 relaxation (two minimisations with ``fix box/relax``, one at fixed cell) and (O) the tube
 cut open at the cell boundary and minimised once; then the MD. Both are measured here on the
 structures of ``bench-dcbr-seed`` (the ~150 Å (50,50) and (30,60) tubes with the 4-atom
@@ -128,7 +128,7 @@ def _bench_setup(args):
     from upscale.io import versions, write_json
     from validation.cases.dcbr import _chirality
     from validation.cases.references import DYN_LENGTH, _spec, build_structure
-    from validation.lammps.tension import MinSettings, open_tube_setup, relax_zero_stress
+    from upscale.experiments.lammps.tension import MinSettings, open_tube_setup, relax_zero_stress
 
     if not (args.ftol > 0 and args.energy_tol > 0):
         raise SystemExit(f"--ftol {args.ftol}, --energy-tol {args.energy_tol}; valid: both > 0")

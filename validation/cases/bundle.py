@@ -26,9 +26,9 @@ REF_DIR = REPO / "data" / "reference"
 
 
 def lammps_pair_lines(ntubes: int, tersoff_file, lj_only: bool = False) -> list[str]:
-    """The references' bundle pair (validation.lammps.potential): Tersoff within a tube
+    """The references' bundle pair (upscale.experiments.lammps.potential): Tersoff within a tube
     (atom type = tube), lj/cut between tubes; ``lj_only``: the LJ part alone."""
-    from validation.lammps.potential import LJ_CUTOFF, LJ_EPSILON_EV, LJ_SIGMA  # noqa: PLC0415
+    from upscale.experiments.lammps.potential import LJ_CUTOFF, LJ_EPSILON_EV, LJ_SIGMA  # noqa: PLC0415
 
     if lj_only:
         out = [f"pair_style lj/cut {LJ_CUTOFF}", f"pair_coeff * * 0.0 {LJ_SIGMA}"]
@@ -66,7 +66,7 @@ def run_bundle_vdw(args):
     from potentials.tersoff import write_step_cutoff_file  # noqa: PLC0415
     from upscale.experiments.scenes.bundle import BundleScene, TubeSpec  # noqa: PLC0415
     from validation.cases.tersoff import lammps_evaluate  # noqa: PLC0415
-    from validation.lammps.potential import LJ_CUTOFF, LJ_EPSILON_EV, LJ_SIGMA  # noqa: PLC0415
+    from upscale.experiments.lammps.potential import LJ_CUTOFF, LJ_EPSILON_EV, LJ_SIGMA  # noqa: PLC0415
 
     n, m = args.chirality
     t0 = time.perf_counter()

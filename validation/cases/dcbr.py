@@ -2,7 +2,7 @@
 
 The scenes are :mod:`upscale.experiments.scenes.tube_tension`'s; these cases compare them. References:
 closed-form affine fields (gain-affine) and LAMMPS through the runners of
-:mod:`validation.lammps.tension` (same potential file, same tube, same protocol). A LAMMPS
+:mod:`upscale.experiments.lammps.tension` (same potential file, same tube, same protocol). A LAMMPS
 result is taken from ``data/reference/*.json`` when a record matches (chirality, atoms,
 protocol, strain step, cutoff, vacancy), else computed on the fly and cached in
 ``validation/out/lammps-cache/`` (ignored by git), keyed by the runner's source checksum.
@@ -24,7 +24,7 @@ from validation.registry import case, table
 
 ROOT = Path(__file__).resolve().parents[2]
 CACHE = ROOT / "validation" / "out" / "lammps-cache"
-RUNNER = ROOT / "validation" / "lammps" / "tension.py"
+RUNNER = ROOT / "upscale" / "experiments" / "lammps" / "tension.py"
 
 __all__ = ["run_tension_comparison", "dynamic_scene", "GRIPS"]
 
@@ -34,8 +34,8 @@ _chirality = parse_chirality
 
 
 def _run_lammps(protocol, atoms, potential, cutoff, strain_step, progress):
-    """The LAMMPS tension runner (:mod:`validation.lammps.tension`) for a missing reference."""
-    from validation.lammps.tension import dynamic_tension, quasi_static_tension
+    """The LAMMPS tension runner (:mod:`upscale.experiments.lammps.tension`) for a missing reference."""
+    from upscale.experiments.lammps.tension import dynamic_tension, quasi_static_tension
 
     if protocol == "quasi-static":
         return quasi_static_tension(atoms, potential, cutoff=cutoff, strain_step=strain_step,

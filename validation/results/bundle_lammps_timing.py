@@ -2,7 +2,7 @@
 seed, pulled to 16 % strain: wall and CPU time of the same run length as the engine runs."""
 import json, os, time
 from validation.cases.references import build_structure, _spec
-from validation.lammps.tension import dynamic_tension
+from upscale.experiments.lammps.tension import dynamic_tension
 spec = _spec("dynamic", 10, 10, True, 150.0, ntubes=7)
 atoms = build_structure(spec)
 l0 = os.getloadavg()

@@ -19,7 +19,7 @@ particles by its own lattice map and their forces pulled back through that map. 
 default bundle is the seed's: the central tube atomistic with the 4-atom vacancy, the six
 outer ones coarse.
 
-Dynamic tension (the LAMMPS references' protocol, ``validation.lammps.tension``):
+Dynamic tension (the LAMMPS references' protocol, ``upscale.experiments.lammps.tension``):
 
 1. every tube starts from the zero-stress lattice of the atomistic tube (axial and radial
    ratios of a short periodic tube relaxed at zero axial stress: the same lattice for every

@@ -1,4 +1,5 @@
-"""Run a tension test on several MPI ranks: ``mpiexec -n N python -m validation.lammps.mpi``.
+"""Run a LAMMPS runner on several MPI ranks:
+``mpiexec -n N python -m upscale.experiments.lammps.mpi``.
 
 The LAMMPS Python module joins ``MPI_COMM_WORLD`` when started under ``mpiexec`` (no mpi4py
 needed). :func:`run_mpi` pickles the call (function name, Atoms, keyword arguments) to a
@@ -35,7 +36,7 @@ def mpiexec_path() -> str:
 
 
 def run_mpi(func: str, atoms, nprocs: int, **kwargs) -> dict:
-    """Run ``validation.lammps.tension.<func>(atoms, **kwargs)`` on ``nprocs`` MPI ranks."""
+    """Run ``upscale.experiments.lammps.tension.<func>(atoms, **kwargs)`` on ``nprocs`` MPI ranks."""
     if func not in _FUNCS:
         raise ValueError(f"func={func!r}; valid: {', '.join(_FUNCS)}")
     if isinstance(nprocs, bool) or not isinstance(nprocs, int) or nprocs < 1:
@@ -44,9 +45,9 @@ def run_mpi(func: str, atoms, nprocs: int, **kwargs) -> dict:
     with tempfile.TemporaryDirectory(prefix="upscale-mpi-") as d:
         job, out = Path(d) / "job.pkl", Path(d) / "out.json"
         job.write_bytes(pickle.dumps({"func": func, "atoms": atoms, "kwargs": kwargs}))
-        repo = Path(__file__).resolve().parents[2]
-        cmd = [mpiexec_path(), "-n", str(nprocs), sys.executable, "-m", "validation.lammps.mpi",
-               str(job), str(out)]
+        repo = Path(__file__).resolve().parents[3]
+        cmd = [mpiexec_path(), "-n", str(nprocs), sys.executable, "-m",
+               "upscale.experiments.lammps.mpi", str(job), str(out)]
         proc = subprocess.run(cmd, cwd=repo, capture_output=True, text=True)
         if proc.returncode != 0 or not out.is_file():
             tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no output"]
@@ -58,7 +59,7 @@ def run_mpi(func: str, atoms, nprocs: int, **kwargs) -> dict:
 
 def _main(argv) -> int:
     from upscale.io import write_json
-    from validation.lammps import tension
+    from upscale.experiments.lammps import tension
 
     job = pickle.loads(Path(argv[0]).read_bytes())
     res = getattr(tension, job["func"])(job["atoms"], **job["kwargs"])

@@ -88,7 +88,7 @@ from ase import Atoms
 from upscale.analysis.stress import (WALL_THICKNESS, Extensometer, curve_metrics,
                                      extensometer_metrics, stress_from_force,
                                      stress_from_pressure)
-from validation.lammps.potential import Potential, resolve_potential
+from upscale.experiments.lammps.potential import Potential, resolve_potential
 
 __all__ = ["relax_zero_stress", "quasi_static_tension", "dynamic_tension", "default_dump_dir",
            "static_grip_stiffness", "CARBON_MASS", "MinSettings", "SETUP_MIN_STYLES",
@@ -491,7 +491,7 @@ def quasi_static_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
     atoms : ase.Atoms
         Periodic along z, orthorhombic full-rank cell (from :mod:`upscale.build`).
     potential : str
-        Spec for :func:`validation.lammps.potential.resolve_potential`.
+        Spec for :func:`upscale.experiments.lammps.potential.resolve_potential`.
     cutoff : {"step", "standard"}
     strain_step, max_strain : float
         Strain increment and the largest strain applied (dimensionless).
@@ -540,7 +540,7 @@ def quasi_static_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < lo:
             raise ValueError(f"{name}={v!r}; valid: an integer >= {lo}")
     if nprocs != 1:
-        from validation.lammps.mpi import run_mpi  # noqa: PLC0415
+        from upscale.experiments.lammps.mpi import run_mpi  # noqa: PLC0415
 
         return run_mpi("quasi_static_tension", atoms, nprocs, potential=potential,
                        cutoff=cutoff, strain_step=strain_step, max_strain=max_strain,
@@ -761,7 +761,7 @@ def dynamic_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutoff="st
         if pull_rounds != 1:
             raise ValueError(f"pull_rounds={pull_rounds} with nprocs={nprocs}; valid: "
                              "pull_rounds=1 when LAMMPS runs on several ranks")
-        from validation.lammps.mpi import run_mpi  # noqa: PLC0415
+        from upscale.experiments.lammps.mpi import run_mpi  # noqa: PLC0415
 
         return run_mpi("dynamic_tension", atoms, nprocs, potential=potential, cutoff=cutoff,
                        grip=grip, speed=speed, temperature=temperature, timestep=timestep,
