@@ -60,8 +60,8 @@ def _plate(args) -> int:
     if args.kill_at:
         _patch_vv_kill(args.kill_at)
     argv = ["plate", "--n", str(args.n), "--t-end", repr(args.t_end), "--out", str(args.out),
-            "--checkpoint-every", str(args.checkpoint_every), "--threads", str(args.threads),
-            "--quiet", "--model", args.model]
+            "--workdir", str(args.out), "--checkpoint-every", str(args.checkpoint_every),
+            "--threads", str(args.threads), "--quiet", "--model", args.model]
     if args.resume:
         argv.append("--resume")
     return cli(argv)
@@ -236,10 +236,10 @@ def plate_kill_resume(workdir, *, n: int = 40, t_end: float = 3e-5, every: int =
     _check(_run(["plate", str(w / "cut"), *common, "--resume"], threads))
     sa, _ = load_checkpoint(w / "full" / "checkpoint.npz")
     sb, _ = load_checkpoint(w / "cut" / "checkpoint.npz")
-    import json
+    from upscale.experiments.result import Result
 
-    ja = json.loads((w / "full" / "plate.json").read_text())["result"]
-    jb = json.loads((w / "cut" / "plate.json").read_text())["result"]
+    ja = Result.from_json(w / "full" / "plate.json").figures
+    jb = Result.from_json(w / "cut" / "plate.json").figures
     same = (sa.step == sb.step and np.array_equal(sa.y, sb.y) and np.array_equal(sa.v, sb.v)
             and np.array_equal(sa.intact, sb.intact) and sa.t == sb.t)
     return {"steps": steps, "killed_at_step": kill_at, "resumed_from_step": ck_step,

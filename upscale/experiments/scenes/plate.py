@@ -26,20 +26,23 @@ no fracture energy and its velocity is applied "along the y axis on the left and
 edges" of a figure whose axes are not shown: we use the Madenci & Oterkus values and
 orientation (mode-I opening of a horizontal crack) and say so in the result.
 
-Writes ``plate.json`` (result), ``damage.png`` (damage map), ``checkpoint.npz`` (every
-``--checkpoint-every`` steps; ``--resume`` continues from it) and, with ``--every N``,
-``traj.extxyz`` + ``vtk/`` + ``summary.json`` every N steps.
+:func:`plate` returns a :class:`~upscale.experiments.result.Result` (figures, the crack's
+history, the damage per particle); with ``workdir`` it also writes ``checkpoint.npz`` there
+(every ``checkpoint_every`` steps; ``resume`` continues from it) and, with ``every=N``,
+``traj.extxyz`` + ``vtk/`` + ``summary.json`` every N steps. :func:`damage_png` draws the
+damage map as one pixel per particle.
 """
 from __future__ import annotations
 
-import argparse
-import sys
 import time
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
-__all__ = ["PlateScene", "run_plate", "register"]
+from upscale.experiments.result import Result, Timer, make_meta
+
+__all__ = ["PlateScene", "plate", "damage_png"]
 
 L_PLATE = 0.05
 CRACK = 0.01
@@ -146,94 +149,121 @@ def damage_png(path, system, mu, title: str) -> Path:
     return atomic_write_bytes(path, buf.getvalue())
 
 
-def run_plate(args) -> dict:
-    from upscale.engine.checkpoint import Checkpoint
-    from upscale.engine.kernels import set_threads
-    from upscale.engine.output import Output
-    from upscale.io import versions, write_json
+def plate(*, model: Literal["pmb", "lps"] = "pmb", quick: bool = False, n: int | None = None,
+          horizon: float = 3.015, s0: float | None = None, Gc: float | None = None,
+          t_end: float = T_END, dt: float | None = None, force_dt: bool = False, every: int = 0,
+          checkpoint_every: int = 200, resume: bool = False, workdir: str | None = None,
+          progress: bool = False) -> Result:
+    """Dynamic crack growth in the pre-cracked square plate (module docstring).
 
-    set_threads(args.threads)
-    n = args.n or (100 if args.quick else 500)
-    t0 = time.perf_counter()
-    scene = PlateScene(n, model=args.model, m=args.horizon, Gc=args.Gc, s0=args.s0, dt=args.dt,
-                       force_dt=args.force_dt, t_end=args.t_end)
-    sim = scene.sim
-    out = Path(args.out)
-    # everything is validated: only now touch the disk
-    out.mkdir(parents=True, exist_ok=True)
-    ck = Checkpoint(out / "checkpoint.npz", every=args.checkpoint_every)
-    resumed = False
-    if args.resume:
-        resumed = sim.resume(ck.path)
-        if resumed:
-            sim.prepare()
-            ck.last_step = sim.state.step
-    output = Output(out, every=args.every) if args.every else None
-    setup_s = time.perf_counter() - t0
-    remaining = max(0, scene.steps - sim.state.step)
-    info = sim.run(remaining, output=output, checkpoint=ck, progress=not args.quiet,
-                   meta={"scene": "plate", "n": n, "model": args.model})
+    Parameters
+    ----------
+    model : {"pmb", "lps"}
+        Peridynamic model of the plate.
+    quick : bool
+        100 x 100 particles instead of 500 x 500 when ``n`` is not given (a few seconds).
+    n : int or None
+        Particles per side (>= 10; None: 500, or 100 with ``quick``).
+    horizon : float
+        Horizon over spacing, delta / h (dimensionless).
+    s0 : float or None
+        Critical stretch (dimensionless; None: 0.04472 of Madenci & Oterkus unless Gc is given).
+    Gc : float or None
+        Fracture energy in J/m^2, instead of s0.
+    t_end : float
+        End time of the run in s.
+    dt : float or None
+        Time step in s (None: 0.8 x the stable estimate).
+    force_dt : bool
+        Allow a time step above the stable estimate.
+    every : int
+        Write extxyz, VTK and summary JSON to workdir every this many steps (0: off).
+    checkpoint_every : int
+        Checkpoint interval in steps (workdir/checkpoint.npz; only with workdir).
+    resume : bool
+        Continue from workdir/checkpoint.npz if it is there (needs workdir).
+    workdir : str or None
+        Folder for the checkpoint and the trajectory output (None: the run writes nothing).
+    progress : bool
+        Show a progress bar.
+    """
+    from upscale.engine.checkpoint import Checkpoint
+    from upscale.engine.output import Output
+
+    if int(every) < 0:
+        raise ValueError(f"every={every!r} steps; valid: >= 0 (0: no trajectory output)")
+    if int(checkpoint_every) < 1:
+        raise ValueError(f"checkpoint_every={checkpoint_every!r} steps; valid: >= 1")
+    if dt is not None and not (np.isfinite(dt) and dt > 0):
+        raise ValueError(f"dt={dt!r} s; valid: a positive time step or None")
+    if workdir is None and (resume or every):
+        raise ValueError(f"{'resume' if resume else f'every={every!r}'} needs a workdir "
+                         "(the folder of the checkpoint and the trajectory)")
+    params = dict(model=model, quick=quick, n=n, horizon=horizon, s0=s0, Gc=Gc, t_end=t_end,
+                  dt=dt, force_dt=force_dt, every=every, checkpoint_every=checkpoint_every,
+                  resume=resume, workdir=workdir)
+    n = n or (100 if quick else 500)
+    with Timer() as timer:
+        t0 = time.perf_counter()
+        scene = PlateScene(n, model=model, m=horizon, Gc=Gc, s0=s0, dt=dt, force_dt=force_dt,
+                           t_end=t_end)
+        sim = scene.sim
+        ck, output, resumed = None, None, False
+        if workdir is not None:   # everything is validated: only now touch the disk
+            out = Path(workdir)
+            out.mkdir(parents=True, exist_ok=True)
+            ck = Checkpoint(out / "checkpoint.npz", every=checkpoint_every)
+            if resume:
+                resumed = sim.resume(ck.path)
+                if resumed:
+                    sim.prepare()
+                    ck.last_step = sim.state.step
+            output = Output(out, every=every) if every else None
+        setup_s = time.perf_counter() - t0
+        remaining = max(0, scene.steps - sim.state.step)
+        hist = {"time_us": [], "broken_bonds": [], "crack_length_mm": [], "kinetic_energy_J": []}
+        record = max(1, remaining // 100)
+
+        def sample(s):
+            if s.state.step % record == 0 or s.state.step == scene.steps:
+                hist["time_us"].append(s.state.t * 1e6)
+                hist["broken_bonds"].append(int(s.state.intact.size - np.count_nonzero(s.state.intact)))
+                hist["crack_length_mm"].append(scene.crack_metrics()["crack_length_m"] * 1e3)
+                hist["kinetic_energy_J"].append(s.kinetic_energy())
+            return False
+
+        sample(sim)
+        info = sim.run(remaining, output=output, checkpoint=ck, progress=progress, callback=sample,
+                       meta={"scene": "plate", "n": n, "model": model})
     met = scene.crack_metrics()
     mu = sim.damage()
-    title = (f"{args.model.upper()} plate {n}x{n}, t = {sim.state.t * 1e6:.2f} us, "
-             f"{info['broken_bonds'] - int(scene.precrack.sum())} bonds broken")
-    damage_png(out / "damage.png", sim.system, mu, title)
-    wall = time.perf_counter() - t0
-    result = {
-        "scene": "pre-cracked plate (seed 004 sec. 2.4.2 / Madenci & Oterkus 2014)",
-        "model": args.model, "particles": sim.system.n, "bonds": sim.family.nb,
-        "spacing_m": scene.h, "horizon_m": sim.family.horizon, "thickness_m": sim.system.thickness,
-        "E_Pa": E_PLATE, "density_kg_m3": RHO, "edge_velocity_m_s": V_EDGE,
+    pre = int(scene.precrack.sum())
+    figures = {
+        "particles": sim.system.n, "bonds": sim.family.nb, "spacing_m": scene.h,
+        "horizon_m": sim.family.horizon, "thickness_m": sim.system.thickness, "E_Pa": E_PLATE,
+        "density_kg_m3": RHO, "edge_velocity_m_s": V_EDGE,
         "critical_stretch": float(sim.models[0].s0), "dt_s": sim.integrator.dt,
         "stable_dt_estimate_s": sim.integrator.estimate, "steps": sim.state.step,
-        "time_s": sim.state.t, "resumed": resumed,
-        "precrack_bonds": int(scene.precrack.sum()),
-        "broken_bonds": info["broken_bonds"],
-        "broken_bonds_by_loading": info["broken_bonds"] - int(scene.precrack.sum()),
-        "max_damage": float(mu.max()), **met,
+        "time_s": sim.state.t, "resumed": resumed, "precrack_bonds": pre,
+        "broken_bonds": info["broken_bonds"], "broken_bonds_by_loading": info["broken_bonds"] - pre,
+        "max_damage": float(mu.max()), "crack_length_m": met["crack_length_m"],
+        "crack_tip_left_x_m": met["crack_tips_x_m"][0], "crack_tip_right_x_m": met["crack_tips_x_m"][1],
+        "max_abs_y_damaged_m": met["max_abs_y_damaged_m"], "branched": met["branched"],
         "kinetic_energy_J": sim.kinetic_energy(), "strain_energy_J": sim.energy(),
-        "setup_s": setup_s, "run_wall_s": info["wall_s"], "wall_s": wall,
-        "damage_png": str(out / "damage.png"),
+    }
+    conventions = {
+        "units": "SI (m, s, Pa, J); history in us and mm",
+        "axes": "x along the pre-crack, y the loading direction; origin at the plate centre",
+        "loading": "the 3 top rows move at +v in y, the 3 bottom rows at -v",
+        "damage": "mu = 1 - intact/initial bonds of a particle; pre-crack bonds count as broken",
+        "crack": "particles with damage > 0.35; branched: more than 10 of them over 2 horizons "
+                 "off the crack line",
+        "history": "sampled every 1 % of the run's steps (a resumed run: from the resumed step)",
         "notes": ("Table 2.1's 'elasticity modulus 576e9 N/m^3' = 3 x 192 GPa; E = 192 GPa, "
                   "s0 = 0.04472 and the mode-I orientation follow Madenci & Oterkus (2014)"),
     }
-    write_json(out / "plate.json", {"result": result, "run": sim.describe(), "versions": versions()})
-    rows = [("model", args.model), ("particles", sim.system.n), ("bonds", sim.family.nb),
-            ("time step (s)", f"{sim.integrator.dt:.4g} (estimate {sim.integrator.estimate:.4g})"),
-            ("steps", sim.state.step), ("time (s)", f"{sim.state.t:.4g}"),
-            ("bonds broken by loading", result["broken_bonds_by_loading"]),
-            ("crack length (m)", f"{met['crack_length_m']:.4g} (initial {CRACK})"),
-            ("crack tips x (m)", f"{met['crack_tips_x_m'][0]:.4g}, {met['crack_tips_x_m'][1]:.4g}"),
-            ("branched", met["branched"]), ("max damage", f"{mu.max():.3f}"),
-            ("wall time (s)", f"{wall:.1f}"), ("damage map", out / "damage.png"),
-            ("result", out / "plate.json")]
-    w = max(len(r[0]) for r in rows)
-    print("\n".join(f"{k.ljust(w)}  {v}" for k, v in rows))
-    return result
-
-
-def register(sub) -> None:
-    p = sub.add_parser("plate", help="pre-cracked plate under edge velocities (PMB/LPS), damage map",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--model", default="pmb", help="peridynamic model: pmb (default) or lps")
-    p.add_argument("--quick", action="store_true", help="100 x 100 particles (a few seconds)")
-    p.add_argument("--n", type=int, default=None, help="particles per side (default 500, quick 100)")
-    p.add_argument("--out", default="out/plate", help="output directory (default: %(default)s)")
-    p.add_argument("--horizon", type=float, default=3.015, help="horizon / spacing (default %(default)s)")
-    p.add_argument("--s0", type=float, default=None, help=f"critical stretch (default {S0})")
-    p.add_argument("--Gc", type=float, default=None, help="fracture energy J/m^2 (instead of --s0)")
-    p.add_argument("--t-end", type=float, default=T_END, help="end time in s (default %(default)s)")
-    p.add_argument("--dt", type=float, default=None, help="time step (default 0.8 x stable estimate)")
-    p.add_argument("--force-dt", action="store_true", help="allow a time step above the stable estimate")
-    p.add_argument("--every", type=int, default=0, help="write extxyz/VTK/JSON every N steps (0: off)")
-    p.add_argument("--checkpoint-every", type=int, default=200, help="checkpoint interval in steps")
-    p.add_argument("--resume", action="store_true", help="continue from OUT/checkpoint.npz if present")
-    p.add_argument("--threads", type=int, default=None, help="numba threads (default: all)")
-    p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=lambda a: (run_plate(a), 0)[1])
-
-
-if __name__ == "__main__":  # pragma: no cover
-    from upscale.cli import main
-
-    sys.exit(main(["plate", *sys.argv[1:]]))
+    meta = make_meta("plate", params, timer=timer, conventions=conventions,
+                     plot={"history": {"x": "time_us", "y": ["crack_length_mm"]}},
+                     setup_s=setup_s, run_wall_s=info["wall_s"], run=sim.describe())
+    return Result(figures=figures, curves={f"history/{k}": v for k, v in hist.items()},
+                  fields={"x0": sim.system.x0, "damage": mu}, meta=meta)
