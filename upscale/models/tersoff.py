@@ -101,6 +101,22 @@ class TersoffModel(Model):
         self.nl = NeighbourList(self.cutoff, self.skin)
         self._last = None
 
+    def set_period(self, period_z: float) -> None:
+        """Set the period along z, Å (mutates the model; a periodic model only): the cell of
+        a quasi-static strain step. The neighbour list sees the new cell and rebuilds."""
+        if self.period_z is None:
+            raise ValueError("set_period on an open-boundary Tersoff model; valid: a model "
+                             "made with period_z")
+        check_positive(period_z=period_z)
+        self.period_z = float(period_z)
+        self._cell = np.diag([1.0, 1.0, self.period_z])
+        self._last = None
+
+    def virial(self, state) -> np.ndarray:
+        """(3, 3) eV: W = sum over bonds of r_ij (x) f_ij (LAMMPS's virial, the kinetic part
+        left out). With a period along z, dE/dL_z = -W_zz / L_z under an affine stretch."""
+        return self.evaluate(state.y)[3].copy()
+
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, y):
         """``(energy, e_n, f_nc, W_cc)`` of positions ``y`` (N, 3) Å: eV, eV per atom, eV/Å,

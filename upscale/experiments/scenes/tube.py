@@ -1,0 +1,314 @@
+"""``experiments.tension``: one single-wall carbon tube under a loading protocol.
+
+The structure is any ``ase.Atoms`` of one carbon tube along z (a file ASE reads, or
+:func:`upscale.build.swcnt` with defects from :mod:`upscale.defects`); the model is
+``atomistic`` (the engine's Tersoff on every atom, :mod:`.tube_atomistic`), ``dcbr`` (the
+coarse tube) or ``lammps`` (the reference backend, :mod:`upscale.experiments.lammps`).
+The protocol objects of :mod:`upscale.experiments.protocols` are built here from the
+scene's parameters, so every model runs the same one.
+
+Figures (:func:`tube_result`): ``strength_GPa``, ``strain_at_peak``, ``youngs_TPa``
+(tension and compression, :func:`upscale.experiments.protocols.curve_figures`; compression
+negative), ``peak_torque_eV`` and ``twist_at_peak_deg`` (torsion), and where the tube
+failed: ``failure_z_A``, ``failure_angle_deg``, the median axial position and azimuth, in
+the reference configuration, of the atoms (or particles) whose bonds broke between the
+peak and the last record. Stress on the wall area 2 pi R t, t = 3.4 Å, R the mean wall
+radius after the zero-stress relaxation.
+"""
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+
+from upscale.experiments.protocols import Dynamic, QuasiStatic, curve_figures, ramp
+from upscale.experiments.result import Result, Timer, make_meta
+
+__all__ = ["tension", "tube_structure", "make_protocol", "tube_result", "MODELS"]
+
+#: the models the tube scene takes
+MODELS = ("dcbr", "atomistic", "lammps")
+
+#: load parameter defaults per load: (step, maximum)
+_RAMP = {"tension": (0.005, 0.40), "compression": (0.005, 0.40), "torsion": (1.0, 120.0)}
+
+#: the gripped length at each end where the protocol needs grips, Å
+_GRIP = {"torsion": 10.0, "dynamic": 50.0}
+
+
+def tension(structure=None, *, chirality: tuple[int, int] = (10, 10), length: float = 100.0,
+            defects: str = "", model: Literal["dcbr", "atomistic", "lammps"] = "dcbr",
+            coarsening: float = 2.0,
+            protocol: Literal["quasi-static", "dynamic"] = "quasi-static",
+            load: Literal["tension", "compression", "torsion"] = "tension",
+            step: float | None = None, maximum: float | None = None,
+            grip: float | None = None, temperature: float = 10.0, seed: int = 1,
+            potential: str = "BNC.tersoff", progress: bool = True) -> Result:
+    """One tube under a loading protocol (module docstring).
+
+    Parameters
+    ----------
+    structure : ase.Atoms, optional
+        the tube (any structure ASE reads); default built from ``chirality``, ``length``
+        and ``defects``.
+    chirality : tuple of int
+        (n, m) of the built tube.
+    length : float
+        length of the built tube, Å.
+    defects : str
+        comma list of KIND@ZFRAC@ANGLE placed on the built tube (KIND v1, v2, v4, sw,
+        adatom; ZFRAC the axial fraction 0..1; ANGLE the azimuth, degrees).
+    model : {"dcbr", "atomistic", "lammps"}
+        the coarse tube, the engine's Tersoff on every atom, or LAMMPS.
+    coarsening : float
+        particle spacing over lattice constant of the coarse tube (dcbr only).
+    protocol : {"quasi-static", "dynamic"}
+        a ramp with relaxations, or grips pulled at a speed with a thermostat.
+    load : {"tension", "compression", "torsion"}
+        axial strain (compression negative) or twist of one grip against the other.
+    step : float, optional
+        load increment per step: strain (default 0.005) or degrees (default 1).
+    maximum : float, optional
+        largest load: strain (default 0.40) or degrees (default 120).
+    grip : float, optional
+        gripped length at each end, Å (default: none for a periodic ramp, 10 for torsion,
+        50 for a dynamic pull).
+    temperature : float
+        thermostat temperature of a dynamic pull, K.
+    seed : int
+        seed of a dynamic pull's thermal start.
+    potential : str
+        LAMMPS .tersoff file of the atoms (default the references' BNC.tersoff, step cutoff).
+    progress : bool
+        print one line per load step.
+    """
+    if model not in MODELS:
+        raise ValueError(f"model={model!r}; valid: {', '.join(MODELS)}")
+    params = dict(chirality=tuple(chirality), length=length, defects=defects, model=model,
+                  coarsening=coarsening, protocol=protocol, load=load, step=step,
+                  maximum=maximum, grip=grip, temperature=temperature, seed=seed,
+                  potential=potential)
+    proto = make_protocol(protocol, load, step=step, maximum=maximum, grip=grip,
+                          temperature=temperature, seed=seed)
+    atoms = tube_structure(structure, chirality, length, defects)
+    if structure is not None:
+        params["structure"] = f"Atoms({atoms.get_chemical_formula()})"
+    show = _printer(progress, model)
+    with Timer() as timer:
+        if model == "atomistic":
+            run = _run_atomistic(atoms, proto, potential, show)
+        elif model == "lammps":
+            run = _run_lammps(atoms, proto, potential, show)
+        else:
+            run = _run_dcbr(atoms, proto, coarsening, potential, show)
+    return tube_result(run, proto, params, timer)
+
+
+def make_protocol(protocol: str, load: str, *, step=None, maximum=None, grip=None,
+                  temperature=10.0, seed=1):
+    """The protocol object of the tube scene's parameters (defaults per load)."""
+    if protocol not in ("quasi-static", "dynamic"):
+        raise ValueError(f"protocol={protocol!r}; valid: quasi-static, dynamic")
+    if load not in _RAMP:
+        raise ValueError(f"load={load!r}; valid: {', '.join(_RAMP)}")
+    s0, m0 = _RAMP[load]
+    step = s0 if step is None else step
+    maximum = m0 if maximum is None else maximum
+    if protocol == "dynamic":
+        return Dynamic(load=load, grip=_GRIP["dynamic"] if grip is None else grip,
+                       maximum=maximum, temperature=temperature, seed=seed)
+    grip = _GRIP.get(load, 0.0) if grip is None else grip
+    return QuasiStatic(load=load, step=step, maximum=maximum, periodic=not grip, grip=grip)
+
+
+def tube_structure(structure, chirality, length, defects: str = ""):
+    """The scene's tube: ``structure`` checked (carbon only), or built and defected."""
+    if structure is None:
+        from upscale.build import swcnt
+
+        n, m = (int(v) for v in chirality)
+        structure = swcnt(n, m, length=float(length))
+        if defects:
+            from upscale.defects import apply_defects
+
+            structure = apply_defects(structure, defects)
+    elif defects:
+        from upscale.defects import apply_defects
+
+        structure = apply_defects(structure, defects)
+    sym = set(structure.get_chemical_symbols())
+    if sym != {"C"}:
+        raise ValueError(f"structure has elements {sorted(sym)}; valid: carbon only (C)")
+    if len(structure) < 20:
+        raise ValueError(f"structure has {len(structure)} atoms; valid: a tube of >= 20 atoms")
+    return structure
+
+
+# --------------------------------------------------------------------- the three models
+def _run_atomistic(atoms, proto, potential, show) -> dict:
+    from upscale.experiments.scenes.tube_atomistic import AtomisticTube
+
+    if isinstance(proto, Dynamic):
+        raise ValueError("model='atomistic' with protocol='dynamic' is not on the engine "
+                         "yet; valid: protocol='quasi-static'")
+    tube = AtomisticTube(atoms, proto, potential)
+    damage = [tube.damage()]
+
+    def step(k, value, rec):
+        damage.append(tube.damage())
+        if show:
+            show(value, rec["response"])
+
+    out = ramp(tube, proto, progress=step)
+    return {"curve": out["curve"], "x0": tube.x_rest, "damage_steps": damage[1:],
+            "axis": tube.axis, "radius_A": tube.radius, "dof": 3 * len(atoms),
+            "atoms": len(atoms), "particles": len(atoms),
+            "minimisations": tube.minimisations, "unconverged": tube.unconverged}
+
+
+def _run_lammps(atoms, proto, potential, show) -> dict:
+    """A stored reference of ``data/reference/`` where one matches the structure and the
+    protocol, else a LAMMPS run now (cached by the backend)."""
+    r = _stored_reference(atoms, proto, potential)
+    if r is None:
+        from upscale.experiments import lammps
+
+        r = lammps.run(atoms, proto, potential=f"tersoff:{potential}")
+    c = r["curve"]
+    x0 = atoms.get_positions()
+    dmg = r.get("atom_damage")  # per atom where the run kept it (a stored record does not)
+    return {"curve": {"load": np.asarray(c["load"]), "response": np.asarray(c["response"])},
+            "x0": x0, "damage_steps": [] if dmg is None else [np.asarray(dmg, dtype=float)],
+            "axis": x0[:, :2].mean(0), "wall_s": float(r.get("wall_s", np.nan)),
+            "radius_A": r.get("relaxation", {}).get("radius_relaxed_A", np.nan),
+            "dof": 3 * len(atoms), "atoms": len(atoms), "particles": len(atoms),
+            "lammps": r.get("lammps_version"), "source": r.get("_source", "computed now")}
+
+
+def _stored_reference(atoms, proto, potential) -> dict | None:
+    from upscale.experiments.scenes.tube_tension import lammps_reference
+
+    info = atoms.info
+    vac = info.get("vacancy")
+    if (potential != "BNC.tersoff" or info.get("chirality") is None or info.get("defects")
+            or not isinstance(proto, QuasiStatic) or proto.load != "tension"
+            or not proto.periodic or (vac and vac.get("n") != 4)):
+        return None
+    n, m = info["chirality"]
+    try:
+        r = lammps_reference(n, m, info["length"], strain_step=proto.step,
+                             vacancy=bool(vac), progress=False)
+    except LookupError:
+        return None
+    if len(atoms) != r["structure"]["n_atoms"]:
+        return None
+    r["curve"] = {"load": r["curve"]["strain"], "response": r["curve"]["stress_GPa"]}
+    return r
+
+
+def _run_dcbr(atoms, proto, coarsening, potential, show) -> dict:
+    """Today's coarse tube: the pristine periodic tube on the engine, or the seed's tube with
+    the 4-atom vacancy (told apart by ``atoms.info`` of :mod:`upscale.build`); quasi-static
+    tension only."""
+    from upscale.experiments.scenes.tube_tension import (quasi_static_tension,
+                                                         quasi_static_tension_engine)
+
+    if not isinstance(proto, QuasiStatic) or proto.load != "tension" or not proto.periodic:
+        raise ValueError("model='dcbr' runs quasi-static periodic tension only until the "
+                         "coarse model takes any structure; use model='atomistic' or 'lammps'")
+    info = atoms.info
+    ch, L = info.get("chirality"), info.get("length")
+    vac = info.get("vacancy")
+    other = [d["kind"] for d in info.get("defects", []) if d.get("kind") != "v4"]
+    if ch is None or L is None or other or (vac and vac.get("n") != 4):
+        raise ValueError("model='dcbr' takes a pristine tube of upscale.build.swcnt or the "
+                         "seed's tube with one 4-atom vacancy (upscale.build.vacancy) until "
+                         "the coarse model takes any structure; got "
+                         f"{'defects ' + ','.join(other) if other else 'an untagged structure'}")
+    n, m = ch
+    qs = dict(strain_step=proto.step, max_strain=proto.maximum,
+              progress=(lambda e, s: show(e, s)) if show else None)
+    if vac:
+        from upscale.models.dcbr_defect import DCBRDefectTube
+
+        tube = DCBRDefectTube(n, m, L, coarsening=coarsening, vacancy=4,
+                              potential=f"tersoff:{potential}")
+        res = quasi_static_tension(tube, **qs)
+    else:
+        from upscale.models.dcbr import DCBRTube
+
+        tube = DCBRTube(n, m, L, coarsening=coarsening, potential=f"tersoff:{potential}")
+        res = quasi_static_tension_engine(tube, **qs)
+    c = res["curve"]
+    x0 = np.asarray(tube.x0)
+    return {"curve": {"load": np.asarray(c["strain"]), "response": np.asarray(c["stress_GPa"]),
+                      "energy_eV": np.asarray(c["energy_eV"])},
+            "x0": x0, "damage_steps": [np.asarray(res["damage"], dtype=float)],
+            "axis": x0[:, :2].mean(0), "radius_A": res["radius_relaxed_A"], "dof": res["dof"],
+            "atoms": res["atoms"], "particles": res["particles"]}
+
+
+# --------------------------------------------------------------------- the Result
+def tube_result(run: dict, proto, params: dict, timer: Timer) -> Result:
+    """The scene's :class:`Result` from a model's run dict (module docstring)."""
+    c = run["curve"]
+    x, y = np.asarray(c["load"], dtype=float), np.asarray(c["response"], dtype=float)
+    figs = curve_figures(x, y, proto)
+    torsion = proto.load == "torsion"
+    xname, yname = ("twist_deg", "torque_eV") if torsion else ("strain", "stress_GPa")
+    curves = {f"curve/{xname}": x, f"curve/{yname}": y}
+    for k, v in c.items():
+        if k not in ("load", "response"):
+            curves[f"curve/{k}"] = np.asarray(v, dtype=float)
+    steps = run["damage_steps"]
+    fields = {"x0": run["x0"]}
+    if steps:
+        fields["damage"] = np.asarray(steps[-1], dtype=float)
+        figs.update(_failure_site(run["x0"], steps, y, proto, run["axis"]))
+    else:
+        figs.update(failure_z_A=float("nan"), failure_angle_deg=float("nan"))
+    figs.update(atoms=run["atoms"], particles=run["particles"], dof=run["dof"],
+                radius_A=float(run["radius_A"]),
+                wall_s=float(run.get("wall_s", timer.wall_s)))
+    meta = make_meta("tension", params, timer=timer, seeds=[params["seed"]],
+                     conventions={"stress_area": "2 pi R t, t = 3.4 A, R mean wall radius "
+                                  "after the zero-stress relaxation",
+                                  "compression": "negative strain and stress",
+                                  "torque": "eV, sign of the twist", "length_unit": "A",
+                                  "unroll": [float(v) for v in run["axis"]]},
+                     plot={"curve": {"x": xname, "y": [yname]}},
+                     protocol={"name": proto.name, **_asdict(proto)},
+                     model_detail={k: run[k] for k in ("minimisations", "unconverged", "lammps",
+                                                       "source") if k in run})
+    return Result(figures=figs, curves=curves, fields=fields, meta=meta)
+
+
+def _failure_site(x0, damage_steps, response, proto, axis) -> dict:
+    """Median z and azimuth (reference configuration) of what broke between the peak and
+    the last record; NaN where nothing broke."""
+    k = proto.stop.failed_at(response)
+    i = int(np.argmax(np.abs(response[: k if k is not None else len(response)])))
+    before = damage_steps[i] if len(damage_steps) == len(response) else 0.0
+    new = np.asarray(damage_steps[-1]) - before > 0
+    if not new.any():
+        return {"failure_z_A": float("nan"), "failure_angle_deg": float("nan")}
+    p = np.asarray(x0)[new]
+    th = np.arctan2(p[:, 1] - axis[1], p[:, 0] - axis[0])
+    mean = np.angle(np.exp(1j * th).mean())
+    ang = np.degrees(mean + np.median(np.angle(np.exp(1j * (th - mean)))))
+    return {"failure_z_A": float(np.median(p[:, 2])), "failure_angle_deg": float(ang % 360.0)}
+
+
+def _asdict(proto) -> dict:
+    import dataclasses
+
+    return dataclasses.asdict(proto)
+
+
+def _printer(progress: bool, model: str):
+    if not progress:
+        return None
+
+    def show(value, response):
+        print(f"  {model:9s} load {value:9.4f}  response {response:10.4f}", flush=True)
+    return show

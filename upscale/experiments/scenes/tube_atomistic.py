@@ -1,0 +1,225 @@
+"""The atomistic tube on the engine as a :class:`~upscale.experiments.protocols.Specimen`.
+
+Every atom is a particle of :class:`upscale.models.tersoff.TersoffModel` (the project's
+Tersoff, exact against LAMMPS ``pair_style tersoff``); relaxations are the engine's
+L-BFGS-B with FIRE as the fallback where L-BFGS-B stalls, as the LAMMPS runner falls back
+from CG to damped dynamics (the step cutoff makes the energy jump when a bond crosses it,
+which stops line searches).
+
+Periodic tube (tension, compression): the zero-stress relaxation finds the cell length L0
+at which dE/dL_z = 0 (secant, :func:`upscale.engine.minimisers.zero_cell_force`); at load
+eps the cell is L0 (1 + eps), atoms are mapped affinely along z and relaxed at fixed cell.
+Stress sigma = (dE/dL_z) / (2 pi R t), dE/dL_z = -W_zz / L_z (virial W), R the mean wall
+radius after the zero-stress relaxation, t = 3.4 Å.
+
+Finite tube (torsion): the ends are open; the atoms within ``grip`` Å of each end are held
+rigidly (L-BFGS-B bounds lo = hi); at twist phi the top grip is turned by phi about the
+tube axis against the bottom one, the free atoms first turned by the affine fraction of the
+increment. Torque T = sum over the top grip of (x F_y - y F_x) about the axis, eV (the
+reaction the rest of the tube exerts on it, with the sign of the twist).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from upscale.constants import CARBON_MASS_AMU, EV_PER_A3_IN_GPA, WALL_THICKNESS_A
+from upscale.engine.minimisers import FIRE, LBFGS, NotConverged, zero_cell_force
+from upscale.engine.simulation import Simulation
+from upscale.engine.system import ParticleSystem
+from upscale.experiments.protocols import Specimen
+from upscale.models.tersoff import TersoffModel
+
+__all__ = ["AtomisticTube", "bond_pairs", "bond_damage"]
+
+#: bonds at the start are pairs closer than this, Å; broken beyond BREAK_A (the references')
+BOND_A, BREAK_A = 2.0, 2.1
+#: FIRE's first step: 1 fs in the engine's time unit sqrt(amu A^2 / eV) = 10.18 fs, and at
+#: most 0.02 A per iteration, the LAMMPS runner's damped-dynamics fallback
+_FIRE_DT = 1.0 / 10.1805
+
+
+class AtomisticTube(Specimen):
+    """The atoms of ``atoms`` under ``protocol`` on the engine (module docstring).
+
+    Parameters
+    ----------
+    atoms : ase.Atoms
+        one carbon tube along z; periodic along z for a periodic protocol.
+    protocol : QuasiStatic
+        the loading protocol (its ``periodic``, ``grip``, ``ftol``).
+    potential : str
+        LAMMPS ``.tersoff`` file (default the references' ``BNC.tersoff``, step cutoff).
+    """
+
+    def __init__(self, atoms, protocol, potential: str = "BNC.tersoff"):
+        self.protocol = protocol
+        x = atoms.get_positions()
+        self.axis = _axis_xy(x)
+        self.periodic = bool(protocol.periodic)
+        if self.periodic:
+            if not atoms.pbc[2] or atoms.cell[2, 2] <= 0:
+                raise ValueError("a periodic protocol needs a structure periodic along z "
+                                 "(atoms.pbc[2] and a cell length); got an open one")
+            self.L = float(atoms.cell[2, 2])
+            model = TersoffModel(potential, period_z=self.L)
+        else:
+            model = TersoffModel(potential)
+        self.model = model
+        system = ParticleSystem(x, 1.0, CARBON_MASS_AMU, spacing=1.42, units="atomic")
+        self.sim = Simulation(system, None, model)
+        self.ftol = float(protocol.ftol)
+        self.value = 0.0
+        self.minimisations = 0
+        self.unconverged = 0
+        self._relax_zero_stress()
+        self.x_rest = self.sim.state.y.copy()
+        self.L0 = self.L if self.periodic else None
+        self.radius = float(np.mean(np.hypot(*(self.x_rest[:, :2] - self.axis).T)))
+        self.area = 2 * math.pi * self.radius * WALL_THICKNESS_A
+        self.bonds = bond_pairs(self.x_rest, self.L0)
+        if not self.periodic:
+            z = self.x_rest[:, 2]
+            g = float(protocol.grip)
+            if z.max() - z.min() <= 2 * g:
+                raise ValueError(f"grip={g} Å at each end of a {z.max() - z.min():.1f} Å tube;"
+                                 " valid: grips shorter than half the tube")
+            self.bottom = z < z.min() + g
+            self.top = z > z.max() - g
+            self.z_lo, self.z_hi = z.min() + g, z.max() - g
+
+    # ------------------------------------------------------------------ relaxations
+    def _minimise(self, bounds=None) -> None:
+        """L-BFGS-B; where it stalls, FIRE then L-BFGS-B again, up to three cycles."""
+        for _ in range(3):
+            lb = LBFGS(ftol=self.ftol, max_iter=20_000, memory=30, bounds=bounds)
+            r = self.sim.minimise(lb, raise_on_fail=False)
+            self.minimisations += 1
+            if r.converged:
+                return
+            fire = FIRE(ftol=self.ftol, max_iter=5_000, dt=_FIRE_DT, max_step=0.02)
+            if bounds is not None:  # FIRE knows no bounds: the held atoms are put back
+                held = self.sim.state.y[self._held].copy()
+            try:
+                self.sim.minimise(fire, raise_on_fail=True)
+                if bounds is None:
+                    return
+            except NotConverged:
+                pass
+            if bounds is not None:
+                self.sim.state.y[self._held] = held
+        self.unconverged += 1
+
+    def _relax_zero_stress(self) -> None:
+        if not self.periodic:
+            self._minimise()
+            return
+        x_start = self.sim.state.y.copy()
+        L_start = self.L
+
+        def relax(L):
+            self.model.set_period(L)
+            self.sim.state.y[...] = x_start
+            self.sim.state.y[:, 2] *= L / L_start
+            self._minimise()
+            return None, self.cell_force()
+
+        _, self.L, _ = zero_cell_force(relax, self.L, tol=1e-4 * len(x_start) / 100)
+        relax(self.L)
+
+    def cell_force(self) -> float:
+        """dE/dL_z, eV/Å (periodic tube)."""
+        return float(-self.model.virial(self.sim.state)[2, 2] / self.model.period_z)
+
+    # ------------------------------------------------------------------ the Specimen
+    def apply(self, value: float) -> None:
+        if self.periodic:
+            Lz = self.L0 * (1.0 + value)
+            self.sim.state.y[:, 2] *= Lz / self.model.period_z
+            self.model.set_period(Lz)
+        else:
+            self._twist(math.radians(value - self.value))
+        self.value = float(value)
+
+    def _twist(self, dphi: float) -> None:
+        y = self.sim.state.y
+        f = np.clip((self.x_rest[:, 2] - self.z_lo) / (self.z_hi - self.z_lo), 0.0, 1.0)
+        f[self.bottom], f[self.top] = 0.0, 1.0
+        c, s = np.cos(f * dphi), np.sin(f * dphi)
+        dx, dy = y[:, 0] - self.axis[0], y[:, 1] - self.axis[1]
+        y[:, 0] = self.axis[0] + c * dx - s * dy
+        y[:, 1] = self.axis[1] + s * dx + c * dy
+
+    @property
+    def _held(self):
+        return self.bottom | self.top
+
+    def relax(self) -> int:
+        if self.periodic:
+            self._minimise()
+        else:
+            y = self.sim.state.y
+            lo = np.full_like(y, -np.inf)
+            hi = np.full_like(y, np.inf)
+            lo[self._held], hi[self._held] = y[self._held], y[self._held]
+            self._minimise(bounds=(lo, hi))
+        return 0  # bonds break through the potential itself
+
+    def record(self) -> dict:
+        st = self.sim.state
+        if self.periodic:
+            s = self.cell_force() / self.area * EV_PER_A3_IN_GPA
+            return {"response": float(s), "energy_eV": self.model.energy(st),
+                    "Lz_A": float(self.model.period_z),
+                    "broken_bonds": int(self.broken().sum())}
+        F = self.sim.forces()
+        y = st.y[self.top]
+        T = np.sum((y[:, 0] - self.axis[0]) * F[self.top, 1]
+                   - (y[:, 1] - self.axis[1]) * F[self.top, 0])
+        return {"response": float(-T), "energy_eV": self.model.energy(st),
+                "broken_bonds": int(self.broken().sum())}
+
+    def broken(self) -> np.ndarray:
+        """(M,) bool: the bonds of the start longer than BREAK_A now."""
+        return bond_lengths(self.sim.state.y, self.bonds, self.model.period_z) > BREAK_A
+
+    def damage(self) -> np.ndarray:
+        return bond_damage(self.sim.state.y, self.bonds, self.model.period_z)
+
+
+def _axis_xy(x) -> np.ndarray:
+    return np.asarray(x, dtype=float)[:, :2].mean(axis=0)
+
+
+def bond_pairs(x, period_z=None) -> np.ndarray:
+    """(M, 2): pairs i < j closer than BOND_A Å (minimum image along z with a period)."""
+    from scipy.spatial import cKDTree
+
+    x = np.asarray(x, dtype=float)
+    if period_z:
+        box = np.array([np.inf, np.inf, period_z])
+        xs = x.copy()
+        xs[:, 2] %= period_z
+        tree = cKDTree(np.column_stack([xs[:, :2] - xs[:, :2].min(0), xs[:, 2]]),
+                       boxsize=np.where(np.isinf(box), 1e12, box))
+    else:
+        tree = cKDTree(x)
+    return tree.query_pairs(BOND_A, output_type="ndarray").astype(np.int64)
+
+
+def bond_lengths(y, bonds, period_z=None) -> np.ndarray:
+    d = y[bonds[:, 1]] - y[bonds[:, 0]]
+    if period_z:
+        d[:, 2] -= period_z * np.round(d[:, 2] / period_z)
+    return np.linalg.norm(d, axis=1)
+
+
+def bond_damage(y, bonds, period_z=None) -> np.ndarray:
+    """(N,) mu = 1 - bonds left / bonds at the start (seed 004 eq. 5.16; a bond is broken
+    beyond BREAK_A Å)."""
+    n = len(y)
+    ok = (bond_lengths(y, bonds, period_z) <= BREAK_A).astype(float)
+    total = np.bincount(bonds.ravel(), minlength=n).astype(float)
+    left = np.bincount(bonds[:, 0], ok, n) + np.bincount(bonds[:, 1], ok, n)
+    return np.where(total > 0, 1.0 - left / np.maximum(total, 1.0), 0.0)
