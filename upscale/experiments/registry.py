@@ -32,9 +32,9 @@ SCENES: dict[str, str] = {
     "tension": "upscale.experiments.scenes.tube:tension",
     "plate": "upscale.experiments.scenes.plate:plate",
     "cpd": "upscale.experiments.scenes.cpd_bar:cpd",
-    "beam": "upscale.experiments.scenes.tridyn:beam",
-    "plate-bending": "upscale.experiments.scenes.tridyn:plate_bending_scene",
-    "dispersion": "upscale.experiments.scenes.tridyn:dispersion",
+    "beam": "upscale.experiments.scenes.tridyn_scenes:beam",
+    "plate-bending": "upscale.experiments.scenes.tridyn_scenes:plate_bending_scene",
+    "dispersion": "upscale.experiments.scenes.tridyn_scenes:dispersion",
     "tipd": "upscale.experiments.scenes.tipd:tipd",
     "scb": "upscale.experiments.scenes.scb:scb",
 }

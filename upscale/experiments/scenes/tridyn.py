@@ -10,14 +10,9 @@ References (closed forms, none produced by the models): EB deflections under uni
 flexural root in the cancellation-free form ``X_- = 2 c/(B + sqrt(B^2 - 4 a c))``; the
 peridynamic bar ``rho w^2 = (4E/delta^2) Cin(k delta)`` and its truncation 3.55.
 
-Command line::
-
-    upscale beam --theory eb --support ss --n 100 --ratios 1,2,3 --plot beam.png
-    upscale plate-bending --n 20,40 --plot plate.png
-    upscale dispersion --model tridyn-timoshenko --variant consistent --ratio 1
-    upscale dispersion --model tridyn-plate --variant text --text-triplets lines
-    upscale dispersion --model tridyn-eb --rotary
-    upscale beam --theory timoshenko --height 0.001 --ratios 1,2,3 --shear-integration bond
+The scenes ``upscale beam``, ``upscale plate-bending`` and ``upscale dispersion`` are
+:mod:`upscale.experiments.scenes.tridyn_scenes` (functions returning a ``Result``); the
+``plot_*`` functions here draw the seed's figures from the dicts of this module.
 
 The EB beam with the rotary inertia of its sections (Rayleigh beam, mass matrix of
 :mod:`upscale.engine.mass`) is compared with ``omega^2 = EI k^4/(rho (A + I k^2))``.
@@ -31,7 +26,7 @@ import numpy as np
 from upscale.analysis.plots import save_figure
 
 __all__ = ["beam_static", "timoshenko_branches", "beam_dispersion", "pd_bar_dispersion",
-           "cin", "register", "SUPPORT_PAIRS", "plate_long_wave", "rayleigh_branch",
+           "cin", "SUPPORT_PAIRS", "plate_long_wave", "rayleigh_branch",
            "rayleigh_dispersion", "rayleigh_mode"]
 
 SUPPORT_PAIRS = {"ss": ("ss", "ss"), "cc": ("cc", "cc"), "cantilever": ("cc", "free")}
@@ -250,95 +245,6 @@ def plot_dispersion(results: list, path, h=STEEL["h"]) -> Path:
     return save_figure(fig, path, dpi=120)
 
 
-# =========================================================================== CLI
-def _clean(r):
-    return {k: (v.tolist() if isinstance(v, np.ndarray) and not np.iscomplexobj(v) else v)
-            for k, v in r.items() if not k.startswith("_") and k not in ("D",)}
-
-
-def _run_beam(args) -> int:
-    from upscale.io import write_json
-
-    ratios = [float(v) for v in str(args.ratios).split(",")]
-    kw = {"free_end": args.free_end}
-    if args.theory == "timoshenko" and args.shear_integration is not None:
-        kw["shear_integration"] = args.shear_integration
-    res = [beam_static(theory=args.theory, support=args.support, n=args.n, ratio=m,
-                       variant=args.variant, height=args.height, **kw) for m in ratios]
-    for r in res:
-        print(f"{r['theory']:10s} {r['support']:10s} {r['variant']:10s} delta/dx={r['delta_over_dx']:g} "
-              f"w_max={r['wmax_m']:.6e} m  ref={r['wmax_ref_m']:.6e} m  err={r['wmax_err_pct']:+.4f} %")
-    if args.plot:
-        print("plot:", plot_beams(res, args.plot))
-    if args.json:
-        write_json(args.json, [_clean(r) for r in res])
-    return 0
-
-
-def _run_dispersion(args) -> int:
-    from upscale.io import write_json
-
-    kh = np.geomspace(0.01, 3.0, 25)
-    if args.model == "tridyn-plate" and args.variant == "text":
-        r = plate_long_wave(variant="text", text_triplets=args.text_triplets, ratio=args.ratio)
-        print(f"printed plate ({args.text_triplets}), long-wave coefficients / Mindlin "
-              f"(printed local limit 4.60 / Mindlin):")
-        for t, (mv, lit, ref) in r["terms"].items():
-            print(f"  {t:30s} {mv / ref:9.4f}   ({lit / ref:.4f})")
-        print(f"  min/max omega^2 by k dx: {r['min_over_max_omega2_by_kdx']}")
-        if args.json:
-            write_json(args.json, r)
-        return 0
-    if args.model == "tridyn-eb" and args.rotary:
-        r = rayleigh_dispersion(ratio=args.ratio, kh=kh)
-        for i in range(0, kh.size, 4):
-            print(f"k h={kh[i]:8.3g} omega^2={r['omega2'][i]:.8e} Rayleigh={r['rayleigh'][i]:.8e} "
-                  f"rel. err={r['rel_err'][i]:.2e} EB/Rayleigh={r['eb_over_rayleigh'][i]:.6f}")
-        if args.json:
-            write_json(args.json, r)
-        return 0
-    if args.model == "tridyn-plate":
-        r = plate_dispersion(ratio=args.ratio, kdx=np.geomspace(0.005, 0.5, 12))
-        names = ("flexural", "SH", "P", "twist-shear", "thickness-shear")
-        for ang, e in r["rel_err"].items():
-            print(f"{ang:5.1f} deg, max rel. error for k dx <= 0.05: " + ", ".join(
-                f"{nm} {e[r['kdx'] <= 0.05 + 1e-12, b].max():.2e}" for b, nm in enumerate(names)))
-        if args.plot:
-            print("plot:", plot_plate_dispersion(r, args.plot))
-        if args.json:
-            write_json(args.json, {"kdx": r["kdx"].tolist(), "rel_err": {
-                str(a): e.tolist() for a, e in r["rel_err"].items()}})
-        return 0
-    if args.model == "pmb":
-        r = pd_bar_dispersion(ratio=args.ratio)
-        for i, kd in enumerate(r["kdelta"]):
-            print(f"k delta={kd:6.3f} omega^2={r['omega2'][i]:.8e} lattice={r['lattice'][i]:.8e} "
-                  f"continuum={r['continuum'][i]:.8e} 3.55={r['eq_3_55'][i]:.8e}")
-        res = [r]
-    else:
-        theory = "timoshenko" if args.model == "tridyn-timoshenko" else "eb"
-        kw = {"edge_factor": args.edge_factor} if theory == "timoshenko" else {}
-        if args.brillouin:
-            kh = np.geomspace(0.01, 0.99 * np.pi / 0.01, 40)  # to the zone edge, dx = 0.01 h
-        r = beam_dispersion(theory=theory, variant=args.variant, ratio=args.ratio, kh=kh, **kw)
-        print("k h: " + " ".join(f"{v:9.3g}" for v in kh[::4]))
-        for br in ("axial", "flexural", "shear"):
-            if br in r:
-                rel = r[br] / r[br + "_ref"] - 1
-                print(f"{br:9s} rel. error vs classical: " + " ".join(f"{v:+.2e}" for v in rel[::4]))
-        res = [r]
-        if theory == "timoshenko" and args.compare_text:
-            for ef in (1.0, 2.0):
-                res.append(beam_dispersion(theory=theory, variant="text", ratio=args.ratio,
-                                           kh=kh, edge_factor=ef))
-                res[-1]["variant"] = f"text x{ef:g}"
-        if args.plot:
-            print("plot:", plot_dispersion(res, args.plot))
-    if args.json:
-        write_json(args.json, [_clean(x) for x in res])
-    return 0
-
-
 def plot_plate(results: list, path) -> Path:
     """Mid-line deflection of the simply supported plate against Navier + Mindlin."""
     plt = _plt()
@@ -371,66 +277,6 @@ def plot_plate_dispersion(r: dict, path) -> Path:
     ax.legend(fontsize=6, ncol=3)
     fig.tight_layout()
     return save_figure(fig, path, dpi=120)
-
-
-def _run_plate(args) -> int:
-    from upscale.io import write_json
-
-    res = [plate_bending(n=n, ratio=args.ratio, h=args.thickness)
-           for n in (int(v) for v in str(args.n).split(","))]
-    for r in res:
-        print(f"n={r['n']:4d} delta/dx={r['delta_over_dx']:g} w_centre={r['w_centre_m']:.6e} m "
-              f"Navier+Mindlin={r['navier_mindlin_m']:.6e} m (Kirchhoff {r['navier_kirchhoff_m']:.6e})"
-              f" err={r['err_pct']:+.4f} %")
-    if args.plot:
-        print("plot:", plot_plate(res, args.plot))
-    if args.json:
-        write_json(args.json, [_clean(r) for r in res])
-    return 0
-
-
-def register(subparsers) -> None:
-    """Adds ``beam``, ``plate-bending`` and ``dispersion`` sub-commands."""
-    p = subparsers.add_parser("plate-bending", help="tridynamic simply supported square plate "
-                              "under uniform load vs Navier + Mindlin")
-    p.add_argument("--n", default="20,40", help="spacings per side, comma separated")
-    p.add_argument("--ratio", type=float, default=1.0, help="delta/dx")
-    p.add_argument("--thickness", type=float, default=0.1, help="h (m), a = 1 m")
-    p.add_argument("--plot", type=Path, default=None)
-    p.add_argument("--json", type=Path, default=None)
-    p.set_defaults(func=_run_plate)
-    p = subparsers.add_parser("beam", help="tridynamic beam under uniform load vs EB/Timoshenko")
-    p.add_argument("--theory", choices=("eb", "timoshenko"), default="eb")
-    p.add_argument("--support", choices=tuple(SUPPORT_PAIRS), default="ss")
-    p.add_argument("--variant", choices=("text", "consistent"), default="consistent")
-    p.add_argument("--n", type=int, default=100, help="spacings along the beam")
-    p.add_argument("--ratios", default="1,2,3", help="delta/dx values, comma separated")
-    p.add_argument("--height", type=float, default=0.001, help="beam depth h (m)")
-    p.add_argument("--free-end", choices=("second-order", "linear"), default="second-order",
-                   help="ghosts beyond a free end of the text EB beam (no moment, no shear)")
-    p.add_argument("--shear-integration", choices=("bond", "ends"), default=None,
-                   help="rotation in a pair's shear measure (Timoshenko): the mean of the two "
-                        "ends (3.6-3.9, default) or integrated along the bond (consistent "
-                        "variant: no thin-beam locking)")
-    p.add_argument("--plot", type=Path, default=None)
-    p.add_argument("--json", type=Path, default=None)
-    p.set_defaults(func=_run_beam)
-    p = subparsers.add_parser("dispersion", help="dispersion of a linear model from its force routine")
-    p.add_argument("--model", choices=("tridyn-timoshenko", "tridyn-eb", "tridyn-plate", "pmb"),
-                   default="tridyn-timoshenko")
-    p.add_argument("--variant", choices=("text", "consistent"), default="consistent")
-    p.add_argument("--ratio", type=float, default=1.0, help="delta/dx")
-    p.add_argument("--edge-factor", type=float, default=1.0, help="Appendix C factor (1 or 2)")
-    p.add_argument("--text-triplets", choices=("lines", "cross"), default="lines",
-                   help="triangles of the printed plate (--model tridyn-plate --variant text)")
-    p.add_argument("--rotary", action="store_true",
-                   help="tridyn-eb with the sections' rotary inertia (Rayleigh beam)")
-    p.add_argument("--brillouin", action="store_true", help="wavenumbers up to the zone edge")
-    p.add_argument("--compare-text", action="store_true",
-                   help="add the text-faithful beam without and with the appendix factor")
-    p.add_argument("--plot", type=Path, default=None)
-    p.add_argument("--json", type=Path, default=None)
-    p.set_defaults(func=_run_dispersion)
 
 
 # =========================================================================== dynamics
