@@ -139,19 +139,20 @@ def test_sampling_every_step_gives_the_recorded_crack():
 
 
 def test_command_line_branching_writes_result_and_map(tmp_path, capsys):
-    """``upscale tipd branching`` at dx = 1 mm: the printed summary, the JSON and the map."""
-    import json
-
+    """``upscale tipd --case branching`` at dx = 1 mm: the printed figures, the JSON (the
+    damage per particle in it) and the picture."""
     from upscale.cli import main
+    from upscale.experiments.result import Result
 
     out = tmp_path / "br"
-    assert main(["tipd", "branching", "--stress", "24e6", "--quiet", "--out", str(out)]) == 0
-    printed = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert printed["partial_volume"] == "linear" and 0 < printed["v_max_over_cR"] < 1
-    saved = json.loads((out / "tipd_branching.json").read_text())
-    saved = saved.get("result", saved)
-    assert saved["v_max_over_cR"] == printed["v_max_over_cR"]
-    assert (out / "damage_tipd_tipd_24MPa_dx1mm.png").read_bytes()[:4] == b"\x89PNG"
+    assert main(["tipd", "--case", "branching", "--stress", "24e6", "--quiet", "--out", str(out)]) == 0
+    printed = {ln.split()[0]: ln.split()[1] for ln in capsys.readouterr().out.splitlines()[2:]}
+    saved = Result.from_json(out / "tipd.json")
+    assert saved.meta["settings"]["partial_volume"] == "linear"
+    assert 0 < saved.figures["v_max_over_cR"] < 1
+    assert float(printed["v_max_over_cR"]) == pytest.approx(saved.figures["v_max_over_cR"], rel=1e-5)
+    assert saved.fields["damage"].shape == (4000,) and saved.fields["x0"].shape == (4000, 3)
+    assert (out / "tipd.png").read_bytes()[:4] == b"\x89PNG"
 
 
 @pytest.mark.parametrize("text", ["3e-4", "0", "-5e-4", "nan", "inf", "abc", "1e-2"])

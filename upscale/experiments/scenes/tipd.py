@@ -1,4 +1,4 @@
-"""``upscale tipd SCENE``: the scenes of seed 003 (tensor-involved PD) and its comparison
+"""``upscale tipd --case CASE``: the scenes of seed 003 (tensor-involved PD) and its comparison
 models (correspondence / NOSB, LPS, PMB).
 
 Each scene is a plain function of its parameters returning a JSON-able dict (SI units).
@@ -33,24 +33,26 @@ Each scene is a plain function of its parameters returning a JSON-able dict (SI 
 ``branching`` (:mod:`upscale.experiments.scenes.tipd_branching`)
     Crack branching in glass 5.3 (Ha & Bobaru geometry).
 
-Command line: ``upscale tipd mms --dx 0.025 0.0125 [--dim 3] [--model nosb
---stabilisation wan]``, ``upscale tipd strip --nu 0.1``, ``upscale tipd hole --material
-ortho --dx 0.0005``, ``upscale tipd branching --stress 24e6 --dx 0.0005 [--model lps]``;
-each writes ``OUT/tipd_SCENE.json`` (and plots).
+:func:`tipd` runs one of ``mms``, ``strip``, ``hole``, ``branching`` and returns a
+:class:`~upscale.experiments.result.Result`. Command line: ``upscale tipd --case mms --dx
+0.025,0.0125 [--dim 3] [--model nosb --stabilisation wan]``, ``upscale tipd --case strip
+--nu 0.1``, ``upscale tipd --case hole --material ortho --dx 0.0005``, ``upscale tipd
+--case branching --stress 24e6 --dx 0.0005 [--model lps]``; each writes ``OUT/tipd.json``,
+its CSV tables and ``tipd.png``.
 """
 from __future__ import annotations
 
-import argparse
-import json
-import sys
 import time
 import warnings
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
+from upscale.experiments.result import Result, Timer, make_meta
+
 __all__ = ["MMS_2D_C", "MMS_3D_C", "mms_body", "mms", "strip", "eigen_counts", "rotation",
-           "make_model", "surface_kw", "surface_of", "register"]
+           "make_model", "surface_kw", "surface_of", "tipd", "plot_mms_error"]
 
 #: seed 003 sec. 5.1.1 (Voigt 11, 22, 12)
 MMS_2D_C = np.array([[5.0, 3.0, 0.0], [3.0, 5.0, 0.0], [0.0, 0.0, 6.0]])
@@ -320,92 +322,178 @@ def rotation(model: str = "tipd", *, E: float = 70e9, nu: float = 0.25, n: int =
             "strain_energy_over_kinetic": float(sim.energy() / K0)}
 
 
-# ---------------------------------------------------------------------------- CLI
-def _run(args) -> int:
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    if args.scene_tipd == "mms":
-        rows = []
-        for dx in args.dx:
-            r = mms(args.model, dim=args.dim, dx=dx, calibration=args.calibration,
-                    stabilisation=args.stabilisation, surface=args.surface)
-            print(f"{args.model} dim={args.dim} dx={dx:g}: rel L2 {r['rel_l2']:.4e}, "
-                  f"oscillation {r['oscillation']:.3e} ({r['wall_time_s']:.1f} s)")
-            rows.append(r)
-        res = {"scene": "tipd mms", "runs": rows}
-        if len(rows) > 1:
-            h = np.log([r["dx_m"] for r in rows])
-            e = np.log([r["rel_l2"] for r in rows])
-            res["order"] = float(np.polyfit(h, e, 1)[0])
-            print(f"order {res['order']:.3f}")
-            import matplotlib
+# ---------------------------------------------------------------------------- scene
+def tipd(case: Literal["mms", "strip", "hole", "branching"] = "mms", *,
+         model: Literal["tipd", "nosb", "lps", "pmb"] = "tipd", dim: Literal[2, 3] = 2,
+         dx: tuple[float, ...] | None = None,
+         calibration: Literal["discrete", "continuum"] | None = None,
+         surface: Literal["none", "correspondence"] | None = None,
+         stabilisation: Literal["silling", "wan"] | None = None, nu: float = 0.25,
+         material: Literal["iso", "ortho"] = "iso", stress: float = 12e6,
+         critical: Literal["tipd", "osb"] = "tipd", progress: bool = False) -> Result:
+    """The Ti-PD scenes of seed 003 with one model: manufactured solution, strip, plate
+    with a hole, crack branching (module docstring).
 
-            matplotlib.use("Agg")
-            import matplotlib.pyplot as plt
+    Parameters
+    ----------
+    case : {"mms", "strip", "hole", "branching"}
+        Which scene: manufactured solution, free-contraction strip, plate with a hole, branching.
+    model : {"tipd", "nosb", "lps", "pmb"}
+        Particle model (hole: tipd or nosb; branching: tipd, lps or pmb).
+    dim : {2, 3}
+        Dimension of the manufactured solution (the other cases are 2D).
+    dx : tuple of float or None
+        Spacing(s) in m; mms: one run each (None: 0.025, 0.0125, 0.00625); hole and branching: one (None: 1e-3); strip: not used.
+    calibration : {"discrete", "continuum"} or None
+        Ti-PD calibration (None: discrete; hole: continuum).
+    surface : {"none", "correspondence"} or None
+        Ti-PD surface correction (None: correspondence for the elastic cases, none with failure).
+    stabilisation : {"silling", "wan"} or None
+        NOSB zero-energy stabilisation (None: none).
+    nu : float
+        Strip: Poisson's ratio of the isotropic material (dimensionless).
+    material : {"iso", "ortho"}
+        Hole: isotropic or orthotropic plate.
+    stress : float
+        Branching: traction on the top and bottom edges in Pa.
+    critical : {"tipd", "osb"}
+        Branching, Ti-PD: critical stretch from eq. (60) (tipd) or (62) (osb).
+    progress : bool
+        Branching: show a progress bar.
+    """
+    if case not in ("mms", "strip", "hole", "branching"):
+        raise ValueError(f"case={case!r}; valid: 'mms', 'strip', 'hole', 'branching'")
+    if dx is not None:
+        dx = tuple(float(v) for v in ([dx] if np.isscalar(dx) else dx))
+        bad = [v for v in dx if not (np.isfinite(v) and v > 0)]
+        if bad or not dx:
+            raise ValueError(f"dx={bad[0] if bad else dx!r} m; valid: positive spacings")
+        if case in ("hole", "branching") and len(dx) > 1:
+            raise ValueError(f"dx={dx!r}: case {case!r} takes one spacing")
+    if int(dim) != 2 and case != "mms":
+        raise ValueError(f"dim={dim!r}: case {case!r} is 2D; valid: dim=2 (dim=3 for 'mms')")
+    params = dict(case=case, model=model, dim=dim, dx=dx, calibration=calibration,
+                  surface=surface, stabilisation=stabilisation, nu=nu, material=material,
+                  stress=stress, critical=critical)
+    cal = calibration or "discrete"
+    with Timer() as timer:
+        if case == "mms":
+            out = _mms_result(model, int(dim), dx or (0.025, 0.0125, 0.00625), cal, stabilisation,
+                              surface)
+        elif case == "strip":
+            r = strip(model, nu=nu, calibration=cal, stabilisation=stabilisation, surface=surface)
+            out = _split(r), {}, {}, {}
+        elif case == "hole":
+            from upscale.experiments.scenes.tipd_hole import hole
 
-            fig, ax = plt.subplots(figsize=(4.5, 3.5))
-            ax.loglog([r["dx_m"] for r in rows], [r["rel_l2"] for r in rows], "o-", label=args.model)
-            ax.set_xlabel("dx (m)")
-            ax.set_ylabel("relative L2 error")
-            ax.legend()
-            fig.tight_layout()
-            fig.savefig(out / "mms_error.png", dpi=120)
-            plt.close(fig)
-    elif args.scene_tipd == "strip":
-        res = strip(args.model, nu=args.nu, calibration=args.calibration, surface=args.surface)
-        print(f"{args.model} nu={args.nu}: apparent nu {res['nu_apparent']:.4f}, "
-              f"E {res['E_apparent_Pa']:.4e} Pa")
-    elif args.scene_tipd == "hole":
-        from upscale.experiments.scenes.tipd_hole import hole
+            r = hole(model, material=material, dx=dx[0] if dx else 1e-3, surface=surface,
+                     stabilisation=stabilisation,
+                     **({"calibration": calibration} if calibration else {}))
+            out = _hole_result(r)
+        else:
+            from upscale.experiments.scenes.tipd_branching import branching
 
-        res = hole(args.model, material=args.material, dx=args.dx[0] if args.dx else 1e-3,
-                   surface=args.surface,
-                   **({"calibration": args.calibration} if args.calibration else {}))
-        print(json.dumps({k: v for k, v in res.items() if not isinstance(v, list)}, default=float))
-    else:
-        from upscale.experiments.scenes.tipd_branching import branching
-
-        res = branching(args.model, stress=args.stress, dx=args.dx[0] if args.dx else 1e-3,
-                        critical=args.critical, progress=not args.quiet, outdir=out)
-        print(json.dumps({k: v for k, v in res.items() if not isinstance(v, (list, dict, np.ndarray))},
-                         default=float))
-    from upscale.io import write_json
-
-    write_json(out / f"tipd_{args.scene_tipd}.json", res)
-    return 0
+            r = branching(model, stress=stress, dx=dx[0] if dx else 1e-3, critical=critical,
+                          progress=progress)
+            out = _branching_result(r)
+    (figures, settings), curves, fields, plot = out
+    conventions = {
+        "units": "SI (m, Pa, N, s)",
+        "rel_l2": "mms: |u - u_exact| / |u_exact| over the domain particles (L2); oscillation: "
+                  "the error less its 3 x 3 (x 3) box average, relative to |u_exact|",
+        "strip": "apparent nu = -eps_yy / eps_xx and E = sigma_xx / eps_xx on the middle third",
+        "hole": "Kt = sigma_xx / (F / (W t)) at the particle next to the hole's top",
+        "branching": "tip: the crack's largest x with damage >= tip_damage; speeds over a "
+                     "sliding window (tipd_branching module docstring); NaN: not reached",
+    }
+    meta = make_meta("tipd", params, timer=timer, conventions=conventions, plot=plot,
+                     settings=settings)
+    return Result(figures=figures, curves=curves, fields=fields, meta=meta)
 
 
-def register(sub) -> None:
-    p = sub.add_parser("tipd", help="Ti-PD scenes: mms | strip | hole | branching",
-                       description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("scene_tipd", choices=["mms", "strip", "hole", "branching"])
-    p.add_argument("--model", default="tipd", help="tipd (default), nosb, lps, pmb")
-    p.add_argument("--dim", type=int, default=2)
-    p.add_argument("--dx", type=float, nargs="*", default=None, help="spacing(s) in m")
-    p.add_argument("--calibration", default=None,
-                   help="Ti-PD: discrete or continuum (default: discrete; hole: continuum)")
-    p.add_argument("--surface", default=None, choices=["none", "correspondence"],
-                   help="Ti-PD surface correction: correspondence or none (default: correspondence "
-                        "for the elastic scenes, none with failure)")
-    p.add_argument("--stabilisation", default=None, help="NOSB: silling or wan (default none)")
-    p.add_argument("--nu", type=float, default=0.25)
-    p.add_argument("--material", default="iso", help="hole: iso or ortho")
-    p.add_argument("--stress", type=float, default=12e6, help="branching: edge traction (Pa)")
-    p.add_argument("--critical", default="tipd", help="branching, Ti-PD: tipd (60) or osb (62)")
-    p.add_argument("--out", default="out/tipd")
-    p.add_argument("--quiet", action="store_true")
-
-    def run(a):
-        if a.calibration is None and a.scene_tipd != "hole":
-            a.calibration = "discrete"
-        if a.dx is None:
-            a.dx = [0.025, 0.0125, 0.00625] if a.scene_tipd == "mms" else None
-        return _run(a)
-
-    p.set_defaults(func=run)
+def _split(r: dict, skip=(), nan=()) -> tuple[dict, dict]:
+    """(figures, settings) of a result dict: the numbers (and, as NaN, the None of the keys
+    in ``nan``: a measure not reached) and the rest (names, None options, lists)."""
+    figures, settings = {}, {}
+    for k, v in r.items():
+        if k in skip or k.startswith("_"):
+            continue
+        if k in nan and v is None:
+            figures[k] = np.nan
+        elif isinstance(v, (bool, int, float, np.integer, np.floating, np.bool_)) \
+                and k not in ("bond_associated",):
+            figures[k] = v
+        else:
+            settings[k] = v
+    return figures, settings
 
 
-if __name__ == "__main__":  # pragma: no cover
-    from upscale.cli import main
+def _mms_result(model, dim, dxs, calibration, stabilisation, surface):
+    rows = [mms(model, dim=dim, dx=v, calibration=calibration, stabilisation=stabilisation,
+                surface=surface) for v in dxs]
+    figures = {"horizon_over_dx": rows[0]["m"], "layer_horizons": rows[0]["layer_horizons"]}
+    settings = {"solve": [], "wall_time_s": []}
+    for v, r in zip(dxs, rows):
+        f, s = _split(r, skip=("dx_m", "dim", "wall_time_s", "m", "layer_horizons"))
+        figures.update({f"dx{v:g}_{k}": x for k, x in f.items()})
+        settings["solve"].append(s.pop("solve"))
+        settings["wall_time_s"].append(r["wall_time_s"])
+        settings.update(s)
+    if len(rows) > 1:
+        figures["order"] = float(np.polyfit(np.log(dxs), np.log([r["rel_l2"] for r in rows]), 1)[0])
+    curves = {"convergence/dx_m": np.array(dxs), "convergence/rel_l2": [r["rel_l2"] for r in rows],
+              "convergence/oscillation": [r["oscillation"] for r in rows]}
+    plot = {"convergence": {"x": "dx_m", "y": ["rel_l2"]}}
+    return (figures, settings), curves, {}, plot
 
-    sys.exit(main(["tipd", *sys.argv[1:]]))
+
+def _hole_result(r):
+    figures, settings = _split(r, skip=("wall_time_s",))
+    for k in ("mid_xy_m", "mid_u_m", "edge_xy_m", "edge_u_m", "Kt_point_m"):
+        settings.pop(k)
+    figures["Kt_point_x_m"], figures["Kt_point_y_m"] = r["Kt_point_m"]
+    curves = {}
+    for row in ("mid", "edge"):
+        xy, u = np.asarray(r[f"{row}_xy_m"]), np.asarray(r[f"{row}_u_m"])
+        o = np.lexsort((xy[:, 1], xy[:, 0]))
+        curves.update({f"{row}/x_m": xy[o, 0], f"{row}/y_m": xy[o, 1], f"{row}/u_x_m": u[o, 0],
+                       f"{row}/u_y_m": u[o, 1]})
+    plot = {"mid": {"x": "x_m", "y": ["u_x_m"]}, "edge": {"x": "x_m", "y": ["u_y_m"]}}
+    return (figures, settings), curves, {}, plot
+
+
+def _branching_result(r):
+    arrays = ("tip_t_s", "tip_x_m", "tip_v_m_per_s", "upper_tip_xy_m", "lower_tip_xy_m",
+              "positions_m", "damage", "damage_onset_s")
+    figures, settings = _split(r, skip=arrays + ("wall_time_s",),
+                               nan=("v_mean_m_per_s", "v_mean_over_cR", "branching_t_s",
+                                    "branching_x_m", "branch_angle_deg", "branch_origin_x_m"))
+    up, lo = np.asarray(r["upper_tip_xy_m"]).reshape(-1, 2), np.asarray(r["lower_tip_xy_m"]).reshape(-1, 2)
+    curves = {"tip/t_s": r["tip_t_s"], "tip/x_m": r["tip_x_m"], "tip/v_m_per_s": r["tip_v_m_per_s"],
+              "tip/upper_x_m": up[:, 0], "tip/upper_y_m": up[:, 1], "tip/lower_x_m": lo[:, 0],
+              "tip/lower_y_m": lo[:, 1]}
+    pos = np.asarray(r["positions_m"])
+    x0 = np.zeros((pos.shape[0], 3))
+    x0[:, :2] = pos
+    fields = {"x0": x0, "damage": r["damage"], "damage_onset_s": r["damage_onset_s"]}
+    settings["wall_time_s"] = r["wall_time_s"]
+    return (figures, settings), curves, fields, {"tip": {"x": "t_s", "y": ["x_m"]}}
+
+
+def plot_mms_error(result: Result, path) -> Path:
+    """The manufactured solution's relative L2 error against the spacing, log-log."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from upscale.analysis.plots import save_figure
+
+    fig, ax = plt.subplots(figsize=(4.5, 3.5))
+    ax.loglog(result.curves["convergence/dx_m"], result.curves["convergence/rel_l2"], "o-",
+              label=result.meta["params"]["model"])
+    ax.set_xlabel("dx (m)")
+    ax.set_ylabel("relative L2 error")
+    ax.legend()
+    fig.tight_layout()
+    return save_figure(fig, path, dpi=120)
