@@ -431,6 +431,12 @@ def reused_runs(path, criterion="principal", growth="free", stop_fraction=CONV_S
     f = Path(path)
     f = f / "scb.json" if f.is_dir() else f
     d = json.loads(f.read_text())
+    if "figures" in d and "meta" in d:      # the Result ``upscale scb`` writes: the run's dict
+        fig, meta = d["figures"], d["meta"]
+        ang = fig["initiation_angle_deg"]
+        d = {"scene": meta["scene_description"], "stop_fraction": fig["stop_fraction"],
+             "curve": {"load_N": d["curves"]["curve/load_N"], "stop_reason": meta["stop_reason"]},
+             "initiation_angle_deg": None if ang != ang else ang, "wall_s": meta["run_wall_s"]}
     want = {"criterion": criterion, "growth": growth, "tip_factor": tip_factor}
     if "scene" in d:
         sc, mo = d["scene"], d["scene"]["model"]

@@ -8,7 +8,7 @@ specimen                    half disc R = 50 mm on the flat edge y = 0, thicknes
 supports / load             supports at x = +-S, S = 0.43 R; load at (0, R); each acts on a
                             3 dx x 3 dx patch of particles (the box of half width 1.5 dx)
 boundary conditions         the load patch moves rigidly by (0, -lambda); the support patches
-                            hold u_y = 0 (rollers, default) or u = 0 (``--supports pinned``,
+                            hold u_y = 0 (rollers, default) or u = 0 (``supports="pinned"``,
                             the literal u_x(+-S, 0) = 0 of eq. 6.40)
 discretisation              square grid x, y = (i + 1/2) dx inside the half disc (15,700
                             particles at dx = 0.5 mm; the text's 16,366 is not a square grid
@@ -16,26 +16,30 @@ discretisation              square grid x, y = (i + 1/2) dx inside the half disc
 material                    E = 3.75 GPa, nu = 0.35, rho = 1410 kg/m^3, K_Ic = 2.13 MPa sqrt(m)
                             (Table 6.1); G_c = K_Ic^2 / E
 failure                     largest principal stress averaged over r_s (default), the bond
-                            normal stress (``--criterion normal``) or the particle energy
-                            criterion (``--criterion energy``), length r_s in metres
+                            normal stress (``criterion="normal"``) or the particle energy
+                            criterion (``criterion="energy"``), length r_s in metres
                             (``upscale.models.unified``); bonds with an end within
-                            ``--no-fail`` dx of a patch never break
+                            ``no_fail`` dx of a patch never break
 loading                     quasi-static (``upscale.engine.quasistatic``): Newton equilibria,
                             bonds broken and the body re-equilibrated at the same load
 ==========================  ================================================================
 
-Writes ``scb.json`` (curve, P_c, crack path, parameters), ``scb_curve.png`` and
-``scb_damage.png`` (damage 6.41 with the broken-bond crack path).
+:func:`scb` returns a :class:`~upscale.experiments.result.Result` (figures, the load-
+displacement curve, the crack path, the damage per particle); :func:`run_scb` is the run
+itself (with ``outdir``: ``scb.json``, ``scb_curve.png`` and ``scb_damage.png``, damage 6.41
+with the broken-bond crack path, :func:`damage_png`).
 """
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
+from typing import Literal
 
 import numpy as np
 
-__all__ = ["SCBScene", "run_scb", "register", "PMMA", "crack_frame", "williams_fit"]
+from upscale.experiments.result import Result, Timer, make_meta
+
+__all__ = ["SCBScene", "run_scb", "scb", "calibrated_r_s", "PMMA", "crack_frame", "williams_fit"]
 
 R_DEFAULT = 0.05
 PMMA = {"E": 3.75e9, "nu": 0.35, "rho": 1410.0, "K_Ic": 2.13e6}
@@ -488,60 +492,96 @@ def run_scb(alpha_deg=30.0, *, dx=1e-3, m=3.0, r_s=1e-3, supports="rollers", sta
     return res
 
 
-def register(sub) -> None:
-    p = sub.add_parser("scb", help="mixed-mode fracture of a PMMA semi-circular bend specimen (seed 004 6.6)")
-    p.add_argument("--alpha", type=float, default=30.0, help="crack angle in degrees, [0, 90) (default %(default)s)")
-    p.add_argument("--dx", type=float, default=1e-3, help="particle spacing in m (default %(default)s, the calibrated one)")
-    p.add_argument("--m", type=float, default=3.0, help="horizon / spacing (default %(default)s)")
-    p.add_argument("--r-s", type=float, default=None, help="failure length r_s in m (default: the calibrated r_s "
-                   "of data/reference/scb_calibration.json; for --criterion energy its r_s / dx times --dx)")
-    p.add_argument("--supports", default="rollers", choices=("rollers", "pinned"))
-    p.add_argument("--stabilisation", type=float, default=1.0, help="bond penalty c_s (default %(default)s)")
-    p.add_argument("--force", default="energy", choices=("energy", "printed"))
-    p.add_argument("--criterion", default="principal", choices=("principal", "normal", "energy"),
-                   help="failure rule: largest principal stress averaged over r_s (default), the averaged stress "
-                        "resolved on each bond, or the particle energies of 6.28")
-    p.add_argument("--growth", default=None, choices=("front", "free"),
-                   help="which particles may fail: only those on the crack front (default for the principal "
-                        "criterion) or any (the seed's literal rule; the default of the other criteria)")
-    p.add_argument("--tip-factor", default="solved", choices=("solved", "lattice", "continuum"),
-                   help="beta of the critical stress: from the model's own solution of a disc driven by the mode-I "
-                        "tip field on its rim (default), from that field imposed on the lattice, or the continuum "
-                        "disc average")
-    p.add_argument("--out", default="out/scb", help="output directory (default: %(default)s)")
-    p.add_argument("--stop-fraction", type=float, default=0.5,
-                   help="stop when the load falls below this fraction of its peak (default %(default)s: "
-                        "P_c is the load at the crack's first instability)")
-    p.add_argument("--quiet", action="store_true")
-    p.set_defaults(func=_main)
-
-
-def _main(args) -> int:
+def calibrated_r_s(criterion: str, dx: float) -> float:
+    """The failure length r_s (m) of ``data/reference/scb_calibration.json``: for the energy
+    criterion its r_s / dx times ``dx``, else the principal-stress r_s in metres."""
     import json
 
-    r_s = args.r_s
-    if r_s is None:
-        cal = Path(__file__).resolve().parents[3] / "data" / "reference" / "scb_calibration.json"
-        if not cal.exists():
-            raise FileNotFoundError(f"{cal} is missing; pass --r-s")
-        c = json.loads(cal.read_text())
-        if args.criterion == "energy":
-            r_s = c["r_s_over_dx"] * args.dx            # that criterion's r_s scales with the spacing
-        else:
-            r_s = c["principal"]["r_s_m"]              # a length in metres
-    res = run_scb(args.alpha, dx=args.dx, m=args.m, r_s=r_s, supports=args.supports,
-                  stabilisation=args.stabilisation, force=args.force, progress=not args.quiet,
-                  outdir=args.out, stop_fraction=args.stop_fraction, criterion=args.criterion,
-                  growth=args.growth, tip_factor=args.tip_factor)
-    print(f"alpha = {args.alpha:g} deg, dx = {args.dx:g} m, r_s = {r_s:g} m: P_c = {res['P_c_kN']:.4f} kN, "
-          f"initiation angle {res['initiation_angle_deg']} deg, {res['broken_bonds']} bonds broken, "
-          f"{res['wall_s']:.1f} s -> {args.out}/scb.json")
-    return 0
+    cal = Path(__file__).resolve().parents[3] / "data" / "reference" / "scb_calibration.json"
+    if not cal.exists():
+        raise FileNotFoundError(f"{cal} is missing; pass r_s")
+    c = json.loads(cal.read_text())
+    if criterion == "energy":
+        return c["r_s_over_dx"] * dx            # that criterion's r_s scales with the spacing
+    return c["principal"]["r_s_m"]              # a length in metres
 
 
-if __name__ == "__main__":
-    ap = argparse.ArgumentParser()
-    s = ap.add_subparsers()
-    register(s)
-    a = ap.parse_args(["scb", *__import__("sys").argv[1:]])
-    raise SystemExit(a.func(a))
+def scb(*, alpha: float = 30.0, dx: float = 1e-3, m: float = 3.0, r_s: float | None = None,
+        supports: Literal["rollers", "pinned"] = "rollers", stabilisation: float = 1.0,
+        force: Literal["energy", "printed"] = "energy",
+        criterion: Literal["principal", "normal", "energy"] = "principal",
+        growth: Literal["front", "free"] | None = None,
+        tip_factor: Literal["solved", "lattice", "continuum"] = "solved",
+        stop_fraction: float = 0.5, progress: bool = False) -> Result:
+    """Mixed-mode fracture of a PMMA semi-circular bend specimen (seed 004 6.6): load-
+    displacement curve, fracture load P_c, initiation angle, crack path and damage.
+
+    Parameters
+    ----------
+    alpha : float
+        Crack angle to the symmetry line in degrees, in [0, 90).
+    dx : float
+        Particle spacing in m (1e-3: the calibrated one).
+    m : float
+        Horizon over spacing, delta / dx.
+    r_s : float or None
+        Failure length in m (None: the calibrated r_s of data/reference/scb_calibration.json; for the energy criterion its r_s / dx times dx).
+    supports : {"rollers", "pinned"}
+        Support patches hold u_y only (rollers) or u_x and u_y (pinned).
+    stabilisation : float
+        Bond penalty c_s of the unified model (dimensionless).
+    force : {"energy", "printed"}
+        Force of the unified model: from its energy or as printed in the seed.
+    criterion : {"principal", "normal", "energy"}
+        Failure rule: principal stress averaged over r_s, the averaged stress on each bond, or the particle energies of 6.28.
+    growth : {"front", "free"} or None
+        Which particles may fail: the crack front or any (None: front for the principal criterion, else free).
+    tip_factor : {"solved", "lattice", "continuum"}
+        beta of the critical stress: the model's own solution of a disc under the mode-I tip field, that field on the lattice, or the continuum disc average.
+    stop_fraction : float
+        Stop when the load falls below this fraction of its peak (0.5: P_c at the crack's first instability).
+    progress : bool
+        Show a progress bar.
+    """
+    if not (np.isfinite(dx) and dx > 0):
+        raise ValueError(f"dx={dx!r} m; valid: a positive spacing")
+    if not (np.isfinite(m) and m > 0):
+        raise ValueError(f"m={m!r}; valid: a positive horizon over spacing")
+    if not (0.0 < stop_fraction < 1.0):
+        raise ValueError(f"stop_fraction={stop_fraction!r}; valid: 0 < stop_fraction < 1")
+    params = dict(alpha=alpha, dx=dx, m=m, r_s=r_s, supports=supports,
+                  stabilisation=stabilisation, force=force, criterion=criterion, growth=growth,
+                  tip_factor=tip_factor, stop_fraction=stop_fraction)
+    rs = calibrated_r_s(criterion, dx) if r_s is None else r_s
+    with Timer() as timer:
+        res = run_scb(alpha, dx=dx, m=m, r_s=rs, supports=supports, stabilisation=stabilisation,
+                      force=force, progress=progress, stop_fraction=stop_fraction,
+                      criterion=criterion, growth=growth, tip_factor=tip_factor, keep=True)
+    sc, curve, desc = res["_scene"], res["curve"], res["scene"]
+    ang = res["initiation_angle_deg"]
+    figures = {"P_c_N": res["P_c_N"], "P_c_kN": res["P_c_kN"],
+               "displacement_at_P_c_m": res["displacement_at_P_c_m"],
+               "initiation_angle_deg": np.nan if ang is None else ang, "r_s_m": rs,
+               "stop_fraction": stop_fraction, "broken_bonds": res["broken_bonds"],
+               "particles_without_stress": res["particles_without_stress"],
+               "equilibria": len(curve["load_N"]),
+               **{k: v for k, v in desc.items() if k not in ("supports", "model")}}
+    curves = {f"curve/{k}": curve[k] for k in ("displacement_m", "load_N", "broken",
+                                               "newton_iterations", "index_max")}
+    conventions = {
+        "units": "SI (m, N); angles in degrees",
+        "specimen": "half disc on the flat edge y = 0, load patch at (0, R) moved by (0, -lambda); "
+                    "crack from (0, 0) at alpha to the symmetry line",
+        "load": "P = the load patch's reaction along -y (positive in compression of the specimen)",
+        "initiation_angle": "kink of the first broken bonds in the tip frame, positive toward "
+                            "+y' (away from the load line); NaN: no bond broke",
+        "damage": "6.41 (1 - intact/initial bonds); crack_path: particles with damage >= 0.35 "
+                  "by distance from the tip (at most 400; meta crack_path_m, (x, y) pairs)",
+    }
+    meta = make_meta("scb", params, timer=timer, conventions=conventions,
+                     plot={"curve": {"x": "displacement_m", "y": ["load_N"]}},
+                     scene_description=desc, crack_path_m=res["crack_path_m"],
+                     stop_reason=curve["stop_reason"],
+                     time_split_s=curve["time_split_s"], run_wall_s=res["wall_s"])
+    return Result(figures=figures, curves=curves,
+                  fields={"x0": sc.system.x0, "damage": res["_damage"]}, meta=meta)
