@@ -226,8 +226,8 @@ def test_sweep_machinery_does_not_import_validation():
     import subprocess
     import sys
 
-    code = ("import sys, upscale.experiments.sweep as s; s.load_spec({'scene': 'cpd-bar', "
-            "'output': 'x', 'grid': {'ratio': [2.0]}}); "
+    code = ("import sys, upscale.experiments.sweep as s; s.load_spec({'scene': 'tension', "
+            "'output': 'x', 'grid': {'length': [30.0]}}); "
             "print(sorted(m for m in sys.modules if m.split('.')[0] == 'validation'))")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
                          check=True)

@@ -158,3 +158,21 @@ def test_unwritable_output_folder_and_removed_flag(tmp_path, capsys):
     assert "cannot write" in capsys.readouterr().err
     assert main(["tension", "--outdir", "x"]) == 2
     assert "use --out" in capsys.readouterr().err
+
+
+def test_sweep_of_the_tube_scene_by_name(tmp_path):
+    """chirality x defects x seed over the scene registered as "tension"."""
+    import csv
+
+    from upscale.experiments import sweep
+
+    spec = {"scene": "tension", "output": str(tmp_path / "sw"),
+            "params": {"model": "atomistic", "length": 25.0, "maximum": 0.01,
+                       "progress": False},
+            "grid": {"chirality": [[5, 5], [6, 6]], "defects": ["", "v1@0.5@0"]},
+            "seeds": [1, 2], "run": {"workers": 1, "processes": False}}
+    rep = sweep.run_sweep(spec, progress=False)
+    rows = list(csv.DictReader(open(rep["table"])))
+    assert len(rows) == 8 and all(r["status"] == "ok" for r in rows), rep
+    E = {(r["chirality"], r["defects"]): float(r["youngs_TPa"]) for r in rows}
+    assert len(set(E.values())) == 4 and all(0.8 < e < 1.1 for e in E.values())

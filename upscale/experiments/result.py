@@ -300,7 +300,8 @@ def _plot_table(ax, r: Result, table: str, style: str) -> None:
                     label=f"{_label(r)}: {y}")
     ax.set_xlabel(x)
     ax.set_title(table, fontsize=9)
-    ax.legend(fontsize=7)
+    if ax.get_legend_handles_labels()[0]:
+        ax.legend(fontsize=7)
 
 
 def _damage_map(ax, r: Result, vmax: float) -> None:

@@ -23,7 +23,7 @@ and writes everything under one output folder::
 
 The spec is a TOML or YAML file, or a dict with the same keys::
 
-    scene = "cpd-bar"                 # a name of SCENES, or "package.module:function"
+    scene = "tension"                 # a scene name (upscale.experiments), or "module:function"
     output = "out/sweeps/bar"
     repeats = 1                       # (top-level keys before the first [section])
     [params]
@@ -82,15 +82,14 @@ import types
 import typing
 from pathlib import Path
 
+from upscale.experiments import registry as _registry
+
 __all__ = ["SCENES", "Spec", "load_spec", "resolve_scene", "code_version", "run_id",
            "run_sweep", "gather", "plot_summary", "execute", "register"]
 
-#: scene names usable in a spec, each the ``"module:function"`` it stands for; any other
-#: importable ``"module:function"`` works too (the registry only shortens names)
-SCENES: dict[str, str] = {
-    "cpd-bar": "upscale.experiments.scenes.cpd_bar:bar_tension",
-    "cpd-cantilever": "upscale.experiments.scenes.cpd_bar:cantilever",
-}
+#: scene names usable in a spec: every scene of :mod:`upscale.experiments` (the registry);
+#: any other importable ``"module:function"`` works too
+SCENES: dict[str, str] = _registry.SCENES
 
 SPEC_KEYS = ("scene", "output", "params", "grid", "seeds", "repeats", "seed_start",
              "seed_param", "runs", "plot", "run")
@@ -449,6 +448,9 @@ def execute(target: str, params: dict, numba_threads: int | None = None) -> dict
     try:
         _, fn = resolve_scene(target)
         res = fn(**params)
+        if hasattr(res, "figures") and hasattr(res, "meta"):  # a Result: its figures
+            res = {**res.figures, "wall_s": res.meta.get("wall_s"),
+                   "command": res.meta.get("command")}
         if not isinstance(res, dict):
             raise TypeError(f"scene {target!r} returned a {type(res).__name__}; a scene "
                             "returns a dict")

@@ -13,7 +13,7 @@ Stress sigma = (dE/dL_z) / (2 pi R t), dE/dL_z = -W_zz / L_z (virial W), R the m
 radius after the zero-stress relaxation, t = 3.4 Å.
 
 Finite tube (torsion): the ends are open; the atoms within ``grip`` Å of each end are held
-rigidly (L-BFGS-B bounds lo = hi); at twist phi the top grip is turned by phi about the
+rigidly (engine ``Displacement`` conditions, so every minimiser keeps them); at twist phi the top grip is turned by phi about the
 tube axis against the bottom one, the free atoms first turned by the affine fraction of the
 increment. Torque T = sum over the top grip of (x F_y - y F_x) about the axis, eV (the
 reaction the rest of the tube exerts on it, with the sign of the twist).
@@ -67,8 +67,8 @@ class AtomisticTube(Specimen):
         else:
             model = TersoffModel(potential)
         self.model = model
-        system = ParticleSystem(x, 1.0, CARBON_MASS_AMU, spacing=1.42, units="atomic")
-        self.sim = Simulation(system, None, model)
+        self.system = ParticleSystem(x, 1.0, CARBON_MASS_AMU, spacing=1.42, units="atomic")
+        self.sim = Simulation(self.system, None, model)
         self.ftol = float(protocol.ftol)
         self.value = 0.0
         self.minimisations = 0
@@ -88,27 +88,39 @@ class AtomisticTube(Specimen):
             self.bottom = z < z.min() + g
             self.top = z > z.max() - g
             self.z_lo, self.z_hi = z.min() + g, z.max() - g
+            self._hold_grips()
+
+    def _hold_grips(self) -> None:
+        """Both grips held where they are now: displacement conditions whose values
+        (``self._u_grip``, updated in place by a twist) the minimisers keep."""
+        from upscale.engine.conditions import Displacement, Region
+
+        y, x0 = self.sim.state.y, self.system.x0
+        self._u_grip = {}
+        conds = []
+        for name, mask in (("bottom", self.bottom), ("top", self.top)):
+            u = y[mask] - x0[mask]
+            self._u_grip[name] = u
+            conds.append(Displacement(Region(name, mask), u))
+        self.sim = Simulation(self.system, None, self.model, conditions=conds,
+                              state=self.sim.state)
 
     # ------------------------------------------------------------------ relaxations
-    def _minimise(self, bounds=None) -> None:
-        """L-BFGS-B; where it stalls, FIRE then L-BFGS-B again, up to three cycles."""
+    def _minimise(self) -> None:
+        """L-BFGS-B; where it stalls (its line search ends at the energy's rounding, or at
+        the step cutoff), FIRE from there, up to three cycles."""
         for _ in range(3):
-            lb = LBFGS(ftol=self.ftol, max_iter=20_000, memory=30, bounds=bounds)
+            lb = LBFGS(ftol=self.ftol, max_iter=20_000, memory=30)
             r = self.sim.minimise(lb, raise_on_fail=False)
             self.minimisations += 1
             if r.converged:
                 return
             fire = FIRE(ftol=self.ftol, max_iter=5_000, dt=_FIRE_DT, max_step=0.02)
-            if bounds is not None:  # FIRE knows no bounds: the held atoms are put back
-                held = self.sim.state.y[self._held].copy()
             try:
                 self.sim.minimise(fire, raise_on_fail=True)
-                if bounds is None:
-                    return
+                return
             except NotConverged:
                 pass
-            if bounds is not None:
-                self.sim.state.y[self._held] = held
         self.unconverged += 1
 
     def _relax_zero_stress(self) -> None:
@@ -150,20 +162,11 @@ class AtomisticTube(Specimen):
         dx, dy = y[:, 0] - self.axis[0], y[:, 1] - self.axis[1]
         y[:, 0] = self.axis[0] + c * dx - s * dy
         y[:, 1] = self.axis[1] + s * dx + c * dy
-
-    @property
-    def _held(self):
-        return self.bottom | self.top
+        x0 = self.system.x0
+        self._u_grip["top"][...] = y[self.top] - x0[self.top]
 
     def relax(self) -> int:
-        if self.periodic:
-            self._minimise()
-        else:
-            y = self.sim.state.y
-            lo = np.full_like(y, -np.inf)
-            hi = np.full_like(y, np.inf)
-            lo[self._held], hi[self._held] = y[self._held], y[self._held]
-            self._minimise(bounds=(lo, hi))
+        self._minimise()
         return 0  # bonds break through the potential itself
 
     def record(self) -> dict:
