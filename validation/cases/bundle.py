@@ -183,16 +183,18 @@ def _args_tension(p):
 def lammps_bundle_references(n, m, length, spacing, gap, compute=True):
     """The LAMMPS bundle references of this geometry: every stored seed (the default seed's
     file and ``_s<seed>`` variants); computed with ``reference-tension``'s runner and the
-    same protocol when none is stored (kept under validation/out/)."""
+    same protocol when none is stored (kept in the user cache folder,
+    ``cache_dir("references")`` of :mod:`upscale.experiments.lammps.cache`)."""
     import json  # noqa: PLC0415
 
+    from upscale.experiments.lammps.cache import cache_dir  # noqa: PLC0415
     from upscale.experiments.scenes.bundle import reference_name  # noqa: PLC0415
 
     base = reference_name((n, m), spacing, True, 7)
     if gap is not None and abs(gap - 3.4) > 1e-9:
         base += f"_gap{gap:g}"
     found = sorted(REF_DIR.glob(f"{base}.json")) + sorted(REF_DIR.glob(f"{base}_s*.json"))
-    cache = REPO / "validation" / "out" / "lammps-cache"
+    cache = cache_dir("references")
     found += sorted(cache.glob(f"{base}.json")) if not found else []
     refs = [json.loads(p.read_text()) for p in found]
     rerun = REF_DIR / f"{base}_rerun.json"  # the kept run again, with per-tube reactions
@@ -201,7 +203,8 @@ def lammps_bundle_references(n, m, length, spacing, gap, compute=True):
             "stress_per_tube_GPa"]
         refs[0]["curve"]["_per_tube_from"] = str(rerun.relative_to(REPO))
     if refs or not compute:
-        return refs, [str(p.relative_to(REPO)) for p in found]
+        return refs, [str(p.relative_to(REPO)) if p.is_relative_to(REPO) else str(p)
+                      for p in found]
     from validation.cases.references import analyse, run_spec  # noqa: PLC0415
     from upscale.io import write_json  # noqa: PLC0415
 
@@ -212,7 +215,7 @@ def lammps_bundle_references(n, m, length, spacing, gap, compute=True):
     res = analyse(run_spec(spec))
     cache.mkdir(parents=True, exist_ok=True)
     write_json(cache / f"{base}.json", res)
-    return [res], [str((cache / f"{base}.json").relative_to(REPO))]
+    return [res], [str(cache / f"{base}.json")]
 
 
 def _mean(rs, key):

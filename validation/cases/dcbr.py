@@ -4,8 +4,9 @@ The scenes are :mod:`upscale.experiments.scenes.tube_tension`'s; these cases com
 closed-form affine fields (gain-affine) and LAMMPS through the runners of
 :mod:`upscale.experiments.lammps.tension` (same potential file, same tube, same protocol). A LAMMPS
 result is taken from ``data/reference/*.json`` when a record matches (chirality, atoms,
-protocol, strain step, cutoff, vacancy), else computed on the fly and cached in
-``validation/out/lammps-cache/`` (ignored by git), keyed by the runner's source checksum.
+protocol, strain step, cutoff, vacancy), else computed on the fly and cached in the user
+cache folder (``cache_dir("references")``, :mod:`upscale.experiments.lammps.cache`, never the
+source tree), keyed by the runners' source checksum.
 """
 from __future__ import annotations
 
@@ -17,14 +18,15 @@ from pathlib import Path
 import numpy as np
 
 from upscale.constants import ACC_EV_A_AMU_IN_A_FS2, ASE_TIME_FS, CARBON_MASS_AMU, K_B_EV
+from upscale.experiments.lammps.cache import cache_dir
 from upscale.experiments.scenes.tube_tension import (GRIPS, dynamic_scene, lammps_reference,
                                               parse_chirality)
 from upscale.experiments.scenes.tube_tension import run_tension_comparison as _run_tension
 from validation.registry import case, table
 
 ROOT = Path(__file__).resolve().parents[2]
-CACHE = ROOT / "validation" / "out" / "lammps-cache"
-RUNNER = ROOT / "upscale" / "experiments" / "lammps" / "tension.py"
+CACHE = cache_dir("references")
+RUNNER = ROOT / "upscale" / "experiments" / "lammps"  # the runners' package
 
 __all__ = ["run_tension_comparison", "dynamic_scene", "GRIPS"]
 
@@ -46,13 +48,16 @@ def _run_lammps(protocol, atoms, potential, cutoff, strain_step, progress):
 def _runner_tag() -> str:
     import hashlib
 
-    return hashlib.sha256(RUNNER.read_bytes()).hexdigest()[:10]  # a changed runner = new run
+    h = hashlib.sha256()
+    for f in sorted(RUNNER.glob("*.py")):  # a changed runner = new run
+        h.update(f.read_bytes())
+    return h.hexdigest()[:10]
 
 
 def lammps_reference_or_run(n, m, length, **kw) -> dict:
     """:func:`upscale.experiments.scenes.tube_tension.lammps_reference`, computing a missing record
-    with the LAMMPS runner and caching it in ``validation/out/lammps-cache/`` (ignored by
-    git), keyed by the runner's source checksum."""
+    with the LAMMPS runner and caching it in ``cache_dir("references")`` (the user cache
+    folder), keyed by the runners' source checksum."""
     return lammps_reference(n, m, length, cache_dir=CACHE, cache_tag=_runner_tag(),
                             runner=_run_lammps, **kw)
 

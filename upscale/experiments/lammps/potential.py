@@ -15,7 +15,9 @@ enter ``[R - D, R + D]`` stiffen spuriously (issue #3/#4), and the "strength" th
 measures the cutoff, not the bond. The modified file is written by
 ``potentials.tersoff.write_step_cutoff_file`` when that function exists (the
 same file feeds the project calculator and LAMMPS) and by :func:`_write_step_tersoff`
-below otherwise. REBO/AIREBO are run with their standard cutoffs (the step option is
+below otherwise, into ``cache_dir("potentials")`` (:mod:`upscale.experiments.lammps.cache`:
+a user folder, ``$UPSCALE_CACHE`` or ``~/.cache/upscale``). REBO/AIREBO are run with
+their standard cutoffs (the step option is
 refused with a clear message), so their "strength" entries carry ``cutoff: standard``.
 
 Bundles: tubes are LAMMPS atom types 1..ntubes, the many-body potential acts within a type
@@ -30,21 +32,16 @@ import hashlib
 import os
 from pathlib import Path
 
+from upscale.experiments.lammps.cache import cache_dir
 from upscale.io import atomic_write_text
 
 __all__ = ["Potential", "resolve_potential", "LJ_EPSILON_EV", "LJ_SIGMA", "LJ_CUTOFF",
-           "STEP_D"]
+           "STEP_D", "cache_dir"]
 
 LJ_EPSILON_EV = 2.84e-3   # eV, Girifalco, Hodak & Lee, PRB 62, 13104 (2000)
 LJ_SIGMA = 3.4            # Å, same source
 LJ_CUTOFF = 3.0 * LJ_SIGMA
 STEP_D = 1e-5             # Å, half-width of the remaining switching region
-
-
-def cache_dir() -> Path:
-    """Directory for generated potential files (outside the repository)."""
-    base = Path(os.environ.get("XDG_CACHE_HOME", Path.home() / ".cache")) / "upscale"
-    return base
 
 
 @dataclasses.dataclass
@@ -134,7 +131,7 @@ def _write_step_tersoff(src: Path, dst: Path, D: float = STEP_D) -> Path:
 
 
 def _step_file(src: Path) -> Path:
-    dst = cache_dir() / "potentials" / f"{src.stem}.step{src.suffix}"
+    dst = cache_dir("potentials") / f"{src.stem}.step{src.suffix}"
     try:  # the project's writer, when present, so both sides use the identical file
         from potentials.tersoff import write_step_cutoff_file  # noqa: PLC0415
     except ImportError:
