@@ -5,7 +5,7 @@ Each run is a fresh Python process. The killed one patches, from outside the pro
 code, the place where a step ends (velocity Verlet's ``step`` for the plate, the sparse
 factorisation of each Newton iteration for the CPD solve) to send itself SIGKILL at step
 ``K``: no ``finally`` block, no buffered write survives, as when the machine kills a job.
-The resumed process is the ordinary command (``upscale plate --resume``, or the CPD bar
+The resumed process is the ordinary command (``upscale plate --workdir DIR --resume``, or the CPD bar
 solve with ``resume=True``).
 
     python -m validation.kill_resume plate OUT [--kill-at K] [--resume] [--n 40 ...]
