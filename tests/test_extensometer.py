@@ -37,7 +37,9 @@ def test_lammps_extensometer_commands_read_a_uniform_stretch():
     extensometer reads a uniform stretch of a short tube to 1e-12 and counts its atoms."""
     from upscale.build import swcnt
     from upscale.experiments.lammps.potential import resolve_potential
-    from upscale.experiments.lammps.tension import _positions, _setup, extensometer_commands
+    from upscale.experiments.lammps.setup import extensometer_commands
+    from upscale.experiments.lammps.setup import gather_positions as _positions
+    from upscale.experiments.lammps.setup import new_instance as _setup
 
     tube = swcnt(5, 5, 30.0)
     lmp, _ = _setup(tube, resolve_potential("tersoff:BNC.tersoff", "step"), "s s s",

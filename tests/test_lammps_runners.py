@@ -1,6 +1,10 @@
-"""LAMMPS tension runners: tiny runs, consistency of the result record, bad input."""
+"""LAMMPS runners (upscale.experiments.lammps): tiny runs, consistency of the result record,
+bad input; the protocol entry point run() for tension, compression and torsion."""
+import dataclasses
+import inspect
 import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -202,8 +206,9 @@ def test_bundle_hybrid_is_tersoff_within_tubes_plus_lj_between():
     from scipy.spatial.distance import cdist
 
     from upscale.build import bundle
-    from upscale.experiments.lammps.potential import LJ_CUTOFF, LJ_EPSILON_EV, LJ_SIGMA, resolve_potential
-    from upscale.experiments.lammps.tension import _setup
+    from upscale.experiments.lammps.potential import (LJ_CUTOFF, LJ_EPSILON_EV, LJ_SIGMA,
+                                                      resolve_potential)
+    from upscale.experiments.lammps.setup import new_instance as _setup
 
     b = bundle(5, 5, 10.0, ntubes=3, gap=3.0)
     pot = resolve_potential("BNC.tersoff")
@@ -261,3 +266,129 @@ def test_static_grip_stiffness_small_tube():
     assert r["max_residual_force_eV_per_A"] < 1e-3
     with pytest.raises(ValueError, match="strain=0.2"):
         static_grip_stiffness(swcnt(10, 10, 40.0), strain=0.2)
+
+
+# ---------------------------------------------------------------------- the cache folder
+def test_cache_dir_is_a_user_folder_overridable_by_the_environment(monkeypatch, tmp_path):
+    from upscale.experiments.lammps import cache_dir, default_dump_dir
+    from upscale.experiments.lammps import potential
+
+    root = Path(__file__).resolve().parents[1]
+    monkeypatch.delenv("UPSCALE_CACHE", raising=False)
+    assert not cache_dir().resolve().is_relative_to(root)
+    monkeypatch.setenv("UPSCALE_CACHE", str(tmp_path / "c"))
+    assert cache_dir() == tmp_path / "c" and potential.cache_dir is cache_dir
+    assert default_dump_dir() == tmp_path / "c" / "dumps"
+    pot = potential.resolve_potential("BNC.tersoff")  # the step file is written there
+    assert pot.file.parent == tmp_path / "c" / "potentials" and pot.file.is_file()
+
+
+# ------------------------------------------------------------- run(atoms, protocol object)
+@pytest.fixture(scope="module")
+def short_tube():
+    return swcnt(5, 5, 30.0)  # 240 atoms
+
+
+def test_run_compression_mirrors_tension(short_tube):
+    """Compression through the cell: strains -k step, stress negative and growing in
+    magnitude, its small-strain slope within 5 % of the tension modulus of the same tube
+    (1.010 against 0.988 TPa over 0-0.5 %: the curve is slightly concave)."""
+    from upscale.experiments.lammps import run
+    from upscale.experiments.protocols import QuasiStatic
+
+    kw = dict(step=0.0025, maximum=0.005)
+    c = run(short_tube, QuasiStatic(load="compression", **kw), fit_max_strain=0.005)
+    t = run(short_tube, QuasiStatic(load="tension", **kw), fit_max_strain=0.005)
+    cc = c["curve"]
+    assert cc["load"] == pytest.approx([0.0, -0.0025, -0.005]) == cc["strain"]
+    assert cc["response"] == cc["stress_GPa"]
+    s = np.array(cc["response"])
+    assert abs(s[0]) < 1e-3 and np.all(s[1:] < 0) and np.all(np.diff(s) < 0)
+    assert c["kind"] == "lammps-compression" and t["kind"] == "lammps-tension"
+    assert c["youngs_modulus_TPa"] == pytest.approx(t["youngs_modulus_TPa"], rel=0.05)
+    assert c["figures"]["youngs_TPa"] == pytest.approx(c["youngs_modulus_TPa"], rel=1e-9)
+    assert c["strength_GPa"] == s.min() and c["strain_at_peak"] == -0.005
+    assert not c["failed"]
+    L0 = c["relaxation"]["L0_A"]
+    assert np.allclose(cc["Lz_A"], L0 * (1 + np.array(cc["strain"])), rtol=1e-9)
+    assert c["protocol"] == dataclasses.asdict(QuasiStatic(load="compression", **kw))
+    assert c["protocol_name"] == "quasi-static" and c["protocol_detail"]["load"] == "compression"
+    for k in ("lammps_version", "potential", "wall_s", "date_utc"):
+        assert k in c
+
+
+def test_run_torsion_torque_is_linear_with_the_sign_of_the_twist(short_tube):
+    """A 30 Å (5,5) tube, 5 Å grips, twisted 1 degree per step: the torque the top grip
+    applies grows linearly with the twist (2.24 eV per degree, within 0.1 % over 3
+    degrees), the bottom grip balances it, the opposite twist gives the opposite torque,
+    and the thin-wall shear modulus is graphene's (0.42 TPa)."""
+    from upscale.experiments.lammps import quasi_static_torsion, run
+    from upscale.experiments.protocols import QuasiStatic
+
+    p = QuasiStatic(load="torsion", periodic=False, grip=5.0, step=1.0, maximum=3.0)
+    r = run(short_tube, p)
+    c = r["curve"]
+    assert c["load"] == c["twist_deg"] == [0.0, 1.0, 2.0, 3.0]
+    T = np.array(c["response"])
+    assert c["response"] == c["torque_eV"] and abs(T[0]) < 1e-6
+    assert np.all(T[1:] > 0)
+    assert np.allclose(T[1:] / np.array(c["load"][1:]), T[1], rtol=1e-3)
+    assert np.allclose(c["torque_bottom_eV"], T, atol=1e-6)  # the grips balance
+    assert max(c["fmax_eV_per_A"]) < 1e-4
+    assert 0.35 < r["shear_modulus_TPa"] < 0.5
+    assert r["kind"] == "lammps-torsion" and r["figures"]["peak_torque_eV"] == T[-1]
+    assert r["protocol"]["load"] == "torsion" and r["protocol"]["grip"] == 5.0
+    neg = quasi_static_torsion(short_tube, grip=5.0, twist_step=-1.0, max_twist=1.5)
+    assert neg["curve"]["twist_deg"] == [0.0, -1.0]
+    assert neg["curve"]["torque_eV"][1] == pytest.approx(-T[1], rel=1e-3)
+
+
+def test_run_rejects_what_it_does_not_run(short_tube):
+    from upscale.experiments.lammps import run
+    from upscale.experiments.protocols import Dynamic, QuasiStatic
+
+    with pytest.raises(ValueError, match="torsion' on a periodic tube"):
+        QuasiStatic(load="torsion", periodic=True)  # the protocol object refuses it
+    with pytest.raises(ValueError, match="strain_step: fixed by the protocol"):
+        run(short_tube, QuasiStatic(), strain_step=0.01)
+    with pytest.raises(NotImplementedError, match="periodic=False"):
+        run(short_tube, QuasiStatic(load="compression", periodic=False, grip=5.0))
+    with pytest.raises(NotImplementedError, match="dynamic tension only"):
+        run(short_tube, Dynamic(load="torsion", grip=5.0))
+    with pytest.raises(TypeError, match="QuasiStatic or Dynamic"):
+        run(short_tube, "quasi-static")
+
+
+def test_run_maps_the_protocols_onto_the_runners(monkeypatch, short_tube):
+    """Which runner keyword each protocol field becomes (no LAMMPS run): the default
+    QuasiStatic is the stored references' quasi-static protocol (step 0.5 %, up to 40 %,
+    one step after the first 5 % drop), Dynamic's dt (fs) the runner's timestep (ps)."""
+    from upscale.experiments.lammps import dynamic, quasistatic, run
+    from upscale.experiments.protocols import Dynamic, QuasiStatic, StopRule
+
+    seen = {}
+
+    def fake(name):
+        def f(atoms, potential, **kw):
+            seen[name] = kw
+            return {"protocol": "x", "protocol_detail": {},
+                    "curve": {"strain": [0.0, 0.01, 0.02], "stress_GPa": [0.0, 10.0, 20.0]}}
+        return f
+
+    p = inspect.signature(quasistatic.quasi_static_tension).parameters
+    monkeypatch.setattr(quasistatic, "quasi_static_tension", fake("qs"))
+    monkeypatch.setattr(dynamic, "dynamic_tension", fake("dyn"))
+    run(short_tube, QuasiStatic(), ftol=1e-9)
+    assert seen["qs"] == {"load": "tension", "strain_step": 0.005, "max_strain": 0.40,
+                          "after_failure": 1, "failure_drop": 0.05, "ftol": 1e-9}
+    # the same values as the runner's defaults, with which the references were made
+    assert {k: p[k].default for k in seen["qs"] if k != "ftol"} == {
+        k: v for k, v in seen["qs"].items() if k != "ftol"}
+    r = run(short_tube, Dynamic(speed=2.0, grip=12.0, dt=0.5, temperature=1.0, tau=0.2,
+                                sample_every=50, maximum=0.1, seed=7,
+                                stop=StopRule(drop=0.1, below=0.3)))
+    assert seen["dyn"] == {"grip": 12.0, "speed": 2.0, "timestep": 0.0005,
+                           "temperature": 1.0, "tdamp": 0.2, "sample_every": 50, "seed": 7,
+                           "max_strain": 0.1, "failure_drop": 0.1, "stop_below": 0.3}
+    assert r["curve"]["load"] == [0.0, 0.01, 0.02] and r["protocol_name"] == "x"
+    assert r["protocol"]["speed"] == 2.0 and r["figures"]["youngs_TPa"] == pytest.approx(1.0)

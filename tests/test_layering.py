@@ -3,7 +3,10 @@
     potentials  <-  upscale.engine  <-  upscale.models  <-  upscale.experiments  <-  validation
 
 A module may import from its own layer and the layers to its left, never to its right;
-``upscale`` as a whole never imports ``validation``. Imports inside functions count the
+``upscale`` as a whole never imports ``validation``. The LAMMPS backend
+(``upscale.experiments.lammps``) sits beside the engine under the scenes: it may import
+``potentials``, ``upscale.engine``/``models``/``analysis`` and the protocols, never
+``validation`` nor the scenes that use it. Imports inside functions count the
 same as module-level ones (a lazy import is still a dependency). Across modules only public
 names are imported: no ``from a.b import _private`` and no ``a._private`` module, so a
 module's private names can change without breaking another.
@@ -23,6 +26,7 @@ RULES = [
     ("potentials", ("upscale", "validation")),
     ("upscale.engine", ("upscale.models", "upscale.experiments", "validation")),
     ("upscale.models", ("upscale.experiments", "validation")),
+    ("upscale.experiments.lammps", ("validation", "upscale.experiments.scenes")),
     ("upscale", ("validation",)),
 ]
 
@@ -114,6 +118,19 @@ def test_layers():
     """No module imports a layer to its right (the list names file:line and the import)."""
     bad = layer_violations()
     assert not bad, "layering violated:\n" + "\n".join(bad)
+
+
+def test_the_lammps_backend_is_walked_and_imports_no_validation():
+    """The LAMMPS runners live in ``upscale.experiments.lammps`` (not ``validation``), the
+    walker sees every module of it, and none imports ``validation`` or a scene."""
+    mods = {m: p for m, p in _modules() if _under(m, "upscale.experiments.lammps")}
+    assert {"upscale.experiments.lammps", "upscale.experiments.lammps.tension",
+            "upscale.experiments.lammps.potential", "upscale.experiments.lammps.mpi"} <= set(mods)
+    assert not (ROOT / "validation" / "lammps").exists()
+    names = {n for m, p in mods.items() for _, n, _ in imports(p, m)}
+    assert not [n for n in names if _under(n, "validation")
+                or _under(n, "upscale.experiments.scenes")]
+    assert any(_under(n, "potentials") for n in names)
 
 
 @pytest.mark.parametrize("pkg", ["validation", "upscale", "potentials"])

@@ -28,7 +28,7 @@ class _Recorder:
 
 @pytest.fixture
 def recorded(monkeypatch):
-    from upscale.experiments.lammps import tension
+    from upscale.experiments.lammps import quasistatic as tension
 
     log = []
     setup = tension._setup

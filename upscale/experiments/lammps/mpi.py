@@ -21,7 +21,7 @@ from pathlib import Path
 
 __all__ = ["run_mpi", "mpiexec_path"]
 
-_FUNCS = ("quasi_static_tension", "dynamic_tension")
+_FUNCS = ("quasi_static_tension", "quasi_static_torsion", "dynamic_tension")
 
 
 def mpiexec_path() -> str:
@@ -36,7 +36,8 @@ def mpiexec_path() -> str:
 
 
 def run_mpi(func: str, atoms, nprocs: int, **kwargs) -> dict:
-    """Run ``upscale.experiments.lammps.tension.<func>(atoms, **kwargs)`` on ``nprocs`` MPI ranks."""
+    """Run ``upscale.experiments.lammps.tension.<func>(atoms, **kwargs)`` on ``nprocs``
+    MPI ranks."""
     if func not in _FUNCS:
         raise ValueError(f"func={func!r}; valid: {', '.join(_FUNCS)}")
     if isinstance(nprocs, bool) or not isinstance(nprocs, int) or nprocs < 1:
