@@ -25,7 +25,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="upscale",
         description="Atomistic-to-continuum mechanics: run a scene and write its results.",
     )
-    sub = parser.add_subparsers(dest="scene", metavar="SCENE")
+    sub = parser.add_subparsers(dest="_command", metavar="SCENE")
     demo = sub.add_parser("demo", help=f"the main job on the default scene ({' '.join(DEMO)})")
     demo.set_defaults(func=None)
     done = set()
@@ -76,10 +76,10 @@ def main(argv=None) -> int:
             return 2
     parser = build_parser()
     args = parser.parse_args(argv)
-    if args.scene is None:
+    if args._command is None:
         parser.print_help()
         return 2
-    if args.scene == "demo":
+    if args._command == "demo":
         args = parser.parse_args(DEMO)
     try:
         if hasattr(args, "_scene"):
@@ -89,7 +89,7 @@ def main(argv=None) -> int:
             return 0
         return int(args.func(args) or 0)
     except (ValueError, FileNotFoundError) as exc:  # bad input: one clear line, no traceback
-        print(f"upscale {args.scene}: error: {exc}", file=sys.stderr)
+        print(f"upscale {args._command}: error: {exc}", file=sys.stderr)
         return 2
 
 

@@ -34,7 +34,6 @@ CHECKS = {
 
 
 def _args(p):
-    p.add_argument("--quick", action="store_true", help="a (5,5) tube of 40 Å, same rules")
     p.add_argument("--only", default=None, help="comma list of tension,compression,torsion")
 
 
