@@ -39,7 +39,7 @@ def test_group_forces_add_up_to_the_total():
 
 def test_respa_with_one_inner_step_is_verlet():
     kw = dict(max_strain=0.012, progress=False, temperature=10.0, sample_every=50)
-    a = dynamic_tension(_mixed(), **kw)
+    a = dynamic_tension(_mixed(), integrator="verlet", **kw)
     b = dynamic_tension(_mixed(), integrator="respa", inner=1, **kw)
     sa, sb = np.array(a["curve"]["stress_GPa"]), np.array(b["curve"]["stress_GPa"])
     assert sa.shape == sb.shape and sa.size >= 3

@@ -17,7 +17,8 @@ def test_settle_lowers_the_coarse_tubes_unbalanced_vdw_force_and_chain_is_used()
     """The coarse tube starts with the vdW's unbalanced force (it is held in the set-up
     minimisation); the quench lowers it (slowly: validation/results/bundle.md, "The start
     and the thermostat"), and the run uses the chain asked for."""
-    kw = dict(max_strain=0.012, progress=False, temperature=10.0, sample_every=50)
+    kw = dict(max_strain=0.012, progress=False, temperature=10.0, sample_every=50,
+              integrator="verlet")  # (as the thresholds were set: velocity Verlet at 1 fs)
     r = dynamic_tension(_mixed(), settle_ps=0.5, chain=2, **kw)
     s = r["protocol_detail"]["settle"]
     # the coarse tube, held in the minimisation, starts with the vdW's unbalanced force

@@ -40,8 +40,8 @@ Dynamic tension (the LAMMPS references' protocol, ``upscale.experiments.lammps.t
    thermostat holds each tube at the temperature because its tubes are alike; the tubes
    of a mixed bundle are not (a coarse tube's x, y motion carries a breathing
    oscillation, its shifts take up heat), so one thermostat holds only their mean and
-   the atomistic tube runs colder than the others; velocity Verlet at 1 fs, or multiple
-   time stepping (r-RESPA, ``integrator="respa"``);
+   the atomistic tube runs colder than the others; multiple time stepping (r-RESPA,
+   ``integrator="respa"``, the default: 5 inner steps of 1 fs) or velocity Verlet at 1 fs;
 3. strain = grip separation change / initial gauge (the grip planes' distance); the stress
    of tube k is the mean of its two grips' reactions over its wall area 2 pi R t (t = 3.4 Å,
    R the mean radius of the central tube after the minimisation), the bundle stress the
@@ -67,8 +67,9 @@ import numpy as np
 from upscale.analysis.plots import save_figure
 from upscale.constants import ACC_EV_A_AMU_IN_A_FS2, CARBON_MASS_AMU, K_B_EV, WALL_THICKNESS_A
 
-__all__ = ["TubeSpec", "BundleScene", "TUBE_MODELS", "dynamic_tension", "register", "run",
-           "zero_stress_ratios"]
+__all__ = ["TubeSpec", "BundleScene", "TUBE_MODELS", "dynamic_tension", "zero_stress_ratios",
+           "check_run_options", "add_run_options", "parse_specs", "reference_name", "tube_failures",
+           "register", "run", "INTEGRATOR", "INNER", "COARSE_PAIRS", "SEED"]
 
 TUBE_MODELS = ("tersoff", "dcbr", "dcbr-defect")
 LJ_EPSILON_EV, LJ_SIGMA_A = 2.84e-3, 3.4   # the references' pair (Girifalco et al. 2000)
@@ -79,6 +80,23 @@ LATTICE_A = 1.42 * math.sqrt(3.0)           # graphene lattice constant of the b
 PRISTINE_BAND_A = 1.0
 #: an atom's mass in the scene's units (eV, Å, fs: amu / (Å/fs^2 per eV/(Å amu)))
 ATOM_MASS = CARBON_MASS_AMU / ACC_EV_A_AMU_IN_A_FS2
+
+# The validated setting, the one place its defaults are written: :meth:`BundleScene.create`,
+# :func:`dynamic_tension`, :func:`add_run_options` (``bundle-tension``) and the scene
+# command line (``upscale bundle``) read them. validation/results/bundle.md: the accuracy rows
+# against LAMMPS's three seeds under the Nose-Hoover chain of 3 (the default chain; (10,10)
+# +3.19 / -1.10 / +5.97 %, (7,13) +1.76 / +2.30 / -1.22 % in strength / modulus / strain at
+# peak, and K = 1-4) ran with r-RESPA, 5 inner steps of 1 fs; the van der Waals between
+# coarse tubes through their reconstructed atoms is the form within 1 % of the all-atomistic
+# bundle at rest (2.0e-4; lumped sites between coarse tubes: 4.3e-2).
+#: the pull's time stepping: "respa" (multiple time stepping) or "verlet"
+INTEGRATOR = "respa"
+#: 1 fs inner steps per outer step of r-RESPA
+INNER = 5
+#: the vdW between two coarse tubes: "atoms" (reconstructed) or "sites" (lumped particles)
+COARSE_PAIRS = "atoms"
+#: the thermal seed (the LAMMPS references' default seed number)
+SEED = 4928459
 
 
 @dataclasses.dataclass
@@ -173,7 +191,7 @@ class BundleScene:
                ratios: dict | None = None, centres=None, allow_overlap: bool = False,
                epsilon: float = LJ_EPSILON_EV, sigma: float = LJ_SIGMA_A,
                rc: float = LJ_CUTOFF_A, vdw_every: int = 1,
-               coarse_pairs: str = "atoms") -> "BundleScene":
+               coarse_pairs: str = COARSE_PAIRS) -> "BundleScene":
         """A bundle of ``len(specs)`` (n, m) tubes of ``length`` Å.
 
         ``specs``: one :class:`TubeSpec` (or model name) per tube, the central tube first
@@ -186,9 +204,9 @@ class BundleScene:
         tubes, tubes of different lengths, an unknown model name, a coarsening the length
         does not admit. ``vdw_every``: the vdW forces recomputed every that many steps
         (:class:`~upscale.models.tube_vdw.TubeVdW` ``every``); ``coarse_pairs``:
-        ``"atoms"`` (default) or ``"sites"`` (two coarse tubes interact through their
-        particles as lumped sites, the cheaper integrated form; an atomistic tube always
-        sees a coarse tube's reconstructed atoms).
+        ``"atoms"`` (default, :data:`COARSE_PAIRS`) or ``"sites"`` (two coarse tubes
+        interact through their particles as lumped sites, the cheaper integrated form; an
+        atomistic tube always sees a coarse tube's reconstructed atoms).
         """
         if coarse_pairs not in ("atoms", "sites"):
             raise ValueError(f"coarse_pairs={coarse_pairs!r}; valid: 'atoms' or 'sites'")
@@ -434,10 +452,10 @@ def _coarse_model(chirality, length, spec, has_vacancy, grip, centre, z_mid, pre
 # ---------------------------------------------------------------------- dynamic tension
 def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: float = 1.0,
                     temperature: float = 10.0, dt_fs: float = 1.0, tdamp_ps: float = 0.1,
-                    max_strain: float = 0.40, seed: int = 4928459, sample_every: int = 100,
+                    max_strain: float = 0.40, seed: int = SEED, sample_every: int = 100,
                     ftol: float = 1e-2, progress: bool = True, max_steps: int = 200000,
-                    snapshot_every: int = 500, integrator: str = "verlet",
-                    inner: int = 5, record_readings: bool = False,
+                    snapshot_every: int = 500, integrator: str = INTEGRATOR,
+                    inner: int = INNER, record_readings: bool = False,
                     thermostat: str = "bundle",
                     per_tube_damping_ps: float | None = None,
                     settle_ps: float = 0.0, chain: int = 3) -> dict:
@@ -445,13 +463,14 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
     dict: ``curve`` (strain, stress_GPa, stress_per_tube_GPa, time_ps), metrics, per-tube
     failure strains and order, damage per tube, timings.
 
-    ``integrator="verlet"`` (default): velocity Verlet at ``dt_fs``. ``"respa"``: multiple
+    ``integrator="respa"`` (default, :data:`INTEGRATOR`, ``inner`` :data:`INNER`): multiple
     time stepping (:class:`upscale.engine.respa.RESPA`), outer step ``inner * dt_fs``:
     slow are the coarse tubes' lattice energies (their shift modes and the atomistic
     regions are fast, :meth:`~upscale.models.dcbr_engine.DCBRDefectTubeModel.prepare_split`,
     renewed every sample) and the inter-tube van der Waals; fast the atomistic tubes
     (Tersoff) at ``dt_fs``. ``inner`` must divide 10 (the grips are read every 10 fs
     steps) and the scene's vdW must not be held between steps (``vdw_every=1``).
+    ``"verlet"``: velocity Verlet at ``dt_fs``.
     ``thermostat``: ``"bundle"`` (default; one Nose-Hoover on every tube's free part, the
     references' ``fix nvt`` on all free atoms) or ``"per-tube"`` (one per tube, each on
     its own free rows and shifts, damping ``per_tube_damping_ps``, default
@@ -465,28 +484,10 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
     from upscale.engine.integrators import VelocityVerlet
     from upscale.engine.minimisers import LBFGS
 
-    if not (isinstance(chain, (int, np.integer)) and chain >= 1):
-        raise ValueError(f"chain={chain!r}; valid: a Nose-Hoover chain length >= 1")
-    if not (np.isfinite(settle_ps) and settle_ps >= 0):
-        raise ValueError(f"settle_ps={settle_ps!r}; valid: a quench time >= 0 ps")
-    if thermostat not in ("bundle", "per-tube"):
-        raise ValueError(f"thermostat={thermostat!r}; valid: 'bundle' or 'per-tube'")
-    for name, val in (("max_strain", max_strain), ("speed", speed), ("dt_fs", dt_fs)):
-        if not (np.isfinite(val) and val > 0):
-            raise ValueError(f"{name}={val!r}; valid: a number > 0")
-    if not (isinstance(sample_every, (int, np.integer)) and sample_every >= 1):
-        raise ValueError(f"sample_every={sample_every!r}; valid: an integer >= 1 (steps)")
-    if integrator not in ("verlet", "respa"):
-        raise ValueError(f"integrator={integrator!r}; valid: 'verlet' or 'respa'")
-    per = 1
-    if integrator == "respa":
-        if not (isinstance(inner, (int, np.integer)) and inner >= 1 and 10 % inner == 0):
-            raise ValueError(f"inner={inner!r}; valid: 1, 2, 5 or 10 (inner steps per outer "
-                             "step; the grips are read every 10 steps)")
-        if int(scene.info.get("vdw_every", 1)) != 1:
-            raise ValueError(f"vdw_every={scene.info['vdw_every']} with integrator='respa'; "
-                             "valid: 1 (multiple time stepping puts the vdW in the slow group)")
-        per = int(inner)
+    check_run_options(integrator=integrator, inner=inner, thermostat=thermostat, chain=chain,
+                      settle_ps=settle_ps, max_strain=max_strain, speed=speed, dt_fs=dt_fs,
+                      sample_every=sample_every, vdw_every=int(scene.info.get("vdw_every", 1)))
+    per = int(inner) if integrator == "respa" else 1
     t0 = time.perf_counter()
     c0 = time.process_time()
     grip = scene.info["grip_A"] if grip is None else float(grip)
@@ -743,7 +744,7 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
             bar.set_postfix_str(f"strain {100 * eps:.1f}%  stress {s:.1f} GPa")
             if snapshot_every and step % snapshot_every == 0:
                 snaps.append((step, sim.state.y.copy()))
-            if s < 0.95 * smax:
+            if smax > 0 and s < 0.95 * smax:  # (a bundle still in compression has not failed)
                 failed = True
             if (failed and s < 0.2 * smax) or eps > max_strain or step >= max_steps:
                 break
@@ -786,6 +787,35 @@ def dynamic_tension(scene: BundleScene, *, grip: float | None = None, speed: flo
     res["_final_y"] = sim.state.y
     res["_start_y"] = y
     return res
+
+
+def check_run_options(*, integrator=INTEGRATOR, inner=INNER, thermostat="bundle", chain=3,
+                      settle_ps=0.0, max_strain=0.40, speed=1.0, dt_fs=1.0, sample_every=100,
+                      vdw_every=1) -> None:
+    """The options of :func:`dynamic_tension` checked, before anything is built: a one-line
+    ValueError naming the first bad one."""
+    if not (isinstance(chain, (int, np.integer)) and chain >= 1):
+        raise ValueError(f"chain={chain!r}; valid: a Nose-Hoover chain length >= 1")
+    if not (np.isfinite(settle_ps) and settle_ps >= 0):
+        raise ValueError(f"settle_ps={settle_ps!r}; valid: a quench time >= 0 ps")
+    if thermostat not in ("bundle", "per-tube"):
+        raise ValueError(f"thermostat={thermostat!r}; valid: 'bundle' or 'per-tube'")
+    for name, val in (("max_strain", max_strain), ("speed", speed), ("dt_fs", dt_fs)):
+        if not (np.isfinite(val) and val > 0):
+            raise ValueError(f"{name}={val!r}; valid: a number > 0")
+    if not (isinstance(sample_every, (int, np.integer)) and sample_every >= 1):
+        raise ValueError(f"sample_every={sample_every!r}; valid: an integer >= 1 (steps)")
+    if not (isinstance(vdw_every, (int, np.integer)) and vdw_every >= 1):
+        raise ValueError(f"vdw_every={vdw_every!r}; valid: an integer >= 1 (steps)")
+    if integrator not in ("verlet", "respa"):
+        raise ValueError(f"integrator={integrator!r}; valid: 'verlet' or 'respa'")
+    if integrator == "respa":
+        if not (isinstance(inner, (int, np.integer)) and inner >= 1 and 10 % inner == 0):
+            raise ValueError(f"inner={inner!r}; valid: 1, 2, 5 or 10 (inner steps per outer "
+                             "step; the grips are read every 10 steps)")
+        if vdw_every != 1:
+            raise ValueError(f"vdw_every={vdw_every} with integrator='respa'; "
+                             "valid: 1 (multiple time stepping puts the vdW in the slow group)")
 
 
 def _at_rest(state) -> None:
@@ -964,11 +994,13 @@ def add_run_options(p) -> None:
                    help="run tubes closer than the van der Waals wall (the seed's hexagon)")
     p.add_argument("--max-strain", type=float, default=0.40,
                    help="stop the pull at this strain (default 0.40, the references')")
-    p.add_argument("--integrator", choices=("verlet", "respa"), default="respa",
-                   help="multiple time stepping (default: the coarse tubes' lattice and the "
-                   "vdW at an outer step of --inner fs) or velocity Verlet at 1 fs")
-    p.add_argument("--inner", type=int, default=5,
-                   help="1 fs inner steps per outer step with respa: 1, 2, 5, 10 (default 5)")
+    p.add_argument("--integrator", choices=("verlet", "respa"), default=INTEGRATOR,
+                   help="multiple time stepping (respa: the coarse tubes' lattice and the "
+                   "vdW at an outer step of --inner fs) or velocity Verlet at 1 fs "
+                   f"(default {INTEGRATOR})")
+    p.add_argument("--inner", type=int, default=INNER,
+                   help=f"1 fs inner steps per outer step with respa: 1, 2, 5, 10 (default "
+                   f"{INNER})")
     p.add_argument("--thermostat", choices=("bundle", "per-tube"), default="bundle",
                    help="one Nose-Hoover on all tubes' free parts (default) or one per tube")
     p.add_argument("--chain", type=int, default=3,
@@ -977,9 +1009,9 @@ def add_run_options(p) -> None:
     p.add_argument("--settle", type=float, default=0.0,
                    help="ps of quench of every tube (the coarse ones too) after the set-up "
                    "minimisation, before the pull (default 0: the coarse tubes as set up)")
-    p.add_argument("--coarse-pairs", choices=("atoms", "sites"), default="sites",
-                   help="two coarse tubes interact through their particles as lumped sites "
-                   "(default) or through reconstructed atoms")
+    p.add_argument("--coarse-pairs", choices=("atoms", "sites"), default=COARSE_PAIRS,
+                   help="two coarse tubes interact through reconstructed atoms or through "
+                   f"their particles as lumped sites (default {COARSE_PAIRS})")
     p.add_argument("--vdw-every", type=int, default=1,
                    help="vdW forces recomputed every N steps, held in between (velocity "
                    "Verlet only; default 1)")
@@ -1001,7 +1033,7 @@ def register(subparsers):
                    help="walls --gap apart (default) or centres 2.2 R apart (the seed's)")
     p.add_argument("--gap", type=float, default=3.4, help="wall gap, Å (default 3.4)")
     p.add_argument("--no-vacancy", action="store_true", help="no vacancy in the central tube")
-    p.add_argument("--seed", type=int, default=4928459, help="thermal velocity seed")
+    p.add_argument("--seed", type=int, default=SEED, help="thermal velocity seed")
     add_run_options(p)
     p.add_argument("--compare", choices=["lammps"], default=None,
                    help="overlay the stored LAMMPS reference (data/reference/)")
@@ -1010,12 +1042,18 @@ def register(subparsers):
 
 
 def parse_specs(tubes, ntubes, coarsening):
-    if tubes is None:
+    """The tubes' specs: ``tubes`` a comma list (``"tersoff,dcbr:2"``, centre first), or
+    None (or empty) for the atomistic centre and ``ntubes - 1`` coarse tubes ``dcbr:K``."""
+    if not tubes:
+        if not (isinstance(ntubes, (int, np.integer)) and 2 <= ntubes <= 7):
+            raise ValueError(f"ntubes={ntubes!r}; valid: 2 to 7 (the centre and the hexagon)")
         return [TubeSpec("tersoff")] + [TubeSpec("dcbr", coarsening)] * (ntubes - 1)
     return [TubeSpec.parse(t.strip(), coarsening) for t in str(tubes).split(",")]
 
 
 def reference_name(chirality, spacing="vdw", vacancy=True, ntubes=7, seed=None) -> str:
+    """The name of the stored LAMMPS bundle reference (``data/reference/<name>.json``,
+    ``reference-tension --bundle``); ``seed`` None for the references' default seed."""
     n, m = chirality
     name = f"dyn_{n}-{m}_{'vac4' if vacancy else 'pristine'}_bundle{ntubes}"
     if spacing == "seed":
