@@ -37,6 +37,7 @@ SCENES: dict[str, str] = {
     "dispersion": "upscale.experiments.scenes.tridyn_scenes:dispersion",
     "tipd": "upscale.experiments.scenes.tipd:tipd",
     "scb": "upscale.experiments.scenes.scb:scb",
+    "bundle": "upscale.experiments.scenes.bundle_scene:bundle",
 }
 
 #: flags of the old command lines -> what replaces them (one line each)

@@ -1,5 +1,7 @@
-"""``upscale bundle``: a bundle of tubes, each with its own model, coupled by van der Waals
-forces and pulled in dynamic tension (seed 004 sec. 5.3.2).
+"""A bundle of tubes, each with its own model, coupled by van der Waals forces and pulled in
+dynamic tension (seed 004 sec. 5.3.2): the scene's parts. The scene function
+``experiments.bundle`` (``upscale bundle``, :mod:`upscale.experiments.scenes.bundle_scene`)
+builds a :class:`BundleScene`, runs :func:`dynamic_tension` and returns a Result.
 
     upscale bundle --chirality 10,10 --coarsening 2 [--compare lammps]
 
@@ -60,7 +62,6 @@ from __future__ import annotations
 import dataclasses
 import math
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -68,8 +69,8 @@ from upscale.analysis.plots import save_figure
 from upscale.constants import ACC_EV_A_AMU_IN_A_FS2, CARBON_MASS_AMU, K_B_EV, WALL_THICKNESS_A
 
 __all__ = ["TubeSpec", "BundleScene", "TUBE_MODELS", "dynamic_tension", "zero_stress_ratios",
-           "check_run_options", "add_run_options", "parse_specs", "reference_name", "tube_failures",
-           "register", "run", "INTEGRATOR", "INNER", "COARSE_PAIRS", "SEED"]
+           "check_run_options", "add_run_options", "parse_specs", "reference_name",
+           "tube_failures", "INTEGRATOR", "INNER", "COARSE_PAIRS", "SEED"]
 
 TUBE_MODELS = ("tersoff", "dcbr", "dcbr-defect")
 LJ_EPSILON_EV, LJ_SIGMA_A = 2.84e-3, 3.4   # the references' pair (Girifalco et al. 2000)
@@ -83,7 +84,7 @@ ATOM_MASS = CARBON_MASS_AMU / ACC_EV_A_AMU_IN_A_FS2
 
 # The validated setting, the one place its defaults are written: :meth:`BundleScene.create`,
 # :func:`dynamic_tension`, :func:`add_run_options` (``bundle-tension``) and the scene
-# command line (``upscale bundle``) read them. validation/results/bundle.md: the accuracy rows
+# function (``upscale bundle``) read them. validation/results/bundle.md: the accuracy rows
 # against LAMMPS's three seeds under the Nose-Hoover chain of 3 (the default chain; (10,10)
 # +3.19 / -1.10 / +5.97 %, (7,13) +1.76 / +2.30 / -1.22 % in strength / modulus / strain at
 # peak, and K = 1-4) ran with r-RESPA, 5 inner steps of 1 fs; the van der Waals between
@@ -1017,30 +1018,7 @@ def add_run_options(p) -> None:
                    "Verlet only; default 1)")
 
 
-# ---------------------------------------------------------------------- command line
-def register(subparsers):
-    p = subparsers.add_parser("bundle", help="a bundle of tubes (atomistic and coarse) in "
-                              "dynamic tension, coupled by van der Waals", description=__doc__)
-    p.add_argument("--chirality", default="10,10", help="N,M (default 10,10)")
-    p.add_argument("--length", type=float, default=150.0, help="tube length, Å (default 150)")
-    p.add_argument("--coarsening", type=float, default=2.0,
-                   help="coarsening K of the outer tubes (default 2)")
-    p.add_argument("--tubes", default=None,
-                   help="comma-separated model of each tube, centre first: tersoff, dcbr[:K], "
-                   "dcbr-defect[:K] (default: tersoff,dcbr:K x6)")
-    p.add_argument("--ntubes", type=int, default=7, help="number of tubes (default 7)")
-    p.add_argument("--spacing", choices=("vdw", "seed"), default="vdw",
-                   help="walls --gap apart (default) or centres 2.2 R apart (the seed's)")
-    p.add_argument("--gap", type=float, default=3.4, help="wall gap, Å (default 3.4)")
-    p.add_argument("--no-vacancy", action="store_true", help="no vacancy in the central tube")
-    p.add_argument("--seed", type=int, default=SEED, help="thermal velocity seed")
-    add_run_options(p)
-    p.add_argument("--compare", choices=["lammps"], default=None,
-                   help="overlay the stored LAMMPS reference (data/reference/)")
-    p.add_argument("--outdir", type=Path, default=Path("out/bundle"))
-    p.set_defaults(func=run)
-
-
+# ---------------------------------------------------------------------- names
 def parse_specs(tubes, ntubes, coarsening):
     """The tubes' specs: ``tubes`` a comma list (``"tersoff,dcbr:2"``, centre first), or
     None (or empty) for the atomistic centre and ``ntubes - 1`` coarse tubes ``dcbr:K``."""
@@ -1062,61 +1040,3 @@ def reference_name(chirality, spacing="vdw", vacancy=True, ntubes=7, seed=None) 
         name += f"_s{seed}"
     return name
 
-
-def run(args) -> int:
-    from upscale.experiments.scenes.tube_tension import parse_chirality
-    from upscale.io import text_table, versions, write_json
-
-    n, m = parse_chirality(args.chirality)
-    specs = parse_specs(args.tubes, args.ntubes, args.coarsening)
-    scene = BundleScene.create((n, m), args.length, specs, spacing=args.spacing, gap=args.gap,
-                               vacancy_tube=None if args.no_vacancy else 0,
-                               allow_overlap=args.allow_overlap, vdw_every=args.vdw_every,
-                               coarse_pairs=args.coarse_pairs)
-    res = dynamic_tension(scene, seed=args.seed, max_strain=args.max_strain,
-                          integrator=args.integrator, inner=args.inner,
-                          thermostat=args.thermostat, chain=args.chain,
-                          settle_ps=args.settle)
-    out = Path(args.outdir)
-    tag = f"{n}_{m}_{'-'.join(s.model + (f'{s.coarsening:g}' if s.model != 'tersoff' else '') for s in specs)}"
-    lam = None
-    if args.compare == "lammps":
-        import json
-
-        root = Path(__file__).resolve().parents[3]
-        name = reference_name((n, m), args.spacing, not args.no_vacancy, len(specs))
-        p = root / "data" / "reference" / f"{name}.json"
-        if not p.is_file():
-            raise ValueError(f"no LAMMPS reference {p}; compute it with python -m validation "
-                             f"reference-tension --chirality {n},{m} --length {args.length:g} "
-                             f"--vacancy --dynamic --bundle {len(specs)} --save-reference")
-        lam = json.loads(p.read_text())
-        rerun = p.with_name(f"{name}_rerun.json")  # the kept run again, per-tube reactions
-        if "stress_per_tube_GPa" not in lam["curve"] and rerun.is_file():
-            lam["curve"]["stress_per_tube_GPa"] = json.loads(rerun.read_text())["curve"][
-                "stress_per_tube_GPa"]
-    plot_curves(res, out / f"bundle_{tag}.png", lam,
-                title=f"({n},{m}) bundle of {len(specs)}: {', '.join(s.model for s in specs)}")
-    plot_damage_maps(res, out / f"bundle_damage_{tag}.png", title=f"({n},{m}) bundle: damage")
-    rows = [{"quantity": "strength (GPa)", "engine": res["strength_GPa"],
-             "LAMMPS": lam["strength_GPa"] if lam else None},
-            {"quantity": "Young's modulus (TPa)", "engine": res["youngs_modulus_TPa"],
-             "LAMMPS": lam["youngs_modulus_TPa"] if lam else None},
-            {"quantity": "strain at peak", "engine": res["strain_at_peak"],
-             "LAMMPS": lam["strain_at_peak"] if lam else None},
-            {"quantity": "failure order (tubes)", "engine": str(res["failure_order"]),
-             "LAMMPS": str(tube_failures(lam["curve"]["strain"],
-                                         lam["curve"]["stress_per_tube_GPa"])["failure_order"])
-             if lam and "stress_per_tube_GPa" in lam["curve"] else None},
-            {"quantity": "degrees of freedom", "engine": res["dof"],
-             "LAMMPS": 3 * scene.info["n_atoms"]},
-            {"quantity": "wall time (s)", "engine": res["wall_s"],
-             "LAMMPS": lam["wall_s"] if lam else None}]
-    print(text_table(rows))
-    dump = {k: v for k, v in res.items() if not k.startswith("_")}
-    dump["damage"] = [{k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in d.items()}
-                      for d in res["damage"]]
-    write_json(out / f"bundle_{tag}.json", {"result": dump, "versions": versions()})
-    print(f"wrote {out / f'bundle_{tag}.json'}, {out / f'bundle_{tag}.png'}, "
-          f"{out / f'bundle_damage_{tag}.png'}")
-    return 0
