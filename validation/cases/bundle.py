@@ -18,11 +18,10 @@ from pathlib import Path
 
 import numpy as np
 
+from upscale.experiments.scenes.tube_tension import REFERENCE_DIR as REF_DIR
+from upscale.experiments.scenes.tube_tension import ROOT as REPO
 from validation.cases.references import parse_chirality
 from validation.registry import case, table
-
-REPO = Path(__file__).resolve().parents[2]
-REF_DIR = REPO / "data" / "reference"
 
 
 def lammps_pair_lines(ntubes: int, tersoff_file, lj_only: bool = False) -> list[str]:
