@@ -17,7 +17,7 @@ from upscale.experiments.result import Result
 
 #: the smallest bundle the scene takes (two tubes: the atomistic centre and one coarse tube;
 #: the van der Waals needs two) on the tests' 60 Å (10,10) tubes, three 100-step samples
-QUICK = dict(chirality=(10, 10), length=60.0, ntubes=2, grip=15.0, max_strain=0.012)
+QUICK = registry.QUICK["bundle"]
 
 
 @pytest.fixture(scope="module", autouse=True)

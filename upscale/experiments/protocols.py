@@ -113,6 +113,16 @@ class QuasiStatic:
         length gripped rigidly at each end of a finite tube, Å (0 for a periodic one).
     ftol : float
         relaxation tolerance: largest force component, eV/Å.
+    perturb : float
+        imperfection, Å: before every relaxation the free atoms are displaced by
+        :meth:`perturbation` (Gaussian, this standard deviation per component, seeded by
+        ``seed`` and the step). A perfect structure at a bifurcation (a tube twisted past
+        buckling) is otherwise left on the unstable branch for as long as the minimiser's
+        own rounding does not break its symmetry, which differs from one minimiser to the
+        next; the same seeded imperfection on every backend makes the buckling point the
+        protocol's, not the minimiser's. 0: none.
+    seed : int
+        seed of the imperfection.
     stop : StopRule
         failure and stop (default: one step after the first drop of 5 %).
     """
@@ -123,6 +133,8 @@ class QuasiStatic:
     periodic: bool = True
     grip: float = 0.0
     ftol: float = 1e-6
+    perturb: float = 0.0
+    seed: int = 0
     stop: StopRule = StopRule(drop=0.05, after=1)
 
     name = "quasi-static"
@@ -130,6 +142,8 @@ class QuasiStatic:
     def __post_init__(self):
         _check_load(self.load, self.periodic, self.grip)
         _positive(step=self.step, maximum=self.maximum, ftol=self.ftol)
+        if not (math.isfinite(self.perturb) and self.perturb >= 0):
+            raise ValueError(f"perturb={self.perturb!r}; valid: a finite number >= 0 Å")
         if self.step >= self.maximum:
             raise ValueError(f"step={self.step!r} >= maximum={self.maximum!r}; valid: "
                              "step < maximum")
@@ -138,6 +152,18 @@ class QuasiStatic:
     def sign(self) -> float:
         """-1 for compression, else +1: the sign of the applied strain."""
         return -1.0 if self.load == "compression" else 1.0
+
+    def perturbation(self, k: int, free) -> np.ndarray:
+        """(N, 3) Å: the imperfection added before the relaxation of step ``k`` (zero on
+        the atoms ``free`` (N,) bool leaves out, and everywhere when ``perturb`` is 0).
+        Deterministic in (``seed``, ``k``) and the atoms' order, so every backend adds the
+        same one."""
+        free = np.asarray(free, dtype=bool)
+        out = np.zeros((free.size, 3))
+        if self.perturb:
+            rng = np.random.default_rng([int(self.seed), int(k)])
+            out[free] = self.perturb * rng.standard_normal((int(free.sum()), 3))
+        return out
 
     def values(self):
         """The load parameter of step k = 0, 1, ...: ``sign k step`` up to ``maximum``."""

@@ -25,7 +25,8 @@ import sys
 import typing
 from pathlib import Path
 
-__all__ = ["SCENES", "get", "names", "add_scene_parser", "run_from_args", "REMOVED_FLAGS"]
+__all__ = ["SCENES", "QUICK", "get", "names", "add_scene_parser", "run_from_args",
+           "REMOVED_FLAGS", "argv_of"]
 
 #: scene name -> "module:function"
 SCENES: dict[str, str] = {
@@ -38,6 +39,21 @@ SCENES: dict[str, str] = {
     "tipd": "upscale.experiments.scenes.tipd:tipd",
     "scb": "upscale.experiments.scenes.scb:scb",
     "bundle": "upscale.experiments.scenes.bundle_scene:bundle",
+}
+
+#: each scene's quick variant: keyword arguments that run it in seconds (tests, the
+#: ``scene-api`` validation case, a first try from the shell)
+QUICK: dict[str, dict] = {
+    "tension": dict(chirality=(5, 5), length=25.0, model="atomistic", maximum=0.02),
+    "plate": dict(model="lps", n=20, t_end=6e-6, quick=True),
+    "cpd": dict(scene="cantilever", dim=2, dx=2e-3, ratio=2.0),
+    "beam": dict(theory="timoshenko", support="cantilever", n=20, ratios=(1.0, 2.0),
+                 shear_integration="bond"),
+    "plate-bending": dict(n=(8,), thickness=0.05),
+    "dispersion": dict(model="tridyn-timoshenko", compare_text=True),
+    "tipd": dict(case="mms", dx=(0.05, 0.025)),
+    "scb": dict(alpha=0.0, dx=3e-3, r_s=6e-3, growth="free"),
+    "bundle": dict(chirality=(10, 10), length=60.0, ntubes=2, grip=15.0, max_strain=0.012),
 }
 
 #: flags of the old command lines -> what replaces them (one line each)
@@ -215,6 +231,21 @@ def run_from_args(args: argparse.Namespace):
     if not args.quiet:
         print(f"wrote {out}/{stem}.json, .png and CSV", file=sys.stderr)
     return res
+
+
+def argv_of(name: str, kwargs: dict) -> list[str]:
+    """The command line (without ``upscale``) that calls scene ``name`` with ``kwargs``:
+    the inverse of :func:`scene_kwargs` for the option types of :func:`add_scene_parser`."""
+    out = [name]
+    for k, v in kwargs.items():
+        opt = "--" + k.replace("_", "-")
+        if isinstance(v, bool):
+            out.append(opt if v else "--no-" + k.replace("_", "-"))
+        elif isinstance(v, (tuple, list)):
+            out.append(f"{opt}={','.join(repr(x) for x in v)}")
+        else:
+            out.append(f"{opt}={v}" if isinstance(v, str) else f"{opt}={v!r}")
+    return out
 
 
 def _check_writable(out: Path) -> None:

@@ -77,8 +77,12 @@ def run(atoms, protocol, potential="tersoff:BNC.tersoff", **settings) -> dict:
             _owned("quasi_static_torsion", settings)
             res = quasi_static_torsion(atoms, potential, grip=protocol.grip,
                                        twist_step=protocol.step, max_twist=protocol.maximum,
-                                       **stop, **settings)
+                                       perturbation=protocol.perturbation, **stop, **settings)
             x, y = res["curve"]["twist_deg"], res["curve"]["torque_eV"]
+        elif protocol.perturb:
+            raise NotImplementedError(
+                f"QuasiStatic(perturb={protocol.perturb!r}) with load={protocol.load!r}: the "
+                "LAMMPS backend adds the imperfection in torsion only; valid: perturb=0")
         elif protocol.periodic:
             _owned("quasi_static_tension", settings)
             res = quasi_static_tension(atoms, potential, load=protocol.load,

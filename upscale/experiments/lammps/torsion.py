@@ -73,7 +73,8 @@ def quasi_static_torsion(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
                          failure_drop: float = 0.05, progress=None, nprocs: int = 1,
                          damped_style: str = DAMPED_STYLE, damped_dmax: float = 0.02,
                          damped_timestep_ps: float = 0.001, damped_steps: int = 5000,
-                         damped_cycles: int = 3, line_search: str = "quadratic") -> dict:
+                         damped_cycles: int = 3, line_search: str = "quadratic",
+                         perturbation=None) -> dict:
     """Quasi-static torsion of the open tube between rigid grips (module docstring).
 
     Parameters
@@ -87,6 +88,11 @@ def quasi_static_torsion(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
         Twist increment (its sign the sense: positive counter-clockwise about +z seen from
         the top) and largest twist magnitude of the top grip against the bottom one,
         degrees.
+    perturbation : callable, optional
+        ``perturbation(k, free) -> (N, 3)`` Å added to the positions before the
+        minimisation of step k (``free`` (N,) bool: the atoms outside the grips), e.g.
+        :meth:`upscale.experiments.protocols.QuasiStatic.perturbation`: the same seeded
+        imperfection as the engine's run.
     fit_max_twist : float, optional
         Twist (degrees) up to which the torsional stiffness is fitted; default
         ``max(2 twist_step, min(5, max_twist))`` (at least three records).
@@ -183,13 +189,16 @@ def quasi_static_torsion(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
         while k * abs(twist_step) <= max_twist + 1e-12:
             phi = k * twist_step
             dphi = math.radians(phi - phi_prev)
-            if dphi:
+            dx_k = None if perturbation is None else perturbation(k, ~(bot | top))
+            if dphi or (dx_k is not None and dx_k.any()):
                 x = gather_positions(lmp, n)
                 a = dphi * frac
                 c, s = np.cos(a), np.sin(a)
                 dx, dy = x[:, 0] - axis[0], x[:, 1] - axis[1]
                 x[:, 0] = axis[0] + c * dx - s * dy
                 x[:, 1] = axis[1] + s * dx + c * dy
+                if dx_k is not None:
+                    x += dx_k
                 _scatter_positions(lmp, x)
             try:
                 mres = minimize_robust(lmp, ftol, fmax_tol, **mkw)

@@ -32,6 +32,10 @@ MODELS = ("dcbr", "atomistic", "lammps")
 #: load parameter defaults per load: (step, maximum)
 _RAMP = {"tension": (0.005, 0.40), "compression": (0.005, 0.40), "torsion": (1.0, 120.0)}
 
+#: the quasi-static imperfection per load, Å (QuasiStatic.perturb): torsion has no defect to
+#: pick its buckling mode
+_PERTURB = {"torsion": 1e-3}
+
 #: the gripped length at each end where the protocol needs grips, Å
 _GRIP = {"torsion": 10.0, "dynamic": 50.0}
 
@@ -42,7 +46,8 @@ def tension(structure=None, *, chirality: tuple[int, int] = (10, 10), length: fl
             protocol: Literal["quasi-static", "dynamic"] = "quasi-static",
             load: Literal["tension", "compression", "torsion"] = "tension",
             step: float | None = None, maximum: float | None = None,
-            grip: float | None = None, temperature: float = 10.0, seed: int = 1,
+            grip: float | None = None, perturb: float | None = None,
+            temperature: float = 10.0, seed: int = 1,
             potential: str = "BNC.tersoff", progress: bool = True) -> Result:
     """One tube under a loading protocol (module docstring).
 
@@ -73,6 +78,10 @@ def tension(structure=None, *, chirality: tuple[int, int] = (10, 10), length: fl
     grip : float, optional
         gripped length at each end, Å (default: none for a periodic ramp, 10 for torsion,
         50 for a dynamic pull).
+    perturb : float, optional
+        quasi-static imperfection, Å: seeded random displacements of the free atoms before
+        every relaxation (default 1e-3 in torsion, which has no defect to pick its buckling
+        mode; 0 otherwise).
     temperature : float
         thermostat temperature of a dynamic pull, K.
     seed : int
@@ -86,10 +95,10 @@ def tension(structure=None, *, chirality: tuple[int, int] = (10, 10), length: fl
         raise ValueError(f"model={model!r}; valid: {', '.join(MODELS)}")
     params = dict(chirality=tuple(chirality), length=length, defects=defects, model=model,
                   coarsening=coarsening, protocol=protocol, load=load, step=step,
-                  maximum=maximum, grip=grip, temperature=temperature, seed=seed,
-                  potential=potential)
+                  maximum=maximum, grip=grip, perturb=perturb, temperature=temperature,
+                  seed=seed, potential=potential)
     proto = make_protocol(protocol, load, step=step, maximum=maximum, grip=grip,
-                          temperature=temperature, seed=seed)
+                          perturb=perturb, temperature=temperature, seed=seed)
     atoms = tube_structure(structure, chirality, length, defects)
     if structure is not None:
         params["structure"] = f"Atoms({atoms.get_chemical_formula()})"
@@ -105,7 +114,7 @@ def tension(structure=None, *, chirality: tuple[int, int] = (10, 10), length: fl
 
 
 def make_protocol(protocol: str, load: str, *, step=None, maximum=None, grip=None,
-                  temperature=10.0, seed=1):
+                  perturb=None, temperature=10.0, seed=1):
     """The protocol object of the tube scene's parameters (defaults per load)."""
     if protocol not in ("quasi-static", "dynamic"):
         raise ValueError(f"protocol={protocol!r}; valid: quasi-static, dynamic")
@@ -118,7 +127,9 @@ def make_protocol(protocol: str, load: str, *, step=None, maximum=None, grip=Non
         return Dynamic(load=load, grip=_GRIP["dynamic"] if grip is None else grip,
                        maximum=maximum, temperature=temperature, seed=seed)
     grip = _GRIP.get(load, 0.0) if grip is None else grip
-    return QuasiStatic(load=load, step=step, maximum=maximum, periodic=not grip, grip=grip)
+    perturb = _PERTURB.get(load, 0.0) if perturb is None else perturb
+    return QuasiStatic(load=load, step=step, maximum=maximum, periodic=not grip, grip=grip,
+                       perturb=perturb, seed=seed)
 
 
 def tube_structure(structure, chirality, length, defects: str = ""):

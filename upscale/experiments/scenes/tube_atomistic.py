@@ -12,7 +12,9 @@ eps the cell is L0 (1 + eps), atoms are mapped affinely along z and relaxed at f
 Stress sigma = (dE/dL_z) / (2 pi R t), dE/dL_z = -W_zz / L_z (virial W), R the mean wall
 radius after the zero-stress relaxation, t = 3.4 Å.
 
-Finite tube (torsion): the ends are open; the atoms within ``grip`` Å of each end are held
+Finite tube (torsion): a periodic structure is first relaxed at zero stress as above, then
+cut open at the cell boundary and relaxed again with every atom free (the LAMMPS runner's
+set-up); the atoms within ``grip`` Å of each end are held
 rigidly (engine ``Displacement`` conditions, so every minimiser keeps them); at twist phi the top grip is turned by phi about the
 tube axis against the bottom one, the free atoms first turned by the affine fraction of the
 increment. Torque T = sum over the top grip of (x F_y - y F_x) about the axis, eV (the
@@ -66,13 +68,15 @@ class AtomisticTube(Specimen):
             model = TersoffModel(potential, period_z=self.L)
         else:
             model = TersoffModel(potential)
-        self.model = model
-        self.system = ParticleSystem(x, 1.0, CARBON_MASS_AMU, spacing=1.42, units="atomic")
-        self.sim = Simulation(self.system, None, model)
         self.ftol = float(protocol.ftol)
         self.value = 0.0
         self.minimisations = 0
         self.unconverged = 0
+        if not self.periodic and atoms.pbc[2] and atoms.cell[2, 2] > 0:
+            x = self._relaxed_and_cut(atoms, potential)
+        self.model = model
+        self.system = ParticleSystem(x, 1.0, CARBON_MASS_AMU, spacing=1.42, units="atomic")
+        self.sim = Simulation(self.system, None, model)
         self._relax_zero_stress()
         self.x_rest = self.sim.state.y.copy()
         self.L0 = self.L if self.periodic else None
@@ -85,8 +89,9 @@ class AtomisticTube(Specimen):
             if z.max() - z.min() <= 2 * g:
                 raise ValueError(f"grip={g} Å at each end of a {z.max() - z.min():.1f} Å tube;"
                                  " valid: grips shorter than half the tube")
-            self.bottom = z < z.min() + g
-            self.top = z > z.max() - g
+            self.bottom = z <= z.min() + g          # within grip Å, ends included
+            self.top = z >= z.max() - g
+            self.axis = _axis_xy(self.x_rest)
             self.z_lo, self.z_hi = z.min() + g, z.max() - g
             self._hold_grips()
 
@@ -104,6 +109,20 @@ class AtomisticTube(Specimen):
             conds.append(Displacement(Region(name, mask), u))
         self.sim = Simulation(self.system, None, self.model, conditions=conds,
                               state=self.sim.state)
+
+    def _relaxed_and_cut(self, atoms, potential) -> np.ndarray:
+        """Positions of the periodic tube relaxed at zero stress (a periodic specimen of
+        the same atoms; the cell scaled about its centre), cut open at z = 0 of the input's
+        frame (z wrapped into [0, L0)): the LAMMPS runner's cut, where the relaxed box
+        [L/2 - L0/2, L/2 + L0/2] is wrapped the same way."""
+        from upscale.experiments.protocols import QuasiStatic
+
+        periodic = AtomisticTube(atoms, QuasiStatic(ftol=self.ftol), potential)
+        self.minimisations += periodic.minimisations
+        y, L0 = periodic.x_rest.copy(), periodic.L0
+        y[:, 2] = np.mod(y[:, 2], L0)
+        y[y[:, 2] >= L0, 2] -= L0
+        return y
 
     # ------------------------------------------------------------------ relaxations
     def _minimise(self) -> None:
@@ -129,11 +148,12 @@ class AtomisticTube(Specimen):
             return
         x_start = self.sim.state.y.copy()
         L_start = self.L
+        c = 0.5 * L_start
 
-        def relax(L):
+        def relax(L):  # scaled about the cell's centre, as LAMMPS's fix box/relax does
             self.model.set_period(L)
             self.sim.state.y[...] = x_start
-            self.sim.state.y[:, 2] *= L / L_start
+            self.sim.state.y[:, 2] = c + (x_start[:, 2] - c) * (L / L_start)
             self._minimise()
             return None, self.cell_force()
 
@@ -150,8 +170,12 @@ class AtomisticTube(Specimen):
             Lz = self.L0 * (1.0 + value)
             self.sim.state.y[:, 2] *= Lz / self.model.period_z
             self.model.set_period(Lz)
+            free = np.ones(len(self.x_rest), bool)
         else:
             self._twist(math.radians(value - self.value))
+            free = ~(self.bottom | self.top)
+        k = int(round(abs(value) / self.protocol.step))
+        self.sim.state.y += self.protocol.perturbation(k, free)
         self.value = float(value)
 
     def _twist(self, dphi: float) -> None:
