@@ -41,7 +41,7 @@ def test_tipd_pair_kernel_equals_bond_kernel_with_broken_bonds_and_failure(dim):
     kw = {"C": C} if C is not None else {"E": 70e9, "nu": 0.2}
     mp = _quiet(TiPD(**kw, s0=2e-3, kernel="pair"), s, f)
     mb = _quiet(TiPD(**kw, s0=2e-3, kernel="bond"), s, f)
-    assert mp.pairs is not None and mb.pairs is None
+    assert mp.bonds is not None and mb.bonds is None
     st = _perturbed(s, f, scale=3e-6)
     st.intact[::7] = False                     # one direction only for some pairs
     outs, ks = [], []
@@ -174,7 +174,7 @@ def test_surface_correction_pair_kernel_equals_bond_kernel(dim, cal):
     kw = {"C": D_ANISO} if dim == 2 else {"E": 70e9, "nu": 0.2}
     mp = _quiet(TiPD(**kw, calibration=cal, surface="correspondence", kernel="pair"), s, f)
     mb = _quiet(TiPD(**kw, calibration=cal, surface="correspondence", kernel="bond"), s, f)
-    assert mp._cpair and not mb._cpair
+    assert mp.bonds is not None and mb.bonds is None
     st = _perturbed(s, f, seed=3)
     o = [np.zeros_like(st.y), np.zeros_like(st.y)]
     mp.add_force(st, o[0])

@@ -63,8 +63,11 @@ is uniform and (for the discrete calibration) the null-Lagrangian part ``C - S``
 energy vanishes on every plane wave: the bulk equations are Ti-PD's; with the continuum
 calibration Delta also removes its lattice bias. Forces are the linear correspondence
 force ``b_i = sum_j w (Q_i + Q_j) xi``, ``Q_i = (Delta_i : H_i) K_i^-1``, coupling
-particles 2 delta apart; the stiffness stays symmetric. Costs: a correspondence pass per
-force evaluation and a denser stiffness. Caveats: the free body is slightly indefinite
+particles 2 delta apart; the stiffness stays symmetric. Costs: a gradient pass per force
+evaluation (the pair loops of :mod:`upscale.models.tipd_kernels` fuse the Ti-PD force with
+the correction's force pass and run gradient, stress and force as one sweep on one thread:
+about 1.3 PMB steps on the ``bench-tipd`` plate, against 4 for the earlier separate passes)
+and a denser stiffness. Caveats: the free body is slightly indefinite
 (a rotation costs no energy but is not force-free; a body held at one end is positive
 definite, also for the materials that make the uncorrected model indefinite); layers of
 prescribed displacement must be two horizons wide (or be declared with ``surface_bulk``
@@ -108,9 +111,12 @@ import warnings
 import numba as nb
 import numpy as np
 
-from upscale.engine.kernels import add_to_row
 from upscale.models import register
 from upscale.models.base import Model, Needs
+from upscale.models.tipd_kernels import (surface_stress_kernel, tipd_energy_kernel, tipd_force_kernel_2d,
+                                         tipd_force_kernel_3d, tipd_pair_energy_kernel, tipd_pair_kernel,
+                                         tipd_surface_sweep_2d, tipd_surface_sweep_3d,
+                                         tipd_surface_threads_2d, tipd_surface_threads_3d)
 
 __all__ = ["TiPD", "IndefiniteWarning", "voigt_to_tensor", "tensor_to_voigt", "isotropic_voigt",
            "orthotropic_voigt_2d", "rotate_tensor", "symmetrised_tensor", "induced_tensor",
@@ -123,8 +129,11 @@ class IndefiniteWarning(UserWarning):
 
 
 # ---------------------------------------------------------------------------- tensors
-# pairs (or bonds) per block where per-bond matrices are formed (bounds the temporaries)
-_PAIR_BLOCK = 1 << 20
+# directed bonds per block where per-bond matrices are formed at set-up (bounds the
+# temporaries: a few hundred bytes per bond of the block)
+_PAIR_BLOCK = 1 << 18
+# every bit of a ring-buffer index (the buffer is a full per-particle array)
+_FULL_MASK = np.uint64(0xFFFFFFFFFFFFFFFF)
 
 _VOIGT = {2: {"standard": [(0, 0), (1, 1), (0, 1)]},
           3: {"standard": [(0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)],
@@ -309,210 +318,6 @@ def tipd_critical_stretch(G0: float, E: float, nu: float, horizon: float, dim: i
     raise ValueError(f"unknown critical-stretch rule {rule!r}; valid: 'tipd', 'osb'")
 
 
-# ---------------------------------------------------------------------------- kernels
-@nb.njit(parallel=True, cache=True)
-def tipd_force_kernel_2d(offsets, neighbors, q_bc, A, u_nc, y_nc, intact_b, rc2_b, fail, out_nc):
-    """Adds Ti-PD force densities (2D) to ``out_nc``: ``b_i = sum_j M_b eta_b`` with
-    ``eta_b = u_j - u_i`` (``u_nc = y - x0``), ``M_pq = A[p,q,a,b] q_a q_b``,
-    ``q_b = xi sqrt(V_j beta / |xi|^3)`` and ``A`` the normalised induced tensor (4, 4)
-    flattened ``[2p+q, 2a+b]``. If ``fail``, mutates ``intact_b``: a bond whose squared
-    current length (from ``y_nc``) exceeds ``rc2_b`` breaks after its force is counted.
-    Returns the number of directed bonds broken."""
-    n = offsets.shape[0] - 1
-    broke = np.zeros(n, dtype=np.int64)
-    # M11 = A00 qx^2 + 2 A01 qx qy + A03 qy^2, etc. (A[pq, ab], symmetric in ab)
-    m11a, m11b, m11c = A[0, 0], 2.0 * A[0, 1], A[0, 3]
-    m12a, m12b, m12c = A[1, 0], 2.0 * A[1, 1], A[1, 3]
-    m22a, m22b, m22c = A[3, 0], 2.0 * A[3, 1], A[3, 3]
-    for i in nb.prange(n):
-        f0 = 0.0
-        f1 = 0.0
-        ui0 = u_nc[i, 0]
-        ui1 = u_nc[i, 1]
-        k = 0
-        for b in range(offsets[i], offsets[i + 1]):
-            if not intact_b[b]:
-                continue
-            j = neighbors[b]
-            e0 = u_nc[j, 0] - ui0
-            e1 = u_nc[j, 1] - ui1
-            qx = q_bc[b, 0]
-            qy = q_bc[b, 1]
-            xx = qx * qx
-            xy = qx * qy
-            yy = qy * qy
-            M11 = m11a * xx + m11b * xy + m11c * yy
-            M12 = m12a * xx + m12b * xy + m12c * yy
-            M22 = m22a * xx + m22b * xy + m22c * yy
-            f0 += M11 * e0 + M12 * e1
-            f1 += M12 * e0 + M22 * e1
-            if fail:
-                d0 = y_nc[j, 0] - y_nc[i, 0]
-                d1 = y_nc[j, 1] - y_nc[i, 1]
-                d2 = y_nc[j, 2] - y_nc[i, 2]
-                if d0 * d0 + d1 * d1 + d2 * d2 > rc2_b[b]:
-                    intact_b[b] = False
-                    k += 1
-        add_to_row(out_nc, i, f0, f1, 0.0)
-        broke[i] = k
-    return broke.sum()
-
-
-@nb.njit(parallel=True, cache=True)
-def tipd_force_kernel_3d(offsets, neighbors, q_bc, A, u_nc, y_nc, intact_b, rc2_b, fail, out_nc):
-    """3D analogue of :func:`tipd_force_kernel_2d`; ``A`` (9, 9) flattened
-    ``[3p+q, 3a+b]``."""
-    n = offsets.shape[0] - 1
-    broke = np.zeros(n, dtype=np.int64)
-    for i in nb.prange(n):
-        f = np.zeros(3)
-        e = np.zeros(3)
-        qq = np.zeros(9)
-        k = 0
-        for b in range(offsets[i], offsets[i + 1]):
-            if not intact_b[b]:
-                continue
-            j = neighbors[b]
-            rsq = 0.0
-            for c in range(3):
-                e[c] = u_nc[j, c] - u_nc[i, c]
-                if fail:
-                    dc = y_nc[j, c] - y_nc[i, c]
-                    rsq += dc * dc
-            for a in range(3):
-                for c in range(3):
-                    qq[3 * a + c] = q_bc[b, a] * q_bc[b, c]
-            for p in range(3):
-                acc = 0.0
-                for r in range(3):
-                    m = 0.0
-                    row = 3 * p + r
-                    for ab in range(9):
-                        m += A[row, ab] * qq[ab]
-                    acc += m * e[r]
-                f[p] += acc
-            if fail and rsq > rc2_b[b]:
-                intact_b[b] = False
-                k += 1
-        add_to_row(out_nc, i, f[0], f[1], f[2])
-        broke[i] = k
-    return broke.sum()
-
-
-@nb.njit(cache=True)
-def _tipd_pair_chunk(i0, i1, poff, pj, pb, prb, K_p, u_nc, y_nc, intact_b, rc2_p, fail, check,
-                     buf, d):
-    """Pairs of the particles i0 <= i < i1 (as first end) of :func:`tipd_pair_force` into
-    one thread's buffer (zeroed here; i's sum kept in registers, j's scattered); returns
-    the bonds broken. ``check`` False: every bond is intact (the bond state is not read)."""
-    buf[:, :] = 0.0
-    k = 0
-    for i in range(i0, i1):
-        ui0 = u_nc[i, 0]
-        ui1 = u_nc[i, 1]
-        ui2 = u_nc[i, 2]
-        s0 = 0.0
-        s1 = 0.0
-        s2 = 0.0
-        for p in range(poff[i], poff[i + 1]):
-            fi = True
-            fj = True
-            if check:
-                b = pb[p]
-                rb = prb[p]
-                fi = intact_b[b]
-                fj = intact_b[rb]
-                if not (fi or fj):
-                    continue
-            j = pj[p]
-            e0 = u_nc[j, 0] - ui0
-            e1 = u_nc[j, 1] - ui1
-            if d == 2:
-                k12 = K_p[p, 1]
-                g0 = K_p[p, 0] * e0 + k12 * e1
-                g1 = k12 * e0 + K_p[p, 2] * e1
-                g2 = 0.0
-            else:
-                e2 = u_nc[j, 2] - ui2
-                k23 = K_p[p, 3]
-                k13 = K_p[p, 4]
-                k12 = K_p[p, 5]
-                g0 = K_p[p, 0] * e0 + k12 * e1 + k13 * e2
-                g1 = k12 * e0 + K_p[p, 1] * e1 + k23 * e2
-                g2 = k13 * e0 + k23 * e1 + K_p[p, 2] * e2
-            if fi:
-                s0 += g0
-                s1 += g1
-                s2 += g2
-            if fj:
-                buf[j, 0] -= g0
-                buf[j, 1] -= g1
-                if d == 3:
-                    buf[j, 2] -= g2
-            if fail:
-                d0 = y_nc[j, 0] - y_nc[i, 0]
-                d1 = y_nc[j, 1] - y_nc[i, 1]
-                d2 = y_nc[j, 2] - y_nc[i, 2]
-                if d0 * d0 + d1 * d1 + d2 * d2 > rc2_p[p]:
-                    if fi:
-                        intact_b[pb[p]] = False
-                        k += 1
-                    if fj:
-                        intact_b[prb[p]] = False
-                        k += 1
-        buf[i, 0] += s0
-        buf[i, 1] += s1
-        if d == 3:
-            buf[i, 2] += s2
-    return k
-
-
-@nb.njit(parallel=True, cache=True)
-def tipd_pair_force(bounds, poff, pj, pb, prb, K_p, u_nc, y_nc, intact_b, rc2_p, fail, check,
-                    buf_tnc, d):
-    """Pair form of the Ti-PD force: for each pair i < j with ``eta = u_j - u_i``,
-    ``g = K_p eta`` (``K_p = V_i M_ij = V_j M_ji``, N/m, symmetric d x d stored as
-    (K11, K12, K22) in 2D, (K11, K22, K33, K23, K13, K12) in 3D) is added to ``buf[t, i]``
-    if the bond i->j is intact and subtracted from ``buf[t, j]`` if j->i is; thread t takes
-    the particles ``bounds[t] <= i < bounds[t+1]`` into its private buffer ``buf_tnc[t]``
-    (T, N, d), zeroed here (sum them with :func:`upscale.engine.pairs.reduce_buffers`, scale
-    1/V for densities). If ``fail``, mutates ``intact_b``: both directions break when the
-    squared current length exceeds ``rc2_p``, after the force is counted. ``check`` False
-    skips reading the bond state (the caller knows that every bond is intact and ``fail``
-    is False). Returns the number of directed bonds broken."""
-    nt = buf_tnc.shape[0]
-    broke = np.zeros(nt, dtype=np.int64)
-    for t in nb.prange(nt):
-        broke[t] = _tipd_pair_chunk(bounds[t], bounds[t + 1], poff, pj, pb, prb, K_p, u_nc,
-                                    y_nc, intact_b, rc2_p, fail, check, buf_tnc[t], d)
-    return broke.sum()
-
-
-@nb.njit(parallel=True, cache=True)
-def tipd_energy_kernel(offsets, neighbors, q_bc, A, x_nc, y_nc, intact_b, d):
-    """W_i = (1/4) sum_j eta.M eta (J/m^3), half of each bond's energy to each end."""
-    n = offsets.shape[0] - 1
-    W = np.zeros(n)
-    for i in nb.prange(n):
-        acc = 0.0
-        e = np.zeros(3)
-        for b in range(offsets[i], offsets[i + 1]):
-            if not intact_b[b]:
-                continue
-            j = neighbors[b]
-            for c in range(d):
-                e[c] = (y_nc[j, c] - y_nc[i, c]) - (x_nc[j, c] - x_nc[i, c])
-            for p in range(d):
-                for r in range(d):
-                    m = 0.0
-                    for a in range(d):
-                        for c in range(d):
-                            m += A[d * p + r, d * a + c] * q_bc[b, a] * q_bc[b, c]
-                    acc += e[p] * m * e[r]
-        W[i] = 0.25 * acc
-    return W
-
-
 # ---------------------------------------------------------------------------- appendix A
 def appendix_a_stiffness(system, family, D, *, literal: bool = False):
     """The 2D stiffness ``A`` of Appendix A (``rho u'' = A u``, (48)) entry by entry as
@@ -612,31 +417,6 @@ def _sym_pairs_inverse(Q, d):
     return np.linalg.pinv(Qm, rcond=1e-12, hermitian=True).reshape(d, d, d, d)
 
 
-@nb.njit(parallel=True, cache=True)
-def surface_stress_kernel(H_nk, Delta_nkk, Kinv_n, d, Q_nk):
-    """Surface correction's ``Q_i = (Delta_i : H_i) K_i^-1`` per particle. ``H_nk``: the
-    gradients as rows of d*d (2D) or 9 (3D, a (N, 3, 3) view) entries ``[p, a]``;
-    ``Delta_nkk`` (N, d*d, d*d) with row ``p d + a`` and column ``q d + b``; ``Kinv_n``
-    (N, 3, 3); ``Q_nk`` laid out as ``H_nk``."""
-    n = H_nk.shape[0]
-    st = 2 if d == 2 else 3                     # row stride of the (p, a) layout
-    for i in nb.prange(n):
-        P = np.zeros((3, 3))
-        for p in range(d):
-            for a in range(d):
-                v = 0.0
-                for q in range(d):
-                    for b in range(d):
-                        v += Delta_nkk[i, p * d + a, q * d + b] * H_nk[i, q * st + b]
-                P[p, a] = v
-        for p in range(d):
-            for a in range(d):
-                v = 0.0
-                for c in range(d):
-                    v += P[p, c] * Kinv_n[i, c, a]
-                Q_nk[i, p * st + a] = v
-
-
 def default_surface(failure: bool) -> str:
     """The surface correction :class:`TiPD` uses when none is given: "correspondence" for
     an elastic model, "none" with a failure criterion (the correction is elastic)."""
@@ -669,9 +449,9 @@ class TiPD(Model):
         Emit :class:`IndefiniteWarning` when the material makes the free-body stiffness
         of the uncorrected model (``surface="none"``) indefinite.
     kernel : {"pair", "bond"}
-        Force loop over the half-pair list (each pair once, :mod:`upscale.engine.pairs`;
-        needs symmetric pair stiffnesses, else falls back to "bond") or over the directed
-        bonds (each pair twice). Same forces to round-off.
+        Force loops over the half bond list (each pair once, per-class tables,
+        :mod:`upscale.models.tipd_kernels`; any weights, any bond state) or over the
+        directed bonds (each pair twice; the reference). Same forces to round-off.
     surface : {None, "none", "correspondence"}
         "correspondence" adds the per-particle correction energy
         ``sum_i V_i (1/2) H_i : (C - S_i^lat) : H_i`` (module docstring, "Surface
@@ -767,108 +547,149 @@ class TiPD(Model):
                           f"eigenvalue of S {info['min']:.6g} Pa; condition {cond}): free "
                           "surfaces and rigid rotations are not represented correctly",
                           IndefiniteWarning, stacklevel=2)
-        xi = family.xi[:, :d]
-        L = family.length
-        w = system.volume[family.neighbors] * family.volume_factor
-        self.w_b = np.ascontiguousarray(w)
         if self.calibration == "continuum":
             norm = np.pi * family.horizon ** 3 * system.thickness if d == 2 else np.pi * family.horizon ** 4
             A = induced_tensor(C) / norm                       # [p, q, a, b]
         else:
-            bulk = int(np.argmax(np.bincount(family.owner, weights=w, minlength=family.n)))
+            bulk = self._bulk_particle()
             sl = slice(family.offsets[bulk], family.offsets[bulk + 1])
-            xb, Lb, wb = xi[sl], L[sl], w[sl]
+            xb, Lb, wb = family.xi[sl, :d], family.length[sl], self.bond_weights()[sl]
             Q = np.einsum("ka,kb,kc,kd,k->abcd", xb, xb, xb, xb, wb / Lb ** 3)
             P = _sym_pairs_inverse(Q, d)
             A = 2.0 * np.einsum("paqb,abcd->pqcd", self.S, P)
             self.bulk_particle = bulk
         self.A4 = A
         self.A = np.ascontiguousarray(A.reshape(d * d, d * d))
-        q = np.zeros((family.nb, 3))
-        q[:, :d] = xi * np.sqrt(w / L ** 3)[:, None]
-        self.q_bc = np.ascontiguousarray(q)
-        self._q_kernel_b = None
         if self.G0 is not None:
             self.s0 = self._critical_stretch()
-        self.rc2_b = np.ascontiguousarray((L * (1.0 + self.s0)) ** 2) if self.needs.failure \
-            else np.zeros(1)
         self._u = np.zeros((system.n, 3))
-        self._set_pair_stiffness()
+        self.bonds = None
+        if self.kernel == "pair":
+            self._pair_tables()
+        else:
+            self._bond_tables()
         if self.surface == "correspondence":
             self._prepare_surface()
 
+    # ------------------------------------------------------------------ per-bond quantities
+    def bond_weights(self, bonds=None) -> np.ndarray:
+        """``w = V_j beta_ij`` (m^3) of every directed bond, or of the directed bonds
+        ``bonds`` (computed on each call: not kept per bond)."""
+        fam, V = self.family, self.system.volume
+        if bonds is None:
+            return V[fam.neighbors] * fam.volume_factor
+        return V[fam.neighbors[bonds]] * fam.volume_factor[bonds]
+
+    def _q(self, bonds=None) -> np.ndarray:
+        """``q = xi sqrt(V_j beta / |xi|^3)`` (nb or k, d) (``M_b = A : q (x) q``)."""
+        fam, d = self.family, self.dim
+        sel = slice(None) if bonds is None else bonds
+        w = self.bond_weights(bonds)
+        return fam.xi[sel, :d] * np.sqrt(w / fam.length[sel] ** 3)[:, None]
+
+    def _bulk_particle(self) -> int:
+        """The particle with the most complete family (largest sum of bond weights)."""
+        fam = self.family
+        return int(np.argmax(np.bincount(fam.owner, weights=self.bond_weights(), minlength=fam.n)))
+
+    def _bond_tables(self) -> None:
+        """Per-bond arrays of the directed-bond loops (``kernel="bond"``)."""
+        fam = self.family
+        self._q_b = np.ascontiguousarray(self._q())
+        self.rc2_b = np.ascontiguousarray((fam.length * (1.0 + self.s0)) ** 2) if self.needs.failure \
+            else np.zeros(1)
+
+    def _pair_tables(self) -> None:
+        """The half bond list (:class:`~upscale.engine.bondlist.BondList`: each pair once,
+        uint32 partners, one-byte classes on a lattice) and the per-class table of the pair
+        kernels (:mod:`upscale.models.tipd_kernels`): the classes are the distinct bit
+        patterns of (|xi|, beta of both directions, xi), so that every entry of the table is
+        computed from exactly the bond's own reference geometry. With uniform volumes and
+        the same beta in both directions of every class the weight ``w = V beta`` is folded
+        into the table (``self._uni``: the kernels then multiply by no weight)."""
+        from upscale.engine.bondlist import BondList
+
+        fam, d = self.family, self.dim
+        bl = BondList(fam, self.system.volume)
+        k_p, L_k, bf_k, br_k, *xs = bl.classes(*(fam.xi[:, c] for c in range(d)))
+        xi_k = np.stack(xs[0::2], axis=1)                  # forward xi of each class
+        M = np.einsum("pqab,ka,kb->kpq", self.A4, xi_k, xi_k) / L_k[:, None, None] ** 3
+        comp = [(0, 0), (0, 1), (1, 1)] if d == 2 else [(0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)]
+        V = bl.volume
+        uni = bool(np.all(V == V[0]) and np.array_equal(bf_k, br_k))
+        w_k = V[0] * bf_k if uni else np.ones_like(bf_k)
+        rc2 = (L_k * (1.0 + self.s0)) ** 2 if self.needs.failure else np.full(L_k.size, np.inf)
+        self._tab = np.ascontiguousarray(np.concatenate(
+            [xi_k * w_k[:, None], np.stack([M[:, p, q] for p, q in comp], 1) * w_k[:, None],
+             bf_k[:, None], br_k[:, None], rc2[:, None]], axis=1))
+        self._uni = uni
+        self._k_p = k_p
+        self.bonds = bl
+        # how far ahead of a force row its partners reach (for the one-thread sweep)
+        n = fam.n
+        reach = np.arange(n, dtype=np.int64)
+        has = bl.row_n[1:] > bl.row_n[:-1]
+        if has.any():
+            last = np.maximum.reduceat(bl.j_p, bl.row_n[:-1][has]).astype(np.int64)
+            reach[has] = np.maximum(reach[has], last)
+        self._reach_n = reach
+        span = int((reach - np.arange(n)).max(initial=0))
+        R = 1 << int(np.ceil(np.log2(2 * span + 2)))
+        if R >= n:
+            R, self._mask = n, _FULL_MASK
+        else:
+            self._mask = np.uint64(R - 1)
+        self._ring = R
+        self._scratch = {}
+
+    # ------------------------------------------------------------------ surface correction
     def lattice_moments(self) -> np.ndarray:
         """``S_i^lat = (1/2) sum_j M_ij xi_a xi_b V_j beta`` of every particle (N, d, d, d, d),
         indexed ``[i, p, a, q, b]`` (Pa): the tensor that the particle's (possibly
-        truncated) family carries for a homogeneous displacement gradient."""
+        truncated) family carries for a homogeneous displacement gradient. Summed in blocks
+        of bonds (no (nb, d^4) temporary)."""
         fam, d = self.family, self.dim
-        M = self.bond_matrices()
-        xi = fam.xi[:, :d]
-        per = 0.5 * np.einsum("kpq,ka,kb->kpaqb", M, xi, xi).reshape(fam.nb, -1)
-        out = np.zeros((fam.n, per.shape[1]))
-        np.add.at(out, fam.owner, per)
-        return out.reshape((fam.n,) + (d,) * 4)
+        out = np.zeros((d ** 4, fam.n))
+        for a in range(0, fam.nb, _PAIR_BLOCK):
+            blk = np.arange(a, min(fam.nb, a + _PAIR_BLOCK))
+            xi = fam.xi[blk, :d]
+            per = 0.5 * np.einsum("kpq,ka,kb->kpaqb", self.bond_matrices(blk), xi, xi).reshape(blk.size, -1)
+            own = fam.owner[blk]
+            for c in range(per.shape[1]):
+                out[c] += np.bincount(own, weights=per[:, c], minlength=fam.n)
+        return np.ascontiguousarray(out.T).reshape((fam.n,) + (d,) * 4)
 
     def _prepare_surface(self) -> None:
         """The correction's per-particle tensors ``Delta_i = C - S_i^lat`` and the
-        correspondence gradient (shape tensors on the same family, omega = 1)."""
+        correspondence gradient (shape tensors on the same family, omega = 1); for the pair
+        kernels the per-particle map ``T_i: A_i -> Q_i`` (``Q = (Delta : (A K^-1)) K^-1``,
+        constant in the reference configuration) stored once per distinct bit pattern
+        (classes of particles, a uint16 index per particle on a lattice)."""
         from upscale.models.correspondence import shape_tensors
 
-        fam, d = self.family, self.dim
+        fam, d, n = self.family, self.dim, self.family.n
         Sl = self.lattice_moments()
         if self.surface_bulk is not None:
             mask = np.asarray(self.surface_bulk(self.system.x0), dtype=bool)
             if mask.shape != (fam.n,):
                 raise ValueError(f"surface_bulk must return a bool mask of shape ({fam.n},), "
                                  f"got {mask.shape}")
-            w = self.w_b
-            bulk = int(np.argmax(np.bincount(fam.owner, weights=w, minlength=fam.n)))
-            Sl[mask] = Sl[bulk]
+            Sl[mask] = Sl[self._bulk_particle()]
         self.Delta_n = np.ascontiguousarray(self.C[None] - Sl)
-        wv = np.ascontiguousarray(self.system.volume[fam.neighbors] * fam.volume_factor)
-        self._cw_b = wv
-        self._cK, self._cKinv = shape_tensors(fam, wv, d, fam.horizon)
-        self._cxi = np.ascontiguousarray(fam.xi)
-        self._cH = np.zeros((fam.n, 3, 3))
-        self._cQ = np.zeros((fam.n, 3, 3))
-        self._surface_pairs()
-
-    def _surface_pairs(self) -> None:
-        """Half-pair form of the correction's gradient and force (the correspondence pair
-        kernels of :mod:`upscale.models.correspondence`, fed with u instead of y so that
-        they return H directly), when the pair weight ``V_i w_ij = V_j w_ji`` is symmetric."""
-        from upscale.engine.pairs import half_pairs
-
-        fam, V, d, n = self.family, self.system.volume, self.dim, self.system.n
-        pr = half_pairs(fam)
-        ci = self._cw_b[pr.b] * V[pr.i]
-        cj = self._cw_b[pr.rb] * V[pr.j]
-        self._cpair = self.kernel == "pair" and bool(
-            np.abs(ci - cj).max() <= 1e-12 * max(np.abs(ci).max(), 1e-300))
-        if not self._cpair:
+        self._cK, self._cKinv = shape_tensors(fam, self.bond_weights(), d, fam.horizon)
+        self._cH = None                         # made by surface_gradient on first use
+        if self.bonds is None:
+            self._cQ = np.zeros((n, 3, 3))
             return
-        self._cpr = pr
-        self._cc_p = np.ascontiguousarray(0.5 * (ci + cj))
-        self._cinv_vol = np.ascontiguousarray(1.0 / V)
-        self._cxi_p = np.ascontiguousarray(fam.xi[pr.b, :d] if d == 2 else fam.xi[pr.b])
-        self._cC3 = np.zeros((3, 3, 3, 3))          # the kernels' stress pass is not used
-        self._cpsi = np.zeros(n)
-        self._cDelta = np.ascontiguousarray(self.Delta_n.reshape(n, d * d, d * d))
-        if d == 2:
-            self._cH4 = np.zeros((n, 4))
-            self._cP4 = np.zeros((n, 4))
-            self._cQ4 = np.zeros((n, 4))
-            self._cB4 = np.zeros((n, 4))
-        else:
-            self._cPK = np.zeros((n, 3, 3))
-            self._cB = np.zeros((n, 3, 3))
-        self._surface_buffers()
-
-    def _surface_buffers(self) -> None:
-        n, d = self.system.n, self.dim
-        self._cbufA = self._cpr.buffers(n, 4 if d == 2 else 9)
-        self._cbufF = self._cpr.buffers(n, d)
-        self._cbounds = self._cpr.thread_bounds(self._cbufA.shape[0])
+        dd = d * d
+        Kinv = self._cKinv[:, :d, :d]
+        T = np.einsum("nca,npcqb,neb->npaqe", Kinv, self.Delta_n, Kinv).reshape(n, dd, dd)
+        T = np.ascontiguousarray(T)
+        _, first, cls = np.unique(T.reshape(n, -1).view(np.int64), axis=0, return_index=True,
+                                  return_inverse=True)
+        ctype = np.uint16 if first.size <= 65536 else np.uint32
+        self._tc_n = np.ascontiguousarray(cls.ravel().astype(ctype))
+        self._T_ckk = np.ascontiguousarray(T[first])
 
     def surface_gradient(self, state) -> np.ndarray:
         """The correction's displacement gradients ``H_i = sum_j w (u_j - u_i) (x) xi K_i^-1``
@@ -878,82 +699,76 @@ class TiPD(Model):
         f = self.family
         u = self._u
         np.subtract(state.y, self.system.x0, out=u)
-        defgrad_kernel(f.offsets, f.neighbors, self._cxi, self._cw_b, self._cKinv, u, self.dim,
-                       self._cH)
+        if self._cH is None:
+            self._cH = np.zeros((f.n, 3, 3))
+        defgrad_kernel(f.offsets, f.neighbors, np.ascontiguousarray(f.xi), self.bond_weights(),
+                       self._cKinv, u, self.dim, self._cH)
         return self._cH
 
-    def _add_surface_force(self, state, out) -> None:
+    def _add_surface_force_bonds(self, state, out) -> None:
+        """The correction on the directed bonds (``kernel="bond"``): gradient, stress and
+        force as three passes (:mod:`upscale.models.correspondence`)."""
         from upscale.models.correspondence import nosb_force_kernel
 
         d, f = self.dim, self.family
-        if self._cpair:
-            self._add_surface_force_pairs(state, out)
-            return
         H = self.surface_gradient(state)[:, :d, :d]
         P = np.einsum("npaqb,nqb->npa", self.Delta_n, H)
         self._cQ[:, :d, :d] = np.einsum("npc,nca->npa", P, self._cKinv[:, :d, :d])
-        nosb_force_kernel(f.offsets, f.neighbors, self._cxi, self._cw_b, self._cQ, self._cH,
-                          self._cQ, state.y, d, False, out)
+        nosb_force_kernel(f.offsets, f.neighbors, np.ascontiguousarray(f.xi), self.bond_weights(),
+                          self._cQ, self._cH, self._cQ, state.y, d, False, out)
 
-    def _add_surface_force_pairs(self, state, out) -> None:
-        from upscale.engine.pairs import reduce_buffers
-        from upscale.models.correspondence import (nosb_pair_force, nosb_pair_force_2d, nosb_pair_update,
-                                                   nosb_pair_update_2d)
+    def _surface_scratch(self, nt: int, sweep: bool) -> tuple:
+        """Scratch of the pair kernels with the correction: for the sweep the ring buffers
+        (u, A, Q over ``self._ring`` rows); for the passes full per-particle arrays and
+        per-thread buffers. Made on first use, kept per thread count."""
+        key = (nt, sweep)
+        s = self._scratch.get(key)
+        if s is None:
+            n, d = self.system.n, self.dim
+            dd = d * d
+            if sweep:
+                R = self._ring
+                s = (np.zeros((R, d)), np.zeros((1, R, dd)), np.zeros((R, dd)))
+            else:
+                s = (np.zeros((n, d)), np.zeros((nt, n, dd)), np.zeros((n, dd)), np.zeros((nt, n, d)))
+            self._scratch[key] = s
+        return s
 
-        if self._cbufA.shape[0] != nb.get_num_threads():
-            self._surface_buffers()
+    def _pair_surface_force(self, state, out, check: bool) -> None:
+        """Ti-PD with the surface correction on the half bond list, added to ``out``: one
+        sweep (one thread, ``out`` a C-contiguous float64 array) or three passes with
+        per-thread buffers (:mod:`upscale.models.tipd_kernels`)."""
+        bl = self.bonds
+        nt = nb.get_num_threads()
+        args = (bl.row_n, bl.j_p, self._k_p, bl.fwd_n, bl.fwd_p, bl.rev_p)
+        tail = (self._tab, self._uni, bl.volume, self.system.x0, state.y, self._tc_n, self._T_ckk,
+                state.intact, check)
+        if nt == 1 and out.dtype == np.float64 and out.flags.c_contiguous:
+            sweep = tipd_surface_sweep_2d if self.dim == 2 else tipd_surface_sweep_3d
+            sweep(*args, self._reach_n, *tail, self._mask, *self._surface_scratch(1, True), out)
+        else:
+            passes = tipd_surface_threads_2d if self.dim == 2 else tipd_surface_threads_3d
+            passes(*args, bl.chunks(nt), *tail, *self._surface_scratch(nt, False), out)
+
+    def _pair_force(self, state, out, fail: bool, check: bool) -> int:
+        """Ti-PD without the correction on the half bond list (:func:`tipd_pair_kernel`)."""
+        bl = self.bonds
+        nt = nb.get_num_threads()
+        buf, zero = bl.target(out, nt)
+        k = tipd_pair_kernel(bl.row_n, bl.j_p, self._k_p, bl.fwd_n, bl.fwd_p, bl.rev_p, self._tab,
+                             self._uni, bl.chunks(nt), bl.volume, self.system.x0, state.y,
+                             state.intact, fail, check, self.dim, self._u, buf, zero)
+        bl.finish(buf, zero, out)
+        return int(k)
+
+    def _bond_force(self, state, out, fail: bool) -> int:
+        """Ti-PD on the directed bonds (``kernel="bond"``: each pair twice)."""
+        f = self.family
         u = self._u
         np.subtract(state.y, self.system.x0, out=u)
-        pr, d = self._cpr, self.dim
-        if d == 2:
-            nosb_pair_update_2d(self._cbounds, pr.offsets, pr.j, self._cxi_p, self._cc_p, u, self._cinv_vol,
-                                self._cKinv, self._cC3, 0, 0.0, 0.0, self._cbufA, self._cH, self._cH4,
-                                self._cP4, self._cpsi)
-            surface_stress_kernel(self._cH4, self._cDelta, self._cKinv, 2, self._cQ4)
-            nosb_pair_force_2d(self._cbounds, pr.offsets, pr.j, self._cxi_p, self._cc_p, self._cQ4, self._cH4,
-                               self._cB4, state.y, False, self._cbufF)
-        else:
-            nosb_pair_update(self._cbounds, pr.offsets, pr.j, self._cxi_p, self._cc_p, u, self._cinv_vol,
-                             self._cKinv, self._cC3, 0, 0.0, 0.0, 3, self._cbufA, self._cH, self._cPK,
-                             self._cpsi)
-            Q = self._cQ.reshape(-1, 9)
-            surface_stress_kernel(self._cH.reshape(-1, 9), self._cDelta, self._cKinv, 3, Q)
-            nosb_pair_force(self._cbounds, pr.offsets, pr.j, self._cxi_p, self._cc_p, self._cQ, self._cH,
-                            self._cB, state.y, 3, False, self._cbufF)
-        reduce_buffers(self._cbufF, self._cinv_vol, out, d)
-
-    def _set_pair_stiffness(self) -> None:
-        """The pair form of the force from the bond matrices (:meth:`bond_matrices`): on the
-        half-pair list (:mod:`upscale.engine.pairs`) ``K_p = V_i M_ij``, which equals
-        ``V_j M_ji`` when the bond weights are symmetric (then each pair is computed once);
-        otherwise the directed-bond kernel is used. Evaluated in blocks of pairs, so the
-        temporaries stay bounded (the (nb, d, d) matrices of every bond are never held)."""
-        from upscale.engine.pairs import half_pairs
-
-        fam, d, V = self.family, self.dim, self.system.volume
-        pr = half_pairs(fam)
-        comp = [(0, 0), (0, 1), (1, 1)] if d == 2 else [(0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)]
-        npair = pr.b.shape[0]
-        K_p = np.empty((npair, len(comp)))
-        big, asym = 1e-300, 0.0
-        for a in range(0, npair, _PAIR_BLOCK):
-            blk = slice(a, min(npair, a + _PAIR_BLOCK))
-            Ki = self.bond_matrices(pr.b[blk]) * V[pr.i[blk]][:, None, None]
-            Kj = self.bond_matrices(pr.rb[blk]) * V[pr.j[blk]][:, None, None]
-            big = max(big, np.abs(Ki).max(initial=0.0))
-            asym = max(asym, np.abs(Ki - Kj).max(initial=0.0))
-            for c, (p, q) in enumerate(comp):
-                K_p[blk, c] = 0.5 * (Ki[:, p, q] + Kj[:, p, q])
-        self._pair = self.kernel == "pair" and bool(asym <= 1e-12 * big)
-        if not self._pair:
-            self.pairs = None
-            return
-        self.pairs = pr
-        self.K_p = K_p
-        self.rc2_p = np.ascontiguousarray(self.rc2_b[pr.b]) if self.needs.failure else np.zeros(1)
-        self._inv_vol = np.ascontiguousarray(1.0 / V)
-        self._buf = pr.buffers(self.system.n, d)
-        self._bounds = pr.thread_bounds(self._buf.shape[0])
+        kern = tipd_force_kernel_2d if self.dim == 2 else tipd_force_kernel_3d
+        return int(kern(f.offsets, f.neighbors, self._q_b, self.A, u, state.y, state.intact,
+                        self.rc2_b, fail, out))
 
     def _critical_stretch(self) -> float:
         d, fam, sysm = self.dim, self.family, self.system
@@ -981,8 +796,7 @@ class TiPD(Model):
     def bond_matrices(self, bonds=None) -> np.ndarray:
         """M_b V_j beta (nb, d, d) of every directed bond, or (k, d, d) of the directed bonds
         ``bonds`` (N/m^5 per unit volume weight; ``b_i = sum_b M_b eta_b``)."""
-        d = self.dim
-        q = self.q_bc[:, :d] if bonds is None else self.q_bc[bonds, :d]
+        q = self._q(bonds)
         return np.einsum("pqab,ka,kb->kpq", self.A4, q, q)
 
     def lattice_moment(self, particle: int | None = None) -> np.ndarray:
@@ -990,50 +804,31 @@ class TiPD(Model):
         ``particle`` (default: the bulk particle); equals S for the discrete calibration."""
         fam = self.family
         if particle is None:
-            w = self.w_b
-            particle = int(np.argmax(np.bincount(fam.owner, weights=w, minlength=fam.n)))
-        sl = slice(fam.offsets[particle], fam.offsets[particle + 1])
-        M = self.bond_matrices()[sl]
-        xi = fam.xi[sl, :self.dim]
+            particle = self._bulk_particle()
+        bonds = np.arange(fam.offsets[particle], fam.offsets[particle + 1])
+        M = self.bond_matrices(bonds)
+        xi = fam.xi[bonds, :self.dim]
         return 0.5 * np.einsum("kpq,ka,kb->paqb", M, xi, xi)
 
     # ------------------------------------------------------------------ forces
-    def _force(self, state, out, fail):
-        f = self.family
-        u = self._u
-        np.subtract(state.y, self.system.x0, out=u)
-        if self._pair:
-            from upscale.engine.pairs import reduce_buffers
-
-            pr, buf = self.pairs, self._buf
-            if buf.shape[0] != nb.get_num_threads():
-                buf = self._buf = pr.buffers(self.system.n, self.dim)
-                self._bounds = pr.thread_bounds(buf.shape[0])
-            # the bond-state reads cost a fifth of the loop: skipped while every bond is intact
-            check = bool(fail or not state.intact.all())
-            k = int(tipd_pair_force(self._bounds, pr.offsets, pr.j, pr.b, pr.rb, self.K_p, u,
-                                    state.y, state.intact, self.rc2_p, fail, check, buf,
-                                    self.dim))
-            reduce_buffers(buf, self._inv_vol, out, self.dim)
+    def _force(self, state, out, fail: bool) -> int:
+        if self.bonds is None:
+            k = self._bond_force(state, out, fail)
+            if self.surface != "none":
+                self._add_surface_force_bonds(state, out)
             return k
-        kern = tipd_force_kernel_2d if self.dim == 2 else tipd_force_kernel_3d
-        if self._q_kernel_b is None:
-            # the 2D kernel reads only (q_x, q_y): a contiguous (nb, 2) copy halves its
-            # traffic (made on first use: the pair kernel does not need it)
-            self._q_kernel_b = np.ascontiguousarray(self.q_bc[:, :2]) if self.dim == 2 else self.q_bc
-        return int(kern(f.offsets, f.neighbors, self._q_kernel_b, self.A, u, state.y,
-                        state.intact, self.rc2_b, fail, out))
+        # the bond state is read only while some bond is broken (or may break)
+        check = bool(fail or not state.intact.all())
+        if self.surface != "none":               # elastic only: no failure
+            self._pair_surface_force(state, out, check)
+            return 0
+        return self._pair_force(state, out, fail, check)
 
     def add_force(self, state, out):
         self._force(state, out, False)
-        if self.surface != "none":
-            self._add_surface_force(state, out)
 
     def step_force(self, state, out, *, failure=True):
-        k = self._force(state, out, bool(failure and self.needs.failure))
-        if self.surface != "none":
-            self._add_surface_force(state, out)
-        return k
+        return self._force(state, out, bool(failure and self.needs.failure))
 
     def break_bonds(self, state):
         from upscale.engine.kernels import break_by_stretch
@@ -1045,11 +840,17 @@ class TiPD(Model):
                                     np.full(f.n, self.s0)))
 
     def energy_density(self, state):
-        f = self.family
-        W = tipd_energy_kernel(f.offsets, f.neighbors, self.q_bc, self.A, self.system.x0,
-                               state.y, state.intact, self.dim)
+        f, d = self.family, self.dim
+        if self.bonds is not None:
+            bl = self.bonds
+            W = np.zeros(f.n)
+            tipd_pair_energy_kernel(bl.row_n, bl.j_p, self._k_p, bl.fwd_n, bl.fwd_p, bl.rev_p,
+                                    self._tab, self._uni, bl.volume, self.system.x0, state.y,
+                                    state.intact, d, W)
+        else:
+            W = tipd_energy_kernel(f.offsets, f.neighbors, self._q_b, self.A, self.system.x0,
+                                   state.y, state.intact, d)
         if self.surface != "none":
-            d = self.dim
             H = self.surface_gradient(state)[:, :d, :d]
             W = W + 0.5 * np.einsum("npa,npaqb,nqb->n", H, self.Delta_n, H)
         return W
@@ -1085,7 +886,7 @@ class TiPD(Model):
 
         fam, d, n = self.family, self.dim, self.system.n
         dd = d * d
-        G, Bs = gradient_operators(fam, self._cw_b, self._cKinv, d)
+        G, Bs = gradient_operators(fam, self.bond_weights(), self._cKinv, d)
         blk = self.Delta_n.reshape(n, dd, dd)
         r = (np.arange(n)[:, None, None] * dd + np.arange(dd)[None, :, None]) + 0 * np.arange(dd)[None, None, :]
         c = (np.arange(n)[:, None, None] * dd + np.arange(dd)[None, None, :]) + 0 * np.arange(dd)[None, :, None]
@@ -1096,20 +897,25 @@ class TiPD(Model):
     def stiffness_bound(self):
         """Gershgorin row bound (N/m^4): ``2 sum_j max_p sum_r |M_b,pr|`` (plus the surface
         correction's correspondence bound, as in
-        :meth:`upscale.models.correspondence.Correspondence.stiffness_bound`)."""
-        f = self.family
+        :meth:`upscale.models.correspondence.Correspondence.stiffness_bound`). In blocks of
+        bonds: no (nb, d, d) temporaries."""
+        f, d = self.family, self.dim
         M = np.empty(f.nb)
-        for a in range(0, f.nb, _PAIR_BLOCK):          # blocks: no (nb, d, d) temporaries
+        for a in range(0, f.nb, _PAIR_BLOCK):
             blk = np.arange(a, min(f.nb, a + _PAIR_BLOCK))
             M[blk] = np.abs(self.bond_matrices(blk)).sum(axis=2).max(axis=1)
         R = 2.0 * np.bincount(f.owner, weights=M, minlength=f.n)
         if self.surface != "none":
-            d = self.dim
             i, j = f.owner, f.neighbors
             Kinv = self._cKinv[:, :d, :d]
-            xi = f.xi[:, :d]
-            g = np.abs(self._cw_b[:, None] * np.einsum("kab,kb->ka", Kinv[i], xi)).sum(1)
-            gp = np.abs(self._cw_b[:, None] * np.einsum("kab,kb->ka", Kinv[j], xi)).sum(1)
+            w = self.bond_weights()
+            g = np.empty(f.nb)
+            gp = np.empty(f.nb)
+            for a in range(0, f.nb, _PAIR_BLOCK):
+                s = slice(a, min(f.nb, a + _PAIR_BLOCK))
+                xi = f.xi[s, :d]
+                g[s] = np.abs(w[s, None] * np.einsum("kab,kb->ka", Kinv[i[s]], xi)).sum(1)
+                gp[s] = np.abs(w[s, None] * np.einsum("kab,kb->ka", Kinv[j[s]], xi)).sum(1)
             Gs = np.bincount(i, weights=g, minlength=f.n)
             c = np.abs(self.Delta_n.reshape(f.n, d * d, d * d)).sum(2).max()
             R = R + c * np.bincount(i, weights=g * 2 * Gs[i] + gp * 2 * Gs[j], minlength=f.n)
@@ -1118,7 +924,7 @@ class TiPD(Model):
     def describe(self):
         d = {"model": self.name, "calibration": self.calibration, "critical": self.critical,
              "surface": self.surface,
-             "kernel": "pair" if getattr(self, "_pair", self.kernel == "pair") else "bond",
+             "kernel": self.kernel,
              "s0": None if np.isinf(self.s0) else self.s0}
         if self.E is not None:
             d.update(E_Pa=self.E, nu=self.nu)
