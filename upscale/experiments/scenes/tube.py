@@ -33,8 +33,9 @@ MODELS = ("dcbr", "atomistic", "lammps")
 _RAMP = {"tension": (0.005, 0.40), "compression": (0.005, 0.40), "torsion": (1.0, 120.0)}
 
 #: the quasi-static imperfection per load, Å (QuasiStatic.perturb): torsion has no defect to
-#: pick its buckling mode
-_PERTURB = {"torsion": 1e-3}
+#: pick its buckling mode; 1e-2 Å is large enough that a relaxation stopped at 1e-6 eV/Å
+#: leaves the unstable branch at the step where it becomes unstable (as LAMMPS's CG does)
+_PERTURB = {"torsion": 1e-2}
 
 #: the gripped length at each end where the protocol needs grips, Å
 _GRIP = {"torsion": 10.0, "dynamic": 50.0}
@@ -80,7 +81,7 @@ def tension(structure=None, *, chirality: tuple[int, int] = (10, 10), length: fl
         50 for a dynamic pull).
     perturb : float, optional
         quasi-static imperfection, Å: seeded random displacements of the free atoms before
-        every relaxation (default 1e-3 in torsion, which has no defect to pick its buckling
+        every relaxation (default 1e-2 in torsion, which has no defect to pick its buckling
         mode; 0 otherwise).
     temperature : float
         thermostat temperature of a dynamic pull, K.
