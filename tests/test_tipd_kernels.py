@@ -104,26 +104,33 @@ def test_pair_kernels_equal_the_reference(dim, kind, surface):
         nb.set_num_threads(threads)
 
 
-def test_sweep_ring_buffers_are_smaller_than_the_body_and_equal_full_arrays():
-    """On a body longer than twice the pairs' reach the sweep's scratch is a ring of a few
-    hundred rows; the same forces as the per-thread passes on full arrays."""
-    s = square_lattice(60, 8, 1e-3)
+@pytest.mark.parametrize("nx,ny", [(60, 8), (4, 12)])
+def test_sweeps_with_rings_and_halos_equal_the_reference(nx, ny):
+    """A body longer than twice the pairs' reach: the sweep's scratch is a ring of a few
+    hundred rows; a body shorter than the reach: two threads' halos overlap the next
+    block entirely. One and two threads, contiguous and strided output."""
+    s = square_lattice(nx, ny, 1e-3)
     f = build_family(s, 3.015e-3)
     m = TiPD(C=D_ANISO)
     m.prepare(s, f)
-    assert m._ring < s.n and m._mask != np.uint64(0xFFFFFFFFFFFFFFFF)
+    if nx == 60:
+        assert m._ring < s.n and m._mask != np.uint64(0xFFFFFFFFFFFFFFFF)
+    else:
+        assert m._span > s.n // 2
     st = _state(s, f, False)
     ref = reference_force(m, st)
+    scale = np.abs(ref).max()
     threads = nb.get_num_threads()
     try:
-        nb.set_num_threads(1)
-        out = np.zeros_like(st.y)
-        m.step_force(st, out)
-        assert np.abs(out - ref).max() <= 1e-12 * np.abs(ref).max()
-        # a non-contiguous output takes the pass kernels
-        big = np.zeros((s.n, 6))
-        m.add_force(st, big[:, ::2])
-        assert np.abs(big[:, ::2] - ref).max() <= 1e-12 * np.abs(ref).max()
+        for nt in sorted({1, min(2, nb.config.NUMBA_NUM_THREADS)}):
+            nb.set_num_threads(nt)
+            out = np.zeros_like(st.y)
+            m.step_force(st, out)
+            assert np.abs(out - ref).max() <= 1e-12 * scale
+            big = np.zeros((s.n, 6))
+            m.add_force(st, big[:, ::2])
+            assert np.abs(big[:, ::2] - ref).max() <= 1e-12 * scale
+            assert not big[:, 1::2].any()
     finally:
         nb.set_num_threads(threads)
 

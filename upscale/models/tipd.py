@@ -65,9 +65,9 @@ calibration Delta also removes its lattice bias. Forces are the linear correspon
 force ``b_i = sum_j w (Q_i + Q_j) xi``, ``Q_i = (Delta_i : H_i) K_i^-1``, coupling
 particles 2 delta apart; the stiffness stays symmetric. Costs: a gradient pass per force
 evaluation (the pair loops of :mod:`upscale.models.tipd_kernels` fuse the Ti-PD force with
-the correction's force pass and run gradient, stress and force as one sweep on one thread:
-about 1.3 PMB steps on the ``bench-tipd`` plate, against 4 for the earlier separate passes)
-and a denser stiffness. Caveats: the free body is slightly indefinite
+the correction's force pass and run gradient, stress and force as one sweep per thread:
+about 1.3 PMB steps on the ``bench-tipd`` plate, against 4.5 for the earlier separate
+passes) and a denser stiffness. Caveats: the free body is slightly indefinite
 (a rotation costs no energy but is not force-free; a body held at one end is positive
 definite, also for the materials that make the uncorrected model indefinite); layers of
 prescribed displacement must be two horizons wide (or be declared with ``surface_bulk``
@@ -115,8 +115,7 @@ from upscale.models import register
 from upscale.models.base import Model, Needs
 from upscale.models.tipd_kernels import (surface_stress_kernel, tipd_energy_kernel, tipd_force_kernel_2d,
                                          tipd_force_kernel_3d, tipd_pair_energy_kernel, tipd_pair_kernel,
-                                         tipd_surface_sweep_2d, tipd_surface_sweep_3d,
-                                         tipd_surface_threads_2d, tipd_surface_threads_3d)
+                                         tipd_surface_2d, tipd_surface_3d)
 
 __all__ = ["TiPD", "IndefiniteWarning", "voigt_to_tensor", "tensor_to_voigt", "isotropic_voigt",
            "orthotropic_voigt_2d", "rotate_tensor", "symmetrised_tensor", "induced_tensor",
@@ -625,7 +624,7 @@ class TiPD(Model):
         self._uni = uni
         self._k_p = k_p
         self.bonds = bl
-        # how far ahead of a force row its partners reach (for the one-thread sweep)
+        # how far ahead of a force row its partners reach (for the sweeps)
         n = fam.n
         reach = np.arange(n, dtype=np.int64)
         has = bl.row_n[1:] > bl.row_n[:-1]
@@ -634,6 +633,7 @@ class TiPD(Model):
             reach[has] = np.maximum(reach[has], last)
         self._reach_n = reach
         span = int((reach - np.arange(n)).max(initial=0))
+        self._span = span
         R = 1 << int(np.ceil(np.log2(2 * span + 2)))
         if R >= n:
             R, self._mask = n, _FULL_MASK
@@ -717,38 +717,27 @@ class TiPD(Model):
         nosb_force_kernel(f.offsets, f.neighbors, np.ascontiguousarray(f.xi), self.bond_weights(),
                           self._cQ, self._cH, self._cQ, state.y, d, False, out)
 
-    def _surface_scratch(self, nt: int, sweep: bool) -> tuple:
-        """Scratch of the pair kernels with the correction: for the sweep the ring buffers
-        (u, A, Q over ``self._ring`` rows); for the passes full per-particle arrays and
-        per-thread buffers. Made on first use, kept per thread count."""
-        key = (nt, sweep)
-        s = self._scratch.get(key)
+    def _surface_scratch(self, nt: int) -> tuple:
+        """Scratch of the correction's sweeps: per thread the ring buffers (u, A, Q over
+        ``self._ring`` rows) and the halo (the force on the next thread's first ``span``
+        rows). Made on first use, kept per thread count."""
+        s = self._scratch.get(nt)
         if s is None:
-            n, d = self.system.n, self.dim
-            dd = d * d
-            if sweep:
-                R = self._ring
-                s = (np.zeros((R, d)), np.zeros((1, R, dd)), np.zeros((R, dd)))
-            else:
-                s = (np.zeros((n, d)), np.zeros((nt, n, dd)), np.zeros((n, dd)), np.zeros((nt, n, d)))
-            self._scratch[key] = s
+            d, R = self.dim, self._ring
+            s = (np.zeros((nt, R, d)), np.zeros((nt, R, d * d)), np.zeros((nt, R, d * d)),
+                 np.zeros((nt, max(self._span, 1), d)))
+            self._scratch[nt] = s
         return s
 
     def _pair_surface_force(self, state, out, check: bool) -> None:
         """Ti-PD with the surface correction on the half bond list, added to ``out``: one
-        sweep (one thread, ``out`` a C-contiguous float64 array) or three passes with
-        per-thread buffers (:mod:`upscale.models.tipd_kernels`)."""
+        sweep per thread (:func:`~upscale.models.tipd_kernels.tipd_surface_2d`)."""
         bl = self.bonds
         nt = nb.get_num_threads()
-        args = (bl.row_n, bl.j_p, self._k_p, bl.fwd_n, bl.fwd_p, bl.rev_p)
-        tail = (self._tab, self._uni, bl.volume, self.system.x0, state.y, self._tc_n, self._T_ckk,
-                state.intact, check)
-        if nt == 1 and out.dtype == np.float64 and out.flags.c_contiguous:
-            sweep = tipd_surface_sweep_2d if self.dim == 2 else tipd_surface_sweep_3d
-            sweep(*args, self._reach_n, *tail, self._mask, *self._surface_scratch(1, True), out)
-        else:
-            passes = tipd_surface_threads_2d if self.dim == 2 else tipd_surface_threads_3d
-            passes(*args, bl.chunks(nt), *tail, *self._surface_scratch(nt, False), out)
+        kern = tipd_surface_2d if self.dim == 2 else tipd_surface_3d
+        kern(bl.row_n, bl.j_p, self._k_p, bl.fwd_n, bl.fwd_p, bl.rev_p, self._reach_n, bl.chunks(nt),
+             self._span, self._tab, self._uni, bl.volume, self.system.x0, state.y, self._tc_n,
+             self._T_ckk, state.intact, check, self._mask, *self._surface_scratch(nt), out)
 
     def _pair_force(self, state, out, fail: bool, check: bool) -> int:
         """Ti-PD without the correction on the half bond list (:func:`tipd_pair_kernel`)."""

@@ -30,7 +30,7 @@ bond state), so the half list needs no symmetry of the weights. When the volumes
 uniform and beta is the same both ways (a lattice, with or without partial volumes) the
 weight is a class constant and is folded into the table (``uni``): the loops then multiply
 by no weight and read no volume (on the ``bench-tipd`` plate a step with the correction costs
-1.3 PMB steps folded, 2.4 weighted).
+1.3 PMB steps folded, 2.6 weighted).
 
 Surface correction (module docstring of :mod:`upscale.models.tipd`): per particle
 ``Q_i = (Delta_i : H_i) K_i^-1`` with ``H_i = A_i K_i^-1``, a linear map of ``A_i`` fixed in
@@ -45,27 +45,30 @@ with the correction (the same weight multiplies both). A step is
 2. ``Q_i = T_i A_i`` per particle;
 3. force pass: Ti-PD + correction (each pair once).
 
-One thread (:func:`tipd_surface_sweep_2d` / ``_3d``) runs the three as ONE sweep over the
-particles: the gradient rows run ahead of the force rows by the reach of the pairs
-(``reach_n[i] = max(i, max j of i's pairs)``), so when the force row i runs every row up to
-``reach_n[i]`` has its gradient and ``Q`` of every partner is final. The pair arrays are
-streamed from memory once and re-read from cache by the force row; ``u = y - x0``, ``A``
-and ``Q`` live in ring buffers of a few hundred rows (power of two
-``R > 2 max(reach_n[i] - i) + 1``: a row's u is needed until its own force row, which runs
-at most two reaches behind the front), so besides the positions, the output and the class
-indices no per-particle array goes through memory, and nothing is allocated per step. Several
-threads (:func:`tipd_surface_threads_2d` / ``_3d``): the three passes with a barrier
-between them on full per-particle arrays; each thread's pairs are scattered into its own
-buffers (``bufA[t]``, ``bufF[t]``), summed per particle afterwards (race-free: no shared
-array is incremented inside ``prange``).
+:func:`tipd_surface_2d` / ``_3d`` run the three as ONE sweep over the particles: the
+gradient rows run ahead of the force rows by the reach of the pairs (``reach_n[i] = max(i,
+max j of i's pairs)``), so when the force row i runs every row up to ``reach_n[i]`` has its
+gradient and ``Q`` of every partner is final. The pair arrays are streamed from memory once
+and re-read from cache by the force row; ``u = y - x0``, ``A`` and ``Q`` live in ring
+buffers of a few hundred rows (power of two ``R > 2 span + 1``, ``span`` the largest
+``reach_n[i] - i``: a row's u is needed until its own force row, which runs at most two
+spans behind the front), so besides the positions, the output and the class indices no
+per-particle array goes through memory, and nothing is allocated per step. Threads: each
+sweeps its own block of force rows (balanced by pairs) with its own rings, starting its
+gradient rows ``span`` rows before its block (the rows whose pairs reach into it: at most
+``span`` rows recomputed per thread) and putting the force on rows beyond its block (at
+most ``span`` of them) into its own halo buffer, added to the output after the threads,
+serially (race-free: no row is incremented by two threads, nothing is incremented in
+``prange`` but a thread's own rows and buffers).
 
 The surface correction is elastic: its gradient and force use every bond, intact or not
 (as the directed kernels do); the Ti-PD term honours the bond state of each direction.
 
-The row helpers are inlined into the kernels (``inline="always"``): called as functions,
-each call passes a dozen arrays (reference counting per array and per row), and the step
-cost 1.6 PMB steps instead of 1.4; the loop without weights and bond state (uniform
-weights, every bond intact: the default elastic case) brings it to 1.3.
+Measured on the ``bench-tipd`` plate, one thread: the row helpers are inlined
+(``inline="always"``): called as functions each call passes a dozen arrays (reference
+counting per array and per row) and the step cost 1.6 PMB steps instead of 1.4; the sweep
+without weights and bond state (:func:`_sweep_2d_fast`: uniform weights, every bond intact,
+the default elastic case) brings it to 1.25-1.3.
 """
 from __future__ import annotations
 
@@ -75,8 +78,7 @@ import numpy as np
 from upscale.engine.kernels import add_to_row
 
 __all__ = ["tipd_force_kernel_2d", "tipd_force_kernel_3d", "tipd_energy_kernel",
-           "surface_stress_kernel", "tipd_pair_kernel", "tipd_surface_sweep_2d",
-           "tipd_surface_sweep_3d", "tipd_surface_threads_2d", "tipd_surface_threads_3d",
+           "surface_stress_kernel", "tipd_pair_kernel", "tipd_surface_2d", "tipd_surface_3d",
            "tipd_pair_energy_kernel"]
 
 
@@ -410,19 +412,13 @@ def _grad_row_2d(i, mask, row_n, j_p, k_p, tab, vol_n, uni, u, A):
 
 
 @nb.njit(cache=True, inline="always")
-def _stress_row_2d(i, mask, tc_n, T_ckk, bufA, Q):
-    """``Q_i = T_c A_i`` (c = ``tc_n[i]``, the class of i's map) with
-    ``A_i = sum_t bufA[t, i]``."""
+def _stress_row_2d(i, mask, tc_n, T_ckk, A, Q):
+    """``Q_i = T_c A_i`` (c = ``tc_n[i]``, the class of i's map)."""
     ii = np.uint64(i) & mask
-    a0 = 0.0
-    a1 = 0.0
-    a2 = 0.0
-    a3 = 0.0
-    for t in range(bufA.shape[0]):
-        a0 += bufA[t, ii, 0]
-        a1 += bufA[t, ii, 1]
-        a2 += bufA[t, ii, 2]
-        a3 += bufA[t, ii, 3]
+    a0 = A[ii, 0]
+    a1 = A[ii, 1]
+    a2 = A[ii, 2]
+    a3 = A[ii, 3]
     T = T_ckk[tc_n[i]]
     for r in range(4):
         Q[ii, r] = T[r, 0] * a0 + T[r, 1] * a1 + T[r, 2] * a2 + T[r, 3] * a3
@@ -430,10 +426,11 @@ def _stress_row_2d(i, mask, tc_n, T_ckk, bufA, Q):
 
 @nb.njit(cache=True, inline="always", error_model="numpy")
 def _force_row_2d(i, mask, row_n, j_p, k_p, fwd_n, fwd_p, rev_p, tab, vol_n, uni, u, Q, intact_b,
-                  check, out):
+                  check, out, halo, f1):
     """Ti-PD and correction force of row i's pairs: ``g = Mhat eta + (Q_i + Q_j) xi``,
     ``out_i += w_ij g``, ``out_j -= w_ji g`` (the Ti-PD part only for intact directions
-    when ``check``); ``u`` and ``Q`` indexed by ``index & mask``, ``out`` by index."""
+    when ``check``); ``u`` and ``Q`` indexed by ``index & mask``, ``out`` by index for
+    ``j < f1`` and ``halo`` by ``j - f1`` beyond."""
     has_fwd = fwd_p.shape[0] > 0
     p0 = row_n[i]
     bf0 = np.uint64(fwd_n[i] - p0)
@@ -446,7 +443,7 @@ def _force_row_2d(i, mask, row_n, j_p, k_p, fwd_n, fwd_p, rev_p, tab, vol_n, uni
     qi3 = Q[ii, 3]
     vi = vol_n[i]
     f0 = 0.0
-    f1 = 0.0
+    f1_ = 0.0
     for p in range(np.uint64(p0), np.uint64(row_n[i + 1])):
         j = j_p[p]
         jj = j & mask
@@ -465,26 +462,27 @@ def _force_row_2d(i, mask, row_n, j_p, k_p, fwd_n, fwd_p, rev_p, tab, vol_n, uni
         if not uni:
             wf = tab[k, 5] * vol_n[j]
             wr = tab[k, 6] * vi
+        fi = True
+        fj = True
         if check:
             fi = intact_b[np.uint64(fwd_p[p]) if has_fwd else bf0 + p]
             fj = intact_b[rev_p[p]]
-            f0 += wf * (c0 + t0 if fi else c0)
-            f1 += wf * (c1 + t1 if fi else c1)
-            out[j, 0] -= wr * (c0 + t0 if fj else c0)
-            out[j, 1] -= wr * (c1 + t1 if fj else c1)
+        f0 += wf * (c0 + t0 if fi else c0)
+        f1_ += wf * (c1 + t1 if fi else c1)
+        g0 = wr * (c0 + t0 if fj else c0)
+        g1 = wr * (c1 + t1 if fj else c1)
+        if j < f1:
+            out[j, 0] -= g0
+            out[j, 1] -= g1
         else:
-            g0 = c0 + t0
-            g1 = c1 + t1
-            f0 += wf * g0
-            f1 += wf * g1
-            out[j, 0] -= wr * g0
-            out[j, 1] -= wr * g1
+            halo[j - f1, 0] -= g0
+            halo[j - f1, 1] -= g1
     out[i, 0] += f0
-    out[i, 1] += f1
+    out[i, 1] += f1_
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy")
-def _force_row_2d_fast(i, mask, row_n, j_p, k_p, tab, u, Q, out):
+def _force_row_2d_fast(i, mask, row_n, j_p, k_p, tab, u, Q, out, halo, f1):
     """:func:`_force_row_2d` with the weights folded into ``tab`` and every bond intact."""
     ii = np.uint64(i) & mask
     ui0 = u[ii, 0]
@@ -494,7 +492,7 @@ def _force_row_2d_fast(i, mask, row_n, j_p, k_p, tab, u, Q, out):
     qi2 = Q[ii, 2]
     qi3 = Q[ii, 3]
     f0 = 0.0
-    f1 = 0.0
+    f1_ = 0.0
     for p in range(np.uint64(row_n[i]), np.uint64(row_n[i + 1])):
         j = j_p[p]
         jj = j & mask
@@ -507,117 +505,106 @@ def _force_row_2d_fast(i, mask, row_n, j_p, k_p, tab, u, Q, out):
         g0 = tab[k, 2] * e0 + m12 * e1 + (qi0 + Q[jj, 0]) * x0 + (qi1 + Q[jj, 1]) * x1
         g1 = m12 * e0 + tab[k, 4] * e1 + (qi2 + Q[jj, 2]) * x0 + (qi3 + Q[jj, 3]) * x1
         f0 += g0
-        f1 += g1
-        out[j, 0] -= g0
-        out[j, 1] -= g1
+        f1_ += g1
+        if j < f1:
+            out[j, 0] -= g0
+            out[j, 1] -= g1
+        else:
+            halo[j - f1, 0] -= g0
+            halo[j - f1, 1] -= g1
     out[i, 0] += f0
-    out[i, 1] += f1
+    out[i, 1] += f1_
 
 
 @nb.njit(cache=True, error_model="numpy")
-def tipd_surface_sweep_2d(row_n, j_p, k_p, fwd_n, fwd_p, rev_p, reach_n, tab, uni, vol_n, x0_nc,
-                          y_nc, tc_n, T_ckk, intact_b, check, mask, u_r2, A_1r4, Q_r4, out_nc):
-    """One thread, 2D: Ti-PD with the surface correction added to ``out_nc`` (N, 3) in one
-    sweep (module docstring): the gradient row r (with ``u``, the zeroing of ``A`` and
-    ``Q_r`` ahead of it) runs as soon as a force row needs it, i.e. every row up to
-    ``reach_n[i]`` before the force row i. ``u_r2`` (R, 2), ``A_1r4`` (1, R, 4), ``Q_r4``
-    (R, 4): ring buffers indexed by ``index & mask`` (R a power of two > 2 max(reach_n[i] -
-    i) + 1, or R = N and ``mask`` all ones), scratch written here. ``uni`` and not
-    ``check`` (uniform weights, every bond intact) take a loop without weights or bond
-    state."""
-    if uni and not check:
-        _sweep_2d_fast(row_n, j_p, k_p, reach_n, tab, vol_n, x0_nc, y_nc, tc_n, T_ckk, mask, u_r2,
-                       A_1r4, Q_r4, out_nc)
-        return
-    n = row_n.shape[0] - 1
-    A = A_1r4[0]
-    z = 0                           # rows < z have u and a zeroed A
-    r = 0                           # rows < r have their gradient and Q
-    for i in range(n):
+def _sweep_2d(g0, i0, i1, row_n, j_p, k_p, fwd_n, fwd_p, rev_p, reach_n, tab, uni, vol_n, x0_nc, y_nc,
+              tc_n, T_ckk, intact_b, check, mask, u_r2, A_r4, Q_r4, out_nc, halo_h2):
+    """The sweep (module docstring) of the force rows ``i0 <= i < i1``, gradient rows from
+    ``g0`` (``i0 - span`` or 0: every row that scatters into a row >= i0); the force on rows
+    >= i1 goes into ``halo_h2[j - i1]`` (zeroed here). Ring buffers ``u_r2`` (R, 2),
+    ``A_r4``, ``Q_r4`` (R, 4) indexed by ``index & mask``. With uniform weights and every
+    bond intact :func:`_sweep_2d_fast` is the same, faster."""
+    halo_h2[:, :] = 0.0
+    f1 = np.uint64(i1)
+    z = g0                          # rows < z have u and a zeroed A
+    r = g0                          # rows < r have their gradient and Q
+    for i in range(i0, i1):
         while r <= reach_n[i]:
             m = reach_n[r]
             while z <= m:
                 zz = np.uint64(z) & mask
                 u_r2[zz, 0] = y_nc[z, 0] - x0_nc[z, 0]
                 u_r2[zz, 1] = y_nc[z, 1] - x0_nc[z, 1]
-                A[zz, 0] = 0.0
-                A[zz, 1] = 0.0
-                A[zz, 2] = 0.0
-                A[zz, 3] = 0.0
+                A_r4[zz, 0] = 0.0
+                A_r4[zz, 1] = 0.0
+                A_r4[zz, 2] = 0.0
+                A_r4[zz, 3] = 0.0
                 z += 1
-            _grad_row_2d(r, mask, row_n, j_p, k_p, tab, vol_n, uni, u_r2, A)
-            _stress_row_2d(r, mask, tc_n, T_ckk, A_1r4, Q_r4)
+            _grad_row_2d(r, mask, row_n, j_p, k_p, tab, vol_n, uni, u_r2, A_r4)
+            _stress_row_2d(r, mask, tc_n, T_ckk, A_r4, Q_r4)
             r += 1
         _force_row_2d(i, mask, row_n, j_p, k_p, fwd_n, fwd_p, rev_p, tab, vol_n, uni, u_r2, Q_r4,
-                      intact_b, check, out_nc)
-
+                      intact_b, check, out_nc, halo_h2, f1)
 
 @nb.njit(cache=True, error_model="numpy")
-def _sweep_2d_fast(row_n, j_p, k_p, reach_n, tab, vol_n, x0_nc, y_nc, tc_n, T_ckk, mask, u_r2, A_1r4,
-                   Q_r4, out_nc):
-    """:func:`tipd_surface_sweep_2d` with the weights folded into ``tab`` and every bond
-    intact."""
-    n = row_n.shape[0] - 1
-    A = A_1r4[0]
-    z = 0
-    r = 0
-    for i in range(n):
+def _sweep_2d_fast(g0, i0, i1, row_n, j_p, k_p, reach_n, tab, vol_n, x0_nc, y_nc, tc_n, T_ckk, mask,
+                   u_r2, A_r4, Q_r4, out_nc, halo_h2):
+    """:func:`_sweep_2d` with the weights folded into ``tab`` (``uni``) and every bond
+    intact: the loops read no weight and no bond state (the default elastic case on a
+    lattice). A function of its own: with both loops in one function the step is 1.5 PMB
+    steps instead of 1.25."""
+    halo_h2[:, :] = 0.0
+    f1 = np.uint64(i1)
+    z = g0
+    r = g0
+    for i in range(i0, i1):
         while r <= reach_n[i]:
             m = reach_n[r]
             while z <= m:
                 zz = np.uint64(z) & mask
                 u_r2[zz, 0] = y_nc[z, 0] - x0_nc[z, 0]
                 u_r2[zz, 1] = y_nc[z, 1] - x0_nc[z, 1]
-                A[zz, 0] = 0.0
-                A[zz, 1] = 0.0
-                A[zz, 2] = 0.0
-                A[zz, 3] = 0.0
+                A_r4[zz, 0] = 0.0
+                A_r4[zz, 1] = 0.0
+                A_r4[zz, 2] = 0.0
+                A_r4[zz, 3] = 0.0
                 z += 1
-            _grad_row_2d(r, mask, row_n, j_p, k_p, tab, vol_n, True, u_r2, A)
-            _stress_row_2d(r, mask, tc_n, T_ckk, A_1r4, Q_r4)
+            _grad_row_2d(r, mask, row_n, j_p, k_p, tab, vol_n, True, u_r2, A_r4)
+            _stress_row_2d(r, mask, tc_n, T_ckk, A_r4, Q_r4)
             r += 1
-        _force_row_2d_fast(i, mask, row_n, j_p, k_p, tab, u_r2, Q_r4, out_nc)
+        _force_row_2d_fast(i, mask, row_n, j_p, k_p, tab, u_r2, Q_r4, out_nc, halo_h2, f1)
 
 
 @nb.njit(parallel=True, cache=True, error_model="numpy")
-def tipd_surface_threads_2d(row_n, j_p, k_p, fwd_n, fwd_p, rev_p, chunk_t, tab, uni, vol_n, x0_nc,
-                            y_nc, tc_n, T_ckk, intact_b, check, u_n2, bufA, Q_n4, bufF, out_nc):
-    """Several threads, 2D: the three passes of :func:`tipd_surface_sweep_2d` with a barrier
-    between them, on full per-particle arrays (``u_n2`` (N, 2), ``Q_n4`` (N, 4)); thread t
-    scatters the rows ``chunk_t[t]:chunk_t[t+1]`` into its own ``bufA[t]`` (T, N, 4) and
-    ``bufF[t]`` (T, N, 2), summed per particle afterwards (no shared array is incremented
-    inside ``prange``)."""
-    full = np.uint64(0xFFFFFFFFFFFFFFFF)
+def tipd_surface_2d(row_n, j_p, k_p, fwd_n, fwd_p, rev_p, reach_n, chunk_t, span, tab, uni, vol_n,
+                    x0_nc, y_nc, tc_n, T_ckk, intact_b, check, mask, u_tr2, A_tr4, Q_tr4, halo_th2,
+                    out_nc):
+    """2D Ti-PD with the surface correction added to ``out_nc`` (N, 3) (module docstring):
+    thread t sweeps the force rows ``chunk_t[t]:chunk_t[t+1]`` with its own ring buffers
+    (``u_tr2`` (T, R, 2), ``A_tr4``, ``Q_tr4`` (T, R, 4)), its gradient rows starting
+    ``span`` (the largest ``reach_n[i] - i``) before its first force row (the gradients of
+    a thread's first rows need the pairs of the rows before it: recomputed, at most
+    ``span`` rows per thread), its force on the next thread's rows into ``halo_th2[t]``
+    (T, span, 2), added to the output after the threads (serially: no row is incremented
+    by two threads). One thread: one sweep, no halo."""
     nt = chunk_t.shape[0] - 1
     n = row_n.shape[0] - 1
-    cn = (n + nt - 1) // nt
+    fast = uni and not check
     for t in nb.prange(nt):
-        for i in range(t * cn, min(n, (t + 1) * cn)):
-            u_n2[i, 0] = y_nc[i, 0] - x0_nc[i, 0]
-            u_n2[i, 1] = y_nc[i, 1] - x0_nc[i, 1]
-    for t in nb.prange(nt):
-        A = bufA[t]
-        A[:, :] = 0.0
-        for i in range(chunk_t[t], chunk_t[t + 1]):
-            _grad_row_2d(i, full, row_n, j_p, k_p, tab, vol_n, uni, u_n2, A)
-    for t in nb.prange(nt):
-        for i in range(t * cn, min(n, (t + 1) * cn)):
-            _stress_row_2d(i, full, tc_n, T_ckk, bufA, Q_n4)
-    for t in nb.prange(nt):
-        F = bufF[t]
-        F[:, :] = 0.0
-        for i in range(chunk_t[t], chunk_t[t + 1]):
-            _force_row_2d(i, full, row_n, j_p, k_p, fwd_n, fwd_p, rev_p, tab, vol_n, uni, u_n2, Q_n4,
-                          intact_b, check, F)
-    for t in nb.prange(nt):
-        for i in range(t * cn, min(n, (t + 1) * cn)):
-            s0 = 0.0
-            s1 = 0.0
-            for s in range(nt):
-                s0 += bufF[s, i, 0]
-                s1 += bufF[s, i, 1]
-            out_nc[i, 0] += s0
-            out_nc[i, 1] += s1
+        i0 = chunk_t[t]
+        g0 = max(0, i0 - span)
+        if fast:
+            _sweep_2d_fast(g0, i0, chunk_t[t + 1], row_n, j_p, k_p, reach_n, tab, vol_n, x0_nc, y_nc,
+                           tc_n, T_ckk, mask, u_tr2[t], A_tr4[t], Q_tr4[t], out_nc, halo_th2[t])
+        else:
+            _sweep_2d(g0, i0, chunk_t[t + 1], row_n, j_p, k_p, fwd_n, fwd_p, rev_p, reach_n, tab, uni,
+                      vol_n, x0_nc, y_nc, tc_n, T_ckk, intact_b, check, mask, u_tr2[t], A_tr4[t],
+                      Q_tr4[t], out_nc, halo_th2[t])
+    for t in range(nt - 1):
+        i1 = chunk_t[t + 1]
+        for h in range(min(halo_th2.shape[1], n - i1)):
+            out_nc[i1 + h, 0] += halo_th2[t, h, 0]
+            out_nc[i1 + h, 1] += halo_th2[t, h, 1]
 
 
 # ---------------------------------------------------------------------------- pair list: 3D correction
@@ -692,24 +679,20 @@ def _grad_row_3d(i, mask, row_n, j_p, k_p, tab, vol_n, uni, u, A):
 
 
 @nb.njit(cache=True, inline="always")
-def _stress_row_3d(i, mask, tc_n, T_ckk, bufA, Q):
+def _stress_row_3d(i, mask, tc_n, T_ckk, A, Q):
     """3D :func:`_stress_row_2d` (9 x 9)."""
     ii = np.uint64(i) & mask
-    nt = bufA.shape[0]
     T = T_ckk[tc_n[i]]
     for r in range(9):
         v = 0.0
         for c in range(9):
-            a = 0.0
-            for t in range(nt):
-                a += bufA[t, ii, c]
-            v += T[r, c] * a
+            v += T[r, c] * A[ii, c]
         Q[ii, r] = v
 
 
 @nb.njit(cache=True, inline="always", error_model="numpy")
 def _force_row_3d(i, mask, row_n, j_p, k_p, fwd_n, fwd_p, rev_p, tab, vol_n, uni, u, Q, intact_b,
-                  check, out):
+                  check, out, halo, f1):
     """3D :func:`_force_row_2d`."""
     has_fwd = fwd_p.shape[0] > 0
     p0 = row_n[i]
@@ -729,7 +712,7 @@ def _force_row_3d(i, mask, row_n, j_p, k_p, fwd_n, fwd_p, rev_p, tab, vol_n, uni
     q8 = Q[ii, 8]
     vi = vol_n[i]
     f0 = 0.0
-    f1 = 0.0
+    f1_ = 0.0
     f2 = 0.0
     for p in range(np.uint64(p0), np.uint64(row_n[i + 1])):
         j = j_p[p]
@@ -762,35 +745,42 @@ def _force_row_3d(i, mask, row_n, j_p, k_p, fwd_n, fwd_p, rev_p, tab, vol_n, uni
             fj = intact_b[rev_p[p]]
         if fi:
             f0 += wf * (c0 + t0)
-            f1 += wf * (c1 + t1)
+            f1_ += wf * (c1 + t1)
             f2 += wf * (c2 + t2)
         else:
             f0 += wf * c0
-            f1 += wf * c1
+            f1_ += wf * c1
             f2 += wf * c2
         if fj:
-            out[j, 0] -= wr * (c0 + t0)
-            out[j, 1] -= wr * (c1 + t1)
-            out[j, 2] -= wr * (c2 + t2)
+            g0 = wr * (c0 + t0)
+            g1 = wr * (c1 + t1)
+            g2 = wr * (c2 + t2)
         else:
-            out[j, 0] -= wr * c0
-            out[j, 1] -= wr * c1
-            out[j, 2] -= wr * c2
+            g0 = wr * c0
+            g1 = wr * c1
+            g2 = wr * c2
+        if j < f1:
+            out[j, 0] -= g0
+            out[j, 1] -= g1
+            out[j, 2] -= g2
+        else:
+            halo[j - f1, 0] -= g0
+            halo[j - f1, 1] -= g1
+            halo[j - f1, 2] -= g2
     out[i, 0] += f0
-    out[i, 1] += f1
+    out[i, 1] += f1_
     out[i, 2] += f2
 
 
 @nb.njit(cache=True, error_model="numpy")
-def tipd_surface_sweep_3d(row_n, j_p, k_p, fwd_n, fwd_p, rev_p, reach_n, tab, uni, vol_n, x0_nc,
-                          y_nc, tc_n, T_ckk, intact_b, check, mask, u_r3, A_1r9, Q_r9, out_nc):
-    """3D :func:`tipd_surface_sweep_2d` (ring buffers ``u_r3`` (R, 3), ``A_1r9`` (1, R, 9),
-    ``Q_r9`` (R, 9))."""
-    n = row_n.shape[0] - 1
-    A = A_1r9[0]
-    z = 0
-    r = 0
-    for i in range(n):
+def _sweep_3d(g0, i0, i1, row_n, j_p, k_p, fwd_n, fwd_p, rev_p, reach_n, tab, uni, vol_n, x0_nc, y_nc,
+              tc_n, T_ckk, intact_b, check, mask, u_r3, A_r9, Q_r9, out_nc, halo_h3):
+    """3D :func:`_sweep_2d` (ring buffers ``u_r3`` (R, 3), ``A_r9``, ``Q_r9`` (R, 9))."""
+    halo_h3[:, :] = 0.0
+    f1 = np.uint64(i1)
+    z = g0
+    r = g0
+    for i in range(i0, i1):
         while r <= reach_n[i]:
             m = reach_n[r]
             while z <= m:
@@ -798,45 +788,30 @@ def tipd_surface_sweep_3d(row_n, j_p, k_p, fwd_n, fwd_p, rev_p, reach_n, tab, un
                 for c in range(3):
                     u_r3[zz, c] = y_nc[z, c] - x0_nc[z, c]
                 for c in range(9):
-                    A[zz, c] = 0.0
+                    A_r9[zz, c] = 0.0
                 z += 1
-            _grad_row_3d(r, mask, row_n, j_p, k_p, tab, vol_n, uni, u_r3, A)
-            _stress_row_3d(r, mask, tc_n, T_ckk, A_1r9, Q_r9)
+            _grad_row_3d(r, mask, row_n, j_p, k_p, tab, vol_n, uni, u_r3, A_r9)
+            _stress_row_3d(r, mask, tc_n, T_ckk, A_r9, Q_r9)
             r += 1
         _force_row_3d(i, mask, row_n, j_p, k_p, fwd_n, fwd_p, rev_p, tab, vol_n, uni, u_r3, Q_r9,
-                      intact_b, check, out_nc)
+                      intact_b, check, out_nc, halo_h3, f1)
 
 
 @nb.njit(parallel=True, cache=True, error_model="numpy")
-def tipd_surface_threads_3d(row_n, j_p, k_p, fwd_n, fwd_p, rev_p, chunk_t, tab, uni, vol_n, x0_nc,
-                            y_nc, tc_n, T_ckk, intact_b, check, u_n3, bufA, Q_n9, bufF, out_nc):
-    """3D :func:`tipd_surface_threads_2d` (``bufA`` (T, N, 9), ``bufF`` (T, N, 3))."""
-    full = np.uint64(0xFFFFFFFFFFFFFFFF)
+def tipd_surface_3d(row_n, j_p, k_p, fwd_n, fwd_p, rev_p, reach_n, chunk_t, span, tab, uni, vol_n,
+                    x0_nc, y_nc, tc_n, T_ckk, intact_b, check, mask, u_tr3, A_tr9, Q_tr9, halo_th3,
+                    out_nc):
+    """3D :func:`tipd_surface_2d` (``u_tr3`` (T, R, 3), ``A_tr9``, ``Q_tr9`` (T, R, 9),
+    ``halo_th3`` (T, span, 3))."""
     nt = chunk_t.shape[0] - 1
     n = row_n.shape[0] - 1
-    cn = (n + nt - 1) // nt
     for t in nb.prange(nt):
-        for i in range(t * cn, min(n, (t + 1) * cn)):
+        i0 = chunk_t[t]
+        _sweep_3d(max(0, i0 - span), i0, chunk_t[t + 1], row_n, j_p, k_p, fwd_n, fwd_p, rev_p, reach_n,
+                  tab, uni, vol_n, x0_nc, y_nc, tc_n, T_ckk, intact_b, check, mask, u_tr3[t],
+                  A_tr9[t], Q_tr9[t], out_nc, halo_th3[t])
+    for t in range(nt - 1):
+        i1 = chunk_t[t + 1]
+        for h in range(min(halo_th3.shape[1], n - i1)):
             for c in range(3):
-                u_n3[i, c] = y_nc[i, c] - x0_nc[i, c]
-    for t in nb.prange(nt):
-        A = bufA[t]
-        A[:, :] = 0.0
-        for i in range(chunk_t[t], chunk_t[t + 1]):
-            _grad_row_3d(i, full, row_n, j_p, k_p, tab, vol_n, uni, u_n3, A)
-    for t in nb.prange(nt):
-        for i in range(t * cn, min(n, (t + 1) * cn)):
-            _stress_row_3d(i, full, tc_n, T_ckk, bufA, Q_n9)
-    for t in nb.prange(nt):
-        F = bufF[t]
-        F[:, :] = 0.0
-        for i in range(chunk_t[t], chunk_t[t + 1]):
-            _force_row_3d(i, full, row_n, j_p, k_p, fwd_n, fwd_p, rev_p, tab, vol_n, uni, u_n3, Q_n9,
-                          intact_b, check, F)
-    for t in nb.prange(nt):
-        for i in range(t * cn, min(n, (t + 1) * cn)):
-            for c in range(3):
-                s = 0.0
-                for q in range(nt):
-                    s += bufF[q, i, c]
-                out_nc[i, c] += s
+                out_nc[i1 + h, c] += halo_th3[t, h, c]
