@@ -176,3 +176,27 @@ def test_sweep_of_the_tube_scene_by_name(tmp_path):
     assert len(rows) == 8 and all(r["status"] == "ok" for r in rows), rep
     E = {(r["chirality"], r["defects"]): float(r["youngs_TPa"]) for r in rows}
     assert len(set(E.values())) == 4 and all(0.8 < e < 1.1 for e in E.values())
+
+
+@pytest.mark.lammps
+def test_lammps_reference_is_run_once_then_cached(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("UPSCALE_CACHE", str(tmp_path / "cache"))
+    kw = dict(SMALL, model="lammps", maximum=0.01)
+    with pytest.raises(LookupError, match="reference=True"):
+        experiments.tension(**kw, reference=False)
+    a = experiments.tension(**kw)
+    assert "running it now" in capsys.readouterr().out
+    b = experiments.tension(**kw, reference=False)          # from the cache now
+    assert b.figures["youngs_TPa"] == a.figures["youngs_TPa"]
+    ours = experiments.tension(**SMALL, maximum=0.01)
+    assert ours.compare(a)["youngs_TPa"] == pytest.approx(0.0, abs=0.05)
+
+
+def test_no_reference_skips_the_comparison(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("UPSCALE_CACHE", str(tmp_path / "cache"))
+    argv = ["tension", "--chirality", "5,5", "--length", "25", "--model", "atomistic",
+            "--maximum", "0.01", "--compare", "lammps", "--no-reference", "--quiet",
+            "--out", str(tmp_path / "o")]
+    assert main(argv) == 0
+    assert "no comparison" in capsys.readouterr().err
+    assert (tmp_path / "o" / "tension.json").is_file()

@@ -221,7 +221,11 @@ def run_from_args(args: argparse.Namespace):
     res.to_csv(out)
     ref = None
     if getattr(args, "compare", None):
-        ref = func(**{**kw, "model": args.compare})
+        try:
+            ref = func(**{**kw, "model": args.compare})
+        except LookupError as exc:  # a reference the user chose not to compute now
+            print(f"no comparison: {exc}", file=sys.stderr)
+    if ref is not None:
         ref.to_json(out / f"{stem}_{args.compare}.json")
         print(res.compare(ref))
     else:

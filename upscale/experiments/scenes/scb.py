@@ -497,7 +497,9 @@ def calibrated_r_s(criterion: str, dx: float) -> float:
     criterion its r_s / dx times ``dx``, else the principal-stress r_s in metres."""
     import json
 
-    cal = Path(__file__).resolve().parents[3] / "data" / "reference" / "scb_calibration.json"
+    from upscale.experiments.references import reference_file
+
+    cal = reference_file("scb_calibration.json")
     if not cal.exists():
         raise FileNotFoundError(f"{cal} is missing; pass r_s")
     c = json.loads(cal.read_text())

@@ -17,6 +17,7 @@ radius after the zero-stress relaxation.
 """
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Literal
 
 import numpy as np
@@ -49,7 +50,8 @@ def tension(structure=None, *, chirality: tuple[int, int] = (10, 10), length: fl
             step: float | None = None, maximum: float | None = None,
             grip: float | None = None, perturb: float | None = None,
             temperature: float = 10.0, seed: int = 1,
-            potential: str = "BNC.tersoff", progress: bool = True) -> Result:
+            potential: str = "BNC.tersoff", reference: bool = True,
+            progress: bool = True) -> Result:
     """One tube under a loading protocol (module docstring).
 
     Parameters
@@ -89,12 +91,17 @@ def tension(structure=None, *, chirality: tuple[int, int] = (10, 10), length: fl
         seed of a dynamic pull's thermal start.
     potential : str
         LAMMPS .tersoff file of the atoms (default the references' BNC.tersoff, step cutoff).
+    reference : bool
+        model lammps: run LAMMPS where no stored or cached run matches (its estimated cost
+        printed first; the run cached in ~/.cache/upscale); False: only stored or cached
+        runs (a missing one is a LookupError).
     progress : bool
         print one line per load step.
     """
     if model not in MODELS:
         raise ValueError(f"model={model!r}; valid: {', '.join(MODELS)}")
     params = dict(chirality=tuple(chirality), length=length, defects=defects, model=model,
+                  reference=reference,
                   coarsening=coarsening, protocol=protocol, load=load, step=step,
                   maximum=maximum, grip=grip, perturb=perturb, temperature=temperature,
                   seed=seed, potential=potential)
@@ -108,7 +115,7 @@ def tension(structure=None, *, chirality: tuple[int, int] = (10, 10), length: fl
         if model == "atomistic":
             run = _run_atomistic(atoms, proto, potential, show)
         elif model == "lammps":
-            run = _run_lammps(atoms, proto, potential, show)
+            run = _run_lammps(atoms, proto, potential, reference)
         else:
             run = _run_dcbr(atoms, proto, coarsening, potential, show)
     return tube_result(run, proto, params, timer)
@@ -178,14 +185,12 @@ def _run_atomistic(atoms, proto, potential, show) -> dict:
             "minimisations": tube.minimisations, "unconverged": tube.unconverged}
 
 
-def _run_lammps(atoms, proto, potential, show) -> dict:
+def _run_lammps(atoms, proto, potential, run_missing: bool) -> dict:
     """A stored reference of ``data/reference/`` where one matches the structure and the
-    protocol, else a LAMMPS run now (cached by the backend)."""
+    protocol, else a cached run (:func:`_cached_lammps`), else a LAMMPS run now."""
     r = _stored_reference(atoms, proto, potential)
     if r is None:
-        from upscale.experiments import lammps
-
-        r = lammps.run(atoms, proto, potential=f"tersoff:{potential}")
+        r = _cached_lammps(atoms, proto, potential, run_missing)
     c = r["curve"]
     x0 = atoms.get_positions()
     dmg = r.get("atom_damage")  # per atom where the run kept it (a stored record does not)
@@ -195,6 +200,47 @@ def _run_lammps(atoms, proto, potential, show) -> dict:
             "radius_A": r.get("relaxation", {}).get("radius_relaxed_A", np.nan),
             "dof": 3 * len(atoms), "atoms": len(atoms), "particles": len(atoms),
             "lammps": r.get("lammps_version"), "source": r.get("_source", "computed now")}
+
+
+#: LAMMPS's cost per atom and load step on one core of this project's machines, s (measured
+#: on the (10,10) tubes: tension, compression, torsion); for the estimate printed before a run
+_LAMMPS_S_PER_ATOM_STEP = 5e-3
+
+
+def _cached_lammps(atoms, proto, potential, run_missing: bool) -> dict:
+    """The LAMMPS run of ``atoms`` under ``proto`` from the cache (keyed by a hash of the
+    structure, the protocol, the potential and the backend's code), or run now and cached."""
+    import dataclasses
+    import hashlib
+    import json
+
+    from upscale.experiments import lammps
+    from upscale.experiments.lammps.cache import cache_dir
+    from upscale.io import write_json
+
+    code = hashlib.sha256()
+    for f in sorted(Path(lammps.__file__).parent.glob("*.py")):
+        code.update(f.read_bytes())
+    key = hashlib.sha256(json.dumps({
+        "positions": np.round(atoms.get_positions(), 6).tolist(), "cell": atoms.cell.tolist(),
+        "pbc": atoms.pbc.tolist(), "numbers": atoms.numbers.tolist(), "potential": potential,
+        "protocol": [type(proto).__name__, dataclasses.asdict(proto)],
+        "code": code.hexdigest()}, sort_keys=True).encode()).hexdigest()[:20]
+    path = cache_dir("references") / f"tube_{key}.json"
+    if path.is_file():
+        return json.loads(path.read_text())
+    if not run_missing:
+        raise LookupError(f"no stored or cached LAMMPS run of this structure and protocol "
+                          f"({path.name}); valid: reference=True (--reference) to run it")
+    steps = int(proto.maximum / proto.step) + 1 if isinstance(proto, QuasiStatic) else 0
+    if steps:
+        est = _LAMMPS_S_PER_ATOM_STEP * len(atoms) * steps
+        print(f"LAMMPS reference not stored: running it now ({len(atoms)} atoms, up to "
+              f"{steps} load steps: up to about {est / 60:.0f} min on one core; cached in "
+              f"{path.parent})", flush=True)
+    r = lammps.run(atoms, proto, potential=f"tersoff:{potential}")
+    write_json(path, r)
+    return r
 
 
 def _stored_reference(atoms, proto, potential) -> dict | None:
