@@ -199,23 +199,27 @@ def tipd_energy_kernel(offsets, neighbors, q_bc, A, x_nc, y_nc, intact_b, d):
 
 @nb.njit(parallel=True, cache=True)
 def surface_stress_kernel(H_nk, Delta_nkk, Kinv_n, d, Q_nk):
-    """Surface correction's ``Q_i = (Delta_i : H_i) K_i^-1`` per particle (the directed-bond
-    path, ``kernel="bond"``). ``H_nk``: the gradients as rows of d*d (2D) or 9 (3D, a
-    (N, 3, 3) view) entries ``[p, a]``; ``Delta_nkk`` (N, d*d, d*d) with row ``p d + a``
-    and column ``q d + b``; ``Kinv_n`` (N, 3, 3); ``Q_nk`` laid out as ``H_nk``. Scalar
-    scratch per thread, no allocation per particle."""
+    """Surface correction's ``Q_i = (Delta_i : H_i) K_i^-1`` per particle. ``H_nk``: the
+    gradients as rows of d*d (2D) or 9 (3D, a (N, 3, 3) view) entries ``[p, a]``;
+    ``Delta_nkk`` (N, d*d, d*d) with row ``p d + a`` and column ``q d + b``; ``Kinv_n``
+    (N, 3, 3); ``Q_nk`` laid out as ``H_nk``. (Not used by the pair kernels, which apply
+    the precomputed map ``T_i``.)"""
     n = H_nk.shape[0]
     st = 2 if d == 2 else 3                     # row stride of the (p, a) layout
     for i in nb.prange(n):
+        P = np.zeros((3, 3))
+        for p in range(d):
+            for a in range(d):
+                v = 0.0
+                for q in range(d):
+                    for b in range(d):
+                        v += Delta_nkk[i, p * d + a, q * d + b] * H_nk[i, q * st + b]
+                P[p, a] = v
         for p in range(d):
             for a in range(d):
                 v = 0.0
                 for c in range(d):
-                    P = 0.0                     # (Delta : H)[p, c]
-                    for q in range(d):
-                        for b in range(d):
-                            P += Delta_nkk[i, p * d + c, q * d + b] * H_nk[i, q * st + b]
-                    v += P * Kinv_n[i, c, a]
+                    v += P[p, c] * Kinv_n[i, c, a]
                 Q_nk[i, p * st + a] = v
 
 
