@@ -91,6 +91,7 @@ inside scipy; it checkpoints its iterates, but a resumed L-BFGS-B starts a new h
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 
 import numpy as np
@@ -375,19 +376,27 @@ class LBFGS:
         Correction pairs kept (scipy's ``maxcor``).
     bounds : (lo, hi), optional
         Bounds on ``y``: scalars or (N, 3) arrays; ``None`` / ``+-inf`` for none.
+    maxls : int
+        Line-search steps per iteration (scipy's ``maxls``). Near the resolution limit of
+        the energy (module docstring) every line search fails and costs that many
+        evaluations, twice before scipy gives up (it restarts once): the array-level
+        :func:`lbfgs_b` keeps scipy's 20.
     """
 
     name = "lbfgs"
 
     def __init__(self, ftol: float = 1e-6, max_iter: int = 10_000, *, memory: int = 10,
-                 bounds=None):
+                 bounds=None, maxls: int = 40):
         _check_common(ftol, max_iter)
+        if int(maxls) < 1:
+            raise ValueError(f"maxls must be >= 1, got {maxls!r}")
         self.ftol, self.max_iter, self.memory, self.bounds = float(ftol), int(max_iter), int(memory), bounds
+        self.maxls = int(maxls)
 
     def minimise(self, sim, *, raise_on_fail: bool = True, checkpoint=None,
                  resume: bool = False, progress: bool = False) -> MinimiseResult:
         """Relax ``sim.state`` (mutated); returns a :class:`MinimiseResult`."""
-        from scipy.optimize import minimize
+        from scipy.optimize import Bounds, minimize
 
         from upscale.engine.checkpoint import load_checkpoint
 
@@ -413,7 +422,7 @@ class LBFGS:
                 k = int(np.flatnonzero((y0 < lo) | (y0 > hi))[0])
                 raise ValueError(f"bounds: the start position {y0[k]!r} of free dof {k} is outside "
                                  f"[{lo[k]!r}, {hi[k]!r}]")
-            bnds = list(zip(lo, hi))
+            bnds = (lo, hi)
         yflat = st.y.reshape(-1)
         count = {"f": 0, "it": 0}
         y_good = st.y.copy()
@@ -430,9 +439,9 @@ class LBFGS:
         if fields:
             flo_all = np.concatenate([np.full(st.extra[nm].size, float(lh[0])) for _, nm, lh in fields])
             fhi_all = np.concatenate([np.full(st.extra[nm].size, float(lh[1])) for _, nm, lh in fields])
-            ylo = np.full(ny, -np.inf) if bnds is None else np.array([b[0] for b in bnds])
-            yhi = np.full(ny, np.inf) if bnds is None else np.array([b[1] for b in bnds])
-            bnds = list(zip(np.r_[ylo, flo_all], np.r_[yhi, fhi_all]))
+            ylo = np.full(ny, -np.inf) if bnds is None else bnds[0]
+            yhi = np.full(ny, np.inf) if bnds is None else bnds[1]
+            bnds = (np.concatenate([ylo, flo_all]), np.concatenate([yhi, fhi_all]))
             for m, name, _ in fields:
                 m.hold_internal(True)
 
@@ -441,15 +450,24 @@ class LBFGS:
             for (m, name, _), sl in zip(fields, fsl):
                 st.extra[name].reshape(-1)[...] = x[sl]
 
+        # eq. (1) with the loads once: they depend on time alone, which stays (a minimisation
+        # called total_energy and forces at every evaluation, each summing them anew)
+        ext = sim.external_forces()
+        loaded = bool(np.any(ext))
+
         def fun(x):
             put(x)
             count["f"] += 1
-            e = total_energy(sim)
-            g = -sim.forces().reshape(-1)[idx]
+            e = sim.energy()
+            F = sim.internal_forces()
+            if loaded:
+                e -= float(np.sum(ext * (st.y - st.x0)))
+                F += ext
+            g = -F.reshape(-1)[idx]
             if fields:
                 g = np.concatenate([g] + [m.internal_gradient(st)[name].reshape(-1)
                                           for m, name, _ in fields])
-            if not (np.isfinite(e) and np.all(np.isfinite(g))):
+            if not (math.isfinite(e) and np.isfinite(g).all()):
                 return np.inf, np.zeros_like(x)
             return e, g
 
@@ -468,11 +486,18 @@ class LBFGS:
             x0 = np.concatenate([x0] + [np.clip(st.extra[nm].reshape(-1), lh[0], lh[1])
                                         for _, nm, lh in fields])
         try:
-            # scipy's projected-gradient test is per component; ours is per particle
-            r = minimize(fun, x0, jac=True, method="L-BFGS-B", bounds=bnds,
-                         callback=cb, options={"maxiter": self.max_iter, "maxcor": self.memory,
-                                               "gtol": self.ftol / np.sqrt(3.0), "ftol": 0.0,
-                                               "maxfun": 20 * self.max_iter, "maxls": 40})
+            # scipy's projected-gradient test is per component; ours is per particle.
+            # BLAS on one thread, as in lbfgs_b (one_blas_thread: the vectors are short)
+            with one_blas_thread():
+                # bounds as arrays (scipy's Bounds): a list of (lo, hi) pairs cost scipy
+                # an element-by-element conversion per call
+                r = minimize(fun, x0, jac=True, method="L-BFGS-B",
+                             bounds=None if bnds is None else Bounds(*bnds),
+                             callback=cb, options={"maxiter": self.max_iter,
+                                                   "maxcor": self.memory,
+                                                   "gtol": self.ftol / np.sqrt(3.0),
+                                                   "ftol": 0.0, "maxfun": 20 * self.max_iter,
+                                                   "maxls": self.maxls})
             put(r.x)
             g_fields = 0.0
             if fields:  # the largest field gradient component off its active bound

@@ -124,10 +124,13 @@ class Simulation:
         array); with ``failure`` the models' criteria update ``state.intact``."""
         st = self.state
         fail = failure and self.failure
-        b = np.zeros_like(st.y)
-        for m in self._density_models:
-            self.broken_total += m.step_force(st, b, failure=fail)
-        F = b * self._vol
+        if self._density_models:
+            b = np.zeros_like(st.y)
+            for m in self._density_models:
+                self.broken_total += m.step_force(st, b, failure=fail)
+            F = b * self._vol
+        else:  # particle models only (e.g. a minimiser's evaluations of the coarse tube)
+            F = np.zeros_like(st.y)
         for m in self._particle_models:
             self.broken_total += m.step_force(st, F, failure=fail)
         return F

@@ -25,6 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
+from upscale.experiments.references import reference_dir
+
 __all__ = ["parse_chirality", "lammps_reference", "GRIPS", "dynamic_scene",
            "quasi_static_tension", "quasi_static_tension_engine", "defect_nve", "tension",
            "TensionRun", "run_tension_comparison", "reference_grip_planes", "reference_held_planes",
@@ -32,8 +34,8 @@ __all__ = ["parse_chirality", "lammps_reference", "GRIPS", "dynamic_scene",
 
 #: the repository's root (``data/reference`` lives there)
 ROOT = Path(__file__).resolve().parents[3]
-#: the stored LAMMPS references
-REFERENCE_DIR = ROOT / "data" / "reference"
+#: the stored LAMMPS references (:func:`upscale.experiments.references.reference_dir`)
+REFERENCE_DIR = reference_dir()
 
 
 def parse_chirality(text: str) -> tuple[int, int]:
@@ -590,7 +592,8 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
     shifts relaxed at every configuration) in a :class:`~upscale.engine.simulation.Simulation`
     and every load step minimised by the engine's L-BFGS-B
     (:class:`upscale.engine.minimisers.LBFGS`, memory 30, ``ftol = sqrt(3) gtol`` so that
-    its per-component gradient test is ``gtol`` eV/Å as in :meth:`DCBRTube.minimise`). The
+    its per-component gradient test is ``gtol`` eV/Å, and line searches of at most 20
+    steps, as in :meth:`DCBRTube.minimise`). The
     zero-stress relaxation, which also relaxes the cell length, is
     :meth:`DCBRTube.minimise` (``relax_box=True``): the cell length is not an engine
     variable. ``checkpoint``: a :class:`~upscale.engine.checkpoint.Checkpoint` written at
@@ -642,7 +645,7 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
     sim = Simulation(system, None, model)
     sim.state.y[...] = y
     sim.state.extra["dcbr.delta"][...] = d
-    lbfgs = LBFGS(ftol=math.sqrt(3.0) * gtol, max_iter=5000, memory=30)
+    lbfgs = LBFGS(ftol=math.sqrt(3.0) * gtol, max_iter=5000, memory=30, maxls=20)
     strains, stresses, energies, lzs, dmax, nbroken = [], [], [], [], [], []
     k, failed_at, Lprev = 0, None, L0
     n_it = n_f = unconverged = 0
