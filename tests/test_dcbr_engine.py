@@ -134,3 +134,81 @@ def test_experiments_tension_api(tmp_path):
     assert r["strength_GPa"] == a.strength_gpa and "positions" not in r
     with pytest.raises(ValueError, match="model='md'; valid"):
         tension(6, 6, 20.0, model="md")
+
+
+def _strained_state(tube, strain=0.04):
+    """A load step's equilibrium of the tube's own joint minimiser (gtol 1e-6): positions,
+    shifts (their gradient ~1e-7 eV/Å, above the model's shift tolerance) and cell."""
+    r0 = tube.minimise(tube.x0, tube.delta, tube.L, relax_box=True, gtol=1e-6)
+    Lz = (1.0 + strain) * r0.Lz
+    y = r0.y.copy()
+    y[:, 2] *= 1.0 + strain
+    r = tube.minimise(y, r0.delta, Lz, gtol=1e-6)
+    return r.y, r.delta, Lz
+
+
+def test_shift_relaxation_reaches_its_tolerance():
+    """The shifts relaxed at a configuration have every gradient component at or below
+    ``shift_gtol`` (1e-10 eV/Å, from ~1e-7 after a joint minimisation: block Newton; an
+    energy-comparing line search stalls there), at the minimum L-BFGS-B finds (the
+    fallback, forced here), and a minimisation by the engine's L-BFGS-B ends there too."""
+    tube = DCBRTube(6, 6, 20.0, coarsening=2)
+    y, d, Lz = _strained_state(tube)
+    sim, model = _sim(tube)
+    model.set_cell(Lz)
+    sim.state.y[...] = y
+    sim.state.extra["dcbr.delta"][...] = d
+    assert np.abs(tube.energy_and_gradient(y, d, Lz)[2]).max() > 1e-9  # not yet relaxed
+    E = model.energy(sim.state)
+    model.hold_internal(True)
+    g = model.internal_gradient(sim.state)["dcbr.delta"]
+    model.hold_internal(False)
+    assert np.abs(g).max() <= model.shift_gtol
+    d_newton = sim.state.extra["dcbr.delta"].copy()
+    fallback = DCBRTubeModel(tube)
+    fallback.NEWTON_ITERATIONS = 0  # L-BFGS-B on the shifts, as before the Newton steps
+    fallback.set_cell(Lz)
+    dd = d.copy()
+    E_lbfgs = fallback._relaxed(np.ascontiguousarray(y), dd)[0]
+    assert E <= E_lbfgs + 1e-9 * abs(E_lbfgs)
+    assert np.abs(d_newton - dd).max() < 1e-8
+    sim.state.y[:, 2] *= 1.01
+    model.set_cell(1.01 * Lz)
+    r = sim.minimise(LBFGS(ftol=np.sqrt(3.0) * 1e-6, memory=30, maxls=20), raise_on_fail=False)
+    assert r.converged
+    model.hold_internal(True)
+    g = model.internal_gradient(sim.state)["dcbr.delta"]
+    model.hold_internal(False)
+    assert np.abs(g).max() <= model.shift_gtol
+
+
+def test_shift_hessian_by_lattice_state_is_the_tubes():
+    """The Newton step with the Hessian blocks of each lattice state computed on the
+    lattice cell (the pristine tube under uniform strain: one state) is the step with the
+    blocks by finite differences of the whole tube's lattice energy."""
+    tube = DCBRTube(6, 6, 20.0, coarsening=2)
+    y, d, Lz = _strained_state(tube)
+    model = DCBRTubeModel(tube)
+    model.set_cell(Lz)
+    E, gy, gd, gL = tube.energy_and_gradient(y, d, Lz)
+    q = tube._q_n.copy()
+    assert np.ptp(q, axis=0).max() < 1e-10  # one lattice state
+    F = tube.gain.deformation(y, np.array([0.0, 0.0, Lz]))
+    lat = tube.lattice
+
+    def lattice_grad(dd):
+        gk, qk = np.empty_like(dd), np.zeros_like(q)
+        from upscale.models import dcbr_kernels as K
+        E = K.coarse_energy(F, tube.S, np.ascontiguousarray(dd), tube.natoms_n, tube.alive,
+                            lat.s, lat.z, lat.sub, lat.R0, lat.iA, lat.iB, lat.candA,
+                            lat.candB, tube.p, tube.e0, np.empty_like(F), gk,
+                            np.empty(tube.N), qk)
+        return E, gk, qk
+
+    by_state = model._newton_step(q, d, gd, lattice_grad, 1e-5)
+    model.HESSIAN_MAX_GROUPS = 0
+    by_tube = model._newton_step(q, d, gd, lattice_grad, 1e-5)
+    assert np.abs(by_state).max() > 0
+    assert np.abs(by_state - by_tube).max() <= 1e-4 * np.abs(by_tube).max()
+    with pytest.raises(ValueError, match="maxls must be >= 1"):
+        LBFGS(maxls=0)

@@ -115,7 +115,7 @@ import numpy as np
 
 from potentials.tersoff import INDEX as TI
 from upscale.constants import EV_PER_A3_IN_GPA, WALL_THICKNESS_A
-from upscale.engine.minimisers import bfgs, lbfgs_b
+from upscale.engine.minimisers import bfgs, lbfgs_b, one_blas_thread
 
 from upscale.models import dcbr_coupling_kernels as CK
 from upscale.models import dcbr_kernels as K
@@ -384,16 +384,19 @@ class LatticeStability:
     def stable(self, q, tol=1e-3) -> bool:
         """True when H + U U^T + tol I is positive definite (Cholesky), i.e. no eigenvalue
         of the Hessian off the zero modes is below -tol (eV/Å^2; the finite-difference
-        noise is ~1e-8)."""
+        noise is ~1e-8). BLAS on one thread (:func:`~upscale.engine.minimisers.one_blas_thread`):
+        a few hundred unknowns, where OpenBLAS's threads on a busy machine made this
+        Cholesky factorisation take 0.2 s instead of 0.5 ms."""
         key = tuple(np.round(np.asarray(q, float), 7))
         if key not in self._cache:
-            H, U = self.hessian(q)
-            A = H + U @ U.T + tol * np.eye(len(H))
-            try:
-                np.linalg.cholesky(A)
-                ok = True
-            except np.linalg.LinAlgError:
-                ok = False
+            with one_blas_thread():
+                H, U = self.hessian(q)
+                A = H + U @ U.T + tol * np.eye(len(H))
+                try:
+                    np.linalg.cholesky(A)
+                    ok = True
+                except np.linalg.LinAlgError:
+                    ok = False
             self._cache[key] = ok
         return self._cache[key]
 
@@ -909,6 +912,18 @@ class DCBRTube:
         return float(np.mean(rho + 0.5 * delta[:, 0]))
 
 
+def _bits_equal(a, b) -> bool:
+    """The same array bit for bit (the model's cache key: the same input gives the same
+    evaluation); a byte compare is several times faster than ``np.array_equal`` for arrays
+    of up to a few thousand numbers, and it is made at every evaluation."""
+    return a.shape == b.shape and a.dtype == b.dtype and a.tobytes() == b.tobytes()
+
+
+def _same(a, b) -> bool:
+    """``np.array_equal`` of two link masks, by their bytes first (:func:`_bits_equal`)."""
+    return _bits_equal(a, b) or np.array_equal(a, b)
+
+
 class DCBRTubeModel:
     """The periodic coarse tube (:class:`DCBRTube`) as an engine model, by composition.
 
@@ -919,11 +934,13 @@ class DCBRTubeModel:
         E*(y) = min_{|delta_c| <= b} E(y, delta; Lz),     F = -dE*/dy = -dE/dy |_{delta*},
 
     (the envelope theorem; ``b`` = :data:`SHIFT_BOUND_FRACTION` a_cc, as
-    :meth:`DCBRTube.minimise`), by L-BFGS-B on the shifts alone at fixed gains (the shift
-    energy is local to each particle's lattice, eq. 5.13, so the gains F_c stay fixed), warm
-    started from the last shifts, which live in ``state.extra["dcbr.delta"]`` (N, 3) and so
-    are checkpointed. Forces are per particle (eV/Å, ``force_kind = "particle"``); masses
-    are the scene's (``natoms_n`` x the carbon mass, amu). The failure rules
+    :meth:`DCBRTube.minimise`), by Newton's method on the shifts alone at fixed gains (the
+    shift energy is local to each particle's lattice, eq. 5.13, so the gains F_c stay fixed
+    and its Hessian is block diagonal; L-BFGS-B where a Newton step is not clean:
+    :meth:`_relaxed`), warm started from the last shifts, which live in
+    ``state.extra["dcbr.delta"]`` (N, 3) and so are checkpointed. Forces are per particle
+    (eV/Å, ``force_kind = "particle"``); masses are the scene's (``natoms_n`` x the carbon
+    mass, amu). The failure rules
     (:meth:`DCBRTube.update_links`, then :meth:`DCBRTube.check_stability` if no link broke)
     are :meth:`break_bonds`; the links live in the tube (``tube.intact``), not in the
     engine's pair family (``needs.pairs`` is False).
@@ -988,7 +1005,7 @@ class DCBRTubeModel:
         li, la = state.extra.get("dcbr.intact"), state.extra.get("dcbr.alive")
         if li is None:
             return
-        if not (np.array_equal(li, t.intact) and np.array_equal(la, t.alive)):
+        if not (_same(li, t.intact) and _same(la, t.alive)):
             t.intact[...] = li
             t._build_gain(t.intact)
             t.alive &= la  # particles failed by the stability rule keep no link either
@@ -1002,10 +1019,60 @@ class DCBRTubeModel:
         self._cache = None
 
     def relax_shifts(self, y, delta) -> np.ndarray:
-        """Mutates ``delta`` (N, 3) to the shifts minimising the energy at positions ``y``."""
+        """Mutates ``delta`` (N, 3) to the shifts minimising the energy at positions ``y``
+        (max |dE/d delta| component <= ``shift_gtol``; :meth:`_relaxed`)."""
+        self._relaxed(np.ascontiguousarray(y), delta)
+        return delta
+
+    #: Newton steps of the shift relaxation before it falls back to L-BFGS-B
+    NEWTON_ITERATIONS = 10
+    #: largest shift component change (Å) of one Newton step; a larger one falls back
+    NEWTON_MAX_STEP = 0.02
+    #: particles whose lattice parameters (lam_t, gam, lam_z, shift) agree to this share
+    #: their Hessian block (Å, and dimensionless for the stretches)
+    HESSIAN_GROUP_TOL = 1e-10
+    #: at most this many distinct lattice states get their blocks from the lattice cell
+    #: (four cell evaluations each); more take three evaluations of the whole tube
+    HESSIAN_MAX_GROUPS = 8
+
+    def _relaxed(self, y, d, start=None, q=None):
+        """Relax the shifts ``d`` (mutated) at positions ``y``; returns the tube's
+        ``energy_and_gradient`` at (y, d) (``start``: that of the unrelaxed (y, d), if known,
+        with ``q`` the lattice states (N, 6) it left in ``tube._q_n``).
+
+        The shift energy is a sum of per-particle terms, each of its own shift alone (the
+        gains fixed), so its Hessian is block diagonal: Newton's method on the (3, 3) blocks,
+        each by forward differences of the gradient (step 1e-5 Å). A block depends only on
+        the particle's lattice state q = (lam_t, gam, lam_z, shift): particles in the same
+        state (to :attr:`HESSIAN_GROUP_TOL`; a pristine periodic tube under uniform strain
+        has one to 1e-14) share it, computed on the lattice cell (four cell evaluations);
+        with more than :attr:`HESSIAN_MAX_GROUPS` states all particles' component k is
+        perturbed at once (three lattice-energy evaluations of the tube). Each step is
+        checked by the lattice energy's gradient alone far from the minimum and, near it
+        (gradient below 1e-5 eV/Å, where one step lands below ``shift_gtol``), by the tube's
+        full evaluation, which the caller needs at the relaxed shifts anyway: from the
+        shifts of a converged joint minimisation one step and one evaluation, where
+        L-BFGS-B, whose line search compares energies, mostly ended on a failed line search
+        after ~20 evaluations with the gradient unchanged (the energy changes by
+        ~gradient^2 / stiffness, below its round-off). A step that is not a clean Newton
+        step (a block not positive definite, a shift moving more than
+        :attr:`NEWTON_MAX_STEP` Å or to its bound, a shift starting on its bound, a gradient
+        that does not fall, a non-finite value) or no convergence in
+        :attr:`NEWTON_ITERATIONS` steps falls back to L-BFGS-B
+        (:func:`~upscale.engine.minimisers.lbfgs_b`, memory 10, shifts bounded by +-b) from
+        the start."""
         t = self.tube
         if not t.relax_shift:
-            return delta
+            return t.energy_and_gradient(y, d, self.Lz)
+        b = t.shift_bound
+        if np.any(np.abs(d) > b):
+            np.clip(d, -b, b, out=d)
+            start = None
+        d0 = d.copy()
+        out = self._newton_shifts(y, d, start, q, b)
+        if out is not None:
+            d[...], res = out
+            return res
         Fg = t.gain.deformation(y, np.array([0.0, 0.0, self.Lz]))
         lat = t.lattice
         P = np.empty_like(Fg)
@@ -1022,12 +1089,122 @@ class DCBRTubeModel:
                 return np.inf, np.zeros_like(dv)
             return E, gd.ravel().copy()
 
-        b = t.shift_bound
-        x0 = np.clip(delta.ravel(), -b, b)
-        r = lbfgs_b(fun, x0, -b, b, gtol=self.shift_gtol, max_iter=1000, memory=10,
+        r = lbfgs_b(fun, d0.ravel(), -b, b, gtol=self.shift_gtol, max_iter=1000, memory=10,
                     ftol=1e-15, maxfun=15000)
-        delta[...] = r.x.reshape(t.N, 3)
-        return delta
+        d[...] = r.x.reshape(t.N, 3)
+        return t.energy_and_gradient(y, d, self.Lz)
+
+    def _newton_shifts(self, y, d, res, q, b, h: float = 1e-5):
+        """Block-diagonal Newton on the shifts from ``d`` (:meth:`_relaxed`; ``res``, ``q``:
+        the tube's evaluation there and its lattice states, or None): ``(relaxed shifts,
+        their evaluation)``, or None where it must fall back."""
+        t = self.tube
+        lat = t.lattice
+        alive = t.alive
+        work = {}
+
+        def lattice_grad(dd):  # the lattice energy alone: (E, dE/d delta, q), no side effect
+            if not work:
+                Fg = t.gain.deformation(y, np.array([0.0, 0.0, self.Lz]))
+                work.update(F=Fg, P=np.empty_like(Fg), e=np.empty(t.N))
+            gk, qk = np.empty((t.N, 3)), np.zeros((t.N, 6))
+            E = K.coarse_energy(work["F"], t.S, np.ascontiguousarray(dd), t.natoms_n, t.alive,
+                                lat.s, lat.z, lat.sub, lat.R0, lat.iA, lat.iB, lat.candA,
+                                lat.candB, t.p, t.e0, work["P"], gk, work["e"], qk)
+            return E, gk, qk
+
+        def full(dd):
+            return t.energy_and_gradient(y, dd, self.Lz)
+
+        if not alive.any():
+            return d, res if res is not None else full(d)
+        if res is not None and q is not None:
+            E, gd = res[0], res[2]
+        else:
+            res = None
+            E, gd, q = lattice_grad(d)
+        if not (np.isfinite(E) and np.all(np.isfinite(gd))):
+            return None
+        gmax = float(np.abs(gd[alive]).max())
+        if gmax <= self.shift_gtol:
+            return d, res if res is not None else full(d)
+        if np.any(np.abs(d[alive]) >= b):  # a shift on its bound: the bounded method decides
+            return None
+        for _ in range(self.NEWTON_ITERATIONS):
+            step = self._newton_step(q, d, gd, lattice_grad, h)
+            if step is None or not (np.all(np.isfinite(step))
+                                    and np.abs(step).max() <= self.NEWTON_MAX_STEP):
+                return None
+            dn = d.copy()
+            dn[alive] += step
+            if np.any(np.abs(dn[alive]) >= b):
+                return None
+            if gmax <= 1e-5:
+                res = full(dn)
+                En, gn, qn = res[0], res[2], t._q_n
+            else:
+                res = None
+                En, gn, qn = lattice_grad(dn)
+            if not (np.isfinite(En) and np.all(np.isfinite(gn))):
+                return None
+            gn_max = float(np.abs(gn[alive]).max())
+            if not gn_max < gmax:
+                return None
+            d, gd, gmax, q = dn, gn, gn_max, qn
+            if gmax <= self.shift_gtol:
+                return d, res if res is not None else full(d)
+        return None
+
+    def _newton_step(self, q, d, gd, lattice_grad, h):
+        """The alive particles' Newton steps -H_c^-1 g_c (n, 3) on their shifts ``d``
+        (gradient ``gd``, lattice states ``q`` (N, 6) as the energy kernel left them), the
+        blocks H_c = d^2E/d delta_c^2 by forward differences (:meth:`_relaxed`: per lattice
+        state on the lattice cell, or by three evaluations of the tube's lattice energy);
+        None if a block is not positive definite."""
+        t = self.tube
+        lat = t.lattice
+        alive = t.alive
+        ga = gd[alive]
+        qa = q[alive]
+        tol = self.HESSIAN_GROUP_TOL
+        if np.abs(qa - qa[0]).max() <= tol:  # one state (a pristine tube under uniform load)
+            first, inverse = np.zeros(1, np.int64), np.zeros(len(qa), np.int64)
+        else:
+            _, first, inverse = np.unique(np.round(qa / tol), axis=0, return_index=True,
+                                          return_inverse=True)
+            inverse = inverse.ravel()
+        if len(first) <= self.HESSIAN_MAX_GROUPS:
+            P = len(lat.s)
+            pos, gpos, g0, gk = np.empty((P, 3)), np.empty((P, 3)), np.empty(6), np.empty(6)
+            Hg = np.empty((len(first), 3, 3))  # per atom: x N_c per particle
+            for i, r in enumerate(first):
+                qr = np.array(qa[r], dtype=float)
+                K.cell_energy_grad(qr, lat.s, lat.z, lat.sub, lat.R0, lat.iA, lat.iB,
+                                   lat.candA, lat.candB, t.p, pos, gpos, g0)
+                for k in range(3):
+                    qk = qr.copy()
+                    qk[3 + k] += h
+                    K.cell_energy_grad(qk, lat.s, lat.z, lat.sub, lat.R0, lat.iA, lat.iB,
+                                       lat.candA, lat.candB, t.p, pos, gpos, gk)
+                    Hg[i, :, k] = (gk[3:] - g0[3:]) / h
+            Hg = 0.5 * (Hg + np.transpose(Hg, (0, 2, 1)))
+            try:
+                np.linalg.cholesky(Hg)
+            except np.linalg.LinAlgError:
+                return None
+            Hinv = np.linalg.inv(Hg)
+            return -np.einsum("nij,nj->ni", Hinv[inverse], ga) / t.natoms_n[alive][:, None]
+        H = np.empty((len(qa), 3, 3))
+        for k in range(3):
+            dk = d.copy()
+            dk[:, k] += h
+            H[:, :, k] = (lattice_grad(dk)[1][alive] - ga) / h
+        try:
+            Lc = np.linalg.cholesky(0.5 * (H + np.transpose(H, (0, 2, 1))))
+        except np.linalg.LinAlgError:
+            return None
+        return -np.linalg.solve(np.transpose(Lc, (0, 2, 1)),
+                                np.linalg.solve(Lc, ga[:, :, None]))[:, :, 0]
 
     # the shifts as a massless internal field minimised with the positions (engine L-BFGS-B)
     @property
@@ -1039,9 +1216,10 @@ class DCBRTubeModel:
 
     def hold_internal(self, flag: bool) -> None:
         """While held, the shifts are taken as they are in ``state.extra`` (a minimiser
-        moves them); else they are relaxed at every configuration."""
+        moves them); else they are relaxed at every configuration. The last evaluation is
+        kept: at the same positions and shifts it is the held one, and the start of the
+        relaxation when the hold ends (a minimiser's last iterate)."""
         self._held = bool(flag)
-        self._cache = None
 
     def internal_gradient(self, state) -> dict:
         """``{"dcbr.delta": dE/d delta (N, 3)}`` (eV/Å) at the state's shifts."""
@@ -1056,13 +1234,22 @@ class DCBRTubeModel:
         y = np.ascontiguousarray(state.y)
         d = state.extra["dcbr.delta"]
         c = self._cache
-        if c is not None and c[0] == self.Lz and np.array_equal(c[1], y) and \
-                (not self._held or np.array_equal(c[6], d)):
-            return c[2], c[3], c[4], c[5]
-        if not self._held:
-            self.relax_shifts(y, d)
-        E, gy, gd, gL = self.tube.energy_and_gradient(y, d, self.Lz)
-        self._cache = (self.Lz, y.copy(), E, gy, gL, gd, d.copy())
+        start = q = None
+        # cache: (Lz, y, E, dE/dy, dE/dLz, dE/d delta, delta, shifts relaxed there, the
+        # lattice states (N, 6) of that evaluation)
+        if c is not None and c[0] == self.Lz and _bits_equal(c[1], y):
+            if c[7] and not self._held:
+                return c[2], c[3], c[4], c[5]
+            if _bits_equal(c[6], d):
+                if self._held:
+                    return c[2], c[3], c[4], c[5]
+                start, q = (c[2], c[3], c[5], c[4]), c[8]  # held there: the relaxation's start
+        if self._held:
+            E, gy, gd, gL = self.tube.energy_and_gradient(y, d, self.Lz)
+        else:
+            E, gy, gd, gL = self._relaxed(y, d, start, q)
+        self._cache = (self.Lz, y.copy(), E, gy, gL, gd, d.copy(), not self._held,
+                       self.tube._q_n)
         return E, gy, gL, gd
 
     # ------------------------------------------------------------------ the contract
