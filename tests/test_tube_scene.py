@@ -2,6 +2,7 @@
 protocol objects refuse what they cannot run, the figures follow the stated rules."""
 import json
 import math
+import os
 
 import numpy as np
 import pytest
@@ -78,7 +79,11 @@ def test_result_round_trip_compare_csv_plot(tmp_path):
                "curve/stress_GPa": [0, 50.0], "other/x": [1, 2, 3]},
                fields={"x0": np.zeros((2, 3)), "damage": [0.0, 1.0]},
                meta={"scene": "demo", "schema": 1})
-    back = Result.from_json(r.to_json(tmp_path / "r.json"))
+    path = r.to_json(tmp_path / "r.json")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert path.stat().st_mode & 0o777 == 0o666 & ~mask      # not mkstemp's 0600
+    back = Result.from_json(path)
     assert back.figures == r.figures and np.array_equal(back.fields["x0"], r.fields["x0"])
     ref = Result(figures={"strength_GPa": 80.0}, meta={"scene": "demo"})
     assert r.compare(ref)["strength_GPa"] == pytest.approx(25.0)
