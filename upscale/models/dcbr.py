@@ -1029,8 +1029,10 @@ class DCBRTubeModel:
     #: largest shift component change (Å) of one Newton step; a larger one falls back
     NEWTON_MAX_STEP = 0.02
     #: particles whose lattice parameters (lam_t, gam, lam_z, shift) agree to this share
-    #: their Hessian block (Å, and dimensionless for the stretches)
-    HESSIAN_GROUP_TOL = 1e-10
+    #: their Hessian block (Å, and dimensionless for the stretches): the block then errs by
+    #: ~1e-5 relative, and a Newton step still divides the gradient by ~1e5 (a joint
+    #: minimisation leaves the particles of a pristine tube 1e-10 to 1e-8 apart)
+    HESSIAN_GROUP_TOL = 1e-6
     #: at most this many distinct lattice states get their blocks from the lattice cell
     #: (four cell evaluations each); more take three evaluations of the whole tube
     HESSIAN_MAX_GROUPS = 8
@@ -1045,7 +1047,7 @@ class DCBRTubeModel:
         each by forward differences of the gradient (step 1e-5 Å). A block depends only on
         the particle's lattice state q = (lam_t, gam, lam_z, shift): particles in the same
         state (to :attr:`HESSIAN_GROUP_TOL`; a pristine periodic tube under uniform strain
-        has one to 1e-14) share it, computed on the lattice cell (four cell evaluations);
+        has one) share it, computed on the lattice cell (four cell evaluations);
         with more than :attr:`HESSIAN_MAX_GROUPS` states all particles' component k is
         perturbed at once (three lattice-energy evaluations of the tube). Each step is
         checked by the lattice energy's gradient alone far from the minimum and, near it
