@@ -445,8 +445,10 @@ class LBFGS:
             for m, name, _ in fields:
                 m.hold_internal(True)
 
+        free_y = slice(None) if ny == yflat.size else idx  # every dof free: no gather
+
         def put(x):
-            yflat[idx] = x[:ny]
+            yflat[free_y] = x[:ny]
             for (m, name, _), sl in zip(fields, fsl):
                 st.extra[name].reshape(-1)[...] = x[sl]
 
@@ -463,10 +465,10 @@ class LBFGS:
             if loaded:
                 e -= float(np.sum(ext * (st.y - st.x0)))
                 F += ext
-            g = -F.reshape(-1)[idx]
-            if fields:
-                g = np.concatenate([g] + [m.internal_gradient(st)[name].reshape(-1)
-                                          for m, name, _ in fields])
+            g = np.empty(x.size)  # a new array: scipy keeps the last gradient
+            np.negative(F.reshape(-1)[free_y], out=g[:ny])
+            for (m, name, _), sl in zip(fields, fsl):
+                g[sl] = m.internal_gradient(st)[name].reshape(-1)
             if not (math.isfinite(e) and np.isfinite(g).all()):
                 return np.inf, np.zeros_like(x)
             return e, g
