@@ -55,7 +55,7 @@ by a dead load taken from a pristine twin at the load step's uniform state
 (:meth:`prepare_step`; per side of the region in dynamics, :meth:`prepare_sides`), applied in
 cylindrical components about the rows' centroid so that a rigid turn or shift of the tube
 costs nothing (:meth:`energy_and_gradient`); the periodic tube's turn is pinned by two
-particles (:meth:`_rotation_pins`).
+particles (:meth:`rotation_pins`).
 
 Failure: free atoms break their own bonds through the potential (step cutoff at R + D =
 2.1 Å); coarse particles keep the two rules of :mod:`upscale.models.dcbr` (the lattice
@@ -67,7 +67,7 @@ The step cutoff and minimisation (``step_crossing``, :meth:`minimise`): with the
 energy jumps where a pair crosses 2.1 Å, so a gradient minimiser stops with a pair held at
 the step and a force left on it. The LAMMPS references' quasi-static protocol then runs
 damped dynamics (``quickmin``), which feels only forces and goes through, and CG again.
-``"damped"`` (default) does the same here (:meth:`_quickmin`, LAMMPS's settings: 1 fs,
+``"damped"`` (default) does the same here (:meth:`quickmin`, LAMMPS's settings: 1 fs,
 0.02 Å per step at most, 5000 steps, up to 3 cycles while a force component exceeds
 1e-4 eV/Å). ``"energy"`` crosses only where that lowers the re-minimised energy; with it
 the vacancy tube fails far too late, because the pair across the vacancy that LAMMPS's
@@ -861,7 +861,7 @@ class DCBRDefectTube(DCBRTube):
         if relax_box:
             return self._relax_zero_stress(gtol, maxiter)
         if fixed is None and self.periodic:
-            fixed = self._rotation_pins(y)
+            fixed = self.rotation_pins(y)
 
         def lbfgs(y_, d_):
             return DCBRTube.minimise(self, y_, d_, Lz, relax_box=False, gtol=gtol,
@@ -872,7 +872,7 @@ class DCBRDefectTube(DCBRTube):
             # the LAMMPS references' quasi-static protocol: while a force component above
             # 1e-4 eV/Å is left (a pair held at the step), damped dynamics, which feels the
             # forces only and so goes through the step, then L-BFGS again; at most 3 cycles
-            out, n = restarted(out, lambda o: lbfgs(*self._quickmin(o.y, o.delta, Lz, fixed=fixed)),
+            out, n = restarted(out, lambda o: lbfgs(*self.quickmin(o.y, o.delta, Lz, fixed=fixed)),
                                done=lambda o: o.max_force <= 1e-4, max_restarts=3)
             out.info["damped_cycles"] = n
             return out
@@ -1037,7 +1037,7 @@ class DCBRDefectTube(DCBRTube):
         w = np.maximum(self.natoms_n, 0.5 * self.nominal) * CARBON_MASS
         return np.concatenate([w[self.dof_idx], np.full(self.nf, CARBON_MASS)]), w / 4.0
 
-    def _quickmin(self, y, delta, Lz, steps: int = 5000, dt: float = 1.0, dmax: float = 0.02,
+    def quickmin(self, y, delta, Lz, steps: int = 5000, dt: float = 1.0, dmax: float = 0.02,
                   ftol: float = 1e-3, fixed=None):
         """Damped dynamics as LAMMPS's ``min_style quickmin``
         (:func:`upscale.engine.minimisers.quick_min_blocks` on the positions and the shifts):
@@ -1061,7 +1061,7 @@ class DCBRDefectTube(DCBRTube):
                              acc=ACC_UNIT)
         return r.x[0], r.x[1]
 
-    def _rotation_pins(self, y):
+    def rotation_pins(self, y):
         """Mask holding the rigid turn about the axis (a zero mode of the periodic tube, which
         the minimiser otherwise wanders along, as far as 140 deg): the arc-wise component of
         two carrying particles at opposite sides of the row farthest from the vacancy, the

@@ -52,10 +52,12 @@ from upscale.constants import ACC_EV_A_AMU_IN_A_FS2, CARBON_MASS_AMU
 # and the fast group's methods run thousands of times per simulated ps)
 from upscale.models import dcbr_coupling_kernels as CK
 
-__all__ = ["DCBRDefectTubeModel", "FIELD"]
+__all__ = ["DCBRDefectTubeModel", "FIELD", "STATIC"]
 
 #: the name of the sublattice-shift field
 FIELD = "dcbr.delta"
+#: the particles' shifts as a minimiser's internal field (:meth:`DCBRDefectTubeModel.static_shifts`)
+STATIC = "dcbr.delta.static"
 
 _GHOST = ("y", "d", "gy", "gd")
 
@@ -173,6 +175,7 @@ class DCBRDefectTubeModel:
         self._ghost_version = 0
         self._map = None
         self._synced = None
+        self._static = False  # the shifts a minimiser's internal field (static_shifts)
         self.system_ = None
 
     # ------------------------------------------------------------------ rows and masses
@@ -356,14 +359,14 @@ class DCBRDefectTubeModel:
         if self._is_current(c, y, d):
             return c[3]
         t = self.tube
-        E, gy, gd, _ = t.energy_and_gradient(y, d, self.Lz)
+        E, gy, gd, dL = t.energy_and_gradient(y, d, self.Lz)
         ex = state.extra
         if "dcbr.fs_last" in ex:
             ex["dcbr.fs_last"][...] = t.last_maps
             ref = t.neighbour_reference
             if ref is not None and not np.array_equal(ref, ex["dcbr.nl_x"]):
                 ex["dcbr.nl_x"][...] = ref
-        out = (float(E), gy, gd)
+        out = (float(E), gy, gd, float(dL))
         self._cache = (self._version, y, np.array(d, copy=True), out)
         return out
 
@@ -759,6 +762,97 @@ class DCBRDefectTubeModel:
         nb = t.update_links()
         if self.stability if stability is None else stability:
             nb += t.check_stability()
+        if nb:
+            self._changed()
+            ex = state.extra
+            if "dcbr.intact" in ex:
+                ex["dcbr.intact"][...] = t.intact
+                ex["dcbr.alive"][...] = t.alive
+        return int(nb)
+
+    # ------------------------------------------------------------------ quasi-static hooks
+    def set_cell(self, Lz: float) -> None:
+        """The cell length the energy is called with (Å): the load of a periodic tube's
+        quasi-static tension (the ghost-force correction is keyed on it: refresh it with
+        the tube's ``prepare_step(Lz)`` and :meth:`store_ghost`)."""
+        if not (np.isfinite(Lz) and Lz > 0):
+            raise ValueError(f"Lz={Lz!r}; valid: a positive cell length (Å)")
+        self.Lz = float(Lz)
+        self._changed()
+
+    def static_shifts(self, state, on: bool = True) -> None:
+        """With ``on``, the particles' shifts are a massless internal field of the engine's
+        minimisers (:class:`~upscale.engine.minimisers.LBFGS` minimises them with the
+        positions, within +-the tube's ``shift_bound``), ``state.extra[STATIC]``: a view of
+        the shift field's particle rows, so the field is what the minimiser moves. Off
+        (default): the shifts are a field with inertia only (dynamics). Nothing without the
+        tube's shift relaxation."""
+        self._static = bool(on) and bool(self.tube.relax_shift)
+        if self._static:
+            v = state.fields[FIELD][:self.N]
+            if not v.flags.c_contiguous:
+                raise ValueError("the shift field is not C-contiguous; valid: the field of "
+                                 "init_state")
+            state.extra[STATIC] = v
+        else:
+            state.extra.pop(STATIC, None)
+
+    @property
+    def internal_fields(self) -> dict:
+        """``{STATIC: (-b, b)}`` while :meth:`static_shifts` is on, else empty."""
+        if not self._static:
+            return {}
+        b = self.tube.shift_bound
+        return {STATIC: (-b, b)}
+
+    def hold_internal(self, flag: bool) -> None:
+        """(The shifts are never relaxed by the model itself: nothing to hold.)"""
+
+    def internal_gradient(self, state) -> dict:
+        """``{STATIC: dE/d delta (N, 3)}`` (eV/Å) at the state."""
+        return {STATIC: self._evaluate(state)[2]}
+
+    def cell_force(self, state) -> float:
+        """dE/dLz (eV/Å) at the state: the axial force the periodic tube carries (with the
+        ghost-force correction's term, :meth:`DCBRDefectTube.energy_and_gradient`)."""
+        return self._evaluate(state)[3]
+
+    def max_force(self, state) -> float:
+        """Largest component of dE/d(unknowns) (eV/Å; the non-slave particles and the free
+        atoms, held components too): the test of the tube's damped restarts
+        (:meth:`DCBRDefectTube.minimise`)."""
+        return float(np.abs(self._evaluate(state)[1]).max())
+
+    def rotation_pins(self) -> np.ndarray:
+        """(n, 3) bool over the rows: the components that hold the periodic tube's rigid turn
+        about its axis (:meth:`DCBRDefectTube.rotation_pins`), for a minimiser's bounds."""
+        rows = np.zeros((self.n, 3), bool)
+        rows[self.y_rows] = self.tube.rotation_pins(None)
+        return rows
+
+    def damped_relax(self, state, fixed=None) -> None:
+        """The tube's damped dynamics (:meth:`DCBRDefectTube.quickmin`, LAMMPS's quickmin
+        settings) from the state, which it moves (rows, slaves interpolated, and shifts);
+        ``fixed``: (n, 3) bool over the rows held (e.g. :meth:`rotation_pins`)."""
+        self._sync(state)
+        y, d = self.unknowns(state)
+        fx = None if fixed is None else np.asarray(fixed, bool)[self.y_rows]
+        y, d = self.tube.quickmin(y, np.array(d, copy=True), self.Lz, fixed=fx)
+        state.y[...] = self.rows(y)
+        state.fields[FIELD][:self.N] = d
+
+    def break_links_in_turn(self, state) -> int:
+        """The quasi-static driver's failure rules at the current state: the link rule
+        (:meth:`DCBRDefectTube.update_links`) and, only where no link broke, the tube's
+        lattice-stability rule (its ``check_stability(all_equal=True)``), on a fresh
+        evaluation of this configuration; returns the number broken (links go to
+        ``state.extra``)."""
+        self._cache = None  # the rules read the lattice state of this very configuration
+        self._evaluate(state)
+        t = self.tube
+        nb = t.update_links()
+        if nb == 0:
+            nb = t.check_stability(all_equal=True)
         if nb:
             self._changed()
             ex = state.extra

@@ -619,10 +619,19 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
     from upscale.engine.simulation import Simulation
     from upscale.engine.system import ParticleSystem
     from upscale.models.dcbr import DCBRTubeModel
+    from upscale.models.dcbr_defect import DCBRDefectTube
 
     if not (0 < strain_step < max_strain <= 2.0):
         raise ValueError(f"strain_step={strain_step}, max_strain={max_strain}; valid: "
                          "0 < strain_step < max_strain <= 2")
+    defect = isinstance(tube, DCBRDefectTube)
+    if defect and (checkpoint is not None or resume):
+        raise ValueError("checkpoint / resume with a DCBRDefectTube; valid: the pristine "
+                         "DCBRTube (the defect tube's quasi-static run is not checkpointed)")
+    if defect and (tube.step_crossing != "damped" or not tube.periodic):
+        raise ValueError(f"a DCBRDefectTube with step_crossing={tube.step_crossing!r}, "
+                         f"periodic={tube.periodic}; valid: the periodic tube with "
+                         "step_crossing='damped'")
     t0 = time.perf_counter()
     restored = None
     if resume and checkpoint is not None and checkpoint.path.is_file():
@@ -634,18 +643,51 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
                              f"tension ({restored[1].get('scene')!r})")
         y, d, L0 = restored[0].y, restored[0].extra["dcbr.delta"], restored[1]["L0_A"]
     else:
-        r0 = tube.minimise(tube.x0, tube.delta, tube.L, relax_box=True, gtol=gtol)
+        r0 = tube.minimise(getattr(tube, "y_init", tube.x0), tube.delta, tube.L,
+                           relax_box=True, gtol=gtol)
         y, d, L0 = r0.y, r0.delta, r0.Lz
     R = tube.radius(y, d) if restored is None else restored[1]["radius_relaxed_A"]
     area = 2 * math.pi * R * WALL_THICKNESS_A
-    # a particle's mass: its atoms (volume = atoms, density = the carbon mass)
-    system = ParticleSystem(tube.x0, tube.natoms_n, CARBON_MASS_AMU,
-                            spacing=float(min(tube.spacing)), units="atomic")
-    model = DCBRTubeModel(tube, shift_gtol=shift_gtol)
-    sim = Simulation(system, None, model)
-    sim.state.y[...] = y
-    sim.state.extra["dcbr.delta"][...] = d
     lbfgs = LBFGS(ftol=math.sqrt(3.0) * gtol, max_iter=5000, memory=30, maxls=20)
+    if defect:  # the rows: particles (slaves tied to their atoms), then the free atoms
+        from upscale.models.dcbr_engine import FIELD, DCBRDefectTubeModel
+
+        model = DCBRDefectTubeModel(tube, y=y, delta=d, Lz=L0)
+        sim = Simulation(model.system(), None, model, model.conditions())
+        model.static_shifts(sim.state)  # minimised with the positions
+        pins = model.rotation_pins()  # the rigid turn about the axis held
+        shift_field = sim.state.fields[FIELD]
+    else:
+        # a particle's mass: its atoms (volume = atoms, density = the carbon mass)
+        system = ParticleSystem(tube.x0, tube.natoms_n, CARBON_MASS_AMU,
+                                spacing=float(min(tube.spacing)), units="atomic")
+        model = DCBRTubeModel(tube, shift_gtol=shift_gtol)
+        sim = Simulation(system, None, model)
+        sim.state.y[...] = y
+        sim.state.extra["dcbr.delta"][...] = d
+        shift_field = sim.state.extra["dcbr.delta"]
+
+    def relax():  # one minimisation at the current cell: (iterations, evaluations, converged)
+        if not defect:
+            r = sim.minimise(lbfgs, raise_on_fail=False)
+            return r.iterations, r.n_force, r.converged
+        lbfgs.bounds = (np.where(pins, sim.state.y, -np.inf), np.where(pins, sim.state.y, np.inf))
+        r = sim.minimise(lbfgs, raise_on_fail=False)
+        it, nf = r.iterations, r.n_force
+        # the tube's restarts (DCBRDefectTube.minimise, step_crossing "damped"): while a
+        # force component above 1e-4 eV/Å is left (a pair held at the step cutoff), damped
+        # dynamics, which goes through the step, then L-BFGS again; at most 3 cycles
+        for _ in range(3):
+            if model.max_force(sim.state) <= 1e-4:
+                break
+            model.damped_relax(sim.state, pins)
+            lbfgs.bounds = (np.where(pins, sim.state.y, -np.inf),
+                            np.where(pins, sim.state.y, np.inf))
+            r = sim.minimise(lbfgs, raise_on_fail=False)
+            it, nf = it + r.iterations, nf + r.n_force
+        return it, nf, r.converged
+
+    break_links = model.break_links_in_turn if defect else model.break_bonds
     strains, stresses, energies, lzs, dmax, nbroken = [], [], [], [], [], []
     k, failed_at, Lprev = 0, None, L0
     n_it = n_f = unconverged = 0
@@ -668,11 +710,14 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
         sim.state.y[:, 2] *= Lz / Lprev
         Lprev = Lz
         model.set_cell(Lz)
+        if defect:  # the ghost-force correction of this load step
+            tube.prepare_step(Lz)
+            model.store_ghost(sim.state)
         for _ in range(4 * tube.N + 10):
-            r = sim.minimise(lbfgs, raise_on_fail=False)
-            n_it, n_f = n_it + r.iterations, n_f + r.n_force
-            unconverged += not r.converged
-            nb = model.break_bonds(sim.state)
+            it, nf, ok = relax()
+            n_it, n_f = n_it + it, n_f + nf
+            unconverged += not ok
+            nb = break_links(sim.state)
             if nb == 0 or not tube.alive.any():
                 break
         s = model.cell_force(sim.state) / area * EV_PER_A3_IN_GPA
@@ -702,7 +747,8 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
         k += 1
     res = {"model": "dcbr", "driver": "engine", "protocol": "quasi-static",
            "chirality": [tube.lattice.n, tube.lattice.m], "coarsening": tube.coarsening,
-           "particles": tube.N, "dof": 3 * tube.N, "internal_dof": 3 * tube.N if tube.relax_shift else 0,
+           "particles": tube.N, "dof": getattr(tube, "dof", 3 * tube.N),
+           "internal_dof": 3 * tube.N if tube.relax_shift else 0,
            "atoms": tube.n_atoms, "L0_A": float(L0), "radius_relaxed_A": R, "area_A2": area,
            "area": "2 pi R t, R = mean wall radius after zero-stress relaxation, t = 3.4 A",
            "strain_step": strain_step,
@@ -712,8 +758,12 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
                          "minimisations_above_tolerance": unconverged}}
     res.update(curve_metrics(strains, stresses, fit_max_strain=fit_max_strain))
     res["damage"] = tube.damage
-    res["positions"] = sim.state.y.copy()
-    res["delta"] = sim.state.extra["dcbr.delta"].copy()
+    if defect:  # the tube's unknowns (non-slave particles, then free atoms) and shifts
+        yu, du = model.unknowns(sim.state)
+        res["positions"], res["delta"] = yu, np.array(du, copy=True)
+    else:
+        res["positions"] = sim.state.y.copy()
+        res["delta"] = shift_field.copy()
     res["wall_s"] = time.perf_counter() - t0
     return res
 
