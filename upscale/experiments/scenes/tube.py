@@ -267,9 +267,8 @@ def _stored_reference(atoms, proto, potential) -> dict | None:
 def _run_dcbr(atoms, proto, coarsening, potential, show) -> dict:
     """Today's coarse tube: the pristine periodic tube on the engine, or the seed's tube with
     the 4-atom vacancy (told apart by ``atoms.info`` of :mod:`upscale.build`); quasi-static
-    tension only."""
-    from upscale.experiments.scenes.tube_tension import (quasi_static_tension,
-                                                         quasi_static_tension_engine)
+    tension only, both on the engine (:func:`quasi_static_tension_engine`)."""
+    from upscale.experiments.scenes.tube_tension import quasi_static_tension_engine
 
     if not isinstance(proto, QuasiStatic) or proto.load != "tension" or not proto.periodic:
         raise ValueError("model='dcbr' runs quasi-static periodic tension only until the "
@@ -291,7 +290,7 @@ def _run_dcbr(atoms, proto, coarsening, potential, show) -> dict:
 
         tube = DCBRDefectTube(n, m, L, coarsening=coarsening, vacancy=4,
                               potential=f"tersoff:{potential}")
-        res = quasi_static_tension(tube, **qs)
+        res = quasi_static_tension_engine(tube, **qs)
     else:
         from upscale.models.dcbr import DCBRTube
 

@@ -605,6 +605,22 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
     load step's minimisation starts afresh, so the resumed run ends bit for bit where the
     uninterrupted one does.
 
+    The vacancy tube (:class:`~upscale.models.dcbr_defect.DCBRDefectTube`, periodic,
+    ``step_crossing="damped"``) runs through the same loop as the engine model
+    :class:`~upscale.models.dcbr_engine.DCBRDefectTubeModel` (rows: its particles, the slaves
+    tied to their atoms, then its free atoms): its zero-stress relaxation is its own
+    ``minimise(relax_box=True)``; at every load step its ghost-force correction is taken at
+    the new cell length (``prepare_step``, :meth:`~DCBRDefectTubeModel.store_ghost`); the
+    engine's L-BFGS-B minimises the positions and the shifts together (the shifts its
+    internal field, :meth:`~DCBRDefectTubeModel.static_shifts`, within the tube's
+    ``shift_bound``), with the rigid turn about the axis held by bounds
+    (:meth:`~DCBRDefectTubeModel.rotation_pins`); while a force component above 1e-4 eV/Å is
+    left, the tube's damped dynamics and L-BFGS-B again, at most 3 times (its
+    ``minimise``); the failure rules are the link rule and, where no link broke, the
+    stability rule (:meth:`~DCBRDefectTubeModel.break_links_in_turn`). ``positions`` and
+    ``delta`` are then the tube's unknowns (non-slave particles, then free atoms) and
+    shifts; ``checkpoint`` / ``resume`` are for the pristine tube only.
+
     Returns the dict of :func:`quasi_static_tension` (``curve``, the
     metrics of :func:`upscale.analysis.stress.curve_metrics`, ``L0_A``,
     ``radius_relaxed_A``, ``damage``, ``positions``, ``delta``, ``wall_s``) plus
