@@ -134,3 +134,24 @@ def test_engine_loop_equals_the_scene_loop_to_round_off():
     assert abs(a[0] - b[0]) < 1e-9 * max(abs(a[0]), 1.0)
     assert np.abs(a - b).max() < 1e-3
     assert out[1]["youngs_modulus_TPa"] == pytest.approx(out[0]["youngs_modulus_TPa"], rel=1e-4)
+
+
+def test_quasi_static_engine_driver_reproduces_the_old_loop():
+    """The vacancy tube's quasi-static tension on the engine (quasi_static_tension_engine:
+    DCBRDefectTubeModel, the engine's L-BFGS-B on positions and shifts, ghost correction
+    per load step) gives the old load-step loop's stresses and modulus to 1e-6 relative;
+    its positions and shifts are the tube's unknowns."""
+    from upscale.experiments.scenes.tube_tension import (quasi_static_tension,
+                                                         quasi_static_tension_engine)
+
+    a = quasi_static_tension(DCBRDefectTube(6, 6, 30.0, vacancy=4, **KW), max_strain=0.02)
+    t = DCBRDefectTube(6, 6, 30.0, vacancy=4, **KW)
+    b = quasi_static_tension_engine(t, max_strain=0.02)
+    sa, sb = np.array(a["curve"]["stress_GPa"]), np.array(b["curve"]["stress_GPa"])
+    assert len(sa) == len(sb) == 5
+    assert np.abs(sb[1:] / sa[1:] - 1).max() < 1e-6
+    assert b["youngs_modulus_TPa"] == pytest.approx(a["youngs_modulus_TPa"], rel=1e-6)
+    assert b["L0_A"] == a["L0_A"] and b["dof"] == a["dof"] == t.dof
+    assert b["positions"].shape == a["positions"].shape and b["delta"].shape == (t.N, 3)
+    with pytest.raises(ValueError, match="checkpoint"):
+        quasi_static_tension_engine(t, resume=True)

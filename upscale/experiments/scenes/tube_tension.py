@@ -666,13 +666,12 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
     area = 2 * math.pi * R * WALL_THICKNESS_A
     lbfgs = LBFGS(ftol=math.sqrt(3.0) * gtol, max_iter=5000, memory=30, maxls=20)
     if defect:  # the rows: particles (slaves tied to their atoms), then the free atoms
-        from upscale.models.dcbr_engine import FIELD, DCBRDefectTubeModel
+        from upscale.models.dcbr_engine import DCBRDefectTubeModel
 
         model = DCBRDefectTubeModel(tube, y=y, delta=d, Lz=L0)
         sim = Simulation(model.system(), None, model, model.conditions())
         model.static_shifts(sim.state)  # minimised with the positions
         pins = model.rotation_pins()  # the rigid turn about the axis held
-        shift_field = sim.state.fields[FIELD]
     else:
         # a particle's mass: its atoms (volume = atoms, density = the carbon mass)
         system = ParticleSystem(tube.x0, tube.natoms_n, CARBON_MASS_AMU,
@@ -681,7 +680,6 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
         sim = Simulation(system, None, model)
         sim.state.y[...] = y
         sim.state.extra["dcbr.delta"][...] = d
-        shift_field = sim.state.extra["dcbr.delta"]
 
     def relax():  # one minimisation at the current cell: (iterations, evaluations, converged)
         if not defect:
@@ -779,7 +777,7 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
         res["positions"], res["delta"] = yu, np.array(du, copy=True)
     else:
         res["positions"] = sim.state.y.copy()
-        res["delta"] = shift_field.copy()
+        res["delta"] = sim.state.extra["dcbr.delta"].copy()
     res["wall_s"] = time.perf_counter() - t0
     return res
 
