@@ -56,3 +56,15 @@ def check_force_is_minus_energy_gradient():
 def check_matches_lammps_small():
     """``check(style)`` with style "pmb" or "lps": see _matches_lammps_small."""
     return _matches_lammps_small
+
+
+@pytest.fixture(scope="module")
+def one_numba_thread():
+    """Scene calls on one numba thread, as the command line's ``--threads 1`` (sums in the
+    same order, figures equal to the last digit); the setting restored after the module."""
+    from upscale.engine.kernels import set_threads
+
+    before = set_threads(None)
+    set_threads(1)
+    yield
+    set_threads(before)

@@ -20,15 +20,7 @@ from upscale.experiments.result import Result
 QUICK = registry.QUICK["bundle"]
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    """The API calls on one numba thread, as the CLI's ``--threads 1``; restored after."""
-    from upscale.engine.kernels import set_threads
-
-    before = set_threads(None)
-    set_threads(1)
-    yield
-    set_threads(before)
+pytestmark = pytest.mark.usefixtures("one_numba_thread")   # as the CLI's --threads 1
 
 
 def _argv(kw: dict) -> list[str]:

@@ -21,15 +21,7 @@ QUICK = [(name, kw, REL.get(name, 1e-12)) for name, kw in registry.QUICK.items()
          if name not in ("tension", "bundle")]   # tests/test_tube_scene.py, test_bundle_scene.py
 
 
-@pytest.fixture(scope="module", autouse=True)
-def one_thread():
-    """The API calls on one numba thread, as the CLI's ``--threads 1``; restored after."""
-    from upscale.engine.kernels import set_threads
-
-    before = set_threads(None)
-    set_threads(1)
-    yield
-    set_threads(before)
+pytestmark = pytest.mark.usefixtures("one_numba_thread")   # as the CLI's --threads 1
 
 
 def _same(a, b, rel) -> bool:
