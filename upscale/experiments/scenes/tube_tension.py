@@ -235,10 +235,6 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
                            cache_dir=None, runner=None) -> dict:
     """Coarse (DCBR) and LAMMPS quasi-static tension of one tube, with errors and speed-up.
 
-    The quasi-static runs are on the engine (:func:`quasi_static_tension_engine`), but for
-    the vacancy tube with a ``step_crossing`` other than ``"damped"`` (the old loop,
-    :func:`quasi_static_tension`).
-
     With ``vacancy`` the coarse model is :class:`upscale.models.dcbr_defect.DCBRDefectTube`
     (atomistic region of ``r_atomistic`` Å around the 4-atom vacancy) and the crack angles
     of both are compared. ``dynamic``: the open tube with grips of :func:`dynamic_scene`
@@ -275,10 +271,8 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
 
         res = dynamic_tension(model, progress=cb, temperature=temperature, **dyn)
         res["curve"]["Lz_A"] = [res["L0_A"]] * len(res["curve"]["strain"])
-    elif vacancy and step_crossing != "damped":  # (the engine path has the damped restarts only)
-        res = quasi_static_tension(model, strain_step=strain_step, progress=cb)
     else:
-        res = quasi_static_tension_engine(model, strain_step=strain_step, progress=cb)
+        res = quasi_static_tension(model, strain_step=strain_step, progress=cb)
     wall = time.perf_counter() - t0
     out = {"chirality": f"{n},{m}", "coarsening": coarsening, "hourglass": hourglass,
            "atoms": model.n_atoms,
