@@ -119,21 +119,20 @@ def test_engine_driver_resumes_bit_for_bit(tmp_path):
     assert np.array_equal(b["positions"], a["positions"]) and np.array_equal(b["delta"], a["delta"])
 
 
-def test_experiments_tension_api(tmp_path):
-    """``tension(...)`` returns a result with the headline figures, a plot and a JSON; the
-    engine and the tube's own driver agree; an unknown model is a one-line error."""
-    import json
+def test_tension_scene_runs_the_engine_path_with_the_old_loops_answer():
+    """``experiments.tension(model="dcbr")`` drives the coarse tube on the engine; its curve
+    is the tube's own load-step loop's (the code before the port)."""
+    from upscale import experiments
+    from upscale.build import swcnt
+    from upscale.experiments.scenes.tube_tension import quasi_static_tension
 
-    from upscale.experiments.scenes.tube_tension import tension
-
-    a = tension(6, 6, 20.0, coarsening=2, max_strain=0.02)
-    b = tension(6, 6, 20.0, coarsening=2, max_strain=0.02, engine=True)
-    assert b.modulus_tpa == pytest.approx(a.modulus_tpa, rel=1e-6) and a.modulus_tpa > 0.5
-    assert a.plot(tmp_path / "c.png").stat().st_size > 1000
-    r = json.loads(a.to_json(tmp_path / "r.json").read_text())["result"]
-    assert r["strength_GPa"] == a.strength_gpa and "positions" not in r
-    with pytest.raises(ValueError, match="model='md'; valid"):
-        tension(6, 6, 20.0, model="md")
+    tube = swcnt(6, 6, length=20.0)
+    run = experiments.tension(tube, model="dcbr", coarsening=2, maximum=0.02, progress=False)
+    old = quasi_static_tension(DCBRTube(6, 6, tube.info["length"], coarsening=2),
+                               max_strain=0.02)
+    np.testing.assert_allclose(run.curves["curve/stress_GPa"], old["curve"]["stress_GPa"],
+                               rtol=1e-6, atol=1e-5)   # GPa: the zero-stress residual
+    assert run.figures["youngs_TPa"] > 0.5
 
 
 def _strained_state(tube, strain=0.04):

@@ -18,7 +18,6 @@ Stress is on the wall thickness 3.4 Å (area 2 pi R t).
 """
 from __future__ import annotations
 
-import dataclasses
 import json
 import time
 from pathlib import Path
@@ -28,8 +27,8 @@ import numpy as np
 from upscale.experiments.references import reference_dir
 
 __all__ = ["parse_chirality", "lammps_reference", "GRIPS", "dynamic_scene",
-           "quasi_static_tension", "quasi_static_tension_engine", "defect_nve", "tension",
-           "TensionRun", "run_tension_comparison", "reference_grip_planes", "reference_held_planes",
+           "quasi_static_tension", "quasi_static_tension_engine", "defect_nve",
+           "run_tension_comparison", "reference_grip_planes", "reference_held_planes",
            "tube_z_range", "crack_metrics", "plot_comparison", "ROOT", "REFERENCE_DIR"]
 
 #: the repository's root (``data/reference`` lives there)
@@ -843,79 +842,3 @@ def defect_nve(n: int, m: int, length: float, coarsening: float, *, steps: int =
             "dof": model.dof, "initial_kinetic_eV": float(k0),
             "drift_final_rel_to_kinetic": float(dev[-1]),
             "max_abs_deviation_rel_to_kinetic": float(np.abs(dev).max()), "wall_s": wall}
-
-
-@dataclasses.dataclass
-class TensionRun:
-    """A tube tension result: ``result`` (the driver's dict: ``curve``, modulus, strength,
-    strain at peak, ...), with the headline figures as attributes."""
-
-    result: dict
-
-    @property
-    def strength_gpa(self) -> float:
-        return float(self.result["strength_GPa"])
-
-    @property
-    def modulus_tpa(self) -> float:
-        return float(self.result["youngs_modulus_TPa"])
-
-    @property
-    def strain_at_peak(self) -> float:
-        return float(self.result["strain_at_peak"])
-
-    def to_json(self, path) -> Path:
-        """Write the result (numbers, curve; not the per-particle arrays) atomically."""
-        from upscale.io import versions, write_json
-
-        keep = {k: v for k, v in self.result.items()
-                if k not in ("damage", "positions", "delta") and not k.startswith("_")}
-        return write_json(path, {"result": keep, "versions": versions()})
-
-    def plot(self, path) -> Path:
-        """Stress-strain curve as a PNG (stress on the 3.4 Å wall), written atomically."""
-        import io
-
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        from upscale.io import atomic_write_bytes
-
-        c = self.result["curve"]
-        fig, ax = plt.subplots(figsize=(5, 3.6), dpi=120)
-        ax.plot(c["strain"], c["stress_GPa"], "b-s", ms=3)
-        ax.set_xlabel("axial strain")
-        ax.set_ylabel("stress (GPa, t = 3.4 Å)")
-        ax.set_title(f"strength {self.strength_gpa:.2f} GPa at strain {self.strain_at_peak:.3f}")
-        buf = io.BytesIO()
-        fig.savefig(buf, format="png", bbox_inches="tight")
-        plt.close(fig)
-        return atomic_write_bytes(path, buf.getvalue())
-
-
-def tension(n: int, m: int, length: float, *, model: str = "dcbr", coarsening: float = 2.0,
-            potential: str = "tersoff:BNC.tersoff", strain_step: float = 0.005,
-            max_strain: float = 0.40, engine: bool = False, checkpoint=None,
-            output=None) -> TensionRun:
-    """Quasi-static tension of the periodic pristine (n, m) tube of ``length`` Å.
-
-    ``model="dcbr"``: the coarse tube at ``coarsening`` (by its own driver, or on the
-    engine with ``engine=True``, then with ``checkpoint`` / ``output``, see
-    :func:`quasi_static_tension_engine`); ``model="lammps"``: the stored LAMMPS reference
-    of the same tube and protocol (:func:`lammps_reference`).
-    """
-    from upscale.models.dcbr import DCBRTube
-
-    if model == "lammps":
-        return TensionRun(lammps_reference(n, m, length, strain_step=strain_step,
-                                           potential=potential, progress=False))
-    if model != "dcbr":
-        raise ValueError(f"model={model!r}; valid: 'dcbr', 'lammps'")
-    tube = DCBRTube(n, m, length, coarsening=coarsening, potential=potential)
-    if engine:
-        return TensionRun(quasi_static_tension_engine(tube, strain_step=strain_step,
-                                                      max_strain=max_strain,
-                                                      checkpoint=checkpoint, output=output))
-    return TensionRun(quasi_static_tension(tube, strain_step=strain_step, max_strain=max_strain))
