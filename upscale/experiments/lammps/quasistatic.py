@@ -33,6 +33,7 @@ from ase import Atoms
 
 from upscale.analysis.stress import WALL_THICKNESS, curve_metrics, stress_from_pressure
 from upscale.experiments.lammps.potential import resolve_potential
+from upscale.experiments.protocols import StopRule
 from upscale.experiments.lammps.setup import (DAMPED_STYLE, DAMPED_STYLES, LINE_SEARCHES,
                                               check_atoms, common_record, minimize_robust,
                                               relax_zero_stress, thermo)
@@ -180,6 +181,7 @@ def quasi_static_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
     try:
         zlo = float(lmp.extract_box()[0][2])
         k, failed_at, aborted = 0, None, None
+        rule = StopRule(drop=failure_drop, after=after_failure)  # the protocols' one rule
         while True:
             if k * strain_step > max_strain + 1e-12:
                 break
@@ -211,11 +213,8 @@ def quasi_static_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
                             "modify sort id append yes")
             if progress is not None:
                 progress(eps, s)
-            top_so_far = max(magnitudes)
-            if failed_at is None and magnitudes[-1] < (1.0 - failure_drop) * top_so_far \
-                    and top_so_far > 0:
-                failed_at = k
-            if failed_at is not None and k - failed_at >= after_failure:
+            failed_at = rule.failed_at(magnitudes)
+            if rule.done(magnitudes):
                 break
             k += 1
     finally:

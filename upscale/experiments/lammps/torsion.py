@@ -44,6 +44,7 @@ from ase import Atoms
 
 from upscale.analysis.stress import WALL_THICKNESS
 from upscale.experiments.lammps.potential import resolve_potential
+from upscale.experiments.protocols import StopRule
 from upscale.experiments.lammps.quasistatic import (check_damped_settings, check_stop,
                                                     minimizer_description)
 from upscale.experiments.lammps.setup import (DAMPED_STYLE, check_atoms, common_record,
@@ -185,7 +186,8 @@ def quasi_static_torsion(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
                                f"masks {(int(bot.sum()), int(top.sum()))}")
         hold = "fix hold grips setforce 0.0 0.0 0.0"
         lmp.command(hold)
-        k, phi_prev, failed_at, aborted, peak = 0, 0.0, None, None, 0.0
+        k, phi_prev, failed_at, aborted = 0, 0.0, None, None
+        rule = StopRule(drop=failure_drop, after=after_failure)  # the protocols' one rule
         while k * abs(twist_step) <= max_twist + 1e-12:
             phi = k * twist_step
             dphi = math.radians(phi - phi_prev)
@@ -227,10 +229,8 @@ def quasi_static_torsion(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
                             "modify sort id append yes")
             if progress is not None:
                 progress(phi, T)
-            peak = max(peak, abs(T))
-            if failed_at is None and abs(T) < (1.0 - failure_drop) * peak and peak > 0:
-                failed_at = k
-            if failed_at is not None and k - failed_at >= after_failure:
+            failed_at = rule.failed_at(torques)
+            if rule.done(torques):
                 break
             phi_prev = phi
             k += 1
