@@ -97,7 +97,7 @@ def test_dynamic_tension_short_open_tube():
     """Grips pull an open tube with a vacancy: finite, positive stress whose slope is the
     tube's modulus (~0.97 TPa quasi-static; the dynamic start-up and the coarse grips'
     compliance on a 40 Å gauge (8 rows) allow 20 %; on a 19 Å gauge, 4 rows, it read 0.63)."""
-    from upscale.models.dcbr_dynamic import dynamic_tension
+    from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension
 
     m = DCBRDefectTube(6, 6, 60.0, vacancy=4, **KW)
     res = dynamic_tension(m, grip=10.0, speed=2.0, max_strain=0.025, sample=40)
@@ -108,7 +108,7 @@ def test_dynamic_tension_short_open_tube():
 
 
 def test_dynamic_tension_bad_grip():
-    from upscale.models.dcbr_dynamic import dynamic_tension
+    from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension
 
     m = DCBRDefectTube(6, 6, 30.0, vacancy=4, **KW)
     with pytest.raises(ValueError, match="grip=20.0"):
@@ -150,7 +150,7 @@ def test_dynamic_thermostat_holds_the_temperature():
     """Nose-Hoover on x, y (as LAMMPS's fix nvt + temp/partial): a 40 Å tube pulled slowly
     stays near 10 K (the free atoms' kinetic energy, all three components, is ~3/2 N kB T
     within the thermal noise of ~70 atoms) and nothing leaves the wall."""
-    from upscale.models.dcbr_dynamic import dynamic_tension
+    from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension
 
     m = DCBRDefectTube(6, 6, 40.0, vacancy=4, **KW)
     res = dynamic_tension(m, grip=8.0, speed=0.5, max_strain=0.012, sample=50,
@@ -167,7 +167,7 @@ def test_dynamic_thermostat_holds_the_temperature():
     (dict(ghost="somewhere"), "ghost='somewhere'"),
 ])
 def test_dynamic_bad_input(kw, word):
-    from upscale.models.dcbr_dynamic import dynamic_tension
+    from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension
 
     m = DCBRDefectTube(6, 6, 40.0, vacancy=4, **KW)
     with pytest.raises(ValueError) as e:
@@ -183,7 +183,7 @@ def test_dynamic_grips_are_lammps_grips(grip, clamp):
     the plane) and the gauge is the distance between the two planes: the atoms' span less
     2 grip (to the set-up relaxation of the end rows, < 0.5 Å); the innermost grip rows lie
     beyond the planes, less than a row spacing h each (clamped: from h/2 inside)."""
-    from upscale.models.dcbr_dynamic import dynamic_tension
+    from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension
 
     m = DCBRDefectTube(6, 6, 50.0, vacancy=4, **KW)
     rows = np.unique(np.round(m.x0[:, 2], 6))
@@ -203,7 +203,7 @@ def test_clamped_gain_is_exact_between_rigid_grips():
     rigid grips gives every gauge particle and every edge particle exactly the gauge's
     strain, and the particles deep in a grip none; with the plain stencil the rows next to
     a plane mix the two."""
-    from upscale.models.dcbr_dynamic import open_tube_with_grips
+    from upscale.experiments.scenes.dcbr_dynamic import open_tube_with_grips
 
     m = DCBRDefectTube(6, 6, 60.0, vacancy=4, **KW)
     st = open_tube_with_grips(m, 12.0)
@@ -288,7 +288,7 @@ def test_static_grip_stiffness_is_linear_and_bounded():
     """The coarse tube held by the dynamic scene's grips: k = F / separation is the same at
     0.1 % and 0.25 % (linear range), and the modulus over LAMMPS's gauge lies below the
     periodic one (the coarse grips' compliance; dcbr-grip-stiffness compares with LAMMPS)."""
-    from upscale.models.dcbr_dynamic import static_grip_stiffness
+    from upscale.experiments.scenes.dcbr_dynamic import static_grip_stiffness
 
     r1 = static_grip_stiffness(DCBRDefectTube(6, 6, 60.0, vacancy=4, **KW), grip=10.0,
                                strain=0.001)
@@ -305,7 +305,7 @@ def test_static_grip_stiffness_does_not_count_the_setup_reaction():
     -0.013 eV/Å; before the clamped twin, coarsening 4: -0.05 eV/Å); k = F / separation
     must not count it, or k moves with the strain in the linear range (it did: 17.19 at
     0.1 % against 18.20 eV/Å^2 at 0.25 %)."""
-    from upscale.models.dcbr_dynamic import static_grip_stiffness
+    from upscale.experiments.scenes.dcbr_dynamic import static_grip_stiffness
 
     r = [static_grip_stiffness(DCBRDefectTube(10, 10, 150.0, coarsening=3, vacancy=4,
                                               hourglass=0.1), strain=s) for s in (0.001, 0.0025)]
@@ -327,7 +327,7 @@ def test_clamped_grips_stiffness_is_lammps_at_every_coarsening():
     import json
     from pathlib import Path
 
-    from upscale.models.dcbr_dynamic import static_grip_stiffness
+    from upscale.experiments.scenes.dcbr_dynamic import static_grip_stiffness
     from upscale.experiments.scenes.tube_tension import dynamic_scene, lammps_reference
 
     ref = json.loads((Path(__file__).resolve().parents[1] / "data" / "reference" /
@@ -364,7 +364,7 @@ def test_clamped_twin_patch_test():
     T = N / L de/dlam_z. With the dead loads of the twin opened and clamped alike, the free
     forces fall below 0.01 eV/Å (what is left: the tube's G is linearised about its relaxed
     set-up, the twin's about its uniform lattice) and the grips carry T within 0.5 %."""
-    from upscale.models.dcbr_dynamic import open_tube_with_grips
+    from upscale.experiments.scenes.dcbr_dynamic import open_tube_with_grips
 
     m = DCBRDefectTube(10, 10, 150.0, coarsening=4, vacancy=0, hourglass=0.1)
     st = open_tube_with_grips(m, 50.0)
@@ -445,7 +445,7 @@ def _stretched_clamped_tube(n, m, length, grip, eps, **kw):
     """The clamped open tube of the dynamic scene, its grips moved apart by ``eps`` times the
     gauge and the free part minimised (as ``static_grip_stiffness``): (model, lam_z of every
     particle relative to the held state, the rigid mask)."""
-    from upscale.models.dcbr_dynamic import open_tube_with_grips
+    from upscale.experiments.scenes.dcbr_dynamic import open_tube_with_grips
 
     m_ = DCBRDefectTube(n, m, length, **kw)
     st = open_tube_with_grips(m_, grip, gtol=1e-6)
@@ -497,7 +497,7 @@ def test_clamped_grip_edge_does_not_fail_first():
     coarse link breaks (LAMMPS's tube fails at 22 %; before the grip-edge weights were
     balanced, DCBRDefectTube._balanced_grip_weights, the links of the rows at the bottom
     grip plane broke at 15 % and the tube failed there at 98 GPa)."""
-    from upscale.models.dcbr_dynamic import dynamic_tension
+    from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension
 
     m = DCBRDefectTube(10, 10, 150.0, coarsening=2.0, vacancy=0)
     r = dynamic_tension(m, max_strain=0.17, temperature=0.0)

@@ -1,10 +1,10 @@
 """Dynamic tension of the pristine coarse tube with atomistic bands across the grip planes
-(upscale.models.dcbr_dynamic.pristine_grip_tube; validation case dcbr-tension --dynamic)."""
+(upscale.experiments.scenes.dcbr_dynamic.pristine_grip_tube; validation case dcbr-tension --dynamic)."""
 import numpy as np
 import pytest
 
 from upscale.models.dcbr_defect import DCBRDefectTube
-from upscale.models.dcbr_dynamic import dynamic_tension, pristine_grip_tube
+from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension, pristine_grip_tube
 
 GRIP = 15.0
 KW = dict(r_atomistic=5.0, hourglass=0.1)
@@ -88,7 +88,7 @@ def test_extensometer_strain_at_peak_is_the_final_strength_sample():
     bond and fails later: the strength is the later peak, and the extensometer's strain at
     peak is that same sample's, not the dip's (the order of the two corrections was wrong
     until 2026-11-22)."""
-    from upscale.models.dcbr_dynamic import run_metrics
+    from upscale.experiments.scenes.dcbr_dynamic import run_metrics
 
     e = np.linspace(0.0, 0.25, 101)
     s = 600.0 * e
@@ -113,7 +113,7 @@ def test_vacancy_region_and_grip_bands_together():
     within r_atomistic of the vacancy's centre or of a band's centre is explicit, and
     nothing else far from all three; the pristine twin that gives the ghost forces has the
     same region (its ghost forces vanish away from the interfaces)."""
-    from upscale.models.dcbr_dynamic import grip_band_tube
+    from upscale.experiments.scenes.dcbr_dynamic import grip_band_tube
 
     m = grip_band_tube(6, 6, 160.0, 2.0, grip=15.0, r_atomistic=5.0, vacancy=4)
     z = m.X_atoms[:, 2]

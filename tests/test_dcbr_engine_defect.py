@@ -122,7 +122,7 @@ def test_engine_loop_equals_the_scene_loop_to_round_off():
     """The same dynamic tension, once in the scene's own velocity Verlet and once on the
     engine: the first sample's stress agrees to round-off (the two Verlet forms and the
     temperature sums round differently), the run's figures far inside any error budget."""
-    from upscale.models.dcbr_dynamic import dynamic_tension
+    from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension
 
     out = []
     for engine in (False, True):

@@ -1,4 +1,4 @@
-"""Which sublattice shifts a clamped grip holds (upscale.models.dcbr_dynamic, "Masses"), and
+"""Which sublattice shifts a clamped grip holds (upscale.experiments.scenes.dcbr_dynamic, "Masses"), and
 the pass rule of the dynamic dcbr-table (single thermal draws against seed-mean budgets)."""
 import numpy as np
 import pytest
@@ -10,7 +10,7 @@ KW = dict(coarsening=2.0, r_atomistic=5.0, region="band")
 
 @pytest.fixture(scope="module")
 def clamped():
-    from upscale.models.dcbr_dynamic import open_tube_with_grips
+    from upscale.experiments.scenes.dcbr_dynamic import open_tube_with_grips
 
     m = DCBRDefectTube(6, 6, 60.0, vacancy=4, **KW)
     st = open_tube_with_grips(m, 12.0, gtol=1e-6)

@@ -1,11 +1,11 @@
 """The atomistic region grown about the crack: a state carried from a disc to the band
 (:meth:`DCBRDefectTube.carry_state`) and a dynamic run that switches region
-(:func:`upscale.models.dcbr_dynamic.dynamic_tension`, ``grow``)."""
+(:func:`upscale.experiments.scenes.dcbr_dynamic.dynamic_tension`, ``grow``)."""
 import numpy as np
 import pytest
 
 from upscale.models.dcbr_defect import DCBRDefectTube
-from upscale.models.dcbr_dynamic import dynamic_tension
+from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension
 
 SMALL = dict(grip=10.0, speed=10.0, max_strain=0.3, sample=20, seed=7)
 

@@ -87,7 +87,7 @@ def test_dcbr_dynamic_extensometer_vs_grip_strain():
     10 Å atomistic band (0.92 before the grips were clamped, when they were 7-23 % too
     compliant)."""
     from upscale.models.dcbr_defect import DCBRDefectTube
-    from upscale.models.dcbr_dynamic import dynamic_tension
+    from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension
 
     m = DCBRDefectTube(6, 6, 60.0, vacancy=4, coarsening=2.0, r_atomistic=5.0, region="band")
     res = dynamic_tension(m, grip=10.0, speed=2.0, max_strain=0.025, sample=40)

@@ -308,7 +308,7 @@ def test_respa_bad_input(kw, word):
 
 
 def test_dynamic_tension_respa_bad_input():
-    from upscale.models.dcbr_dynamic import dynamic_tension
+    from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension
 
     t = DCBRDefectTube(6, 6, 60.0, coarsening=2.0, vacancy=4, r_atomistic=5.0)
     with pytest.raises(ValueError, match="integrator='leapfrog'"):
@@ -327,7 +327,7 @@ def test_dynamic_tension_splits():
     """split= reaches the model: the same tension test (NVE from rest, 15 outer steps of
     4 fs) gives another trajectory under 'atoms-free' and 'ghost', within 1 % of the largest
     stress of the 'coarse' split's; no split given is 'ghost' (MTS_SPLIT)."""
-    from upscale.models.dcbr_dynamic import dynamic_tension
+    from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension
 
     t = DCBRDefectTube(6, 6, 60.0, coarsening=2.0, vacancy=4, r_atomistic=5.0)
     s = {sp: np.asarray(dynamic_tension(t, grip=10.0, integrator="respa", outer_dt=4.0,

@@ -18,7 +18,7 @@ The ``dcbr`` run is the periodic coarse tube on the engine
 stretched at a constant strain rate, velocity Verlet with a Nose-Hoover chain at 10 K,
 links breaking by the tube's failure rules. The ``dcbr-vacancy`` run is the dynamic
 tension of the open vacancy tube on the engine
-(:func:`upscale.models.dcbr_dynamic.dynamic_tension` with ``engine=True``): ``--tube
+(:func:`upscale.experiments.scenes.dcbr_dynamic.dynamic_tension` with ``engine=True``): ``--tube
 scene``, the (10,10) 150 Å coarsening-2 tube of ``dcbr-seeds`` (clamped grips on LAMMPS's
 planes, 10 K, seed 1000) pulled to failure; ``--tube small``, a (6,6) 60 Å tube with 10 Å
 grips at 10 Å/ps, to failure (the atomistic region's bonds break, the ghost-force
@@ -159,7 +159,7 @@ def _dcbr_vacancy(args) -> int:
 
     from upscale.engine.kernels import set_threads
     from upscale.io import NumpyJSON, atomic_write_bytes
-    from upscale.models.dcbr_dynamic import dynamic_tension
+    from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension
 
     set_threads(args.threads)
     if args.kill_at:

@@ -98,7 +98,7 @@ Scope (what is and is not here): periodic pristine tubes of any chirality, unifo
 :func:`upscale.experiments.scenes.tube_tension.quasi_static_tension`) and an ASE
 calculator (:mod:`upscale.calculators`). Defects are in :mod:`upscale.models.dcbr_defect`
 (an atomistic region around the vacancy coupled to these particles) and dynamic tension of
-open tubes with grips in :mod:`upscale.models.dcbr_dynamic`. The tube supplies energy and
+open tubes with grips in :mod:`upscale.experiments.scenes.dcbr_dynamic`. The tube supplies energy and
 gradient; its minimisations run on the engine's array-level minimisers
 (:func:`upscale.engine.minimisers.lbfgs_b`, :meth:`DCBRTube.minimise`), and
 :class:`DCBRTubeModel` is the same tube as an engine model (shifts relaxed at every

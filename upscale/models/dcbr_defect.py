@@ -138,7 +138,7 @@ class DCBRDefectTube(DCBRTube):
         Centres (reference z, Å) of further atomistic bands of half-width ``r_atomistic``,
         all around the tube, placed where the protocol, not a defect, needs the lattice
         itself: the dynamic scene puts one across each grip plane
-        (:func:`upscale.models.dcbr_dynamic.grip_band_tube`), where LAMMPS's held atoms
+        (:func:`upscale.experiments.scenes.dcbr_dynamic.grip_band_tube`), where LAMMPS's held atoms
         meet the free ones. With a vacancy the region is the union of its own (band or disc)
         and these bands; with ``vacancy=0`` (``region="band"`` only) it is the bands alone and
         ``vacancy_theta_z`` is (0, tube centre), the plane that splits the ghost-force
@@ -907,7 +907,7 @@ class DCBRDefectTube(DCBRTube):
         coefficients). ``Lz0``: the cell length at which the grips take hold; given, the
         pristine twin that gives the ghost forces is opened and clamped alike, linearised
         about its uniform lattice at that stretch (:meth:`prepare_step`;
-        ``upscale.models.dcbr_dynamic`` docstring, "Ghost forces with clamped grips")."""
+        ``upscale.experiments.scenes.dcbr_dynamic`` docstring, "Ghost forces with clamped grips")."""
         rigid = np.asarray(rigid, dtype=bool)
         if not (z_lo < z_hi and rigid.shape == (self.N,) and not self.periodic):
             raise ValueError(f"grip planes z_lo={z_lo}, z_hi={z_hi}, rigid {rigid.shape}, "
@@ -1334,7 +1334,7 @@ class DCBRDefectTube(DCBRTube):
                     Lz: float | None = None, h: float = 1e-3):
         """This tube's unknowns continuing the state of ``other``, a tube of the same lattice
         whose atomistic region lies inside this one's (the region grown about the crack:
-        :func:`upscale.models.dcbr_dynamic.dynamic_tension`, ``grow``).
+        :func:`upscale.experiments.scenes.dcbr_dynamic.dynamic_tension`, ``grow``).
 
         Particles that stay coarse keep their positions, velocities and shifts; the atoms
         that become free take the positions ``other`` gives them through their carriers'

@@ -2,7 +2,7 @@
 
 :class:`DCBRDefectTubeModel` wraps a :class:`~upscale.models.dcbr_defect.DCBRDefectTube`
 (with a vacancy, or pristine: ``vacancy=0``, e.g. the banded tube of
-:func:`upscale.models.dcbr_dynamic.pristine_grip_tube`) for the engine's
+:func:`upscale.experiments.scenes.dcbr_dynamic.pristine_grip_tube`) for the engine's
 :class:`~upscale.engine.simulation.Simulation`, alone or as one body of an
 :func:`~upscale.engine.bodies.assemble`-d scene.
 
@@ -68,7 +68,7 @@ SPLITS = {"coarse": {"fast_interface": False, "fast_ghost": False},
           "ghost": {"fast_interface": False, "fast_ghost": True}}
 
 #: the split of the single-tube dynamic scenes under multiple time stepping
-#: (:func:`upscale.models.dcbr_dynamic.dynamic_tension`, ``bench-dcbr-seed``,
+#: (:func:`upscale.experiments.scenes.dcbr_dynamic.dynamic_tension`, ``bench-dcbr-seed``,
 #: ``dcbr-stability``): the ghost-force dead load in the fast group. The dead load acts on
 #: the atoms in cylindrical components, so its direction turns with every vibrating atom;
 #: applied as an impulse once per outer step it is what makes the energy of the ``"coarse"``

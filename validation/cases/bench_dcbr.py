@@ -93,7 +93,7 @@ def fair_setup() -> dict:
     (its largest force component, ``min_modify norm inf``)."""
     import inspect  # noqa: PLC0415
 
-    from upscale.models.dcbr_dynamic import dynamic_tension as coarse_dynamic  # noqa: PLC0415
+    from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension as coarse_dynamic  # noqa: PLC0415
     from validation.cases.bench_lammps_setup import BEST_SETUP  # noqa: PLC0415
 
     return dict(BEST_SETUP, ftol=inspect.signature(coarse_dynamic).parameters["gtol"].default)
@@ -162,7 +162,7 @@ def _coarse_round(rc) -> dict:
 @case("bench-dcbr-seed", "coarse vs LAMMPS wall time, seed 004 large vacancy tubes (dynamic)",
       add_arguments=_args)
 def _bench(args):
-    from upscale.models.dcbr_dynamic import dynamic_tension as coarse_dynamic
+    from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension as coarse_dynamic
     from upscale.models.dcbr_engine import MTS_SPLIT
     from validation.cases.dcbr import _chirality, lammps_reference_or_run, dynamic_scene
     from validation.cases.references import DYN_LENGTH, _spec, build_structure

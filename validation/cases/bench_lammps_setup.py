@@ -6,7 +6,7 @@ cut open at the cell boundary and minimised once; then the MD. Both are measured
 structures of ``bench-dcbr-seed`` (the ~150 Å (50,50) and (30,60) tubes with the 4-atom
 vacancy; ``--quick``: a 40 Å (10,10) one) at the coarse set-up's force tolerance.
 
-The criterion. The coarse set-up (``upscale.models.dcbr_dynamic.open_tube_with_grips``)
+The criterion. The coarse set-up (``upscale.experiments.scenes.dcbr_dynamic.open_tube_with_grips``)
 stops its L-BFGS-B when the largest component of the projected gradient, over the free
 positions and the sublattice shifts, is <= 1e-4 eV/Å. LAMMPS's ``minimize`` bounds the
 2-norm of the whole 3N force vector by default (``min_modify norm two``; <= 1e-4 there

@@ -713,7 +713,7 @@ def _step_time(args) -> dict:
     the two alternating in this process (old, engine, old, engine, ...): wall and CPU time of
     the dynamics (set-up excluded), summed over the repeats."""
     from upscale.experiments.scenes.tube_tension import dynamic_scene
-    from upscale.models.dcbr_dynamic import dynamic_tension
+    from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension
 
     n, m = _chirality(args.dynamic_chirality or ("10,10" if args.quick else "50,50"))
     k = args.dynamic_coarsening or (2.0 if args.quick else 3.0)

@@ -5,7 +5,7 @@ reports includes whatever compliance the grip boundary adds. Statically (no ther
 no start-up transient, no gauge convention) the stiffness k = F / separation of the tube held
 by the protocol's grips (150 Å tube, 50 Å grips, 4-atom vacancy) is computed by LAMMPS
 (:func:`upscale.experiments.lammps.tension.static_grip_stiffness`) and by the coarse model on the set-up
-of its dynamic scene (:func:`upscale.models.dcbr_dynamic.static_grip_stiffness`), at a small
+of its dynamic scene (:func:`upscale.experiments.scenes.dcbr_dynamic.static_grip_stiffness`), at a small
 strain (0.25 %). The LAMMPS side is kept in ``data/reference/grip_stiffness.json`` (``--save``)
 with provenance and reused when its protocol matches.
 """
@@ -57,7 +57,7 @@ def _lammps(n, m, stored):
       "grips: coarse model (coarsening 1-4) vs LAMMPS", add_arguments=_args)
 def _grip_stiffness(args):
     from upscale.io import write_json
-    from upscale.models.dcbr_dynamic import static_grip_stiffness
+    from upscale.experiments.scenes.dcbr_dynamic import static_grip_stiffness
     from validation.cases.dcbr import _chirality, lammps_reference_or_run, dynamic_scene
     from validation.cases.references import DYN_LENGTH, REF_DIR
 

@@ -6,7 +6,7 @@ pristine tubes), so one run's strength and strain at peak are one draw. ``refere
 (:func:`upscale.experiments.lammps.tension.dynamic_tension`, defaults unchanged) with several seeds
 and stores the spread in ``data/reference/seed_spread.json`` (with ``--save``; with
 ``--pristine`` the pristine tubes, in ``data/reference/seed_spread_pristine.json``);
-``dcbr-seeds`` does the same for the coarse model (:func:`upscale.models.dcbr_dynamic.
+``dcbr-seeds`` does the same for the coarse model (:func:`upscale.experiments.scenes.dcbr_dynamic.
 dynamic_tension`). The errors of single coarse runs against single references are only
 meaningful next to these spreads.
 """
@@ -151,7 +151,7 @@ def _reference_seeds(args):
 def _dcbr_seeds(args):
     """The coarse scene of ``dcbr-tension --dynamic`` (with ``--vacancy`` unless
     ``--pristine``; :func:`validation.cases.dcbr.dynamic_scene`), seeds 1000, 1001, ..."""
-    from upscale.models.dcbr_dynamic import dynamic_tension
+    from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension
     from validation.cases.dcbr import lammps_reference_or_run, dynamic_scene
 
     if not args.coarsening >= 1.0:

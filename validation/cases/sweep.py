@@ -52,7 +52,7 @@ def coarse_vacancy_seed(n: int = 10, m: int = 10, coarsening: float = 2.0, seed:
     kept. Returns the five figures ``dcbr-seeds`` stores, the grips and the DOF.
     """
     from upscale.experiments.scenes.tube_tension import dynamic_scene
-    from upscale.models.dcbr_dynamic import dynamic_tension
+    from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension
     from validation.cases.dcbr import lammps_reference_or_run
 
     ref = lammps_reference_or_run(n, m, 150.0, protocol="dynamic", vacancy=True, progress=False)

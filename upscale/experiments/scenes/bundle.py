@@ -420,13 +420,13 @@ def _coarse_model(chirality, length, spec, has_vacancy, grip, centre, z_mid, pre
     """A coarse tube (``DCBRDefectTube``: ``dcbr`` a pristine tube whose atomistic region is
     one row of particle cells in the middle, ``dcbr-defect`` the 4-atom vacancy with a
     region of ``spec.r_atomistic``), opened and relaxed with clamped grips in its own frame
-    (:func:`upscale.models.dcbr_dynamic.open_tube_with_grips`), then placed with its axis
+    (:func:`upscale.experiments.scenes.dcbr_dynamic.open_tube_with_grips`), then placed with its axis
     on ``centre`` and its middle at ``z_mid``, as an engine model. Identical tubes are set
     up once (``prepared``) and copied."""
     import copy
 
     from upscale.models.dcbr_defect import DCBRDefectTube
-    from upscale.models.dcbr_dynamic import open_tube_with_grips
+    from upscale.experiments.scenes.dcbr_dynamic import open_tube_with_grips
     from upscale.models.dcbr_engine import DCBRDefectTubeModel
 
     n, m = chirality

@@ -3,7 +3,7 @@
 The scenes: quasi-static tension of a periodic tube (:func:`quasi_static_tension`
 on :class:`~upscale.models.dcbr.DCBRTube`, or :class:`~upscale.models.dcbr_defect.DCBRDefectTube`
 with the 4-atom vacancy) and dynamic tension of the open tube held by grips
-(:func:`dynamic_scene`, :func:`upscale.models.dcbr_dynamic.dynamic_tension`). One call,
+(:func:`dynamic_scene`, :func:`upscale.experiments.scenes.dcbr_dynamic.dynamic_tension`). One call,
 :func:`run_tension_comparison`, runs a scene and puts it beside its LAMMPS record, the
 figures every command and validation case reports (modulus, strength, strain at peak,
 damage, crack angle, wall time, speed-up).
@@ -165,11 +165,11 @@ GRIPS = ("bands", "clamped")
 def dynamic_scene(n, m, length, coarsening, ref, vacancy=True, grips=None,
                   r_atomistic=8.0, grow=None, r_grow=None, **kw):
     """The coarse model of the dynamic protocol and the keywords of its
-    :func:`upscale.models.dcbr_dynamic.dynamic_tension` call, as every case builds it.
+    :func:`upscale.experiments.scenes.dcbr_dynamic.dynamic_tension` call, as every case builds it.
 
     ``grips``: ``None`` (default) picks ``"clamped"`` with the vacancy, ``"bands"`` without.
     ``"bands"``: atomistic bands of ``r_atomistic`` across both grip planes
-    (:func:`upscale.models.dcbr_dynamic.grip_band_tube`), the grips holding the band atoms
+    (:func:`upscale.experiments.scenes.dcbr_dynamic.grip_band_tube`), the grips holding the band atoms
     beyond them as LAMMPS's hold its atoms, on LAMMPS's own planes when the reference
     ``ref`` records them (its extensometer window; the seed-scale references predate it and
     the planes are then ``grip`` inside the lattice's end atoms, 0.2-1 Å off). With the
@@ -179,7 +179,7 @@ def dynamic_scene(n, m, length, coarsening, ref, vacancy=True, grips=None,
     each clamp takes hold at LAMMPS's innermost held atoms (``dyn["planes"]``,
     :func:`reference_held_planes`). Why the default differs: a pristine tube breaks at a grip plane (LAMMPS's do: the held
     radius stretches the first free bonds), a concentration of a few atoms that the
-    atomistic band carries and a clamped coarse row does not (``upscale.models.dcbr_dynamic``
+    atomistic band carries and a clamped coarse row does not (``upscale.experiments.scenes.dcbr_dynamic``
     docstring); its bands leave 62 % of the 50 Å gauge's atoms coarse. With the vacancy, its
     own region and the two bands (rounded out to whole cells) cover 80 % of the gauge's
     atoms at coarsening 2 and all of them at 4 on these tubes ((10,10); the (50,50)
@@ -189,10 +189,10 @@ def dynamic_scene(n, m, length, coarsening, ref, vacancy=True, grips=None,
     model (hourglass, step_crossing, region, ...). ``dyn["grips"]`` records the grips chosen.
 
     ``grow`` (clamped grips): the region the run grows to when the crack starts (e.g.
-    ``"band"`` about a ``region="disc"``; :func:`upscale.models.dcbr_dynamic.dynamic_tension`,
+    ``"band"`` about a ``region="disc"``; :func:`upscale.experiments.scenes.dcbr_dynamic.dynamic_tension`,
     ``grow``), of half-width ``r_grow`` (default ``r_atomistic``); its tube is ``dyn["grow"]``."""
     from upscale.models.dcbr_defect import DCBRDefectTube  # noqa: PLC0415
-    from upscale.models.dcbr_dynamic import grip_band_tube  # noqa: PLC0415
+    from upscale.experiments.scenes.dcbr_dynamic import grip_band_tube  # noqa: PLC0415
 
     if grips is None:
         grips = "clamped" if vacancy else "bands"
@@ -266,7 +266,7 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
     cb = (lambda e, s: print(f"  dcbr    strain {e:.4f}  stress {s:9.3f} GPa", flush=True)) \
         if verbose else None
     if dynamic:
-        from upscale.models.dcbr_dynamic import dynamic_tension
+        from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension
 
         res = dynamic_tension(model, progress=cb, temperature=temperature, **dyn)
         res["curve"]["Lz_A"] = [res["L0_A"]] * len(res["curve"]["strain"])
