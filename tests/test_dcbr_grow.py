@@ -63,7 +63,7 @@ def _small(region_grows: bool):
     disc = DCBRDefectTube(6, 6, 60.0, coarsening=2.0, vacancy=4, r_atomistic=4.0, region="disc")
     kw = {"grow": DCBRDefectTube(6, 6, 60.0, coarsening=2.0, vacancy=4, r_atomistic=5.0)} \
         if region_grows else {}
-    return dynamic_tension(disc, engine=True, **SMALL, **kw)
+    return dynamic_tension(disc, **SMALL, **kw)
 
 
 def test_grown_run_is_the_disc_run_until_the_crack_starts():
@@ -86,8 +86,9 @@ def test_grown_run_is_the_disc_run_until_the_crack_starts():
 
 def test_grow_bad_input(pair):
     disc, band = pair
-    with pytest.raises(ValueError, match="engine=True"):
-        dynamic_tension(disc, engine=False, grow=band, **SMALL)
+    pristine = DCBRDefectTube(6, 6, 60.0, coarsening=2.0, vacancy=0)
+    with pytest.raises(ValueError, match="same lattice and vacancy"):
+        dynamic_tension(pristine, grow=band, **SMALL)
 
 
 def test_killed_after_the_switch_resumes_bit_for_bit(tmp_path):

@@ -315,8 +315,6 @@ def test_dynamic_tension_respa_bad_input():
         dynamic_tension(t, grip=10.0, integrator="leapfrog")
     with pytest.raises(ValueError, match="sample=100"):
         dynamic_tension(t, grip=10.0, integrator="respa", outer_dt=3.0)
-    with pytest.raises(ValueError, match="engine=True"):
-        dynamic_tension(t, grip=10.0, integrator="respa", outer_dt=4.0, engine=False)
     with pytest.raises(ValueError, match="split='none'"):
         dynamic_tension(t, grip=10.0, integrator="respa", outer_dt=4.0, split="none")
     with pytest.raises(ValueError, match="split='atoms-free' with integrator='verlet'"):

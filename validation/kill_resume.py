@@ -187,7 +187,7 @@ def _dcbr_vacancy(args) -> int:
         dyn["seed"] = 1000
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    r = dynamic_tension(model, engine=True, checkpoint=out / "checkpoint.npz",
+    r = dynamic_tension(model, checkpoint=out / "checkpoint.npz",
                         checkpoint_every=args.checkpoint_every, resume=args.resume, **dyn)
     keep = {k: r[k] for k in ("steps", "strength_GPa", "youngs_modulus_TPa", "strain_at_peak",
                               "first_damage", "curve", "grown_at", "region_free_atoms")}

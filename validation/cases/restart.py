@@ -4,8 +4,8 @@ runs end (:mod:`validation.kill_resume`).
 The runs: the pre-cracked plate (``upscale plate``, PMB, velocity Verlet with bond
 failure), the CPD bar's Newton solve (load steps), the periodic DCBR tube's dynamic
 tension on the engine (Nose-Hoover chain, links breaking) and the DCBR *vacancy* tube's
-dynamic tension on the engine (:func:`upscale.experiments.scenes.dcbr_dynamic.dynamic_tension` with
-``engine=True``: the (10,10) 150 Å coarsening-2 tube of ``dcbr-seeds`` pulled to failure;
+dynamic tension on the engine (:func:`upscale.experiments.scenes.dcbr_dynamic.dynamic_tension`,
+the (10,10) 150 Å coarsening-2 tube of ``dcbr-seeds`` pulled to failure;
 ``--quick``: a (6,6) 60 Å tube), ``dcbr_bit_identical``. The reference of each is the same
 run uninterrupted, in its own process.
 """

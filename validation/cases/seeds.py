@@ -143,11 +143,7 @@ def _reference_seeds(args):
                                               default=None,
                                               help="'bands' (atomistic bands across the grip "
                                                    "planes; default with --pristine) or "
-                                                   "'clamped' (default for the vacancy tubes)"),
-                               p.add_argument("--scene-loop", action="store_true",
-                                              help="the scene's own velocity Verlet "
-                                                   "(dynamic_tension(engine=False)) instead "
-                                                   "of the engine's")))
+                                                   "'clamped' (default for the vacancy tubes)")))
 def _dcbr_seeds(args):
     """The coarse scene of ``dcbr-tension --dynamic`` (with ``--vacancy`` unless
     ``--pristine``; :func:`validation.cases.dcbr.dynamic_scene`), seeds 1000, 1001, ..."""
@@ -166,8 +162,7 @@ def _dcbr_seeds(args):
             model, dyn = dynamic_scene(n, m, 150.0, args.coarsening, ref,
                                        vacancy=not args.pristine, grips=args.grips)
             grips = dyn.pop("grips")
-            r = dynamic_tension(model, seed=1000 + s, temperature=args.temperature,
-                                engine=not args.scene_loop, **dyn)
+            r = dynamic_tension(model, seed=1000 + s, temperature=args.temperature, **dyn)
             rows.append({"seed": 1000 + s, **{k: r[k] for k in KEYS},
                          "wall_s": time.perf_counter() - t0})
             print(f"({n},{m}) K={args.coarsening:g} seed {1000 + s}: {r['strength_GPa']:.2f} GPa "
@@ -176,7 +171,7 @@ def _dcbr_seeds(args):
         result[f"{n},{m}"] = {"runs": rows, "stats": _stats(rows)}
         print(table(rows, floatfmt=".4g"))
     return {"coarsening": args.coarsening, "pristine": bool(args.pristine),
-            "temperature_K": args.temperature, "engine": not args.scene_loop,
+            "temperature_K": args.temperature,
             "grips": grips, "tubes": result}
 
 

@@ -1,12 +1,10 @@
 """Dynamic tension of the coarse tube (the LAMMPS references' dynamic protocol), with a
 vacancy or pristine.
 
-The time loop runs on the engine (:func:`dynamic_tension` with ``engine=True``, the
-default: the tube as :class:`upscale.models.dcbr_engine.DCBRDefectTubeModel`, checkpoints
-with exact resume, extxyz / VTK output, the blow-up guard); ``engine=False`` runs the same
-protocol in the loop written out in :func:`dynamic_tension`. Units: eV, Å, fs, amu; stress
-in GPa on the wall area 2 pi R t, t = 3.4 Å. The measurements behind the choices below are
-in ``validation/results/engine.md`` ("The dynamic tube tension's design measurements").
+The time loop is the shared dynamic pull (:func:`upscale.experiments.pull.pull`) over the
+engine: the tube as :class:`upscale.models.dcbr_engine.DCBRDefectTubeModel`, checkpoints
+with exact resume, extxyz / VTK output, the blow-up guard. Units: eV, Å, fs, amu; stress
+in GPa on the wall area 2 pi R t, t = 3.4 Å.
 
 :func:`dynamic_tension` follows ``upscale.experiments.lammps.tension.dynamic_tension`` step for step,
 on a :class:`~upscale.models.dcbr_defect.DCBRDefectTube`:
@@ -184,6 +182,9 @@ import numpy as np
 from upscale.constants import K_B_EV
 from upscale.models.dcbr import EV_PER_A3_IN_GPA, WALL_THICKNESS, uniform_map_frame
 from upscale.models.dcbr_defect import ACC_UNIT, CARBON_MASS
+from upscale.engine.checkpoint import Checkpoint
+from upscale.experiments.protocols import Dynamic
+from upscale.experiments.pull import PullSpecimen, pull
 
 __all__ = ["dynamic_tension", "open_tube_with_grips", "grow_region", "static_grip_stiffness",
            "grip_band_tube", "pristine_grip_tube", "run_metrics", "CARBON_MASS"]
@@ -410,80 +411,61 @@ def grow_region(big, model, st) -> dict:
                             for k, v in big._ghost.items()}}
 
 
-def _engine_loop(tube, st, y, d, v, vd, L0, mass, mass_d, movable, dfree, ndf, thermo,
-                 temperature, tdamp, dt, vz, sample, max_strain, gauge, z_ext, ext, rec,
-                 on_sample, stability, checkpoint, checkpoint_every, resume, output,
-                 engine_progress, inner=None, split="coarse", grow=None):
-    """The time loop of :func:`dynamic_tension` on the engine.
+class _TubePull(PullSpecimen):
+    """The coarse tube of :func:`dynamic_tension` as a :class:`~upscale.experiments.pull.
+    PullSpecimen`: the time loop is :func:`~upscale.experiments.pull.pull`'s.
 
     The tube as :class:`~upscale.models.dcbr_engine.DCBRDefectTubeModel` (rows: particles,
     then free atoms; the shifts a field with inertia), its slave particles tied to their
     atoms, the grips :class:`~upscale.engine.conditions.Grip` conditions moving rigidly at
-    -+``vz`` (all components), the engine's velocity Verlet (kick-drift-kick: the same
-    trajectory as the position form of the loop in :func:`dynamic_tension`, to round-off)
-    inside :class:`~upscale.engine.thermostats.NoseHoover` half steps on x, y of the free
-    rows and on the shifts, with the loop's ``ndf``. After every step the grips' mean
-    reaction and the extensometer strain are accumulated; every ``sample`` steps
-    ``on_sample`` (the failure rules, the ghost-force refresh, after which the forces are
-    computed again). The scene's records live in ``rec`` and go into the state's extras
-    (``dcbr.scene``, JSON) before every checkpoint, so a run killed at any step resumes from
-    its last checkpoint bit for bit: the checkpoint of step k is written before that
-    step's bookkeeping, which the resumed run does first. ``inner`` (an integer): the
-    multiple-time-step integrator :class:`~upscale.engine.respa.RESPA` instead, ``dt``
-    its outer step and ``inner`` fast steps in each (the force split of
-    :meth:`~upscale.models.dcbr_engine.DCBRDefectTubeModel.add_group_force`), the steps
-    counted and sampled as outer steps; ``split`` names the model's force split
-    (:data:`~upscale.models.dcbr_engine.SPLITS`).
+    -+``vz``, the engine's velocity Verlet inside
+    :class:`~upscale.engine.thermostats.NoseHoover` half steps on x, y of the free rows and
+    on the shifts, with the scene's ``ndf`` (or :class:`~upscale.engine.respa.RESPA`,
+    ``inner`` fast steps per outer step of ``dt``, on the model's force ``split``). After
+    every step the grips' mean reaction and the extensometer strain are accumulated
+    (``read``); every ``sample`` steps the scene's ``on_sample`` (the failure rules, the
+    ghost-force refresh, after which the forces are computed again). ``grow``: the scene's
+    ``grow_to(y, d, v, vd)``, which moves it to the larger tube (``switch``): a new
+    simulation of that tube from the same step and time, its reference rows the grown
+    tube's set-up state (so the grips move and the displacements count as before), the
+    thermostat keeping its variable; the extra ``dcbr.grown`` marks a checkpoint written
+    after the switch, which resumes on the larger tube."""
 
-    ``grow`` (the grown region of :func:`dynamic_tension`): a callable ``grow(y, d, v, vd)``
-    that, when a sample has set ``rec["grow_pending"]``, moves the scene to the larger
-    tube and returns its ``{"tube", "st", "y", "delta", "v", "vdelta", "dfree", "ndf",
-    "ext"}`` (``y`` None on a resumed run). The run goes on in a new simulation of that
-    tube from the same step and time, its reference rows the grown tube's set-up state (so
-    the grips move and the displacements count as before), the thermostat keeps its
-    variable; the extra ``dcbr.grown`` (the step) marks
-    a checkpoint written after the switch, which resumes on the larger tube. Returns
-    (steps, y, delta, wall s of the dynamics)."""
-    import json  # noqa: PLC0415
-    import time as _time  # noqa: PLC0415
-    from pathlib import Path  # noqa: PLC0415
+    def __init__(self, scene: dict, tube, st, y, d, v, vd, dfree, ndf, ext):
+        self.scene = scene
+        self.rec = scene["rec"]
+        self.cur = {"ext": ext}
+        self.build(tube, st, y, d, v, vd, dfree, ndf)
 
-    from upscale.engine.checkpoint import Checkpoint  # noqa: PLC0415
-    from upscale.engine.conditions import Grip, Region  # noqa: PLC0415
-    from upscale.engine.integrators import BlowUp, VelocityVerlet  # noqa: PLC0415
-    from upscale.engine.simulation import Simulation  # noqa: PLC0415
-    from upscale.engine.thermostats import NoseHoover  # noqa: PLC0415
-    from upscale.io import NumpyJSON  # noqa: PLC0415
-    from upscale.models.dcbr_engine import FIELD, DCBRDefectTubeModel  # noqa: PLC0415
-
-    t0 = _time.perf_counter()
-    cur = {}  # the simulation and what the bookkeeping reads of it
-
-    def build(tube, st, y, d, v, vd, dfree, ndf, t=0.0, step=0):
+    def build(self, tube, st, y, d, v, vd, dfree, ndf, t=0.0, step=0):
         """A simulation of ``tube``, its reference rows the set-up state ``st`` (the start
-        of the pull, so that the grips' rigid motion and the displacements are the same
-        functions of time on either tube), at unknowns y, shifts d, rates v, vd (None:
-        at the reference, at rest), time ``t`` and ``step``."""
-        em = DCBRDefectTubeModel(tube, y=st["y"], delta=st["delta"], Lz=L0, split=split)
-        system = em.system()
-        n, N = em.n, em.N
-        rows = em.y_rows
+        of the pull), at unknowns y, shifts d, rates v, vd (None: at the reference, at
+        rest), time ``t`` and ``step``."""
+        from upscale.engine.conditions import Grip, Region  # noqa: PLC0415
+        from upscale.engine.integrators import VelocityVerlet  # noqa: PLC0415
+        from upscale.engine.simulation import Simulation  # noqa: PLC0415
+        from upscale.engine.thermostats import NoseHoover  # noqa: PLC0415
+        from upscale.models.dcbr_engine import FIELD, DCBRDefectTubeModel  # noqa: PLC0415
+
+        sc = self.scene
+        vz = sc["vz"]
+        em = DCBRDefectTubeModel(tube, y=st["y"], delta=st["delta"], Lz=sc["L0"],
+                                 split=sc["split"])
+        n, N, rows = em.n, em.N, em.y_rows
         bottom, top = np.zeros(n, bool), np.zeros(n, bool)
         bottom[rows], top[rows] = st["bottom"], st["top"]
-        held = np.zeros(N, bool)
-        held[~dfree] = True
         grips = [Grip(Region("grip bottom", bottom), velocity=(0.0, 0.0, -vz), record_every=0),
                  Grip(Region("grip top", top), velocity=(0.0, 0.0, vz), record_every=0)]
-        conds = em.conditions(held_shifts=held) + grips
-        thermostat = NoseHoover(temperature, tdamp, components=(0, 1), fields=(FIELD,),
-                                ndf=ndf, k_B=K_B_EV) if thermo else None
-        if inner is None:
-            integrator = VelocityVerlet(dt, force=True, thermostat=thermostat)
+        conds = em.conditions(held_shifts=~dfree) + grips
+        thermostat = NoseHoover(sc["temperature"], sc["tdamp"], components=(0, 1),
+                                fields=(FIELD,), ndf=ndf, k_B=K_B_EV) if sc["thermo"] else None
+        if sc["inner"] is None:
+            integrator = VelocityVerlet(sc["dt"], force=True, thermostat=thermostat)
         else:
             from upscale.engine.respa import RESPA  # noqa: PLC0415
 
-            integrator = RESPA(dt, int(inner), thermostat=thermostat, force=True)
-        sim = Simulation(system, None, [em], conds, integrator)
+            integrator = RESPA(sc["dt"], int(sc["inner"]), thermostat=thermostat, force=True)
+        sim = Simulation(em.system(), None, [em], conds, integrator)
         state = sim.state
         state.t, state.step = float(t), int(step)
         if y is not None and step > 0:  # (a state carried over)
@@ -494,121 +476,86 @@ def _engine_loop(tube, st, y, d, v, vd, L0, mass, mass_d, movable, dfree, ndf, t
             if len(tube.slave_idx):
                 state.v[tube.slave_idx] = tube.Phi @ v[em.nd:]
             state.field_v[FIELD][:N] = vd
-        cur.update(sim=sim, em=em, rows=rows, N=N, bottom=bottom, top=top, tube=tube)
+        self.cur.update(em=em, rows=rows, N=N, bottom=bottom, top=top, tube=tube)
+        self.simulation = sim
         return sim
 
-    def grown(y_, d_, v_, vd_, t, step, xi):
-        g = grow(y_, d_, v_, vd_)
+    # ------------------------------------------------------------------ PullSpecimen
+    def read(self, sim) -> None:
+        """The grips' reaction (what they exert on the tube, -sum F over the region, from
+        the unzeroed forces on the prescribed rows) and the extensometer strain."""
+        cur, rec = self.cur, self.rec
+        R = sim.reactions
+        rec["blk"].append(0.5 * (-R[cur["top"], 2].sum() + R[cur["bottom"], 2].sum()))
+        rec["eblk"].append(cur["ext"].strain(self.scene["z_ext"](sim.state.y[cur["rows"]])))
+
+    def sample(self, sim) -> dict:
+        from upscale.models.dcbr_engine import FIELD  # noqa: PLC0415
+
+        s_, cur, rec = sim.state, self.cur, self.rec
+        em, stability = cur["em"], self.scene["stability"]
+
+        def links():  # (with the stability rule, its time includes the link rule's)
+            ts = time.perf_counter()
+            nb = em.break_links(s_, stability=stability)
+            if stability:
+                rec["t_stab"] += time.perf_counter() - ts
+            return nb
+
+        def refresh():
+            em.store_ghost(s_)
+            # (a multiple-time-step integrator keeps its own group forces)
+            getattr(sim.integrator, "update_forces", lambda s: s.update_forces())(sim)
+        self.scene["on_sample"](int(s_.step), s_.y[cur["rows"]], s_.v[cur["rows"]],
+                                s_.fields[FIELD][:cur["N"]], links, refresh)
+        return {"load": rec["strains"][-1], "response": rec["stresses"][-1]}
+
+    def load(self, sim) -> float:
+        sc = self.scene
+        return 2 * sc["vz"] * int(sim.state.step) * sc["dt"] / sc["gauge"]
+
+    def wants_switch(self) -> bool:
+        return bool(self.rec.get("grow_pending"))
+
+    def switch(self) -> None:
+        from upscale.models.dcbr_engine import FIELD  # noqa: PLC0415
+
+        sim, cur = self.simulation, self.cur
+        s_ = sim.state
+        yk, dk = cur["em"].unknowns(s_)
+        th = getattr(sim.integrator, "thermostat", None)
+        self.rec["grow_pending"] = False
+        g = self.scene["grow"](yk, np.array(dk, copy=True), s_.v[cur["rows"]].copy(),
+                               np.array(s_.field_v[FIELD][:cur["N"]], copy=True))
         cur["ext"] = g["ext"]
-        sim = build(g["tube"], g["st"], g["y"], g["delta"], g["v"], g["vdelta"], g["dfree"],
-                    g["ndf"], t, step)
-        sim.state.extra["dcbr.grown"] = np.int64(step)
+        new = self.build(g["tube"], g["st"], g["y"], g["delta"], g["v"], g["vdelta"],
+                         g["dfree"], g["ndf"], s_.t, s_.step)
+        new.state.extra["dcbr.grown"] = np.int64(s_.step)
         # (the correction set at the switch, under a new version: a run resumed from a
         # checkpoint of this simulation takes it from the extras, not from its set-up)
-        cur["em"].store_ghost(sim.state)
-        th = getattr(sim.integrator, "thermostat", None)
+        cur["em"].store_ghost(new.state)
         if th is not None:
-            th.xi = xi
-        return sim
+            new.integrator.thermostat.xi = th.xi
 
-    cur["ext"] = ext
-    build(tube, st, y, d, v, vd, dfree, ndf)
-    ck = None
-    if checkpoint is not None:
-        ck = Checkpoint(checkpoint, int(checkpoint_every))
-    every = ck.every if ck is not None else 0
+    def bookkeeping(self) -> dict:
+        return self.rec
 
-    def save_rec(step):
-        rec["step"] = int(step)
-        cur["sim"].state.extra["dcbr.scene"] = np.frombuffer(
-            json.dumps(rec, cls=NumpyJSON).encode(), dtype=np.uint8)
+    def restore(self, book: dict) -> None:
+        self.rec.update(book)
 
-    def bookkeeping(sim_) -> bool:
-        s_ = sim_.state
-        step = int(s_.step)
-        rows, N, em = cur["rows"], cur["N"], cur["em"]
-        # the grips' reaction (what they exert on the tube, -sum F over the region, here
-        # from the unzeroed forces on the prescribed rows)
-        R = sim_.reactions
-        rec["blk"].append(0.5 * (-R[cur["top"], 2].sum() + R[cur["bottom"], 2].sum()))
-        yk = s_.y[rows]
-        rec["eblk"].append(cur["ext"].strain(z_ext(yk)))
-        stop = False
-        if step % sample == 0:
-            d_ = s_.fields[FIELD][:N]
+    def prepare_resume(self, path) -> None:
+        """A checkpoint written after the region grew belongs to the larger tube."""
+        with np.load(path) as z:
+            grown = "extra__dcbr.grown" in z.files
+        if grown:
+            g = self.scene["grow"](None, None, None, None)
+            self.cur["ext"] = g["ext"]
+            self.build(g["tube"], g["st"], None, None, None, None, g["dfree"], g["ndf"])
 
-            def links():  # (with the stability rule, its time includes the link rule's)
-                ts = _time.perf_counter()
-                nb = em.break_links(s_, stability=stability)
-                if stability:
-                    rec["t_stab"] += _time.perf_counter() - ts
-                return nb
-
-            def refresh():
-                em.store_ghost(s_)
-                # (a multiple-time-step integrator keeps its own group forces)
-                getattr(sim_.integrator, "update_forces", lambda s: s.update_forces())(sim_)
-            stop = bool(on_sample(step, yk, s_.v[rows], d_, links, refresh))
-        if stop or (every and (step + 1) % every == 0):
-            save_rec(step)
-        return stop
-
-    steps_max = int(np.ceil(max_strain * gauge / (2 * vz * dt))) + 2 * sample
-    if resume and ck is not None and Path(checkpoint).is_file():
-        with np.load(checkpoint) as z:  # a checkpoint written after the region grew
-            grown_ck = "extra__dcbr.grown" in z.files
-        if grown_ck:
-            g = grow(None, None, None, None)
-            cur["ext"] = g["ext"]
-            build(g["tube"], g["st"], None, None, None, None, g["dfree"], g["ndf"])
-        sim = cur["sim"]
-        sim.resume(checkpoint)
-        sc = json.loads(bytes(sim.state.extra["dcbr.scene"]).decode()) \
-            if "dcbr.scene" in sim.state.extra else None
-        sim.prepare()
-        if sc is not None:
-            rec.update(sc)
-        ck.last_step = None
-        if int(sim.state.step) > 0 and rec["step"] < sim.state.step:
-            if bookkeeping(sim):  # the interrupted step's own bookkeeping
-                steps_max = 0 if not rec.get("grow_pending") else steps_max
-        if steps_max:
-            save_rec(sim.state.step)
-    else:
-        save_rec(0)
-    while True:
-        sim = cur["sim"]
-        if rec.get("grow_pending"):  # the crack reached the region: continue on the larger one
-            s_ = sim.state
-            em = cur["em"]
-            yk, dk = em.unknowns(s_)
-            th = getattr(sim.integrator, "thermostat", None)
-            rec["grow_pending"] = False
-            sim = grown(yk, np.array(dk, copy=True), s_.v[cur["rows"]].copy(),
-                        np.array(s_.field_v[FIELD][:cur["N"]], copy=True), s_.t, s_.step,
-                        0.0 if th is None else th.xi)
-            save_rec(sim.state.step)
-            if ck is not None:  # (the first checkpoint of the larger tube, at once)
-                ck.last_step = None
-        left = max(steps_max - int(sim.state.step), 0)
-        if not left:
-            break
-        try:
-            sim.run(left, output=output, checkpoint=ck, progress=engine_progress,
-                    callback=bookkeeping, meta={"scene": "dcbr dynamic tension"})
-        except BlowUp as e:
-            # after the tube has failed (the stress 5 % below its maximum) an atom kicked
-            # by the step cutoff may trip the guard (as LAMMPS's runs stop on a runaway
-            # atom's box): the curve up to there stands, the run ends
-            if not rec["failed"]:
-                raise
-            rec["blowup_after_failure"] = str(e)
-            break
-        if not rec.get("grow_pending"):
-            break
-    sim = cur["sim"]
-    yk, dk = cur["em"].unknowns(sim.state)
-    return int(sim.state.step), yk, np.array(dk, copy=True), _time.perf_counter() - t0
+    def unknowns(self):
+        """(y, delta) of the current state, the tube's unknowns."""
+        yk, dk = self.cur["em"].unknowns(self.simulation.state)
+        return yk, np.array(dk, copy=True)
 
 
 def _hold_grip_ghost(model, st) -> None:
@@ -736,7 +683,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
                     progress=None, gtol: float = 1e-4, temperature: float = 10.0,
                     tdamp: float = 100.0, seed: int = 12345, ghost: str = "local",
                     monitor=None, clamp: bool | None = None, stability: bool = False,
-                    planes=None, gauge_planes=None, engine: bool = True,
+                    planes=None, gauge_planes=None,
                     checkpoint=None, checkpoint_every: int = 500, resume: bool = False,
                     output=None, engine_progress: bool = False, integrator: str = "verlet",
                     outer_dt: float | None = None, inner: int | None = None,
@@ -758,18 +705,15 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     the lattice-stability rule (:meth:`DCBRDefectTube.check_stability`) every ``sample``
     steps (its time in ``stability_s``).
 
-    ``engine`` (default): the time loop on the engine (:func:`_engine_loop`: the tube as
-    :class:`~upscale.models.dcbr_engine.DCBRDefectTubeModel`, the engine's velocity Verlet
-    with :class:`~upscale.engine.thermostats.NoseHoover` on x, y and the shifts, the grips as
-    :class:`~upscale.engine.conditions.Grip` conditions, the blow-up guard), which also
-    takes ``checkpoint`` (a path: a checkpoint every ``checkpoint_every`` steps),
+    The time loop is :func:`~upscale.experiments.pull.pull` on :class:`_TubePull` (the
+    engine's velocity Verlet with :class:`~upscale.engine.thermostats.NoseHoover` on x, y
+    and the shifts, the grips as :class:`~upscale.engine.conditions.Grip` conditions, the
+    blow-up guard); ``checkpoint`` (a path: a checkpoint every ``checkpoint_every`` steps),
     ``resume`` (continue from that checkpoint, bit for bit), ``output`` (an
     :class:`~upscale.engine.output.Output`: extxyz / VTK frames) and ``engine_progress``
-    (the engine's progress bar). ``engine=False``: the same protocol in the position form of
-    velocity Verlet written out below (the same trajectory to round-off; kept as the
-    reference the engine loop is compared with, ``dcbr-regression``).
+    (the engine's progress bar).
 
-    ``integrator="respa"`` (engine only): multiple time stepping
+    ``integrator="respa"``: multiple time stepping
     (:class:`~upscale.engine.respa.RESPA`), the coarse particles' lattice energy at the
     outer step ``outer_dt`` fs, the atomistic region, its coupling and the ghost-force
     dead load (with the coarse energy's expansion in the shifts,
@@ -785,7 +729,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     energy of the particles with a slave in their G stencil fast; ``"atoms-free"`` both
     fast, so that the slow forces never act on the atoms (more work per fast step).
 
-    ``grow`` (engine only, clamped grips): a :class:`~upscale.models.dcbr_defect.DCBRDefectTube`
+    ``grow`` (clamped grips): a :class:`~upscale.models.dcbr_defect.DCBRDefectTube`
     of the same tube whose atomistic region contains ``model``'s, e.g. the band about a
     disc. The run starts on ``model``; at the first sample at which one of its atoms has a
     broken bond (the crack has started, and a crack cannot leave an atomistic region: at
@@ -820,8 +764,6 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
         raise ValueError(f"integrator={integrator!r}; valid: 'verlet' (velocity Verlet at dt) "
                          "or 'respa' (multiple time stepping, outer_dt / inner)")
     if integrator == "respa":
-        if not engine:
-            raise ValueError("integrator='respa' runs on the engine; valid: engine=True")
         if inner is None and outer_dt is None:
             raise ValueError("integrator='respa' needs outer_dt (fs) or inner (steps of dt)")
         if inner is None:
@@ -839,9 +781,9 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     if ghost not in ("local", "grips"):
         raise ValueError(f"ghost={ghost!r}; valid: 'local' (each side's correction at the "
                          "stretch its interface particles carry) or 'grips' (at the grips' strain)")
-    if grow is not None and not (engine and model.nf):
-        raise ValueError(f"grow with engine={engine!r} and {model.nf} free atoms; valid: "
-                         "engine=True and a model with an atomistic region")
+    if grow is not None and not model.nf:
+        raise ValueError(f"grow with {model.nf} free atoms; valid: a model with an "
+                         "atomistic region")
     t0 = time.perf_counter()
     acc = ACC_UNIT
     st = open_tube_with_grips(model, grip, gtol, clamp=clamp, planes=planes,
@@ -913,19 +855,6 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
         return df, 2 * int((~grips).sum()) + 3 * int((df & ~tube.is_slave).sum())
     dfree, ndf = free_shifts(model, grips)
     vd[~dfree] = 0.0
-    xi = 0.0
-
-    def temp_xy():
-        ke2 = np.sum(mass[movable, None] * v[movable, :2] ** 2) + np.sum(mass_d[:, None] * vd ** 2)
-        return ke2 / acc / (ndf * kB)
-
-    def thermostat_half(xi):
-        xi += 0.5 * dt * (temp_xy() / temperature - 1.0) / tdamp ** 2
-        sc = math.exp(-0.5 * dt * xi)
-        v[movable, :2] *= sc
-        vd[:] *= sc
-        return xi
-
     # the ghost-force correction on each side of the atomistic region at the stretch that
     # side's interface particles carry (their own uniform map's lam_z), so that it follows
     # each half as it relaxes after the tube breaks
@@ -955,10 +884,6 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
             return model.L * float(np.mean(lz[c][ok])) if ok.any() else float(L0)
         model.prepare_sides(side(c_lo), side(c_hi), L0)
         _hold_grip_ghost(model, st)
-
-    def forces(y, d, strain):
-        _, gy, gd, _ = model.energy_and_gradient(y, d, L0)
-        return gy, gd
 
     rec = {"strains": [], "stresses": [], "times": [], "off_wall": [], "kinetic": [],
            "exts": [], "blk": [], "eblk": [], "smax": 0.0, "failed": False, "first": None,
@@ -1034,14 +959,13 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     model0 = model
 
     def grow_to(y_, d_, v_, vd_):
-        """The scene moved to ``grow`` (:func:`_engine_loop`): its state carried over
+        """The scene moved to ``grow`` (:class:`_TubePull`): its state carried over
         from the current tube's (none on a resumed run, whose state is the checkpoint's),
         then its ghost-force correction at that state."""
-        nonlocal model, st, nd, grips, mass, mass_d, movable, dfree, ndf, c_lo, c_hi, ext
+        nonlocal model, st, nd, grips, mass, mass_d, dfree, ndf, c_lo, c_hi, ext
         old, model, st = model, grow, st_grow
         nd, grips = len(model.dof_idx), st["bottom"] | st["top"]
         mass, mass_d = model.masses()
-        movable = ~grips
         dfree, ndf = free_shifts(model, grips)
         c_lo, c_hi = sides(model, grips)
         ext = extensometer(model, st)
@@ -1061,57 +985,20 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
             out.update(y=yn, delta=dn, v=vn, vdelta=vdn)
         return out
 
-    def links_old():
-        broke = model.update_links()
-        if stability:
-            ts = time.perf_counter()
-            broke += model.check_stability()
-            rec["t_stab"] += time.perf_counter() - ts
-        return broke
-
-    if engine:
-        step, y, d, wall_dyn = _engine_loop(
-            model, st, y, d, v, vd, L0, mass, mass_d, movable, dfree, ndf, thermo,
-            temperature, tdamp, dt, vz, sample, max_strain, gauge, z_ext, ext, rec, on_sample,
-            stability, checkpoint, checkpoint_every, resume, output, engine_progress,
-            inner=inner, split=split, grow=None if grow is None else grow_to)
-    else:
-        gy, gd = forces(y, d, 0.0)
-        step = 0
-        while True:
-            # velocity Verlet (grips move at constant velocity) inside Nose-Hoover half steps
-            if thermo:
-                xi = thermostat_half(xi)
-            a = -gy / mass[:, None] * acc
-            ad = -gd / mass_d[:, None] * acc * dfree[:, None]
-            y = y + v * dt
-            y[movable] += 0.5 * a[movable] * dt * dt
-            d = d + vd * dt + 0.5 * ad * dt * dt
-            step += 1
-            strain = sep0 * step * dt / gauge
-            gy2, gd2 = forces(y, d, strain)
-            a2 = -gy2 / mass[:, None] * acc
-            v[movable] += 0.5 * (a[movable] + a2[movable]) * dt
-            vd += 0.5 * (ad - gd2 / mass_d[:, None] * acc * dfree[:, None]) * dt
-            if thermo:
-                xi = thermostat_half(xi)
-            gy, gd = gy2, gd2
-            # reaction of the grips: the tube pulls the top grip down and the bottom one up
-            rec["blk"].append(0.5 * (gy[top, 2].sum() - gy[bottom, 2].sum()))
-            rec["eblk"].append(ext.strain(z_ext(y)))
-            if not np.all(np.isfinite(y)):
-                raise FloatingPointError(f"dynamic tension blew up at step {step} (strain "
-                                         f"{strain:.4f}); last good stress "
-                                         f"{rec['stresses'][-1:]}")
-            if step % sample == 0:
-                box = {}
-
-                def refresh(box=box, y=y, d=d, strain=strain):
-                    box["g"] = forces(y, d, strain)
-                if on_sample(step, y, v, d, links_old, refresh):
-                    gy, gd = box["g"]
-                    break
-                gy, gd = box["g"]
+    scene = {"rec": rec, "vz": vz, "L0": L0, "split": split, "temperature": temperature,
+             "tdamp": tdamp, "thermo": thermo, "inner": inner, "dt": dt, "gauge": gauge,
+             "z_ext": z_ext, "stability": stability, "on_sample": on_sample,
+             "grow": None if grow is None else grow_to}
+    spec = _TubePull(scene, model, st, y, d, v, vd, dfree, ndf, ext)
+    spec.max_steps = int(np.ceil(max_strain * gauge / (2 * vz * dt))) + 2 * sample
+    protocol = Dynamic(load="tension", speed=speed, grip=grip, dt=dt, sample_every=sample,
+                       temperature=temperature, tau=tdamp * 1e-3, maximum=max_strain,
+                       seed=seed)
+    out = pull(spec, protocol, checkpoint=None if checkpoint is None else
+               Checkpoint(checkpoint, int(checkpoint_every)), resume=resume, output=output,
+               engine_progress=engine_progress, meta={"scene": "dcbr dynamic tension"})
+    rec["blowup_after_failure"] = out["blowup_after_failure"]
+    step, (y, d) = out["steps"], spec.unknowns()
     strains, stresses, exts, first = rec["strains"], rec["stresses"], rec["exts"], rec["first"]
     times, off_wall, kinetic, t_stab = rec["times"], rec["off_wall"], rec["kinetic"], rec["t_stab"]
     res = {"model": "dcbr-defect", "protocol": "dynamic", "chirality":
