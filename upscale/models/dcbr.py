@@ -124,6 +124,10 @@ from upscale.models.gain import GainOperator, build_gain
 __all__ = ["tersoff_params", "TubeLattice", "LatticeStability", "DCBRTube",
            "DCBRTubeModel", "TubeMinimum", "EV_PER_A3_IN_GPA", "WALL_THICKNESS"]
 
+# The new model package's files (upscale/models/dcbr/, issue 51) sit beside this module until
+# it is deleted; this path makes them importable as upscale.models.dcbr.<name> meanwhile.
+__path__ = [__file__[:-len(".py")]]
+
 # Each component of a particle's sublattice shift is held within +-SHIFT_BOUND_FRACTION
 # times the bond length (0.355 Å for 1.42 Å) by the minimiser's bounds. The relaxed lattice
 # shifts by at most 0.2 Å up to 30 % axial strain ((17,0), (12,6); 0.04 Å for (10,10)), but
