@@ -3,7 +3,8 @@ energy's gradient, the per-tube failure bookkeeping, and bad input."""
 import numpy as np
 import pytest
 
-from upscale.experiments.scenes.bundle import BundleScene, TubeSpec, tube_failures, zero_stress_ratios
+from upscale.experiments.scenes.bundle import BundleScene, TubeSpec, zero_stress_ratios
+from upscale.experiments.scenes.bundle_pull import tube_failures
 from upscale.models.tube_vdw import LumpedMap, TubeVdW
 
 RATIOS = {"axial": 1.0142, "radial": 1.0159}  # close to the relaxed (10,10); any value works

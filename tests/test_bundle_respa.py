@@ -3,7 +3,8 @@ to the total, r-RESPA with one inner step is velocity Verlet, and bad options.""
 import numpy as np
 import pytest
 
-from upscale.experiments.scenes.bundle import BundleScene, TubeSpec, dynamic_tension
+from upscale.experiments.scenes.bundle import BundleScene, TubeSpec
+from upscale.experiments.scenes.bundle_pull import dynamic_tension
 
 RATIOS = {"axial": 1.0142, "radial": 1.0159}
 

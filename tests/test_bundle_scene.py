@@ -110,10 +110,11 @@ def test_one_default_per_setting():
     is the default of the scene function, its command line, BundleScene.create,
     dynamic_tension and the validation case's options."""
     from upscale.experiments.scenes import bundle as b
+    from upscale.experiments.scenes.bundle_pull import dynamic_tension
 
     assert (b.INTEGRATOR, b.INNER, b.COARSE_PAIRS) == ("respa", 5, "atoms")
     scene = inspect.signature(experiments.bundle).parameters
-    dyn = inspect.signature(b.dynamic_tension).parameters
+    dyn = inspect.signature(dynamic_tension).parameters
     create = inspect.signature(b.BundleScene.create).parameters
     p = argparse.ArgumentParser()
     b.add_run_options(p)

@@ -2,7 +2,8 @@
 coarse tubes in equilibrium with the van der Waals forces; the thermostat's chain."""
 import pytest
 
-from upscale.experiments.scenes.bundle import BundleScene, TubeSpec, dynamic_tension
+from upscale.experiments.scenes.bundle import BundleScene, TubeSpec
+from upscale.experiments.scenes.bundle_pull import dynamic_tension
 
 RATIOS = {"axial": 1.0142, "radial": 1.0159}
 

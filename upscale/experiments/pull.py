@@ -8,7 +8,7 @@ protocol's thermostat; :func:`pull` advances it with the engine's integrator
 ``protocol.sample_every`` steps asks it for the sample's record (the block's mean response
 at the block's middle time, as the LAMMPS runner averages ``fix ave/time``). The run stops
 by the protocol's :class:`~upscale.experiments.protocols.StopRule` (failure: the first
-sample ``drop`` below the running maximum of the response's magnitude; stop: below
+sample ``drop`` below the running maximum of the response along the load; stop: below
 ``below`` of the peak after failure), at ``protocol.maximum`` of the load, or at the
 specimen's step limit.
 
@@ -41,8 +41,8 @@ class PullSpecimen:
     ``max_steps``: the step limit; ``read(sim)``: after every step, accumulate what a
     sample averages; ``sample(sim)``: at the end of a block, the block's record (a dict
     with ``load`` and ``response``, JSON numbers), breaking bonds and refreshing forces as
-    the model needs; ``load(sim)``: the load parameter now (strain, or twist in degrees),
-    which stops the run at ``protocol.maximum``. Optional: ``wants_switch()`` (asked after
+    the model needs; ``load(sim)``: the load (strain, or twist in degrees) checked against
+    ``protocol.maximum`` after each sample: the grips' load now, or the last sample's. Optional: ``wants_switch()`` (asked after
     every sample) and ``switch()`` (the specimen replaces its simulation, which continues
     from the same step and time: an atomistic region that grows), ``bookkeeping()`` /
     ``restore(dict)`` (the JSON state a resumed run needs) and ``prepare_resume(path)``
@@ -51,6 +51,9 @@ class PullSpecimen:
 
     simulation = None
     max_steps: int = 0
+    #: time steps of the protocol's ``dt`` per engine step (a multiple-time-step
+    #: integrator's inner steps): the protocol's ``sample_every`` counts the former
+    inner: int = 1
 
     def read(self, sim) -> None:  # pragma: no cover - interface
         raise NotImplementedError(f"{type(self).__name__} must define read(sim)")
@@ -104,7 +107,7 @@ def pull(specimen, protocol, *, progress=None, checkpoint=None, resume: bool = F
     from upscale.io import NumpyJSON  # noqa: PLC0415
 
     t0 = time.perf_counter()
-    every = int(protocol.sample_every)
+    every = int(protocol.sample_every) // int(specimen.inner)
     run = {"records": [], "step": 0, "book": {}, "switch": False}
     ck_every = checkpoint.every if checkpoint is not None else 0
 
@@ -120,8 +123,7 @@ def pull(specimen, protocol, *, progress=None, checkpoint=None, resume: bool = F
             run["records"].append(specimen.sample(sim))
             if progress is not None:
                 progress(run["records"][-1])
-            resp = [r["response"] for r in run["records"]]
-            stop = bool(protocol.stop.done(resp)
+            stop = bool(protocol.stop.done(_along(run["records"], protocol))
                         or abs(specimen.load(sim)) >= protocol.maximum)
             run["switch"] = not stop and bool(specimen.wants_switch())
             stop = stop or run["switch"]
@@ -150,15 +152,22 @@ def pull(specimen, protocol, *, progress=None, checkpoint=None, resume: bool = F
             sim.run(left, output=output, checkpoint=checkpoint, progress=engine_progress,
                     callback=callback, meta=meta)
         except BlowUp as e:
-            if protocol.stop.failed_at([r["response"] for r in run["records"]]) is None:
+            if protocol.stop.failed_at(_along(run["records"], protocol)) is None:
                 raise
             blowup = str(e)
             break
         done = not run.get("switch")
-    resp = [r["response"] for r in run["records"]]
     return {"records": run["records"], "steps": int(specimen.simulation.state.step),
-            "failed_at": protocol.stop.failed_at(resp), "blowup_after_failure": blowup,
+            "failed_at": protocol.stop.failed_at(_along(run["records"], protocol)),
+            "blowup_after_failure": blowup,
             "dynamics_s": time.perf_counter() - t0}
+
+
+def _along(records, protocol) -> list:
+    """The responses along the load (tension positive, compression's sign turned), a
+    response against the load counted as zero: a specimen still pushed back by its start
+    (a bundle in compression at the first samples) has not failed."""
+    return [max(protocol.sign * r["response"], 0.0) for r in records]
 
 
 def _resume(specimen, checkpoint, run, callback, save) -> bool:

@@ -231,9 +231,10 @@ def _pct(a, b):
 def run_bundle_tension(args):
     import os  # noqa: PLC0415
 
-    from upscale.experiments.scenes.bundle import (BundleScene, dynamic_tension,  # noqa: PLC0415
-                                            parse_specs, plot_curves, plot_damage_maps,
-                                            tube_failures)
+    from upscale.experiments.scenes.bundle import (BundleScene,  # noqa: PLC0415
+                                                   parse_specs, plot_curves, plot_damage_maps)
+    from upscale.experiments.scenes.bundle_pull import (dynamic_tension,  # noqa: PLC0415
+                                                        tube_failures)
 
     n, m = args.chirality
     spacing = "seed" if args.hexagon else "vdw"

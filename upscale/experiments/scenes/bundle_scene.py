@@ -4,8 +4,9 @@ plain function returning a :class:`~upscale.experiments.result.Result`.
     upscale bundle --chirality 10,10 --coarsening 2 [--compare lammps]
 
 The scene's parts (:class:`~upscale.experiments.scenes.bundle.BundleScene`, its tubes'
-models, the van der Waals between them, :func:`~upscale.experiments.scenes.bundle.
-dynamic_tension`) are in :mod:`upscale.experiments.scenes.bundle`, with the protocol. The
+models, the van der Waals between them) are in :mod:`upscale.experiments.scenes.bundle`,
+its pull (:func:`~upscale.experiments.scenes.bundle_pull.dynamic_tension`) in
+:mod:`upscale.experiments.scenes.bundle_pull`. The
 defaults are the validated setting (validation/results/bundle.md): r-RESPA 5 x 1 fs
 (:data:`~upscale.experiments.scenes.bundle.INTEGRATOR`), reconstructed atoms between coarse
 tubes (:data:`~upscale.experiments.scenes.bundle.COARSE_PAIRS`), one Nose-Hoover chain of 3.
@@ -36,8 +37,9 @@ import numpy as np
 
 from upscale.experiments.result import Result, Timer, make_meta
 from upscale.experiments.scenes.bundle import (COARSE_PAIRS, INNER, INTEGRATOR, SEED,
-                                               BundleScene, check_run_options, dynamic_tension,
-                                               parse_specs, reference_name, tube_failures)
+                                               BundleScene, parse_specs, reference_name)
+from upscale.experiments.scenes.bundle_pull import (check_run_options, dynamic_tension,
+                                                    tube_failures)
 
 __all__ = ["bundle", "bundle_result", "lammps_bundle_reference", "reference_result",
            "MODELS"]
