@@ -35,8 +35,7 @@ def _shuffled_rows(fam, seed=1):
     """The same family with the bonds of every row in a random order."""
     rng = np.random.default_rng(seed)
     order = np.concatenate([fam.offsets[i] + rng.permutation(fam.counts[i]) for i in range(fam.n)])
-    return Family(fam.offsets.copy(), fam.neighbors[order].copy(), fam.xi[order].copy(),
-                  fam.length[order].copy(), fam.volume_factor[order].copy(), fam.horizon,
+    return Family(fam.offsets.copy(), fam.neighbors[order].copy(), fam.x0, fam.horizon,
                   fam.spacing, fam.partial_volume), order
 
 
@@ -121,8 +120,7 @@ def test_lps_half_list_matches_directed_equations(name, irregular, shuffle, thre
 
 
 def test_layout_of_a_lattice():
-    """A lattice needs one byte of class per pair and unsigned 32-bit partners; a family that
-    differs between directions is refused."""
+    """A lattice needs one byte of class per pair and unsigned 32-bit partners."""
     sysm, fam, _ = _body()
     bl = BondList(fam, sysm.volume)
     k_p, L_k, bf_k, br_k = bl.classes()
@@ -134,10 +132,6 @@ def test_layout_of_a_lattice():
     np.testing.assert_array_equal(br_k[k_p], fam.volume_factor[bl.rev_p])
     np.testing.assert_array_equal(fam.owner[bl.rev_p], bl.j_p)
     np.testing.assert_array_equal(fam.neighbors[bl.rev_p], fam.owner[fwd])
-    bad = Family(fam.offsets, fam.neighbors, fam.xi, fam.length * (1 + 1e-9 * (fam.owner < fam.neighbors)),
-                 fam.volume_factor, fam.horizon, fam.spacing)
-    with pytest.raises(ValueError, match="differ between the two directions"):
-        BondList(bad, sysm.volume).classes()
 
 
 def test_thread_chunks_cover_every_particle_once():
@@ -180,8 +174,7 @@ def test_reverse_index_by_bisection_matches_the_family():
     shuffled, _ = _shuffled_rows(fam)
     bl2 = BondList(shuffled, sysm.volume)  # unsorted rows: the family's own reverse
     np.testing.assert_array_equal(bl2.rev_p, shuffled.reverse[bl2.forward_index()])
-    one_way = Family(fam.offsets, fam.neighbors, fam.xi, fam.length, fam.volume_factor,
-                     fam.horizon, fam.spacing)
+    one_way = Family(fam.offsets, fam.neighbors, fam.x0, fam.horizon, fam.spacing)
     one_way.neighbors = fam.neighbors.copy()
     row = slice(fam.offsets[5], fam.offsets[6])
     one_way.neighbors[row] = np.where(one_way.neighbors[row] > 5, one_way.neighbors[row], 0)

@@ -51,9 +51,21 @@ def test_blocks_give_the_all_pairs_family_bit_for_bit(monkeypatch, block, name, 
     fam = build_family(system, horizon, partial_volume=pv, exclude=exclude)
     offsets, j, d, length = _all_pairs(system, horizon, pv, exclude)
     assert fam.nb > 0
-    for got, ref in ((fam.offsets, offsets), (fam.neighbors, j), (fam.xi, d), (fam.length, length)):
+    for got, ref in ((fam.offsets, offsets), (fam.neighbors, j.astype(np.int32)), (fam.xi, d),
+                     (fam.length, length)):
         assert got.dtype == ref.dtype and got.flags.c_contiguous
         np.testing.assert_array_equal(got, ref)
+    # the partial-volume factors recomputed from the lengths: the taper on the all-pairs
+    # lengths, bit for bit
+    if pv is None:
+        np.testing.assert_array_equal(fam.volume_factor, np.ones_like(length))
+    else:
+        half = 0.5 * system.spacing
+        ref_beta = np.where(np.abs(length - horizon) <= half,
+                            (-1.0 / (2 * half)) * length + (1.0 + ((horizon - half) / (2 * half))), 1.0)
+        np.testing.assert_array_equal(fam.volume_factor, ref_beta)
+    # kept: row pointers and 32-bit partners, nothing per bond beyond them
+    assert fam.nbytes() == fam.offsets.nbytes + 4 * fam.nb
 
 
 def test_bisection_reverse_equals_the_key_sort():
@@ -65,14 +77,13 @@ def test_bisection_reverse_equals_the_key_sort():
     assert families.rows_sorted(fam.offsets, fam.neighbors)
     np.testing.assert_array_equal(fam.reverse, ref)
     # an asymmetric family is refused on both paths
-    broken = families.Family(fam.offsets, fam.neighbors.copy(), fam.xi, fam.length, fam.volume_factor,
-                             fam.horizon, fam.spacing)
+    broken = families.Family(fam.offsets, fam.neighbors.copy(), fam.x0, fam.horizon, fam.spacing)
     broken.neighbors[0], broken.neighbors[1] = broken.neighbors[1], broken.neighbors[0]
     assert not families.rows_sorted(broken.offsets, broken.neighbors)
     one_way = [(np.array([0, 1, 1]), np.array([1])),          # sorted rows: bisection
                (np.array([0, 2, 2, 2]), np.array([2, 1]))]     # unsorted row: the key sort
     for off, nbr in one_way:
         k = nbr.size
-        lone = families.Family(off, nbr, np.ones((k, 3)), np.ones(k), np.ones(k), 2.0, 1.0)
+        lone = families.Family(off, nbr, np.zeros((off.size - 1, 3)), 2.0, 1.0)
         with pytest.raises(ValueError, match="no reverse"):
             lone.reverse

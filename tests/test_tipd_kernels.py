@@ -3,6 +3,7 @@ reference written here from the equations (directed bonds, numpy, nothing shared
 library but the family and the elastic tensor): the one-thread sweep and the multi-thread
 passes, with the surface correction and without, uniform and non-uniform weights, broken
 bonds, 2D and 3D."""
+import dataclasses
 import warnings
 
 import numba as nb
@@ -60,7 +61,9 @@ def _body(dim, kind):
                            spacing=s.spacing)
     f = build_family(s, 3.015e-3, partial_volume=pv)
     if kind == "asymmetric":               # beta differs between the two directions of some pairs
-        f.volume_factor[::5] *= 0.7
+        beta = f.volume_factor
+        beta[::5] *= 0.7
+        f = dataclasses.replace(f, beta=beta)
     return s, f
 
 

@@ -156,18 +156,17 @@ class BondList:
         own_p = owner[fwd]
         contiguous = np.array_equal(fwd - first[own_p], np.arange(fwd.size) - self.row_n[own_p])
         self.fwd_p = np.zeros(0, dtype=itype) if contiguous else np.ascontiguousarray(fwd.astype(itype))
-        self._fwd = fwd
-        self.rev_p = np.ascontiguousarray(self._reverse(family).astype(itype))
+        self.rev_p = np.ascontiguousarray(self._reverse(family, fwd).astype(itype))
         self._buffers: dict = {}
         self._chunks: dict = {}
         self._classes: dict = {}
 
-    def _reverse(self, family: Family) -> np.ndarray:
+    def _reverse(self, family: Family, fwd: np.ndarray) -> np.ndarray:
         """Directed index of j->i per pair: bisection when the rows are sorted (as
         ``build_family`` makes them), else the family's own ``reverse``."""
         nbr, off = family.neighbors, family.offsets
         if not rows_sorted(off, nbr):
-            return family.reverse[self._fwd]
+            return family.reverse[fwd]
         rev = reverse_in_sorted_rows(off, nbr, self.row_n, self.j_p)
         if np.any(rev < 0):
             raise ValueError("family is not symmetric: some bond has no reverse")
@@ -194,14 +193,14 @@ class BondList:
         key = len(factors_b)
         if key == 0 and 0 in self._classes:
             return self._classes[0]
-        fam, fwd, rev = self.family, self._fwd, self.rev_p
-        cols = [fam.length[fwd], fam.length[rev], fam.volume_factor[fwd], fam.volume_factor[rev]]
+        fam, fwd, rev = self.family, self.forward_index(), self.rev_p
+        L, beta = fam.length, fam.volume_factor
+        cols = [L[fwd], L[rev], beta[fwd], beta[rev]]
+        del L, beta
         for f in factors_b:
             f = np.asarray(f, dtype=np.float64)
             cols += [f[fwd], f[rev]]
         cls, first = _class_index(cols)
-        if not np.array_equal(cols[0], cols[1]):
-            raise ValueError("the family's reference lengths differ between the two directions of a bond")
         ncls = first.size
         ktype = np.uint8 if ncls <= 256 else (np.uint16 if ncls <= 65536 else np.int32)
         out = (np.ascontiguousarray(cls.astype(ktype)),
@@ -211,8 +210,20 @@ class BondList:
         return out
 
     def forward_index(self) -> np.ndarray:
-        """Directed index of i->j for every pair (npairs,) int64."""
-        return self._fwd
+        """Directed index of i->j for every pair (npairs,) int64 (a new array)."""
+        if self.fwd_p.size:
+            return self.fwd_p.astype(np.int64)
+        own_p = np.repeat(np.arange(self.n, dtype=np.int64), np.diff(self.row_n))
+        return self.fwd_n[own_p] + (np.arange(self.npairs, dtype=np.int64) - self.row_n[own_p])
+
+    def nbytes(self) -> int:
+        """Bytes the list keeps: per pair ``j_p``, ``rev_p``, ``fwd_p`` and the class index
+        (once computed), per particle ``row_n``, ``fwd_n`` and ``volume``, and the class
+        tables."""
+        arrays = [self.j_p, self.rev_p, self.fwd_p, self.row_n, self.fwd_n, self.volume]
+        for out in self._classes.values():
+            arrays += list(out)
+        return int(sum(a.nbytes for a in arrays))
 
     # ------------------------------------------------------------------ threads
     def chunks(self, nthreads: int) -> np.ndarray:

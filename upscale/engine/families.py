@@ -32,7 +32,8 @@ import numpy as np
 
 from upscale.engine.system import ParticleSystem
 
-__all__ = ["Family", "build_family", "damage", "bonds_crossing_segment"]
+__all__ = ["Family", "build_family", "damage", "bonds_crossing_segment", "index_type",
+           "reference_vectors", "reference_lengths"]
 
 PARTIAL_VOLUME = (None, "lammps", "linear")
 # candidate bonds per block of rows in build_family: bounds its temporaries (about
@@ -44,34 +45,56 @@ _BLOCK_BONDS = 2_000_000
 class Family:
     """Pair family (neighbour list) in CSR form, both directions of every bond stored.
 
+    Kept per directed bond: the partner index alone (4 bytes). The reference geometry of
+    a bond is a function of ``x0`` and the two indices, so it is recomputed on demand
+    rather than kept (a family of 480 M bonds would otherwise hold 23 GB of it):
+    ``xi``, ``length``, ``volume_factor``, ``owner`` and ``reverse`` are computed at each
+    access (new arrays, not cached), bit for bit as :func:`build_family` evaluated them.
+    A pair kernel computes ``x0[j] - x0[i]`` and its length inline
+    (:func:`~upscale.engine.kernels.bond_vector` on ``x0``) and the partial-volume factor
+    from the length (:meth:`taper`).
+
     Attributes
     ----------
     offsets : int64 (N+1,)
-        Row pointers: particle i's bonds are ``offsets[i]:offsets[i+1]``.
-    neighbors : int64 (nb,)
-        Neighbour index j of each directed bond i->j.
-    xi : float64 (nb, 3)
-        Reference bond vector ``x0[j] - x0[i]``.
-    length : float64 (nb,)
-        Reference bond length ``|xi|``.
-    volume_factor : float64 (nb,)
-        Partial-volume factor beta (1 unless a correction was asked for).
+        Row pointers: particle i's bonds are ``offsets[i]:offsets[i+1]`` (64-bit, so a
+        family may hold more than 2^31 bonds).
+    neighbors : int32 (nb,)
+        Neighbour index j of each directed bond i->j (int64 only when N >= 2^31).
+    x0 : float64 (N, 3)
+        Reference positions (the system's array, not a copy), m.
     horizon : float
         Horizon delta used to build the family.
     spacing : float
         Particle spacing h used for the check and the partial-volume factor.
     partial_volume : str or None
-        Which partial-volume rule produced ``volume_factor``.
+        Which partial-volume rule gives ``volume_factor``.
+    beta : float64 (nb,) or None
+        Partial-volume factors given explicitly (kept, 8 bytes per bond); None (the
+        default): computed from the length by the ``partial_volume`` rule.
     """
 
     offsets: np.ndarray
     neighbors: np.ndarray
-    xi: np.ndarray
-    length: np.ndarray
-    volume_factor: np.ndarray
+    x0: np.ndarray
     horizon: float
     spacing: float
     partial_volume: str | None = None
+    beta: np.ndarray | None = None
+
+    def __post_init__(self):
+        self.offsets = np.ascontiguousarray(self.offsets, dtype=np.int64)
+        self.neighbors = np.ascontiguousarray(self.neighbors, dtype=index_type(self.offsets.shape[0] - 1))
+        self.x0 = np.ascontiguousarray(self.x0, dtype=np.float64)
+        if self.x0.ndim != 2 or self.x0.shape != (self.offsets.shape[0] - 1, 3):
+            raise ValueError(f"x0 must have shape ({self.offsets.shape[0] - 1}, 3), got {self.x0.shape}")
+        if self.partial_volume not in PARTIAL_VOLUME:
+            raise ValueError(f"unknown partial_volume {self.partial_volume!r}; valid: "
+                             f"{', '.join(repr(p) for p in PARTIAL_VOLUME)}")
+        if self.beta is not None:
+            self.beta = np.ascontiguousarray(self.beta, dtype=np.float64)
+            if self.beta.shape != self.neighbors.shape:
+                raise ValueError(f"beta must have shape {self.neighbors.shape}, got {self.beta.shape}")
 
     @property
     def n(self) -> int:
@@ -88,14 +111,71 @@ class Family:
         """Bonds per particle (N,)."""
         return np.diff(self.offsets)
 
-    @cached_property
+    @property
     def owner(self) -> np.ndarray:
-        """Particle i of each directed bond i->j (nb,)."""
+        """Particle i of each directed bond i->j (nb,) int64 (a new array)."""
         return np.repeat(np.arange(self.n, dtype=np.int64), self.counts)
 
-    @cached_property
+    @property
+    def xi(self) -> np.ndarray:
+        """Reference bond vectors ``x0[j] - x0[i]`` (nb, 3) (a new array)."""
+        return reference_vectors(self.offsets, self.neighbors, self.x0)
+
+    @property
+    def length(self) -> np.ndarray:
+        """Reference bond lengths ``|xi|`` (nb,) (a new array), evaluated as LAMMPS does
+        (``sqrt(dx*dx + dy*dy + dz*dz)``)."""
+        return reference_lengths(self.offsets, self.neighbors, self.x0)
+
+    @property
+    def volume_factor(self) -> np.ndarray:
+        """Partial-volume factors beta (nb,) (a new array; see the module docstring)."""
+        if self.beta is not None:
+            return self.beta.copy()
+        if self.partial_volume is None:
+            return np.ones(self.nb)
+        return _lammps_beta(self.length, self.horizon, self.spacing)
+
+    def taper(self) -> tuple:
+        """The partial-volume rule as numbers for a kernel: ``(on, a, b, half, delta)``,
+        beta = ``a L + b`` where ``|L - delta| <= half`` and 1 elsewhere when ``on`` (the
+        formula of :func:`_lammps_beta`, so a kernel reproduces ``volume_factor`` bit for
+        bit); ``on`` False: beta = 1. Refused for a family with explicit ``beta``."""
+        if self.beta is not None:
+            raise ValueError("this family has explicit partial-volume factors (beta); a kernel "
+                             "must read them from family.beta")
+        half = 0.5 * self.spacing
+        a = -1.0 / (2 * half)
+        b = 1.0 + ((self.horizon - half) / (2 * half))
+        return (self.partial_volume is not None, a, b, half, float(self.horizon))
+
+    def owner_of(self, bonds) -> np.ndarray:
+        """Particle i of each of the directed bonds ``bonds`` (k,) int64."""
+        return np.searchsorted(self.offsets, np.asarray(bonds), side="right") - 1
+
+    def xi_of(self, bonds) -> np.ndarray:
+        """``x0[j] - x0[i]`` of the directed bonds ``bonds`` (k, 3) (the same numbers as
+        ``xi[bonds]`` without the whole array)."""
+        b = np.asarray(bonds)
+        return self.x0[self.neighbors[b]] - self.x0[self.owner_of(b)]
+
+    def length_of(self, bonds) -> np.ndarray:
+        """``|xi|`` of the directed bonds ``bonds`` (k,), bit for bit ``length[bonds]``."""
+        d = self.xi_of(bonds)
+        return np.sqrt(d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2])
+
+    def volume_factor_of(self, bonds) -> np.ndarray:
+        """beta of the directed bonds ``bonds`` (k,), bit for bit ``volume_factor[bonds]``."""
+        b = np.asarray(bonds)
+        if self.beta is not None:
+            return self.beta[b]
+        if self.partial_volume is None:
+            return np.ones(b.shape[0])
+        return _lammps_beta(self.length_of(b), self.horizon, self.spacing)
+
+    @property
     def reverse(self) -> np.ndarray:
-        """Index of the reverse bond j->i for each bond i->j (nb,).
+        """Index of the reverse bond j->i for each bond i->j (nb,) int64 (a new array).
 
         Rows sorted by neighbour (as :func:`build_family` makes them): bisection for i in row
         j, no memory beyond the result. Otherwise a sort of the keys i N + j (five (nb,)
@@ -105,7 +185,7 @@ class Family:
             if np.any(rev < 0):
                 raise ValueError("family is not symmetric: some bond has no reverse")
             return rev
-        i, j = self.owner, self.neighbors
+        i, j = self.owner, self.neighbors.astype(np.int64)
         key_fwd = i * self.n + j
         key_rev = j * self.n + i
         order = np.argsort(key_fwd, kind="stable")
@@ -114,6 +194,12 @@ class Family:
         if not np.array_equal(key_fwd[rev], key_rev):
             raise ValueError("family is not symmetric: some bond has no reverse")
         return rev
+
+    def nbytes(self) -> int:
+        """Bytes the family keeps: row pointers, partner indices and explicit factors
+        (``x0`` is the system's)."""
+        return int(self.offsets.nbytes + self.neighbors.nbytes
+                   + (0 if self.beta is None else self.beta.nbytes))
 
     def all_intact(self) -> np.ndarray:
         """A fresh bond state with every bond intact (nb,) bool."""
@@ -135,21 +221,54 @@ class Family:
         counts = np.bincount(self.owner[keep], minlength=self.n).astype(np.int64)
         offsets = np.zeros(self.n + 1, dtype=np.int64)
         np.cumsum(counts, out=offsets[1:])
-        return Family(offsets, np.ascontiguousarray(self.neighbors[keep]),
-                      np.ascontiguousarray(self.xi[keep]), np.ascontiguousarray(self.length[keep]),
-                      np.ascontiguousarray(self.volume_factor[keep]), self.horizon, self.spacing,
-                      self.partial_volume)
+        return Family(offsets, np.ascontiguousarray(self.neighbors[keep]), self.x0, self.horizon,
+                      self.spacing, self.partial_volume,
+                      None if self.beta is None else np.ascontiguousarray(self.beta[keep]))
 
     def pairs(self) -> np.ndarray:
         """Unique pairs (i < j) as an (nb/2, 2) int64 array."""
         i, j = self.owner, self.neighbors
         sel = i < j
-        return np.stack([i[sel], j[sel]], axis=1)
+        return np.stack([i[sel], j[sel].astype(np.int64)], axis=1)
 
     def __repr__(self) -> str:
         return (f"Family(n={self.n}, nb={self.nb}, horizon={self.horizon:.6g}, "
                 f"bonds/particle={self.nb / max(self.n, 1):.2f}, "
                 f"partial_volume={self.partial_volume!r})")
+
+
+def index_type(n: int):
+    """The partner-index type for ``n`` particles: int32, int64 from 2^31 particles on."""
+    return np.int32 if n < 2 ** 31 else np.int64
+
+
+@nb.njit(parallel=True, cache=True)
+def reference_vectors(offsets, neighbors, x0_nc):
+    """``x0[j] - x0[i]`` of every directed bond (nb, 3)."""
+    n = offsets.shape[0] - 1
+    xi = np.empty((neighbors.shape[0], 3))
+    for i in nb.prange(n):
+        for b in range(offsets[i], offsets[i + 1]):
+            j = neighbors[b]
+            xi[b, 0] = x0_nc[j, 0] - x0_nc[i, 0]
+            xi[b, 1] = x0_nc[j, 1] - x0_nc[i, 1]
+            xi[b, 2] = x0_nc[j, 2] - x0_nc[i, 2]
+    return xi
+
+
+@nb.njit(parallel=True, cache=True)
+def reference_lengths(offsets, neighbors, x0_nc):
+    """``|x0[j] - x0[i]|`` of every directed bond (nb,), as ``sqrt(dx*dx + dy*dy + dz*dz)``."""
+    n = offsets.shape[0] - 1
+    L = np.empty(neighbors.shape[0])
+    for i in nb.prange(n):
+        for b in range(offsets[i], offsets[i + 1]):
+            j = neighbors[b]
+            d0 = x0_nc[j, 0] - x0_nc[i, 0]
+            d1 = x0_nc[j, 1] - x0_nc[i, 1]
+            d2 = x0_nc[j, 2] - x0_nc[i, 2]
+            L[b] = np.sqrt(d0 * d0 + d1 * d1 + d2 * d2)
+    return L
 
 
 def _lammps_beta(length: np.ndarray, horizon: float, h: float) -> np.ndarray:
@@ -201,8 +320,8 @@ def build_family(system: ParticleSystem, horizon: float, *, partial_volume: str 
     """Build the pair family of ``system`` within ``horizon`` (cKDTree).
 
     Rows are found block by block (a tree of each block of rows against the whole system)
-    and written into arrays allocated once, so the memory needed is the family's own
-    (48 bytes per directed bond) plus one block's temporaries: about 1 GB at any size,
+    and written into one array allocated once, so the memory needed is the family's own
+    (4 bytes per directed bond) plus one block's temporaries: about 1 GB at any size,
     instead of about 100 bytes per bond for a list of all pairs at once.
 
     Parameters
@@ -243,9 +362,7 @@ def build_family(system: ParticleSystem, horizon: float, *, partial_volume: str 
     # capacity: every candidate within a slightly larger ball (self included), so the
     # output arrays are allocated once and rows are written block by block
     cap = int(tree.query_ball_point(x, r_query * (1.0 + 1e-9), return_length=True).sum()) - n
-    neighbors = np.empty(cap, dtype=np.int64)
-    xi = np.empty((cap, 3))
-    rsq_b = np.empty(cap)
+    neighbors = np.empty(cap, dtype=index_type(n))
     counts = np.zeros(n, dtype=np.int64)
     per_row = max(1.0, cap / max(n, 1))
     block = max(1, int(_BLOCK_BONDS // per_row))
@@ -270,26 +387,17 @@ def build_family(system: ParticleSystem, horizon: float, *, partial_volume: str 
                 raise ValueError(f"exclude returned shape {ex.shape}, expected {i.shape}")
             ex_back = np.asarray(exclude(j, i, -d), dtype=bool)
             keep &= ~(ex | ex_back)
-        i, j, d, rsq = i[keep], j[keep], d[keep], rsq[keep]
+        i, j = i[keep], j[keep]
         order = np.lexsort((j, i))
         k = order.shape[0]
         neighbors[pos:pos + k] = j[order]
-        xi[pos:pos + k] = d[order]
-        rsq_b[pos:pos + k] = rsq[order]
         counts[a:b] = np.bincount(i - a, minlength=b - a)
         pos += k
     if pos < cap:                         # shrink in place (realloc): no second copy
-        for arr, shape in ((neighbors, (pos,)), (xi, (pos, 3)), (rsq_b, (pos,))):
-            arr.resize(shape, refcheck=False)
+        neighbors.resize((pos,), refcheck=False)
     offsets = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(counts, out=offsets[1:])
-    length = np.sqrt(rsq_b, out=rsq_b)
-    if partial_volume is None:
-        beta = np.ones_like(length)
-    else:
-        beta = _lammps_beta(length, delta, h)
-    fam = Family(offsets, neighbors, xi, length, beta, delta, h, partial_volume)
-    return fam
+    return Family(offsets, neighbors, x, delta, h, partial_volume)
 
 
 def damage(family: Family, intact: np.ndarray, *, weights: str = "count",

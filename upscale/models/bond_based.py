@@ -273,7 +273,8 @@ class PMB(Model):
         super().prepare(system, family, **kw)
         area = float(np.mean(system.volume) / system.spacing) if system.dim == 1 else 1.0
         self._area = area
-        w = system.volume[family.neighbors] * family.volume_factor
+        self._g_n = None
+        w = self.bond_weights()
         if self.c_given is None:
             self.c = pmb_micromodulus(self.E, self.nu, family.horizon, system.dim,
                                       thickness=system.thickness, plane=system.plane, area=area)
@@ -282,18 +283,39 @@ class PMB(Model):
         if self.Gc is not None:
             self.s0 = pmb_critical_stretch(self.Gc, self.c, family.horizon, system.dim,
                                            thickness=system.thickness, area=area)
-        self.w_b = np.ascontiguousarray(w)
         if self.surface_correction:
-            self._surface_b = self._surface_factors()
-            self.w_b = np.ascontiguousarray(w * self._surface_b)
+            self._g_n = self._surface_factors(w)
+        del w
         self.bonds = BondList(family, system.volume)
         self._pair_tables()
+
+    # ------------------------------------------------------------------ per-bond quantities
+    def surface_factors(self) -> np.ndarray | None:
+        """The surface-correction factor ``(g_i + g_j)/2`` of every directed bond (nb,),
+        from the kept per-particle ``g`` (a new array); None without the correction."""
+        if self._g_n is None:
+            return None
+        fam = self.family
+        return 0.5 * (self._g_n[fam.owner] + self._g_n[fam.neighbors])
+
+    def bond_weights(self) -> np.ndarray:
+        """``w = V_j beta_ij`` (times the surface factor when corrected) of every directed
+        bond (nb,) (m^3; a new array: the weights are not kept per bond)."""
+        fam = self.family
+        w = self.system.volume[fam.neighbors] * fam.volume_factor
+        g = self.surface_factors()
+        return w if g is None else w * g
+
+    @property
+    def w_b(self) -> np.ndarray:
+        """:meth:`bond_weights` (a new array)."""
+        return self.bond_weights()
 
     def _pair_tables(self) -> None:
         """Per-class coefficients of the pair kernel (see :func:`pmb_pair_kernel`)."""
         bl = self.bonds
         if self.surface_correction:
-            k_p, L_k, bf_k, br_k, gf_k, gr_k = bl.classes(self._surface_b)
+            k_p, L_k, bf_k, br_k, gf_k, gr_k = bl.classes(self.surface_factors())
         else:
             k_p, L_k, bf_k, br_k = bl.classes()
             gf_k = gr_k = 1.0
@@ -317,12 +339,13 @@ class PMB(Model):
             integral = d * d * self._area
         return float(integral / S)
 
-    def _surface_factors(self) -> np.ndarray:
-        """Bond factors (g_i + g_j)/2 with g_i = W_bulk / W_i under an isotropic stretch."""
+    def _surface_factors(self, w) -> np.ndarray:
+        """Per-particle factors g_i = W_bulk / W_i under an isotropic stretch (N,) (the bond
+        factor is (g_i + g_j)/2); ``w`` the uncorrected bond weights."""
         sysm, fam = self.system, self.family
         s = 1e-3
         y = sysm.x0 * (1.0 + s)
-        W = pmb_energy_kernel(fam.offsets, fam.neighbors, fam.length, self.w_b, y,
+        W = pmb_energy_kernel(fam.offsets, fam.neighbors, fam.length, w, y,
                               np.ones(fam.nb, dtype=np.bool_), self.c)
         d = fam.horizon
         if sysm.dim == 3:
@@ -331,8 +354,7 @@ class PMB(Model):
             Wb = np.pi * self.c * sysm.thickness * d ** 3 * s * s / 6.0
         else:
             Wb = self.c * self._area * d ** 2 * s * s / 2.0
-        g = np.where(W > 0, Wb / np.where(W > 0, W, 1.0), 1.0)
-        return 0.5 * (g[fam.owner] + g[fam.neighbors])
+        return np.where(W > 0, Wb / np.where(W > 0, W, 1.0), 1.0)
 
     # ------------------------------------------------------------------ forces
     def _pair_force(self, state, out, fail: bool) -> int:
@@ -368,13 +390,13 @@ class PMB(Model):
 
     def energy_density(self, state):
         f = self.family
-        return pmb_energy_kernel(f.offsets, f.neighbors, f.length, self.w_b, state.y,
+        return pmb_energy_kernel(f.offsets, f.neighbors, f.length, self.bond_weights(), state.y,
                                  state.intact, self.c)
 
     def stiffness_bound(self):
         """Silling-Askari: R_i = 2 sum_j c beta V_j / |xi| (N/m^4)."""
         f = self.family
-        return 2.0 * np.bincount(f.owner, weights=self.c * self.w_b / f.length, minlength=f.n)
+        return 2.0 * np.bincount(f.owner, weights=self.c * self.bond_weights() / f.length, minlength=f.n)
 
     def describe(self):
         d = {"model": self.name, "c_N_per_m6": self.c, "s0": None if np.isinf(self.s0) else self.s0,

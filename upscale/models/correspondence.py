@@ -238,18 +238,22 @@ def _stress_point(F, Kinv, C, law, lam, mu, d, P, E, S):
 
 
 @nb.njit(cache=True)
-def _pair_defgrad_chunk(i0, i1, poff, pj, xi_pc, c_p, y_nc, d, buf):
-    """Pairs of the particles i0 <= i < i1: ``c_p Y (x) xi`` added to both ends' rows of one
-    thread's buffer (N, 9) (zeroed here), entry ``3 r + a``."""
+def _pair_defgrad_chunk(i0, i1, poff, pj, x0_nc, k_p, c_k, y_nc, d, buf):
+    """Pairs of the particles i0 <= i < i1: ``c Y (x) xi`` (``xi = x0_j - x0_i``, c the
+    pair weight of the pair's class) added to both ends' rows of one thread's buffer
+    (N, 9) (zeroed here), entry ``3 r + a``."""
     buf[:, :] = 0.0
+    xi = np.zeros(3)
     for i in range(i0, i1):
         for p in range(poff[i], poff[i + 1]):
             j = pj[p]
-            c = c_p[p]
+            c = c_k[k_p[p]]
+            for a in range(3):
+                xi[a] = x0_nc[j, a] - x0_nc[i, a]
             for r in range(d):
                 Y = (y_nc[j, r] - y_nc[i, r]) * c
                 for a in range(d):
-                    v = Y * xi_pc[p, a]
+                    v = Y * xi[a]
                     buf[i, 3 * r + a] += v
                     buf[j, 3 * r + a] += v
 
@@ -289,16 +293,17 @@ def _pair_stress_chunk(i0, i1, buf_tnk, inv_vol_n, Kinv_n, C, law, lam, mu, d, F
 
 
 @nb.njit(parallel=True, cache=True)
-def nosb_pair_update(bounds, poff, pj, xi_pc, c_p, y_nc, inv_vol_n, Kinv_n, C, law, lam, mu, d,
+def nosb_pair_update(bounds, poff, pj, x0_nc, k_p, c_k, y_nc, inv_vol_n, Kinv_n, C, law, lam, mu, d,
                      buf_tnk, F_n, PK_n, psi_n):
     """Pair form of :func:`defgrad_kernel` and :func:`stress_kernel`: mutates ``F_n``,
-    ``PK_n`` (N, 3, 3) and ``psi_n``. ``c_p = V_i w_ij = V_j w_ji`` (pair weight, m^6 with
-    omega = 1); ``buf_tnk`` (T, N, 9) thread-private buffers, thread t taking the pairs of
-    the particles ``bounds[t] <= i < bounds[t+1]``."""
+    ``PK_n`` (N, 3, 3) and ``psi_n``. Pairs i < j in rows ``poff`` with partners ``pj``;
+    ``c_k[k_p[p]] = V_i w_ij = V_j w_ji`` (pair weight, m^6 with omega = 1, per class);
+    ``xi = x0_j - x0_i`` recomputed; ``buf_tnk`` (T, N, 9) thread-private buffers, thread t
+    taking the pairs of the particles ``bounds[t] <= i < bounds[t+1]``."""
     nt = buf_tnk.shape[0]
     n = F_n.shape[0]
     for t in nb.prange(nt):
-        _pair_defgrad_chunk(bounds[t], bounds[t + 1], poff, pj, xi_pc, c_p, y_nc, d, buf_tnk[t])
+        _pair_defgrad_chunk(bounds[t], bounds[t + 1], poff, pj, x0_nc, k_p, c_k, y_nc, d, buf_tnk[t])
     cn = (n + nt - 1) // nt
     for t in nb.prange(nt):
         _pair_stress_chunk(t * cn, min((t + 1) * cn, n), buf_tnk, inv_vol_n, Kinv_n, C, law,
@@ -306,20 +311,23 @@ def nosb_pair_update(bounds, poff, pj, xi_pc, c_p, y_nc, inv_vol_n, Kinv_n, C, l
 
 
 @nb.njit(cache=True)
-def _pair_force_chunk(i0, i1, poff, pj, xi_pc, c_p, PK_n, F_n, B_n, y_nc, d, stab, buf):
+def _pair_force_chunk(i0, i1, poff, pj, x0_nc, k_p, c_k, PK_n, F_n, B_n, y_nc, d, stab, buf):
     """Pairs of the particles i0 <= i < i1 of :func:`nosb_pair_force` into one thread's
     buffer (N, 3), zeroed here."""
     buf[:, :] = 0.0
     z_i = np.zeros(3)
     z_j = np.zeros(3)
     g = np.zeros(3)
+    xi = np.zeros(3)
     for i in range(i0, i1):
         for p in range(poff[i], poff[i + 1]):
             j = pj[p]
+            for a in range(3):
+                xi[a] = x0_nc[j, a] - x0_nc[i, a]
             for r in range(d):
                 v = 0.0
                 for a in range(d):
-                    v += (PK_n[i, r, a] + PK_n[j, r, a]) * xi_pc[p, a]
+                    v += (PK_n[i, r, a] + PK_n[j, r, a]) * xi[a]
                 g[r] = v
             if stab:
                 for r in range(d):
@@ -327,8 +335,8 @@ def _pair_force_chunk(i0, i1, poff, pj, xi_pc, c_p, PK_n, F_n, B_n, y_nc, d, sta
                     fi = 0.0
                     fj = 0.0
                     for a in range(d):
-                        fi += F_n[i, r, a] * xi_pc[p, a]
-                        fj += F_n[j, r, a] * xi_pc[p, a]
+                        fi += F_n[i, r, a] * xi[a]
+                        fj += F_n[j, r, a] * xi[a]
                     z_i[r] = Y - fi
                     z_j[r] = -Y + fj
                 for r in range(d):
@@ -336,40 +344,42 @@ def _pair_force_chunk(i0, i1, poff, pj, xi_pc, c_p, PK_n, F_n, B_n, y_nc, d, sta
                     for q in range(d):
                         v += B_n[i, r, q] * z_i[q] - B_n[j, r, q] * z_j[q]
                     g[r] += v
-            c = c_p[p]
+            c = c_k[k_p[p]]
             for r in range(d):
                 buf[i, r] += c * g[r]
                 buf[j, r] -= c * g[r]
 
 
 @nb.njit(parallel=True, cache=True)
-def nosb_pair_force(bounds, poff, pj, xi_pc, c_p, PK_n, F_n, B_n, y_nc, d, stab, buf_tnc):
+def nosb_pair_force(bounds, poff, pj, x0_nc, k_p, c_k, PK_n, F_n, B_n, y_nc, d, stab, buf_tnc):
     """Pair form of :func:`nosb_force_kernel`: per pair i < j the force (N)
-    ``g = c_p [(PK_i + PK_j) xi + stab (B_i z_ij - B_j z_ji)]`` is added to ``buf[t, i]`` and
+    ``g = c [(PK_i + PK_j) xi + stab (B_i z_ij - B_j z_ji)]`` is added to ``buf[t, i]`` and
     subtracted from ``buf[t, j]`` (thread-private buffers (T, N, 3), zeroed here; thread t
     takes the particles ``bounds[t] <= i < bounds[t+1]``)."""
     nt = buf_tnc.shape[0]
     for t in nb.prange(nt):
-        _pair_force_chunk(bounds[t], bounds[t + 1], poff, pj, xi_pc, c_p, PK_n, F_n, B_n, y_nc,
-                          d, stab, buf_tnc[t])
+        _pair_force_chunk(bounds[t], bounds[t + 1], poff, pj, x0_nc, k_p, c_k, PK_n, F_n, B_n,
+                          y_nc, d, stab, buf_tnc[t])
 
 
 @nb.njit(cache=True)
-def _pair_defgrad_chunk_2d(i0, i1, poff, pj, xi_pc, c_p, y_nc, buf):
+def _pair_defgrad_chunk_2d(i0, i1, poff, pj, x0_nc, k_p, c_k, y_nc, buf):
     """2D :func:`_pair_defgrad_chunk` into a compact buffer (N, 4): entries (00, 01, 10, 11)."""
     buf[:, :] = 0.0
     for i in range(i0, i1):
         yi0 = y_nc[i, 0]
         yi1 = y_nc[i, 1]
+        xi0 = x0_nc[i, 0]
+        xi1 = x0_nc[i, 1]
         s00 = 0.0
         s01 = 0.0
         s10 = 0.0
         s11 = 0.0
         for p in range(poff[i], poff[i + 1]):
             j = pj[p]
-            c = c_p[p]
-            x0 = xi_pc[p, 0]
-            x1 = xi_pc[p, 1]
+            c = c_k[k_p[p]]
+            x0 = x0_nc[j, 0] - xi0
+            x1 = x0_nc[j, 1] - xi1
             Y0 = (y_nc[j, 0] - yi0) * c
             Y1 = (y_nc[j, 1] - yi1) * c
             a = Y0 * x0
@@ -451,7 +461,7 @@ def _pair_stress_chunk_2d(i0, i1, buf_tn4, inv_vol_n, Kinv_n, C, law, lam, mu, F
 
 
 @nb.njit(cache=True)
-def _pair_force_chunk_2d(i0, i1, poff, pj, xi_pc, c_p, PK4_n, F4_n, B4_n, y_nc, stab, buf):
+def _pair_force_chunk_2d(i0, i1, poff, pj, x0_nc, k_p, c_k, PK4_n, F4_n, B4_n, y_nc, stab, buf):
     """2D :func:`_pair_force_chunk` on the compact (N, 4) arrays, buffer (N, 2)."""
     buf[:, :] = 0.0
     for i in range(i0, i1):
@@ -469,13 +479,15 @@ def _pair_force_chunk_2d(i0, i1, poff, pj, xi_pc, c_p, PK4_n, F4_n, B4_n, y_nc, 
         B3 = B4_n[i, 3]
         yi0 = y_nc[i, 0]
         yi1 = y_nc[i, 1]
+        xi0 = x0_nc[i, 0]
+        xi1 = x0_nc[i, 1]
         s0 = 0.0
         s1 = 0.0
         for p in range(poff[i], poff[i + 1]):
             j = pj[p]
-            c = c_p[p]
-            x0 = xi_pc[p, 0]
-            x1 = xi_pc[p, 1]
+            c = c_k[k_p[p]]
+            x0 = x0_nc[j, 0] - xi0
+            x1 = x0_nc[j, 1] - xi1
             g0 = (pk0 + PK4_n[j, 0]) * x0 + (pk1 + PK4_n[j, 1]) * x1
             g1 = (pk2 + PK4_n[j, 2]) * x0 + (pk3 + PK4_n[j, 3]) * x1
             if stab:
@@ -498,13 +510,13 @@ def _pair_force_chunk_2d(i0, i1, poff, pj, xi_pc, c_p, PK4_n, F4_n, B4_n, y_nc, 
 
 
 @nb.njit(parallel=True, cache=True)
-def nosb_pair_update_2d(bounds, poff, pj, xi_pc, c_p, y_nc, inv_vol_n, Kinv_n, C, law, lam, mu,
+def nosb_pair_update_2d(bounds, poff, pj, x0_nc, k_p, c_k, y_nc, inv_vol_n, Kinv_n, C, law, lam, mu,
                         buf_tn4, F_n, F4_n, PK4_n, psi_n):
     """2D :func:`nosb_pair_update` with compact (N, 4) F and PK (entries 00, 01, 10, 11)."""
     nt = buf_tn4.shape[0]
     n = F_n.shape[0]
     for t in nb.prange(nt):
-        _pair_defgrad_chunk_2d(bounds[t], bounds[t + 1], poff, pj, xi_pc, c_p, y_nc, buf_tn4[t])
+        _pair_defgrad_chunk_2d(bounds[t], bounds[t + 1], poff, pj, x0_nc, k_p, c_k, y_nc, buf_tn4[t])
     cn = (n + nt - 1) // nt
     for t in nb.prange(nt):
         _pair_stress_chunk_2d(t * cn, min((t + 1) * cn, n), buf_tn4, inv_vol_n, Kinv_n, C,
@@ -512,12 +524,12 @@ def nosb_pair_update_2d(bounds, poff, pj, xi_pc, c_p, y_nc, inv_vol_n, Kinv_n, C
 
 
 @nb.njit(parallel=True, cache=True)
-def nosb_pair_force_2d(bounds, poff, pj, xi_pc, c_p, PK4_n, F4_n, B4_n, y_nc, stab, buf_tn2):
+def nosb_pair_force_2d(bounds, poff, pj, x0_nc, k_p, c_k, PK4_n, F4_n, B4_n, y_nc, stab, buf_tn2):
     """2D :func:`nosb_pair_force` on the compact arrays, buffers (T, N, 2)."""
     nt = buf_tn2.shape[0]
     for t in nb.prange(nt):
-        _pair_force_chunk_2d(bounds[t], bounds[t + 1], poff, pj, xi_pc, c_p, PK4_n, F4_n, B4_n,
-                             y_nc, stab, buf_tn2[t])
+        _pair_force_chunk_2d(bounds[t], bounds[t + 1], poff, pj, x0_nc, k_p, c_k, PK4_n, F4_n,
+                             B4_n, y_nc, stab, buf_tn2[t])
 
 
 @nb.njit(parallel=True, cache=True)
@@ -682,9 +694,9 @@ class Correspondence(Model):
     influence : {"constant", "inverse"}
         omega = 1 or delta/|xi|.
     kernel : {"pair", "bond"}
-        Loops over the half-pair list (each pair once, :mod:`upscale.engine.pairs`; needs
-        symmetric pair weights, else falls back to "bond") or over the directed bonds. Same
-        forces to round-off.
+        Loops over the half bond list (each pair once, :mod:`upscale.engine.bondlist`;
+        needs symmetric pair weights, else falls back to "bond") or over the directed bonds.
+        Same forces to round-off.
     bond_associated : bool
         Bond-associated correspondence (module docstring): one gradient per bond over the
         bond-associated family, energy averaged over the bonds; linear law only, no
@@ -758,12 +770,8 @@ class Correspondence(Model):
                                 + np.einsum("il,jk->ijkl", np.eye(d), np.eye(d))))
             if not np.allclose(iso, Cm, rtol=1e-10, atol=1e-10 * np.abs(Cm).max()):
                 raise ValueError("the neo-Hookean law needs an isotropic material (E, nu)")
-        L = family.length
-        om = np.ones_like(L) if self.influence == "constant" else family.horizon / L
-        self.omega_b = om
-        wv = om * system.volume[family.neighbors] * family.volume_factor
-        self.wv_b = np.ascontiguousarray(wv)
-        self.xi_bc = np.ascontiguousarray(family.xi)
+        self._wv_b = self._xi_bc = None
+        wv = self.bond_weights()
         K, Kinv = shape_tensors(family, wv, d, family.horizon)
         self.K_n = K
         self.Kinv_n = Kinv
@@ -775,7 +783,7 @@ class Correspondence(Model):
             else:
                 kb = np.einsum("iijj->", Cm) / 4.0
                 cb = 12.0 * kb / (np.pi * system.thickness * family.horizon ** 3)
-            omega0 = np.bincount(family.owner, weights=om, minlength=family.n)
+            omega0 = np.bincount(family.owner, weights=self.omega_b, minlength=family.n)
             self.beta = self.Cs * cb / (family.horizon * omega0)
             B[:, :d, :d] = self.beta[:, None, None] * np.eye(d)
         elif self.stabilisation == "wan":
@@ -784,7 +792,7 @@ class Correspondence(Model):
         self._F = np.zeros((family.n, 3, 3))
         self._PK = np.zeros((family.n, 3, 3))
         self._psi = np.zeros(family.n)
-        self._set_pairs()
+        self._set_pairs(wv)
         if self.bond_associated:
             self._prepare_bond_associated()
 
@@ -809,36 +817,65 @@ class Correspondence(Model):
         self._ba_coef = coef
         self._ba_K = (G.T @ D @ G).tocsr()
 
-    def _set_pairs(self) -> None:
-        """Half-pair form (:mod:`upscale.engine.pairs`) when the pair weight is symmetric,
-        ``V_i w_ij = V_j w_ji`` (symmetric partial volumes): each pair's terms are computed
-        once; otherwise the directed-bond kernels are used."""
-        from upscale.engine.pairs import half_pairs
+    # ------------------------------------------------------------------ per-bond quantities
+    @property
+    def omega_b(self) -> np.ndarray:
+        """Influence function of every directed bond (nb,) (a new array)."""
+        L = self.family.length
+        return np.ones_like(L) if self.influence == "constant" else self.family.horizon / L
+
+    def bond_weights(self) -> np.ndarray:
+        """``w = omega V_j beta_ij`` of every directed bond (nb,) (m^3; a new array)."""
+        fam = self.family
+        return self.omega_b * self.system.volume[fam.neighbors] * fam.volume_factor
+
+    @property
+    def wv_b(self) -> np.ndarray:
+        """:meth:`bond_weights` (kept only for the directed-bond kernels)."""
+        return self._wv_b if self._wv_b is not None else self.bond_weights()
+
+    @property
+    def xi_bc(self) -> np.ndarray:
+        """Reference bond vectors (nb, 3) (kept only for the directed-bond kernels)."""
+        return self._xi_bc if self._xi_bc is not None else self.family.xi
+
+    def _set_pairs(self, wv) -> None:
+        """Half bond list (:class:`~upscale.engine.bondlist.BondList`) when the pair weight is
+        symmetric, ``V_i w_ij = V_j w_ji`` (symmetric partial volumes): each pair's terms are
+        computed once from ``xi = x0_j - x0_i`` and the pair weight of its class
+        (``c = (V_i w_ij + V_j w_ji)/2``); nothing per bond is kept but the list. Otherwise
+        (or ``kernel="bond"``) the directed-bond kernels, which keep ``xi`` and ``w`` per
+        bond (32 bytes)."""
+        from upscale.engine.bondlist import BondList
 
         fam, V = self.family, self.system.volume
-        pr = half_pairs(fam)
-        ci = self.wv_b[pr.b] * V[pr.i]
-        cj = self.wv_b[pr.rb] * V[pr.j]
-        self._pair = self.kernel == "pair" and bool(np.abs(ci - cj).max() <= 1e-12 * max(np.abs(ci).max(), 1e-300))
-        self.pairs = pr if self._pair else None
+        self._pair = False
+        self.bonds = None
+        if self.kernel == "pair":
+            bl = BondList(fam, V)
+            k_p, _, _, _, ci_k, cj_k = bl.classes(wv * V[fam.owner])
+            self._pair = bool(np.abs(ci_k - cj_k).max(initial=0.0)
+                              <= 1e-12 * max(np.abs(ci_k).max(initial=0.0), 1e-300))
         if not self._pair:
+            self._wv_b = np.ascontiguousarray(wv)
+            self._xi_bc = np.ascontiguousarray(fam.xi)
             return
-        self.c_p = np.ascontiguousarray(0.5 * (ci + cj))
+        self.bonds = bl
+        self._k_p = k_p
+        self._c_k = np.ascontiguousarray(0.5 * (ci_k + cj_k))
         self._inv_vol = np.ascontiguousarray(1.0 / V)
-        if self.dim == 2:     # compact (N, 4) per-particle tensors, (np, 2) bonds
-            self.xi_pc = np.ascontiguousarray(fam.xi[pr.b, :2])
+        if self.dim == 2:     # compact (N, 4) per-particle tensors
             self._F4 = np.zeros((fam.n, 4))
             self._PK4 = np.zeros((fam.n, 4))
             self._B4 = np.ascontiguousarray(self.B_n[:, :2, :2].reshape(fam.n, 4))
-        else:
-            self.xi_pc = np.ascontiguousarray(fam.xi[pr.b])
         self._alloc_buffers()
 
     def _alloc_buffers(self) -> None:
         n, d = self.family.n, self.dim
-        self._bufA = self.pairs.buffers(n, 4 if d == 2 else 9)
-        self._bufF = self.pairs.buffers(n, d)
-        self._bounds = self.pairs.thread_bounds(self._bufA.shape[0])
+        nt = nb.get_num_threads()
+        self._bufA = np.zeros((nt, n, 4 if d == 2 else 9))
+        self._bufF = np.zeros((nt, n, d))
+        self._bounds = self.bonds.chunks(nt)
 
     # ------------------------------------------------------------------ forces
     def deformation_gradient(self, state) -> np.ndarray:
@@ -851,13 +888,13 @@ class Correspondence(Model):
         if self._pair:
             if self._bufA.shape[0] != nb.get_num_threads():
                 self._alloc_buffers()
-            pr = self.pairs
+            bl, x0 = self.bonds, self.system.x0
             if self.dim == 2:
-                nosb_pair_update_2d(self._bounds, pr.offsets, pr.j, self.xi_pc, self.c_p, state.y, self._inv_vol,
+                nosb_pair_update_2d(self._bounds, bl.row_n, bl.j_p, x0, self._k_p, self._c_k, state.y, self._inv_vol,
                                     self.Kinv_n, self.C3, LAWS[self.law], self.lam, self.mu,
                                     self._bufA, self._F, self._F4, self._PK4, self._psi)
             else:
-                nosb_pair_update(self._bounds, pr.offsets, pr.j, self.xi_pc, self.c_p, state.y, self._inv_vol,
+                nosb_pair_update(self._bounds, bl.row_n, bl.j_p, x0, self._k_p, self._c_k, state.y, self._inv_vol,
                                  self.Kinv_n, self.C3, LAWS[self.law], self.lam, self.mu, 3,
                                  self._bufA, self._F, self._PK, self._psi)
             return
@@ -876,12 +913,12 @@ class Correspondence(Model):
         if self._pair:
             from upscale.engine.pairs import reduce_buffers
 
-            pr, stab = self.pairs, self.stabilisation is not None
+            bl, x0, stab = self.bonds, self.system.x0, self.stabilisation is not None
             if self.dim == 2:
-                nosb_pair_force_2d(self._bounds, pr.offsets, pr.j, self.xi_pc, self.c_p, self._PK4, self._F4,
+                nosb_pair_force_2d(self._bounds, bl.row_n, bl.j_p, x0, self._k_p, self._c_k, self._PK4, self._F4,
                                    self._B4, state.y, stab, self._bufF)
             else:
-                nosb_pair_force(self._bounds, pr.offsets, pr.j, self.xi_pc, self.c_p, self._PK, self._F, self.B_n,
+                nosb_pair_force(self._bounds, bl.row_n, bl.j_p, x0, self._k_p, self._c_k, self._PK, self._F, self.B_n,
                                 state.y, 3, stab, self._bufF)
             reduce_buffers(self._bufF, self._inv_vol, out, self.dim)
             return

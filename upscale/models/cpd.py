@@ -150,6 +150,7 @@ import numba
 import numpy as np
 
 from upscale.engine import multibody
+from upscale.engine.kernels import bond_length
 from upscale.models.base import Model, Needs
 
 __all__ = ["CPD", "calibrate", "lame", "modulus_coefficients", "poisson_range",
@@ -270,8 +271,9 @@ def _cross(a0, a1, a2, b0, b1, b2):
 
 
 @numba.njit(cache=True)
-def _pair_energy_force(y, offsets, neighbors, length, q_b, w_n, g_s, C1, intact_b, f, e_n):
-    """Adds -dW1/dy to ``f`` (N, 3) and W1 per centre to ``e_n`` (N,)."""
+def _pair_energy_force(y, offsets, neighbors, ref_nc, q_b, w_n, g_s, C1, intact_b, f, e_n):
+    """Adds -dW1/dy to ``f`` (N, 3) and W1 per centre to ``e_n`` (N,); the reference
+    lengths ``L = |ref_j - ref_c|`` are recomputed from the reference positions."""
     n = offsets.shape[0] - 1
     for c in range(n):
         w = w_n[c]
@@ -285,7 +287,7 @@ def _pair_energy_force(y, offsets, neighbors, length, q_b, w_n, g_s, C1, intact_
             x1 = y[j, 1] - y[c, 1]
             x2 = y[j, 2] - y[c, 2]
             l = math.sqrt(x0 * x0 + x1 * x1 + x2 * x2)
-            L = length[p]
+            L = bond_length(ref_nc, c, j)
             s = l / L - 1.0
             ww = w * q_b[p] * g_s[p]
             e_n[c] += ww * 0.5 * C1 * L * s * s
@@ -467,7 +469,7 @@ def _flush(data, loc, Lb, M, dim):
 
 
 @numba.njit(cache=True)
-def _pair_tangent(y, offsets, neighbors, length, q_b, w_n, g_s, C1, intact_b, indptr, indices, data, dim):
+def _pair_tangent(y, offsets, neighbors, ref_nc, q_b, w_n, g_s, C1, intact_b, indptr, indices, data, dim):
     n = offsets.shape[0] - 1
     loc = np.empty(0, np.int64)
     H = np.zeros((3, 3))
@@ -488,7 +490,7 @@ def _pair_tangent(y, offsets, neighbors, length, q_b, w_n, g_s, C1, intact_b, in
             for s in range(3):
                 x[s] = y[j, s] - y[c, s]
             l = math.sqrt(x[0] * x[0] + x[1] * x[1] + x[2] * x[2])
-            L = length[p]
+            L = bond_length(ref_nc, c, j)
             ww = w * q_b[p] * g_s[p]
             d = ww * C1 * (1.0 / L - 1.0 / l)
             e = ww * C1 / (l * l * l)
@@ -658,7 +660,7 @@ def _quad_tangent(y, offsets, neighbors, q_b, q_off, sj, sk, sl, V_q, w_n, g_s, 
 
 # ---------------------------------------------------------------- failure
 @numba.njit(cache=True)
-def _break_pairs(y, offsets, neighbors, length, s1c, intact_b):
+def _break_pairs(y, offsets, neighbors, ref_nc, s1c, intact_b):
     n = offsets.shape[0] - 1
     nbroken = 0
     for c in range(n):
@@ -667,7 +669,7 @@ def _break_pairs(y, offsets, neighbors, length, s1c, intact_b):
                 continue
             j = neighbors[p]
             l = math.sqrt((y[j, 0] - y[c, 0]) ** 2 + (y[j, 1] - y[c, 1]) ** 2 + (y[j, 2] - y[c, 2]) ** 2)
-            if l / length[p] - 1.0 > s1c:
+            if l / bond_length(ref_nc, c, j) - 1.0 > s1c:
                 intact_b[p] = False
                 nbroken += 1
     return nbroken
@@ -736,7 +738,9 @@ def _factors(g, fam, tri, quad):
 
 def energy_forces(y, fam, tri, quad, w, C, intact, *, types=(1, 2, 3), g=None):
     """Energy per centre (N,) (J) and internal force per particle (N, 3) (N) on flat
-    arrays. ``fam``: object with ``offsets``, ``neighbors``, ``length``; ``tri``/``quad``:
+    arrays. ``fam``: object with ``offsets``, ``neighbors``, ``x0`` (reference positions, from
+    which the kernels recompute the bond lengths) and ``q`` (per-bond quadrature weight);
+    ``tri``/``quad``:
     :class:`~upscale.engine.multibody.TripletFamily` / ``QuadrupletFamily`` or None;
     ``w = (w1_n, w2_n, w3_n)`` per-centre weights (module docstring); ``C = (C1, C2, C3)``;
     ``intact = (intact_b, intact_t, intact_q)``; ``g = (g_b, g_t, g_q)`` optional per-set
@@ -747,7 +751,7 @@ def energy_forces(y, fam, tri, quad, w, C, intact, *, types=(1, 2, 3), g=None):
     e = np.zeros(n)
     g = _factors(g, fam, tri, quad)
     if 1 in types and C[0] != 0.0:
-        _pair_energy_force(y, fam.offsets, fam.neighbors, fam.length, fam.q, w[0], g[0], float(C[0]),
+        _pair_energy_force(y, fam.offsets, fam.neighbors, fam.x0, fam.q, w[0], g[0], float(C[0]),
                            intact[0], f, e)
     if 2 in types and C[1] != 0.0 and tri is not None:
         _triplet_energy_force(y, fam.offsets, fam.neighbors, fam.q, tri.offsets, tri.slot_j,
@@ -771,7 +775,7 @@ def tangent_bsr(y, fam, tri, quad, w, C, intact, pattern, dim, *, types=(1, 2, 3
     data = np.zeros((indices.shape[0], 3, 3))
     g = _factors(g, fam, tri, quad)
     if 1 in types and C[0] != 0.0:
-        _pair_tangent(y, fam.offsets, fam.neighbors, fam.length, fam.q, w[0], g[0], float(C[0]), intact[0],
+        _pair_tangent(y, fam.offsets, fam.neighbors, fam.x0, fam.q, w[0], g[0], float(C[0]), intact[0],
                       indptr, indices, data, dim)
     if 2 in types and C[1] != 0.0 and tri is not None:
         _triplet_tangent(y, fam.offsets, fam.neighbors, fam.q, tri.offsets, tri.slot_j, tri.slot_k,
@@ -1113,10 +1117,10 @@ class CPD(Model):
     def _fam(self):
         fam = self.family
         if not hasattr(self, "_fam_arrays"):
-            f = types.SimpleNamespace()  # contiguous int64/float64 views for the kernels
-            f.offsets = np.ascontiguousarray(fam.offsets, dtype=np.int64)
-            f.neighbors = np.ascontiguousarray(fam.neighbors, dtype=np.int64)
-            f.length = np.ascontiguousarray(fam.length, dtype=np.float64)
+            f = types.SimpleNamespace()  # the family's own arrays (no copies) for the kernels
+            f.offsets = fam.offsets
+            f.neighbors = fam.neighbors
+            f.x0 = np.ascontiguousarray(fam.x0, dtype=np.float64)
             f.q = self._q_b
             self._fam_arrays = f
         return self._fam_arrays
@@ -1197,7 +1201,7 @@ class CPD(Model):
         ib, it, iq = self._intact(state)
         f = self._fam()
         y = np.ascontiguousarray(state.y)
-        nb = _break_pairs(y, f.offsets, f.neighbors, f.length, self.s1c, ib)
+        nb = _break_pairs(y, f.offsets, f.neighbors, f.x0, self.s1c, ib)
         if self.triplets is not None:
             _break_triplets(y, f.offsets, f.neighbors, self.triplets.offsets, self.triplets.slot_j,
                             self.triplets.slot_k, self.triplets.area, self.s2c, ib, it)

@@ -237,15 +237,15 @@ class LPS(Model):
             self.alpha = 8.0 * G
         self.dimf = float(d)
         self.A = d * self.kprime - self.alpha / d
+        self._gdev_n = None
         L = family.length
-        self.omega_b = np.ascontiguousarray(1.0 / L if self.influence == "inverse" else np.ones_like(L))
-        self.w_b = np.ascontiguousarray(system.volume[family.neighbors] * family.volume_factor)
-        m = np.bincount(family.owner, weights=self.omega_b * L * L * self.w_b, minlength=family.n)
+        w = self.bond_weights(deviatoric=False)
+        m = np.bincount(family.owner, weights=self._omega(L) * L * L * w, minlength=family.n)
+        del L, w
         self.m = m
         with np.errstate(divide="ignore"):
             self.inv_m = np.where(m > 0, 1.0 / np.where(m > 0, m, 1.0), 0.0)
         self.dm = self.dimf * self.inv_m
-        self.wd_b = np.ascontiguousarray(self.alpha * self.w_b)
         self._theta = np.zeros(family.n)
         if self.Gc is not None:
             dl = family.horizon
@@ -254,17 +254,55 @@ class LPS(Model):
             else:
                 self.s0 = float(np.sqrt(self.Gc / ((6 * G / np.pi + 16 / (9 * np.pi ** 2) *
                                                     (self.kprime - 2 * G)) * dl)))
-        self._dev_b = self._deviatoric_correction() if self.surface_correction else None
-        if self._dev_b is not None:
-            self.wd_b = np.ascontiguousarray(self.wd_b * self._dev_b)
+        if self.surface_correction:
+            self._gdev_n = self._deviatoric_correction()
         self.bonds = BondList(family, system.volume)
         self._pair_tables()
+
+    # ------------------------------------------------------------------ per-bond quantities
+    def _omega(self, L) -> np.ndarray:
+        return 1.0 / L if self.influence == "inverse" else np.ones_like(L)
+
+    def deviatoric_factors(self) -> np.ndarray | None:
+        """The surface correction's bond factor ``(g_i + g_j)/2`` (nb,) from the kept
+        per-particle ``g`` (a new array); None without the correction."""
+        if self._gdev_n is None:
+            return None
+        fam = self.family
+        return 0.5 * (self._gdev_n[fam.owner] + self._gdev_n[fam.neighbors])
+
+    def bond_weights(self, deviatoric: bool = False) -> np.ndarray:
+        """``w = V_j beta_ij`` of every directed bond (nb,) (m^3), or with ``deviatoric``
+        the deviatoric weight ``alpha w`` (times the surface factor when corrected). New
+        arrays: the per-bond quantities are recomputed, not kept."""
+        fam = self.family
+        w = self.system.volume[fam.neighbors] * fam.volume_factor
+        if not deviatoric:
+            return w
+        wd = self.alpha * w
+        g = self.deviatoric_factors()
+        return wd if g is None else wd * g
+
+    @property
+    def omega_b(self) -> np.ndarray:
+        """Influence function of every directed bond (nb,) (a new array)."""
+        return self._omega(self.family.length)
+
+    @property
+    def w_b(self) -> np.ndarray:
+        """:meth:`bond_weights` (a new array)."""
+        return self.bond_weights()
+
+    @property
+    def wd_b(self) -> np.ndarray:
+        """``bond_weights(deviatoric=True)`` (a new array)."""
+        return self.bond_weights(deviatoric=True)
 
     def _pair_tables(self) -> None:
         """Per-class coefficients of the pair kernels (see :func:`lps_pair_force_kernel`)."""
         bl = self.bonds
-        if self._dev_b is not None:
-            k_p, L_k, bf_k, br_k, gf_k, gr_k = bl.classes(self._dev_b)
+        if self._gdev_n is not None:
+            k_p, L_k, bf_k, br_k, gf_k, gr_k = bl.classes(self.deviatoric_factors())
         else:
             k_p, L_k, bf_k, br_k = bl.classes()
             gf_k = gr_k = 1.0
@@ -277,27 +315,28 @@ class LPS(Model):
                               c(self.alpha * om_k * bf_k * gf_k), c(self.alpha * om_k * br_k * gr_k))
 
     def _deviatoric_correction(self) -> np.ndarray:
-        """Bond factors (g_i + g_j)/2 with g_i = W_bulk / W_i under simple shear."""
+        """Per-particle factors g_i = W_bulk / W_i under simple shear (N,) (the bond factor
+        is (g_i + g_j)/2)."""
         sysm, fam = self.system, self.family
         gam = 1e-3
         y = sysm.x0.copy()
         y[:, 0] += gam * sysm.x0[:, 1]
         intact = np.ones(fam.nb, dtype=np.bool_)
         theta = np.zeros(fam.n)
-        lps_dilatation_kernel(fam.offsets, fam.neighbors, fam.length, self.w_b, self.omega_b, y,
-                              intact, self.dm, theta)
-        W = lps_energy_kernel(fam.offsets, fam.neighbors, fam.length, self.wd_b, self.omega_b, y,
+        L, om, w = fam.length, self.omega_b, self.bond_weights()
+        lps_dilatation_kernel(fam.offsets, fam.neighbors, L, w, om, y, intact, self.dm, theta)
+        W = lps_energy_kernel(fam.offsets, fam.neighbors, L, self.alpha * w, om, y,
                               intact, theta, self.inv_m, self.kprime, self.dimf)
         Wb = 0.5 * self.G * gam * gam
-        g = np.where(W > 0, Wb / np.where(W > 0, W, 1.0), 1.0)
-        return 0.5 * (g[fam.owner] + g[fam.neighbors])
+        return np.where(W > 0, Wb / np.where(W > 0, W, 1.0), 1.0)
 
     # ------------------------------------------------------------------ forces
     def dilatation(self, state) -> np.ndarray:
         """theta (N,) on the current state (a new array)."""
         f = self.family
         theta = np.empty(f.n)
-        lps_dilatation_kernel(f.offsets, f.neighbors, f.length, self.w_b, self.omega_b, state.y,
+        L = f.length
+        lps_dilatation_kernel(f.offsets, f.neighbors, L, self.bond_weights(), self._omega(L), state.y,
                               state.intact, self.dm, theta)
         return theta
 
@@ -347,14 +386,16 @@ class LPS(Model):
     def energy_density(self, state):
         f = self.family
         theta = self.dilatation(state)
-        return lps_energy_kernel(f.offsets, f.neighbors, f.length, self.wd_b, self.omega_b, state.y,
+        L = f.length
+        return lps_energy_kernel(f.offsets, f.neighbors, L, self.wd_b, self._omega(L), state.y,
                                  state.intact, theta, self.inv_m, self.kprime, self.dimf)
 
     def stiffness_bound(self):
         """Gershgorin row bound of the linearised LPS force density (N/m^4)."""
         f = self.family
         i, j = f.owner, f.neighbors
-        om, L, w = self.omega_b, f.length, self.w_b
+        L = f.length
+        om, w = self._omega(L), self.bond_weights()
         Rdev = 2.0 * np.bincount(i, weights=self.wd_b * om * (self.inv_m[i] + self.inv_m[j]),
                                               minlength=f.n)
         T = self.dm * np.bincount(i, weights=om * L * w, minlength=f.n)  # sum |d theta_i / d y| / 2

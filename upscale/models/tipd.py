@@ -551,8 +551,8 @@ class TiPD(Model):
             A = induced_tensor(C) / norm                       # [p, q, a, b]
         else:
             bulk = self._bulk_particle()
-            sl = slice(family.offsets[bulk], family.offsets[bulk + 1])
-            xb, Lb, wb = family.xi[sl, :d], family.length[sl], self.bond_weights()[sl]
+            sl = np.arange(family.offsets[bulk], family.offsets[bulk + 1])
+            xb, Lb, wb = family.xi_of(sl)[:, :d], family.length_of(sl), self.bond_weights(sl)
             Q = np.einsum("ka,kb,kc,kd,k->abcd", xb, xb, xb, xb, wb / Lb ** 3)
             P = _sym_pairs_inverse(Q, d)
             A = 2.0 * np.einsum("paqb,abcd->pqcd", self.S, P)
@@ -577,14 +577,15 @@ class TiPD(Model):
         fam, V = self.family, self.system.volume
         if bonds is None:
             return V[fam.neighbors] * fam.volume_factor
-        return V[fam.neighbors[bonds]] * fam.volume_factor[bonds]
+        return V[fam.neighbors[bonds]] * fam.volume_factor_of(bonds)
 
     def _q(self, bonds=None) -> np.ndarray:
         """``q = xi sqrt(V_j beta / |xi|^3)`` (nb or k, d) (``M_b = A : q (x) q``)."""
         fam, d = self.family, self.dim
-        sel = slice(None) if bonds is None else bonds
         w = self.bond_weights(bonds)
-        return fam.xi[sel, :d] * np.sqrt(w / fam.length[sel] ** 3)[:, None]
+        if bonds is None:
+            return fam.xi[:, :d] * np.sqrt(w / fam.length ** 3)[:, None]
+        return fam.xi_of(bonds)[:, :d] * np.sqrt(w / fam.length_of(bonds) ** 3)[:, None]
 
     def _bulk_particle(self) -> int:
         """The particle with the most complete family (largest sum of bond weights)."""
@@ -652,9 +653,9 @@ class TiPD(Model):
         out = np.zeros((d ** 4, fam.n))
         for a in range(0, fam.nb, _PAIR_BLOCK):
             blk = np.arange(a, min(fam.nb, a + _PAIR_BLOCK))
-            xi = fam.xi[blk, :d]
+            xi = fam.xi_of(blk)[:, :d]
             per = 0.5 * np.einsum("kpq,ka,kb->kpaqb", self.bond_matrices(blk), xi, xi).reshape(blk.size, -1)
-            own = fam.owner[blk]
+            own = fam.owner_of(blk)
             for c in range(per.shape[1]):
                 out[c] += np.bincount(own, weights=per[:, c], minlength=fam.n)
         return np.ascontiguousarray(out.T).reshape((fam.n,) + (d,) * 4)
@@ -796,7 +797,7 @@ class TiPD(Model):
             particle = self._bulk_particle()
         bonds = np.arange(fam.offsets[particle], fam.offsets[particle + 1])
         M = self.bond_matrices(bonds)
-        xi = fam.xi[bonds, :self.dim]
+        xi = fam.xi_of(bonds)[:, :self.dim]
         return 0.5 * np.einsum("kpq,ka,kb->paqb", M, xi, xi)
 
     # ------------------------------------------------------------------ forces
@@ -902,7 +903,7 @@ class TiPD(Model):
             gp = np.empty(f.nb)
             for a in range(0, f.nb, _PAIR_BLOCK):
                 s = slice(a, min(f.nb, a + _PAIR_BLOCK))
-                xi = f.xi[s, :d]
+                xi = f.xi_of(np.arange(s.start, s.stop))[:, :d]
                 g[s] = np.abs(w[s, None] * np.einsum("kab,kb->ka", Kinv[i[s]], xi)).sum(1)
                 gp[s] = np.abs(w[s, None] * np.einsum("kab,kb->ka", Kinv[j[s]], xi)).sum(1)
             Gs = np.bincount(i, weights=g, minlength=f.n)
