@@ -83,6 +83,11 @@ def test_pristine_strained_noisy_tube_has_no_defect(name):
     assert tube.quality()["circuit_agreement"] == 1.0
     assert tube.lattice.quality()["on_site_fraction"] == 1.0
     assert np.unique(tube.lattice.site).size == len(atoms)
+    assert tube.lattice.distance.max() < 0.4  # 0.05 Å noise per coordinate
+    sub = np.empty(len(atoms), dtype=int)
+    sub[tube.atoms] = tube.lattice.sublattice
+    g = s.graph
+    assert (sub[g.sources] != sub[g.indices]).all()  # every bond joins the two sublattices
     assert find_defects(s) == []
 
 
@@ -245,3 +250,30 @@ def test_bad_input_is_one_line_value_error(make, match):
     with pytest.raises(ValueError, match=match) as err:
         register(make())
     assert "\n" not in str(err.value)
+
+
+def test_a_lammps_data_file_in_a_fully_periodic_box(tmp_path):
+    """Any file ASE reads: a LAMMPS data file (pbc on in all three directions)."""
+    from ase.io import read, write
+
+    atoms = apply_defects(swcnt(12, 6, length=100.0), "v1@0.2@0,sw@0.6@100")
+    atoms.pbc = True
+    write(tmp_path / "tube.data", atoms, format="lammps-data", masses=True)
+    back = read(tmp_path / "tube.data", format="lammps-data")
+    s = register(back)
+    assert s.tubes[0].chirality == (12, 6)
+    assert_matches_records(atoms, find_defects(s))
+
+
+def test_an_unbonded_atom_over_the_wall_is_an_adatom_of_that_tube():
+    from upscale.defects import adatom
+
+    atoms = adatom(swcnt(10, 10, length=40.0), 0.5, 30.0, height=2.5)  # 2.6 Å from its hosts
+    s = register(atoms)
+    assert s.graph.coordination[-1] == 0 and s.tube_of_atom[-1] == 0
+    (d,) = find_defects(s)
+    assert d.kind == "adatom" and list(d.atoms) == [len(atoms) - 1]
+    with pytest.raises(ValueError, match="from the nearest tube wall"):
+        far = atoms.copy()
+        far.positions[-1, :2] += 30.0
+        register(far)

@@ -118,6 +118,12 @@ class LatticeMap:
         """0 or 1 per atom (of the nearest site)."""
         return self.nearest % 2
 
+    def indices(self, ids) -> np.ndarray:
+        """Lattice indices (i, j, s) of sites: the point i c1 + j c2 (i = 0..g-1 round the
+        tube, j the row), sublattice s; (S, 3) int."""
+        ids = np.asarray(ids, dtype=np.int64)
+        return np.stack([(ids // 2) % self.g, (ids // 2) // self.g + self.row0, ids % 2], 1)
+
     def quality(self) -> dict:
         """Fraction of atoms on a site and their RMS distance to it, Å."""
         on = self.site >= 0

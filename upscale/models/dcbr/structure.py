@@ -141,8 +141,9 @@ def _check_atoms(atoms):
         _fail(f"structure is a {type(atoms).__name__}; valid: an ase.Atoms of carbon tubes")
     if len(atoms) == 0:
         _fail("structure has no atoms; valid: an ase.Atoms holding at least one carbon tube")
-    bad = sorted(set(atoms.get_chemical_symbols()) - {"C"})
-    if bad:
+    numbers = np.unique(atoms.numbers)
+    if (numbers != 6).any():
+        bad = sorted(set(atoms.get_chemical_symbols()) - {"C"})
         _fail(f"structure holds element(s) {', '.join(bad)}; valid: carbon (C) only")
 
 
@@ -243,13 +244,12 @@ def _reduce(p, q):
     return None
 
 
-def _votes(graph, order, parent_edge, step_e, P, axis):
+def _votes(graph, order, parent_edge, X, step_e, P, axis):
     """Chiral vectors (internal (p, q)) of the winding fundamental cycles, counted.
 
     ``step_e`` (E, 4) per edge: azimuth step (rad), lattice step in thirds (2), and 1 for a
     bond too far off every lattice direction (its cycles do not vote)."""
     acc = tree_accumulate(graph, order, parent_edge, step_e, np.zeros(4))
-    X = tree_accumulate(graph, order, parent_edge, graph.d_ec, np.zeros(3))
     src, dst = graph.sources, graph.indices
     inside = ~np.isnan(acc[src, 0]) & ~np.isnan(acc[dst, 0])
     nt = np.flatnonzero(inside & (parent_edge[dst] != np.arange(len(dst))) & (src < dst))
@@ -356,7 +356,7 @@ def _tube(graph, pos, piece, hint, loose, wall, geometry):
     phi_n = np.zeros(graph.n_atoms)
     phi_n[members] = phi
     step, psi6, bond = _steps(graph, piece, phi_n, R, axis)
-    votes = _votes(graph, order, parent_edge, step, P, axis)
+    votes = _votes(graph, order, parent_edge, X, step, P, axis)
     pq = _choose(votes, hint, len(members))
     z = X[members] @ axis
     if len(loose):
