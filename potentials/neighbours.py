@@ -200,7 +200,28 @@ def _search(x_pc, n_real, src_p, img_pc, wrap_nc, lo_c, inv_bin_c, nbin_c, start
     for i in prange(n_real):
         _row(i, x_pc, src_p, img_pc, wrap_nc, lo_c, inv_bin_c, nbin_c, start, order, rc2,
              half, True, first_n[i], j_b, shift_bc)
+        _sort_row(first_n[i], first_n[i + 1], j_b, shift_bc)
     return first_n, j_b, shift_bc
+
+
+@njit(cache=True)
+def _sort_row(a, b, j_b, shift_bc):
+    """Order one row by (neighbour, image): the list, and so every sum over it, is then the
+    same whenever and wherever it was built (the bins depend on the box at the build), which
+    keeps a run resumed from a checkpoint bit-identical. Insertion sort: rows are short."""
+    for c in range(a + 1, b):
+        j = j_b[c]
+        s0, s1, s2 = shift_bc[c, 0], shift_bc[c, 1], shift_bc[c, 2]
+        d = c - 1
+        while d >= a and (j_b[d] > j or (j_b[d] == j and (
+                shift_bc[d, 0], shift_bc[d, 1], shift_bc[d, 2]) > (s0, s1, s2))):
+            j_b[d + 1] = j_b[d]
+            shift_bc[d + 1, 0] = shift_bc[d, 0]
+            shift_bc[d + 1, 1] = shift_bc[d, 1]
+            shift_bc[d + 1, 2] = shift_bc[d, 2]
+            d -= 1
+        j_b[d + 1] = j
+        shift_bc[d + 1, 0], shift_bc[d + 1, 1], shift_bc[d + 1, 2] = s0, s1, s2
 
 
 @njit(cache=True)

@@ -17,6 +17,12 @@ Target (issue "One way to run a scene"): curves within 1 % (max |d sigma| / |sig
 over the common load points up to the first drop of either), buckling strain and twist
 angle within 2 %; "peak at" is the strain (the twist in degrees) of the peak. ``--quick``:
 a (5,5) tube of 40 / 40 / 40 Å, same rules, never a pass.
+
+Beside the target (not in ``pass``): the dynamic pull (:func:`upscale.experiments.pull.
+pull` on the engine, LAMMPS's ``fix nvt`` run on the other side) of a free (10,10) of
+100 Å, 10 Å grips at 1 Å/ps each, 10 K, on :data:`DYNAMIC_SEEDS` thermal seeds each side
+(the two sides' random velocities differ): the seed means' strength, strain at peak and
+modulus, ``dynamic_*_err_pct``. ``--quick``: a (5,5) of 60 Å.
 """
 from __future__ import annotations
 
@@ -34,8 +40,31 @@ CHECKS = {
 }
 
 
+#: the thermal seeds of the dynamic comparison, each side
+DYNAMIC_SEEDS = (1, 2, 3, 4)
+FIGURES = {"strength_GPa": "strength", "strain_at_peak": "strain_at_peak",
+           "youngs_TPa": "youngs"}
+
+
 def _args(p):
     p.add_argument("--only", default=None, help="comma list of tension,compression,torsion")
+
+
+def dynamic_pull(chir, length) -> dict:
+    """Seed means of the dynamic pull, ours and LAMMPS's (module docstring)."""
+    from upscale.build import swcnt
+
+    atoms = swcnt(*chir, length=length)
+    kw = dict(protocol="dynamic", grip=10.0, maximum=0.3, temperature=10.0, progress=False)
+    runs = {m: [experiments.tension(atoms, model=m, seed=s, **kw).figures
+                for s in DYNAMIC_SEEDS] for m in ("atomistic", "lammps")}
+    out, rows = {}, []
+    for f, key in FIGURES.items():
+        a, b = (float(np.mean([r[f] for r in runs[m]])) for m in ("atomistic", "lammps"))
+        out[f"dynamic_{key}_err_pct"] = 100 * (a / b - 1)
+        rows.append({"dynamic, seed mean": f, "ours": a, "LAMMPS": b, "err %": 100 * (a / b - 1)})
+    print(table(rows, floatfmt=".4g"))
+    return out
 
 
 def curve_error_pct(a, b) -> float:
@@ -79,6 +108,7 @@ def protocol_atomistic(args) -> dict:
         out[f"{name}_curve_err_pct"] = err_curve
         out[f"{name}_peak_err_pct"] = err_peak
     print(table(rows, floatfmt=".4g"))
+    out.update(dynamic_pull(chir, 60.0 if args.quick else 100.0))
     res = {"tension_curve_err_pct": out.get("tension_curve_err_pct"),
            "compression_buckling_strain_err_pct": out.get("compression_peak_err_pct"),
            "torsion_buckling_angle_err_pct": out.get("torsion_peak_err_pct"), **out}

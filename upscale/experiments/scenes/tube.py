@@ -49,7 +49,7 @@ def tension(structure=None, *, chirality: tuple[int, int] = (10, 10), length: fl
             load: Literal["tension", "compression", "torsion"] = "tension",
             step: float | None = None, maximum: float | None = None,
             grip: float | None = None, perturb: float | None = None,
-            temperature: float = 10.0, seed: int = 1,
+            temperature: float = 10.0, seed: int = 1, seeds: int = 1,
             potential: str = "BNC.tersoff", reference: bool = True,
             progress: bool = True) -> Result:
     """One tube under a loading protocol (module docstring).
@@ -88,7 +88,11 @@ def tension(structure=None, *, chirality: tuple[int, int] = (10, 10), length: fl
     temperature : float
         thermostat temperature of a dynamic pull, K.
     seed : int
-        seed of a dynamic pull's thermal start.
+        seed of a dynamic pull's thermal start (and of a quasi-static imperfection).
+    seeds : int
+        runs on seeds ``seed, seed + 1, ...``: the figures are their means (each figure's
+        standard deviation as ``<figure>_sd``, every run's figures in the curve table
+        ``seeds/``), the curve and fields the first run's.
     potential : str
         LAMMPS .tersoff file of the atoms (default the references' BNC.tersoff, step cutoff).
     reference : bool
@@ -100,25 +104,48 @@ def tension(structure=None, *, chirality: tuple[int, int] = (10, 10), length: fl
     """
     if model not in MODELS:
         raise ValueError(f"model={model!r}; valid: {', '.join(MODELS)}")
+    if not (isinstance(seeds, (int, np.integer)) and seeds >= 1):
+        raise ValueError(f"seeds={seeds!r}; valid: an integer >= 1 (runs on seed, seed + 1, ...)")
     params = dict(chirality=tuple(chirality), length=length, defects=defects, model=model,
                   reference=reference,
                   coarsening=coarsening, protocol=protocol, load=load, step=step,
                   maximum=maximum, grip=grip, perturb=perturb, temperature=temperature,
-                  seed=seed, potential=potential)
-    proto = make_protocol(protocol, load, step=step, maximum=maximum, grip=grip,
-                          perturb=perturb, temperature=temperature, seed=seed)
+                  seed=seed, seeds=seeds, potential=potential)
+    protos = [make_protocol(protocol, load, step=step, maximum=maximum, grip=grip,
+                            perturb=perturb, temperature=temperature, seed=seed + k)
+              for k in range(seeds)]
     atoms = tube_structure(structure, chirality, length, defects)
     if structure is not None:
         params["structure"] = f"Atoms({atoms.get_chemical_formula()})"
     show = _printer(progress, model)
-    with Timer() as timer:
-        if model == "atomistic":
-            run = _run_atomistic(atoms, proto, potential, show)
-        elif model == "lammps":
-            run = _run_lammps(atoms, proto, potential, reference)
-        else:
-            run = _run_dcbr(atoms, proto, coarsening, potential, show)
-    return tube_result(run, proto, params, timer)
+    results = []
+    for proto in protos:
+        with Timer() as timer:
+            if model == "atomistic":
+                run = _run_atomistic(atoms, proto, potential, show)
+            elif model == "lammps":
+                run = _run_lammps(atoms, proto, potential, reference)
+            else:
+                run = _run_dcbr(atoms, proto, coarsening, potential, show)
+        results.append(tube_result(run, proto, params, timer))
+    return results[0] if seeds == 1 else seed_means(results)
+
+
+def seed_means(results: list) -> Result:
+    """One :class:`Result` of runs on several seeds (:func:`tension`'s ``seeds``)."""
+    first = results[0]
+    figs, curves = {}, dict(first.curves)
+    curves["seeds/seed"] = np.array([r.meta["protocol"]["seed"] for r in results], float)
+    for k, v in first.figures.items():
+        vals = np.array([r.figures[k] for r in results], dtype=float)
+        curves[f"seeds/{k}"] = vals
+        figs[k] = float(np.mean(vals)) if k != "failed" else bool(vals.all())
+        if k not in ("failed", "atoms", "particles", "dof"):
+            figs[f"{k}_sd"] = float(np.std(vals, ddof=1))
+    meta = dict(first.meta)
+    meta["seeds"] = [int(s) for s in curves["seeds/seed"]]
+    meta["wall_s"] = float(sum(r.meta["wall_s"] for r in results))
+    return Result(figures=figs, curves=curves, fields=dict(first.fields), meta=meta)
 
 
 def make_protocol(protocol: str, load: str, *, step=None, maximum=None, grip=None,
@@ -168,8 +195,7 @@ def _run_atomistic(atoms, proto, potential, show) -> dict:
     from upscale.experiments.scenes.tube_atomistic import AtomisticTube
 
     if isinstance(proto, Dynamic):
-        raise ValueError("model='atomistic' with protocol='dynamic' is not on the engine "
-                         "yet; valid: protocol='quasi-static'")
+        return _pull_atomistic(atoms, proto, potential, show)
     tube = AtomisticTube(atoms, proto, potential)
     damage = [tube.damage()]
 
@@ -183,6 +209,24 @@ def _run_atomistic(atoms, proto, potential, show) -> dict:
             "axis": tube.axis, "radius_A": tube.radius, "dof": 3 * len(atoms),
             "atoms": len(atoms), "particles": len(atoms),
             "minimisations": tube.minimisations, "unconverged": tube.unconverged}
+
+
+def _pull_atomistic(atoms, proto, potential, show) -> dict:
+    """The dynamic pull of the atoms on the engine (:class:`AtomisticPull`)."""
+    from upscale.experiments.pull import pull
+    from upscale.experiments.scenes.tube_atomistic import AtomisticPull
+
+    tube = AtomisticPull(atoms, proto, potential)
+    out = pull(tube, proto, progress=(lambda r: show(r["load"], r["response"])) if show else None)
+    recs = out["records"]
+    curve = {"load": np.array([r["load"] for r in recs]),
+             "response": np.array([r["response"] for r in recs]),
+             "time_ps": np.array([r["time_ps"] for r in recs]),
+             "broken_bonds": np.array([r["broken_bonds"] for r in recs], dtype=float)}
+    return {"curve": curve, "x0": tube.x_rest, "damage_steps": [tube.damage()],
+            "axis": tube.axis, "radius_A": tube.radius, "dof": 3 * len(atoms),
+            "atoms": len(atoms), "particles": len(atoms), "minimisations": tube.minimisations,
+            "steps": out["steps"], "blowup_after_failure": out["blowup_after_failure"]}
 
 
 def _run_lammps(atoms, proto, potential, run_missing: bool) -> dict:
@@ -270,19 +314,24 @@ def _run_dcbr(atoms, proto, coarsening, potential, show) -> dict:
     tension only, both on the engine (:func:`quasi_static_tension_engine`)."""
     from upscale.experiments.scenes.tube_tension import quasi_static_tension_engine
 
-    if not isinstance(proto, QuasiStatic) or proto.load != "tension" or not proto.periodic:
-        raise ValueError("model='dcbr' runs quasi-static periodic tension only until the "
-                         "coarse model takes any structure; use model='atomistic' or 'lammps'")
+    if proto.load != "tension" or (isinstance(proto, QuasiStatic) and not proto.periodic):
+        raise ValueError("model='dcbr' runs quasi-static periodic tension and dynamic tension "
+                         "only until the coarse model takes any structure; use "
+                         "model='atomistic' or 'lammps'")
     info = atoms.info
     ch, L = info.get("chirality"), info.get("length")
     vac = info.get("vacancy")
-    other = [d["kind"] for d in info.get("defects", []) if d.get("kind") != "v4"]
-    if ch is None or L is None or other or (vac and vac.get("n") != 4):
+    placed = [d["kind"] for d in info.get("defects", [])]
+    if placed and ch is not None and L is not None and _is_seed_vacancy(atoms, ch, L):
+        vac, placed = {"n": 4}, []  # (the seed's vacancy, placed through `defects`)
+    if ch is None or L is None or placed or (vac and vac.get("n") != 4):
         raise ValueError("model='dcbr' takes a pristine tube of upscale.build.swcnt or the "
-                         "seed's tube with one 4-atom vacancy (upscale.build.vacancy) until "
-                         "the coarse model takes any structure; got "
-                         f"{'defects ' + ','.join(other) if other else 'an untagged structure'}")
+                         "seed's tube with one 4-atom vacancy (upscale.build.vacancy, or "
+                         "defects='v4@0.5@0') until the coarse model takes any structure; got "
+                         f"{'defects ' + ','.join(placed) if placed else 'an untagged structure'}")
     n, m = ch
+    if isinstance(proto, Dynamic):
+        return _pull_dcbr(n, m, L, bool(vac), proto, coarsening, potential, show)
     qs = dict(strain_step=proto.step, max_strain=proto.maximum,
               progress=(lambda e, s: show(e, s)) if show else None)
     if vac:
@@ -303,6 +352,55 @@ def _run_dcbr(atoms, proto, coarsening, potential, show) -> dict:
             "x0": x0, "damage_steps": [np.asarray(res["damage"], dtype=float)],
             "axis": x0[:, :2].mean(0), "radius_A": res["radius_relaxed_A"], "dof": res["dof"],
             "atoms": res["atoms"], "particles": res["particles"]}
+
+
+def _is_seed_vacancy(atoms, chirality, length) -> bool:
+    """True when ``atoms`` is the built tube less exactly the seed's 4-atom vacancy
+    (:func:`upscale.build.vacancy` at its default point), whatever placed it."""
+    from upscale.build import swcnt, vacancy
+
+    ref = vacancy(swcnt(*(int(v) for v in chirality), length=float(length)))
+    if len(ref) != len(atoms):
+        return False
+    a, b = (np.round(x.get_positions(), 6) for x in (atoms, ref))
+    return bool(np.array_equal(a[np.lexsort(a.T)], b[np.lexsort(b.T)]))
+
+
+def _pull_dcbr(n, m, length, vacancy, proto, coarsening, potential, show) -> dict:
+    """The coarse tube's dynamic pull (:func:`~upscale.experiments.scenes.dcbr_dynamic.
+    dynamic_tension` on the shared pull), built as ``dcbr-seeds`` builds it
+    (:func:`~upscale.experiments.scenes.tube_tension.dynamic_scene`: clamped grips with the
+    vacancy, atomistic bands across the grip planes without), on the stored LAMMPS
+    reference's grip planes where one of this tube and protocol is stored."""
+    from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension
+    from upscale.experiments.scenes.tube_tension import dynamic_scene, lammps_reference
+
+    try:
+        ref = lammps_reference(n, m, length, protocol="dynamic", vacancy=vacancy,
+                               potential=f"tersoff:{potential}", progress=False)
+    except LookupError:
+        ref = {}
+    pd = ref.get("protocol_detail", {})
+    if (pd.get("grip_A"), pd.get("speed_A_per_ps_each_grip")) != (proto.grip, proto.speed):
+        ref = {"protocol_detail": {"grip_A": proto.grip,
+                                   "speed_A_per_ps_each_grip": proto.speed}}
+    model, dyn = dynamic_scene(n, m, length, coarsening, ref, vacancy=vacancy,
+                               potential=f"tersoff:{potential}")
+    dyn.pop("grips")
+    r = dynamic_tension(model, seed=proto.seed, temperature=proto.temperature, dt=proto.dt,
+                        sample=proto.sample_every, max_strain=proto.maximum,
+                        tdamp=1e3 * proto.tau, progress=show, **dyn)
+    c = r["curve"]
+    L0 = r["L0_A"]
+    mu = model.atom_damage(r["positions"], r["delta"], L0)
+    x0 = np.r_[model.x0[~model.is_slave], model.X_atoms[model.free_idx]]
+    dmg = np.r_[np.asarray(model.damage, float)[~model.is_slave], mu]
+    return {"curve": {"load": np.asarray(c["strain"]), "response": np.asarray(c["stress_GPa"]),
+                      "time_ps": np.asarray(c["time_ps"])},
+            "x0": x0, "damage_steps": [dmg], "axis": np.zeros(2),
+            "radius_A": r["radius_relaxed_A"], "dof": r["dof"], "atoms": r["atoms"],
+            "particles": r["particles"], "steps": r["steps"],
+            "blowup_after_failure": r["blowup_after_failure"]}
 
 
 # --------------------------------------------------------------------- the Result
@@ -327,7 +425,7 @@ def tube_result(run: dict, proto, params: dict, timer: Timer) -> Result:
     figs.update(atoms=run["atoms"], particles=run["particles"], dof=run["dof"],
                 radius_A=float(run["radius_A"]),
                 wall_s=float(run.get("wall_s", timer.wall_s)))
-    meta = make_meta("tension", params, timer=timer, seeds=[params["seed"]],
+    meta = make_meta("tension", params, timer=timer, seeds=[proto.seed],
                      conventions={"stress_area": "2 pi R t, t = 3.4 A, R mean wall radius "
                                   "after the zero-stress relaxation",
                                   "compression": "negative strain and stress",
@@ -336,7 +434,8 @@ def tube_result(run: dict, proto, params: dict, timer: Timer) -> Result:
                      plot={"curve": {"x": xname, "y": [yname]}},
                      protocol={"name": proto.name, **_asdict(proto)},
                      model_detail={k: run[k] for k in ("minimisations", "unconverged", "lammps",
-                                                       "source") if k in run})
+                                                       "source", "steps",
+                                                       "blowup_after_failure") if k in run})
     return Result(figures=figs, curves=curves, fields=fields, meta=meta)
 
 

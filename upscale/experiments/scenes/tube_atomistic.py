@@ -31,9 +31,10 @@ from upscale.engine.minimisers import FIRE, LBFGS, NotConverged, zero_cell_force
 from upscale.engine.simulation import Simulation
 from upscale.engine.system import ParticleSystem
 from upscale.experiments.protocols import Specimen
+from upscale.experiments.pull import PullSpecimen
 from upscale.models.tersoff import TersoffModel
 
-__all__ = ["AtomisticTube", "bond_pairs", "bond_damage"]
+__all__ = ["AtomisticTube", "AtomisticPull", "bond_pairs", "bond_damage"]
 
 #: bonds at the start are pairs closer than this, Å; broken beyond BREAK_A (the references')
 BOND_A, BREAK_A = 2.0, 2.1
@@ -80,7 +81,10 @@ class AtomisticTube(Specimen):
         self._relax_zero_stress()
         self.x_rest = self.sim.state.y.copy()
         self.L0 = self.L if self.periodic else None
-        self.radius = float(np.mean(np.hypot(*(self.x_rest[:, :2] - self.axis).T)))
+        # R: the periodic tube's after its zero-stress relaxation where the tube was cut from
+        # one (the LAMMPS runners' stress area), else this tube's
+        self.radius = getattr(self, "radius_periodic", None) or \
+            float(np.mean(np.hypot(*(self.x_rest[:, :2] - self.axis).T)))
         self.area = 2 * math.pi * self.radius * WALL_THICKNESS_A
         self.bonds = bond_pairs(self.x_rest, self.L0)
         if not self.periodic:
@@ -119,6 +123,7 @@ class AtomisticTube(Specimen):
 
         periodic = AtomisticTube(atoms, QuasiStatic(ftol=self.ftol), potential)
         self.minimisations += periodic.minimisations
+        self.radius_periodic = periodic.radius
         y, L0 = periodic.x_rest.copy(), periodic.L0
         y[:, 2] = np.mod(y[:, 2], L0)
         y[y[:, 2] >= L0, 2] -= L0
@@ -250,3 +255,106 @@ def bond_damage(y, bonds, period_z=None) -> np.ndarray:
     total = np.bincount(bonds.ravel(), minlength=n).astype(float)
     left = np.bincount(bonds[:, 0], ok, n) + np.bincount(bonds[:, 1], ok, n)
     return np.where(total > 0, 1.0 - left / np.maximum(total, 1.0), 0.0)
+
+
+class AtomisticPull(PullSpecimen):
+    """The atoms of ``atoms`` in a dynamic pull (:class:`~upscale.experiments.protocols.
+    Dynamic`) on the engine: the LAMMPS runner's dynamic protocol
+    (:mod:`upscale.experiments.lammps.dynamic`) step for step.
+
+    Set-up as :class:`AtomisticTube`'s finite tube: the periodic tube relaxed at zero stress,
+    cut open at the cell boundary and relaxed with every atom free. The grips hold the atoms
+    within ``grip`` Å of the open tube's end atoms and move rigidly apart at ``speed`` Å/ps
+    each; the free atoms start with Gaussian thermal velocities whose x, y temperature is
+    exactly T (zero momentum) plus the linear axial ramp between the grip speeds, under a
+    Nose-Hoover chain of 3 on their x and y velocities (LAMMPS's ``fix nvt`` with ``compute
+    temp/partial 1 1 0``), velocity Verlet at ``dt`` fs. Every 10 steps the grips' reactions
+    are read (tension = mean of the bottom grip's +z and the top one's -z reaction); a
+    sample is their mean over its block, stress = tension / (2 pi R t), strain = grip
+    separation change / initial grip-plane distance at the block's middle time. Units of the
+    pull: eV, Å, fs (masses in eV fs^2 / Å^2).
+    """
+
+    def __init__(self, atoms, protocol, potential: str = "BNC.tersoff"):
+        from upscale.constants import ACC_EV_A_AMU_IN_A_FS2, K_B_EV
+        from upscale.engine.conditions import Grip, Region
+        from upscale.engine.integrators import VelocityVerlet
+        from upscale.engine.thermostats import NoseHooverChain
+        from upscale.experiments.protocols import QuasiStatic
+
+        if protocol.load != "tension":
+            raise ValueError(f"load={protocol.load!r} in a dynamic pull of the atomistic tube; "
+                             "valid: tension")
+        opened = AtomisticTube(atoms, QuasiStatic(load="tension", periodic=False,
+                                                  grip=protocol.grip), potential)
+        self.protocol, self.radius, self.area = protocol, opened.radius, opened.area
+        self.axis, self.minimisations = opened.axis, opened.minimisations
+        x = opened.x_rest
+        self.x_rest, self.bonds = x, bond_pairs(x)
+        bottom, top = self.bottom, self.top = opened.bottom, opened.top
+        self.z_lo, self.gauge = float(opened.z_lo), float(opened.z_hi - opened.z_lo)
+        v = protocol.speed * 1e-3  # Å/fs
+        system = ParticleSystem(x, 1.0, CARBON_MASS_AMU / ACC_EV_A_AMU_IN_A_FS2, spacing=1.42,
+                                units="atomic")
+        self.grips = (Grip(Region("grip bottom", bottom), velocity=(0.0, 0.0, -v), record_every=0),
+                      Grip(Region("grip top", top), velocity=(0.0, 0.0, v), record_every=0))
+        free = ~(bottom | top)
+        T = protocol.temperature
+        thermo = NoseHooverChain(T, 1e3 * protocol.tau, region=free, chain=3,
+                                 components=(0, 1), k_B=K_B_EV) if T > 0 else None
+        self.simulation = Simulation(system, None, opened.model, conditions=list(self.grips),
+                                     integrator=VelocityVerlet(protocol.dt, force=True,
+                                                               thermostat=thermo))
+        self.simulation.state.v[...] = self._start_velocities(system.mass, free, bottom, top, v)
+        self.max_steps = int(math.ceil(protocol.maximum * self.gauge / (2 * v * protocol.dt))) \
+            + 2 * protocol.sample_every
+        self.acc, self.reads = 0.0, 0
+
+    def _start_velocities(self, mass, free, bottom, top, v) -> np.ndarray:
+        from upscale.constants import K_B_EV
+
+        T, x = self.protocol.temperature, self.x_rest
+        vel = np.zeros_like(x)
+        if T > 0:
+            rng = np.random.default_rng(self.protocol.seed)
+            vel[free] = rng.normal(size=(int(free.sum()), 3)) * np.sqrt(K_B_EV * T / mass[free])[:, None]
+            vel[free] -= (mass[free, None] * vel[free]).sum(axis=0) / mass[free].sum()
+            txy = (mass[free, None] * vel[free, :2] ** 2).sum() / (2 * free.sum() * K_B_EV)
+            vel[free] *= math.sqrt(T / txy)
+        vel[free, 2] += np.clip(-v + 2 * v * (x[free, 2] - self.z_lo) / self.gauge, -v, v)
+        vel[bottom, 2], vel[top, 2] = -v, v
+        return vel
+
+    # ------------------------------------------------------------------ PullSpecimen
+    def read(self, sim) -> None:
+        if int(sim.state.step) % 10:
+            return
+        # the unzeroed forces on the grips' rows (kept in a checkpoint, so a resumed run
+        # reads what the uninterrupted one read): tension = mean of the bottom grip's +z and
+        # the top one's -z reaction
+        R = sim.reactions
+        self.acc += 0.5 * (R[self.bottom, 2].sum() - R[self.top, 2].sum())
+        self.reads += 1
+
+    def sample(self, sim) -> dict:
+        p = self.protocol
+        tmid = (int(sim.state.step) - 0.5 * p.sample_every) * p.dt
+        s = self.acc / max(self.reads, 1) / self.area * EV_PER_A3_IN_GPA
+        self.acc, self.reads = 0.0, 0
+        return {"load": 2 * p.speed * 1e-3 * tmid / self.gauge, "response": float(s),
+                "time_ps": tmid * 1e-3, "broken_bonds": int(self.broken().sum())}
+
+    def load(self, sim) -> float:
+        return 2 * self.protocol.speed * 1e-3 * int(sim.state.step) * self.protocol.dt / self.gauge
+
+    def bookkeeping(self) -> dict:
+        return {"acc": self.acc, "reads": self.reads}
+
+    def restore(self, book: dict) -> None:
+        self.acc, self.reads = float(book["acc"]), int(book["reads"])
+
+    def broken(self) -> np.ndarray:
+        return bond_lengths(self.simulation.state.y, self.bonds) > BREAK_A
+
+    def damage(self) -> np.ndarray:
+        return bond_damage(self.simulation.state.y, self.bonds)
