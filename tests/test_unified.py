@@ -372,7 +372,7 @@ def _edge_cracked_plate(nx=30, ny=24, a=10, growth="free", r_s=4e-3):
     fixed[top | bot, :2] = True
     u = np.zeros((s.n, 3))
     u[top, 1], u[bot, 1] = 1e-6, -1e-6
-    Equilibrium(model, fixed, preconditioner="lu").solve(st, u)
+    Equilibrium(model, fixed, preconditioner="cholmod").solve(st, u)
     return s, fam, model, st, tip
 
 

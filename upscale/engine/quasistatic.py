@@ -6,7 +6,7 @@ For a model with a failure criterion (``model.needs.failure``) and the hooks
 
 1. equilibrium at the prescribed displacement lambda u_dir of the driven degrees of
    freedom by modified Newton on the model's residual and sparse tangent
-   (:class:`Equilibrium`: CG preconditioned by a reused sparse LU);
+   (:class:`Equilibrium`: CG preconditioned by a reused sparse Cholesky factor);
 2. break every bond whose index is >= 1 and solve again at the same lambda, until none
    breaks (each such equilibrium is a point of the load-displacement curve);
 3. the next load: lambda + d_lambda, but no further than the load at which the largest
@@ -30,6 +30,8 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from upscale.engine.solvers import Factor, check_method, direct_solve, pcg, rigid_body_modes
+
 __all__ = ["FractureCurve", "quasi_static_fracture", "Equilibrium"]
 
 
@@ -38,17 +40,18 @@ class Equilibrium:
     conjugate-gradient inner solve (for symmetric positive definite tangents).
 
     Newton iterations y <- y + K^-1 R on the free dofs until |R_free| <= tol max(|R_0|,
-    |F_int|). The inner solve is CG on the current tangent, applied matrix-free by central
-    differences of the residual (``matvec="matrix-free"``: bonds may break between
-    solves without reassembly) or assembled (``"assembled"``, reassembled when the bonds
-    change), preconditioned by a sparse LU of an earlier tangent
-    (``scipy.sparse.linalg.splu``), refactored when CG needs more than ``refactor_after``
-    iterations: after a few bonds break the old factor is still an excellent
-    preconditioner (the change is of low rank). ``preconditioner="jacobi"`` never
-    factorises (large elastic solves). The tangent is symmetric positive definite, so the
-    LU by default takes a symmetric ordering (minimum degree on K + K^T) and diagonal
-    pivots (SuperLU's symmetric mode, ``symmetric_lu``): less fill and no pivot search
-    than the column ordering ``permc_spec="COLAMD", symmetric_lu=False``.
+    |F_int|). The inner solve is CG on the current tangent, applied matrix-free by
+    differences of the residual (``matvec="matrix-free"``: bonds may break between solves
+    without reassembly) or assembled (``"assembled"``, reassembled when the bonds change),
+    preconditioned by a factorisation of an earlier tangent (:class:`upscale.engine.solvers.
+    Factor`, ``preconditioner="cholmod"`` by default: a supernodal Cholesky whose symbolic
+    analysis is kept while the tangent's pattern is the same), refactored when CG needs more
+    than ``refactor_after`` iterations: after a few bonds break the old factor is still an
+    excellent preconditioner (the change is of low rank). ``preconditioner="amg"`` (pyamg
+    smoothed aggregation with the rigid-body modes) or ``"jacobi"`` never factorise (large
+    elastic solves); ``"splu"`` is SuperLU. When CG does not converge in ``cg_maxiter``
+    iterations the step is solved directly with a fresh factorisation of the current
+    tangent (said once per process).
 
     The matrix-free product is by default a forward difference from the residual of the
     current Newton iterate, K v = (F(y) - F(y + h v)) / h with a perturbation of 1e-8 dx
@@ -62,8 +65,8 @@ class Equilibrium:
     renewed before a solve once the CG iterations spent since the last factorisation
     beyond ``n_fresh`` per Newton step (the count of the first Newton step after that
     factorisation) would have paid for a new one, i.e. excess x t_iteration >=
-    t_assembly + t_factor, with both times measured at the first factorisation (the
-    ski-rental rule: at most twice the cost of the best refactorisation schedule).
+    t_assembly + t_factor, both times those of the latest factorisation (the ski-rental
+    rule: at most twice the cost of the best refactorisation schedule).
     ``refactor="never"`` keeps only the in-solve rule (more than ``refactor_after`` CG
     iterations in one Newton step).
 
@@ -84,12 +87,13 @@ class Equilibrium:
         Constrained dofs (the z dofs of a 2D body are added).
     """
 
+    PRECONDITIONERS = ("cholmod", "splu", "amg", "jacobi")
+
     def __init__(self, model, fixed, *, tol=1e-9, max_iter=30, cg_tol=1e-6,
-                 refactor_after=40, preconditioner="lu", permc_spec="MMD_AT_PLUS_A",
-                 matvec="matrix-free", symmetric_lu=True, difference="forward", refactor="amortised",
-                 forcing="adaptive", eta_max=1e-3):
-        if preconditioner not in ("lu", "jacobi"):
-            raise ValueError(f"preconditioner={preconditioner!r}; valid: 'lu', 'jacobi'")
+                 refactor_after=40, preconditioner="cholmod", matvec="matrix-free",
+                 difference="forward", refactor="amortised", forcing="adaptive", eta_max=1e-3,
+                 cg_maxiter=2000):
+        check_method(preconditioner, self.PRECONDITIONERS, "preconditioner")
         if difference not in ("forward", "central"):
             raise ValueError(f"difference={difference!r}; valid: 'forward', 'central'")
         if refactor not in ("amortised", "never"):
@@ -98,6 +102,8 @@ class Equilibrium:
             raise ValueError(f"forcing={forcing!r}; valid: 'adaptive', 'fixed'")
         if not 0 < eta_max < 1:
             raise ValueError(f"eta_max={eta_max!r}; valid: 0 < eta_max < 1")
+        if matvec not in ("matrix-free", "assembled"):
+            raise ValueError(f"matvec={matvec!r}; valid: 'matrix-free', 'assembled'")
         self.difference, self.refactor, self.forcing, self.eta_max = difference, refactor, forcing, eta_max
         self._F_base = None
         self._excess = 0
@@ -109,24 +115,40 @@ class Equilibrium:
         mask[:, model.system.dim:] = True
         self.model, self.mask = model, mask
         self.free = np.flatnonzero(~mask.ravel())
-        self.tol, self.max_iter, self.cg_tol = tol, max_iter, cg_tol
-        self.refactor_after, self.kind, self.permc_spec = refactor_after, preconditioner, permc_spec
-        self.symmetric_lu = bool(symmetric_lu)
-        self._lu = None
+        self.tol, self.max_iter, self.cg_tol, self.cg_maxiter = tol, max_iter, cg_tol, int(cg_maxiter)
+        self.refactor_after, self.kind = refactor_after, preconditioner
+        self.matvec = matvec
+        self._pc = None
+        if preconditioner != "jacobi":
+            near = None
+            if preconditioner == "amg":
+                near = rigid_body_modes(model.system.x0, self.free, model.system.dim)
+            self._pc = Factor(preconditioner, near_null=near)
+        self._ready = False
         self._K = None
         self._K_intact = None
-        if matvec not in ("matrix-free", "assembled"):
-            raise ValueError(f"matvec={matvec!r}; valid: 'matrix-free', 'assembled'")
-        self.matvec = matvec
+        self._sub = None
         self.stats = {"matvecs": 0, "assemblies": 0, "factorisations": 0, "cg_iterations": 0, "outer_iterations": 0,
-                      "assembly_s": 0.0, "factor_s": 0.0, "cg_s": 0.0, "residual_s": 0.0}
+                      "direct_fallbacks": 0, "assembly_s": 0.0, "factor_s": 0.0, "cg_s": 0.0, "residual_s": 0.0}
         self.n = n
 
     def _assemble(self, state):
+        """The tangent on the free dofs; the free rows and columns of a pattern seen before
+        are taken by a stored index map (the model's tangent keeps its pattern)."""
+        t = time.perf_counter()
         K = self.model.tangent(state).tocsr()
-        self._K = K[self.free][:, self.free]
+        key = (K.shape, K.nnz, id(K.indices), id(K.indptr))
+        if self._sub is None or self._sub[0] != key or self._sub[1] is not K.indices:
+            probe = sp.csr_matrix((np.arange(K.nnz, dtype=float), K.indices, K.indptr), shape=K.shape)
+            Kp = probe[self.free][:, self.free].tocsr()
+            Kp.sort_indices()
+            self._sub = (key, K.indices, Kp.data.astype(np.int64), Kp.indices, Kp.indptr)
+        _, _, take, ind, ptr = self._sub
+        self._K = sp.csr_matrix((K.data[take], ind, ptr), shape=(self.free.size, self.free.size))
         self._K_intact = state.intact.copy()
         self.stats["assemblies"] += 1
+        self.stats["assembly_s"] += time.perf_counter() - t
+        return time.perf_counter() - t
 
     def _jv(self, state, v):
         """Tangent times v on the free dofs by differences of the residual: forward,
@@ -152,16 +174,25 @@ class Equilibrium:
             return (self._F_base - fp) / h
         return (fm - fp) / (2 * h)
 
-    def _factor(self, Kff):
+    def _factor(self, state):
+        """Assemble and factorise the current tangent; the factor's cost (s) is kept for
+        the refactorisation rule."""
+        t_asm = self._assemble(state)
         t = time.perf_counter()
-        # a small shift keeps the factor regular when broken bonds leave a particle loose
-        # (a zero row: the operator is singular there but its residual is zero too)
-        d = Kff.diagonal()
-        shift = 1e-8 * float(np.mean(np.abs(d))) + np.where(d == 0, float(np.mean(np.abs(d))), 0.0)
-        opts = dict(diag_pivot_thresh=0.0, options=dict(SymmetricMode=True)) if self.symmetric_lu else {}
-        self._lu = spla.splu(sp.csc_matrix(Kff + sp.diags(shift)), permc_spec=self.permc_spec, **opts)
-        self.stats["factor_s"] += time.perf_counter() - t
-        self.stats["factorisations"] += 1
+        if self._pc is not None:
+            # a small shift keeps the factor regular when broken bonds leave a particle loose
+            # (a zero row: the operator is singular there but its residual is zero too)
+            Kff = self._K
+            d = Kff.diagonal()
+            mean = float(np.mean(np.abs(d)))
+            self._pc.factor(Kff + sp.diags(1e-8 * mean + np.where(d == 0, mean, 0.0)))
+            self.stats["factorisations"] += 1
+        dt = time.perf_counter() - t
+        self.stats["factor_s"] += dt
+        self._factor_cost = t_asm + dt
+        self._budget = None
+        self._excess, self._fresh = 0, None
+        self._ready = True
 
     def solve(self, state, u_prescribed):
         """Mutates ``state.y``: sets the constrained dofs to x0 + ``u_prescribed`` (N, 3)
@@ -171,32 +202,29 @@ class Equilibrium:
         x0 = m.system.x0
         state.y[self.mask] = x0[self.mask] + u_prescribed[self.mask]
         free = self.free
-        t = time.perf_counter()
-        need = self._lu is None if self.kind == "lu" else self._K is None
-        if need or (self.matvec == "assembled" and not np.array_equal(self._K_intact, state.intact)):
+        if not self._ready or (self.refactor == "amortised" and self._budget is not None
+                               and self._excess >= self._budget and self._pc is not None):
+            self._factor(state)
+        elif self.matvec == "assembled" and not np.array_equal(self._K_intact, state.intact):
             self._assemble(state)
-        st["assembly_s"] += time.perf_counter() - t
-        if (self.kind == "lu" and self._lu is not None and self.refactor == "amortised"
-                and self._budget is not None and self._excess >= self._budget):
-            t = time.perf_counter()
-            self._assemble(state)
-            st["assembly_s"] += time.perf_counter() - t
-            self._lu = None
-        if self.kind == "lu" and self._lu is None:
-            t = time.perf_counter()
-            self._factor(self._K)
-            if self._factor_cost == 0.0:
-                self._factor_cost = time.perf_counter() - t + st["assembly_s"]
-            self._excess, self._fresh = 0, None
         if self.matvec == "assembled":
             A = self._K
         else:
             A = spla.LinearOperator((free.size, free.size), matvec=lambda v: self._jv(state, v))
-        if self.kind == "jacobi":
+        if self._pc is None:
             dinv = 1.0 / self._K.diagonal()
             M = spla.LinearOperator(A.shape, matvec=lambda v: dinv * v)
         else:
-            M = spla.LinearOperator(A.shape, matvec=lambda v: self._lu.solve(v))
+            M = self._pc.operator(free.size)
+
+        def direct(b):
+            st["direct_fallbacks"] += 1
+            if self.kind in ("cholmod", "splu"):
+                self._factor(state)
+                return self._pc.solve(b)
+            self._assemble(state)
+            return direct_solve(self._K, b, "cholmod")
+
         it = 0
         r0 = r_prev = None
         self.history = []
@@ -213,33 +241,25 @@ class Equilibrium:
             if r <= self.tol * r0 or it >= self.max_iter:
                 break
             t = time.perf_counter()
-            count = [0]
-
-            def cb(_):
-                count[0] += 1
-
             eta = self.cg_tol
             if self.forcing == "adaptive":
                 eta = self.eta_max if r_prev is None else 0.9 * (r / r_prev) ** 2
                 eta = min(max(eta, self.cg_tol), self.eta_max)
                 eta = min(max(eta, 0.5 * self.tol * r0 / r), 0.5)
             r_prev = r
-            du, info = spla.cg(A, R, rtol=eta, maxiter=20000, M=M, callback=cb)
+            du, count, _ = pcg(A, R, M, rtol=eta, maxiter=self.cg_maxiter, direct=direct,
+                               what="the equilibrium's preconditioned CG")
             dt = time.perf_counter() - t
             st["cg_s"] += dt
-            st["cg_iterations"] += count[0]
+            st["cg_iterations"] += count
             if self._fresh is None:
-                self._fresh = count[0]
-            self._excess += max(0, count[0] - self._fresh)
-            if self._budget is None and count[0] > 0 and self._factor_cost > 0:
-                # the factorisation's cost in CG iterations, measured once
-                self._budget = self._factor_cost / (dt / count[0])
-            if self.kind == "lu" and count[0] > self.refactor_after:
-                t = time.perf_counter()
-                self._assemble(state)
-                st["assembly_s"] += time.perf_counter() - t
-                self._factor(self._K)
-                self._excess, self._fresh = 0, None
+                self._fresh = count
+            self._excess += max(0, count - self._fresh)
+            if self._budget is None and count > 0 and self._factor_cost > 0:
+                # the latest factorisation's cost in CG iterations
+                self._budget = self._factor_cost / (dt / count)
+            if self._pc is not None and count > self.refactor_after:
+                self._factor(state)
                 if self.matvec == "assembled":
                     A = self._K
             state.y.reshape(-1)[free] += du

@@ -479,7 +479,7 @@ def lattice_tip_factor(r_s: float, spacing: float, horizon: float, *, E: float =
     if field == "solved":        # from the reference, so the tolerance is relative to the full load
         ring = np.zeros((sysm.n, 3), bool)
         ring[r > L - horizon, :2] = True
-        Equilibrium(model, ring, preconditioner="lu", tol=1e-8, max_iter=60).solve(st, u)
+        Equilibrium(model, ring, preconditioner="cholmod", tol=1e-8, max_iter=60).solve(st, u)
     else:
         st.y += u
     S = model.continuum_fields(st)[2]
@@ -680,6 +680,121 @@ def penalty_kernel(y_nc, xi_bc, offsets, neighbors, reverse_b, coef_bk, F_nij, k
     return en.sum()
 
 
+@numba.njit(cache=True)
+def two_hop_pattern(offsets, neighbors, n):
+    """Particles coupled by the tangent: for each p every q in {c} + H_c of some
+    c in {p} + H_p (families symmetric). Returns (ptr (n+1,), q sorted per row) int64."""
+    mark = np.full(n, -1, np.int64)
+    ptr = np.zeros(n + 1, np.int64)
+    for rnd in range(2):
+        q_p = np.empty(ptr[n] if rnd else 0, np.int64)
+        mark[:] = -1
+        for p in range(n):
+            k = 0
+            for t in range(offsets[p], offsets[p + 1] + 1):
+                c = p if t == offsets[p + 1] else neighbors[t]
+                for u in range(offsets[c], offsets[c + 1] + 1):
+                    q = c if u == offsets[c + 1] else neighbors[u]
+                    if mark[q] != p:
+                        mark[q] = p
+                        if rnd:
+                            q_p[ptr[p] + k] = q
+                        k += 1
+            if rnd:
+                q_p[ptr[p]:ptr[p] + k] = np.sort(q_p[ptr[p]:ptr[p] + k])
+            else:
+                ptr[p + 1] = ptr[p] + k
+    return ptr, q_p
+
+
+@numba.njit(cache=True)
+def tangent_kernel(F_nij, S_nij, C4, alive_n, volume_n, offsets, neighbors, coef_bk, xi_bc, w_b, ok_b, kv_n,
+                   ptr, q_p, dim, data):
+    """Adds K = -dF_int/dy to the CSR values ``data`` of the pattern of :func:`two_hop_pattern`
+    (row 3p + i, i < dim, holds columns 3q + k, q in ``q_p[ptr[p]:ptr[p+1]]``, k < dim).
+
+    Per particle c with members m_0 = c, m_1+t = the neighbour of its t-th bond:
+    the gain part V_c g_P . dP/dF . g_Q with dF_c/dy_P = g_P (g_1+t = a_b,
+    g_0 = -sum_b a_b) and dP_ia/dF_jb = delta_ij S_ab + F_ic C_cakb F_jk (energy form);
+    the penalty part delta_ik kv_c sum_b w_b e_bP e_bQ over the bonds b of c with
+    ``ok_b``, z_b = sum_P e_bP y_P (e_b,1+t(b) = 1, e_b0 = -1, and -(a_b' . xi_b) at
+    1 + t(b'), +(a_b' . xi_b) at 0). Serial: the members of different particles overlap."""
+    n = offsets.shape[0] - 1
+    A = np.zeros((dim, dim, dim, dim))
+    for c in range(n):
+        base = offsets[c]
+        M = offsets[c + 1] - base + 1
+        g = np.zeros((M, dim))
+        for t in range(M - 1):
+            for a in range(dim):
+                g[1 + t, a] = coef_bk[base + t, a]
+                g[0, a] -= coef_bk[base + t, a]
+        A[:] = 0.0
+        if alive_n[c]:
+            for i in range(dim):
+                for a in range(dim):
+                    for j in range(dim):
+                        for b in range(dim):
+                            s = S_nij[c, a, b] if i == j else 0.0
+                            for cc in range(dim):
+                                for k in range(dim):
+                                    s += F_nij[c, i, cc] * C4[cc, a, k, b] * F_nij[c, j, k]
+                            A[i, a, j, b] = volume_n[c] * s
+        T = np.zeros((M, dim, dim, dim))
+        for P in range(M):
+            for i in range(dim):
+                for a in range(dim):
+                    if g[P, a] == 0.0:
+                        continue
+                    for j in range(dim):
+                        for b in range(dim):
+                            T[P, i, j, b] += g[P, a] * A[i, a, j, b]
+        H = np.zeros((M, M))
+        if kv_n[c] > 0.0:
+            e = np.empty(M)
+            for t in range(M - 1):
+                b = base + t
+                if not ok_b[b]:
+                    continue
+                e[:] = 0.0
+                e[1 + t] += 1.0
+                e[0] -= 1.0
+                for t2 in range(M - 1):
+                    mv = 0.0
+                    for a in range(dim):
+                        mv += coef_bk[base + t2, a] * xi_bc[b, a]
+                    e[1 + t2] -= mv
+                    e[0] += mv
+                wt = kv_n[c] * w_b[b]
+                for P in range(M):
+                    if e[P] == 0.0:
+                        continue
+                    for Q in range(M):
+                        H[P, Q] += wt * e[P] * e[Q]
+        for P in range(M):
+            p = c if P == 0 else neighbors[base + P - 1]
+            lo0, hi0 = ptr[p], ptr[p + 1]
+            rlen = hi0 - lo0
+            for Q in range(M):
+                q = c if Q == 0 else neighbors[base + Q - 1]
+                lo, hi = lo0, hi0
+                while lo < hi:
+                    mid = (lo + hi) // 2
+                    if q_p[mid] < q:
+                        lo = mid + 1
+                    else:
+                        hi = mid
+                s = lo - lo0
+                for i in range(dim):
+                    row0 = dim * dim * lo0 + i * dim * rlen + dim * s
+                    for k in range(dim):
+                        v = H[P, Q] if i == k else 0.0
+                        for b in range(dim):
+                            v += T[P, i, k, b] * g[Q, b]
+                        data[row0 + k] += v
+    return data
+
+
 # ---------------------------------------------------------------------------- model
 class UnifiedModel(Model):
     """Gain-matrix nonlocal continuum with body-based forces (seed 004 ch. 6).
@@ -820,6 +935,7 @@ class UnifiedModel(Model):
                 raise ValueError(f"no_fail has shape {self.no_fail.shape}; valid: ({n},)")
             self._no_fail = self.no_fail
         self._topology = None
+        self._csr_pattern = None
         self._avg = None
         if self.needs.failure and self.criterion in ("normal", "principal"):
             self._avg = _averaging_matrix(system.x0[:, :self.dim], system.volume, self.r_s)
@@ -891,8 +1007,6 @@ class UnifiedModel(Model):
                 self.alive[few] = False
                 self.coef[np.isin(self.family.owner, np.flatnonzero(few))] = 0.0
         self._intact_key = intact.copy()
-        self._B = None
-        self._Kpen = None
         self._pen = None
 
     def _sync(self, state):
@@ -930,14 +1044,7 @@ class UnifiedModel(Model):
     def _penalty_force(self, state, F, out):
         """Adds the penalty force to ``out``; returns the penalty energy (J)."""
         fam = self.family
-        if self._pen is None:
-            c = fam.owner
-            ok = self._intact_key & self.alive[c]
-            m = np.zeros(self.system.n)
-            np.add.at(m, c[ok], self._w[ok] * np.einsum("bk,bk->b", self._xi[ok, :self.dim], self._xi[ok, :self.dim]))
-            kv = np.where(m > 0, self.stabilisation * self.E * self.system.volume / np.where(m > 0, m, 1.0), 0.0)
-            self._pen = (kv, np.ascontiguousarray(ok))
-        kv, ok = self._pen
+        kv, ok = self._penalty_weights()
         g = np.empty((fam.nb, self.dim))
         Q = np.empty((self.system.n, self.dim, self.dim))
         return penalty_kernel(np.ascontiguousarray(state.y), self._xi, fam.offsets, fam.neighbors,
@@ -955,78 +1062,59 @@ class UnifiedModel(Model):
             e += self._penalty_force(state, F, np.zeros((self.system.n, 3)))
         return e
 
-    # ------------------------------------------------------------------ sparse operators
-    def _gradient_operator(self):
-        """B: positions (3N,) -> F components (N d^2,), F_c[i, a] = sum_b (y_j - y_c)_i a_b."""
-        if self._B is not None:
-            return self._B
-        fam, d, n = self.family, self.dim, self.system.n
-        c = fam.owner
-        j = fam.neighbors
-        rows, cols, vals = [], [], []
-        for i in range(d):
-            for a in range(d):
-                r = c * d * d + i * d + a
-                rows += [r, r]
-                cols += [3 * j + i, 3 * c + i]
-                vals += [self.coef[:, a], -self.coef[:, a]]
-        B = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                          shape=(n * d * d, 3 * n))
-        B.sum_duplicates()
-        self._B = B
-        return B
+    # ------------------------------------------------------------------ tangent
+    def _tangent_pattern(self):
+        """CSR pattern (indptr, indices) of the (3N, 3N) tangent: the dofs of particles two
+        family hops apart (:func:`two_hop_pattern`), fixed for the family, so a sparse
+        factorisation keeps its symbolic analysis while bonds break (their entries stay as
+        zeros)."""
+        if getattr(self, "_csr_pattern", None) is None:
+            fam, d, n = self.family, self.dim, self.system.n
+            ptr, q_p = two_hop_pattern(fam.offsets, fam.neighbors, n)
+            cnt = np.diff(ptr)
+            rowlen = np.zeros((n, 3), np.int64)
+            rowlen[:, :d] = d * cnt[:, None]
+            indptr = np.zeros(3 * n + 1, np.int64)
+            np.cumsum(rowlen.ravel(), out=indptr[1:])
+            cols = (3 * q_p[:, None] + np.arange(d)[None, :]).ravel()   # row p's: cols[d ptr[p]:d ptr[p+1]]
+            owner = np.repeat(np.arange(n), d * cnt)
+            within = np.arange(cols.size) - d * ptr[owner]
+            itype = np.int32 if indptr[-1] < 2 ** 31 else np.int64
+            indices = np.empty(indptr[-1], itype)
+            for i in range(d):
+                indices[indptr[3 * owner + i] + within] = cols
+            self._csr_pattern = (indptr.astype(itype), indices, ptr, q_p)
+        return self._csr_pattern
 
-    def _penalty(self):
-        """Stabilisation stiffness K_s (3N, 3N): U_s = u^T K_s u / 2 (module docstring);
-        forces use :func:`penalty_kernel`, this matrix only the tangent."""
-        if self._Kpen is not None:
-            return self._Kpen
-        fam, d, n = self.family, self.dim, self.system.n
-        B = self._gradient_operator()
-        c, j = fam.owner, fam.neighbors
-        ok = self._intact_key & self.alive[c]
-        idx = np.flatnonzero(ok)
-        nbk = idx.size
-        # z_b = (y_j - y_c) - F_c xi_b on rows (b, i)
-        rows, cols, vals = [], [], []
-        prow, pcol, pval = [], [], []
-        for i in range(d):
-            r = np.arange(nbk) * d + i
-            rows += [r, r]
-            cols += [3 * j[idx] + i, 3 * c[idx] + i]
-            vals += [np.ones(nbk), -np.ones(nbk)]
-            for a in range(d):
-                prow.append(r)
-                pcol.append(c[idx] * d * d + i * d + a)
-                pval.append(self._xi[idx, a])
-        D = sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))),
-                          shape=(nbk * d, 3 * n))
-        Pb = sp.csr_matrix((np.concatenate(pval), (np.concatenate(prow), np.concatenate(pcol))),
-                           shape=(nbk * d, n * d * d))
-        Z = D - Pb @ B
-        m = np.zeros(n)
-        np.add.at(m, c[idx], self._w[idx] * np.einsum("bk,bk->b", self._xi[idx, :d], self._xi[idx, :d]))
-        wt = self.stabilisation * self.E * self.system.volume[c[idx]] * self._w[idx] / m[c[idx]]
-        Wd = sp.diags(np.repeat(wt, d))
-        self._Kpen = (Z.T @ Wd @ Z).tocsr()
-        return self._Kpen
+    def _penalty_weights(self):
+        """(kv (N,), ok (nb,) bool): kv_c = c_s E V_c / sum_b w_b |xi_b|^2 over the bonds of
+        c with ``ok`` (intact, c alive); kv = 0 without bonds."""
+        if self._pen is None:
+            fam = self.family
+            c = fam.owner
+            ok = self._intact_key & self.alive[c]
+            m = np.zeros(self.system.n)
+            np.add.at(m, c[ok], self._w[ok] * np.einsum("bk,bk->b", self._xi[ok, :self.dim], self._xi[ok, :self.dim]))
+            kv = np.where(m > 0, self.stabilisation * self.E * self.system.volume / np.where(m > 0, m, 1.0), 0.0)
+            self._pen = (kv, np.ascontiguousarray(ok))
+        return self._pen
 
     def tangent(self, state):
-        """Consistent stiffness K = -dF_int/dy = B^T blockdiag(V_c dP_c/dF_c) B (+ K_s),
-        dP_iA/dF_jB = delta_ij S_AB + F_iC C_CAKB F_jK (energy form; scipy.sparse (3N, 3N))."""
+        """Consistent stiffness K = -dF_int/dy (scipy.sparse CSR (3N, 3N) on the fixed
+        pattern of :meth:`_tangent_pattern`): per particle c, V_c g . dP/dF . g of its members
+        plus the penalty's constant sum_b kv_c w_b e_b e_b^T (:func:`tangent_kernel`),
+        dP_iA/dF_jB = delta_ij S_AB + F_iC C_CAKB F_jK (energy form)."""
         F, E, S, P, W = self.continuum_fields(state)
         d, n = self.dim, self.system.n
-        dPdF = np.einsum("ij,nab->niajb", np.eye(d), S) + np.einsum("nic,cakb,njk->niajb", F, self._C4, F)
-        dPdF[~self.alive] = 0.0
-        dPdF *= self.system.volume[:, None, None, None, None]
-        blocks = dPdF.reshape(n, d * d, d * d)
-        Dm = sp.block_diag(list(blocks), format="csr") if n < 50 else sp.bsr_matrix(
-            (blocks, np.arange(n), np.arange(n + 1)), shape=(n * d * d, n * d * d)).tocsr()
-        B = self._gradient_operator()
-        K = (B.T @ Dm @ B).tocsr()
-        if self.stabilisation > 0:
-            K = K + self._penalty()
-        return K
+        indptr, indices, ptr, q_p = self._tangent_pattern()
+        kv, ok = self._penalty_weights()
+        if self.stabilisation <= 0:
+            kv = np.zeros(n)
+        data = np.zeros(indices.size)
+        fam = self.family
+        tangent_kernel(F, S, self._C4, self.alive, self.system.volume, fam.offsets, fam.neighbors, self.coef,
+                       self._xi, self._w, ok, kv, ptr, q_p, d, data)
+        return sp.csr_matrix((data, indices, indptr), shape=(3 * n, 3 * n))
 
     def residual(self, state) -> np.ndarray:
         return self.particle_force(state).ravel()

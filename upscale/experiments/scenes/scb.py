@@ -259,11 +259,11 @@ class SCBScene:
     # ------------------------------------------------------------------ elastic response
     def elastic(self, d=1e-5, preconditioner=None):
         """Elastic solve at load-patch displacement ``d`` (m): (state, P (N)).
-        Preconditioner: LU below 3000 particles, Jacobi above (``Equilibrium``)."""
+        Preconditioner: a Cholesky factor below 3000 particles, Jacobi above (``Equilibrium``)."""
         from upscale.engine.quasistatic import Equilibrium
 
         st = self.state()
-        pc = preconditioner or ("lu" if self.system.n < 3000 else "jacobi")
+        pc = preconditioner or ("cholmod" if self.system.n < 3000 else "jacobi")
         reaction, _ = Equilibrium(self.model, self.fixed, preconditioner=pc).solve(st, d * self.u_dir)
         P = float(np.sum(reaction * self.u_dir))
         return st, P
