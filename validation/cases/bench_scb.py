@@ -12,11 +12,18 @@ where the time went inside the solves (tangent assembly, sparse LU factorisation
 preconditioned CG with its matrix-free products, residuals at the Newton iterates) and in
 the failure checks (failure index, breaking, Upsilon recomputation).
 
-Reference measured in the same run, per angle: one direct sparse solve of the intact
-body's tangent on the free dofs (``scipy.sparse.linalg.spsolve``, SuperLU with its default
-column ordering), the cost a plain Newton iteration would pay. ``equilibrium_over_direct``
-is the mean wall time of one equilibrium in units of that solve: below 1 the solver's
-factor reuse more than pays for the several Newton steps an equilibrium takes.
+With ``--direct-reference``, measured in the same run per angle: one direct sparse solve
+of the intact body's tangent on the free dofs (``scipy.sparse.linalg.spsolve``, SuperLU
+with its default column ordering), the cost a plain Newton iteration would pay, and
+``equilibrium_over_direct``, the mean wall time of one equilibrium in units of that solve.
+
+Against main: main's recorded run of the same table (``MAIN_RESULT``, the eight angles at
+dx = 0.5 mm, r_s = 1 mm, stop fraction 0.1, one core; commit 775b0f2, the code of main
+99b82f2's solvers) gives ``speedup_vs_main`` = its table wall time over this run's (for the
+angles run, the sum of main's per-angle times over them) and ``P_c_change_pct_max``, the
+largest |P_c / P_c,main - 1| over the angles, in percent. ``pass``: every angle to full
+crack and, where the run is comparable to main's (same dx, r_s, stop fraction), at least
+10x main's speed with every P_c within 0.5 % (the issue's target).
 
 The whole-table time (``table_wall_s``) is the sum over the angles run. All kernels run on
 one thread (the machine has two cores; a second job on the other core is allowed and the
@@ -33,6 +40,11 @@ import numpy as np
 from validation.cases.scb import ALPHAS
 from validation.registry import case, table
 
+#: main's recorded bench-scb run (775b0f2; versions, date and machine in the file)
+MAIN_RESULT = "validation/results/bench_scb_dx05mm.json"
+TARGET_SPEEDUP = 10.0
+TARGET_P_C_PCT = 0.5
+
 
 def _args(p):
     p.add_argument("--dx", type=float, default=None, help="spacing in m (default 5e-4; quick 1e-3)")
@@ -45,6 +57,28 @@ def _args(p):
                         "load patch near 4 mm at dx = 1 mm)")
     p.add_argument("--max-equilibria", type=int, default=3000, help="cap on the solves of one run")
     p.add_argument("--profile", action="store_true", help="cProfile the first angle's fracture")
+    p.add_argument("--direct-reference", action="store_true",
+                   help="time one SuperLU solve of the intact tangent per angle (outside the wall time)")
+
+
+def main_baseline(dx, r_s, stop_fraction, alphas):
+    """main's recorded (wall s, P_c kN) per angle in ``alphas`` from :data:`MAIN_RESULT`, or
+    None when that run is not comparable (another dx, r_s or stop fraction, or an angle it
+    did not run)."""
+    import json
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[2] / MAIN_RESULT
+    if not path.is_file():
+        return None
+    r = json.loads(path.read_text())["result"]
+    same = (np.isclose(r["dx_m"], dx) and np.isclose(r["r_s_m"], r_s)
+            and np.isclose(r["stop_fraction"], stop_fraction))
+    if not same or not all(any(np.isclose(a, b) for b in r["alpha_deg"]) for a in alphas):
+        return None
+    k = [int(np.flatnonzero(np.isclose(r["alpha_deg"], a))[0]) for a in alphas]
+    return {"wall_s": [r["wall_s_per_angle"][i] for i in k], "P_c_kN": [r["P_c_kN"][i] for i in k],
+            "table_wall_s": r["table_wall_s"], "file": MAIN_RESULT}
 
 
 def direct_solve_time(scene, repeats=2):
@@ -85,6 +119,7 @@ def _profile_rows(prof, n=12):
 @case("bench-scb", "SCB speed: wall time per angle to full crack at dx = 0.5 mm, the whole table, where the time goes",
       _args)
 def bench_scb(args):
+    import cvxopt.cholmod  # noqa: F401  (its BLAS loaded before the limit, so the limit holds for it)
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(limits=1):
@@ -112,7 +147,10 @@ def _bench(args):
         sc = SCBScene(al, dx=dx, r_s=args.r_s)
         t_scene = time.perf_counter() - w0
         w_ref, c_ref = time.perf_counter(), time.process_time()
-        t_direct, nfree, nnz = direct_solve_time(sc)
+        t_direct = nnz = None
+        nfree = int((~sc.fixed[:, :2]).sum())
+        if getattr(args, "direct_reference", False):
+            t_direct, nfree, nnz = direct_solve_time(sc)
         w_ref = time.perf_counter() - w_ref          # assembly and both repeats: not the scene's
         c_ref = time.process_time() - c_ref
         prof = cProfile.Profile() if (args.profile and i == 0) else None
@@ -142,19 +180,28 @@ def _bench(args):
                      "fracture cpu s": c_frac, "equilibria": eqs, "stop": curve.stop_reason,
                      "final/peak": float(curve.load[-1] / P_c), "crack y/R": reach, "P_c kN": P_c / 1e3,
                      "s/equilibrium": t_frac / eqs, "direct solve s": t_direct,
-                     "eq/direct": t_frac / eqs / t_direct,
+                     "eq/direct": None if t_direct is None else t_frac / eqs / t_direct,
                      "factorisations": sv["factorisations"], "cg iterations": sv["cg_iterations"],
+                     "direct fallbacks": sv.get("direct_fallbacks", 0),
                      "newton iterations": sv["outer_iterations"],
                      **{f"{k} %": 100 * v / wall for k, v in split.items()}})
         write_json(args.outdir / "bench-scb_partial.json", {"rows": rows})   # survives a stopped run
     print(f"SCB to full crack (load < {args.stop_fraction:g} of the peak), dx = {dx * 1e3:g} mm, "
           f"delta = 3 dx, r_s = {args.r_s * 1e3:g} mm, one thread; load average at the start {load0:.2f}")
+    base = main_baseline(dx, args.r_s, args.stop_fraction, alphas)
+    for i, r in enumerate(rows):
+        r["main wall s"] = base["wall_s"][i] if base else None
+        r["main P_c kN"] = base["P_c_kN"][i] if base else None
+        r["speed-up"] = base["wall_s"][i] / r["wall s"] if base else None
+        r["P_c change %"] = 100 * (r["P_c kN"] / base["P_c_kN"][i] - 1) if base else None
     print(table(rows, ["alpha", "particles", "free dofs", "wall s", "cpu s", "scene s", "fracture s",
-                       "equilibria", "stop", "final/peak", "crack y/R", "P_c kN", "s/equilibrium", "direct solve s",
-                       "eq/direct"], ".4g"))
+                       "equilibria", "stop", "final/peak", "crack y/R", "P_c kN", "s/equilibrium", "main wall s",
+                       "speed-up", "main P_c kN", "P_c change %"]
+                + (["direct solve s", "eq/direct"] if getattr(args, "direct_reference", False) else []), ".4g"))
     print("where the time goes (% of each angle's wall time)")
     print(table(rows, ["alpha", "scene %", "assembly %", "factorisation %", "cg %", "residual %", "failure %",
-                       "other %", "factorisations", "newton iterations", "cg iterations"], ".3g"))
+                       "other %", "factorisations", "newton iterations", "cg iterations", "direct fallbacks"],
+                ".3g"))
     if prof_rows:
         print(f"cProfile of the fracture at alpha = {alphas[0]:g} deg (own time; numba kernels are one entry each)")
         print(table(prof_rows, floatfmt=".4g"))
@@ -167,9 +214,22 @@ def _bench(args):
            "final_over_peak": [r["final/peak"] for r in rows], "crack_reach_y_over_R": [r["crack y/R"] for r in rows], "P_c_kN": [r["P_c kN"] for r in rows],
            "s_per_equilibrium": [r["s/equilibrium"] for r in rows],
            "direct_solve_s": [r["direct solve s"] for r in rows],
-           "equilibrium_over_direct": float(np.mean([r["eq/direct"] for r in rows])),
+           "equilibrium_over_direct": (float(np.mean([r["eq/direct"] for r in rows]))
+                                       if getattr(args, "direct_reference", False) else None),
+           "factorisations": [r["factorisations"] for r in rows],
+           "cg_iterations": [r["cg iterations"] for r in rows],
+           "direct_fallbacks": [r["direct fallbacks"] for r in rows],
            "time_share_pct": {k: 100 * v / total for k, v in shares.items()},
            "loadavg_start": load0, "loadavg_end": os.getloadavg()[0], "profile": prof_rows,
-           "full_crack": all(r["stop"] == "load dropped" for r in rows)}
+           "full_crack": all(r["stop"] == "load dropped" for r in rows),
+           "main_result": base["file"] if base else None,
+           "main_wall_s_per_angle": base["wall_s"] if base else None,
+           "main_P_c_kN": base["P_c_kN"] if base else None,
+           "speedup_vs_main": sum(base["wall_s"]) / total if base else None,
+           "P_c_change_pct": [r["P_c change %"] for r in rows] if base else None,
+           "P_c_change_pct_max": max(abs(r["P_c change %"]) for r in rows) if base else None}
     res["pass"] = res["full_crack"]
+    if base:
+        res["pass"] = bool(res["full_crack"] and res["speedup_vs_main"] >= TARGET_SPEEDUP
+                           and res["P_c_change_pct_max"] <= TARGET_P_C_PCT)
     return res
