@@ -277,3 +277,11 @@ def test_an_unbonded_atom_over_the_wall_is_an_adatom_of_that_tube():
         far = atoms.copy()
         far.positions[-1, :2] += 30.0
         register(far)
+
+
+@pytest.mark.parametrize("name", ["armchair", "chiral"])
+def test_defects_on_the_periodic_boundary_are_found_whole(name):
+    """A 4-vacancy and a Stone–Wales defect straddling z = 0 = L: one defect each, not two
+    halves."""
+    atoms = apply_defects(swcnt(*TUBES[name], length=60.0), "v4@0.0@0,sw@1.0@150")
+    assert_matches_records(atoms, find_defects(register(atoms)))
