@@ -162,15 +162,18 @@ class Factor:
         return spla.LinearOperator((n, n), matvec=self.solve, dtype=np.float64)
 
 
-def pcg(A, b, M, *, rtol, maxiter=20000, x0=None, direct=None, what="conjugate gradients"):
+def pcg(A, b, M, *, rtol, maxiter=20000, x0=None, direct=None, what="conjugate gradients", callback=None):
     """Preconditioned CG on ``A`` (matrix or LinearOperator) with the preconditioner ``M``
     (LinearOperator or None): (x, iterations, converged). When CG does not reach ``rtol``
     in ``maxiter`` iterations and ``direct`` (a callable b -> x) is given, x is the direct
-    solve instead (converged True), and a warning says so once per process."""
+    solve instead (converged True), and a warning says so once per process. ``callback``
+    is called with the iterate after every iteration."""
     count = [0]
 
-    def cb(_):
+    def cb(xk):
         count[0] += 1
+        if callback is not None:
+            callback(xk)
 
     x, info = spla.cg(A, b, x0=x0, rtol=rtol, atol=0.0, maxiter=maxiter, M=M, callback=cb)
     if info == 0 and np.all(np.isfinite(x)):

@@ -2,8 +2,9 @@
 
 For models whose internal force is linear in the displacement (Ti-PD, correspondence with
 the linear law): one symmetric solve instead of Newton iterations or dynamic relaxation.
-Either on the assembled stiffness (``model.tangent``, direct sparse LU or conjugate
-gradients) or matrix-free (conjugate gradients whose product is ``-F_int`` of the model's
+Either on the assembled stiffness (``model.tangent``, a direct factorisation or conjugate
+gradients preconditioned by Jacobi or algebraic multigrid, :mod:`upscale.engine.solvers`) or
+matrix-free (conjugate gradients whose product is ``-F_int`` of the model's
 own force kernel; for models whose assembled stiffness is too dense, e.g. correspondence
 with its 2 delta coupling in 3D).
 
@@ -17,6 +18,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
+from upscale.engine import solvers
 from upscale.engine.newton import dirichlet
 
 __all__ = ["solve_linear", "LinearSolveError"]
@@ -43,9 +45,12 @@ def solve_linear(model, state, *, fixed, u_prescribed=None, f_ext=None,
         Displacement of the prescribed dofs (m).
     f_ext : (N, 3), optional
         External force per particle (N).
-    method : {"direct", "cg", "matrix-free"}
-        Sparse LU on the assembled stiffness, Jacobi-preconditioned CG on it, or CG on the
-        force kernel (Jacobi from the assembled diagonal is not available: unpreconditioned).
+    method : {"direct", "cholmod", "cg", "amg", "matrix-free"}
+        SuperLU on the assembled stiffness, a sparse Cholesky of it (symmetric positive
+        definite), Jacobi-preconditioned CG on it, CG preconditioned by smoothed-aggregation
+        multigrid with the rigid-body modes (pyamg; a direct solve if it does not converge,
+        said once), or CG on the force kernel (Jacobi from the assembled diagonal is not
+        available: unpreconditioned).
     tol : float
         CG relative residual tolerance.
 
@@ -59,8 +64,9 @@ def solve_linear(model, state, *, fixed, u_prescribed=None, f_ext=None,
     ValueError
         unknown method, bad shapes; :class:`LinearSolveError` singular or unconverged.
     """
-    if method not in ("direct", "cg", "matrix-free"):
-        raise ValueError(f"unknown method {method!r}; valid: 'direct', 'cg', 'matrix-free'")
+    valid = ("direct", "cholmod", "cg", "amg", "matrix-free")
+    if method not in valid:
+        raise ValueError(f"unknown method {method!r}; valid: {', '.join(repr(v) for v in valid)}")
     t0 = time.perf_counter()
     sysm = model.system
     n = sysm.n
@@ -89,10 +95,13 @@ def solve_linear(model, state, *, fixed, u_prescribed=None, f_ext=None,
         A = K[free][:, free]
         dg = A.diagonal()
         M = sp.diags(1.0 / np.where(dg > 0, dg, 1.0)) if method == "cg" else None
-    if method == "direct":
+        if method == "amg":
+            near = solvers.rigid_body_modes(sysm.x0, free, sysm.dim)
+            M = solvers.Factor("amg", near_null=near).factor(A).operator(free.size)
+    if method in ("direct", "cholmod"):
         try:
-            v = spla.splu(sp.csc_matrix(A), permc_spec="MMD_AT_PLUS_A").solve(rhs)
-        except RuntimeError as exc:
+            v = solvers.direct_solve(A, rhs, "splu" if method == "direct" else "cholmod")
+        except (RuntimeError, ArithmeticError) as exc:
             raise LinearSolveError(f"singular stiffness on the free dofs ({exc}); the "
                                    "prescribed dofs must remove every rigid-body mode") from exc
     else:
@@ -108,11 +117,16 @@ def solve_linear(model, state, *, fixed, u_prescribed=None, f_ext=None,
             if bar is not None:
                 bar.update(1)
 
-        v, code = spla.cg(A, rhs, rtol=tol, atol=0.0, maxiter=maxiter, M=M, callback=cb)
+        direct = None
+        if method == "amg":
+            def direct(b):
+                return solvers.direct_solve(A, b, "cholmod")
+        v, its, ok = solvers.pcg(A, rhs, M, rtol=tol, maxiter=maxiter, direct=direct, callback=cb,
+                                 what="multigrid-preconditioned CG")
         if bar is not None:
             bar.close()
         info["iterations"] = count[0]
-        if code != 0:
+        if not ok:
             raise LinearSolveError(f"conjugate gradients did not converge in {maxiter} "
                                    f"iterations (tol {tol:g}); the stiffness may be indefinite "
                                    "or very ill-conditioned on the free dofs")

@@ -750,27 +750,40 @@ def tangent_kernel(F_nij, S_nij, C4, alive_n, volume_n, offsets, neighbors, coef
                         for b in range(dim):
                             T[P, i, j, b] += g[P, a] * A[i, a, j, b]
         H = np.zeros((M, M))
-        if kv_n[c] > 0.0:
-            e = np.empty(M)
-            for t in range(M - 1):
+        if kv_n[c] > 0.0 and M > 1:
+            # rows b of X: z_b = sum_t X[b, t] (y_t - y_c), X = I - (a_t . xi_b); H over the
+            # neighbours is X^T diag(kv w ok) X, the centre's row and column minus its sums
+            m1 = M - 1
+            X = np.zeros((m1, m1))
+            Xw = np.zeros((m1, m1))
+            for t in range(m1):
                 b = base + t
                 if not ok_b[b]:
                     continue
-                e[:] = 0.0
-                e[1 + t] += 1.0
-                e[0] -= 1.0
-                for t2 in range(M - 1):
+                wt = kv_n[c] * w_b[b]
+                for t2 in range(m1):
                     mv = 0.0
                     for a in range(dim):
                         mv += coef_bk[base + t2, a] * xi_bc[b, a]
-                    e[1 + t2] -= mv
-                    e[0] += mv
-                wt = kv_n[c] * w_b[b]
-                for P in range(M):
-                    if e[P] == 0.0:
-                        continue
-                    for Q in range(M):
-                        H[P, Q] += wt * e[P] * e[Q]
+                    x = (1.0 if t2 == t else 0.0) - mv
+                    X[t, t2] = x
+                    Xw[t, t2] = wt * x
+            for P in range(m1):
+                for Q in range(P, m1):
+                    h = 0.0
+                    for t in range(m1):
+                        h += Xw[t, P] * X[t, Q]
+                    H[1 + P, 1 + Q] = h
+                    H[1 + Q, 1 + P] = h
+            tot = 0.0
+            for P in range(m1):
+                rs = 0.0
+                for Q in range(m1):
+                    rs += H[1 + P, 1 + Q]
+                H[1 + P, 0] = -rs
+                H[0, 1 + P] = -rs
+                tot += rs
+            H[0, 0] = tot
         for P in range(M):
             p = c if P == 0 else neighbors[base + P - 1]
             lo0, hi0 = ptr[p], ptr[p + 1]
