@@ -180,3 +180,24 @@ def test_reverse_index_by_bisection_matches_the_family():
     one_way.neighbors[row] = np.where(one_way.neighbors[row] > 5, one_way.neighbors[row], 0)
     with pytest.raises(ValueError, match="not symmetric"):
         BondList(one_way, sysm.volume)
+
+
+def test_classes_in_blocks_and_from_callables(monkeypatch):
+    """The classes found block by block are those of one pass, and a factor given as a
+    callable of bond indices gives the same tables as the factor's array."""
+    import upscale.engine.bondlist as bondlist
+
+    sysm, fam, _ = _body()
+    g = np.random.default_rng(7).choice([1.0, 1.25, 0.8], size=fam.n)
+    fac = 0.5 * (g[fam.owner] + g[fam.neighbors])
+    whole = BondList(fam, sysm.volume).classes(fac)
+    monkeypatch.setattr(bondlist, "_CLASS_BLOCK", 97)
+    blocked = BondList(fam, sysm.volume).classes(lambda b: 0.5 * (g[fam.owner_of(b)] + g[fam.neighbors[b]]))
+    for a, b in zip(whole, blocked):
+        np.testing.assert_array_equal(a, b)
+    bl = BondList(fam, sysm.volume)
+    k_p, L_k, bf_k, br_k, ff_k, fr_k = blocked
+    fwd, rev = bl.forward_index(), bl.rev_p
+    np.testing.assert_array_equal(L_k[k_p], fam.length[fwd])
+    np.testing.assert_array_equal(ff_k[k_p], fac[fwd])
+    np.testing.assert_array_equal(fr_k[k_p], fac[rev])

@@ -87,3 +87,37 @@ def test_bisection_reverse_equals_the_key_sort():
         lone = families.Family(off, nbr, np.zeros((off.size - 1, 3)), 2.0, 1.0)
         with pytest.raises(ValueError, match="no reverse"):
             lone.reverse
+
+
+@pytest.mark.parametrize("pv", [None, "lammps", "linear"])
+def test_subsets_and_blocks_equal_the_whole_arrays(pv):
+    """``xi_of``, ``length_of``, ``volume_factor_of`` and ``owner_of`` of any bonds are the
+    whole arrays' entries bit for bit; ``bond_blocks`` covers the bonds in whole rows."""
+    s = square_lattice(23, 17, 1e-3, thickness=1e-3)
+    fam = build_family(s, 3.2e-3, partial_volume=pv)
+    b = np.random.default_rng(4).choice(fam.nb, 500, replace=False)
+    np.testing.assert_array_equal(fam.owner_of(b), fam.owner[b])
+    np.testing.assert_array_equal(fam.xi_of(b), fam.xi[b])
+    np.testing.assert_array_equal(fam.length_of(b), fam.length[b])
+    np.testing.assert_array_equal(fam.volume_factor_of(b), fam.volume_factor[b])
+    blocks = fam.bond_blocks(1000)
+    assert blocks[0][0] == 0 and blocks[-1][1] == fam.nb
+    assert all(hi0 == lo1 for (_, hi0), (lo1, _) in zip(blocks[:-1], blocks[1:]))
+    assert all(lo in set(fam.offsets.tolist()) for lo, _ in blocks)
+    assert max(hi - lo for lo, hi in blocks) <= 1000 + fam.counts.max()
+
+
+def test_explicit_beta_and_bad_input():
+    s = square_lattice(10, 10, 1.0)
+    fam = build_family(s, 3.2, partial_volume="linear")
+    beta = fam.volume_factor
+    beta[::3] *= 0.5
+    g = families.Family(fam.offsets, fam.neighbors, fam.x0, fam.horizon, fam.spacing, "linear", beta)
+    np.testing.assert_array_equal(g.volume_factor, beta)
+    np.testing.assert_array_equal(g.volume_factor_of(np.arange(7)), beta[:7])
+    cut = g.remove_bonds(np.arange(g.nb) % 5 == 0)
+    assert cut.beta is not None and cut.beta.shape == (cut.nb,)
+    with pytest.raises(ValueError, match="x0 must have shape"):
+        families.Family(fam.offsets, fam.neighbors, fam.x0[:-1], 3.2, 1.0)
+    with pytest.raises(ValueError, match="unknown partial_volume"):
+        families.Family(fam.offsets, fam.neighbors, fam.x0, 3.2, 1.0, "cubic")

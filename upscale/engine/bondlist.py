@@ -58,6 +58,10 @@ from upscale.engine.families import Family, reverse_in_sorted_rows, rows_sorted
 
 __all__ = ["BondList", "reduce_buffers", "reduce_buffers_scalar"]
 
+# pairs per block when the classes are found: bounds the temporaries (about 100 bytes per
+# pair of the block) independently of the number of bonds
+_CLASS_BLOCK = 1 << 20
+
 
 @nb.njit(parallel=True, cache=True)
 def reduce_buffers(buf_tnc, out_nc):
@@ -89,24 +93,48 @@ def reduce_buffers_scalar(buf_tn, out_n):
         out_n[i] += s
 
 
-def _class_index(columns) -> tuple[np.ndarray, np.ndarray]:
-    """Classes of the rows of ``columns`` (equal bit patterns in every column): the class
-    of each row and the index of one representative row per class.
+@nb.njit(cache=True)
+def _forward_rows(offsets, neighbors):
+    """Per particle the number of forward bonds (j > i) and the directed index of the first
+    (0 where none); whether every row's forward bonds are contiguous; False if some bond
+    is a self-bond."""
+    n = offsets.shape[0] - 1
+    cnt = np.zeros(n, dtype=np.int64)
+    first = np.zeros(n, dtype=np.int64)
+    contiguous = True
+    ok = True
+    for i in range(n):
+        c = 0
+        last = -2
+        for b in range(offsets[i], offsets[i + 1]):
+            j = neighbors[b]
+            if j == i:
+                ok = False
+            elif j > i:
+                if c == 0:
+                    first[i] = b
+                elif b != last + 1:
+                    contiguous = False
+                last = b
+                c += 1
+        cnt[i] = c
+    return cnt, first, contiguous, ok
 
-    One sort of the first column; a further column costs a sort only where it is not
-    already a function of the classes so far (on a family, the partial-volume factors
-    and a model's factors usually are functions of the length)."""
-    bits = [np.ascontiguousarray(c, dtype=np.float64).view(np.int64) for c in columns]
-    _, first, cls = np.unique(bits[0], return_index=True, return_inverse=True)
-    cls = cls.ravel()
-    for col in bits[1:]:
-        if np.array_equal(col[first][cls], col):
-            continue
-        _, inv = np.unique(col, return_inverse=True)
-        code = cls.astype(np.int64) * (int(inv.max()) + 1) + inv.ravel()
-        _, first, cls = np.unique(code, return_index=True, return_inverse=True)
-        cls = cls.ravel()
-    return cls, first
+
+@nb.njit(cache=True)
+def _fill_forward(offsets, neighbors, row_n, j_p, fwd_p):
+    """Mutates ``j_p`` (and ``fwd_p`` unless empty): partner and directed index of every
+    forward bond, pair by pair in row order."""
+    n = offsets.shape[0] - 1
+    keep = fwd_p.shape[0] > 0
+    for i in range(n):
+        p = row_n[i]
+        for b in range(offsets[i], offsets[i + 1]):
+            if neighbors[b] > i:
+                j_p[p] = neighbors[b]
+                if keep:
+                    fwd_p[p] = b
+                p += 1
 
 
 class BondList:
@@ -139,38 +167,33 @@ class BondList:
         self.family = family
         self.n = n
         self.volume = np.ascontiguousarray(np.broadcast_to(np.asarray(volume, dtype=np.float64), (n,)))
-        owner, nbr = family.owner, family.neighbors
-        fwd = np.flatnonzero(nbr > owner)
-        if 2 * fwd.size != family.nb or np.any(nbr == owner):
+        off, nbr = family.offsets, family.neighbors
+        cnt, first, contiguous, ok = _forward_rows(off, nbr)
+        if not ok or 2 * int(cnt.sum()) != family.nb:
             raise ValueError("the family must hold both directions of every bond and no self-bonds")
-        self.npairs = int(fwd.size)
+        self.npairs = int(cnt.sum())
         itype = np.uint64 if family.nb >= 2 ** 32 else np.uint32
-        cnt = np.bincount(owner[fwd], minlength=n).astype(np.int64)
         self.row_n = np.zeros(n + 1, dtype=np.int64)
         np.cumsum(cnt, out=self.row_n[1:])
-        self.j_p = np.ascontiguousarray(nbr[fwd].astype(np.uint64 if n >= 2 ** 32 else np.uint32))
-        first = np.zeros(n, dtype=np.int64)
-        has = cnt > 0
-        first[has] = fwd[self.row_n[:-1][has]]
+        self.j_p = np.empty(self.npairs, dtype=np.uint64 if n >= 2 ** 32 else np.uint32)
+        self.fwd_p = np.empty(0 if contiguous else self.npairs, dtype=itype)
+        _fill_forward(off, nbr, self.row_n, self.j_p, self.fwd_p)
         self.fwd_n = first
-        own_p = owner[fwd]
-        contiguous = np.array_equal(fwd - first[own_p], np.arange(fwd.size) - self.row_n[own_p])
-        self.fwd_p = np.zeros(0, dtype=itype) if contiguous else np.ascontiguousarray(fwd.astype(itype))
-        self.rev_p = np.ascontiguousarray(self._reverse(family, fwd).astype(itype))
+        self.rev_p = self._reverse(family, itype)
         self._buffers: dict = {}
         self._chunks: dict = {}
         self._classes: dict = {}
 
-    def _reverse(self, family: Family, fwd: np.ndarray) -> np.ndarray:
+    def _reverse(self, family: Family, itype) -> np.ndarray:
         """Directed index of j->i per pair: bisection when the rows are sorted (as
         ``build_family`` makes them), else the family's own ``reverse``."""
         nbr, off = family.neighbors, family.offsets
         if not rows_sorted(off, nbr):
-            return family.reverse[fwd]
+            return np.ascontiguousarray(family.reverse[self.forward_index()].astype(itype))
         rev = reverse_in_sorted_rows(off, nbr, self.row_n, self.j_p)
         if np.any(rev < 0):
             raise ValueError("family is not symmetric: some bond has no reverse")
-        return rev
+        return np.ascontiguousarray(rev.astype(itype))
 
     # ------------------------------------------------------------------ classes
     def classes(self, *factors_b) -> tuple:
@@ -178,9 +201,10 @@ class BondList:
 
         Parameters
         ----------
-        *factors_b : (nb,) arrays
-            Per-directed-bond factors a model adds (e.g. a surface correction); they become
-            part of the class key.
+        *factors_b : (nb,) arrays or callables
+            Per-directed-bond factors a model adds (e.g. a surface correction), as arrays or
+            as ``f(bonds) -> (k,)`` of directed-bond indices (evaluated block by block:
+            nothing per bond is made); they become part of the class key.
 
         Returns
         -------
@@ -189,32 +213,58 @@ class BondList:
             65536, else int32); per class the reference length ``L``, the partial-volume
             factors of i->j (``f``) and j->i (``r``), and the same for each given factor.
             Cached for the call without factors.
+
+        The key of a pair is the bit pattern of its row of columns; the classes are found
+        in blocks of pairs (the distinct rows of each block, then of all blocks, then each
+        block's rows looked up among them), so the temporaries are one block's, whatever
+        the number of bonds.
         """
         key = len(factors_b)
         if key == 0 and 0 in self._classes:
             return self._classes[0]
-        fam, fwd, rev = self.family, self.forward_index(), self.rev_p
-        L, beta = fam.length, fam.volume_factor
-        cols = [L[fwd], L[rev], beta[fwd], beta[rev]]
-        del L, beta
+        fam = self.family
+        getters = [lambda b: fam.length_of(b), lambda b: fam.volume_factor_of(b)]
         for f in factors_b:
-            f = np.asarray(f, dtype=np.float64)
-            cols += [f[fwd], f[rev]]
-        cls, first = _class_index(cols)
-        ncls = first.size
+            if callable(f):
+                getters.append(f)
+            else:
+                arr = np.asarray(f, dtype=np.float64)
+                getters.append(lambda b, arr=arr: arr[b])
+        k = 2 * len(getters) - 1            # the length once: equal in both directions
+
+        def rows(lo, hi):
+            fwd = self.forward_index(lo, hi)
+            rev = self.rev_p[lo:hi].astype(np.int64)
+            out = np.empty((hi - lo, k))
+            out[:, 0] = getters[0](fwd)
+            for c, g in enumerate(getters[1:]):
+                out[:, 1 + 2 * c] = g(fwd)
+                out[:, 2 + 2 * c] = g(rev)
+            return out.view(np.dtype((np.void, 8 * k))).ravel()
+
+        blocks = [(lo, min(self.npairs, lo + _CLASS_BLOCK)) for lo in range(0, self.npairs, _CLASS_BLOCK)]
+        table = np.unique(np.concatenate([np.unique(rows(lo, hi)) for lo, hi in blocks]
+                                         or [np.empty(0, np.dtype((np.void, 8 * k)))]))
+        ncls = table.size
         ktype = np.uint8 if ncls <= 256 else (np.uint16 if ncls <= 65536 else np.int32)
-        out = (np.ascontiguousarray(cls.astype(ktype)),
-               *(np.ascontiguousarray(c[first]) for i, c in enumerate(cols) if i != 1))
+        k_p = np.empty(self.npairs, dtype=ktype)
+        for lo, hi in blocks:
+            k_p[lo:hi] = np.searchsorted(table, rows(lo, hi))
+        vals = table.view(np.float64).reshape(ncls, k)
+        out = (k_p, *(np.ascontiguousarray(vals[:, c]) for c in range(k)))
         if key == 0:
             self._classes[0] = out
         return out
 
-    def forward_index(self) -> np.ndarray:
-        """Directed index of i->j for every pair (npairs,) int64 (a new array)."""
+    def forward_index(self, lo: int = 0, hi: int | None = None) -> np.ndarray:
+        """Directed index of i->j for the pairs ``lo:hi`` (default all) (int64, a new
+        array)."""
+        hi = self.npairs if hi is None else hi
         if self.fwd_p.size:
-            return self.fwd_p.astype(np.int64)
-        own_p = np.repeat(np.arange(self.n, dtype=np.int64), np.diff(self.row_n))
-        return self.fwd_n[own_p] + (np.arange(self.npairs, dtype=np.int64) - self.row_n[own_p])
+            return self.fwd_p[lo:hi].astype(np.int64)
+        p = np.arange(lo, hi, dtype=np.int64)
+        own_p = np.searchsorted(self.row_n, p, side="right") - 1
+        return self.fwd_n[own_p] + (p - self.row_n[own_p])
 
     def nbytes(self) -> int:
         """Bytes the list keeps: per pair ``j_p``, ``rev_p``, ``fwd_p`` and the class index

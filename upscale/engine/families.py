@@ -50,9 +50,9 @@ class Family:
     rather than kept (a family of 480 M bonds would otherwise hold 23 GB of it):
     ``xi``, ``length``, ``volume_factor``, ``owner`` and ``reverse`` are computed at each
     access (new arrays, not cached), bit for bit as :func:`build_family` evaluated them.
-    A pair kernel computes ``x0[j] - x0[i]`` and its length inline
-    (:func:`~upscale.engine.kernels.bond_vector` on ``x0``) and the partial-volume factor
-    from the length (:meth:`taper`).
+    A kernel computes ``x0[j] - x0[i]`` and its length inline
+    (:func:`~upscale.engine.kernels.bond_vector` on ``x0``); ``*_of(bonds)`` give them for
+    a subset of bonds, and :meth:`bond_blocks` ranges of whole rows to sweep in blocks.
 
     Attributes
     ----------
@@ -136,18 +136,14 @@ class Family:
             return np.ones(self.nb)
         return _lammps_beta(self.length, self.horizon, self.spacing)
 
-    def taper(self) -> tuple:
-        """The partial-volume rule as numbers for a kernel: ``(on, a, b, half, delta)``,
-        beta = ``a L + b`` where ``|L - delta| <= half`` and 1 elsewhere when ``on`` (the
-        formula of :func:`_lammps_beta`, so a kernel reproduces ``volume_factor`` bit for
-        bit); ``on`` False: beta = 1. Refused for a family with explicit ``beta``."""
-        if self.beta is not None:
-            raise ValueError("this family has explicit partial-volume factors (beta); a kernel "
-                             "must read them from family.beta")
-        half = 0.5 * self.spacing
-        a = -1.0 / (2 * half)
-        b = 1.0 + ((self.horizon - half) / (2 * half))
-        return (self.partial_volume is not None, a, b, half, float(self.horizon))
+    def bond_blocks(self, size: int) -> list[tuple[int, int]]:
+        """Ranges ``lo:hi`` of directed bonds covering the family, each of whole rows and
+        about ``size`` bonds (a longer row is a block of its own): a per-particle sum over
+        the blocks adds each particle's bonds in the order of one pass over all of them."""
+        targets = np.arange(0, self.nb, max(int(size), 1))
+        b = np.unique(np.concatenate([self.offsets[np.searchsorted(self.offsets, targets, side="left")],
+                                      [self.nb]]))
+        return [(int(lo), int(hi)) for lo, hi in zip(b[:-1], b[1:])]
 
     def owner_of(self, bonds) -> np.ndarray:
         """Particle i of each of the directed bonds ``bonds`` (k,) int64."""

@@ -290,13 +290,16 @@ class PMB(Model):
         self._pair_tables()
 
     # ------------------------------------------------------------------ per-bond quantities
-    def surface_factors(self) -> np.ndarray | None:
-        """The surface-correction factor ``(g_i + g_j)/2`` of every directed bond (nb,),
-        from the kept per-particle ``g`` (a new array); None without the correction."""
+    def surface_factors(self, bonds=None) -> np.ndarray | None:
+        """The surface-correction factor ``(g_i + g_j)/2`` of every directed bond (nb,), or
+        of the directed bonds ``bonds``, from the kept per-particle ``g`` (a new array);
+        None without the correction."""
         if self._g_n is None:
             return None
         fam = self.family
-        return 0.5 * (self._g_n[fam.owner] + self._g_n[fam.neighbors])
+        if bonds is None:
+            return 0.5 * (self._g_n[fam.owner] + self._g_n[fam.neighbors])
+        return 0.5 * (self._g_n[fam.owner_of(bonds)] + self._g_n[fam.neighbors[bonds]])
 
     def bond_weights(self) -> np.ndarray:
         """``w = V_j beta_ij`` (times the surface factor when corrected) of every directed
@@ -315,7 +318,7 @@ class PMB(Model):
         """Per-class coefficients of the pair kernel (see :func:`pmb_pair_kernel`)."""
         bl = self.bonds
         if self.surface_correction:
-            k_p, L_k, bf_k, br_k, gf_k, gr_k = bl.classes(self.surface_factors())
+            k_p, L_k, bf_k, br_k, gf_k, gr_k = bl.classes(self.surface_factors)
         else:
             k_p, L_k, bf_k, br_k = bl.classes()
             gf_k = gr_k = 1.0

@@ -263,13 +263,16 @@ class LPS(Model):
     def _omega(self, L) -> np.ndarray:
         return 1.0 / L if self.influence == "inverse" else np.ones_like(L)
 
-    def deviatoric_factors(self) -> np.ndarray | None:
-        """The surface correction's bond factor ``(g_i + g_j)/2`` (nb,) from the kept
-        per-particle ``g`` (a new array); None without the correction."""
+    def deviatoric_factors(self, bonds=None) -> np.ndarray | None:
+        """The surface correction's bond factor ``(g_i + g_j)/2`` (nb,), or of the directed
+        bonds ``bonds``, from the kept per-particle ``g`` (a new array); None without the
+        correction."""
         if self._gdev_n is None:
             return None
         fam = self.family
-        return 0.5 * (self._gdev_n[fam.owner] + self._gdev_n[fam.neighbors])
+        if bonds is None:
+            return 0.5 * (self._gdev_n[fam.owner] + self._gdev_n[fam.neighbors])
+        return 0.5 * (self._gdev_n[fam.owner_of(bonds)] + self._gdev_n[fam.neighbors[bonds]])
 
     def bond_weights(self, deviatoric: bool = False) -> np.ndarray:
         """``w = V_j beta_ij`` of every directed bond (nb,) (m^3), or with ``deviatoric``
@@ -302,7 +305,7 @@ class LPS(Model):
         """Per-class coefficients of the pair kernels (see :func:`lps_pair_force_kernel`)."""
         bl = self.bonds
         if self._gdev_n is not None:
-            k_p, L_k, bf_k, br_k, gf_k, gr_k = bl.classes(self.deviatoric_factors())
+            k_p, L_k, bf_k, br_k, gf_k, gr_k = bl.classes(self.deviatoric_factors)
         else:
             k_p, L_k, bf_k, br_k = bl.classes()
             gf_k = gr_k = 1.0

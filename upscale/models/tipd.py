@@ -590,7 +590,11 @@ class TiPD(Model):
     def _bulk_particle(self) -> int:
         """The particle with the most complete family (largest sum of bond weights)."""
         fam = self.family
-        return int(np.argmax(np.bincount(fam.owner, weights=self.bond_weights(), minlength=fam.n)))
+        W = np.zeros(fam.n)
+        for lo, hi in fam.bond_blocks(_PAIR_BLOCK):      # whole rows: the sums of one pass
+            blk = np.arange(lo, hi)
+            W += np.bincount(fam.owner_of(blk), weights=self.bond_weights(blk), minlength=fam.n)
+        return int(np.argmax(W))
 
     def _bond_tables(self) -> None:
         """Per-bond arrays of the directed-bond loops (``kernel="bond"``)."""
@@ -611,7 +615,7 @@ class TiPD(Model):
 
         fam, d = self.family, self.dim
         bl = BondList(fam, self.system.volume)
-        k_p, L_k, bf_k, br_k, *xs = bl.classes(*(fam.xi[:, c] for c in range(d)))
+        k_p, L_k, bf_k, br_k, *xs = bl.classes(*(lambda b, c=c: fam.xi_of(b)[:, c] for c in range(d)))
         xi_k = np.stack(xs[0::2], axis=1)                  # forward xi of each class
         M = np.einsum("pqab,ka,kb->kpq", self.A4, xi_k, xi_k) / L_k[:, None, None] ** 3
         comp = [(0, 0), (0, 1), (1, 1)] if d == 2 else [(0, 0), (1, 1), (2, 2), (1, 2), (0, 2), (0, 1)]
@@ -890,11 +894,12 @@ class TiPD(Model):
         :meth:`upscale.models.correspondence.Correspondence.stiffness_bound`). In blocks of
         bonds: no (nb, d, d) temporaries."""
         f, d = self.family, self.dim
-        M = np.empty(f.nb)
-        for a in range(0, f.nb, _PAIR_BLOCK):
-            blk = np.arange(a, min(f.nb, a + _PAIR_BLOCK))
-            M[blk] = np.abs(self.bond_matrices(blk)).sum(axis=2).max(axis=1)
-        R = 2.0 * np.bincount(f.owner, weights=M, minlength=f.n)
+        R = np.zeros(f.n)
+        for lo, hi in f.bond_blocks(_PAIR_BLOCK):          # whole rows: the sums of one pass
+            blk = np.arange(lo, hi)
+            M = np.abs(self.bond_matrices(blk)).sum(axis=2).max(axis=1)
+            R += np.bincount(f.owner_of(blk), weights=M, minlength=f.n)
+        R *= 2.0
         if self.surface != "none":
             i, j = f.owner, f.neighbors
             Kinv = self._cKinv[:, :d, :d]
