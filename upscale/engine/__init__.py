@@ -22,11 +22,14 @@ Array suffix convention in kernels: ``_n`` per particle, ``_b`` per directed bon
 ``upscale.engine.families``
     ``build_family(system, horizon, *, partial_volume=None|"lammps"|"linear",
     spacing=None, exclude=None) -> Family`` (cKDTree). ``Family`` has CSR arrays holding
-    *both* directions of each bond: ``offsets (N+1,) int64``, ``neighbors (nb,) int64``,
-    ``xi (nb,3)`` = ``x0[j] - x0[i]``, ``length (nb,)``, ``volume_factor (nb,)`` (beta,
-    1 unless corrected), ``horizon``, ``spacing``; derived ``n, nb, counts, owner (nb,)``
-    (i of each bond), ``reverse (nb,)`` (index of j->i), ``pairs()``,
-    ``remove_bonds(mask) -> Family`` (pre-cracks that LAMMPS-style never exist).
+    *both* directions of each bond: ``offsets (N+1,) int64``, ``neighbors (nb,) int32``
+    (int64 from 2^31 particles), the reference positions ``x0``, ``horizon``, ``spacing``;
+    computed on each access (kept nowhere): ``xi (nb,3)`` = ``x0[j] - x0[i]``,
+    ``length (nb,)``, ``volume_factor (nb,)`` (beta, 1 unless corrected), ``owner (nb,)``
+    (i of each bond), ``reverse (nb,)`` (index of j->i), and for a subset of bonds
+    ``xi_of, length_of, volume_factor_of, owner_of``; ``n, nb, counts``, ``pairs()``,
+    ``bond_blocks(size)``, ``nbytes()``, ``remove_bonds(mask) -> Family`` (pre-cracks that
+    LAMMPS-style never exist).
     Horizon not larger than the spacing -> ``ValueError``.
     Bond state is ``intact (nb,) bool``; ``damage(family, intact, weights="count"|"volume",
     volume=None) -> mu (N,)``, mu = 1 - R/T (seed 004 eq. 5.16).
