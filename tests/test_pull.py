@@ -78,3 +78,15 @@ def test_seeds_are_means_of_single_runs(tube):
 def test_bad_input(kw, word):
     with pytest.raises(ValueError, match=word):
         experiments.tension(chirality=(5, 5), length=60.0, progress=False, **kw)
+
+
+def test_scene_checkpoints_and_a_finished_run_resumes_as_finished(tube, tmp_path):
+    kw = dict(model="atomistic", protocol="dynamic", grip=10.0, maximum=0.3, seed=2,
+              progress=False, workdir=str(tmp_path), checkpoint_every=200)
+    a = experiments.tension(tube, **kw)
+    assert (tmp_path / "tension_seed2.npz").is_file()
+    b = experiments.tension(tube, resume=True, **kw)
+    assert b.figures["strength_GPa"] == a.figures["strength_GPa"]
+    assert np.array_equal(a.curves["curve/stress_GPa"], b.curves["curve/stress_GPa"])
+    with pytest.raises(ValueError, match="needs a workdir"):
+        experiments.tension(tube, model="atomistic", protocol="dynamic", resume=True)

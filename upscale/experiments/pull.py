@@ -115,6 +115,10 @@ def pull(specimen, protocol, *, progress=None, checkpoint=None, resume: bool = F
         run["step"], run["book"] = int(step), specimen.bookkeeping()
         sim.state.extra[EXTRA] = np.frombuffer(json.dumps(run, cls=NumpyJSON).encode(), dtype=np.uint8)
 
+    def finished(sim) -> bool:
+        return bool(run["records"] and (protocol.stop.done(_along(run["records"], protocol))
+                                        or abs(specimen.load(sim)) >= protocol.maximum))
+
     def callback(sim) -> bool:
         step = int(sim.state.step)
         specimen.read(sim)
@@ -123,8 +127,7 @@ def pull(specimen, protocol, *, progress=None, checkpoint=None, resume: bool = F
             run["records"].append(specimen.sample(sim))
             if progress is not None:
                 progress(run["records"][-1])
-            stop = bool(protocol.stop.done(_along(run["records"], protocol))
-                        or abs(specimen.load(sim)) >= protocol.maximum)
+            stop = finished(sim)
             run["switch"] = not stop and bool(specimen.wants_switch())
             stop = stop or run["switch"]
         if stop or (ck_every and (step + 1) % ck_every == 0):
@@ -132,7 +135,7 @@ def pull(specimen, protocol, *, progress=None, checkpoint=None, resume: bool = F
         return stop
 
     if resume and checkpoint is not None and Path(checkpoint.path).is_file():
-        done = _resume(specimen, checkpoint, run, callback, save)
+        done = _resume(specimen, checkpoint, run, callback, save, finished)
     else:
         save(specimen.simulation, 0)
         done = False
@@ -170,10 +173,10 @@ def _along(records, protocol) -> list:
     return [max(protocol.sign * r["response"], 0.0) for r in records]
 
 
-def _resume(specimen, checkpoint, run, callback, save) -> bool:
+def _resume(specimen, checkpoint, run, callback, save, finished) -> bool:
     """Continue from ``checkpoint``: the specimen's simulation restored, the records and
     bookkeeping from the extras, the interrupted step's callback done first. Returns True
-    when that callback ended the run."""
+    when that callback ended the run, or the checkpoint is of a finished one."""
     specimen.prepare_resume(checkpoint.path)
     sim = specimen.simulation
     sim.resume(checkpoint.path)
@@ -184,7 +187,10 @@ def _resume(specimen, checkpoint, run, callback, save) -> bool:
         specimen.restore(run["book"])
     checkpoint.last_step = None
     step = int(sim.state.step)
-    if step > 0 and run["step"] < step and callback(sim) and not run.get("switch"):
+    if step > 0 and run["step"] < step:
+        if callback(sim) and not run.get("switch"):
+            return True
+    elif not run.get("switch") and finished(sim):
         return True
     if not run.get("switch"):
         save(sim, step)

@@ -51,6 +51,7 @@ def tension(structure=None, *, chirality: tuple[int, int] = (10, 10), length: fl
             grip: float | None = None, perturb: float | None = None,
             temperature: float = 10.0, seed: int = 1, seeds: int = 1,
             potential: str = "BNC.tersoff", reference: bool = True,
+            checkpoint_every: int = 1000, resume: bool = False, workdir: str | None = None,
             progress: bool = True) -> Result:
     """One tube under a loading protocol (module docstring).
 
@@ -95,6 +96,14 @@ def tension(structure=None, *, chirality: tuple[int, int] = (10, 10), length: fl
         ``seeds/``), the curve and fields the first run's.
     potential : str
         LAMMPS .tersoff file of the atoms (default the references' BNC.tersoff, step cutoff).
+    checkpoint_every : int
+        dynamic pull on the engine: a checkpoint every this many steps in
+        ``workdir/tension_seed<SEED>.npz`` (only with ``workdir``).
+    resume : bool
+        continue each seed's pull from its checkpoint where there is one (bit for bit;
+        needs ``workdir``).
+    workdir : str, optional
+        folder of the checkpoints.
     reference : bool
         model lammps: run LAMMPS where no stored or cached run matches (its estimated cost
         printed first; the run cached in ~/.cache/upscale); False: only stored or cached
@@ -106,7 +115,12 @@ def tension(structure=None, *, chirality: tuple[int, int] = (10, 10), length: fl
         raise ValueError(f"model={model!r}; valid: {', '.join(MODELS)}")
     if not (isinstance(seeds, (int, np.integer)) and seeds >= 1):
         raise ValueError(f"seeds={seeds!r}; valid: an integer >= 1 (runs on seed, seed + 1, ...)")
+    if not (isinstance(checkpoint_every, (int, np.integer)) and checkpoint_every >= 1):
+        raise ValueError(f"checkpoint_every={checkpoint_every!r} steps; valid: an integer >= 1")
+    if resume and workdir is None:
+        raise ValueError("resume=True needs a workdir (the folder of the checkpoints)")
     params = dict(chirality=tuple(chirality), length=length, defects=defects, model=model,
+                  checkpoint_every=checkpoint_every, resume=resume, workdir=workdir,
                   reference=reference,
                   coarsening=coarsening, protocol=protocol, load=load, step=step,
                   maximum=maximum, grip=grip, perturb=perturb, temperature=temperature,
@@ -120,13 +134,18 @@ def tension(structure=None, *, chirality: tuple[int, int] = (10, 10), length: fl
     show = _printer(progress, model)
     results = []
     for proto in protos:
+        ck = None
+        if workdir is not None and isinstance(proto, Dynamic) and model != "lammps":
+            Path(workdir).mkdir(parents=True, exist_ok=True)
+            ck = {"path": Path(workdir) / f"tension_seed{proto.seed}.npz",
+                  "every": int(checkpoint_every), "resume": bool(resume)}
         with Timer() as timer:
             if model == "atomistic":
-                run = _run_atomistic(atoms, proto, potential, show)
+                run = _run_atomistic(atoms, proto, potential, show, ck)
             elif model == "lammps":
                 run = _run_lammps(atoms, proto, potential, reference)
             else:
-                run = _run_dcbr(atoms, proto, coarsening, potential, show)
+                run = _run_dcbr(atoms, proto, coarsening, potential, show, ck)
         results.append(tube_result(run, proto, params, timer))
     return results[0] if seeds == 1 else seed_means(results)
 
@@ -191,11 +210,11 @@ def tube_structure(structure, chirality, length, defects: str = ""):
 
 
 # --------------------------------------------------------------------- the three models
-def _run_atomistic(atoms, proto, potential, show) -> dict:
+def _run_atomistic(atoms, proto, potential, show, ck=None) -> dict:
     from upscale.experiments.scenes.tube_atomistic import AtomisticTube
 
     if isinstance(proto, Dynamic):
-        return _pull_atomistic(atoms, proto, potential, show)
+        return _pull_atomistic(atoms, proto, potential, show, ck)
     tube = AtomisticTube(atoms, proto, potential)
     damage = [tube.damage()]
 
@@ -211,13 +230,17 @@ def _run_atomistic(atoms, proto, potential, show) -> dict:
             "minimisations": tube.minimisations, "unconverged": tube.unconverged}
 
 
-def _pull_atomistic(atoms, proto, potential, show) -> dict:
-    """The dynamic pull of the atoms on the engine (:class:`AtomisticPull`)."""
+def _pull_atomistic(atoms, proto, potential, show, ck=None) -> dict:
+    """The dynamic pull of the atoms on the engine (:class:`AtomisticPull`); ``ck``: the
+    checkpoint's path, interval and whether to resume from it."""
+    from upscale.engine.checkpoint import Checkpoint
     from upscale.experiments.pull import pull
     from upscale.experiments.scenes.tube_atomistic import AtomisticPull
 
     tube = AtomisticPull(atoms, proto, potential)
-    out = pull(tube, proto, progress=(lambda r: show(r["load"], r["response"])) if show else None)
+    out = pull(tube, proto, progress=(lambda r: show(r["load"], r["response"])) if show else None,
+               checkpoint=Checkpoint(ck["path"], ck["every"]) if ck else None,
+               resume=bool(ck and ck["resume"]))
     recs = out["records"]
     curve = {"load": np.array([r["load"] for r in recs]),
              "response": np.array([r["response"] for r in recs]),
@@ -308,7 +331,7 @@ def _stored_reference(atoms, proto, potential) -> dict | None:
     return r
 
 
-def _run_dcbr(atoms, proto, coarsening, potential, show) -> dict:
+def _run_dcbr(atoms, proto, coarsening, potential, show, ck=None) -> dict:
     """Today's coarse tube: the pristine periodic tube on the engine, or the seed's tube with
     the 4-atom vacancy (told apart by ``atoms.info`` of :mod:`upscale.build`); quasi-static
     tension only, both on the engine (:func:`quasi_static_tension_engine`)."""
@@ -331,7 +354,7 @@ def _run_dcbr(atoms, proto, coarsening, potential, show) -> dict:
                          f"{'defects ' + ','.join(placed) if placed else 'an untagged structure'}")
     n, m = ch
     if isinstance(proto, Dynamic):
-        return _pull_dcbr(n, m, L, bool(vac), proto, coarsening, potential, show)
+        return _pull_dcbr(n, m, L, bool(vac), proto, coarsening, potential, show, ck)
     qs = dict(strain_step=proto.step, max_strain=proto.maximum,
               progress=(lambda e, s: show(e, s)) if show else None)
     if vac:
@@ -366,7 +389,7 @@ def _is_seed_vacancy(atoms, chirality, length) -> bool:
     return bool(np.array_equal(a[np.lexsort(a.T)], b[np.lexsort(b.T)]))
 
 
-def _pull_dcbr(n, m, length, vacancy, proto, coarsening, potential, show) -> dict:
+def _pull_dcbr(n, m, length, vacancy, proto, coarsening, potential, show, ck=None) -> dict:
     """The coarse tube's dynamic pull (:func:`~upscale.experiments.scenes.dcbr_dynamic.
     dynamic_tension` on the shared pull), built as ``dcbr-seeds`` builds it
     (:func:`~upscale.experiments.scenes.tube_tension.dynamic_scene`: clamped grips with the
@@ -389,7 +412,9 @@ def _pull_dcbr(n, m, length, vacancy, proto, coarsening, potential, show) -> dic
     dyn.pop("grips")
     r = dynamic_tension(model, seed=proto.seed, temperature=proto.temperature, dt=proto.dt,
                         sample=proto.sample_every, max_strain=proto.maximum,
-                        tdamp=1e3 * proto.tau, progress=show, **dyn)
+                        tdamp=1e3 * proto.tau, progress=show, **dyn,
+                        **({"checkpoint": ck["path"], "checkpoint_every": ck["every"],
+                            "resume": ck["resume"]} if ck else {}))
     c = r["curve"]
     L0 = r["L0_A"]
     mu = model.atom_damage(r["positions"], r["delta"], L0)
