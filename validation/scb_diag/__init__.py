@@ -1,1 +1,0 @@
-"""Diagnostic scripts of the SCB near-tip study (validation/results/scb.md)."""
