@@ -22,7 +22,7 @@ coarse run is made again, so the two codes alternate as in the other benchmarks;
 ``speedup_per_ps`` is LAMMPS's best s/ps over its best (each side's fastest round, the one
 least slowed by the machine), ``speedup_per_ps_first_round`` the single-run figure. This
 machine's speed drifts by tens of per cent over minutes; one run of each, minutes apart,
-spread the (30,60) figure from 6.9x to 12.6x (``validation/results/engine.md``).
+spread the (30,60) figure from 6.9x to 12.6x.
 
 The fair whole run (:func:`fair_whole_run`, key ``speedup_whole_fair``): LAMMPS once more
 with the fastest set-up minimiser of ``bench-lammps-setup`` at the coarse set-up's own
@@ -72,7 +72,7 @@ def _args(p):
                         "of an ellipse) about the vacancy, Å, rounded out to whole particle "
                         "cells (default 8, the scene's; 5 gives the (50,50) K3 band the same "
                         "1296 atoms and the (30,60) K4 band 746 instead of 2186, whose modulus "
-                        "then misses the 3 %% target: validation/results/engine.md)")
+                        "then misses the 3 %% target)")
     p.add_argument("--grow", choices=("band", "none"), default=None,
                    help="the region the run grows to when the crack starts (dynamic_tension's "
                         "grow; default band for a disc or ellipse, none for the band)")

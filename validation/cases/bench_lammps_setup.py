@@ -37,8 +37,9 @@ the seed scale) and the open tube minimised without the periodic relaxation (fro
 prescaled structure; a different end structure: the periodic relaxation decides which
 atoms the cut puts at each end).
 
-Results (timings) go to ``--results`` (default ``validation/results/bench_lammps_setup.json``,
-rewritten atomically after every option; none with ``--quick``) and the driver's JSON.
+Results (timings) go to ``--results`` (default ``OUTDIR/bench_lammps_setup_partial.json``,
+rewritten atomically after every option, so a long run killed midway keeps its finished rows;
+none with ``--quick``) and the driver's JSON.
 """
 from __future__ import annotations
 
@@ -50,9 +51,8 @@ import numpy as np
 
 from validation.registry import case, table
 
-#: the fastest eligible option of this study (bench-dcbr-seed's fair LAMMPS set-up; the
-#: measured tables are in validation/results/engine.md); ``pass`` checks it is still the
-#: fastest
+#: the fastest eligible option of this study (bench-dcbr-seed's fair LAMMPS set-up);
+#: ``pass`` checks it is still the fastest
 BEST_SETUP = {"min_style": "cg", "min_line": "quadratic", "min_norm": "inf"}
 
 # stage-P options: (name, MinSettings keywords)
@@ -93,8 +93,8 @@ def _args(p):
     p.add_argument("--sd-box", action="store_true",
                    help="also stage P with SD (slow: see the module docstring)")
     p.add_argument("--results", type=Path, default=None,
-                   help="JSON written after every option (default validation/results/"
-                        "bench_lammps_setup.json; none with --quick)")
+                   help="JSON written after every option (default OUTDIR/"
+                        "bench_lammps_setup_partial.json; none with --quick)")
 
 
 def _converged(stages) -> bool:
@@ -136,7 +136,7 @@ def _bench_setup(args):
                                      or (["10,10"] if args.quick else ["50,50", "30,60"]))]
     length = args.length or (40.0 if args.quick else DYN_LENGTH)
     results = args.results or (None if args.quick else
-                               Path("validation/results/bench_lammps_setup.json"))
+                               Path(args.outdir) / "bench_lammps_setup_partial.json")
     full = args.quick or args.all_options
     p_opts = (P_OPTIONS if full else P_OPTIONS[:P_CORE]) + (P_SD if args.sd_box else [])
     o_opts = O_OPTIONS if full else O_OPTIONS[:N_CORE]
