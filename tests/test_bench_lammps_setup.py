@@ -8,7 +8,7 @@ references' set-up, command for command.
 import numpy as np
 import pytest
 
-from validation.cases.references import _spec, build_structure
+from upscale.build import swcnt, vacancy
 from upscale.experiments.lammps.tension import (MinSettings, dynamic_tension, open_tube_setup,
                                        relax_zero_stress)
 
@@ -17,7 +17,7 @@ FTOL = 1e-4
 
 @pytest.fixture(scope="module")
 def tube():
-    return build_structure(_spec("dynamic", 10, 10, True, 20.0))
+    return vacancy(swcnt(10, 10, 20.0), n=4)  # the references' vacancy tube, 20 Å
 
 
 @pytest.fixture(scope="module")

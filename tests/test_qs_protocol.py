@@ -106,17 +106,3 @@ def test_bad_protocol_one_line_error(kw, bad, valid):
     msg = str(ei.value)
     name = next(iter(kw))
     assert "\n" not in msg and msg.startswith(f"{name}={bad};") and valid in msg
-
-
-def test_sensitivity_case_is_registered_with_valid_variants():
-    from validation.cases.qs_sensitivity import VARIANTS, _variants
-    from upscale.experiments.lammps.tension import quasi_static_tension
-    from validation.registry import discover
-
-    assert "reference-qs-sensitivity" in discover()
-    params = inspect.signature(quasi_static_tension).parameters
-    for _, kw in VARIANTS.values():
-        assert set(kw) <= set(params)
-    assert _variants("a,c,a") == ["a", "c"]
-    with pytest.raises(SystemExit, match="unknown \\['z'\\]; valid"):
-        _variants("a,z")

@@ -336,21 +336,3 @@ def test_dynamic_tension_splits():
         diff = np.abs(s["coarse"] - s[sp]).max()
         assert 0.0 < diff < 0.01 * np.abs(s["coarse"]).max()
     assert np.array_equal(s[None], s["ghost"])  # the scene's split when none is given
-
-
-def test_drift_estimates():
-    """The fitted line recovers a linear drift under a fast oscillation; on white noise its
-    spread is smaller than the tenths difference's (12/n against 20/n in variance); too few
-    samples is an error naming both lengths."""
-    from validation.cases.dcbr import drift_estimates
-
-    t = np.linspace(0.0, 50.0, 201)
-    fit, tenths = drift_estimates(t, 2e-3 * t + 0.02 * np.sin(2 * np.pi * t / 2.0))
-    assert fit == pytest.approx(0.1, rel=0.03) and tenths == pytest.approx(0.09, abs=0.01)
-    rng = np.random.default_rng(3)
-    est = np.array([drift_estimates(t, rng.standard_normal(t.size)) for _ in range(400)])
-    sd_fit, sd_tenths = est.std(axis=0)
-    assert sd_fit == pytest.approx(np.sqrt(12 / 201), rel=0.1)
-    assert sd_tenths == pytest.approx(np.sqrt(2 / 20), rel=0.1)
-    with pytest.raises(ValueError, match="got 5 and 5"):
-        drift_estimates(t[:5], t[:5])

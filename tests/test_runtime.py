@@ -1,5 +1,5 @@
 """The package's runtime plumbing: LAMMPS loads without environment variables, results are
-written atomically, and the validation registry finds its cases."""
+written atomically."""
 import json
 
 import pytest
@@ -42,28 +42,6 @@ def test_versions_name_the_processor():
     assert v["cpu_count"] == os.cpu_count()
     if os.path.exists("/proc/cpuinfo") and platform.machine() == "x86_64":
         assert " (family " in v["cpu"] and " model " in v["cpu"]
-
-
-def test_validation_cases_register():
-    from validation.registry import discover
-
-    cases = discover()
-    for name, c in cases.items():
-        assert c.summary and "\n" not in c.summary, name
-
-
-def test_validation_help_builds(capsys):
-    """The command line's help lists every case (a summary with a literal '%' once broke
-    argparse's formatting of the whole help)."""
-    from validation.__main__ import main
-    from validation.registry import discover
-
-    with pytest.raises(SystemExit) as exc:
-        main(["--help"])
-    assert exc.value.code == 0
-    out = capsys.readouterr().out
-    for name in discover():
-        assert name in out, name
 
 
 def test_lammps_error_type_is_runtime_error():

@@ -155,26 +155,6 @@ def test_command_line_branching_writes_result_and_map(tmp_path, capsys):
     assert (out / "tipd.png").read_bytes()[:4] == b"\x89PNG"
 
 
-@pytest.mark.parametrize("text", ["3e-4", "0", "-5e-4", "nan", "inf", "abc", "1e-2"])
-def test_branching_case_rejects_a_spacing_that_does_not_fit_the_plate(text):
-    """``python -m validation tipd-branching --dx``: a spacing must divide the 40 mm width
-    into at least 8 rows; anything else is a one-line error naming the value."""
-    import argparse
-
-    from validation.cases.tipd import _positive_spacing
-
-    with pytest.raises(argparse.ArgumentTypeError, match=repr(text)):
-        _positive_spacing(text)
-
-
-@pytest.mark.parametrize("text, dx", [("1e-3", 1e-3), ("5e-4", 5e-4), ("2.5e-4", 2.5e-4)])
-def test_branching_case_takes_the_paper_grid(text, dx):
-    """The paper's Figs. 9-10 grid (400 x 160 points, 0.25 mm) and the case's coarser ones."""
-    from validation.cases.tipd import _positive_spacing
-
-    assert _positive_spacing(text) == dx
-
-
 def test_lattice_fracture_energy_by_hand():
     """m = 1 without partial volumes keeps only the four nearest neighbours: along the lattice
     axis one bond of length dx crosses the cut per dx, so G = (1/2) c s0^2 dx^4 t, twice the
@@ -211,26 +191,3 @@ def test_lattice_fracture_energy_rejects_bad_input(kw, match):
 
     with pytest.raises(ValueError, match=match):
         lattice_fracture_energy(**kw)
-
-
-@pytest.mark.parametrize("text", ["0.98,x", "0.98,-1", "nan"])
-def test_conditioning_case_rejects_bad_factors(text):
-    from validation.cases.tipd import _factor_list
-
-    with pytest.raises(SystemExit, match="--factors"):
-        _factor_list(text)
-
-
-def test_ensemble_median_counts_no_branch_as_beyond_the_plate():
-    from validation.cases.tipd import _ensemble_median, _ensemble_verdict
-
-    assert _ensemble_median([0.027, None, 0.015, 0.026, 0.028]) == pytest.approx(0.027)
-    assert _ensemble_median([None, None, 0.02, None]) is None
-    assert _ensemble_median([0.01, 0.02, 0.03, None]) == pytest.approx(0.025)
-    run = lambda x, v: {"branching_x_m": x, "v_max_over_cR": v, "v_mean_over_cR": 0.9 * v}   # noqa: E731
-    per = {"k": {"coarse": {0.99: run(0.027, 0.70), 1.0: run(0.015, 0.70), 1.01: run(0.026, 0.71)},
-                 "fine": {0.99: run(0.027, 0.72), 1.0: run(0.028, 0.73), 1.01: run(0.0265, 0.72)}}}
-    e = _ensemble_verdict(per, 7.5e-4)["k"]
-    assert e["agree"] and e["agree_mean_speed"] and not e["agree_nominal"]
-    assert e["paired_agree"] == "2 of 3" and e["paired_agree_position"] == "2 of 3"
-    assert e["median_apart_over_delta"] == pytest.approx(1.0 / 0.75, rel=1e-9)

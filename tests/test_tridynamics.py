@@ -108,13 +108,6 @@ def test_measure_sum_rule_3_10():
         assert np.abs(tot).max() < 1e-9 * np.abs(C).max()
 
 
-def test_text_dispersion_equals_printed_coefficients():
-    from validation.cases.tridynamics import _coeff_check
-
-    err, _ = _coeff_check((2,), 4)
-    assert err < 1e-10
-
-
 def test_consistent_timoshenko_dispersion_long_wave():
     from upscale.experiments.scenes.tridyn import beam_dispersion
 
