@@ -41,10 +41,18 @@ def stiffness_over_inertia(system, models) -> np.ndarray | None:
     return lam
 
 
-def stable_time_step(system, models) -> float | None:
+def stable_time_step(system, models, part=None) -> float | None:
     """Gershgorin/Silling-Askari stable step estimate (s) for velocity Verlet, or None.
-    Field rows (rotations, ``upscale.engine.fields``) count with their own inertia."""
+    Field rows (rotations, ``upscale.engine.fields``) count with their own inertia. With
+    ``part`` (a run over MPI ranks, :mod:`upscale.engine.parallel`) the largest bound is
+    taken over every rank's owned particles (a halo row is incomplete)."""
     lam = stiffness_over_inertia(system, models)
+    if part is not None:
+        mine = float(lam[part.owned].max()) if lam is not None else None
+        lmax = part.comm.allreduce_max(-1.0 if mine is None else mine)
+        if lam is None or lmax < 0:
+            return None
+        return float("inf") if lmax <= 0 else 2.0 / np.sqrt(lmax)
     if lam is None:
         return None
     if any(hasattr(m, "fields") for m in models):
@@ -112,10 +120,11 @@ class StableEstimate:
     def _check_step(self, sim, dt, what: str = "time step") -> None:
         """The estimate for ``sim``, deferred when the step ``dt`` is given and forced;
         else a step above it is refused."""
-        if dt is not None and self.force:
+        part = getattr(sim, "part", None)
+        if dt is not None and self.force and part is None:
             self._estimate_of = (sim.system, sim.models)
             return
-        self.estimate = stable_time_step(sim.system, sim.models)
+        self.estimate = stable_time_step(sim.system, sim.models, part)
         if dt is not None and self.estimate is not None and dt > self.estimate:
             tu = sim.system.time_unit
             raise ValueError(f"{what} {dt:.6g} {tu} exceeds the stable estimate "

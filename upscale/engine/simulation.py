@@ -17,6 +17,7 @@ from upscale.engine.conditions import (BodyForce, Displacement, Force, Grip, Vel
                                        constrained_dofs)
 from upscale.engine.families import damage
 from upscale.engine.integrators import BlowUp, VelocityVerlet
+from upscale.engine.parallel.comm import world
 from upscale.engine.state import State
 
 __all__ = ["Simulation"]
@@ -53,6 +54,14 @@ class Simulation:
         self.conditions = list(conditions)
         self.integrator = integrator if integrator is not None else VelocityVerlet()
         self.damage_weights = damage_weights
+        self.part = None  # the split over MPI ranks (upscale.engine.parallel), None on one
+        comm = world()
+        if comm.size > 1:  # this rank's part of the body; the models never see the rest
+            from upscale.engine.parallel.partition import localize
+
+            system, family, conditions, state, self.part = localize(
+                comm, system, family, self.models, conditions, state, self.integrator)
+            self.system, self.family, self.conditions = system, family, list(conditions)
         needs = [m.needs for m in self.models]
         if any(n.pairs for n in needs) and family is None:
             raise ValueError("a model needs the pair family: pass family=build_family(system, horizon)")
@@ -74,6 +83,8 @@ class Simulation:
             m.init_state(self.state)
         self._init_fields()
         self.constrained = constrained_dofs(system.n, self.conditions)
+        if self.part is not None:  # halo rows follow their owners, never the integrator
+            self.constrained[self.part.halo] = True
         self.inv_mass = (1.0 / system.mass)[:, None]
         self.inv_mass_n = np.ascontiguousarray(1.0 / system.mass)
         self._mass_n = np.ascontiguousarray(system.mass)
@@ -123,6 +134,8 @@ class Simulation:
         """Sum of the models' forces per particle (N, 3) on the current state (a new
         array); with ``failure`` the models' criteria update ``state.intact``."""
         st = self.state
+        if self.part is not None:
+            self.part.exchange_positions(st.y)
         fail = failure and self.failure
         if self._density_models:
             b = np.zeros_like(st.y)
@@ -139,6 +152,8 @@ class Simulation:
         """Recompute ``self.F`` (internal + external, constrained dofs zeroed in the
         acceleration sense) on the current state, with bond failure. Returns bonds broken."""
         st = self.state
+        if self.part is not None:
+            self.part.exchange_positions(st.y)
         before = self.broken_total
         b = self._b
         b[...] = 0.0
@@ -189,6 +204,8 @@ class Simulation:
         from upscale.engine.kernels import health
 
         ke = float(health(self.state.y, self.state.v, self._mass_n)[0])
+        if self.part is not None:  # halo velocities are zero: the owned rows' sum
+            return float(self.part.sum(ke))
         if getattr(self, "field_specs", None):
             from upscale.engine.fields import field_kinetic_energy
 
@@ -198,7 +215,23 @@ class Simulation:
 
     def energy(self) -> float:
         """Total stored (strain) energy of all models (J)."""
+        if self.part is not None:  # sum_i W_i V_i over the owned particles of every rank
+            own = self.part.owned
+            mine = sum(float(np.dot(m.energy_density(self.state)[own], self.system.volume[own]))
+                       for m in self.models)
+            return float(self.part.sum(mine))
         return float(sum(m.energy(self.state) for m in self.models))
+
+    def broken_bonds(self) -> int:
+        """Broken directed bonds of the whole body (on several ranks: summed over them)."""
+        if self.part is not None:
+            return self.part.broken_bonds(self.state.intact)
+        return int(self.state.intact.size - np.count_nonzero(self.state.intact))
+
+    def gather(self, a) -> np.ndarray:
+        """A per-particle array of this simulation's particles as the whole body's (N, ...):
+        itself on one rank, every rank's owned rows on several (collective)."""
+        return np.asarray(a) if self.part is None else self.part.gather(a)
 
     def damage(self) -> np.ndarray:
         """Damage index mu (N,): of the pair family's bonds, or, for models that keep their
@@ -216,13 +249,15 @@ class Simulation:
 
     def describe(self) -> dict:
         s = self.system
-        d = {"particles": s.n, "dim": s.dim, "spacing_m": s.spacing, "thickness_m": s.thickness,
+        d = {"particles": s.n if self.part is None else self.part.local.n_global, "dim": s.dim, "spacing_m": s.spacing, "thickness_m": s.thickness,
              "plane": s.plane if s.dim == 2 else None,
              "models": [m.describe() for m in self.models],
              "conditions": [c.describe() for c in self.conditions]}
         if self.family is not None:
-            d.update(bonds=self.family.nb, horizon_m=self.family.horizon,
-                     partial_volume=self.family.partial_volume)
+            d.update(bonds=self.family.nb if self.part is None else self.part.local.nb_global,
+                     horizon_m=self.family.horizon, partial_volume=self.family.partial_volume)
+        if self.part is not None:
+            d["mpi"] = self.part.describe()
         integ = self.integrator
         d["integrator"] = {"name": integ.name, "dt_s": getattr(integ, "dt", None),
                            "stable_estimate_s": getattr(integ, "estimate", None)}
@@ -289,7 +324,11 @@ class Simulation:
         lose the forces of the bonds that broke in the last evaluation). A checkpoint
         without these arrays resumes from forces recomputed without failure."""
         p = Path(path)
-        if not p.is_file():
+        if self.part is not None:
+            p = self._rank_file(p)
+            if p is None:
+                return False
+        elif not p.is_file():
             return False
         st, _, eng = load_checkpoint(p, self.system.x0, nb=self.state.intact.shape[0],
                                      engine=True)
@@ -316,21 +355,48 @@ class Simulation:
         finally:
             self.failure = failure
 
-    def _healthy(self, health, ke_hist: list, spacing: float, dt: float) -> str | None:
+    def _global_index(self, i: int) -> int:
+        return int(i) if self.part is None else int(self.part.local.gid[i])
+
+    def _local_trouble(self, health, spacing: float, dt: float) -> str | None:
+        """A non-finite state or a particle crossing a spacing in one step, on this rank."""
         st = self.state
         ke, imax, vmax2, finite = health
         if not (finite and np.isfinite(ke)):
             bad = np.flatnonzero(~(np.isfinite(st.y).all(axis=1) & np.isfinite(st.v).all(axis=1)))
-            where = f" (particle {int(bad[0])} first)" if bad.size else ""
+            where = f" (particle {self._global_index(bad[0])} first)" if bad.size else ""
             return f"non-finite positions, velocities or kinetic energy{where}"
         vmax = float(np.sqrt(vmax2))
         if vmax * dt > spacing:
-            return (f"particle {int(imax)} moves {vmax * dt / spacing:.3g} spacings in one step "
-                    f"(|v| = {vmax:.4g})")
-        if len(ke_hist) >= 20 and all(b > 1.5 * a > 0 for a, b in zip(ke_hist[-20:-1], ke_hist[-19:])):
-            return (f"kinetic energy grew by more than 1.5x per step for 20 steps "
-                    f"(now {ke:.4g} {self.system.energy_unit})")
+            return (f"particle {self._global_index(imax)} moves {vmax * dt / spacing:.3g} "
+                    f"spacings in one step (|v| = {vmax:.4g})")
         return None
+
+    def _check_health(self, ke_hist: list, spacing: float, dt: float) -> str | None:
+        """The blow-up guard after a step: None, or why the run blew up. On several ranks
+        the kinetic energy and the verdict are summed over them (one Allreduce per step),
+        so every rank stops at the same step with the diagnosis of the first rank that
+        saw it."""
+        from upscale.engine.kernels import health as _health
+
+        hl = _health(self.state.y, self.state.v, self._mass_n)
+        why = self._local_trouble(hl, spacing, dt)
+        ke = hl[0]
+        if self.part is not None:
+            tot = self.part.sum(np.array([ke, 0.0 if why is None else 1.0]))
+            ke = float(tot[0])
+            if tot[1] > 0:
+                whys = self.part.comm.allgather(why)
+                r = next(k for k, w in enumerate(whys) if w is not None)
+                return f"{whys[r]} on rank {r} of {self.part.size}"
+        ke_hist.append(ke)
+        if len(ke_hist) > 40:
+            del ke_hist[:-40]
+        if why is None and len(ke_hist) >= 20 and all(
+                b > 1.5 * a > 0 for a, b in zip(ke_hist[-20:-1], ke_hist[-19:])):
+            why = (f"kinetic energy grew by more than 1.5x per step for 20 steps "
+                   f"(now {ke:.4g} {self.system.energy_unit})")
+        return why
 
     def run(self, steps: int, *, output=None, checkpoint: Checkpoint | None = None,
             progress: bool = False, callback=None, meta: dict | None = None) -> dict:
@@ -345,10 +411,14 @@ class Simulation:
         """
         from tqdm.auto import tqdm
 
-        from upscale.engine.kernels import health as _health
-
         if int(steps) < 0:
             raise ValueError(f"steps must be >= 0, got {steps!r}")
+        if self.part is not None:
+            if output is not None:
+                raise ValueError("trajectory output is not written on several MPI ranks yet; "
+                                 "run without it (every=0) or on one rank")
+            if checkpoint is not None:
+                self._rank_checkpoint(checkpoint)
         self.prepare()
         dt = self.integrator.dt
         st = self.state
@@ -363,19 +433,15 @@ class Simulation:
         ke_hist = self._ke_hist
         t0 = time.perf_counter()
         target = st.step + int(steps)
-        bar = tqdm(total=int(steps), disable=not progress, unit="step", mininterval=0.5,
+        quiet = not progress or (self.part is not None and self.part.rank != 0)
+        bar = tqdm(total=int(steps), disable=quiet, unit="step", mininterval=0.5,
                    desc=f"{'+'.join(m.name for m in self.models)}")
-        broken0 = int(st.intact.size - np.count_nonzero(st.intact))
+        broken0 = self.broken_bonds()
         try:
             while st.step < target:
                 self.integrator.step(self)
                 bar.update(1)
-                hl = _health(st.y, st.v, self._mass_n)
-                ke = hl[0]
-                ke_hist.append(ke)
-                if len(ke_hist) > 40:
-                    del ke_hist[:-40]
-                why = self._healthy(hl, ke_hist, spacing, dt)
+                why = self._check_health(ke_hist, spacing, dt)
                 if why is not None:
                     est = getattr(self.integrator, "estimate", None)
                     ck = (f"last good checkpoint: {checkpoint.path} (step {checkpoint.last_step})"
@@ -403,7 +469,7 @@ class Simulation:
             output.write(self)
         if checkpoint is not None and checkpoint.last_step != st.step:
             checkpoint.write(st, {**(meta or {}), "dt_s": dt}, engine=self.checkpoint_arrays())
-        broken = int(st.intact.size - np.count_nonzero(st.intact))
+        broken = self.broken_bonds()
         return {"steps": int(st.step), "time_s": float(st.t), "dt_s": dt, "wall_s": wall,
                 "broken_bonds": broken, "broken_this_run": broken - broken0}
 
@@ -412,6 +478,7 @@ class Simulation:
         FIRE); returns its :class:`~upscale.engine.minimisers.MinimiseResult`."""
         from upscale.engine.minimisers import FIRE
 
+        self._one_rank("minimisers")
         return (minimiser or FIRE()).minimise(self, **kw)
 
     def relax(self, adr=None, progress: bool = False, **kw) -> dict:
@@ -419,5 +486,41 @@ class Simulation:
         ``kw``: ``checkpoint``, ``resume``."""
         from upscale.engine.integrators import AdaptiveDynamicRelaxation
 
+        self._one_rank("adaptive dynamic relaxation")
         adr = adr or AdaptiveDynamicRelaxation()
         return adr.run(self, progress=progress, **kw)
+
+    def _one_rank(self, what: str) -> None:
+        if self.part is not None:
+            raise ValueError(f"{what} run on one rank in this version; this run has "
+                             f"{self.part.size} MPI ranks (valid there: velocity Verlet)")
+
+    def _rank_checkpoint(self, checkpoint) -> None:
+        """Point ``checkpoint`` at this rank's file (``name.rank<r>of<n>.npz``), once."""
+        from upscale.engine.parallel.partition import rank_path
+
+        if getattr(checkpoint, "rank_of", None) is None:
+            checkpoint.global_path = checkpoint.path
+            checkpoint.path = rank_path(checkpoint.path, self.part.rank, self.part.size)
+            checkpoint.rank_of = (self.part.rank, self.part.size)
+
+    def _rank_file(self, path: Path):
+        """This rank's checkpoint file for ``path`` on several ranks, None when no rank
+        has one (collective). Refuses a set written by another rank count or a partial
+        set, with one line."""
+        from upscale.engine.parallel.partition import other_rank_counts, rank_path
+
+        mine = rank_path(path, self.part.rank, self.part.size)
+        have = self.part.comm.allgather(mine.is_file())
+        if not any(have):
+            others = other_rank_counts(path, self.part.size)
+            if others:
+                raise ValueError(f"checkpoint {others[0]} was written on another rank count; "
+                                 f"resume it with as many ranks as wrote it (the split is fixed "
+                                 f"by the rank count), not {self.part.size}")
+            return None
+        if not all(have):
+            missing = [r for r, h in enumerate(have) if not h]
+            raise ValueError(f"checkpoint {path} lacks the files of ranks {missing}; valid: "
+                             "one file per rank, all written by the same run")
+        return mine

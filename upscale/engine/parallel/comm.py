@@ -1,0 +1,125 @@
+"""The communicator the engine runs on: MPI's world under ``mpiexec``/``srun``, else one
+process.
+
+MPI comes through ``mpi4py``. Its binary wheel finds the MPI library at run time: in a
+virtual environment with the ``mpich`` wheel (a dependency of this project) it loads the
+wheel's ``libmpi.so.12`` from ``<venv>/lib`` without any setting; on a cluster the
+cluster's MPICH-ABI library (Cray MPICH, Intel MPI, MVAPICH) is chosen with
+``MPI4PY_LIBMPI=/path/to/libmpi.so.12`` (or found on ``LD_LIBRARY_PATH``), and the ranks
+must be started by the launcher that belongs to that library.
+
+``mpi4py`` is imported only when the process was started by an MPI launcher (one of the
+environment variables :data:`LAUNCHER_VARS` is set): a serial run never initialises MPI.
+Every collective here is called by all ranks in the same order; the serial communicator
+implements the same methods as identities, so the engine has one code path.
+"""
+from __future__ import annotations
+
+import os
+
+import numpy as np
+
+__all__ = ["world", "launched_by_mpi", "SerialComm", "MPIComm", "LAUNCHER_VARS"]
+
+# set by Hydra (MPICH, Intel MPI), PMIx launchers, Open MPI and SLURM's srun
+LAUNCHER_VARS = ("PMI_SIZE", "PMI_RANK", "PMIX_RANK", "OMPI_COMM_WORLD_SIZE", "MPI_LOCALNRANKS")
+
+_WORLD = None
+
+
+def launched_by_mpi() -> bool:
+    """True when an MPI launcher started this process (its environment says so)."""
+    return any(k in os.environ for k in LAUNCHER_VARS)
+
+
+def world():
+    """The world communicator (cached): :class:`MPIComm` when launched by MPI with more
+    than one rank, else :class:`SerialComm`. MPI launch without ``mpi4py`` installed:
+    one-line ``RuntimeError`` saying what to install."""
+    global _WORLD
+    if _WORLD is None:
+        _WORLD = SerialComm()
+        if launched_by_mpi():
+            try:
+                from mpi4py import MPI
+            except ImportError as exc:  # pragma: no cover - depends on the install
+                raise RuntimeError("started by an MPI launcher but mpi4py is not importable "
+                                   f"({exc}); install it: pip install mpi4py") from None
+            if MPI.COMM_WORLD.Get_size() > 1:
+                _WORLD = MPIComm(MPI.COMM_WORLD)
+    return _WORLD
+
+
+class SerialComm:
+    """One process: every collective is the identity."""
+
+    rank, size = 0, 1
+
+    def allreduce_sum(self, x):
+        return x
+
+    def allreduce_max(self, x):
+        return x
+
+    def allgather(self, obj) -> list:
+        return [obj]
+
+    def alltoall(self, objs: list) -> list:
+        return list(objs)
+
+    def bcast(self, obj):
+        return obj
+
+    def barrier(self) -> None:
+        pass
+
+    def exchange(self, sends, recvs) -> None:
+        """Nothing to exchange on one process."""
+
+
+class MPIComm:
+    """An mpi4py communicator with the few collectives the engine uses."""
+
+    def __init__(self, comm):
+        self.comm = comm
+        self.rank = comm.Get_rank()
+        self.size = comm.Get_size()
+
+    def allreduce_sum(self, x):
+        """Sum over ranks of a float or a float64 array (rank order: the same on every
+        rank, not the serial order of the terms)."""
+        from mpi4py import MPI
+
+        if np.ndim(x) == 0:
+            return self.comm.allreduce(x, op=MPI.SUM)
+        a = np.ascontiguousarray(x, dtype=np.float64)
+        out = np.empty_like(a)
+        self.comm.Allreduce(a, out, op=MPI.SUM)
+        return out
+
+    def allreduce_max(self, x):
+        from mpi4py import MPI
+
+        return self.comm.allreduce(x, op=MPI.MAX)
+
+    def allgather(self, obj) -> list:
+        return self.comm.allgather(obj)
+
+    def alltoall(self, objs: list) -> list:
+        return self.comm.alltoall(objs)
+
+    def bcast(self, obj):
+        return self.comm.bcast(obj, root=0)
+
+    def barrier(self) -> None:
+        self.comm.Barrier()
+
+    def exchange(self, sends, recvs) -> None:
+        """Point-to-point exchange: ``sends`` and ``recvs`` are lists of ``(peer, buffer)``
+        (contiguous arrays); receives are posted first, then sends, then all complete
+        (nonblocking ``Irecv``/``Isend``, one message per peer and direction)."""
+        from mpi4py import MPI
+
+        reqs = [self.comm.Irecv(buf, source=peer, tag=17) for peer, buf in recvs]
+        reqs += [self.comm.Isend(buf, dest=peer, tag=17) for peer, buf in sends]
+        MPI.Request.Waitall(reqs)

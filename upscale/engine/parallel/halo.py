@@ -1,0 +1,149 @@
+"""A rank's part of the body: its particles, the halo of partners owned by other ranks,
+its rows of the family, and the exchange of halo rows.
+
+Layers. The owned particles' rows are complete. A bond-based force on an owned particle
+needs its partners' positions only (one layer of halo). A state-based force (LPS) also
+needs each partner's dilatation, a sum over the partner's own row, so the first halo layer
+gets complete rows as well and a second layer holds their partners (two layers); the
+models then compute the halo's per-particle state themselves from exchanged positions
+and need no hook (the work on the first layer's rows is done twice, by the owner and by
+this rank). ``depth`` is the number of layers.
+
+Local family. The local particles are kept in the order of their global index, and a
+local directed bond is a global bond ``i -> j`` with a complete-row end (``i`` or ``j`` in
+the complete-row set). This set is symmetric (the reverse of a kept bond is kept), each
+row keeps the global order of its partners, and every pair is seen in the orientation
+and the relative order of the serial run: a pair loop over the local family adds each
+owned particle's bond terms in the serial order, which is what makes the distributed
+forces bit-identical to the serial ones on one thread.
+
+Bond state. A bond between an owned particle and a halo particle lives on both ranks.
+Both copies are decided by the same criterion, in the same orientation, from the same
+bits (the halo positions are the owner's, copied each step), so they agree without any
+message; :func:`bond_states_agree` checks it.
+"""
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+__all__ = ["Local", "build_local", "bond_states_agree"]
+
+
+@dataclasses.dataclass(eq=False)
+class Local:
+    """One rank's view: global ids ``gid`` (n_local,) int64 sorted, ``owned`` (n_local,)
+    bool, the local CSR family ``offsets`` / ``neighbors``, the global directed index of
+    each local bond ``bond_gid``, and the halo exchange lists ``send`` / ``recv``
+    (``[(peer rank, local rows)]``, rows in global order on both sides)."""
+
+    rank: int
+    size: int
+    depth: int
+    n_global: int
+    nb_global: int
+    gid: np.ndarray
+    owned: np.ndarray
+    offsets: np.ndarray
+    neighbors: np.ndarray
+    bond_gid: np.ndarray
+    send: list
+    recv: list
+
+    @property
+    def n(self) -> int:
+        return self.gid.shape[0]
+
+    @property
+    def n_owned(self) -> int:
+        return int(np.count_nonzero(self.owned))
+
+    @property
+    def owned_bonds(self) -> np.ndarray:
+        """(nb_local,) bool: bonds in an owned particle's row (each global directed bond is
+        in exactly one rank's owned rows)."""
+        return np.repeat(self.owned, np.diff(self.offsets))
+
+    def halo_rows(self) -> int:
+        return int(sum(r.shape[0] for _, r in self.recv))
+
+    def exchange(self, comm, a: np.ndarray) -> None:
+        """Mutates ``a`` (n_local, ...): the halo rows get their owners' values (one
+        nonblocking message per peer and direction)."""
+        tail = a.shape[1:]
+        sends = [(p, np.ascontiguousarray(a[rows])) for p, rows in self.send]
+        recvs = [(p, np.empty((rows.shape[0],) + tail, dtype=a.dtype)) for p, rows in self.recv]
+        comm.exchange(sends, recvs)
+        for (_, rows), (_, buf) in zip(self.recv, recvs):
+            a[rows] = buf
+
+    def gather(self, comm, a: np.ndarray) -> np.ndarray:
+        """The global array (n_global, ...) on every rank from each rank's owned rows."""
+        a = np.asarray(a)
+        parts = comm.allgather((self.gid[self.owned], a[self.owned]))
+        out = np.empty((self.n_global,) + a.shape[1:], dtype=a.dtype)
+        for g, v in parts:
+            out[g] = v
+        return out
+
+
+    def gather_bonds(self, comm, a: np.ndarray) -> np.ndarray:
+        """The global per-bond array (nb_global, ...) on every rank from the owned rows."""
+        a = np.asarray(a)
+        own = self.owned_bonds
+        parts = comm.allgather((self.bond_gid[own], a[own]))
+        out = np.empty((self.nb_global,) + a.shape[1:], dtype=a.dtype)
+        for g, v in parts:
+            out[g] = v
+        return out
+
+
+def _partners(mask: np.ndarray, owner: np.ndarray, neighbors: np.ndarray) -> np.ndarray:
+    """(N,) bool: the partners of the particles in ``mask``."""
+    out = np.zeros(mask.shape[0], dtype=bool)
+    out[neighbors[mask[owner]]] = True
+    return out
+
+
+def build_local(comm, offsets: np.ndarray, neighbors: np.ndarray, part: np.ndarray,
+                depth: int) -> Local:
+    """This rank's :class:`Local` from the global CSR family and the decomposition
+    ``part`` (N,) (collective: the ranks tell each other which rows they need)."""
+    if depth < 1:
+        raise ValueError(f"halo depth={depth!r}; valid: >= 1")
+    n = offsets.shape[0] - 1
+    owner = np.repeat(np.arange(n, dtype=np.int64), np.diff(offsets))
+    owned_g = part == comm.rank
+    full = owned_g.copy()
+    for _ in range(depth - 1):
+        full |= _partners(full, owner, neighbors)
+    local = full | _partners(full, owner, neighbors)
+    gid = np.flatnonzero(local)
+    lid = np.full(n, -1, dtype=np.int64)
+    lid[gid] = np.arange(gid.shape[0])
+    bond_gid = np.flatnonzero(full[owner] | full[neighbors])
+    counts = np.bincount(lid[owner[bond_gid]], minlength=gid.shape[0])
+    off = np.zeros(gid.shape[0] + 1, dtype=np.int64)
+    np.cumsum(counts, out=off[1:])
+    nbr = lid[neighbors[bond_gid]].astype(neighbors.dtype)
+    halo = gid[~owned_g[gid]]
+    need = [halo[part[halo] == p] for p in range(comm.size)]
+    asked = comm.alltoall(need)          # the gids each peer needs from me
+    recv = [(p, lid[g]) for p, g in enumerate(need) if g.size]
+    send = [(p, lid[g]) for p, g in enumerate(asked) if g.size]
+    return Local(comm.rank, comm.size, int(depth), n, int(neighbors.shape[0]), gid,
+                 owned_g[gid], off, nbr, bond_gid, send, recv)
+
+
+def bond_states_agree(comm, local: Local, intact: np.ndarray) -> bool:
+    """True when every bond held by several ranks has the same state on all of them
+    (collective; for tests and checks: it gathers every rank's bond states)."""
+    parts = comm.allgather((local.bond_gid, np.asarray(intact, dtype=bool)))
+    seen = np.full(local.nb_global, -1, dtype=np.int8)
+    for g, v in parts:
+        prev = seen[g]
+        if np.any((prev >= 0) & (prev != v)):
+            return False
+        seen[g] = v
+    return True

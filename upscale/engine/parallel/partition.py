@@ -1,0 +1,172 @@
+"""A simulation's body split over MPI ranks: what each rank holds and the global sums.
+
+:func:`localize` turns the global body (system, family, conditions, state) into one
+rank's part, before the models are prepared: the models are then prepared on, and run on,
+the rank's owned particles plus halo (:mod:`~upscale.engine.parallel.halo`) as if that
+were the whole body, and never learn of ranks. The halo particles are held (all their
+dofs constrained, velocity zero): their positions come from their owners at every force
+evaluation (:meth:`Partition.exchange_positions`), and the forces the models compute on
+them are not used.
+
+Halo layers per model (:func:`halo_depth`): a model may declare ``halo_depth``; else PMB
+without surface correction needs one (its bond force depends on the two positions only)
+and PMB with surface correction and LPS two (a bond's force also depends on a per-particle
+quantity of the partner summed over the partner's row: the surface factor, the
+dilatation). Other models are refused until their depth is known.
+"""
+from __future__ import annotations
+
+import copy
+import glob
+from pathlib import Path
+
+import numpy as np
+
+from upscale.engine.parallel.decomposition import rcb
+from upscale.engine.parallel.halo import Local, build_local
+
+__all__ = ["Partition", "localize", "halo_depth", "rank_path"]
+
+_CONDITIONS = ("Displacement", "Fixed", "Velocity", "Force", "BodyForce")
+
+
+def halo_depth(model) -> int:
+    """Halo layers ``model``'s forces need (module docstring); one-line ``ValueError``
+    for a model that cannot run distributed yet."""
+    d = getattr(model, "halo_depth", None)
+    if d is not None:
+        return int(d)
+    if model.name == "pmb":
+        return 2 if getattr(model, "surface_correction", False) else 1
+    if model.name == "lps":
+        return 2
+    raise ValueError(f"model {model.name!r} cannot run on several MPI ranks yet (the engine "
+                     "does not know the halo its forces need); valid there: 'pmb', 'lps'; "
+                     "run it on one rank")
+
+
+class Partition:
+    """The communicator, the decomposition ``part`` (N,) and this rank's :class:`Local`."""
+
+    def __init__(self, comm, local: Local, part: np.ndarray):
+        self.comm, self.local, self.part = comm, local, part
+        self.rank, self.size = comm.rank, comm.size
+        self.owned = local.owned
+        self.halo = ~local.owned
+        self.owned_bonds = local.owned_bonds
+
+    def exchange_positions(self, y: np.ndarray) -> None:
+        """Mutates ``y``: halo rows <- their owners' current positions."""
+        self.local.exchange(self.comm, y)
+
+    def gather(self, a: np.ndarray) -> np.ndarray:
+        """Global per-particle array (N, ...) on every rank from the owned rows."""
+        return self.local.gather(self.comm, a)
+
+    def gather_bonds(self, a: np.ndarray) -> np.ndarray:
+        """Global per-bond array (nb, ...) on every rank from the owned rows' bonds."""
+        return self.local.gather_bonds(self.comm, a)
+
+    def sum(self, x):
+        return self.comm.allreduce_sum(x)
+
+    def broken_bonds(self, intact: np.ndarray) -> int:
+        """Broken directed bonds of the whole body (each counted on its owner's rank)."""
+        mine = int(np.count_nonzero(self.owned_bonds & ~intact))
+        return int(self.comm.allreduce_sum(mine))
+
+    def describe(self) -> dict:
+        loc = self.local
+        halo = loc.halo_rows()
+        counts = self.comm.allgather((loc.n_owned, halo))
+        return {"ranks": self.size, "decomposition": "recursive coordinate bisection, "
+                "weighted by bonds per particle + 1", "halo_layers": loc.depth,
+                "owned_per_rank": [c[0] for c in counts], "halo_per_rank": [c[1] for c in counts]}
+
+
+def rank_path(path, rank: int, size: int) -> Path:
+    """``dir/name.npz`` -> ``dir/name.rank<r>of<n>.npz`` (one checkpoint file per rank)."""
+    p = Path(path)
+    return p.with_name(f"{p.stem}.rank{rank}of{size}{p.suffix}")
+
+
+def other_rank_counts(path, size: int) -> list[str]:
+    """Checkpoints next to ``path`` written by another rank count (or by a serial run)."""
+    p = Path(path)
+    found = sorted(glob.glob(str(p.with_name(f"{p.stem}.rank0of*{p.suffix}"))))
+    found = [f for f in found if not f.endswith(f"of{size}{p.suffix}")]
+    return found + ([str(p)] if p.is_file() else [])
+
+
+def localize(comm, system, family, models, conditions, state, integrator):
+    """This rank's ``(system, family, conditions, state, Partition)`` of the global body
+    (collective). Refuses, with one line, what cannot run distributed yet."""
+    from upscale.engine.families import Family
+    from upscale.engine.system import ParticleSystem
+
+    if family is None:
+        raise ValueError("several MPI ranks need a pair family to split the body by")
+    depth = max(halo_depth(m) for m in models)
+    if type(integrator).__name__ != "VelocityVerlet" or getattr(integrator, "thermostat", None):
+        raise ValueError(f"integrator {getattr(integrator, 'name', type(integrator).__name__)!r}"
+                         " runs on one rank in this version; valid on several ranks: "
+                         "VelocityVerlet without thermostat")
+    part = rcb(system.x0, family.counts + 1.0, comm.size)
+    loc = build_local(comm, family.offsets, family.neighbors, part, depth)
+    g = loc.gid
+    lsys = ParticleSystem(system.x0[g], system.volume[g], system.density[g], system.material[g],
+                          dim=system.dim, thickness=system.thickness, plane=system.plane,
+                          spacing=system.spacing, units=system.units)
+    beta = None if family.beta is None else family.beta[loc.bond_gid]
+    lfam = Family(loc.offsets, loc.neighbors, lsys.x0, family.horizon, family.spacing,
+                  family.partial_volume, beta)
+    lstate = _local_state(state, lsys, loc)
+    lconds = [c for c in (_local_condition(c, loc) for c in conditions) if c is not None]
+    return lsys, lfam, lconds, lstate, Partition(comm, loc, part)
+
+
+def _local_state(state, lsys, loc: Local):
+    from upscale.engine.state import State
+
+    if state is None:
+        st = State.reference(lsys.x0, loc.bond_gid.shape[0])
+    else:
+        if state.extra or state.fields:
+            raise ValueError("a state with model extras or fields cannot be split over MPI "
+                             "ranks yet; start from positions, velocities and bond states")
+        if state.y.shape != (loc.n_global, 3) or state.intact.shape != (loc.nb_global,):
+            raise ValueError(f"state has {state.y.shape[0]} particles and {state.intact.shape[0]}"
+                             f" bonds, the body {loc.n_global} and {loc.nb_global}")
+        g = loc.gid
+        st = State(lsys.x0, state.y[g].copy(), state.v[g].copy(),
+                   state.intact[loc.bond_gid].copy(), state.t, state.step)
+    st.v[~loc.owned] = 0.0
+    return st
+
+
+def _local_condition(cond, loc: Local):
+    """``cond`` restricted to this rank's owned particles of its region (None if it has
+    none there)."""
+    from upscale.engine.conditions import Region
+
+    kind = type(cond).__name__
+    if kind not in _CONDITIONS:
+        raise ValueError(f"condition {kind} runs on one rank in this version; valid on several"
+                         f" ranks: {', '.join(_CONDITIONS)}")
+    reg = cond.region
+    mask = reg.mask[loc.gid] & loc.owned
+    if not mask.any():
+        return None
+    rows = np.searchsorted(reg.index, loc.gid[mask])   # the rows of the region's values
+    r = object.__new__(Region)                         # a region may be empty on a rank
+    r.name, r.mask, r.index = reg.name, mask, np.flatnonzero(mask)
+    c = copy.copy(cond)
+    c.region = r
+    v = cond.value
+    c.value = (lambda t, f=v: _rows(f(t), rows)) if callable(v) else _rows(v, rows)
+    return c
+
+
+def _rows(v, rows):
+    a = np.asarray(v, dtype=np.float64)
+    return a[rows] if a.ndim == 2 else a
