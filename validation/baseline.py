@@ -13,7 +13,9 @@ that case, under the file's provenance; a ``CASE.json`` of the case itself takes
 
 Staleness: a baseline is stale when a file its case imports (the case's module and every
 module of ``upscale``, ``potentials`` and ``validation`` it reaches, imports inside functions
-included) changed in git between the baseline's commit and ``HEAD``.
+included; the driver's own modules aside) changed in git between the baseline's commit and
+``HEAD``. Uncommitted changes do not count (a baseline is judged against commits); those of
+the case's files at recording time are listed in its provenance.
 """
 from __future__ import annotations
 
@@ -30,6 +32,10 @@ from upscale.io import versions, write_json
 ROOT = Path(__file__).resolve().parents[1]
 BASELINES = ROOT / "validation" / "baselines"
 PACKAGES = ("upscale", "potentials", "validation")
+#: the driver: imported by every case, computes none of their figures, so not a staleness cause
+DRIVER = {"validation/__init__.py", "validation/__main__.py", "validation/registry.py",
+          "validation/baseline.py", "validation/report.py", "validation/report_html.py",
+          "validation/cases/__init__.py"}
 REQUIRED = ("commit", "date", "machine", "command")  # provenance a baseline must carry
 ALIASES = {"date": ("date", "date_utc"), "command": ("command", "commands")}
 
@@ -145,7 +151,7 @@ def _imports(path: Path, name: str) -> set[str]:
 
 def dependencies(module: str) -> set[str]:
     """Repository paths of ``module`` and every project module it reaches by import
-    (parent packages' ``__init__`` included, as Python runs them)."""
+    (parent packages' ``__init__`` included, as Python runs them), the driver's aside."""
     seen: dict[str, Path] = {}
     todo = [module]
     while todo:
@@ -160,7 +166,7 @@ def dependencies(module: str) -> set[str]:
                 continue
             seen[sub] = path
             todo.extend(_imports(path, sub))
-    return {str(p.relative_to(ROOT)) for p in seen.values()}
+    return {str(p.relative_to(ROOT)) for p in seen.values()} - DRIVER
 
 
 def changed_since(commit: str) -> set[str] | None:

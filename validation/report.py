@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import re
 import subprocess
 import sys
 import time
@@ -27,7 +28,7 @@ from pathlib import Path
 
 from upscale.io import atomic_write_text
 from validation import baseline as bl
-from validation.report_html import case_html, markdown, page, readme
+from validation.report_html import markdown, page, readme
 
 OUT = bl.ROOT / "validation" / "out"
 
@@ -77,9 +78,17 @@ def plots(name: str) -> list[Path]:
     return found[:12]
 
 
+def target(c) -> str | None:
+    """The case's stated target: as registered, else a ``(target: ...)`` in its summary."""
+    if c.target:
+        return c.target
+    m = re.search(r"\(target:\s*([^)]*)\)", c.summary)
+    return m.group(1) if m else None
+
+
 def entry(c, base: dict | None, fresh: dict | None, stale_cache: dict) -> dict:
     """Everything the page shows of one case."""
-    e = {"name": c.name, "summary": c.summary, "target": c.target, "module": c.module,
+    e = {"name": c.name, "summary": c.summary, "target": target(c), "module": c.module,
          "quick": c.has_quick(), "baseline": base, "run": fresh, "plots": plots(c.name),
          "stale": None}
     if base:
@@ -121,7 +130,7 @@ def main(args, cases: dict) -> int:
     summary = counts(entries, time.perf_counter() - t0)
     head = {"run": args.run, "commit": bl.git("rev-parse", "--short", "HEAD"),
             "date": time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime()), **summary}
-    html = page(head, [case_html(e) for e in entries])
+    html = page(head, entries)
     atomic_write_text(args.outdir / "report.html", html)
     atomic_write_text(args.outdir / "report.md", markdown(head, entries))
     from_baselines = [entry(cases[n], baselines.get(n), None, stale_cache) for n in sorted(cases)]

@@ -100,7 +100,7 @@ def case_html(e: dict) -> str:
              f'<span class="badge {cls}">{text}</span>'
              + (f' <span class="badge stale">stale</span>' if st else "") + "</h2>",
              f"<p>{esc(e['summary'])}</p>",
-             f"<p><b>Target:</b> {esc(e['target'] or 'as the case states it (its pass figure)')}</p>"]
+             f"<p><b>Target:</b> {esc(e['target'] or 'not stated in the registry: its pass figure as the case computes it')}</p>"]
     if e["run"]:
         parts.append(f"<p class=meta>This run: {esc(e['run']['command'])}, {e['run']['status']}, "
                      f"{e['run']['wall_s']:.1f} s wall.</p>")
@@ -130,16 +130,35 @@ def case_html(e: dict) -> str:
     return "\n".join(parts) + "</section>"
 
 
-def page(head: dict, sections: list[str]) -> str:
-    """The whole page: summary line, index of cases, the sections."""
+def index_html(entries: list[dict]) -> str:
+    """The overview table at the top: one row a case, linked to its section."""
+    rows = []
+    for e in entries:
+        cls, text = verdict(e)
+        b = e["baseline"]
+        prov = f"{b['provenance']['commit']}, {str(b['provenance']['date'])[:10]}" if b else ""
+        wall = (e["run"] or {}).get("wall_s") or ((b or {}).get("provenance") or {}).get("wall_s")
+        st = '<span class="badge stale">stale</span>' if stale_text(e) else ""
+        rows.append(f'<tr><td><a href="#{esc(e["name"])}">{esc(e["name"])}</a></td>'
+                    f'<td><span class="badge {cls}">{text}</span></td><td>{st}</td>'
+                    f"<td>{esc(prov)}</td><td class=num>{esc(fmt(wall)) if wall else ''}</td>"
+                    f"<td>{esc(e['summary'])}</td></tr>")
+    return ("<table><tr><th>case</th><th>verdict</th><th>baseline</th><th>recorded</th>"
+            "<th>wall s</th><th>what it checks</th></tr>" + "".join(rows) + "</table>")
+
+
+def page(head: dict, entries: list[dict]) -> str:
+    """The whole page: summary line, the overview table, one section a case."""
     title = f"upscale validation, {head['commit']}, {head['date']}"
     summary = (f"{head['cases']} cases: {head['passed']} pass, {head['failed']} fail, "
                f"{head['no_baseline']} without a baseline, {head['stale']} stale baselines, "
                f"{head['raised']} raised; run mode <code>{esc(head['run'])}</code>, "
-               f"{head['wall_s']} s.")
+               f"{head['wall_s']} s. A verdict is this run's <code>pass</code> where the case "
+               "ran, else its baseline's.")
     return (f"<!doctype html><html lang=en><head><meta charset=utf-8><title>{esc(title)}</title>"
             f"<style>{CSS}</style></head><body><h1>{esc(title)}</h1><p>{summary}</p>"
-            + "\n".join(sections) + "</body></html>\n")
+            + index_html(entries) + "\n".join(case_html(e) for e in entries)
+            + "</body></html>\n")
 
 
 def _md_row(e: dict) -> str:
