@@ -1,12 +1,12 @@
-"""A compact half bond list for the pair loops of bond models (PMB, LPS), derived from a
-:class:`~upscale.engine.families.Family`.
+"""A compact half bond list for the pair loops of the pair models (PMB, LPS, Ti-PD,
+correspondence), derived from a :class:`~upscale.engine.families.Family`.
 
 Why another layout
 ------------------
-The :class:`Family` stores both directions of every bond with 64-bit indices, and a model
-on it keeps its per-bond coefficients per directed bond (8 bytes each), so a force loop
-streams some 30-40 bytes per directed bond and does the arithmetic of every pair twice.
-This list holds each pair once: the pair's current length, its stretch and its failure
+The :class:`Family` holds both directions of every bond (its rows are what the bond state,
+the damage and the directed-bond loops index), so a loop over it does the arithmetic of
+every pair twice and would need the pair's coefficients per directed bond. This list
+holds each pair once: the pair's current length, its stretch and its failure
 test are computed once and applied to both ends (Newton's third law), and per pair it
 streams only
 
