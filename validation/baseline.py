@@ -20,6 +20,7 @@ the case's files at recording time are listed in its provenance.
 from __future__ import annotations
 
 import ast
+import functools
 import json
 import os
 import platform
@@ -60,7 +61,7 @@ def provenance(command: list[str], wall_s: float, module: str | None = None) -> 
     commit = git("rev-parse", "--short", "HEAD") or "unknown"
     changed = {line[3:] for line in git("status", "--porcelain", "--untracked-files=all")
                .splitlines()}
-    deps = dependencies(module) if module else set()
+    deps = dependencies(module) if module else frozenset()
     return {"commit": commit, "uncommitted": sorted(deps & changed),
             "date": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
             "machine": " ".join(platform.uname()),
@@ -131,7 +132,8 @@ def module_file(name: str) -> Path | None:
     return None
 
 
-def _imports(path: Path, name: str) -> set[str]:
+@functools.lru_cache(maxsize=None)
+def _imports(path: Path, name: str) -> frozenset[str]:
     """Project modules imported anywhere in ``path`` (module ``name``), relative ones resolved."""
     tree = ast.parse(path.read_text(), str(path))
     pkg = name if path.name == "__init__.py" else name.rpartition(".")[0]
@@ -146,10 +148,11 @@ def _imports(path: Path, name: str) -> set[str]:
                 base = ".".join(p for p in [*parts, base] if p)
             found.add(base)
             found.update(f"{base}.{a.name}" for a in node.names)
-    return {m for m in found if m.split(".")[0] in PACKAGES}
+    return frozenset(m for m in found if m.split(".")[0] in PACKAGES)
 
 
-def dependencies(module: str) -> set[str]:
+@functools.lru_cache(maxsize=None)
+def dependencies(module: str) -> frozenset[str]:
     """Repository paths of ``module`` and every project module it reaches by import
     (parent packages' ``__init__`` included, as Python runs them), the driver's aside."""
     seen: dict[str, Path] = {}
@@ -166,7 +169,7 @@ def dependencies(module: str) -> set[str]:
                 continue
             seen[sub] = path
             todo.extend(_imports(path, sub))
-    return {str(p.relative_to(ROOT)) for p in seen.values()} - DRIVER
+    return frozenset(str(p.relative_to(ROOT)) for p in seen.values()) - DRIVER
 
 
 def changed_since(commit: str) -> set[str] | None:

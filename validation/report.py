@@ -65,10 +65,10 @@ def run_one(name: str, quick: bool, logs: Path) -> dict:
     fresh = result_file.is_file() and result_file.stat().st_mtime >= t0
     if rc not in (0, 1) or not fresh:
         return {"status": f"raised (exit {rc}, see logs/{name}.log)", "wall_s": wall,
-                "figures": {}, "pass": None, "command": " ".join(cmd[1:])}
+                "figures": {}, "pass": None, "command": " ".join(["python", *cmd[1:]])}
     figures = json.loads(result_file.read_text())["result"]
     return {"status": "ran" + (" --quick" if quick else ""), "wall_s": wall, "figures": figures,
-            "pass": figures.get("pass"), "command": " ".join(cmd[1:])}
+            "pass": figures.get("pass"), "command": " ".join(["python", *cmd[1:]])}
 
 
 def plots(name: str) -> list[Path]:

@@ -14,7 +14,7 @@ table{border-collapse:collapse;font-size:.85em;margin:.4em 0}
 td,th{border:1px solid #ccc;padding:.15em .5em;text-align:left;vertical-align:top}
 th{background:#f2f2f2}td.num{text-align:right;font-family:ui-monospace,monospace}
 section{border:1px solid #ddd;border-radius:6px;padding:.8em 1em;margin:1em 0}
-.badge{display:inline-block;padding:.05em .6em;border-radius:1em;font-weight:600;font-size:.85em}
+.badge{display:inline-block;white-space:nowrap;padding:.05em .6em;border-radius:1em;font-weight:600;font-size:.85em}
 .pass{background:#d6f5d6;color:#135e13}.fail{background:#fbd5d5;color:#8a1212}
 .none{background:#eee;color:#555}.stale{background:#fff1c2;color:#7a5a00}
 .raised{background:#8a1212;color:#fff}
@@ -167,12 +167,13 @@ def _md_row(e: dict) -> str:
     prov = f"{b['provenance']['commit']}, {str(b['provenance']['date'])[:10]}" if b else "none"
     wall = (e["run"] or {}).get("wall_s") or (b or {}).get("provenance", {}).get("wall_s")
     st = "stale" if stale_text(e) else ""
-    return (f"| `{e['name']}` | {text} | {st} | {prov} | {fmt(wall) if wall is not None else ''} "
-            f"| {e['summary'].replace('|', '/')} |")
+    src = e["run"]["status"] if e["run"] else ("baseline" if b else "")
+    return (f"| `{e['name']}` | {text} | {src} | {st} | {prov} | "
+            f"{fmt(wall) if wall is not None else ''} | {e['summary'].replace('|', '/')} |")
 
 
-HEADER = "| case | verdict | stale | baseline (commit, date) | wall s | what it checks |\n" \
-         "| --- | --- | --- | --- | --- | --- |"
+HEADER = ("| case | verdict | from | stale | baseline (commit, date) | wall s | what it checks |\n"
+          "| --- | --- | --- | --- | --- | --- | --- |")
 
 
 def markdown(head: dict, entries: list[dict]) -> str:
