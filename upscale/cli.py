@@ -81,6 +81,7 @@ def main(argv=None) -> int:
         return 2
     if args._command == "demo":
         args = parser.parse_args(DEMO)
+    rank = _mpi_rank(args)
     try:
         if hasattr(args, "_scene"):
             from upscale.experiments.registry import run_from_args
@@ -89,8 +90,31 @@ def main(argv=None) -> int:
             return 0
         return int(args.func(args) or 0)
     except (ValueError, FileNotFoundError) as exc:  # bad input: one clear line, no traceback
-        print(f"upscale {args._command}: error: {exc}", file=sys.stderr)
+        if rank == 0:  # under mpiexec every rank meets the same bad input: one line
+            print(f"upscale {args._command}: error: {exc}", file=sys.stderr)
         return 2
+
+
+def _mpi_rank(args) -> int:
+    """Under an MPI launcher with several ranks: rank 0 writes the results and prints; the
+    others run the same scene (their part of the body) and write into a scratch folder
+    removed at exit, with stdout silenced. Returns this process's rank (0 on one)."""
+    from upscale.engine.parallel.comm import world
+
+    comm = world()
+    if comm.rank == 0 or not hasattr(args, "out"):
+        return comm.rank
+    import atexit
+    import os
+    import shutil
+    import tempfile
+
+    scratch = tempfile.mkdtemp(prefix=f"upscale-rank{comm.rank}-")
+    atexit.register(shutil.rmtree, scratch, ignore_errors=True)
+    args.out = scratch
+    args.quiet = True
+    sys.stdout = open(os.devnull, "w")
+    return comm.rank
 
 
 if __name__ == "__main__":

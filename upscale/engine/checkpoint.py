@@ -83,7 +83,18 @@ class Checkpoint:
         self.every = int(every)
         self.last_step: int | None = None
 
+    keep_previous = False  # set for one file per MPI rank: see previous_path
+
+    @property
+    def previous_path(self) -> Path:
+        """``name.prev.npz``: the checkpoint before the last, kept when ``keep_previous``
+        (the ranks of a killed run may have written different steps last; the previous
+        generation gives a step all of them hold)."""
+        return self.path.with_name(f"{self.path.stem}.prev{self.path.suffix}")
+
     def write(self, state: State, meta: dict | None = None, *, engine: dict | None = None) -> Path:
+        if self.keep_previous and self.path.is_file():
+            self.path.replace(self.previous_path)
         p = save_checkpoint(self.path, state, meta, engine=engine)
         self.last_step = state.step
         return p

@@ -124,8 +124,8 @@ class StableEstimate:
         if dt is not None and self.force and part is None:
             self._estimate_of = (sim.system, sim.models)
             return
-        self.estimate = stable_time_step(sim.system, sim.models, part)
-        if dt is not None and self.estimate is not None and dt > self.estimate:
+        self.estimate = stable_time_step(sim.system, sim.models, part)  # collective
+        if dt is not None and not self.force and self.estimate is not None and dt > self.estimate:
             tu = sim.system.time_unit
             raise ValueError(f"{what} {dt:.6g} {tu} exceeds the stable estimate "
                              f"{self.estimate:.6g} {tu} (Silling-Askari/Gershgorin bound); use "

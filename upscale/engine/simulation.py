@@ -329,6 +329,12 @@ class Simulation:
             if p is None:
                 return False
         elif not p.is_file():
+            from upscale.engine.parallel.partition import other_rank_counts
+
+            others = other_rank_counts(p, 1)
+            if others:
+                raise ValueError(f"checkpoint {others[0]} was written on several MPI ranks; "
+                                 "resume it with as many ranks as wrote it (mpiexec -n N)")
             return False
         st, _, eng = load_checkpoint(p, self.system.x0, nb=self.state.intact.shape[0],
                                      engine=True)
@@ -503,6 +509,7 @@ class Simulation:
             checkpoint.global_path = checkpoint.path
             checkpoint.path = rank_path(checkpoint.path, self.part.rank, self.part.size)
             checkpoint.rank_of = (self.part.rank, self.part.size)
+            checkpoint.keep_previous = True
 
     def _rank_file(self, path: Path):
         """This rank's checkpoint file for ``path`` on several ranks, None when no rank
@@ -511,7 +518,10 @@ class Simulation:
         from upscale.engine.parallel.partition import other_rank_counts, rank_path
 
         mine = rank_path(path, self.part.rank, self.part.size)
-        have = self.part.comm.allgather(mine.is_file())
+        prev = mine.with_name(f"{mine.stem}.prev{mine.suffix}")
+        steps = {_checkpoint_step(f): f for f in (prev, mine) if f.is_file()}
+        every = self.part.comm.allgather(sorted(steps))
+        have = [bool(s) for s in every]
         if not any(have):
             others = other_rank_counts(path, self.part.size)
             if others:
@@ -523,4 +533,14 @@ class Simulation:
             missing = [r for r, h in enumerate(have) if not h]
             raise ValueError(f"checkpoint {path} lacks the files of ranks {missing}; valid: "
                              "one file per rank, all written by the same run")
-        return mine
+        common = set(every[0]).intersection(*every[1:])
+        if not common:
+            raise ValueError(f"the ranks' checkpoints of {path} hold no common step "
+                             f"({every}); valid: the files of one run")
+        return steps[max(common)]
+
+
+def _checkpoint_step(path) -> int:
+    """The step a checkpoint file holds (reads one scalar of the npz)."""
+    with np.load(path) as z:
+        return int(z["step"])

@@ -47,7 +47,24 @@ def world():
                                    f"({exc}); install it: pip install mpi4py") from None
             if MPI.COMM_WORLD.Get_size() > 1:
                 _WORLD = MPIComm(MPI.COMM_WORLD)
+                _abort_on_uncaught(MPI.COMM_WORLD)
     return _WORLD
+
+
+def _abort_on_uncaught(comm) -> None:
+    """An exception nobody catches on one rank ends every rank (``MPI_Abort``) instead of
+    leaving the others waiting in a collective; the rank prints it first."""
+    import sys
+
+    previous = sys.excepthook
+
+    def hook(kind, value, tb):
+        sys.stderr.write(f"[rank {comm.Get_rank()} of {comm.Get_size()}] ")
+        previous(kind, value, tb)
+        sys.stderr.flush()
+        comm.Abort(1)
+
+    sys.excepthook = hook
 
 
 class SerialComm:

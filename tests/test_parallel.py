@@ -1,0 +1,195 @@
+"""One simulation over MPI ranks (upscale.engine.parallel): the decomposition and halo
+lists in one process, and the pre-cracked plates on 1, 2 and 4 ranks under ``mpiexec``
+(spawned; skipped when no ``mpiexec`` is found), one thread per rank."""
+import json
+import os
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from upscale.engine import build_family, square_lattice
+from upscale.engine.families import Family
+from upscale.engine.parallel import balance, build_local, halo_depth, rcb
+from upscale.engine.parallel.comm import LAUNCHER_VARS
+
+HERE = Path(__file__).parent
+RUNNER = HERE / "parallel_plate_run.py"
+MPIEXEC = shutil.which("mpiexec", path=str(Path(sys.executable).parent)) or shutil.which("mpiexec")
+needs_mpi = pytest.mark.skipif(MPIEXEC is None, reason="no mpiexec found")
+
+
+class FakeComm:
+    """Rank ``rank`` of ``size`` in one process (the send lists stay empty)."""
+
+    def __init__(self, rank, size):
+        self.rank, self.size = rank, size
+
+    def alltoall(self, objs):
+        return [np.zeros(0, dtype=np.int64) for _ in objs]
+
+
+def _plate_family(n=24):
+    system = square_lattice(n, n, 1e-3, thickness=1e-3, density=1.0, centered=True)
+    return system, build_family(system, 3.015e-3)
+
+
+def test_rcb_splits_into_balanced_nonempty_parts():
+    system, fam = _plate_family()
+    w = fam.counts + 1.0
+    for parts in (1, 2, 3, 4, 7):
+        part = rcb(system.x0, w, parts)
+        assert np.array_equal(part, rcb(system.x0, w, parts))  # the same on every rank
+        assert set(np.unique(part)) == set(range(parts))
+        assert balance(part, w, parts) < 1.05
+
+
+def test_rcb_refuses_more_ranks_than_particles():
+    with pytest.raises(ValueError, match="5 ranks for 4 particles"):
+        rcb(np.zeros((4, 3)), np.ones(4), 5)
+
+
+@pytest.mark.parametrize("depth", [1, 2])
+def test_local_rows_are_the_global_rows(depth):
+    system, fam = _plate_family()
+    size = 4
+    part = rcb(system.x0, fam.counts + 1.0, size)
+    owner = fam.owner
+    seen = np.zeros(fam.nb, dtype=np.int64)
+    for r in range(size):
+        loc = build_local(FakeComm(r, size), fam.offsets, fam.neighbors, part, depth)
+        assert np.all(np.diff(loc.gid) > 0)
+        lfam = Family(loc.offsets, loc.neighbors, system.x0[loc.gid], fam.horizon, fam.spacing)
+        lfam.reverse  # raises unless symmetric
+        # every owned particle's row is its whole global row, in the global order
+        for i in np.flatnonzero(loc.owned)[::7]:
+            g = loc.gid[i]
+            rows = loc.gid[loc.neighbors[loc.offsets[i]:loc.offsets[i + 1]]]
+            assert np.array_equal(rows, fam.neighbors[fam.offsets[g]:fam.offsets[g + 1]])
+        assert np.array_equal(owner[loc.bond_gid], loc.gid[lfam.owner])
+        assert np.all(part[loc.gid[loc.owned]] == r)
+        seen[loc.bond_gid[loc.owned_bonds]] += 1
+        halo = sum(rows.size for _, rows in loc.recv)
+        assert halo == int(np.count_nonzero(~loc.owned))
+    assert np.all(seen == 1)  # each bond decided on exactly one owner
+
+
+def test_halo_depth_of_the_models():
+    from upscale import models
+
+    assert halo_depth(models.create("pmb", E=1e9)) == 1
+    assert halo_depth(models.create("pmb", E=1e9, surface_correction=True)) == 2
+    assert halo_depth(models.create("lps", E=1e9, nu=0.25)) == 2
+
+    class Other:
+        name = "tipd"
+
+    with pytest.raises(ValueError, match="'tipd' cannot run on several MPI ranks"):
+        halo_depth(Other())
+
+
+# ---------------------------------------------------------------- under mpiexec
+def _env():
+    env = {k: v for k, v in os.environ.items() if k not in LAUNCHER_VARS}
+    env["NUMBA_NUM_THREADS"] = "1"
+    return env
+
+
+def _run(ranks, *args, timeout=600, **kw):
+    cmd = [sys.executable, *map(str, args)]
+    if ranks > 1:
+        cmd = [MPIEXEC, "-n", str(ranks), *cmd]
+    return subprocess.run(cmd, env=_env(), capture_output=True, text=True, timeout=timeout, **kw)
+
+
+N_PLATE, STEPS = 30, 1000
+
+
+@pytest.fixture(scope="module")
+def serial_plates(tmp_path_factory):
+    d = tmp_path_factory.mktemp("serial")
+    out = {}
+    for model in ("pmb", "lps"):
+        f = d / f"{model}.npz"
+        r = _run(1, RUNNER, model, N_PLATE, STEPS, f)
+        assert r.returncode == 0, r.stderr
+        out[model] = dict(np.load(f))
+    return out
+
+
+@needs_mpi
+@pytest.mark.parametrize("ranks", [2, 4])
+@pytest.mark.parametrize("model", ["pmb", "lps"])
+def test_plate_on_ranks_is_bit_identical_to_serial(model, ranks, serial_plates, tmp_path):
+    ref = serial_plates[model]
+    assert int(ref["broken"]) > ref["intact"].size // 20  # the crack ran: bonds broke
+    f = tmp_path / "par.npz"
+    r = _run(ranks, RUNNER, model, N_PLATE, STEPS, f)
+    assert r.returncode == 0, r.stderr
+    got = dict(np.load(f))
+    assert int(got["ranks"]) == ranks and bool(got["agree"])
+    # one thread per rank keeps every particle's sum order: the same bits
+    assert np.array_equal(got["u"], ref["u"])
+    assert np.array_equal(got["intact"], ref["intact"])
+    assert got["energy"] == pytest.approx(ref["energy"], rel=1e-12)
+    assert got["ke"] == pytest.approx(ref["ke"], rel=1e-12)
+
+
+@needs_mpi
+def test_restart_after_sigkill_on_two_ranks_is_bit_identical(tmp_path):
+    full = tmp_path / "full.npz"
+    assert _run(2, RUNNER, "pmb", N_PLATE, STEPS, full).returncode == 0
+    work = tmp_path / "work"
+    work.mkdir()
+    cmd = [MPIEXEC, "-n", "2", sys.executable, str(RUNNER), "pmb", str(N_PLATE), str(STEPS),
+           str(tmp_path / "killed.npz"), str(work), "40"]
+    p = subprocess.Popen(cmd, env=_env(), start_new_session=True,
+                         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    deadline = time.monotonic() + 300
+    while not list(work.glob("*.prev.npz")) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    time.sleep(random.uniform(0.0, 0.5))
+    os.killpg(p.pid, signal.SIGKILL)   # the whole process group: launcher and ranks
+    p.wait()
+    assert not (tmp_path / "killed.npz").exists(), "the run finished before the kill"
+    resumed = tmp_path / "resumed.npz"
+    r = _run(2, RUNNER, "pmb", N_PLATE, STEPS, resumed, work, 40)
+    assert r.returncode == 0, r.stderr
+    a, b = np.load(full), np.load(resumed)
+    assert np.array_equal(a["u"], b["u"]) and np.array_equal(a["intact"], b["intact"])
+    # another rank count refuses the files, naming the way out
+    r = _run(4, RUNNER, "pmb", N_PLATE, STEPS, tmp_path / "x.npz", work, 40)
+    assert r.returncode != 0 and "resume it with as many ranks as wrote it" in r.stderr
+    r = _run(1, RUNNER, "pmb", N_PLATE, STEPS, tmp_path / "x.npz", work, 40)
+    assert r.returncode != 0 and "written on several MPI ranks" in r.stderr
+
+
+def _cli(ranks, *args, **kw):
+    """``mpiexec -n RANKS python -m upscale.cli ARGS`` (the ``upscale`` script's entry)."""
+    return _run(ranks, "-m", "upscale.cli", *args, **kw)
+
+
+@needs_mpi
+def test_cli_plate_on_two_ranks(tmp_path):
+    r = _cli(2, "plate", "--n", 20, "--t-end", "1e-6", "--quiet", "--out", tmp_path)
+    assert r.returncode == 0, r.stderr
+    fig = json.loads((tmp_path / "plate.json").read_text())["figures"]
+    assert fig["mpi_ranks"] == 2 and fig["particles"] == 400
+    assert r.stdout.count("mpi_ranks") == 1          # one table, from rank 0
+    r = _cli(2, "plate", "--n", 20, "--t-end", "-1", "--out", tmp_path)
+    assert r.returncode == 2 and r.stderr.count("error:") == 1, r.stderr
+
+
+@needs_mpi
+def test_blow_up_on_two_ranks_stops_every_rank_with_the_diagnosis(tmp_path):
+    r = _cli(2, "plate", "--n", 20, "--dt", "1.7e-6", "--force-dt", "--t-end", "1e-3", "--quiet",
+             "--out", tmp_path,
+             timeout=300)
+    assert r.returncode != 0
+    assert "blew up at step" in r.stderr and "on rank" in r.stderr
