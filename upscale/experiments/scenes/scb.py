@@ -259,11 +259,14 @@ class SCBScene:
     # ------------------------------------------------------------------ elastic response
     def elastic(self, d=1e-5, preconditioner=None):
         """Elastic solve at load-patch displacement ``d`` (m): (state, P (N)).
-        Preconditioner: a Cholesky factor below 3000 particles, Jacobi above (``Equilibrium``)."""
+        Preconditioner (``Equilibrium``): a sparse Cholesky factor below 100,000 particles
+        (then the Newton steps converge in one or two CG iterations each), smoothed-
+        aggregation multigrid above (its memory grows linearly with the size, a factor's
+        faster)."""
         from upscale.engine.quasistatic import Equilibrium
 
         st = self.state()
-        pc = preconditioner or ("cholmod" if self.system.n < 3000 else "jacobi")
+        pc = preconditioner or ("cholmod" if self.system.n < 100_000 else "amg")
         reaction, _ = Equilibrium(self.model, self.fixed, preconditioner=pc).solve(st, d * self.u_dir)
         P = float(np.sum(reaction * self.u_dir))
         return st, P
