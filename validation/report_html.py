@@ -126,7 +126,12 @@ def case_html(e: dict) -> str:
             if _is_rows(v):
                 parts.append(rows_html(f"{k}, {label}", v))
     if e["plots"]:
-        parts.append("<div>" + "".join(_img(p) for p in e["plots"]) + "</div>")
+        newest = max(p.stat().st_mtime for p in e["plots"])
+        parts.append(f"<p class=meta>Plots: <code>validation/out/{esc(e['name'])}/</code>, "
+                     f"{len(e['plots'])} PNG files (at most 12, newest first), last written "
+                     f"{time.strftime('%Y-%m-%d %H:%M', time.gmtime(newest))} UTC (by the last "
+                     "local run, which may not be the baseline's).</p><div>"
+                     + "".join(_img(p) for p in e["plots"]) + "</div>")
     return "\n".join(parts) + "</section>"
 
 
