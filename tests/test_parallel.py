@@ -193,3 +193,26 @@ def test_blow_up_on_two_ranks_stops_every_rank_with_the_diagnosis(tmp_path):
              timeout=300)
     assert r.returncode != 0
     assert "blew up at step" in r.stderr and "on rank" in r.stderr
+
+
+@needs_mpi
+def test_output_on_two_ranks_gathered_extxyz_and_pvtu(tmp_path):
+    args = ("plate", "--n", 20, "--t-end", "2e-6", "--every", 2, "--quiet")
+    for ranks in (1, 2):
+        r = _cli(ranks, *args, "--workdir", tmp_path / f"w{ranks}", "--out", tmp_path / f"o{ranks}")
+        assert r.returncode == 0, r.stderr
+    w1, w2 = tmp_path / "w1", tmp_path / "w2"
+    # the gathered trajectory is the serial one, byte for byte (same bits, same order)
+    assert (w1 / "traj.extxyz").read_bytes() == (w2 / "traj.extxyz").read_bytes()
+    a = json.loads((w1 / "summary.json").read_text())["frames"]
+    b = json.loads((w2 / "summary.json").read_text())["frames"]
+    assert [f["broken_bonds"] for f in a] == [f["broken_bonds"] for f in b]
+    pvtu = (w2 / "vtk" / "frame_000004.pvtu").read_text()
+    assert pvtu.count("<Piece ") == 2 and 'Name="damage"' in pvtu
+    import meshio
+
+    pieces = [meshio.read(w2 / "vtk" / f"frame_000004_{r}.vtu") for r in (0, 1)]
+    whole = meshio.read(w1 / "vtk" / "frame_000004.vtu")
+    assert sum(p.points.shape[0] for p in pieces) == whole.points.shape[0]
+    got = np.concatenate([p.point_data["damage"] for p in pieces])
+    assert np.array_equal(np.sort(got), np.sort(whole.point_data["damage"]))

@@ -12,6 +12,11 @@
   unit is then 1e-11 of a spacing; recorded in every frame's info), e.g. 1e-7 m for a
   0.1 mm spacing.
 * ``vtk/frame_NNNNNN.vtu``: points with the same point data, through meshio (ParaView).
+* On several MPI ranks (:mod:`upscale.engine.parallel`): ``traj.extxyz`` holds the whole
+  body, gathered on rank 0 (on request: leave ``"extxyz"`` out of ``formats`` for large
+  runs); VTK is parallel, each rank writing its owned particles to
+  ``vtk/frame_NNNNNN_<rank>.vtu`` and rank 0 the ``vtk/frame_NNNNNN.pvtu`` that lists
+  them (ParaView opens the ``.pvtu``); the JSON summary is rank 0's, of global sums.
 * ``summary.json``: the run's description and one row per output step (time, kinetic
   energy of translations and fields, the fields' part of it, strain energy if asked,
   broken bonds, max damage), rewritten atomically.
@@ -65,7 +70,7 @@ class Output:
         if "vtk" in self.formats:
             (self.outdir / "vtk").mkdir(exist_ok=True)
         traj = self.outdir / "traj.extxyz"
-        if "extxyz" in self.formats and sim.state.step == 0 and traj.exists():
+        if "extxyz" in self.formats and sim.state.step == 0 and traj.exists() and _root(sim):
             traj.unlink()  # a fresh run starts a fresh trajectory
         self.meta = sim.describe()
         if self.length_unit is None:
@@ -77,35 +82,47 @@ class Output:
         if not self._started:
             self.start(sim)
         st = sim.state
+        part = getattr(sim, "part", None)
         mu = sim.damage()
+        top = float(mu.max()) if mu.size else 0.0
+        if part is not None:  # every call below is collective on several ranks
+            top = float(part.comm.allreduce_max(float(mu[part.owned].max())))
         row = {"step": int(st.step), "time_s": float(st.t),
                "kinetic_energy_J": float(sim.kinetic_energy()),
                "field_kinetic_energy_J": _field_ke(sim),
-               "broken_bonds": int(st.intact.size - np.count_nonzero(st.intact)),
-               "max_damage": float(mu.max()) if mu.size else 0.0}
+               "broken_bonds": sim.broken_bonds() if part is not None
+               else int(st.intact.size - np.count_nonzero(st.intact)),
+               "max_damage": top}
         if self.energy:
             row["strain_energy_J"] = float(sim.energy())
         u = st.u
         if "extxyz" in self.formats:
-            self._extxyz(sim, u, mu)
+            if part is None:
+                self._extxyz(st.y, u, st.v, mu, sim.system.volume, st)
+            else:
+                a = [part.gather(x) for x in (st.y, u, st.v, mu, sim.system.volume)]
+                if part.rank == 0:
+                    self._extxyz(*a, st)
         if "vtk" in self.formats:
-            self._vtk(sim, u, mu)
+            if part is None:
+                self._vtk(sim, u, mu)
+            else:
+                self._pvtu(sim, u, mu, part)
         self.rows.append(row)
-        if "json" in self.formats:
+        if "json" in self.formats and _root(sim):
             write_json(self.outdir / "summary.json", {"run": self.meta, "frames": self.rows})
         return row
 
-    def _extxyz(self, sim, u, mu):
+    def _extxyz(self, y, u, v, mu, volume, st):
         import ase
         import ase.io
 
-        st = sim.state
         k = 1.0 / self.length_unit
-        atoms = ase.Atoms(symbols=[self.symbol] * st.y.shape[0], positions=st.y * k, pbc=False)
+        atoms = ase.Atoms(symbols=[self.symbol] * y.shape[0], positions=y * k, pbc=False)
         atoms.new_array("displacement", u * k)
-        atoms.new_array("velocity", st.v.copy())
+        atoms.new_array("velocity", v.copy())
         atoms.new_array("damage", mu)
-        atoms.new_array("volume", sim.system.volume * k ** 3)
+        atoms.new_array("volume", volume * k ** 3)
         for name, val, rate in _fields(st):
             atoms.new_array(name, val)
             atoms.new_array(name + "_rate", rate)
@@ -124,6 +141,35 @@ class Output:
             pdata[name], pdata[name + "_rate"] = val, rate
         mesh = meshio.Mesh(st.y, [("vertex", np.arange(n).reshape(-1, 1))], point_data=pdata)
         mesh.write(self.outdir / "vtk" / f"frame_{st.step:06d}.vtu")
+
+
+    def _pvtu(self, sim, u, mu, part):
+        """This rank's owned particles as a ``.vtu`` piece; rank 0 writes the ``.pvtu``
+        that lists every rank's piece (the arrays declared as in the pieces)."""
+        import meshio
+
+        st, own = sim.state, part.owned
+        pdata = {"displacement": u[own], "velocity": st.v[own], "damage": mu[own],
+                 "volume": sim.system.volume[own]}
+        n = int(own.sum())
+        stem = f"frame_{st.step:06d}"
+        mesh = meshio.Mesh(st.y[own], [("vertex", np.arange(n).reshape(-1, 1))], point_data=pdata)
+        mesh.write(self.outdir / "vtk" / f"{stem}_{part.rank}.vtu")
+        if part.rank == 0:
+            arrays = "".join(f'      <PDataArray type="Float64" Name="{k}" NumberOfComponents='
+                             f'"{1 if v.ndim == 1 else v.shape[1]}"/>\n' for k, v in pdata.items())
+            pieces = "".join(f'    <Piece Source="{stem}_{r}.vtu"/>\n' for r in range(part.size))
+            text = ('<?xml version="1.0"?>\n<VTKFile type="PUnstructuredGrid" version="0.1" '
+                    'byte_order="LittleEndian">\n  <PUnstructuredGrid GhostLevel="0">\n'
+                    f'    <PPointData>\n{arrays}    </PPointData>\n    <PPoints>\n'
+                    '      <PDataArray type="Float64" NumberOfComponents="3"/>\n    </PPoints>\n'
+                    f'{pieces}  </PUnstructuredGrid>\n</VTKFile>\n')
+            (self.outdir / "vtk" / f"{stem}.pvtu").write_text(text)
+
+
+def _root(sim) -> bool:
+    part = getattr(sim, "part", None)
+    return part is None or part.rank == 0
 
 
 def _fields(st):

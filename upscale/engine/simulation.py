@@ -419,12 +419,8 @@ class Simulation:
 
         if int(steps) < 0:
             raise ValueError(f"steps must be >= 0, got {steps!r}")
-        if self.part is not None:
-            if output is not None:
-                raise ValueError("trajectory output is not written on several MPI ranks yet; "
-                                 "run without it (every=0) or on one rank")
-            if checkpoint is not None:
-                self._rank_checkpoint(checkpoint)
+        if self.part is not None and checkpoint is not None:
+            self._rank_checkpoint(checkpoint)
         self.prepare()
         dt = self.integrator.dt
         st = self.state

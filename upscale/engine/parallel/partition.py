@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import copy
 import glob
+import time
 from pathlib import Path
 
 import numpy as np
@@ -54,10 +55,26 @@ class Partition:
         self.owned = local.owned
         self.halo = ~local.owned
         self.owned_bonds = local.owned_bonds
+        self.exchanges = 0        # position exchanges done, and the wall time in them (s)
+        self.exchange_s = 0.0
+        self._counts = comm.allgather((local.n_owned, local.halo_rows()))  # for describe
 
     def exchange_positions(self, y: np.ndarray) -> None:
         """Mutates ``y``: halo rows <- their owners' current positions."""
+        t0 = time.perf_counter()
         self.local.exchange(self.comm, y)
+        self.exchange_s += time.perf_counter() - t0
+        self.exchanges += 1
+
+    def traffic(self) -> dict:
+        """This rank's halo traffic per position exchange: peers, rows and bytes sent and
+        received (float64 x 3 per row), and the mean wall time of an exchange (s)."""
+        loc = self.local
+        sent = sum(r.shape[0] for _, r in loc.send)
+        got = sum(r.shape[0] for _, r in loc.recv)
+        return {"peers": len(loc.recv), "rows_sent": sent, "rows_received": got,
+                "bytes_sent": 24 * sent, "bytes_received": 24 * got, "owned": loc.n_owned,
+                "local": loc.n, "exchange_s": self.exchange_s / max(self.exchanges, 1)}
 
     def gather(self, a: np.ndarray) -> np.ndarray:
         """Global per-particle array (N, ...) on every rank from the owned rows."""
@@ -76,9 +93,7 @@ class Partition:
         return int(self.comm.allreduce_sum(mine))
 
     def describe(self) -> dict:
-        loc = self.local
-        halo = loc.halo_rows()
-        counts = self.comm.allgather((loc.n_owned, halo))
+        loc, counts = self.local, self._counts
         return {"ranks": self.size, "decomposition": "recursive coordinate bisection, "
                 "weighted by bonds per particle + 1", "halo_layers": loc.depth,
                 "owned_per_rank": [c[0] for c in counts], "halo_per_rank": [c[1] for c in counts]}

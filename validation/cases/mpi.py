@@ -1,0 +1,240 @@
+"""MPI cases (issue 50): the pre-cracked plates on several ranks against one, the speed of
+two ranks against one and two threads, and an exact restart of a killed 2-rank run.
+
+Each case starts its own ranks (``mpiexec -n K python -m validation.cases.mpi plate ...``,
+one thread per rank, the ``mpiexec`` of the Python environment: the ``mpich`` wheel's
+Hydra), so it is run without ``mpiexec``: ``python -m validation mpi-same-answer``. The
+plate is :class:`upscale.experiments.scenes.plate.PlateScene` (E = 192 GPa, horizon 3.015
+spacings, the 10 mm pre-crack, 50 m/s at the top and bottom rows).
+
+mpi-same-answer
+    PMB and LPS, ``--steps`` (1,000) steps on 1, 2 and 4 ranks: the largest displacement
+    difference against the serial run over the serial run's largest displacement
+    (``max_rel_diff``, target 1e-12, and ``bit_identical``: one thread per rank keeps each
+    particle's sum order), the same broken bonds (``broken_bonds_identical``) and the
+    bond states agreeing between the ranks that hold a bond.
+bench-mpi
+    One plate of at least 10 M bonds (``--n`` 600: 10.0 M directed bonds), ``--steps``
+    steps: wall time per step on 1 rank x 1 thread, 1 rank x 2 threads, 2 ranks x 1
+    thread, in one run; the halo (rows received over rows owned), bytes and time of the
+    position exchange per step at 2 and 4 ranks.
+mpi-restart-exact
+    The 2-rank PMB plate killed with SIGKILL (the whole ``mpiexec`` process group) at a
+    random moment after its second checkpoint, resumed, against the uninterrupted 2-rank
+    run (``mpi_bit_identical``).
+"""
+from __future__ import annotations
+
+import json
+import os
+import random
+import shutil
+import signal
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+from validation.registry import case, table
+
+
+def _mpiexec() -> str:
+    exe = shutil.which("mpiexec", path=str(Path(sys.executable).parent)) or shutil.which("mpiexec")
+    if exe is None:
+        raise ValueError("no mpiexec found; install the mpich wheel (pip install mpich)")
+    return exe
+
+
+def _env(threads: int = 1) -> dict:
+    from upscale.engine.parallel.comm import LAUNCHER_VARS
+
+    env = {k: v for k, v in os.environ.items() if k not in LAUNCHER_VARS}
+    env["NUMBA_NUM_THREADS"] = str(threads)
+    return env
+
+
+def _refuse_under_mpi() -> None:
+    from upscale.engine.parallel.comm import launched_by_mpi
+
+    if launched_by_mpi():
+        raise ValueError("run this case without mpiexec: it starts its own ranks")
+
+
+def _cmd(ranks: int, *args) -> list[str]:
+    cmd = [sys.executable, "-m", "validation.cases.mpi", "plate", *map(str, args)]
+    return [_mpiexec(), "-n", str(ranks), *cmd] if ranks > 1 else cmd
+
+
+def run_plate(ranks: int, model: str, n: int, steps: int, out: Path, threads: int = 1,
+              workdir=None, every: int = 0) -> dict:
+    """One plate run on ``ranks`` ranks; its arrays (npz) and figures (json beside)."""
+    extra = [workdir, every] if workdir is not None else []
+    r = subprocess.run(_cmd(ranks, model, n, steps, out, *extra), env=_env(threads),
+                       capture_output=True, text=True)
+    if r.returncode != 0:
+        raise RuntimeError(f"plate on {ranks} ranks failed: {r.stderr.strip().splitlines()[-1:]}")
+    return json.loads(Path(out).with_suffix(".json").read_text())
+
+
+def _same_args(p):
+    p.add_argument("--ranks", default="1,2,4", help="rank counts (the first is the reference)")
+    p.add_argument("--steps", type=int, default=1000)
+    p.add_argument("--n", type=int, default=None, help="particles a side (default 100; quick 40)")
+
+
+@case("mpi-same-answer", "pre-cracked PMB and LPS plates on 1, 2 and 4 ranks for 1,000 steps: "
+      "displacements and broken bonds against the serial run", add_arguments=_same_args,
+      target="displacements within 1e-12 of the serial run's largest, same broken bonds")
+def mpi_same_answer(args):
+    _refuse_under_mpi()
+    ranks = [int(r) for r in args.ranks.split(",")]
+    n = args.n or (40 if args.quick else 100)
+    rows, out = [], {"ranks": ranks, "plate_n": n, "steps": args.steps}
+    worst, same, bits, agree = 0.0, True, True, True
+    with tempfile.TemporaryDirectory() as d:
+        for model in ("pmb", "lps"):
+            ref = None
+            for k in ranks:
+                f = Path(d) / f"{model}{k}.npz"
+                fig = run_plate(k, model, n, args.steps, f)
+                z = dict(np.load(f))
+                if ref is None:
+                    ref = z
+                umax = float(np.abs(ref["u"]).max())
+                rel = float(np.abs(z["u"] - ref["u"]).max()) / umax
+                ident = bool(np.array_equal(z["intact"], ref["intact"]))
+                worst, same = max(worst, rel), same and ident
+                bits &= bool(np.array_equal(z["u"], ref["u"]))
+                agree &= bool(z["agree"])
+                rows.append({"model": model, "ranks": k, "broken": int(z["broken"]),
+                             "max_rel_diff": rel, "same_broken": ident,
+                             "wall_s": fig["run_wall_s"]})
+    print(table(rows, floatfmt=".3g"))
+    out.update(max_rel_diff=worst, broken_bonds_identical=same, bit_identical=bits,
+               bond_states_agree=agree, **{"pass": bool(worst <= 1e-12 and same and agree)})
+    return out
+
+
+def _bench_args(p):
+    p.add_argument("--n", type=int, default=None, help="particles a side (default 600; quick 200)")
+    p.add_argument("--steps", type=int, default=None, help="steps (default 200; quick 100)")
+    p.add_argument("--model", default="pmb")
+
+
+@case("bench-mpi", "speed of 2 ranks against 1 and 2 threads on a plate of >= 10 M bonds; "
+      "halo volume, bytes and time of the exchange per step at 2 and 4 ranks",
+      add_arguments=_bench_args, target="2 ranks at least 1.7x one rank")
+def bench_mpi(args):
+    _refuse_under_mpi()
+    n = args.n or (200 if args.quick else 600)
+    steps = args.steps or (100 if args.quick else 200)
+    load = os.getloadavg()[0]
+    rows, runs = [], {}
+    with tempfile.TemporaryDirectory() as d:
+        for name, ranks, threads in (("1 rank x 1 thread", 1, 1), ("1 rank x 2 threads", 1, 2),
+                                     ("2 ranks x 1 thread", 2, 1), ("4 ranks x 1 thread", 4, 1)):
+            fig = run_plate(ranks, args.model, n, steps, Path(d) / f"r{ranks}t{threads}.npz",
+                            threads)
+            runs[(ranks, threads)] = fig
+            rows.append({"run": name, "bonds": fig["bonds"], "s_per_step": fig["run_wall_s"] / steps,
+                         "halo_rows": sum(t["rows_received"] for t in fig["traffic"]),
+                         "bytes_per_step": sum(t["bytes_sent"] for t in fig["traffic"]),
+                         "exchange_us": 1e6 * max(t["exchange_s"] for t in fig["traffic"])
+                         if fig["traffic"] else 0.0})
+    print(table(rows, floatfmt=".4g"))
+    t = {k: v["run_wall_s"] for k, v in runs.items()}
+    two = runs[(2, 1)]["traffic"]
+    out = {"plate_n": n, "bonds": runs[(1, 1)]["bonds"], "steps": steps, "model": args.model,
+           "load_average_1min_at_start": load,
+           "speedup_2ranks_over_1": t[(1, 1)] / t[(2, 1)],
+           "speedup_2threads_over_1": t[(1, 1)] / t[(1, 2)],
+           "speedup_2ranks_over_2threads": t[(1, 2)] / t[(2, 1)],
+           "halo_fraction": sum(x["rows_received"] for x in two) / sum(x["owned"] for x in two),
+           "bytes_per_step_2ranks": sum(x["bytes_sent"] for x in two),
+           "exchange_us_per_step": 1e6 * max(x["exchange_s"] for x in two),
+           "exchange_us_per_step_4ranks": 1e6 * max(x["exchange_s"] for x in runs[(4, 1)]["traffic"]),
+           "halo_fraction_4ranks": sum(x["rows_received"] for x in runs[(4, 1)]["traffic"])
+           / sum(x["owned"] for x in runs[(4, 1)]["traffic"])}
+    out["pass"] = bool(out["speedup_2ranks_over_1"] >= 1.7)
+    return out
+
+
+def _restart_args(p):
+    p.add_argument("--n", type=int, default=None, help="particles a side (default 100; quick 40)")
+    p.add_argument("--steps", type=int, default=1000)
+    p.add_argument("--seed", type=int, default=None, help="seed of the kill moment")
+
+
+@case("mpi-restart-exact", "the 2-rank PMB plate killed with SIGKILL at a random moment and "
+      "resumed from its per-rank checkpoints, against the uninterrupted 2-rank run",
+      add_arguments=_restart_args, target="bit-identical")
+def mpi_restart_exact(args):
+    _refuse_under_mpi()
+    n = args.n or (40 if args.quick else 100)
+    rng = random.Random(args.seed)
+    with tempfile.TemporaryDirectory() as d:
+        d = Path(d)
+        run_plate(2, "pmb", n, args.steps, d / "full.npz")
+        work = d / "work"
+        work.mkdir()
+        every = max(args.steps // 20, 1)
+        p = subprocess.Popen(_cmd(2, "pmb", n, args.steps, d / "killed.npz", work, every),
+                             env=_env(), start_new_session=True,
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        while not list(work.glob("*.prev.npz")) and p.poll() is None:
+            time.sleep(0.02)
+        time.sleep(rng.uniform(0.0, 1.0))
+        killed = p.poll() is None
+        os.killpg(p.pid, signal.SIGKILL)
+        p.wait()
+        with np.load(next(work.glob("checkpoint.rank0of2.npz"))) as z:
+            at = int(z["step"])
+        run_plate(2, "pmb", n, args.steps, d / "resumed.npz", workdir=work, every=every)
+        a, b = np.load(d / "full.npz"), np.load(d / "resumed.npz")
+        same = bool(np.array_equal(a["u"], b["u"]) and np.array_equal(a["intact"], b["intact"]))
+    out = {"ranks": 2, "plate_n": n, "steps": args.steps, "killed_before_the_end": killed,
+           "last_checkpoint_step_of_rank0": at, "mpi_bit_identical": same}
+    print(table([out]))
+    out["pass"] = bool(same and killed)
+    return out
+
+
+def plate_main(argv: list[str]) -> None:
+    """``plate MODEL N STEPS OUT.npz [WORKDIR EVERY]`` (under ``mpiexec`` or alone): run
+    the plate (resuming from WORKDIR's checkpoints if there), then rank 0 writes the whole
+    body's displacements and bond states (OUT.npz) and the figures (OUT.json)."""
+    from upscale.engine.checkpoint import Checkpoint
+    from upscale.experiments.scenes.plate import PlateScene
+
+    model, n, steps, out = argv[0], int(argv[1]), int(argv[2]), Path(argv[3])
+    sim = PlateScene(n, model=model).sim
+    ck = None
+    if len(argv) > 4:
+        ck = Checkpoint(Path(argv[4]) / "checkpoint.npz", every=int(argv[5]))
+        if sim.resume(ck.path):
+            sim.prepare()
+            ck.last_step = sim.state.step
+    info = sim.run(max(0, steps - sim.state.step), checkpoint=ck)
+    part = sim.part
+    u = sim.gather(sim.state.u)
+    intact = sim.state.intact if part is None else part.gather_bonds(sim.state.intact)
+    agree, traffic = True, []
+    if part is not None:
+        from upscale.engine.parallel import bond_states_agree
+
+        agree = bond_states_agree(part.comm, part.local, sim.state.intact)
+        traffic = part.comm.allgather(part.traffic())
+    desc = sim.describe()  # collective on several ranks
+    if part is None or part.rank == 0:
+        np.savez(out, u=u, intact=intact, broken=info["broken_bonds"], agree=agree)
+        out.with_suffix(".json").write_text(json.dumps(
+            {"run_wall_s": info["wall_s"], "bonds": desc["bonds"], "particles": desc["particles"],
+             "traffic": traffic, "broken_bonds": info["broken_bonds"]}, default=float))
+
+
+if __name__ == "__main__":
+    if sys.argv[1:2] == ["plate"]:
+        plate_main(sys.argv[2:])
