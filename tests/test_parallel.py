@@ -184,6 +184,8 @@ def test_cli_plate_on_two_ranks(tmp_path):
     assert r.stdout.count("mpi_ranks") == 1          # one table, from rank 0
     r = _cli(2, "plate", "--n", 20, "--t-end", "-1", "--out", tmp_path)
     assert r.returncode == 2 and r.stderr.count("error:") == 1, r.stderr
+    r = _cli(2, "tension", "--chirality", "5,5", "--out", tmp_path)   # one process only
+    assert r.returncode == 2 and r.stderr.count("runs on one MPI rank") == 1, r.stderr
 
 
 @needs_mpi

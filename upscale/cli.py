@@ -13,6 +13,9 @@ import importlib
 import pkgutil
 import sys
 
+#: the scenes that run on several MPI ranks (``mpiexec -n N upscale SCENE``); others refuse
+MPI_SCENES = ("plate",)
+
 #: the sub-command (and its arguments) that ``upscale demo`` runs
 DEMO: list[str] = ["tension", "--chirality", "10,10", "--length", "100", "--coarsening", "2",
                    "--compare", "lammps"]
@@ -95,6 +98,14 @@ def main(argv=None) -> int:
         return 2
 
 
+def _refuse_ranks(comm, command: str) -> int:
+    """One line on rank 0 for a scene that runs on one process only; exit code 2."""
+    if comm.rank == 0:
+        print(f"upscale {command}: error: runs on one MPI rank in this version, started on "
+              f"{comm.size}; valid under mpiexec: {', '.join(MPI_SCENES)}", file=sys.stderr)
+    return 2
+
+
 def _mpi_rank(args) -> int:
     """Under an MPI launcher with several ranks: rank 0 writes the results and prints; the
     others run the same scene (their part of the body) and write into a scratch folder
@@ -102,6 +113,8 @@ def _mpi_rank(args) -> int:
     from upscale.engine.parallel.comm import world
 
     comm = world()
+    if comm.size > 1 and args._command not in MPI_SCENES:
+        raise SystemExit(_refuse_ranks(comm, args._command))
     if comm.rank == 0 or not hasattr(args, "out"):
         return comm.rank
     import atexit

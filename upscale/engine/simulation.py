@@ -40,6 +40,13 @@ class Simulation:
         Initial state (default: the reference state at rest).
     damage_weights : {"count", "volume"}
         How :meth:`damage` weighs bonds (seed 004 counts them; LAMMPS weighs by volume).
+
+    Several MPI ranks (started by ``mpiexec``/``srun``): the simulation keeps this rank's
+    part of the body (:func:`upscale.engine.parallel.localize`, ``self.part``) and the
+    models are prepared on it alone. ``state``, ``damage()``, ``F`` are then per local
+    particle (owned + halo, in global order); :meth:`gather` gives the whole body's
+    array, :meth:`energy`, :meth:`kinetic_energy`, :meth:`broken_bonds` and the blow-up
+    guard sum over the ranks (collective: every rank calls them).
     """
 
     def __init__(self, system, family=None, models=(), conditions=(), integrator=None,
