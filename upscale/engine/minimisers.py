@@ -381,17 +381,27 @@ class LBFGS:
         the energy (module docstring) every line search fails and costs that many
         evaluations, twice before scipy gives up (it restarts once): the array-level
         :func:`lbfgs_b` keeps scipy's 20.
+    energy_rtol : float
+        Also stop when an iteration lowers the energy by a relative amount of at most this,
+        (E_k - E_k+1) / max(|E_k|, |E_k+1|, 1) <= ``energy_rtol`` (scipy's ``ftol``; 0, the
+        default: off). Where the energy has a step (a pair held at a step cut-off) the force
+        test cannot be met and, without this test, the minimisation ends only after failed
+        line searches; a caller with its own restarts (the coarse tube's damped dynamics)
+        stops here instead, as :func:`lbfgs_b`'s callers do with 1e-15.
     """
 
     name = "lbfgs"
 
     def __init__(self, ftol: float = 1e-6, max_iter: int = 10_000, *, memory: int = 10,
-                 bounds=None, maxls: int = 40):
+                 bounds=None, maxls: int = 40, energy_rtol: float = 0.0):
         _check_common(ftol, max_iter)
         if int(maxls) < 1:
             raise ValueError(f"maxls must be >= 1, got {maxls!r}")
+        if not 0.0 <= float(energy_rtol) < 1.0:
+            raise ValueError(f"energy_rtol={energy_rtol!r}; valid: 0 <= energy_rtol < 1")
         self.ftol, self.max_iter, self.memory, self.bounds = float(ftol), int(max_iter), int(memory), bounds
         self.maxls = int(maxls)
+        self.energy_rtol = float(energy_rtol)
 
     def minimise(self, sim, *, raise_on_fail: bool = True, checkpoint=None,
                  resume: bool = False, progress: bool = False) -> MinimiseResult:
@@ -498,7 +508,8 @@ class LBFGS:
                              callback=cb, options={"maxiter": self.max_iter,
                                                    "maxcor": self.memory,
                                                    "gtol": self.ftol / np.sqrt(3.0),
-                                                   "ftol": 0.0, "maxfun": 20 * self.max_iter,
+                                                   "ftol": self.energy_rtol,
+                                                   "maxfun": 20 * self.max_iter,
                                                    "maxls": self.maxls})
             put(r.x)
             g_fields = 0.0

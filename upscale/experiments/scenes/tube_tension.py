@@ -591,8 +591,13 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
     shifts relaxed at every configuration) in a :class:`~upscale.engine.simulation.Simulation`
     and every load step minimised by the engine's L-BFGS-B
     (:class:`upscale.engine.minimisers.LBFGS`, memory 30, ``ftol = sqrt(3) gtol`` so that
-    its per-component gradient test is ``gtol`` eV/Å, and line searches of at most 20
-    steps, as in :meth:`DCBRTube.minimise`). The
+    its per-component gradient test is ``gtol`` eV/Å, line searches of at most 20
+    steps and a stop once an iteration lowers the energy by a relative 1e-15
+    (``energy_rtol``), as in :meth:`DCBRTube.minimise`). The last matters after the peak:
+    where a pair sits at the step cut-off the force test cannot be met, and without the
+    energy test each minimisation went on through failed line searches, ended elsewhere
+    and left forces that cost the vacancy tube its damped restarts; with it the vacancy
+    tube's run is the tube's own load-step loop's computation, bit for bit. The
     zero-stress relaxation, which also relaxes the cell length, is
     :meth:`DCBRTube.minimise` (``relax_box=True``): the cell length is not an engine
     variable. ``checkpoint``: a :class:`~upscale.engine.checkpoint.Checkpoint` written at
@@ -663,7 +668,8 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
         y, d, L0 = r0.y, r0.delta, r0.Lz
     R = tube.radius(y, d) if restored is None else restored[1]["radius_relaxed_A"]
     area = 2 * math.pi * R * WALL_THICKNESS_A
-    lbfgs = LBFGS(ftol=math.sqrt(3.0) * gtol, max_iter=5000, memory=30, maxls=20)
+    lbfgs = LBFGS(ftol=math.sqrt(3.0) * gtol, max_iter=5000, memory=30, maxls=20,
+                  energy_rtol=1e-15)
     if defect:  # the rows: particles (slaves tied to their atoms), then the free atoms
         from upscale.models.dcbr_engine import DCBRDefectTubeModel
 
