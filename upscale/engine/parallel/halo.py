@@ -26,6 +26,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import numba as nb
 import numpy as np
 
 __all__ = ["Local", "build_local", "bond_states_agree"]
@@ -99,34 +100,61 @@ class Local:
         return out
 
 
-def _partners(mask: np.ndarray, owner: np.ndarray, neighbors: np.ndarray) -> np.ndarray:
-    """(N,) bool: the partners of the particles in ``mask``."""
-    out = np.zeros(mask.shape[0], dtype=bool)
-    out[neighbors[mask[owner]]] = True
+@nb.njit(cache=True)
+def _partners(offsets, neighbors, mask_n):
+    """(N,) bool: the partners of the particles in ``mask_n``."""
+    out = np.zeros(mask_n.shape[0], dtype=np.bool_)
+    for i in range(mask_n.shape[0]):
+        if mask_n[i]:
+            for b in range(offsets[i], offsets[i + 1]):
+                out[neighbors[b]] = True
     return out
+
+
+@nb.njit(cache=True)
+def _local_rows(offsets, neighbors, full_n, gid_l, lid_n):
+    """The local CSR rows: of each local particle (global ``gid_l``), its global bonds
+    with a complete-row end, in the global order. Returns (offsets, local partners,
+    global directed index of each local bond)."""
+    m = gid_l.shape[0]
+    off = np.zeros(m + 1, dtype=np.int64)
+    for a in range(m):
+        i = gid_l[a]
+        c = 0
+        for b in range(offsets[i], offsets[i + 1]):
+            if full_n[i] or full_n[neighbors[b]]:
+                c += 1
+        off[a + 1] = off[a] + c
+    nbr = np.empty(off[m], dtype=neighbors.dtype)
+    bond = np.empty(off[m], dtype=np.int64)
+    for a in range(m):
+        i = gid_l[a]
+        k = off[a]
+        for b in range(offsets[i], offsets[i + 1]):
+            j = neighbors[b]
+            if full_n[i] or full_n[j]:
+                nbr[k] = lid_n[j]
+                bond[k] = b
+                k += 1
+    return off, nbr, bond
 
 
 def build_local(comm, offsets: np.ndarray, neighbors: np.ndarray, part: np.ndarray,
                 depth: int) -> Local:
     """This rank's :class:`Local` from the global CSR family and the decomposition
-    ``part`` (N,) (collective: the ranks tell each other which rows they need)."""
+    ``part`` (N,) (collective: the ranks tell each other which rows they need). Memory
+    beyond the family: a few bytes per particle and the local rows."""
     if depth < 1:
         raise ValueError(f"halo depth={depth!r}; valid: >= 1")
     n = offsets.shape[0] - 1
-    owner = np.repeat(np.arange(n, dtype=np.int64), np.diff(offsets))
     owned_g = part == comm.rank
     full = owned_g.copy()
     for _ in range(depth - 1):
-        full |= _partners(full, owner, neighbors)
-    local = full | _partners(full, owner, neighbors)
-    gid = np.flatnonzero(local)
+        full |= _partners(offsets, neighbors, full)
+    gid = np.flatnonzero(full | _partners(offsets, neighbors, full))
     lid = np.full(n, -1, dtype=np.int64)
     lid[gid] = np.arange(gid.shape[0])
-    bond_gid = np.flatnonzero(full[owner] | full[neighbors])
-    counts = np.bincount(lid[owner[bond_gid]], minlength=gid.shape[0])
-    off = np.zeros(gid.shape[0] + 1, dtype=np.int64)
-    np.cumsum(counts, out=off[1:])
-    nbr = lid[neighbors[bond_gid]].astype(neighbors.dtype)
+    off, nbr, bond_gid = _local_rows(offsets, neighbors, full, gid, lid)
     halo = gid[~owned_g[gid]]
     need = [halo[part[halo] == p] for p in range(comm.size)]
     asked = comm.alltoall(need)          # the gids each peer needs from me
