@@ -165,9 +165,9 @@ def test_restart_after_sigkill_on_two_ranks_is_bit_identical(tmp_path):
     assert np.array_equal(a["u"], b["u"]) and np.array_equal(a["intact"], b["intact"])
     # another rank count refuses the files, naming the way out
     r = _run(4, RUNNER, "pmb", N_PLATE, STEPS, tmp_path / "x.npz", work, 40)
-    assert r.returncode != 0 and "resume it with as many ranks as wrote it" in r.stderr
+    assert r.returncode != 0 and "was written on 2 MPI ranks" in r.stderr
     r = _run(1, RUNNER, "pmb", N_PLATE, STEPS, tmp_path / "x.npz", work, 40)
-    assert r.returncode != 0 and "written on several MPI ranks" in r.stderr
+    assert r.returncode != 0 and "upscale.engine.parallel.convert" in r.stderr
 
 
 def _cli(ranks, *args, **kw):
@@ -218,3 +218,24 @@ def test_output_on_two_ranks_gathered_extxyz_and_pvtu(tmp_path):
     assert sum(p.points.shape[0] for p in pieces) == whole.points.shape[0]
     got = np.concatenate([p.point_data["damage"] for p in pieces])
     assert np.array_equal(np.sort(got), np.sort(whole.point_data["damage"]))
+
+
+@needs_mpi
+def test_checkpoints_of_two_ranks_merged_resume_on_four_and_on_one(tmp_path):
+    ref = tmp_path / "ref.npz"
+    assert _run(1, RUNNER, "pmb", N_PLATE, STEPS, ref).returncode == 0
+    work = tmp_path / "w"
+    work.mkdir()
+    r = _run(2, RUNNER, "pmb", N_PLATE, STEPS // 2, tmp_path / "half.npz", work, 100)
+    assert r.returncode == 0, r.stderr
+    from upscale.engine.parallel.convert import main as convert
+
+    assert convert([str(work / "checkpoint.npz"), "--ranks", "2"]) == 0
+    for ranks in (4, 1):
+        w = tmp_path / f"w{ranks}"
+        shutil.copytree(work, w)
+        out = tmp_path / f"r{ranks}.npz"
+        r = _run(ranks, RUNNER, "pmb", N_PLATE, STEPS, out, w, 100)
+        assert r.returncode == 0, r.stderr
+        a, b = np.load(ref), np.load(out)
+        assert np.array_equal(a["u"], b["u"]) and np.array_equal(a["intact"], b["intact"])

@@ -320,6 +320,11 @@ class Simulation:
         arrays = getattr(self.integrator, "checkpoint_arrays", None)
         if arrays is not None:
             eng.update({f"integrator__{k}": v for k, v in arrays().items()})
+        if self.part is not None:  # what merges the rank files into one (parallel.convert)
+            loc = self.part.local
+            eng.update(mpi_gid=loc.gid, mpi_owned=loc.owned, mpi_bond_gid=loc.bond_gid,
+                       mpi_bond_owned=self.part.owned_bonds, mpi_n=np.int64(loc.n_global),
+                       mpi_nb=np.int64(loc.nb_global))
         return eng
 
     def resume(self, path) -> bool:
@@ -331,20 +336,23 @@ class Simulation:
         lose the forces of the bonds that broke in the last evaluation). A checkpoint
         without these arrays resumes from forces recomputed without failure."""
         p = Path(path)
+        whole = True
         if self.part is not None:
             p = self._rank_file(p)
             if p is None:
                 return False
+            whole = p == Path(path)
         elif not p.is_file():
-            from upscale.engine.parallel.partition import other_rank_counts
+            from upscale.engine.parallel.partition import refuse_other_ranks
 
-            others = other_rank_counts(p, 1)
-            if others:
-                raise ValueError(f"checkpoint {others[0]} was written on several MPI ranks; "
-                                 "resume it with as many ranks as wrote it (mpiexec -n N)")
+            refuse_other_ranks(p, 1)
             return False
-        st, _, eng = load_checkpoint(p, self.system.x0, nb=self.state.intact.shape[0],
-                                     engine=True)
+        if self.part is not None and whole:  # a whole-body checkpoint: this rank's part
+            st, _, eng = load_checkpoint(p, engine=True)
+            st, eng = self.part.localize_checkpoint(st, eng, self.system.x0)
+        else:
+            st, _, eng = load_checkpoint(p, self.system.x0, nb=self.state.intact.shape[0],
+                                         engine=True)
         self.state = st
         if self.field_specs:
             from upscale.engine.fields import init_fields
@@ -515,10 +523,10 @@ class Simulation:
             checkpoint.keep_previous = True
 
     def _rank_file(self, path: Path):
-        """This rank's checkpoint file for ``path`` on several ranks, None when no rank
-        has one (collective). Refuses a set written by another rank count or a partial
-        set, with one line."""
-        from upscale.engine.parallel.partition import other_rank_counts, rank_path
+        """This rank's checkpoint file for ``path`` on several ranks, ``path`` itself for a
+        whole-body checkpoint (serial or merged), None when there is none (collective).
+        Refuses a set written by another rank count or a partial set, with one line."""
+        from upscale.engine.parallel.partition import rank_path, refuse_other_ranks
 
         mine = rank_path(path, self.part.rank, self.part.size)
         prev = mine.with_name(f"{mine.stem}.prev{mine.suffix}")
@@ -526,11 +534,9 @@ class Simulation:
         every = self.part.comm.allgather(sorted(steps))
         have = [bool(s) for s in every]
         if not any(have):
-            others = other_rank_counts(path, self.part.size)
-            if others:
-                raise ValueError(f"checkpoint {others[0]} was written on another rank count; "
-                                 f"resume it with as many ranks as wrote it (the split is fixed "
-                                 f"by the rank count), not {self.part.size}")
+            if path.is_file():
+                return path
+            refuse_other_ranks(path, self.part.size)
             return None
         if not all(have):
             missing = [r for r, h in enumerate(have) if not h]

@@ -92,6 +92,31 @@ class Partition:
         """Global per-particle array (N, ...) on every rank from the owned rows."""
         return self.local.gather(self.comm, a)
 
+    def localize_checkpoint(self, st, eng: dict, x0: np.ndarray):
+        """This rank's part ``(state, engine arrays)`` of a whole-body checkpoint (the
+        per-particle forces of the halo rows zeroed: the halo is held)."""
+        from upscale.engine.state import State
+
+        loc = self.local
+        if st.y.shape[0] != loc.n_global or st.intact.shape[0] != loc.nb_global:
+            raise ValueError(f"checkpoint holds {st.y.shape[0]} particles and "
+                             f"{st.intact.shape[0]} bonds, the body {loc.n_global} and "
+                             f"{loc.nb_global}")
+        if st.extra or st.fields:
+            raise ValueError("a checkpoint with model extras or fields cannot be split over "
+                             "MPI ranks yet")
+        g = loc.gid
+        out = State(x0, st.y[g].copy(), st.v[g].copy(), st.intact[loc.bond_gid].copy(),
+                    st.t, st.step)
+        out.v[self.halo] = 0.0
+        eng = dict(eng)
+        for k in ("F", "F_ext", "reactions"):
+            if k in eng:
+                a = eng[k][g].copy()
+                a[self.halo] = 0.0
+                eng[k] = a
+        return out, eng
+
     def gather_bonds(self, a: np.ndarray) -> np.ndarray:
         """Global per-bond array (nb, ...) on every rank from the owned rows' bonds."""
         return self.local.gather_bonds(self.comm, a)
@@ -117,12 +142,19 @@ def rank_path(path, rank: int, size: int) -> Path:
     return p.with_name(f"{p.stem}.rank{rank}of{size}{p.suffix}")
 
 
-def other_rank_counts(path, size: int) -> list[str]:
-    """Checkpoints next to ``path`` written by another rank count (or by a serial run)."""
+def refuse_other_ranks(path, size: int) -> None:
+    """One-line ``ValueError`` when per-rank checkpoints of ``path`` written by another
+    rank count are there (saying how to convert them); nothing otherwise."""
     p = Path(path)
     found = sorted(glob.glob(str(p.with_name(f"{p.stem}.rank0of*{p.suffix}"))))
-    found = [f for f in found if not f.endswith(f"of{size}{p.suffix}")]
-    return found + ([str(p)] if p.is_file() else [])
+    counts = sorted({int(f[len(str(p.with_name(f"{p.stem}.rank0of"))):].split(".")[0])
+                     for f in found} - {size})
+    if counts:
+        k = counts[0]
+        raise ValueError(f"checkpoint {p} was written on {k} MPI ranks, this run has {size}: "
+                         f"resume on {k} ranks, or merge it first (python -m "
+                         f"upscale.engine.parallel.convert {p} --ranks {k}), which any rank "
+                         "count resumes")
 
 
 def localize(comm, system, family, models, conditions, state, integrator):
