@@ -11,7 +11,6 @@ Cartesian component.
 from __future__ import annotations
 
 import numba as nb
-import numpy as np
 
 __all__ = ["reduce_buffers"]
 

@@ -16,7 +16,6 @@ m = 6 or 12 about a quarter or a sixteenth of it.
 """
 from __future__ import annotations
 
-import numpy as np
 
 from validation.registry import case, table
 
