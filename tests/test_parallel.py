@@ -87,10 +87,14 @@ def test_halo_depth_of_the_models():
     assert halo_depth(models.create("pmb", E=1e9, surface_correction=True)) == 2
     assert halo_depth(models.create("lps", E=1e9, nu=0.25)) == 2
 
-    class Other:
-        name = "tipd"
+    assert halo_depth(models.create("tipd", E=1e9, nu=0.3, s0=0.01)) == 1
+    with pytest.raises(ValueError, match="Ti-PD with surface correction"):
+        halo_depth(models.create("tipd", E=1e9, nu=0.3, surface="correspondence"))
 
-    with pytest.raises(ValueError, match="'tipd' cannot run on several MPI ranks"):
+    class Other:
+        name = "nosb"
+
+    with pytest.raises(ValueError, match="'nosb' cannot run on several MPI ranks"):
         halo_depth(Other())
 
 
@@ -115,7 +119,7 @@ N_PLATE, STEPS = 30, 1000
 def serial_plates(tmp_path_factory):
     d = tmp_path_factory.mktemp("serial")
     out = {}
-    for model in ("pmb", "lps"):
+    for model in ("pmb", "lps", "tipd"):
         f = d / f"{model}.npz"
         r = _run(1, RUNNER, model, N_PLATE, STEPS, f)
         assert r.returncode == 0, r.stderr
@@ -124,8 +128,8 @@ def serial_plates(tmp_path_factory):
 
 
 @needs_mpi
-@pytest.mark.parametrize("ranks", [2, 4])
-@pytest.mark.parametrize("model", ["pmb", "lps"])
+@pytest.mark.parametrize("model,ranks", [("pmb", 2), ("pmb", 4), ("lps", 2), ("lps", 4),
+                                         ("tipd", 2)])
 def test_plate_on_ranks_is_bit_identical_to_serial(model, ranks, serial_plates, tmp_path):
     ref = serial_plates[model]
     assert int(ref["broken"]) > ref["intact"].size // 20  # the crack ran: bonds broke

@@ -8,7 +8,8 @@ plate is :class:`upscale.experiments.scenes.plate.PlateScene` (E = 192 GPa, hori
 spacings, the 10 mm pre-crack, 50 m/s at the top and bottom rows).
 
 mpi-same-answer
-    PMB and LPS, ``--steps`` (1,000) steps on 1, 2 and 4 ranks: the largest displacement
+    PMB, LPS and Ti-PD (without surface correction: the plate has failure), ``--steps``
+    (1,000) steps on 1, 2 and 4 ranks: the largest displacement
     difference against the serial run over the serial run's largest displacement
     (``max_rel_diff``, target 1e-12, and ``bit_identical``: one thread per rank keeps each
     particle's sum order), the same broken bonds (``broken_bonds_identical``) and the
@@ -87,7 +88,7 @@ def _same_args(p):
     p.add_argument("--n", type=int, default=None, help="particles a side (default 100; quick 40)")
 
 
-@case("mpi-same-answer", "pre-cracked PMB and LPS plates on 1, 2 and 4 ranks for 1,000 steps: "
+@case("mpi-same-answer", "pre-cracked PMB, LPS and Ti-PD plates on 1, 2 and 4 ranks for 1,000 steps: "
       "displacements and broken bonds against the serial run", add_arguments=_same_args,
       target="displacements within 1e-12 of the serial run's largest, same broken bonds")
 def mpi_same_answer(args):
@@ -97,7 +98,7 @@ def mpi_same_answer(args):
     rows, out = [], {"ranks": ranks, "plate_n": n, "steps": args.steps}
     worst, same, bits, agree = 0.0, True, True, True
     with tempfile.TemporaryDirectory() as d:
-        for model in ("pmb", "lps"):
+        for model in ("pmb", "lps", "tipd"):
             ref = None
             for k in ranks:
                 f = Path(d) / f"{model}{k}.npz"

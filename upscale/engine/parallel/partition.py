@@ -9,10 +9,11 @@ evaluation (:meth:`Partition.exchange_positions`), and the forces the models com
 them are not used.
 
 Halo layers per model (:func:`halo_depth`): a model may declare ``halo_depth``; else PMB
-without surface correction needs one (its bond force depends on the two positions only)
-and PMB with surface correction and LPS two (a bond's force also depends on a per-particle
-quantity of the partner summed over the partner's row: the surface factor, the
-dilatation). Other models are refused until their depth is known.
+without surface correction and Ti-PD without its surface correction need one (a bond's
+force depends on the two positions and the bond only) and PMB with surface correction and
+LPS two (a bond's force also depends on a per-particle quantity of the partner summed over
+the partner's row: the surface factor, the dilatation). Other models are refused until
+their depth is known.
 """
 from __future__ import annotations
 
@@ -41,9 +42,15 @@ def halo_depth(model) -> int:
         return 2 if getattr(model, "surface_correction", False) else 1
     if model.name == "lps":
         return 2
+    if model.name == "tipd":  # a pair force from the two positions and the bond alone
+        if getattr(model, "surface", "none") in (None, "none"):
+            return 1
+        raise ValueError("Ti-PD with surface correction cannot run on several MPI ranks yet "
+                         "(its prepare checks every particle's family, and the halo's outer "
+                         "rows are partial); run it with surface='none' or on one rank")
     raise ValueError(f"model {model.name!r} cannot run on several MPI ranks yet (the engine "
-                     "does not know the halo its forces need); valid there: 'pmb', 'lps'; "
-                     "run it on one rank")
+                     "does not know the halo its forces need); valid there: 'pmb', 'lps', "
+                     "'tipd'; run it on one rank")
 
 
 class Partition:
