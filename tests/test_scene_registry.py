@@ -30,3 +30,20 @@ def test_unknown_scene_names_the_valid_ones():
         registry.get("nope")
     with pytest.raises(AttributeError, match="scenes: "):
         experiments.nope  # noqa: B018
+
+
+def test_the_recorded_command_parses_back_to_the_parameters():
+    """meta["command"] reruns the scene: parsed by the command line it gives the same
+    keyword arguments, an empty string and a False flag included."""
+    import shlex
+
+    from upscale.cli import build_parser
+    from upscale.experiments.registry import scene_kwargs
+    from upscale.experiments.result import command_line
+
+    params = dict(chirality=(8, 0), length=60.0, defects="", model="atomistic",
+                  reference=False, protocol="dynamic", seed=3, seeds=2, grip=10.0)
+    words = shlex.split(command_line("tension", params))
+    kw = scene_kwargs(build_parser().parse_args(words[1:]))
+    for k, v in params.items():
+        assert kw[k] == v, k

@@ -223,19 +223,22 @@ def make_meta(scene: str, params: dict, *, timer: Timer | None = None, seeds=Non
 
 def command_line(scene: str, params: dict) -> str:
     """The ``upscale`` command that reruns ``scene`` with ``params`` (options named as in
-    :mod:`upscale.experiments.scenes`: ``foo_bar`` -> ``--foo-bar``; ``True`` flags bare;
-    sequences comma-joined; ``None`` and ``False`` left out, objects left out)."""
+    :mod:`upscale.experiments.scenes`: ``foo_bar`` -> ``--foo-bar``; booleans as
+    ``--foo-bar`` / ``--no-foo-bar``; sequences comma-joined; strings quoted for the shell;
+    ``None`` and objects left out)."""
+    import shlex
+
     words = ["upscale", scene.replace("_", "-")]
     for k, v in params.items():
-        if v is None or v is False or k in ("progress", "structure"):
+        if v is None or k in ("progress", "structure"):
             continue
         opt = "--" + k.replace("_", "-")
-        if v is True:
-            words.append(opt)
+        if isinstance(v, (bool, np.bool_)):
+            words.append(opt if v else "--no-" + k.replace("_", "-"))
         elif isinstance(v, (list, tuple)):
             words += [opt, ",".join(str(x) for x in v)]
         elif isinstance(v, (int, float, str, Path)):
-            words += [opt, str(v)]
+            words += [opt, shlex.quote(str(v))]
     return " ".join(words)
 
 
