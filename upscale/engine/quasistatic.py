@@ -268,8 +268,7 @@ class Equilibrium:
         self._F_base = None
         if it >= self.max_iter and r > self.tol * r0:
             raise RuntimeError(f"no equilibrium after {it} iterations (|R| = {r:.3e} N of {r0:.3e} N)")
-        F = m.residual(state).reshape(-1, 3)
-        return np.where(self.mask, -F, 0.0), it
+        return np.where(self.mask, -F.reshape(-1, 3), 0.0), it     # F: the residual at the final state
 
 
 @dataclasses.dataclass
