@@ -120,6 +120,26 @@ def test_tangent_matches_finite_differences():
     assert abs(K - Kn).max() <= 1e-6 * abs(K).max()
 
 
+def test_tangent_of_a_damaged_body_matches_finite_differences():
+    # broken bonds (zeros on the fixed pattern) and a particle left without stress: the
+    # pattern-assembled tangent is still -dF/dy, and its pattern does not change
+    s, fam, model, st = _plate(nx=7, ny=6, stabilisation=1.0, min_bonds=6)
+    pattern = model.tangent(st)
+    rng = np.random.default_rng(3)
+    cut = rng.random(fam.nb) < 0.15
+    lone = 20
+    cut |= fam.owner == lone
+    cut |= cut[fam.reverse]
+    st.intact[cut] = False
+    st = _random_state(s, st, amp=1e-4)
+    K = model.tangent(st)
+    assert not model.alive[lone] and model.alive.sum() > s.n // 2
+    assert np.array_equal(K.indices, pattern.indices) and np.array_equal(K.indptr, pattern.indptr)
+    Kn = numerical_tangent(model, st, eps=1e-9)
+    assert abs(K - Kn).max() <= 1e-6 * abs(K).max()
+    assert abs(K - K.T).max() <= 1e-12 * abs(K).max()
+
+
 def _spectrum(stab, nx=10, m=3.0):
     s, fam, model, st = _plate(nx=nx, ny=nx, m=m, stabilisation=stab)
     K = model.tangent(st).toarray()
