@@ -100,7 +100,7 @@ def case_html(e: dict) -> str:
              f'<span class="badge {cls}">{text}</span>'
              + (f' <span class="badge stale">stale</span>' if st else "") + "</h2>",
              f"<p>{esc(e['summary'])}</p>",
-             f"<p><b>Target:</b> {esc(e['target'] or 'not stated in the registry: its pass figure as the case computes it')}</p>"]
+             f"<p><b>Target (the pass rule):</b> {esc(e['target'] or 'not stated in the registry: its pass figure as the case computes it')}</p>"]
     if e["run"]:
         parts.append(f"<p class=meta>This run: {esc(e['run']['command'])}, {e['run']['status']}, "
                      f"{e['run']['wall_s']:.1f} s wall.</p>")

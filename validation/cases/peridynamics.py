@@ -85,12 +85,14 @@ def _lammps_case(style: str, args) -> dict:
     return {**r, "pass": bool(ok)}
 
 
-@case("pmb-vs-lammps", "PMB in LAMMPS conventions vs LAMMPS peri/pmb: forces, 200 steps of a pre-cracked block, broken bonds")
+@case("pmb-vs-lammps", "PMB in LAMMPS conventions vs LAMMPS peri/pmb: forces, 200 steps of a pre-cracked block, broken bonds",
+      target="forces within 1e-10 (relative), displacements after 200 steps within 1e-8, the same broken bonds")
 def pmb_vs_lammps(args):
     return _lammps_case("pmb", args)
 
 
-@case("lps-vs-lammps", "LPS in LAMMPS conventions vs LAMMPS peri/lps: forces, 200 steps of a pre-cracked block, broken bonds")
+@case("lps-vs-lammps", "LPS in LAMMPS conventions vs LAMMPS peri/lps: forces, 200 steps of a pre-cracked block, broken bonds",
+      target="forces within 1e-10 (relative), displacements after 200 steps within 1e-8, the same broken bonds")
 def lps_vs_lammps(args):
     return _lammps_case("lps", args)
 
@@ -189,7 +191,8 @@ def _bench_args(p):
 
 
 @case("bench-pmb", "PMB and LPS bond-force throughput vs LAMMPS peri/pmb, peri/lps on a ~30k-particle block, one "
-      "core; bytes per bond, memory bandwidth, 2-thread speed-up", add_arguments=_bench_args)
+      "core; bytes per bond, memory bandwidth, 2-thread speed-up", add_arguments=_bench_args,
+      target="bond-force throughput at least 4x LAMMPS's on one core")
 def bench_pmb(args):
     from upscale.engine import ParticleSystem, Simulation, build_family
     from upscale.engine.integrators import VelocityVerlet
@@ -410,7 +413,8 @@ def poisson_bar(dim: int = 2, *, cells=(61, 21, 1), m: float = 3.015, partial_vo
             "nu_rel_err": float(nu_eff / expected - 1), "wall_s": time.perf_counter() - t0}
 
 
-@case("pd-elasticity", "PMB/LPS bulk energy density vs linear elasticity (2D, 3D) and the LPS Poisson contraction of a bar")
+@case("pd-elasticity", "PMB/LPS bulk energy density vs linear elasticity (2D, 3D) and the LPS Poisson contraction of a bar",
+      target="bulk energy density within 1 % (isotropic and stretch), LPS Poisson contraction within 5 %")
 def pd_elasticity(args):
     _threads(None)
     rows = []
@@ -538,7 +542,8 @@ def forced_blowup(outdir, factor: float = 2.0, model_name: str = "pmb") -> dict:
     return out
 
 
-@case("pd-stability", "Stable step vs sharp limit, NVE drift over 10,000 steps at 0.8 of it, refusal, blow-up detection, restart")
+@case("pd-stability", "Stable step vs sharp limit, NVE drift over 10,000 steps at 0.8 of it, refusal, blow-up detection, restart",
+      target="NVE drift below 1e-4 over 10,000 steps; a too-large step refused naming the stable estimate; a forced blow-up detected with a finite checkpoint kept")
 def pd_stability(args):
     from upscale.engine import Simulation, build_family, square_lattice
     from upscale.engine.integrators import VelocityVerlet

@@ -351,7 +351,8 @@ def _args_tension(p):
 
 
 @case("reference-tension", "one LAMMPS tension reference (tube or bundle; quasi-static or "
-      "dynamic), with damage analysis", add_arguments=_args_tension)
+      "dynamic), with damage analysis", add_arguments=_args_tension,
+      target="zero-strain stress below 0.05 GPa and a positive strength")
 def run_reference_tension(args):
     from potentials.lammps_runtime import LammpsUnavailable  # noqa: PLC0415
 
@@ -748,7 +749,8 @@ def ase_quasi_static(atoms, calc, strains, fmax=1e-5, progress=None):
 
 
 @case("tersoff-chain", "project Tersoff calculator + ASE optimiser vs LAMMPS quasi-static "
-      "curve of a (10,10) tube (stress within 0.1% up to the peak)", add_arguments=_args_chain)
+      "curve of a (10,10) tube (stress within 0.1% up to the peak)", add_arguments=_args_chain,
+      target="stress within 0.1 % of LAMMPS up to the peak")
 def run_tersoff_chain(args):
     from tqdm import tqdm  # noqa: PLC0415
 

@@ -33,7 +33,8 @@ def _args(p):
 
 
 @case("restart-exact", "SIGKILL a run at a step, resume it: plate, CPD Newton and DCBR bit "
-      "for bit against the uninterrupted runs", add_arguments=_args)
+      "for bit against the uninterrupted runs", add_arguments=_args,
+      target="plate, CPD Newton and DCBR (periodic and vacancy) resumed bit for bit")
 def _restart_exact(args):
     q = args.quick
     n = args.n or (40 if q else 500)

@@ -179,7 +179,8 @@ def _args(p):
 @case("sweep-check", "sweeps on Dask: the (10,10) vacancy K=2 seed ensemble as a sweep "
       "against a fresh serial run of the same seeds, speed-up of 2 workers, SIGKILL + restart, "
       "a failing run",
-      add_arguments=_args)
+      add_arguments=_args,
+      target="every seed's five figures equal to a fresh serial run; the failing run listed; the killed sweep resumes with nothing redone or lost and the same table; speed-up >= 1.7x when the machine was quiet")
 def _sweep_check(args):
     from upscale.experiments import sweep
 

@@ -198,7 +198,8 @@ def _exactness_rows(quick: bool):
 
 @case("tersoff-vs-lammps",
       "Tersoff (BNC/SiC carbon, smooth and step cutoff) vs LAMMPS pair_style tersoff: "
-      "energy, forces, virial on four test structures")
+      "energy, forces, virial on four test structures",
+      target="every structure: energy within 1e-10 (relative), forces 1e-8 eV/A, virial 1e-8 (relative)")
 def run_tersoff_vs_lammps(args) -> dict:
     from potentials.lammps_runtime import lammps_version
 
@@ -359,7 +360,8 @@ def _bench_args(p):
 
 @case("bench-tersoff",
       "time per atom-step of Tersoff energy+forces, project vs LAMMPS pair_style tersoff, "
-      "one core (and two), ~8,000 and ~100,000 atoms", _bench_args)
+      "one core (and two), ~8,000 and ~100,000 atoms", _bench_args,
+      target="one-core time per atom-step at most 0.6 of LAMMPS pair_style tersoff's, every structure")
 def run_bench_tersoff(args) -> dict:
     import numba
 
