@@ -16,8 +16,7 @@ def _mixed():
 @pytest.mark.slow
 def test_settle_lowers_the_coarse_tubes_unbalanced_vdw_force_and_chain_is_used():
     """The coarse tube starts with the vdW's unbalanced force (it is held in the set-up
-    minimisation); the quench lowers it (slowly: validation/results/bundle.md, "The start
-    and the thermostat"), and the run uses the chain asked for."""
+    minimisation); the quench lowers it (slowly), and the run uses the chain asked for."""
     kw = dict(max_strain=0.012, progress=False, temperature=10.0, sample_every=50,
               integrator="verlet")  # (as the thresholds were set: velocity Verlet at 1 fs)
     r = dynamic_tension(_mixed(), settle_ps=0.5, chain=2, **kw)

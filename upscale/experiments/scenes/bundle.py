@@ -83,12 +83,10 @@ ATOM_MASS = CARBON_MASS_AMU / ACC_EV_A_AMU_IN_A_FS2
 
 # The validated setting, the one place its defaults are written: :meth:`BundleScene.create`,
 # ``bundle_pull.dynamic_tension``, :func:`add_run_options` (``bundle-tension``) and the scene
-# function (``upscale bundle``) read them. validation/results/bundle.md: the accuracy rows
-# against LAMMPS's three seeds under the Nose-Hoover chain of 3 (the default chain; (10,10)
-# +3.19 / -1.10 / +5.97 %, (7,13) +1.76 / +2.30 / -1.22 % in strength / modulus / strain at
-# peak, and K = 1-4) ran with r-RESPA, 5 inner steps of 1 fs; the van der Waals between
-# coarse tubes through their reconstructed atoms is the form within 1 % of the all-atomistic
-# bundle at rest (2.0e-4; lumped sites between coarse tubes: 4.3e-2).
+# function (``upscale bundle``) read them. The accuracy rows against LAMMPS's three seeds
+# (``bundle-tension``) run with r-RESPA, 5 inner steps of 1 fs, under the Nose-Hoover chain
+# of 3; the van der Waals between coarse tubes through their reconstructed atoms is the
+# form within 1 % of the all-atomistic bundle at rest (``bundle-vdw``; lumped sites are not).
 #: the pull's time stepping: "respa" (multiple time stepping) or "verlet"
 INTEGRATOR = "respa"
 #: 1 fs inner steps per outer step of r-RESPA

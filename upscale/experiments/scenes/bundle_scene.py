@@ -7,7 +7,7 @@ The scene's parts (:class:`~upscale.experiments.scenes.bundle.BundleScene`, its 
 models, the van der Waals between them) are in :mod:`upscale.experiments.scenes.bundle`,
 its pull (:func:`~upscale.experiments.scenes.bundle_pull.dynamic_tension`) in
 :mod:`upscale.experiments.scenes.bundle_pull`. The
-defaults are the validated setting (validation/results/bundle.md): r-RESPA 5 x 1 fs
+defaults are the validated setting (``bundle-tension``, ``bundle-vdw``): r-RESPA 5 x 1 fs
 (:data:`~upscale.experiments.scenes.bundle.INTEGRATOR`), reconstructed atoms between coarse
 tubes (:data:`~upscale.experiments.scenes.bundle.COARSE_PAIRS`), one Nose-Hoover chain of 3.
 

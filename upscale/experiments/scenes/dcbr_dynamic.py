@@ -151,7 +151,7 @@ run then ends there with its curve (``blowup_after_failure``), as LAMMPS's runs 
 runaway atom. The atomistic region may be shaped around the vacancy
 (``DCBRDefectTube(region="disc" | "ellipse")``), but the crack then leaves the atoms at the
 region's edge, where the coarse link rule does not carry its tip and arrests it; the band
-keeps the crack's whole path atomistic (``validation/results/engine.md``).
+keeps the crack's whole path atomistic.
 
 A region that grows with the crack (``grow``, :func:`grow_region`). Up to the crack a disc
 about the vacancy is enough: the loading is elastic outside it, and the crack starts at
@@ -565,8 +565,8 @@ def _hold_grip_ghost(model, st) -> None:
     The correction of a load step is taken at the gauge's stretch, but a grip's interface
     (band atoms and coarse rows beyond the plane) does not stretch: it is held as it was
     set up. Its dead load enters no motion, only the grips' reaction force; at the gauge's
-    stretch it would add a strain-proportional term to it (a stiffer static grip; figures in
-    ``validation/results/engine.md``). No-op without bands."""
+    stretch it would add a strain-proportional term to it (a stiffer static grip,
+    ``dcbr-grip-stiffness``). No-op without bands."""
     if getattr(model, "band_z", None) is None or model._ghost is None:
         return
     g, g0 = model._ghost, st["ghost0"]
@@ -733,7 +733,7 @@ def dynamic_tension(model, grip: float = 50.0, speed: float = 1.0, dt: float = 1
     of the same tube whose atomistic region contains ``model``'s, e.g. the band about a
     disc. The run starts on ``model``; at the first sample at which one of its atoms has a
     broken bond (the crack has started, and a crack cannot leave an atomistic region: at
-    its edge the coarse link rule does not carry the tip, ``validation/results/engine.md``)
+    its edge the coarse link rule does not carry the tip)
     the state is carried over to ``grow`` (:meth:`~upscale.models.dcbr_defect.DCBRDefectTube.
     carry_state`, set up by :func:`grow_region`) and the run continues on it. A disc
     carries the loading up to the crack at a fraction of the band's cost; the band then

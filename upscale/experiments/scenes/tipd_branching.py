@@ -199,8 +199,7 @@ def simulate(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4, cri
     "linear" (default), "lammps" or None. The default is the rule under which the branching
     positions and speeds agree best between dx and dx/2 at the same horizon (m = 3 and 6):
     without it the lattice sum at m = 3 misses the bonds' volume at the horizon's edge, and
-    the coarse grid is effectively a different material near the tip
-    (``validation/results/tipd.md``)."""
+    the coarse grid is effectively a different material near the tip."""
     from upscale import models
     from upscale.engine import Simulation, bonds_crossing_segment, build_family, square_lattice
     from upscale.engine.conditions import Force, region
