@@ -14,8 +14,9 @@ scene's figures against main's recorded ones.
    moves it by at most 1e-2), the same strain at peak.
 
 The timing of the old load-step loop against the engine's quasi-static path
-(``qs_engine_over_old_wall``) was measured before the old loop is deleted and is read from
-the same baseline.
+(``qs_engine_over_old_wall``: the (10,10) K = 2 tube; ``qs_engine_over_old_wall_rows_max``:
+the largest over the rows of the table timed alternately, wall and CPU time) was measured
+before the old loop is deleted and is read from the same baseline.
 """
 from __future__ import annotations
 
@@ -146,7 +147,10 @@ def scene_api(args) -> dict:
     res = {"scenes_ok": ok, "scenes": len(rows), "cli_equals_api": ok == len(rows),
            "max_change_vs_main_pct": worst, "modulus_err_change_points_max": worst_mod,
            "strain_at_peak_same": same_peak,
-           "qs_engine_over_old_wall": base.get("qs_engine_over_old_wall", {}).get("ratio")}
+           "qs_engine_over_old_wall": base.get("qs_engine_over_old_wall", {}).get("ratio"),
+           **{f"qs_engine_over_old_{k}_rows_max": base.get("qs_engine_over_old_wall_rows",
+                                                           {}).get(f"{k}_ratio_max")
+              for k in ("wall", "cpu")}}
     if args.time_old:
         timing = time_old_loop(args.time_old)
         print(f"old loop {timing['old_s']} s, engine {timing['engine_s']} s: "
