@@ -88,8 +88,9 @@ def _same_args(p):
     p.add_argument("--n", type=int, default=None, help="particles a side (default 100; quick 40)")
 
 
-@case("mpi-same-answer", "pre-cracked PMB, LPS and Ti-PD plates on 1, 2 and 4 ranks for 1,000 steps: "
-      "displacements and broken bonds against the serial run", add_arguments=_same_args,
+@case("mpi-same-answer", "pre-cracked PMB, LPS and Ti-PD plates on 1, 2 and 4 ranks for "
+      "1,000 steps: displacements and broken bonds against the serial run",
+      add_arguments=_same_args,
       target="displacements within 1e-12 of the serial run's largest, same broken bonds")
 def mpi_same_answer(args):
     _refuse_under_mpi()
@@ -142,7 +143,8 @@ def bench_mpi(args):
             fig = run_plate(ranks, args.model, n, steps, Path(d) / f"r{ranks}t{threads}.npz",
                             threads)
             runs[(ranks, threads)] = fig
-            rows.append({"run": name, "bonds": fig["bonds"], "s_per_step": fig["run_wall_s"] / steps,
+            rows.append({"run": name, "bonds": fig["bonds"],
+                         "s_per_step": fig["run_wall_s"] / steps,
                          "halo_rows": sum(t["rows_received"] for t in fig["traffic"]),
                          "bytes_per_step": sum(t["bytes_sent"] for t in fig["traffic"]),
                          "exchange_us": 1e6 * fig["traffic"][0]["exchange_alone_s"]

@@ -80,7 +80,8 @@ def merge_checkpoints(path, ranks: int, out=None) -> Path:
 def main(argv=None) -> int:
     p = argparse.ArgumentParser(prog="python -m upscale.engine.parallel.convert",
                                 description="merge per-rank checkpoints into one")
-    p.add_argument("checkpoint", type=Path, help="the run's checkpoint path (e.g. DIR/checkpoint.npz)")
+    p.add_argument("checkpoint", type=Path,
+                   help="the run's checkpoint path (e.g. DIR/checkpoint.npz)")
     p.add_argument("--ranks", type=int, required=True, help="the rank count that wrote them")
     p.add_argument("--out", type=Path, default=None, help="output (default: the checkpoint path)")
     args = p.parse_args(argv)
