@@ -84,7 +84,11 @@ def main(argv=None) -> int:
         return 2
     if args._command == "demo":
         args = parser.parse_args(DEMO)
-    rank = _mpi_rank(args)
+    try:
+        rank = _mpi_rank(args)
+    except RuntimeError as exc:  # started by an MPI launcher without a usable mpi4py
+        print(f"upscale {args._command}: error: {exc}", file=sys.stderr)
+        return 2
     try:
         if hasattr(args, "_scene"):
             from upscale.experiments.registry import run_from_args
