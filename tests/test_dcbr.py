@@ -2,7 +2,7 @@
 import numpy as np
 import pytest
 
-from upscale.experiments.scenes.tube_tension import quasi_static_tension
+from upscale.experiments.scenes.tube_tension import quasi_static_tension_engine
 from upscale.models.dcbr import DCBRTube, TubeLattice, tersoff_params
 
 
@@ -123,7 +123,7 @@ def test_uniform_strain_energy_matches_lammps_within_one_percent():
 
     ref = lammps_qs(swcnt(10, 10, length=10.0), strain_step=0.04, max_strain=0.12, fit_max_strain=0.08)
     t = DCBRTube(10, 10, 10.0, coarsening=1)
-    res = quasi_static_tension(t, strain_step=0.04, max_strain=0.12, fit_max_strain=0.08)
+    res = quasi_static_tension_engine(t, strain_step=0.04, max_strain=0.12, fit_max_strain=0.08)
     e_ref = np.array(ref["curve"]["energy_eV"]) / t.n_atoms
     e_cg = np.array(res["curve"]["energy_eV"]) / t.n_atoms
     dref, dcg = e_ref[1:] - e_ref[0], e_cg[1:] - e_cg[0]

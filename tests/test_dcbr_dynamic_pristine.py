@@ -24,7 +24,7 @@ def test_pristine_scene_grips_and_linear_rise():
       few % on a gauge this short (40 Å); measured here -2.6 % (0.940 vs 0.966 TPa). A
       gauge one row spacing (2.1 Å) off, a wrong area or held rows that do not move miss
       by more."""
-    from upscale.experiments.scenes.tube_tension import quasi_static_tension
+    from upscale.experiments.scenes.tube_tension import quasi_static_tension_engine
     from upscale.models.dcbr import DCBRTube
 
     m = pristine_grip_tube(6, 6, 70.0, 2.0, grip=GRIP, **KW)
@@ -44,8 +44,8 @@ def test_pristine_scene_grips_and_linear_rise():
     s = np.array(res["curve"]["stress_GPa"])
     e = np.array(res["curve"]["strain"])
     assert np.all(np.isfinite(s)) and np.all(np.diff(s) > 0)
-    qs = quasi_static_tension(DCBRTube(6, 6, 25.0, coarsening=2.0, hourglass=0.1),
-                              strain_step=0.005, max_strain=0.02)
+    qs = quasi_static_tension_engine(DCBRTube(6, 6, 25.0, coarsening=2.0, hourglass=0.1),
+                                     strain_step=0.005, max_strain=0.02)
     E = qs["youngs_modulus_TPa"]
     assert abs(res["youngs_modulus_TPa"] / E - 1) < 0.06, (res["youngs_modulus_TPa"], E)
     # linear: the stress stays on its own fitted line (no start-up kink beyond 1.5 GPa)

@@ -95,7 +95,7 @@ W_stab (its own links) divided by N_c, so the per-particle energies sum to the t
 
 Scope (what is and is not here): periodic pristine tubes of any chirality, uniform
 (theta, z) arrangement (quasi-static tension:
-:func:`upscale.experiments.scenes.tube_tension.quasi_static_tension`) and an ASE
+:func:`upscale.experiments.scenes.tube_tension.quasi_static_tension_engine`) and an ASE
 calculator (:mod:`upscale.calculators`). Defects are in :mod:`upscale.models.dcbr_defect`
 (an atomistic region around the vacancy coupled to these particles) and dynamic tension of
 open tubes with grips in :mod:`upscale.experiments.scenes.dcbr_dynamic`. The tube supplies energy and

@@ -155,7 +155,7 @@ def _energy_args(p):
 
 
 def _dcbr_energy(args):
-    from upscale.experiments.scenes.tube_tension import quasi_static_tension
+    from upscale.experiments.scenes.tube_tension import quasi_static_tension_engine
     from upscale.models.dcbr import DCBRTube
 
     chis = [_chirality(c) for c in (args.chirality or (["10,10"] if args.quick else
@@ -174,8 +174,8 @@ def _dcbr_energy(args):
         for shift in (True, False):
             t = DCBRTube(n, m, length, coarsening=args.coarsening, relax_shift=shift,
                          stability=False)  # the uniform branch: no failure rule needed
-            r = quasi_static_tension(t, strain_step=step, max_strain=eps_peak + 1e-9,
-                                     fit_max_strain=0.02 if step <= 0.01 else 0.04)
+            r = quasi_static_tension_engine(t, strain_step=step, max_strain=eps_peak + 1e-9,
+                                            fit_max_strain=0.02 if step <= 0.01 else 0.04)
             out[shift] = np.array(r["curve"]["energy_eV"])
         natoms = ref["structure"]["n_atoms"]
         k = min(len(out[True]), len(e_ref))

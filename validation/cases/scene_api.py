@@ -16,7 +16,7 @@ scene's figures against main's recorded ones.
 The timing of the old load-step loop against the engine's quasi-static path
 (``qs_engine_over_old_wall``: the (10,10) K = 2 tube; ``qs_engine_over_old_wall_rows_max``:
 the largest over the rows of the table timed alternately, wall and CPU time) was measured
-before the old loop is deleted and is read from the same baseline.
+before the old loop was deleted and is read from the same baseline.
 """
 from __future__ import annotations
 
@@ -39,10 +39,6 @@ TOL = {"strength_GPa": 1e-4}
 def _args(p):
     p.add_argument("--vacancy", action="store_true", help="the 4-atom-vacancy tubes' table")
     p.add_argument("--scenes", default=None, help="comma list (default: every quick variant)")
-    p.add_argument("--time-old", type=int, default=0, metavar="ROUNDS",
-                   help="also time the tube's own load-step loop against the engine's "
-                   "quasi-static path, alternately, ROUNDS rounds on the (10,10) K = 2 tube "
-                   "(while the old loop exists; its figure is kept in the baseline)")
 
 
 def _same(a, b, rel=1e-8) -> bool:
@@ -102,29 +98,6 @@ def change_vs_main(vacancy: bool, quick: bool) -> list[dict]:
     return rows
 
 
-def time_old_loop(rounds: int) -> dict:
-    """Wall time of the old load-step loop and of the engine's quasi-static path on the
-    (10,10) 100 Å tube at K = 2, alternately (old, engine) ``rounds`` times in one process;
-    the ratio of their sums, and the first round's alone (both compile in round one)."""
-    import time
-
-    from upscale.experiments.scenes.tube_tension import (quasi_static_tension,
-                                                         quasi_static_tension_engine)
-    from upscale.models.dcbr import DCBRTube
-
-    walls = {"old": [], "engine": []}
-    for _ in range(rounds):
-        for name, drive in (("old", quasi_static_tension), ("engine", quasi_static_tension_engine)):
-            tube = DCBRTube(10, 10, 100.0, coarsening=2.0)
-            t0 = time.perf_counter()
-            drive(tube)
-            walls[name].append(time.perf_counter() - t0)
-    later = slice(1, None) if rounds > 1 else slice(None)
-    return {"old_s": walls["old"], "engine_s": walls["engine"],
-            "ratio": sum(walls["engine"][later]) / sum(walls["old"][later]),
-            "ratio_first_round": walls["engine"][0] / walls["old"][0]}
-
-
 def _seed_vacancy_tube(n, m):
     from upscale.build import swcnt, vacancy
 
@@ -151,12 +124,6 @@ def scene_api(args) -> dict:
            **{f"qs_engine_over_old_{k}_rows_max": base.get("qs_engine_over_old_wall_rows",
                                                            {}).get(f"{k}_ratio_max")
               for k in ("wall", "cpu")}}
-    if args.time_old:
-        timing = time_old_loop(args.time_old)
-        print(f"old loop {timing['old_s']} s, engine {timing['engine_s']} s: "
-              f"ratio {timing['ratio']:.3f} (rounds after the first)")
-        res["qs_engine_over_old_wall"] = timing["ratio"]
-        res["qs_timing"] = timing
     res["pass"] = bool(ok == len(rows) and worst <= 100 * TOL["strength_GPa"] and same_peak
                        and worst_mod <= 1e-2 and not args.quick)
     return res

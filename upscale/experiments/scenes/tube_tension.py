@@ -1,6 +1,6 @@
 """Tube tension scenes of the coarse DCBR model beside their LAMMPS references.
 
-The scenes: quasi-static tension of a periodic tube (:func:`quasi_static_tension`
+The scenes: quasi-static tension of a periodic tube (:func:`quasi_static_tension_engine`
 on :class:`~upscale.models.dcbr.DCBRTube`, or :class:`~upscale.models.dcbr_defect.DCBRDefectTube`
 with the 4-atom vacancy) and dynamic tension of the open tube held by grips
 (:func:`dynamic_scene`, :func:`upscale.experiments.scenes.dcbr_dynamic.dynamic_tension`). One call,
@@ -27,7 +27,7 @@ import numpy as np
 from upscale.experiments.references import reference_dir
 
 __all__ = ["parse_chirality", "lammps_reference", "GRIPS", "dynamic_scene",
-           "quasi_static_tension", "quasi_static_tension_engine", "defect_nve",
+           "quasi_static_tension_engine", "defect_nve",
            "run_tension_comparison", "reference_grip_planes", "reference_held_planes",
            "tube_z_range", "crack_metrics", "plot_comparison", "ROOT", "REFERENCE_DIR"]
 
@@ -271,7 +271,7 @@ def run_tension_comparison(n, m, length, coarsening, strain_step=0.005, vacancy=
         res = dynamic_tension(model, progress=cb, temperature=temperature, **dyn)
         res["curve"]["Lz_A"] = [res["L0_A"]] * len(res["curve"]["strain"])
     else:
-        res = quasi_static_tension(model, strain_step=strain_step, progress=cb)
+        res = quasi_static_tension_engine(model, strain_step=strain_step, progress=cb)
     wall = time.perf_counter() - t0
     out = {"chirality": f"{n},{m}", "coarsening": coarsening, "hourglass": hourglass,
            "atoms": model.n_atoms,
@@ -480,116 +480,25 @@ def plot_comparison(res, ref, out, path, model):
 
 
 
-def quasi_static_tension(model, strain_step: float = 0.005, max_strain: float = 0.40,
-                         gtol: float = 1e-6, after_failure: int = 1, fit_max_strain: float = 0.02,
-                         progress=None) -> dict:
-    """Quasi-static axial tension of the periodic coarse tube (the LAMMPS runners' protocol).
-
-    Zero-stress relaxation over positions, sublattice shifts and the cell length gives L0 and
-    R (mean wall radius). Then eps_k = k * strain_step: the cell is set to L0 (1 + eps_k), the
-    particles are mapped affinely along z, the energy is minimised at fixed cell (L-BFGS on
-    positions and shifts, max |gradient| < ``gtol`` eV/Å), links are broken by the failure
-    rule and the minimisation repeated until no link breaks (``model``: a
-    :class:`~upscale.models.dcbr.DCBRTube` or :class:`~upscale.models.dcbr_defect.DCBRDefectTube`,
-    whose ``minimise`` runs on the engine's array-level minimisers). Stress sigma = (dE/dLz) /
-    (2 pi R t), t = 3.4 Å. Stops ``after_failure`` steps after the first drop of more than 5 %
-    below the running maximum (1, as the references' runner, so the last state, which the
-    damage map and crack line are read from, is the step of LAMMPS's last frame), or at
-    ``max_strain``.
-
-    Returns
-    -------
-    dict
-        ``curve`` (strain, stress_GPa, energy_eV, Lz_A, damage_max, broken_links), the metrics
-        of :func:`upscale.analysis.stress.curve_metrics`, ``L0_A``, ``radius_relaxed_A``,
-        ``dof``, ``particles``, ``atoms``, ``wall_s`` and the final ``damage`` (N,).
-    """
-    import math
-
-    from upscale.analysis.stress import curve_metrics
-    from upscale.constants import EV_PER_A3_IN_GPA, WALL_THICKNESS_A as WALL_THICKNESS
-
-    if not (0 < strain_step < max_strain <= 2.0):
-        raise ValueError(f"strain_step={strain_step}, max_strain={max_strain}; valid: "
-                         "0 < strain_step < max_strain <= 2")
-    t0 = time.perf_counter()
-    y0 = getattr(model, "y_init", model.x0)  # the unknowns' reference (atoms too, if any)
-    r0 = model.minimise(y0, model.delta, model.L, relax_box=True, gtol=gtol)
-    y, d, L0 = r0.y, r0.delta, r0.Lz
-    R = model.radius(y, d)
-    area = 2 * math.pi * R * WALL_THICKNESS
-    strains, stresses, energies, lzs, dmax, nbroken = [], [], [], [], [], []
-    k, failed_at = 0, None
-    Lprev = L0
-    while True:
-        eps = k * strain_step
-        if eps > max_strain + 1e-12:
-            break
-        Lz = L0 * (1.0 + eps)
-        y = y.copy()
-        y[:, 2] *= Lz / Lprev
-        Lprev = Lz
-        nb_step = 0
-        if hasattr(model, "prepare_step"):  # per-step set-up (ghost-force correction)
-            model.prepare_step(Lz)
-        for _ in range(4 * model.N + 10):
-            r = model.minimise(y, d, Lz, gtol=gtol)
-            y, d = r.y, r.delta
-            nb = model.update_links()
-            if nb == 0:
-                nb = model.check_stability(all_equal=True)
-            nb_step += nb
-            if nb == 0:
-                break
-            if not model.alive.any():
-                break
-        E, gy, gd, gL = model.energy_and_gradient(y, d, Lz)
-        s = gL / area * EV_PER_A3_IN_GPA
-        strains.append(eps)
-        stresses.append(float(s))
-        energies.append(float(E))
-        lzs.append(float(Lz))
-        dmax.append(float(model.damage.max()))
-        nbroken.append(int((~model.intact).sum()))
-        if progress is not None:
-            progress(eps, s)
-        if failed_at is None and s < 0.95 * max(stresses) and max(stresses) > 0:
-            failed_at = k
-        if failed_at is not None and k - failed_at >= after_failure:
-            break
-        k += 1
-    res = {"model": "dcbr", "protocol": "quasi-static", "chirality": [model.lattice.n, model.lattice.m],
-           "coarsening": model.coarsening, "particles": model.N, "dof": getattr(model, "dof", 3 * model.N),
-           "internal_dof": 3 * model.N if model.relax_shift else 0, "atoms": model.n_atoms,
-           "L0_A": float(L0), "radius_relaxed_A": R, "area_A2": area,
-           "area": "2 pi R t, R = mean wall radius after zero-stress relaxation, t = 3.4 A",
-           "potential": model.potential, "cutoff": model.cutoff, "horizon_A": model.horizon,
-           "spacing_A": list(model.spacing), "strain_step": strain_step,
-           "curve": {"strain": strains, "stress_GPa": stresses, "energy_eV": energies,
-                     "Lz_A": lzs, "damage_max": dmax, "broken_links": nbroken}}
-    res.update(curve_metrics(strains, stresses, fit_max_strain=fit_max_strain))
-    res["damage"] = model.damage
-    res["positions"] = y
-    res["delta"] = d
-    res["wall_s"] = time.perf_counter() - t0
-    return res
-
-
 def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: float = 0.40,
                                 gtol: float = 1e-6, after_failure: int = 1,
                                 fit_max_strain: float = 0.02, progress=None,
                                 checkpoint=None, output=None,
                                 shift_gtol: float = 1e-10, resume: bool = False) -> dict:
-    """Quasi-static tension of the periodic coarse tube on the engine.
+    """Quasi-static axial tension of the periodic coarse tube on the engine (the LAMMPS
+    runners' protocol).
 
-    The protocol of :func:`quasi_static_tension` (zero-stress
-    relaxation; at eps_k = k ``strain_step`` the cell is set to L0 (1 + eps_k), the
-    particles mapped affinely along z, the energy minimised at fixed cell, the failure rules
-    applied and the minimisation repeated until no link breaks; stress
-    sigma = (dE/dLz) / (2 pi R t), t = 3.4 Å; stop ``after_failure`` steps after the first
-    5 % drop), with the tube as an engine model (:class:`upscale.models.dcbr.DCBRTubeModel`:
-    shifts relaxed at every configuration) in a :class:`~upscale.engine.simulation.Simulation`
-    and every load step minimised by the engine's L-BFGS-B
+    Zero-stress relaxation over positions, sublattice shifts and the cell length gives L0
+    and R (mean wall radius); at eps_k = k ``strain_step`` the cell is set to L0 (1 + eps_k),
+    the particles mapped affinely along z, the energy minimised at fixed cell, the failure
+    rules applied and the minimisation repeated until no link breaks; stress
+    sigma = (dE/dLz) / (2 pi R t), t = 3.4 Å. It stops ``after_failure`` steps after the
+    first drop of more than 5 % below the running maximum (1, as the references' runner, so
+    the last state, which the damage map and crack line are read from, is the step of
+    LAMMPS's last frame), or at ``max_strain``. The tube runs as an engine model
+    (:class:`upscale.models.dcbr.DCBRTubeModel`: shifts relaxed at every configuration) in
+    a :class:`~upscale.engine.simulation.Simulation`, every load step minimised by the
+    engine's L-BFGS-B
     (:class:`upscale.engine.minimisers.LBFGS`, memory 30, ``ftol = sqrt(3) gtol`` so that
     its per-component gradient test is ``gtol`` eV/Å, line searches of at most 20
     steps and a stop once an iteration lowers the energy by a relative 1e-15
@@ -597,7 +506,8 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
     where a pair sits at the step cut-off the force test cannot be met, and without the
     energy test each minimisation went on through failed line searches, ended elsewhere
     and left forces that cost the vacancy tube its damped restarts; with it the vacancy
-    tube's run is the tube's own load-step loop's computation, bit for bit. The
+    tube's run was the tube's own load-step loop's computation (deleted since), bit for
+    bit. The
     zero-stress relaxation, which also relaxes the cell length, is
     :meth:`DCBRTube.minimise` (``relax_box=True``): the cell length is not an engine
     variable. ``checkpoint``: a :class:`~upscale.engine.checkpoint.Checkpoint` written at
@@ -625,9 +535,10 @@ def quasi_static_tension_engine(tube, strain_step: float = 0.005, max_strain: fl
     ``delta`` are then the tube's unknowns (non-slave particles, then free atoms) and
     shifts; ``checkpoint`` / ``resume`` are for the pristine tube only.
 
-    Returns the dict of :func:`quasi_static_tension` (``curve``, the
-    metrics of :func:`upscale.analysis.stress.curve_metrics`, ``L0_A``,
-    ``radius_relaxed_A``, ``damage``, ``positions``, ``delta``, ``wall_s``) plus
+    Returns a dict: ``curve`` (strain, stress_GPa, energy_eV, Lz_A, damage_max,
+    broken_links), the metrics of :func:`upscale.analysis.stress.curve_metrics`, ``L0_A``,
+    ``radius_relaxed_A``, ``area_A2``, ``dof``, ``particles``, ``atoms``, the final
+    ``damage`` (N,), ``positions``, ``delta``, ``wall_s``, and
     ``minimiser`` (iterations and force evaluations in all, load steps whose minimisation
     ended above its tolerance).
     """
