@@ -30,7 +30,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from upscale.engine.solvers import Factor, check_method, direct_solve, pcg, rigid_body_modes
+from upscale.engine.solvers import Factor, check_method, direct_solve, pcg, rigid_body_modes, say_once
 
 __all__ = ["FractureCurve", "quasi_static_fracture", "Equilibrium"]
 
@@ -182,10 +182,17 @@ class Equilibrium:
         if self._pc is not None:
             # a small shift keeps the factor regular when broken bonds leave a particle loose
             # (a zero row: the operator is singular there but its residual is zero too)
-            Kff = self._K
-            d = Kff.diagonal()
+            A = self._K.copy()          # in place on the diagonal: the pattern (explicit zeros of
+            d = A.diagonal()            # broken bonds too) stays, and with it the symbolic analysis
             mean = float(np.mean(np.abs(d)))
-            self._pc.factor(Kff + sp.diags(1e-8 * mean + np.where(d == 0, mean, 0.0)))
+            A.setdiag(d + 1e-8 * mean + np.where(d == 0, mean, 0.0))
+            try:
+                self._pc.factor(A)
+            except ArithmeticError:     # Cholesky of a tangent that is not positive definite
+                say_once("cholmod-indefinite", "the tangent is not positive definite (Cholesky failed); "
+                         "preconditioning with SuperLU from here on")
+                self._pc = Factor("splu")
+                self._pc.factor(A)
             self.stats["factorisations"] += 1
         dt = time.perf_counter() - t
         self.stats["factor_s"] += dt
@@ -219,7 +226,7 @@ class Equilibrium:
 
         def direct(b):
             st["direct_fallbacks"] += 1
-            if self.kind in ("cholmod", "splu"):
+            if self._pc is not None and self._pc.method in ("cholmod", "splu"):
                 self._factor(state)
                 return self._pc.solve(b)
             self._assemble(state)

@@ -37,7 +37,7 @@ import numpy as np
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-__all__ = ["METHODS", "Factor", "check_method", "pcg", "direct_solve", "rigid_body_modes"]
+__all__ = ["METHODS", "Factor", "check_method", "pcg", "direct_solve", "rigid_body_modes", "say_once"]
 
 METHODS = ("cholmod", "splu", "amg")
 _WARNED: set = set()
@@ -50,7 +50,8 @@ def check_method(method: str, valid=METHODS, what: str = "solver") -> str:
     return method
 
 
-def _say_once(key, msg):
+def say_once(key, msg):
+    """Warn with ``msg`` the first time ``key`` is seen in this process."""
     if key not in _WARNED:
         _WARNED.add(key)
         warnings.warn(msg, RuntimeWarning, stacklevel=3)
@@ -180,7 +181,7 @@ def pcg(A, b, M, *, rtol, maxiter=20000, x0=None, direct=None, what="conjugate g
         return x, count[0], True
     if direct is None:
         return x, count[0], False
-    _say_once(what, f"{what} did not reach rtol={rtol:g} in {maxiter} iterations; solved directly instead")
+    say_once(what, f"{what} did not reach rtol={rtol:g} in {maxiter} iterations; solved directly instead")
     return direct(b), count[0], True
 
 
