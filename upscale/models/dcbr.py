@@ -40,8 +40,7 @@ sublattice shifts are extra per-particle unknowns minimised together with the po
    which a perfect lattice fails). An unstable particle fails: it loses all its links. The
    uniform coarse branch alone keeps rising well past the atomistic failure (its stress
    peak lies several % of strain beyond LAMMPS's), while the periodic piece's Hessian turns
-   negative close to LAMMPS's failure strain (figures in ``validation/results/engine.md``,
-   "Design measurements of the coarse tube").
+   negative close to LAMMPS's failure strain (``dcbr-stability``).
 2. Bond cutoff: a link (c, n) of G's family breaks when, in the mapped lattice of c or of
    n, the C-C bond most aligned with the link's reference direction is longer than the
    outer cutoff R + D of the potential file (2.1 Å for C-C in BNC.tersoff), i.e. the bond

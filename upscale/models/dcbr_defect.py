@@ -18,7 +18,7 @@ It is an energy-based concurrent coupling (in the spirit of the quasicontinuum m
   coarse and the region holds at least every atom within ``r_atomistic``. Without it the free atoms are those with ``r < r_atomistic`` and
   particles cut by the boundary keep a part of their atoms, with a G whose stencil can
   reach across the defect: such particles stiffen the vacancy's neighbourhood and delay
-  failure (``validation/results/engine.md``, "Design measurements of the coarse tube").
+  failure.
 * **Pad atoms** (non-free atoms within ``pad`` Å of a free atom, default 3.5 Å > the 2.1 Å
   cutoff plus margin; without ``whole_cells``, within ``pad`` of the region's boundary): the neighbours free atoms need. They are not unknowns: each follows
   the coarse map of its nearest carrying particle c, the same uniform cylindrical map (with
@@ -99,7 +99,7 @@ ACC_UNIT = ACC_EV_A_AMU_IN_A_FS2  # eV/(Å amu) in Å/fs^2
 #: also held the second and third shells (4x the pairs), which the kernel's short-list
 #: pass must read and skip at every call: 0.3 Å costs about 15 % less per call on the
 #: seed-scale bands before failure, its extra rebuilds included; after failure the list is
-#: rebuilt at most calls whatever the skin (``validation/results/engine.md``).
+#: rebuilt at most calls whatever the skin.
 NL_SKIN = 0.3
 
 __all__ = ["DCBRDefectTube"]
@@ -973,7 +973,7 @@ class DCBRDefectTube(DCBRTube):
         particle (the grip edges and the first free rows) are not, and with the gauge's
         length shares as weights the first free row is pulled into the gauge, statically and
         more so under load, until the link rule breaks the grip's edge before the gauge
-        (``validation/results/engine.md``, "Design measurements of the coarse tube").
+        (``dcbr-grip-stiffness``).
 
         The weights of the particles whose families are fitted about themselves (the set U,
         pad-atom carriers excluded) are therefore solved from sum_c w_c a_cj = 0 (both

@@ -104,7 +104,7 @@ K / sqrt(r_s) in the continuum, from the lattice by :func:`lattice_tip_factor` w
 ``growth="front"``. Nucleation away from a crack is then impossible; the load and
 support patches stay protected by ``no_fail`` either way. The SCB scenes default to
 ``"front"`` (``upscale.experiments.scenes.scb.default_growth``): with it P_c converges under
-refinement at a fixed r_s, with ``"free"`` it drifts upward (``validation/results/scb.md``).
+refinement at a fixed r_s, with ``"free"`` it drifts upward (``scb-convergence``).
 
 ``criterion="normal"``: per bond, the averaged stress resolved on the bond, s_b = n_b .
 (S_bar_c + S_bar_j)/2 . n_b (n_b the unit reference bond vector), with the same sigma_c.
@@ -440,7 +440,7 @@ def lattice_tip_factor(r_s: float, spacing: float, horizon: float, *, E: float =
     run, where the penalty resists the non-affine part of the near-tip deformation. With
     c_s = 1 the solved front stress is 8 % above the imposed one at r_s = spacing and 5 %
     below it at r_s = 4 spacings (so the imposed beta puts the first failure at K_I = 0.92
-    to 1.06 K_Ic; ``validation/scb_diag/beta_solved.py``). ``radius``: the lattice disc's
+    to 1.06 K_Ic). ``radius``: the lattice disc's
     radius (default 4 (r_s + horizon + spacing); a larger disc changes beta by up to 0.35 %,
     through the one bond that passes exactly through the tip, cut or kept by rounding)."""
     from upscale.engine import ParticleSystem, bonds_crossing_segment, build_family

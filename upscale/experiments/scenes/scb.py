@@ -151,13 +151,13 @@ class SCBScene:
         With the imposed field the first failure comes at K_I = 0.92 to 1.06 K_Ic for
         r_s / dx = 1 to 4 (c_s = 1), and P_c at alpha = 0 drifts by +4.5 % per halving of dx
         (1 -> 0.5 -> 0.25 mm); with the solved one -2.9 % then -1.4 %
-        (``validation/results/scb.md``, revision 11).
+        (``scb-convergence``).
     growth : {"front", "free"} or None
         Which particles may fail (``UnifiedModel``). None (default): :func:`default_growth`,
         ``"front"`` for the principal criterion -- only the crack front fails, so the crack
         advances from its tip and, with ``tip_factor="solved"``, P_c converges as the spacing
         falls at a fixed r_s (-1.4 / -3.2 / +1.4 % from 0.5 to 0.25 mm at 0 / 30 / 50 deg,
-        against +11.9 % at 0 deg for ``"free"``; ``validation/results/scb.md``) -- and
+        against +11.9 % at 0 deg for ``"free"``; ``scb-convergence``) -- and
         ``"free"`` for the others.
         ``"free"`` is the seed's literal rule (any particle over the criterion fails).
     failure_energy : {"tensile", "total"}
@@ -206,7 +206,7 @@ class SCBScene:
 
             warnings.warn(f"dx={dx:g} m leaves the crack a={a:g} m only {a / dx:.3g} spacings: fracture loads are "
                           f"not converged below a/dx = {COARSE_A_OVER_DX:g} (at a/dx = 7.5, dx = 2 mm, the mode-I "
-                          f"P_c is 65 % above its 0.5 mm value; validation/results/scb.md)", stacklevel=2)
+                          f"P_c is 65 % above its 0.5 mm value: scb-convergence)", stacklevel=2)
         self.alpha_deg, self.dx, self.m, self.R, self.t = float(alpha_deg), float(dx), float(m), R, t
         self.a, self.S, self.supports = a, S, supports
         n = int(np.ceil(R / dx))
