@@ -19,8 +19,8 @@ def _scene(ntubes=3, length=15.0, **kw):
 def test_vdw_and_total_equal_lammps(tmp_path):
     from potentials.lammps_runtime import lammps_potential_path
     from potentials.tersoff import write_step_cutoff_file
-    from validation.cases.bundle import lammps_pair_lines
-    from validation.cases.tersoff import lammps_evaluate
+    from upscale.experiments.lammps import bundle_pair_lines as lammps_pair_lines
+    from upscale.experiments.lammps import evaluate as lammps_evaluate
 
     sc = _scene()
     st = sc.state_at_rest()

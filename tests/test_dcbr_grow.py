@@ -93,7 +93,7 @@ def test_grow_bad_input(pair):
 
 def test_killed_after_the_switch_resumes_bit_for_bit(tmp_path):
     """Killed after the region grew (the second simulation's checkpoint) and resumed."""
-    from validation.kill_resume import dcbr_vacancy_kill_resume
+    from upscale.experiments.kill_resume import dcbr_vacancy_kill_resume
 
     seed = int(np.random.SeedSequence().entropy % 2**32)
     r = dcbr_vacancy_kill_resume(tmp_path, tube="small-grow", every=50, seed=seed,

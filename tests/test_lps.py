@@ -23,25 +23,6 @@ def test_dilatation_is_exact_for_isotropic_stretch_everywhere():
     np.testing.assert_allclose(m.dilatation(st), 3e-6, rtol=1e-6)
 
 
-@pytest.mark.parametrize("dim,plane", [(3, "stress"), (2, "stress"), (2, "strain")])
-def test_bulk_energy_of_stretch_matches_elasticity(dim, plane):
-    from validation.cases.peridynamics import bulk_energy_error
-
-    for d in ("isotropic stretch", "uniaxial stretch", "simple shear"):
-        err = bulk_energy_error("lps", dim, m=4.015, partial_volume="linear", plane=plane, deformation=d)
-        assert abs(err) < 0.01, (d, err)
-
-
-def test_poisson_contraction_of_a_bar():
-    from upscale.engine.kernels import set_threads
-    from validation.cases.peridynamics import poisson_bar
-
-    set_threads(1)
-    r = poisson_bar(2, cells=(61, 21, 1))
-    assert r["adr_converged"]
-    assert abs(r["nu_rel_err"]) < 0.05, r
-
-
 def test_lammps_moduli_round_trip():
     m = LPS(E=70e9, nu=0.3)
     m2 = LPS(K=m.K, G=m.G)

@@ -21,12 +21,19 @@ def test_counter_charges_each_buffer_once_and_skips_excluded():
 
 @pytest.mark.parametrize("name", ["pmb", "lps", "tipd", "nosb", "cpd"])
 def test_pair_models_keep_at_most_16_bytes_per_bond(name):
-    from validation.cases.memory import SPACING, _models
+    from upscale.models.bond_based import PMB
+    from upscale.models.correspondence import Correspondence
+    from upscale.models.cpd import CPD
+    from upscale.models.state_based import LPS
+    from upscale.models.tipd import TiPD
 
-    s = square_lattice(30, 30, SPACING, thickness=SPACING)
-    horizon = 3.015 * SPACING
+    E, nu, spacing = 70e9, 1.0 / 3.0, 1e-3
+    s = square_lattice(30, 30, spacing, thickness=spacing)
+    horizon = 3.015 * spacing
     fam = build_family(s, horizon)
-    m = _models(horizon)[name][0]()
+    m = {"pmb": lambda: PMB(E=E, nu=nu, Gc=8.0), "lps": lambda: LPS(E=E, nu=nu, Gc=8.0),
+         "tipd": lambda: TiPD(E=E, nu=nu), "nosb": lambda: Correspondence(E=E, nu=nu),
+         "cpd": lambda: CPD(horizon=horizon, dim=2, E=E, nu=nu)}[name]()
     m.prepare(s, fam)
     st = State.reference(s.x0, fam.nb)
     m.init_state(st)

@@ -1,7 +1,7 @@
 """Exact restart: a run killed with SIGKILL at a random step and resumed from its last
 checkpoint ends bit for bit where the uninterrupted run ends.
 
-Each run is its own process (:mod:`validation.kill_resume`); the step is drawn at random
+Each run is its own process (:mod:`upscale.experiments.kill_resume`); the step is drawn at random
 and printed with any failure, so a failure can be replayed with ``kill_at=``. The plate
 breaks thousands of bonds (a resume that recomputes the last step's forces with failure
 ends with a different count: the cause of the mismatch this test guards against), and the
@@ -10,8 +10,8 @@ CPD solve is killed inside a load step after at least one checkpoint.
 import numpy as np
 import pytest
 
-from validation.kill_resume import (cpd_kill_resume, dcbr_kill_resume, dcbr_vacancy_kill_resume,
-                                    plate_kill_resume)
+from upscale.experiments.kill_resume import (cpd_kill_resume, dcbr_kill_resume,
+                                             dcbr_vacancy_kill_resume, plate_kill_resume)
 
 
 @pytest.mark.parametrize("model", ["pmb", "lps"])

@@ -10,8 +10,32 @@ from potentials.calculator import OverlappingAtomsError
 from potentials.lammps_runtime import lammps_potential_path
 from potentials.tersoff import (Tersoff, TersoffFileError, read_tersoff_file,
                                 write_step_cutoff_file)
-from validation.cases.tersoff import (compare, lammps_evaluate, lammps_tersoff_lines,
-                                      ours_evaluate, tersoff_structures)
+from upscale.experiments.lammps import errors as compare
+from upscale.experiments.lammps import evaluate as lammps_evaluate
+from upscale.experiments.lammps import evaluate_calculator as ours_evaluate
+from upscale.experiments.lammps import tersoff_pair_lines as lammps_tersoff_lines
+
+
+def tersoff_structures() -> dict:
+    """The four test structures: a (10,10) tube, rattled graphene, diamond and a strained,
+    rattled (12,6) tube (a few hundred atoms each)."""
+    out = {}
+    t = nanotube(10, 10, length=4, bond=1.42, vacuum=None)
+    t.pbc = [False, False, True]
+    out["tube(10,10)"] = t
+    g = graphene(size=(6, 6, 1), a=2.46, vacuum=None)
+    g.pbc = [True, True, False]
+    g.rattle(0.05, seed=11)
+    out["graphene rattled"] = g
+    d = bulk("C", "diamond", a=3.5668, cubic=True).repeat((3, 3, 3))
+    out["diamond"] = d
+    s = nanotube(12, 6, length=1, bond=1.42)
+    s.pbc = [False, False, True]
+    s.set_cell(s.cell.array * [1.0, 1.0, 1.12], scale_atoms=True)  # 12 % axial strain
+    s.rattle(0.08, seed=12)
+    out["tube(12,6) strained rattled"] = s
+    return out
+
 
 CARBON_FILES = ["BNC.tersoff", "SiC.tersoff"]  # Lindsay-Broido 2010, Tersoff 1989 carbon
 STRUCTURES = tersoff_structures()

@@ -12,7 +12,8 @@ from upscale.engine.bodies import Body, assemble
 from upscale.engine.state import State
 from upscale.engine.system import ParticleSystem
 from upscale.models.tersoff import TersoffModel, atom_damage, initial_bonds
-from validation.cases.tersoff import lammps_evaluate, lammps_tersoff_lines
+from upscale.experiments.lammps import evaluate as lammps_evaluate
+from upscale.experiments.lammps import tersoff_pair_lines as lammps_tersoff_lines
 
 
 def _tube(seed=0):

@@ -24,24 +24,6 @@ from validation.cases.references import parse_chirality
 from validation.registry import case, table
 
 
-def lammps_pair_lines(ntubes: int, tersoff_file, lj_only: bool = False) -> list[str]:
-    """The references' bundle pair (upscale.experiments.lammps.potential): Tersoff within a tube
-    (atom type = tube), lj/cut between tubes; ``lj_only``: the LJ part alone."""
-    from upscale.experiments.lammps.potential import LJ_CUTOFF, LJ_EPSILON_EV, LJ_SIGMA  # noqa: PLC0415
-
-    if lj_only:
-        out = [f"pair_style lj/cut {LJ_CUTOFF}", f"pair_coeff * * 0.0 {LJ_SIGMA}"]
-        out += [f"pair_coeff {i} {j} {LJ_EPSILON_EV} {LJ_SIGMA}"
-                for i in range(1, ntubes + 1) for j in range(i + 1, ntubes + 1)]
-        return out
-    elems = " ".join(["C"] * ntubes)
-    out = [f"pair_style hybrid tersoff lj/cut {LJ_CUTOFF}",
-           f"pair_coeff * * tersoff {tersoff_file} {elems}"]
-    out += [f"pair_coeff {i} {j} lj/cut {LJ_EPSILON_EV} {LJ_SIGMA}"
-            for i in range(1, ntubes + 1) for j in range(i + 1, ntubes + 1)]
-    return out
-
-
 def _rel(a, b):
     return float(abs(a - b) / max(abs(b), 1e-300))
 
@@ -64,7 +46,8 @@ def run_bundle_vdw(args):
     from potentials.lammps_runtime import lammps_potential_path  # noqa: PLC0415
     from potentials.tersoff import write_step_cutoff_file  # noqa: PLC0415
     from upscale.experiments.scenes.bundle import BundleScene, TubeSpec  # noqa: PLC0415
-    from validation.cases.tersoff import lammps_evaluate  # noqa: PLC0415
+    from upscale.experiments.lammps import bundle_pair_lines as lammps_pair_lines  # noqa: PLC0415
+    from upscale.experiments.lammps import evaluate as lammps_evaluate  # noqa: PLC0415
     from upscale.experiments.lammps.potential import LJ_CUTOFF, LJ_EPSILON_EV, LJ_SIGMA  # noqa: PLC0415
 
     n, m = args.chirality

@@ -1,5 +1,5 @@
 """restart-exact: runs killed with SIGKILL and resumed end bit for bit where the uninterrupted
-runs end (:mod:`validation.kill_resume`).
+runs end (:mod:`upscale.experiments.kill_resume`).
 
 The runs: the pre-cracked plate (``upscale plate``, PMB, velocity Verlet with bond
 failure), the CPD bar's Newton solve (load steps), the periodic DCBR tube's dynamic
@@ -14,8 +14,8 @@ from __future__ import annotations
 import tempfile
 from pathlib import Path
 
-from validation.kill_resume import (cpd_kill_resume, dcbr_kill_resume, dcbr_vacancy_kill_resume,
-                                    plate_kill_resume)
+from upscale.experiments.kill_resume import (cpd_kill_resume, dcbr_kill_resume,
+                                             dcbr_vacancy_kill_resume, plate_kill_resume)
 from validation.registry import case, table
 
 

@@ -8,10 +8,10 @@ factorisation of each Newton iteration for the CPD solve) to send itself SIGKILL
 The resumed process is the ordinary command (``upscale plate --workdir DIR --resume``, or the CPD bar
 solve with ``resume=True``).
 
-    python -m validation.kill_resume plate OUT [--kill-at K] [--resume] [--n 40 ...]
-    python -m validation.kill_resume cpd OUT [--kill-at K] [--resume] [--steps 8 ...]
-    python -m validation.kill_resume dcbr OUT [--kill-at K] [--resume] [--steps 300 ...]
-    python -m validation.kill_resume dcbr-vacancy OUT [--kill-at K] [--resume] [--tube small]
+    python -m upscale.experiments.kill_resume plate OUT [--kill-at K] [--resume] [--n 40 ...]
+    python -m upscale.experiments.kill_resume cpd OUT [--kill-at K] [--resume] [--steps 8 ...]
+    python -m upscale.experiments.kill_resume dcbr OUT [--kill-at K] [--resume] [--steps 300 ...]
+    python -m upscale.experiments.kill_resume dcbr-vacancy OUT [--kill-at K] [--resume] [--tube small]
 
 The ``dcbr`` run is the periodic coarse tube on the engine
 (:class:`upscale.models.dcbr.DCBRTubeModel`): (10,10), 25 Å, coarsening 2, its cell
@@ -37,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 
 __all__ = ["plate_kill_resume", "cpd_kill_resume", "dcbr_kill_resume",
            "dcbr_vacancy_kill_resume", "main"]
@@ -172,11 +172,11 @@ def _dcbr_vacancy(args) -> int:
                                           r_atomistic=5.0)}
         dyn |= dict(grip=10.0, speed=10.0, max_strain=0.3, sample=20, seed=7)
     else:
-        from upscale.experiments.scenes.tube_tension import dynamic_scene
-        from validation.cases.dcbr import lammps_reference_or_run
+        from upscale.experiments.lammps.cache import cache_dir
+        from upscale.experiments.scenes.tube_tension import dynamic_scene, lammps_reference
 
-        ref = lammps_reference_or_run(10, 10, 150.0, protocol="dynamic", vacancy=True,
-                                      progress=False)
+        ref = lammps_reference(10, 10, 150.0, protocol="dynamic", vacancy=True, progress=False,
+                               cache_dir=cache_dir("references"))
         model, dyn = dynamic_scene(10, 10, 150.0, 2.0, ref)
         dyn.pop("grips")
         dyn["seed"] = 1000
@@ -195,7 +195,7 @@ def _dcbr_vacancy(args) -> int:
 def _run(cmd: list[str], env_threads: int = 1) -> subprocess.CompletedProcess:
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""),
                NUMBA_NUM_THREADS=str(max(1, env_threads)))
-    return subprocess.run([sys.executable, "-m", "validation.kill_resume", *cmd], cwd=ROOT,
+    return subprocess.run([sys.executable, "-m", "upscale.experiments.kill_resume", *cmd], cwd=ROOT,
                           env=env, capture_output=True, text=True, timeout=6 * 3600)
 
 
@@ -360,7 +360,7 @@ def dcbr_vacancy_kill_resume(workdir, *, tube: str = "small", every: int = 50,
 
 
 def main(argv=None) -> int:
-    p = argparse.ArgumentParser(prog="python -m validation.kill_resume", description=__doc__,
+    p = argparse.ArgumentParser(prog="python -m upscale.experiments.kill_resume", description=__doc__,
                                 formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("scene", choices=("plate", "cpd", "dcbr", "dcbr-vacancy"))
     p.add_argument("out", type=Path)
