@@ -3,10 +3,10 @@
     potentials  <-  upscale.engine  <-  upscale.models  <-  upscale.experiments  <-  validation
 
 A module may import from its own layer and the layers to its left, never to its right;
-``upscale`` as a whole never imports ``validation``. The LAMMPS backend
-(``upscale.experiments.lammps``) sits beside the engine under the scenes: it may import
-``potentials``, ``upscale.engine``/``models``/``analysis`` and the protocols, never
-``validation`` nor the scenes that use it. Imports inside functions count the
+``upscale`` as a whole never imports ``validation``, no test imports it, and no case module
+imports another. The LAMMPS backend (``upscale.experiments.lammps``) sits beside the engine
+under the scenes: it may import ``potentials``, ``upscale.engine``/``models``/``analysis``
+and the protocols, never ``validation`` nor the scenes that use it. Imports inside functions count the
 same as module-level ones (a lazy import is still a dependency). Across modules only public
 names are imported: no ``from a.b import _private`` and no ``a._private`` module, so a
 module's private names can change without breaking another.
@@ -140,3 +140,21 @@ def test_only_public_names_across_modules(pkg):
     bad = [b for b in private_name_violations() if b.startswith(pkg + "/")
            and (pkg != "validation" or " imports upscale" in b or " imports potentials" in b)]
     assert not bad, "private names imported across modules:\n" + "\n".join(bad)
+
+
+def test_no_test_imports_validation():
+    """The tests test the library: none imports ``validation`` (a case's science is checked
+    by running the case, ``python -m validation CASE``)."""
+    bad = [f"{p.relative_to(ROOT)}:{line}: imports {name}"
+           for p in sorted((ROOT / "tests").rglob("*.py"))
+           for line, name, _ in imports(p, "tests." + p.stem) if _under(name, "validation")]
+    assert not bad, "tests importing validation:\n" + "\n".join(bad)
+
+
+def test_cases_import_no_other_case():
+    """A validation case module calls the library, not another case module's helpers."""
+    bad = [f"{p.relative_to(ROOT)}:{line}: {mod} imports {name}"
+           for mod, p in _modules() if _under(mod, "validation.cases")
+           for line, name, _ in imports(p, mod)
+           if _under(name, "validation.cases") and name != mod]
+    assert not bad, "cases importing other cases:\n" + "\n".join(bad)

@@ -8,7 +8,7 @@ minimisation force tolerance ``--lammps-ftol`` (2-norm of the global force vecto
 set-up, max component 1e-4); the stored references used 1e-6, which costs most of their
 wall time. Reported, per tube: the parts of each run (relaxation, dynamics, steps), the
 time per MD step, and the ratios (whole run; dynamics per step; dynamics per simulated
-picosecond, ``speedup_per_ps``: LAMMPS at its 1 fs step against the coarse model with
+picosecond, ``speedup_per_ps`` (the first round): LAMMPS at its 1 fs step against the coarse model with
 multiple time stepping, ``--integrator respa``, and its atomistic region shaped about the
 vacancy, ``--region``, of half-width ``--r-atomistic`` rounded out to whole particle
 cells: by default a disc that grows to the band when the crack starts, ``--grow``; with
@@ -16,24 +16,31 @@ growth also each region's part of the run, ``*_before_growth`` and ``*_after_gro
 plus the strength, modulus and strain at peak of the coarse run
 against the stored reference.
 
-The per-ps ratio is raced (``--rounds R``, default 3): after LAMMPS's set-up its pull runs
-R times from the same minimised state (``pull_rounds``), and between its rounds the whole
-coarse run is made again, so the two codes alternate as in the other benchmarks;
-``speedup_per_ps`` is LAMMPS's best s/ps over its best (each side's fastest round, the one
-least slowed by the machine), ``speedup_per_ps_first_round`` the single-run figure. This
-machine's speed drifts by tens of per cent over minutes; one run of each, minutes apart,
-spread the (30,60) figure from 6.9x to 12.6x.
+``pass`` is issue 22's target as stated, on the first (one) run of each side:
+``speedup_per_ps_first_round`` at least 10 and ``speedup_whole_fair`` at least 20 on every
+tube. Beside it, with ``--rounds R`` (default 3) LAMMPS's pull runs R times from the same
+minimised state (``pull_rounds``) and the whole coarse run is made again between its rounds;
+``speedup_per_ps_best_of_rounds`` is LAMMPS's best s/ps over the coarse model's best.
 
 The fair whole run (:func:`fair_whole_run`, key ``speedup_whole_fair``): LAMMPS once more
-with the fastest set-up minimiser of ``bench-lammps-setup`` at the coarse set-up's own
-criterion (largest force component <= its ``gtol``, ``min_modify norm inf``), against the
-coarse run; its parts (set-up, dynamics) are reported separately.
+with its fastest set-up minimiser (``FAIR_SETUP``: CG, quadratic line search, chosen over
+the other min_styles by timing each, see the git history of ``bench-lammps-setup``) at the
+coarse set-up's own criterion (largest force component <= its ``gtol``, ``min_modify norm
+inf``), against the coarse run; its parts (set-up, dynamics) are reported separately. The
+accuracy target of issue 22 holds on seed means (``dcbr-seeds``); this one run's errors
+against the stored reference are printed beside.
 """
 from __future__ import annotations
 
 import time
 
+from upscale.experiments.scenes.tube_tension import (dynamic_scene, lammps_reference,
+                                                     parse_chirality)
 from validation.registry import case, table
+
+DYN_LENGTH = 150.0  # Å, the dynamic references' tube
+#: LAMMPS's fastest set-up minimiser (``dynamic_tension`` keywords)
+FAIR_SETUP = {"min_style": "cg", "min_line": "quadratic", "min_norm": "inf"}
 
 
 def _args(p):
@@ -43,7 +50,7 @@ def _args(p):
                    help="coarsening factor (default 4); repeatable, then one per --chirality "
                         "in the same order (the coarsest resolution within 5 %% differs by tube)")
     p.add_argument("--grips", choices=("bands", "clamped"), default="clamped",
-                   help="the coarse grips (validation.cases.dcbr.dynamic_scene; default clamped;"
+                   help="the coarse grips (tube_tension.dynamic_scene; default clamped;"
                         " bands make these tubes' gauge atomistic)")
     p.add_argument("--lammps-ftol", type=float, default=1e-4,
                    help="LAMMPS minimize force tolerance, eV/Å (default 1e-4)")
@@ -89,14 +96,13 @@ def _args(p):
 
 def fair_setup() -> dict:
     """The keywords of LAMMPS's fair set-up (``upscale.experiments.lammps.tension.dynamic_tension``):
-    the fastest of ``bench-lammps-setup`` (``BEST_SETUP``) to the coarse set-up's ``gtol``
-    (its largest force component, ``min_modify norm inf``)."""
+    ``FAIR_SETUP`` to the coarse set-up's ``gtol`` (its largest force component,
+    ``min_modify norm inf``)."""
     import inspect  # noqa: PLC0415
 
     from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension as coarse_dynamic  # noqa: PLC0415
-    from validation.cases.bench_lammps_setup import BEST_SETUP  # noqa: PLC0415
 
-    return dict(BEST_SETUP, ftol=inspect.signature(coarse_dynamic).parameters["gtol"].default)
+    return dict(FAIR_SETUP, ftol=inspect.signature(coarse_dynamic).parameters["gtol"].default)
 
 
 def fair_whole_run(atoms, rc, coarse_wall_s: float, coarse_build_s: float,
@@ -160,19 +166,21 @@ def _coarse_round(rc) -> dict:
 
 
 @case("bench-dcbr-seed", "coarse vs LAMMPS wall time, seed 004 large vacancy tubes (dynamic)",
-      add_arguments=_args)
+      add_arguments=_args,
+      target="one run: wall time per simulated ps at least 10x less than LAMMPS's on one core "
+             "and the whole run with the fair set-up at least 20x less, every tube (issue 22)")
 def _bench(args):
     from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension as coarse_dynamic
     from upscale.models.dcbr_engine import MTS_SPLIT
-    from validation.cases.dcbr import _chirality, lammps_reference_or_run, dynamic_scene
-    from validation.cases.references import DYN_LENGTH, _spec, build_structure
+    from upscale.build import swcnt, vacancy
+    from upscale.experiments.lammps.cache import cache_dir
     from upscale.experiments.lammps.tension import dynamic_tension as lammps_dynamic
 
     if not args.lammps_ftol > 0:
         raise SystemExit(f"--lammps-ftol {args.lammps_ftol}; valid: > 0")
     if args.rounds < 1:
         raise SystemExit(f"--rounds {args.rounds}; valid: an integer >= 1")
-    tubes = [_chirality(c) for c in (args.chirality or ["50,50", "30,60"])]
+    tubes = [parse_chirality(c) for c in (args.chirality or ["50,50", "30,60"])]
     ks = args.coarsening or [4.0]
     if len(ks) not in (1, len(tubes)) or not all(k >= 1.0 for k in ks):
         raise SystemExit(f"--coarsening {ks}; valid: one factor >= 1, or one per tube "
@@ -180,7 +188,8 @@ def _bench(args):
     ks = ks * len(tubes) if len(ks) == 1 else ks
     rows = []
     for (n, m), K in zip(tubes, ks):
-        ref = lammps_reference_or_run(n, m, DYN_LENGTH, vacancy=True, protocol="dynamic")
+        ref = lammps_reference(n, m, DYN_LENGTH, vacancy=True, protocol="dynamic",
+                               cache_dir=cache_dir("references"))
         print(f"({n},{m}) K={K:g}: coarse run (build, set-up relaxation, dynamics)...", flush=True)
         t0, c0 = time.perf_counter(), time.process_time()
         if not args.r_atomistic > 0:
@@ -217,7 +226,7 @@ def _bench(args):
             coarse_rounds.append(_coarse_round(coarse_dynamic(mi, **di)))
             print(f"  race round {i + 2}/{args.rounds}: LAMMPS pull", flush=True)
 
-        atoms = build_structure(_spec("dynamic", n, m, True, DYN_LENGTH))
+        atoms = vacancy(swcnt(n, m, DYN_LENGTH), n=4)
         print(f"({n},{m}): coarse {wall_c:.1f} s; LAMMPS run ({len(atoms)} atoms; its set-up "
               "minimisation takes several minutes)...", flush=True)
         t0 = time.perf_counter()
@@ -264,7 +273,7 @@ def _bench(args):
                         r["strength_GPa"] == coarse_rounds[0]["strength_GPa"]
                         and r["strain_at_peak"] == coarse_rounds[0]["strain_at_peak"]
                         for r in coarse_rounds)})
-        row["speedup_per_ps"] = min(lr) / min(cr)
+        row["speedup_per_ps_best_of_rounds"] = min(lr) / min(cr)
         if rc["grown_at"] is not None:  # each region's part: the first run, and the race
             for ph in ("before", "after"):
                 c = [r[f"s_per_ps_{ph}_growth"] for r in coarse_rounds]
@@ -289,7 +298,14 @@ def _bench(args):
         print(table([row], floatfmt=".4g"), flush=True)
     print(table(rows, ["tube", "K", "atoms", "dof", "coarse_wall_s", "lammps_wall_s",
                        "speedup_whole_run", "coarse_ms_per_step", "lammps_ms_per_step",
-                       "speedup_per_step", "speedup_per_ps", "speedup_whole_fair", "speedup_vs_stored_reference",
+                       "speedup_per_step", "speedup_per_ps_first_round", "speedup_whole_fair", "speedup_vs_stored_reference",
                        "strength_err_pct", "modulus_err_pct", "strain_at_peak_err_pct"],
                 floatfmt=".4g"))
-    return {"rows": rows, "lammps_ftol": args.lammps_ftol, "lammps_setup": args.lammps_setup}
+    per_ps = min(r["speedup_per_ps_first_round"] for r in rows)
+    whole = [r.get("speedup_whole_fair") for r in rows]
+    return {"rows": rows, "lammps_ftol": args.lammps_ftol, "lammps_setup": args.lammps_setup,
+            "speedup_per_ps": per_ps,
+            "speedup_per_ps_best_of_rounds": min(r["speedup_per_ps_best_of_rounds"]
+                                                 for r in rows),
+            "speedup_whole_fair": None if None in whole else min(whole),
+            "pass": bool(per_ps >= 10.0 and None not in whole and min(whole) >= 20.0)}

@@ -1,4 +1,5 @@
-"""Gain matrix and DCBR tube cases: gain-affine, dcbr-energy, dcbr-tension, dcbr-table.
+"""Gain matrix and DCBR tube cases: gain-affine, dcbr-energy, dcbr-tension, dcbr-table,
+dcbr-seeds, dcbr-stability, dcbr-defect-nve.
 
 The scenes are :mod:`upscale.experiments.scenes.tube_tension`'s; these cases compare them. References:
 closed-form affine fields (gain-affine) and LAMMPS through the runners of
@@ -19,17 +20,14 @@ import numpy as np
 
 from upscale.constants import ACC_EV_A_AMU_IN_A_FS2, ASE_TIME_FS, CARBON_MASS_AMU, K_B_EV
 from upscale.experiments.lammps.cache import cache_dir
-from upscale.experiments.scenes.tube_tension import (GRIPS, dynamic_scene, lammps_reference,
-                                              parse_chirality)
+from upscale.experiments.scenes.tube_tension import (GRIPS, REFERENCE_DIR, dynamic_scene,
+                                                     lammps_reference, parse_chirality)
 from upscale.experiments.scenes.tube_tension import run_tension_comparison as _run_tension
 from validation.registry import case, table
 
 ROOT = Path(__file__).resolve().parents[2]
 CACHE = cache_dir("references")
 RUNNER = ROOT / "upscale" / "experiments" / "lammps"  # the runners' package
-
-__all__ = ["run_tension_comparison", "dynamic_scene", "GRIPS"]
-
 
 # ---------------------------------------------------------------------------- helpers
 _chirality = parse_chirality
@@ -341,6 +339,73 @@ BUDGET_PCT = {"strength": 5.0, "modulus": 3.0, "strain_at_peak": 10.0}
 case("dcbr-table", "run-time vs error table of the DCBR tube against LAMMPS (coarsening 1-4)",
      add_arguments=_table_args,
      target="every row: strength within 5 %, modulus 3 %, strain at peak 10 % of LAMMPS (one run)")(_dcbr_table)
+
+
+# ---------------------------------------------------------------------------- dcbr-seeds
+SEED_KEYS = ("strength_GPa", "youngs_modulus_TPa", "strain_at_peak")
+SEED_BUDGET = dict(zip(SEED_KEYS, BUDGET_PCT.values()))
+
+
+def _seeds_args(p):
+    p.add_argument("--chirality", action="append", default=None,
+                   help="N,M (repeatable; default 10,10 17,0 12,6)")
+    p.add_argument("--seeds", type=int, default=4, help="thermal seeds 1000, 1001, ... (default 4)")
+    p.add_argument("--coarsening", type=float, default=2.0, help="default 2")
+    p.add_argument("--pristine", action="store_true",
+                   help="pristine tubes (atomistic bands across the grip planes) instead of "
+                        "the 4-atom vacancy tubes")
+    p.add_argument("--grips", choices=GRIPS, default=None,
+                   help="'bands' (default with --pristine) or 'clamped' (default otherwise)")
+
+
+@case("dcbr-seeds", "the coarse model's dynamic tension over thermal seeds: its seed means "
+      "against LAMMPS's (data/reference/seed_spread.json; --pristine: pristine tubes)",
+      add_arguments=_seeds_args,
+      target="seed means within 5 % (strength), 3 % (modulus), 10 % (strain at peak) of "
+             "LAMMPS's seed means (issue 17), 4 seeds, every tube")
+def _dcbr_seeds(args):
+    """The coarse scene of ``dcbr-tension --dynamic`` (:func:`dynamic_scene`), seeds 1000,
+    1001, ..., against the LAMMPS seed spread of the same tubes (``reference-seeds``)."""
+    import json  # noqa: PLC0415
+
+    from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension  # noqa: PLC0415
+
+    if not args.coarsening >= 1.0 or args.seeds < 1:
+        raise SystemExit(f"--coarsening {args.coarsening} --seeds {args.seeds}; valid: "
+                         "coarsening >= 1, seeds >= 1")
+    spread = json.loads((REFERENCE_DIR / ("seed_spread_pristine.json" if args.pristine
+                                          else "seed_spread.json")).read_text())
+    spread = spread.get("result", spread)["tubes"]
+    rows, tubes, ok = [], {}, True
+    for n, m in (_chirality(c) for c in (args.chirality or ["10,10", "17,0", "12,6"])):
+        ref = lammps_reference_or_run(n, m, 150.0, protocol="dynamic",
+                                      vacancy=not args.pristine, progress=False)
+        runs = []
+        for s in range(args.seeds):
+            model, dyn = dynamic_scene(n, m, 150.0, args.coarsening, ref,
+                                       vacancy=not args.pristine, grips=args.grips)
+            dyn.pop("grips")
+            r = dynamic_tension(model, seed=1000 + s, **dyn)
+            runs.append({"seed": 1000 + s, **{k: r[k] for k in SEED_KEYS}})
+            print(f"({n},{m}) K={args.coarsening:g} seed {1000 + s}: {r['strength_GPa']:.2f} "
+                  f"GPa at {r['strain_at_peak']:.4f}", flush=True)
+        lruns = spread[f"{n},{m}"]["runs"]
+        row = {"tube": f"({n},{m})", "K": args.coarsening, "seeds": len(runs),
+               "seeds_lammps": len(lruns)}
+        for k in SEED_KEYS:
+            c = float(np.mean([x[k] for x in runs]))
+            lm = float(np.mean([x[k] for x in lruns]))
+            row[f"{k}_mean"], row[f"{k}_lammps_mean"] = c, lm
+            row[f"{k}_err_%"] = 100.0 * abs(c / lm - 1)
+            ok &= row[f"{k}_err_%"] < SEED_BUDGET[k]
+        rows.append(row)
+        tubes[f"{n},{m}"] = runs
+    print(table(rows, floatfmt=".4g"))
+    return {"rows": rows, "runs": tubes, "pristine": bool(args.pristine),
+            "strength_err_pct_max": max(r["strength_GPa_err_%"] for r in rows),
+            "modulus_err_pct_max": max(r["youngs_modulus_TPa_err_%"] for r in rows),
+            "strain_at_peak_err_pct_max": max(r["strain_at_peak_err_%"] for r in rows),
+            "pass": bool(ok)}
 
 
 # ---------------------------------------------------------------------------- dcbr-stability

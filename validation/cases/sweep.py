@@ -48,11 +48,12 @@ def coarse_vacancy_seed(n: int = 10, m: int = 10, coarsening: float = 2.0, seed:
     reached through this one function so that the sweep follows the scene wherever it is
     kept. Returns the five figures ``dcbr-seeds`` stores, the grips and the DOF.
     """
-    from upscale.experiments.scenes.tube_tension import dynamic_scene
+    from upscale.experiments.lammps.cache import cache_dir
     from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension
-    from validation.cases.dcbr import lammps_reference_or_run
+    from upscale.experiments.scenes.tube_tension import dynamic_scene, lammps_reference
 
-    ref = lammps_reference_or_run(n, m, 150.0, protocol="dynamic", vacancy=True, progress=False)
+    ref = lammps_reference(n, m, 150.0, protocol="dynamic", vacancy=True, progress=False,
+                           cache_dir=cache_dir("references"))
     model, dyn = dynamic_scene(n, m, 150.0, coarsening, ref, vacancy=True)
     grips = dyn.pop("grips")
     r = dynamic_tension(model, seed=seed, temperature=temperature, **dyn)
@@ -64,10 +65,10 @@ def lammps_vacancy_seed(n: int = 10, m: int = 10, seed: int = 4928459, nprocs: i
     protocol of ``reference-seeds`` (:func:`upscale.experiments.lammps.tension.dynamic_tension`), on
     ``nprocs`` MPI ranks (1: in the worker's process; more: through the mpich wheel's
     ``mpiexec``)."""
-    from validation.cases.references import DYN_LENGTH, _spec, build_structure
+    from upscale.build import swcnt, vacancy
     from upscale.experiments.lammps.tension import dynamic_tension
 
-    atoms = build_structure(_spec("dynamic", n, m, True, DYN_LENGTH))
+    atoms = vacancy(swcnt(n, m, 150.0), n=4)
     r = dynamic_tension(atoms, "tersoff:BNC.tersoff", cutoff="step", seed=seed, nprocs=nprocs)
     return {k: r[k] for k in KEYS}
 
@@ -246,12 +247,11 @@ def _sweep_check(args):
     # 4. LAMMPS reference seeds as tasks
     lam = {}
     if nlammps:
-        from validation.cases.references import REF_DIR
-        from validation.cases.seeds import SEEDS_LAMMPS
+        from upscale.experiments.scenes.tube_tension import REFERENCE_DIR
 
-        ref = json.loads((REF_DIR / "seed_spread.json").read_text())
+        ref = json.loads((REFERENCE_DIR / "seed_spread.json").read_text())
         ref = {r["seed"]: r for r in ref.get("result", ref)["tubes"]["10,10"]["runs"]}
-        lseeds = [s for s in SEEDS_LAMMPS if s in ref][:nlammps]
+        lseeds = list(ref)[:nlammps]  # the stored seeds in their order, the kept one first
         spec_d = {"scene": f"{__name__}:lammps_vacancy_seed", "output": str(base / "lammps"),
                   "seeds": lseeds}
         rep_d = sweep.run_sweep(spec_d, workers=min(2, len(lseeds)))
