@@ -9,11 +9,11 @@
                      a Williams-expansion fit of the near field (and from the crack-face
                      jump), load-patch compliance; rollers and the literal pinned supports
 ``scb-table``        r_s calibrated at alpha = 0 only (a scan over ``--r-s-candidates`` for the
-                     averaged-stress criteria, default ``--criterion principal``; a secant for
-                     the particle-energy criterion), P_c at the eight angles, K from P_c
+                     averaged-stress criteria, default ``--criterion principal``; the stored
+                     calibration for the particle-energy criterion), P_c at the eight angles, K from P_c
                      through the FE factors, errors against the experiment, the paper's errors
                      recomputed from its own values; initiation angles against MTS and GMTS
-``scb-convergence``  P_c at several spacings with r_s fixed in metres and with r_s / dx fixed
+``scb-convergence``  P_c at dx = 1, 0.5, 0.25 mm with r_s fixed in metres and with r_s = 2 dx
 ``scb-rate``         explicit dynamics at three loading times against the quasi-static P_c; the
                      load patch's velocity rises smoothly over ``--rise`` (0.3) of the loading
                      time (a velocity jump leaves an undamped vibration of the specimen that
@@ -243,32 +243,6 @@ def calibrate_r_s_scan(dx, P_target, candidates, stab=1.0, criterion="principal"
     return best[0], hist
 
 
-def calibrate_r_s(dx, P_target, stab=1.0, r0=None, iters=4, tol=0.005, log=print, criterion="energy"):
-    """Secant on log P_c(log r_s) at alpha = 0 for the particle-energy criterion (slope -1/2
-    to start: P_c ~ r_s^-1/2 for a linear elastic body up to the first failure)."""
-    from upscale.experiments.scenes.scb import run_scb
-
-    r = r0 or 15 * dx
-    hist = []
-    for _ in range(iters):
-        res = run_scb(0.0, dx=dx, r_s=r, stabilisation=stab, stop_fraction=0.6, criterion=criterion)
-        P = res["P_c_N"]
-        hist.append((r, P, res["wall_s"]))
-        log(f"  calibration: r_s = {r * 1e3:.4f} mm -> P_c = {P / 1e3:.4f} kN ({res['wall_s']:.0f} s)")
-        if abs(P / P_target - 1) < tol:
-            break
-        if len(hist) >= 2:
-            (r1, P1, _), (r2, P2, _) = hist[-2], hist[-1]
-            slope = (np.log(P2) - np.log(P1)) / (np.log(r2) - np.log(r1)) if r2 != r1 else -0.5
-            if not (slope < -0.05):
-                slope = -0.5
-        else:
-            slope = -0.5
-        r = float(np.exp(np.log(r) + (np.log(P_target) - np.log(P)) / slope))
-    best = min(hist, key=lambda h: abs(h[1] / P_target - 1))
-    return best[0], hist
-
-
 def _plot_curves(path, curves):
     import matplotlib
 
@@ -289,7 +263,7 @@ def _plot_curves(path, curves):
 
 @case("scb-table", "SCB Table 6.2: P_c at the eight angles with r_s calibrated at alpha = 0 only", _table_args)
 def run_table(args):
-    from upscale.experiments.scenes.scb import damage_png, default_growth, run_scb
+    from upscale.experiments.scenes.scb import calibrated_r_s, damage_png, default_growth, run_scb
 
     quick = getattr(args, "quick", False)
     dx = getattr(args, "dx", None) or 2e-3
@@ -305,8 +279,8 @@ def run_table(args):
     growth = getattr(args, "growth", None) or default_growth(crit)
     tipf = getattr(args, "tip_factor", "solved")
     cal = None
-    if r_s is None and crit == "energy":
-        r_s, cal = calibrate_r_s(dx, exP[0.0] * 1e3, stab=stab, iters=3 if quick else 5)
+    if r_s is None and crit == "energy":   # its stored calibration (r_s / dx at alpha = 0)
+        r_s = calibrated_r_s("energy", dx)
     elif r_s is None:
         cands = [float(v) for v in getattr(args, "r_s_candidates", "1e-3,2e-3,3e-3").split(",")]
         r_s, cal = calibrate_r_s_scan(dx, exP[0.0] * 1e3, cands, stab=stab, criterion=crit, growth=growth,
@@ -325,11 +299,8 @@ def run_table(args):
         T = fe["T_star"] * P / (2 * R * T_THICK)
         err = 100 * (res["P_c_kN"] / exP[al] - 1)
         perr = 100 * (thP[al] / exP[al] - 1)
-        P_lim = _front_limit_load(fe["Y_I"], fe["Y_II"], fe["T_star"], r_s) / 1e3
         row = {"alpha": al, "P_c kN": res["P_c_kN"], "exp kN": exP[al], "err %": err, "paper kN": thP[al],
-               "paper err %": perr, "front limit kN": P_lim, "front limit err %": 100 * (P_lim / exP[al] - 1),
-               "front limit deg": _front_limit_kink(fe["Y_I"], fe["Y_II"], fe["T_star"], r_s),
-               "K_I": KI / 1e6, "K_II": KII / 1e6,
+               "paper err %": perr, "K_I": KI / 1e6, "K_II": KII / 1e6,
                "init deg": res["initiation_angle_deg"], "MTS deg": _mts_angle(KI, KII),
                "GMTS deg": _gmts_angle(KI, KII, T), "wall s": res["wall_s"],
                "equilibria": len(res["curve"]["load_N"]), "stop": res["curve"]["stop_reason"],
@@ -365,11 +336,7 @@ def run_table(args):
            "MTS_angle_deg": [r["MTS deg"] for r in rows], "GMTS_angle_deg": [r["GMTS deg"] for r in rows],
            "GMTS_r_c_m": R_C_GMTS, "wall_s": time.perf_counter() - t0,
            "path_alpha30_offset_mm_mean": next((r["path offset mm mean"] for r in rows if "path offset mm mean" in r), None),
-           "path_alpha30_offset_mm_max": next((r["path offset mm max"] for r in rows if "path offset mm max" in r), None),
-           "front_limit_P_c_kN": [r["front limit kN"] for r in rows],
-           "front_limit_angle_deg": [r["front limit deg"] for r in rows],
-           "front_limit_P_c_err_pct_mean": float(np.mean([abs(r["front limit err %"]) for r in rows])),
-           "front_limit_P_c_err_pct_max": float(np.max([abs(r["front limit err %"]) for r in rows]))}
+           "path_alpha30_offset_mm_max": next((r["path offset mm max"] for r in rows if "path offset mm max" in r), None)}
     res["pass"] = bool(len(alphas) == 8 and e.mean() < pe.mean() and e.max() <= pe.max())
     tag = f"{crit}_" + ("front_" if growth == "front" else "") + f"dx{dx * 1e3:g}mm_" + "_".join(f"{a:g}" for a in alphas)
     (out / f"scb_table_{tag}.json").write_text(json.dumps({"rows": rows, "summary": res}, indent=1, default=float))
@@ -378,234 +345,75 @@ def run_table(args):
 
 # ---------------------------------------------------------------------------- scb-convergence
 def _conv_args(p):
-    p.add_argument("--dxs", default=None, help="comma list of spacings in m, coarsest first (default 2e-3,1e-3)")
+    p.add_argument("--dxs", default=None,
+                   help="comma list of spacings in m, coarsest first (default 1e-3,5e-4,2.5e-4; "
+                        "quick 2e-3,1.5e-3)")
     p.add_argument("--alphas", default=None, help="comma list of angles (default 0,30,50; quick 0)")
-    p.add_argument("--r-s", type=float, required=False, default=None,
-                   help="r_s in m at the coarsest spacing (default: calibrate there)")
-    p.add_argument("--criterion", default="principal", choices=("principal", "normal", "energy"),
-                   help="failure rule (default %(default)s)")
-    p.add_argument("--r-s-candidates", default="1e-3,2e-3",
-                   help="principal/normal: r_s values (m) scanned at alpha = 0 (default %(default)s)")
-    p.add_argument("--modes", default="fixed m,fixed r_s/dx",
-                   help="comma list: 'fixed m' (r_s held in metres) and/or 'fixed r_s/dx' (default both)")
-    p.add_argument("--ratio-alphas", default=None,
-                   help="angles at which the 'fixed r_s/dx' runs are made (default: all of --alphas)")
-    p.add_argument("--ms", default="",
-                   help="extra horizon / spacing ratios (default 3 only), run with r_s fixed at --m-dx")
-    p.add_argument("--m-dx", type=float, default=None, help="spacing in m of the --ms runs (default the coarsest)")
-    p.add_argument("--growth", default=None, choices=("front", "free"),
-                   help="which particles may fail: the crack front (default for the principal criterion) or any")
-    p.add_argument("--deltas", default="",
-                   help="comma list of horizons in m held fixed while the spacing is refined (m = delta / dx "
-                        "at each of --dxs, r_s fixed in metres): the refinement of the nonlocal model at fixed "
-                        "material lengths (default none)")
-    p.add_argument("--reuse", default="",
-                   help="comma list of scb.json files written by 'upscale scb' (or their directories) or "
-                        "earlier scb-convergence JSONs: a run "
-                        "of the sweep with the same alpha, dx, delta/dx, r_s, criterion and growth is read "
-                        "from the file instead of being repeated (default none)")
-    p.add_argument("--tip-factor", default="solved", choices=("solved", "lattice", "continuum"),
-                   help="beta of the critical stress (UnifiedModel tip_factor; default %(default)s)")
+    p.add_argument("--r-s", type=float, default=None,
+                   help="r_s in m held fixed (default: the stored calibration, "
+                        "data/reference/scb_calibration.json)")
 
 
 CONV_STOP = 0.6        # scb-convergence: stop fraction of its runs
 
 
-def _same_run(row, alpha, dx, m, r_s):
-    """A sweep row of this alpha, spacing dx (m), horizon ratio m and r_s (m)."""
-    return (row["alpha"] == alpha and abs(row["dx mm"] - dx * 1e3) < 1e-9 and abs(row["delta/dx"] - m) < 1e-9
-            and abs(row["r_s mm"] - r_s * 1e3) < 1e-9)
-
-
-def reused_runs(path, criterion="principal", growth="free", stop_fraction=CONV_STOP, tip_factor="solved"):
-    """Rows for ``--reuse`` from one file, or a ValueError naming what does not match the sweep.
-
-    An ``upscale scb`` result (its ``scb.json``, or the directory holding it): its curve is cut
-    where the sweep's own run would have stopped (the first load below ``stop_fraction`` of
-    the peak so far, the rule of ``upscale.engine.quasistatic``), so the row's P_c is the one
-    the sweep computes; a run that ended earlier (its own higher stop fraction, or its
-    displacement or solve cap) is taken whole and its stop says so. Its scene must be the
-    sweep's (rollers, c_s = 1, energy force). An earlier ``scb-convergence`` JSON: its rows as
-    they are (same scene and stop). Either way criterion, growth rule and tip factor must be
-    the sweep's."""
-    f = Path(path)
-    f = f / "scb.json" if f.is_dir() else f
-    d = json.loads(f.read_text())
-    if "figures" in d and "meta" in d:      # the Result ``upscale scb`` writes: the run's dict
-        fig, meta = d["figures"], d["meta"]
-        ang = fig["initiation_angle_deg"]
-        d = {"scene": meta["scene_description"], "stop_fraction": fig["stop_fraction"],
-             "curve": {"load_N": d["curves"]["curve/load_N"], "stop_reason": meta["stop_reason"]},
-             "initiation_angle_deg": None if ang != ang else ang, "wall_s": meta["run_wall_s"]}
-    want = {"criterion": criterion, "growth": growth, "tip_factor": tip_factor}
-    if "scene" in d:
-        sc, mo = d["scene"], d["scene"]["model"]
-        want |= {"supports": "rollers", "stabilisation": 1.0, "force": "energy"}
-        have = {"criterion": mo["criterion"], "growth": mo.get("growth", "free"), "tip_factor": mo.get("tip_factor"),
-                "supports": sc["supports"], "stabilisation": mo["stabilisation"], "force": mo["force"]}
-    else:
-        d = d.get("result", d)
-        if "rows" not in d:
-            raise ValueError(f"--reuse {f}: neither an 'upscale scb' result nor an scb-convergence JSON")
-        have = {"criterion": d.get("criterion"), "growth": d.get("growth", "free"),
-                "tip_factor": d.get("tip_factor", "lattice")}
-    bad = [f"{k}={have[k]!r} (sweep: {want[k]!r})" for k in want if have[k] != want[k]]
-    if bad:
-        raise ValueError(f"--reuse {f}: " + ", ".join(bad))
-    if "rows" in d:
-        return [{**row, "source": f"{f} row {i}"} for i, row in enumerate(d["rows"])]
-    P = np.asarray(d["curve"]["load_N"], float)
-    pk = np.maximum.accumulate(P)
-    drop = np.nonzero((pk > 0) & (P < stop_fraction * pk))[0]
-    end = int(drop[0]) + 1 if len(drop) else len(P)
-    k = int(np.argmax(P[:end]))
-    stored = f"{d['curve']['stop_reason']} (the stored run's stop" + (
-        f" {d['stop_fraction']:g})" if "stop_fraction" in d else ")")
-    return [{"alpha": float(sc["alpha_deg"]), "dx mm": sc["dx_m"] * 1e3, "delta/dx": float(sc["horizon_over_dx"]),
-             "mode": "", "r_s mm": mo["r_s_m"] * 1e3, "particles": sc["particles"], "P_c kN": float(P[k]) / 1e3,
-             "initiation deg": d["initiation_angle_deg"], "equilibria": end,
-             "stop": "load dropped" if len(drop) else stored, "wall s": d["wall_s"], "source": str(f)}]
-
-
-@case("scb-convergence", "SCB: P_c versus spacing, r_s fixed in metres and r_s / dx fixed, and versus horizon / "
-      "spacing", _conv_args)
+@case("scb-convergence", "SCB: P_c versus spacing, r_s fixed in metres and r_s = 2 dx, and "
+      "versus horizon / spacing", _conv_args,
+      target="P_c changes by less than 5 % from dx = 0.5 to 0.25 mm (delta/dx = 3, r_s fixed "
+             "in metres) at alpha = 0, 30, 50 (issue 19)")
 def run_convergence(args):
-    """P_c and the initiation angle per run. ``P_c_change_pct_max``: the largest |change| of P_c
-    between the two finest spacings with r_s held in metres (the criterion's r_s is a length of
-    the material); ``P_c_change_pct_max_fixed_ratio`` the same with r_s / dx fixed;
-    ``P_c_change_pct_max_m``: the largest |change| over the horizon ratios against m = 3;
-    ``P_c_change_pct_max_delta``: the largest |change| between the two finest spacings with the
-    horizon delta and r_s both held in metres (``--deltas``; m = delta / dx grows as dx falls).
-
-    Refining dx at fixed m = delta / dx shrinks the horizon with the spacing: it converges to
-    the local limit of the gain model (delta -> 0) only once delta is small against r_s, the
-    one length left in the criterion. Refining at fixed delta (in metres) keeps both lengths
-    of the nonlocal model and converges to its nonlocal continuum."""
-    from upscale.experiments.scenes.scb import default_growth, run_scb
+    """Issue 19's sweep: dx = 1, 0.5, 0.25 mm at alpha = 0, 30, 50 with delta/dx = 3, r_s held
+    in metres ("fixed r_s") and r_s = 2 dx; delta/dx = 2 and 4 at the middle spacing.
+    ``P_c_change_pct_max``: the largest |change| of P_c between the two finest spacings with
+    r_s held in metres (the pass); the same with r_s = 2 dx and over the horizon ratios
+    beside it."""
+    from upscale.experiments.scenes.scb import calibrated_r_s, run_scb
 
     quick = getattr(args, "quick", False)
-    dxs = [float(v) for v in (getattr(args, "dxs", None) or ("2e-3,1.5e-3" if quick else "2e-3,1e-3")).split(",")]
-    alphas = [float(v) for v in (getattr(args, "alphas", None) or ("0" if quick else "0,30,50")).split(",")]
-    modes = [v.strip() for v in getattr(args, "modes", "fixed m,fixed r_s/dx").split(",") if v.strip()]
-    for mo in modes:
-        if mo not in ("fixed m", "fixed r_s/dx"):
-            raise ValueError(f"--modes entry {mo!r}; valid: 'fixed m', 'fixed r_s/dx'")
-    ra = getattr(args, "ratio_alphas", None)
-    ratio_alphas = alphas if ra is None else [float(v) for v in ra.split(",")]
-    ms = [float(v) for v in (getattr(args, "ms", "") or "").split(",") if v.strip()]
-    deltas = [float(v) for v in (getattr(args, "deltas", "") or "").split(",") if v.strip()]
-    for dl in deltas:
-        if not dl > 0:
-            raise ValueError(f"--deltas entry {dl!r} m; valid: > 0")
-    m_dx = getattr(args, "m_dx", None) or dxs[0]
-    ex = _exp()
-    r_s = getattr(args, "r_s", None)
-    crit = getattr(args, "criterion", "principal")
-    growth = getattr(args, "growth", None) or default_growth(crit)
-    tipf = getattr(args, "tip_factor", "solved")
-    if r_s is None and crit == "energy":
-        r_s, _ = calibrate_r_s(dxs[0], ex["exp_P_c_kN"][0] * 1e3, iters=3)
-    elif r_s is None:
-        cands = [float(v) for v in getattr(args, "r_s_candidates", "1e-3,2e-3").split(",")]
-        r_s, _ = calibrate_r_s_scan(dxs[0], ex["exp_P_c_kN"][0] * 1e3, cands, criterion=crit, growth=growth,
-                                    tip_factor=tipf)
-    ratio = r_s / dxs[0]
+    dxs = [float(v) for v in (args.dxs or ("2e-3,1.5e-3" if quick else
+                                           "1e-3,5e-4,2.5e-4")).split(",")]
+    alphas = [float(v) for v in (args.alphas or ("0" if quick else "0,30,50")).split(",")]
+    r_s = args.r_s or calibrated_r_s("principal", dxs[0])
+    mid = dxs[len(dxs) // 2]
     rows = []
 
-    reused = [row for f in (getattr(args, "reuse", "") or "").split(",") if f.strip()
-              for row in reused_runs(f.strip(), crit, growth, tip_factor=tipf)]
-
     def one(al, dx, m, mode, r):
-        for rr in reused:
-            if _same_run(rr, al, dx, m, r):
-                rows.append({**rr, "mode": mode})
-                print(rows[-1], flush=True)
-                return
-        res = run_scb(al, dx=dx, m=m, r_s=r, stop_fraction=CONV_STOP, criterion=crit, growth=growth,
-                      tip_factor=tipf)
-        c = res["curve"]
-        rows.append({"alpha": al, "dx mm": dx * 1e3, "delta/dx": m, "mode": mode, "r_s mm": r * 1e3,
-                     "particles": res["scene"]["particles"], "P_c kN": res["P_c_kN"],
-                     "initiation deg": res["initiation_angle_deg"], "equilibria": len(c["load_N"]),
-                     "stop": c["stop_reason"], "wall s": res["wall_s"], "source": "run"})
+        res = run_scb(al, dx=dx, m=m, r_s=r, stop_fraction=CONV_STOP)
+        rows.append({"alpha": al, "dx mm": dx * 1e3, "delta/dx": m, "mode": mode,
+                     "r_s mm": r * 1e3, "particles": res["scene"]["particles"],
+                     "P_c kN": res["P_c_kN"], "initiation deg": res["initiation_angle_deg"],
+                     "stop": res["curve"]["stop_reason"], "wall s": res["wall_s"]})
         print(rows[-1], flush=True)
-
-    def stored_mode(dx, mode):
-        """The mode a run is made and stored under: the coarsest spacing is the start of
-        both modes and runs once, as "fixed m" when that mode is asked for."""
-        return "fixed m" if dx == dxs[0] and "fixed m" in modes else mode
-
-    def have(al, dx, m, r):
-        return any(_same_run(r_, al, dx, m, r) for r_ in rows)
-
-    for al in alphas:
-        for dx in dxs:
-            for mode in modes:
-                if stored_mode(dx, mode) != mode or (mode == "fixed r_s/dx"
-                                                     and al not in ratio_alphas):
-                    continue
-                one(al, dx, 3.0, mode, r_s if mode == "fixed m" else ratio * dx)
-        for m in ms:
-            if m != 3.0:
-                one(al, m_dx, m, "fixed m", r_s)
-        for dl in deltas:
-            for dx in dxs:
-                if not have(al, dx, dl / dx, r_s):
-                    one(al, dx, dl / dx, f"fixed delta {dl * 1e3:g} mm", r_s)
-    print(table(rows, floatfmt=".4f"))
-
-    def P_delta(al, dx, dl):
-        for r in rows:
-            if (r["alpha"] == al and abs(r["dx mm"] - dx * 1e3) < 1e-9 and abs(r["delta/dx"] * dx - dl) < 1e-12
-                    and abs(r["r_s mm"] - r_s * 1e3) < 1e-9):
-                return r["P_c kN"]
-        return None
-
-    def P_of(al, dx, mode, m=3.0):
-        for r in rows:
-            if (r["alpha"] == al and r["dx mm"] == dx * 1e3 and r["delta/dx"] == m
-                    and r["mode"] == stored_mode(dx, mode)):
-                return r["P_c kN"]
-        return None
+        return res["P_c_kN"]
 
     ch = []
     for al in alphas:
-        for mode in modes:
-            for d0, d1 in zip(dxs, dxs[1:]):
-                a, b = P_of(al, d0, mode), P_of(al, d1, mode)
-                if a is not None and b is not None:
-                    ch.append({"alpha": al, "mode": mode, "dx mm": f"{d0 * 1e3:g} -> {d1 * 1e3:g}",
-                               "finest": d1 == dxs[-1], "change_pct": 100 * (b / a - 1)})
-        for m in ms:
-            a, b = P_of(al, m_dx, "fixed m"), P_of(al, m_dx, "fixed m", m)
-            if a is not None and b is not None and m != 3.0:
-                ch.append({"alpha": al, "mode": f"delta/dx {m:g} vs 3", "dx mm": f"{m_dx * 1e3:g}", "finest": False,
-                           "change_pct": 100 * (b / a - 1)})
-        for dl in deltas:
-            for d0, d1 in zip(dxs, dxs[1:]):
-                a, b = P_delta(al, d0, dl), P_delta(al, d1, dl)
-                if a is not None and b is not None:
-                    ch.append({"alpha": al, "mode": f"fixed delta {dl * 1e3:g} mm",
-                               "dx mm": f"{d0 * 1e3:g} -> {d1 * 1e3:g}", "finest": d1 == dxs[-1],
-                               "change_pct": 100 * (b / a - 1)})
+        for mode in ("fixed r_s", "r_s = 2 dx"):
+            P = [one(al, dx, 3.0, mode, r_s if mode == "fixed r_s" else 2 * dx) for dx in dxs]
+            ch += [{"alpha": al, "mode": mode, "dx mm": f"{d0 * 1e3:g} -> {d1 * 1e3:g}",
+                    "finest": d1 == dxs[-1], "change_pct": 100 * (b / a - 1)}
+                   for d0, d1, a, b in zip(dxs, dxs[1:], P, P[1:])]
+        if not quick:
+            P3 = next(r["P_c kN"] for r in rows if r["alpha"] == al
+                      and r["dx mm"] == mid * 1e3 and r["mode"] == "fixed r_s")
+            for m in (2.0, 4.0):
+                ch.append({"alpha": al, "mode": f"delta/dx {m:g} vs 3", "dx mm": f"{mid * 1e3:g}",
+                           "finest": False,
+                           "change_pct": 100 * (one(al, mid, m, "fixed r_s", r_s) / P3 - 1)})
+    print(table(rows, floatfmt=".4f"))
     print(table(ch, floatfmt=".2f"))
 
     def worst(sel):
         v = [abs(c["change_pct"]) for c in ch if sel(c)]
         return float(max(v)) if v else None
 
-    fixed_m = worst(lambda c: c["mode"] == "fixed m" and c["finest"])
-    out = {"dx_m": dxs, "alpha_deg": alphas, "horizon_over_dx": [3.0] + [m for m in ms if m != 3.0],
-           "r_s_m_coarsest": r_s, "criterion": crit, "growth": growth, "tip_factor": tipf, "rows": rows,
-           "changes": ch,
-           "P_c_change_pct_max": fixed_m,
-           "P_c_change_pct_max_fixed_ratio": worst(lambda c: c["mode"] == "fixed r_s/dx" and c["finest"]),
-           "P_c_change_pct_max_m": worst(lambda c: c["mode"].startswith("delta/dx")),
-           "deltas_m": deltas,
-           "P_c_change_pct_max_delta": worst(lambda c: c["mode"].startswith("fixed delta") and c["finest"])}
-    # the target is the issue's step to 0.25 mm; a sweep without a spacing step has none
-    out["pass"] = None if fixed_m is None else bool(fixed_m < 5 and dxs[-1] <= 0.25e-3)
-    return out
+    fixed = worst(lambda c: c["mode"] == "fixed r_s" and c["finest"])
+    return {"dx_m": dxs, "alpha_deg": alphas, "r_s_m": r_s, "rows": rows, "changes": ch,
+            "P_c_change_pct_max": fixed,
+            "P_c_change_pct_max_r_s_2dx": worst(lambda c: c["mode"] == "r_s = 2 dx"
+                                                 and c["finest"]),
+            "P_c_change_pct_max_m": worst(lambda c: c["mode"].startswith("delta/dx")),
+            "pass": bool(fixed is not None and fixed < 5 and dxs[-1] <= 0.25e-3)}
 
 
 # ---------------------------------------------------------------------------- scb-rate
@@ -675,34 +483,7 @@ def run_rate(args):
             "pass": bool(abs(errs[-1]) < 2 and mono)}
 
 
-# ---------------------------------------------------------------------------- merged table, envelope
-def _mts_load(YI, YII, K_Ic=2.13e6, T_star=None, rc=R_C_GMTS):
-    """Critical load (N) by MTS (T_star None) or GMTS: the maximum over theta of the
-    tangential stress criterion sqrt(2 pi r_c) sigma_tt = K_Ic at unit load, scaled."""
-    f = np.sqrt(np.pi * A_CRACK) / (2 * R * T_THICK)
-    KI, KII = YI * f, YII * f                 # per newton
-    th = np.linspace(-np.pi * 0.999, np.pi * 0.999, 20001)
-    s = np.cos(th / 2) * (KI * np.cos(th / 2) ** 2 - 1.5 * KII * np.sin(th))
-    if T_star is not None:
-        s = s + np.sqrt(2 * np.pi * rc) * T_star / (2 * R * T_THICK) * np.sin(th) ** 2
-    return K_Ic / s.max()
-
-
-def _front_limit_load(YI, YII, T_star, r_s, K_Ic=2.13e6):
-    """Initiation load (N) of the ``growth="front"`` criterion in its continuum limit
-    (spacing -> 0 at a fixed r_s): the largest principal value of the K_I, K_II, T field
-    averaged over the tip-centred disc of radius r_s reaches 0.40636 K_Ic / sqrt(r_s)
-    (:func:`upscale.models.unified.tip_disc_stress`), K and T from the FE factors."""
-    from upscale.models.unified import disc_average_factor, tip_disc_stress
-
-    f = np.sqrt(np.pi * A_CRACK) / (2 * R * T_THICK)
-    s1 = tip_disc_stress(YI * f, YII * f, T_star / (2 * R * T_THICK), r_s)[3]
-    return float(disc_average_factor(p=0.0)[0] * K_Ic / np.sqrt(r_s) / s1)
-
-
-PATH_30 = ROOT / "data" / "experiments" / "scb_path_alpha30_ayatollahi2006.json"
-
-
+# ---------------------------------------------------------------------------- crack path at 30 deg
 def path_offset(pts, dx, y_lo=None, y_hi=None):
     """Horizontal distance (m) between a model crack path and the experimental alpha = 30 deg
     path (``PATH_30``) at the experiment's points: at each point's height y, the model's x
@@ -757,94 +538,3 @@ def path_png(path, scene, mu, pts, title):
     fig.savefig(path, dpi=150)
     plt.close(fig)
     return Path(path)
-
-
-def _front_limit_kink(YI, YII, T_star, r_s, eps=0.02, n_quad=4000):
-    """Kink angle (deg) of the ``growth="front"`` criterion in its continuum limit: the
-    front particles sit a vanishing distance eps r_s from the tip, and the first to fail is
-    the one whose disc has the largest s_1, so the crack leaves the tip along the direction
-    phi that maximises s_1 of the K_I, K_II, T field averaged over the disc centred at
-    eps r_s (cos phi, sin phi). With the tip inside that disc, a ray from the tip at angle t
-    leaves it at r_2 = q cos(t - phi) + sqrt(r_s^2 - q^2 sin^2(t - phi)), q = eps r_s, so the
-    singular part averages to int f_ij(t) (2/3) r_2^(3/2) dt / (sqrt(2 pi) pi r_s^2)
-    (Gauss-Legendre in t); phi on a 0.5 deg grid."""
-    f = np.sqrt(np.pi * A_CRACK) / (2 * R * T_THICK)
-    KI, KII, T = YI * f, YII * f, T_star / (2 * R * T_THICK)
-    from upscale.models.unified import williams_angular
-
-    x, w = np.polynomial.legendre.leggauss(n_quad)
-    t, w = np.pi * x, np.pi * w
-    fxx, fyy, fxy = williams_angular(KI, KII, t)
-    phi = np.radians(np.arange(-179.5, 180.0, 0.5))
-    q = eps * r_s
-    d = t[None, :] - phi[:, None]
-    r2 = q * np.cos(d) + np.sqrt(r_s ** 2 - (q * np.sin(d)) ** 2)
-    g = w * (2.0 / 3.0) * r2 ** 1.5 / (np.sqrt(2 * np.pi) * np.pi * r_s ** 2)
-    sxx, syy, sxy = g @ fxx + T, g @ fyy, g @ fxy
-    s1 = 0.5 * (sxx + syy) + np.sqrt(0.25 * (syy - sxx) ** 2 + sxy ** 2)
-    return float(np.degrees(phi[np.argmax(s1)]))
-
-
-def merge_tables(paths, out_png=None, r_s=None):
-    """Merge ``scb_table_*.json`` parts of one r_s into the eight-angle summary (the keys of
-    ``scb-table``), with MTS and GMTS critical loads from the FE factors and, given ``r_s``
-    (m), the front criterion's continuum limit; optionally the K_I/K_Ic - K_II/K_Ic
-    envelope plot."""
-    rows = []
-    for p in paths:
-        rows += json.loads(Path(p).read_text())["rows"]
-    rows.sort(key=lambda r: r["alpha"])
-    ex = _exp()
-    fe = json.loads((ROOT / "data" / "reference" / "scb_fem.json").read_text())["rollers"]
-    fe = {r["alpha_deg"]: r for r in fe}
-    thP = dict(zip(ex["alpha_deg"], ex["theo_P_c_kN"]))
-    exP = dict(zip(ex["alpha_deg"], ex["exp_P_c_kN"]))
-    for r in rows:
-        f = fe[r["alpha"]]
-        r["MTS P_c kN"] = _mts_load(f["Y_I"], f["Y_II"]) / 1e3
-        r["GMTS P_c kN"] = _mts_load(f["Y_I"], f["Y_II"], T_star=f["T_star"]) / 1e3
-        if r_s is not None:
-            r["front limit kN"] = _front_limit_load(f["Y_I"], f["Y_II"], f["T_star"], r_s) / 1e3
-            r["front limit err %"] = 100 * (r["front limit kN"] / exP[r["alpha"]] - 1)
-            r["front limit deg"] = _front_limit_kink(f["Y_I"], f["Y_II"], f["T_star"], r_s)
-    e = np.array([abs(r["err %"]) for r in rows])
-    pe = np.array([abs(100 * (thP[a] / exP[a] - 1)) for a in ALPHAS])
-    summary = {"alpha_deg": [r["alpha"] for r in rows], "P_c_kN": [r["P_c kN"] for r in rows],
-               "P_c_err_pct": [r["err %"] for r in rows],
-               "P_c_err_pct_mean": float(e.mean()), "P_c_err_pct_max": float(e.max()),
-               "paper_P_c_err_pct_mean": float(pe.mean()), "paper_P_c_err_pct_max": float(pe.max()),
-               "initiation_angle_deg": [r["init deg"] for r in rows],
-               "MTS_angle_deg": [r["MTS deg"] for r in rows], "GMTS_angle_deg": [r["GMTS deg"] for r in rows],
-               "MTS_P_c_kN": [r["MTS P_c kN"] for r in rows], "GMTS_P_c_kN": [r["GMTS P_c kN"] for r in rows],
-               "MTS_P_c_err_pct_mean": float(np.mean([abs(100 * (r["MTS P_c kN"] / exP[r["alpha"]] - 1)) for r in rows])),
-               "GMTS_P_c_err_pct_mean": float(np.mean([abs(100 * (r["GMTS P_c kN"] / exP[r["alpha"]] - 1)) for r in rows]))}
-    summary["pass"] = bool(len(rows) == 8 and e.mean() < pe.mean() and e.max() <= pe.max())
-    limit = all("front limit kN" in r for r in rows)
-    if limit:
-        summary["front_limit_P_c_kN"] = [r["front limit kN"] for r in rows]
-        summary["front_limit_P_c_err_pct_mean"] = float(np.mean([abs(r["front limit err %"]) for r in rows]))
-    if out_png is not None:
-        import matplotlib
-
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-
-        fs = np.sqrt(np.pi * A_CRACK) / (2 * R * T_THICK) / 2.13e6
-        fig, ax = plt.subplots(figsize=(5, 4.2))
-        ax.plot(np.array(ex["exp_K_II"]) / 2.13, np.array(ex["exp_K_I"]) / 2.13, "ro", label="experiment [112]")
-        ax.plot(np.array(ex["theo_K_II"]) / 2.13, np.array(ex["theo_K_I"]) / 2.13, "gs", mfc="none", label="seed ch. 6")
-        curves = [("P_c kN", "b^", "this model"), ("MTS P_c kN", "k--", "MTS"),
-                  ("GMTS P_c kN", "m-.", f"GMTS r_c = {R_C_GMTS * 1e3:g} mm")]
-        if limit:
-            curves.append(("front limit kN", "c:", "front criterion, continuum limit"))
-        for key, mk, lab in curves:
-            kii = [fe[r["alpha"]]["Y_II"] * r[key] * 1e3 * fs for r in rows]
-            ki = [fe[r["alpha"]]["Y_I"] * r[key] * 1e3 * fs for r in rows]
-            ax.plot(kii, ki, mk, label=lab)
-        ax.set_xlabel("K_II / K_Ic")
-        ax.set_ylabel("K_I / K_Ic")
-        ax.legend(fontsize=7)
-        fig.tight_layout()
-        fig.savefig(out_png, dpi=150)
-        plt.close(fig)
-    return rows, summary
