@@ -1,0 +1,272 @@
+"""``DCBRModel``: the coarse (DCBR) tube as an ordinary engine model, built from atoms.
+
+Seed 004 sec. 5.3.1, eqs. 5.13-5.16: coarse particles carry the tube's Tersoff lattice
+through their gain G (discrete Cauchy-Born rule); the energy is
+
+    E(y; delta, L) = sum_c N_c (e(C_c, delta_c) - e0) + W_stab,
+
+e the Tersoff energy per atom of the particle's lattice mapped uniformly by its surface
+metric C_c = S_c F_c^T F_c S_c with the sublattice shift delta_c (:mod:`.kernels`,
+:mod:`.cell`), W_stab the hourglass control (:mod:`.hourglass`), L the period of a
+periodic tube. Built from an ``ase.Atoms`` (a tube of :func:`upscale.build.swcnt`, with or
+without the defects of :mod:`upscale.build`, or read from a file): the tube is registered
+(:func:`.structure.register`: axis, chirality, lattice map), its defects found
+(:func:`.defects.find_defects`) and the atomistic regions around them
+(:func:`.regions.atomistic_regions`) are reported in ``model.regions``; the particles
+are placed by :class:`.tube.CoarseTube`.
+
+The sublattice shifts delta (N, 3) Å are massless: relaxed at every configuration
+(E*(y) = min_delta E, forces -dE/dy at the relaxed shifts, the envelope theorem), warm
+started from ``state.extra["dcbr.delta"]``; while a minimiser holds them
+(:meth:`hold_internal`) they are its unknowns (``internal_fields``). The links' state
+(``dcbr.intact``, ``dcbr.alive``) lives in ``state.extra`` too, so a checkpoint carries
+it. Failure: the coarse link rule (:mod:`.failure`) in :meth:`break_bonds`.
+
+Engine contract (``upscale.models.base.Model``): ``force_kind = "particle"`` (eV/Å per
+particle), ``needs = Needs(pairs=False, failure=..., energy=True)``; optional hooks
+``internal_fields``, ``internal_gradient``, ``hold_internal`` (massless internal fields of
+``upscale.engine.minimisers``), ``particle_damage`` (``sim.damage()``), ``cell_force``
+and ``set_cell`` (a periodic tube's length as the load). The model never drives a run:
+:meth:`system` gives the body (masses N_c m_C in amu / ``unit``).
+
+What is not here yet (issue 51): the atomistic regions are found but not coupled (a
+structure with defects is refused by the energy until the coupling lands: see
+``model.regions``); the lattice-stability failure rule; open tubes' grips.
+
+Units: eV, Å, amu / ``unit`` (default Å/fs^2 per eV/(Å amu): time in fs).
+"""
+from __future__ import annotations
+
+import numpy as np
+
+from upscale.constants import ACC_EV_A_AMU_IN_A_FS2, CARBON_MASS_AMU
+from upscale.models.base import Model, Needs
+from upscale.models.dcbr.cell import tersoff_row
+from upscale.models.dcbr.defects import find_defects
+from upscale.models.dcbr.failure import link_rule
+from upscale.models.dcbr.regions import atomistic_regions
+from upscale.models.dcbr.structure import register
+from upscale.models.dcbr.tube import CoarseTube
+
+__all__ = ["DCBRModel", "FIELD"]
+
+#: the sublattice shifts in ``state.extra`` (N, 3), Å
+FIELD = "dcbr.delta"
+
+
+def _check(name, value, ok, valid):
+    if not ok:
+        raise ValueError(f"{name}={value!r}; valid: {valid}")
+
+
+class DCBRModel(Model):
+    """Coarse DCBR model of one carbon nanotube (module docstring).
+
+    Parameters
+    ----------
+    atoms : ase.Atoms
+        One carbon tube, periodic along z or finite (its defects are found).
+    coarsening : float
+        K = particle spacing / lattice constant sqrt(3) a_cc (>= 1).
+    chirality : (n, m), optional
+        A hint for the registration (never required).
+    horizon_factor : float
+        Influence radius of G / the larger particle spacing (> 1; 1.5: the 3x3 stencil).
+    potential : str
+        LAMMPS ``.tersoff`` file (step cutoff at R + D, as the references).
+    hourglass : float
+        Hourglass stiffness as a fraction of the lattice's (0 = off; default 0.1).
+    r_atomistic : float
+        Radius (Å) of the atomistic region around each defect (``model.regions``).
+    select : callable, bool mask or atom indices, optional
+        Atoms kept atomistic besides (:func:`.regions.selected_atoms`; selecting nothing
+        is an error).
+    shift_gtol : float
+        Tolerance of the shift relaxation, max |dE/d delta| per particle, eV/Å.
+    failure : bool
+        Apply the link rule in the engine's force evaluations.
+    unit : float
+        Masses are amu / ``unit``.
+    """
+
+    name = "dcbr"
+    force_kind = "particle"
+
+    def __init__(self, atoms, coarsening: float = 2.0, *, chirality=None,
+                 horizon_factor: float = 1.5, potential: str = "BNC.tersoff",
+                 hourglass: float = 0.1, r_atomistic: float = 8.0, select=None,
+                 shift_gtol: float = 1e-10,
+                 failure: bool = True, unit: float = ACC_EV_A_AMU_IN_A_FS2):
+        _check("coarsening", coarsening, np.isfinite(coarsening) and coarsening >= 1.0,
+               "a number >= 1 (1 = one particle per lattice constant)")
+        _check("horizon_factor", horizon_factor,
+               np.isfinite(horizon_factor) and horizon_factor > 1.0, "a number > 1")
+        _check("shift_gtol", shift_gtol, np.isfinite(shift_gtol) and shift_gtol > 0, "> 0")
+        _check("unit", unit, np.isfinite(unit) and unit > 0, "a positive mass unit factor")
+        self.structure = register(atoms, chirality)
+        if len(self.structure.tubes) != 1:
+            raise ValueError(f"the structure holds {len(self.structure.tubes)} tubes; valid: "
+                             "one tube (bundles are not built yet)")
+        tube = self.structure.tubes[0]
+        if tube.periodic and abs(abs(tube.axis[2]) - 1.0) > 1e-9:
+            raise ValueError(f"periodic tube along {np.round(tube.axis, 6).tolist()}; valid: "
+                             "periodic along z (the cell's third vector)")
+        self.defects = find_defects(self.structure)
+        self.regions = atomistic_regions(self.structure, self.defects, r_atomistic, select)
+        cut = float(tersoff_row(potential)[10])
+        if tube.length < 2 * cut:
+            raise ValueError(f"tube length {tube.length:.3f} Å; valid: at least two cutoffs of "
+                             f"the potential ({2 * cut:.2f} Å)")
+        self.tube = CoarseTube(tube, len(tube.atoms), coarsening, horizon_factor, potential,
+                               hourglass)
+        t = self.tube
+        self.Lz = t.L if t.periodic else None
+        self.shift_gtol = float(shift_gtol)
+        self.unit = float(unit)
+        self.needs = Needs(pairs=False, failure=bool(failure), energy=True)
+        self.cell = None
+        self._held = False
+        self._cache = None
+
+    # ------------------------------------------------------------------ the body
+    @property
+    def x0(self) -> np.ndarray:
+        """Reference particle positions (N, 3), Å."""
+        return self.tube.x0
+
+    def masses(self) -> np.ndarray:
+        """(N,) N_c m_C, amu / ``unit``."""
+        return self.tube.natoms_n * CARBON_MASS_AMU / self.unit
+
+    def system(self):
+        """The particles as a :class:`~upscale.engine.system.ParticleSystem` (volume 1,
+        density the masses, spacing a_cc, atomic units)."""
+        from upscale.engine.system import ParticleSystem  # noqa: PLC0415
+
+        return ParticleSystem(self.x0, 1.0, density=self.masses(), spacing=self.tube.bond,
+                              units="atomic")
+
+    def _no_coupling(self):
+        if self.regions.mask.any():
+            kinds = sorted({d.kind for d in self.defects})
+            raise NotImplementedError(
+                f"the tube has {len(self.defects)} defect(s) ({', '.join(kinds)}) with "
+                f"{len(self.regions.regions)} atomistic region(s); the coupling of atoms and "
+                "particles is not built yet: valid now: a tube without defects")
+
+    # ------------------------------------------------------------------ the contract
+    def prepare(self, system, family=None, **kw) -> None:
+        if system.dim != 3 or system.n != self.tube.N:
+            raise ValueError(f"the body has {system.n} particles in {system.dim}D; valid: the "
+                             f"model's {self.tube.N} particles in 3D (DCBRModel.system())")
+        self._no_coupling()
+        self.system = system
+
+    def init_state(self, state) -> None:
+        state.extra.setdefault(FIELD, np.zeros((self.tube.N, 3)))
+        state.extra.setdefault("dcbr.intact", self.tube.gain.intact_b.copy())
+        state.extra.setdefault("dcbr.alive", self.tube.alive.copy())
+
+    def set_cell(self, Lz: float) -> None:
+        """The period (Å) of a periodic tube: the load of a tension scene (mutates)."""
+        if self.Lz is None:
+            raise ValueError("set_cell on a finite tube; valid: a tube periodic along z")
+        _check("Lz", Lz, np.isfinite(Lz) and Lz > 0, "a positive length (Å)")
+        self.Lz = float(Lz)
+        self._cache = None
+
+    def _sync_links(self, state) -> None:
+        t = self.tube
+        li, la = state.extra.get("dcbr.intact"), state.extra.get("dcbr.alive")
+        if li is not None and not (np.array_equal(li, t.gain.intact_b)
+                                   and np.array_equal(la, t.alive)):
+            t.rebuild(li, la)
+            self._cache = None
+
+    def evaluate(self, y, delta, L=None):
+        """(E eV, dE/dy (N,3), dE/d delta (N,3), dE/dL eV/Å) at given shifts (no
+        relaxation); L the period (default the model's)."""
+        self._no_coupling()
+        L = self.Lz if L is None else L
+        E, gy, gd, gL, q, e = self.tube.evaluate(y, np.ascontiguousarray(delta), L)
+        self._q_n, self._e_n = q, e
+        return E, gy, gd, gL
+
+    def _evaluate(self, state):
+        self._sync_links(state)
+        if self.cell is not None:
+            self.set_cell(float(self.cell(state.t)))
+        y = np.ascontiguousarray(state.y, dtype=float)
+        d = state.extra[FIELD]
+        c = self._cache
+        if (c is not None and c[0] == self.Lz and c[1] == self._held
+                and np.array_equal(c[2], y) and np.array_equal(c[3], d)):
+            return c[4]
+        if not self._held:
+            self.tube.relax_shifts(y, d, self.Lz, self.shift_gtol)
+        out = self.evaluate(y, d, self.Lz)
+        self._cache = (self.Lz, self._held, y.copy(), d.copy(), out)
+        return out
+
+    def add_force(self, state, out) -> None:
+        out -= self._evaluate(state)[1]
+
+    def energy(self, state) -> float:
+        return float(self._evaluate(state)[0])
+
+    def energy_density(self, state) -> np.ndarray:
+        """(N,) energy per particle (eV): N_c (e_c - e0) plus its hourglass links."""
+        self._evaluate(state)
+        t = self.tube
+        e = np.where(t.alive, t.natoms_n * (self._e_n - t.e0), 0.0)
+        return e + t.hourglass.w_n
+
+    def cell_force(self, state) -> float:
+        """dE/dL (eV/Å): the axial force a periodic tube carries."""
+        return float(self._evaluate(state)[3])
+
+    @property
+    def internal_fields(self) -> dict:
+        b = self.tube.shift_bound
+        return {FIELD: (-b, b)}
+
+    def hold_internal(self, flag: bool) -> None:
+        """While held the shifts are a minimiser's unknowns; else relaxed at every call."""
+        self._held = bool(flag)
+
+    def internal_gradient(self, state) -> dict:
+        return {FIELD: self._evaluate(state)[2]}
+
+    def break_bonds(self, state) -> int:
+        """The coarse link rule at the current state (:func:`.failure.link_rule`); the
+        links' state in ``state.extra`` is updated. Returns the number of links broken."""
+        self._evaluate(state)
+        t = self.tube
+        over = link_rule(t, self._q_n)
+        newly = over & t.gain.intact_b
+        nb = int(newly.sum())
+        if nb:
+            t.rebuild(t.gain.intact_b & ~over, t.alive)
+            self._cache = None
+            if "dcbr.intact" in state.extra:
+                state.extra["dcbr.intact"] = t.gain.intact_b.copy()
+                state.extra["dcbr.alive"] = t.alive.copy()
+        return nb
+
+    def particle_damage(self, state) -> np.ndarray:
+        """mu = 1 - (intact links) / (links at the start) per particle (seed 004 eq. 5.16)."""
+        self._sync_links(state)
+        t = self.tube
+        R = np.bincount(t.gain.owner_b[t.gain.intact_b], minlength=t.N)
+        return 1.0 - R / np.maximum(t.n_links0, 1)
+
+    def stiffness_bound(self):
+        return None
+
+    def describe(self) -> dict:
+        t = self.tube
+        n, m = self.structure.tubes[0].chirality
+        return {"model": self.name, "chirality": [int(n), int(m)], "coarsening": t.coarsening,
+                "particles": t.N, "atoms": t.n_atoms, "periodic": t.periodic,
+                "hourglass": t.hourglass.fraction, "defects": len(self.defects),
+                "cell_length_A": self.Lz}
