@@ -339,3 +339,11 @@ def test_minimiser_steps_back_from_a_trial_off_the_map():
     r1 = model.minimise(y, np.zeros((model.N, 3)), model.L * lam)
     y1, E1 = r1.y, r1.energy
     assert calls[0] > 4 and np.all(np.isfinite(y1)) and np.isfinite(E1) and E1 <= E0
+
+
+def test_collapsed_map_gives_nan_not_a_division_by_zero(tube):
+    # every particle at one point: each surface map F = 0, C = 0 (no lattice). The kernel
+    # must hand the engine NaN (its blow-up diagnosis), not raise ZeroDivisionError
+    y = np.repeat(tube.x0[:1], tube.N, axis=0)
+    E, gy, gd, _ = tube.energy_and_gradient(y, np.zeros((tube.N, 3)), tube.L)
+    assert np.isnan(E) and np.isnan(gy).any()

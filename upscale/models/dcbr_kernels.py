@@ -300,6 +300,17 @@ def coarse_energy(F_nck, S_nab, delta_n, natoms_n, alive_n, s_p, z_p, sub_p, R0,
                     for v in range(2):
                         acc += S_nab[c, a, u] * FtF[u, v] * S_nab[c, v, b]
                 C[a, b] = acc
+        if not (C[0, 0] > 1e-6 and C[0, 0] * C[1, 1] - C[0, 1] * C[0, 1] > 1e-6 * C[0, 0]):
+            # a collapsed map (lam_t or lam_z below 1e-3: atoms a thousandfold closer than in
+            # the lattice, or C not positive definite): no lattice to evaluate; NaN, so that
+            # the engine stops with its blow-up diagnosis, not a division by zero
+            e_out[c] = np.nan
+            for i in range(3):
+                P_out[c, i, 0] = np.nan
+                P_out[c, i, 1] = np.nan
+                gdelta_out[c, i] = np.nan
+            Etot = np.nan
+            continue
         lt, gm, lz = _chol_params(C)
         q[0] = lt
         q[1] = gm
