@@ -30,6 +30,7 @@ from upscale.experiments.lammps import errors as compare
 from upscale.experiments.lammps import evaluate as lammps_evaluate
 from upscale.experiments.lammps import evaluate_calculator as ours_evaluate
 from upscale.experiments.lammps import tersoff_pair_lines as lammps_tersoff_lines
+from upscale.experiments.lammps.single_point import to_lammps_frame
 from validation.registry import case, table
 
 
@@ -162,7 +163,7 @@ class _OursTimer:
         nl = self.calc.neighbour_list
         c = self.calc
         self.args = (np.ascontiguousarray(self.atoms.positions), self.atoms.cell.array.copy(),
-                     nl.first_n, nl.j_b, nl.shift_bc, c._types, c.e2p, c.table, float(c.cutoff),
+                     nl.first_n, nl.j_b, nl.shift_bc, c.types(self.atoms), c.e2p, c.table, float(c.cutoff),
                      nthreads)
 
     def time(self, nsteps: int) -> tuple[float, float]:
