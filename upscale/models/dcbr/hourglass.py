@@ -123,6 +123,7 @@ class Hourglass:
             raise ValueError(f"hourglass={fraction!r}; valid: a number >= 0 (0 = off)")
         self.tube = tube
         self.fraction = float(fraction)
+        self.scale_n = None  # per-owner scale of the links (the coupling's w_c / nominal)
         self.k_stab = 0.0
         if self.fraction > 0.0:
             h = 1e-3
@@ -148,6 +149,8 @@ class Hourglass:
         self.j_b = g.j_b[keep].astype(np.int64)
         self.kz_b = np.ascontiguousarray(g.k_b[keep])
         self.w_b = 1.0 / np.einsum("bi,bi->b", beta, beta)
+        if self.scale_n is not None:
+            self.w_b = self.w_b * self.scale_n[c]
         self.ds_b = R0 * dth
         self.dz_b = np.einsum("bi,bi->b", beta, T[:, :, 1])
         self.a_b = np.ascontiguousarray(g.a_bk[keep])

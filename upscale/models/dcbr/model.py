@@ -29,9 +29,10 @@ particle), ``needs = Needs(pairs=False, failure=..., energy=True)``; optional ho
 and ``set_cell`` (a periodic tube's length as the load). The model never drives a run:
 :meth:`system` gives the body (masses N_c m_C in amu / ``unit``).
 
-What is not here yet (issue 51): the atomistic regions are found but not coupled (a
-structure with defects is refused by the energy until the coupling lands: see
-``model.regions``); the lattice-stability failure rule; open tubes' grips.
+With atomistic regions (a defect, or a user selection) the rows are the non-slave
+particles then the free atoms, coupled by :mod:`.coupling`. Not here yet (issue 51): the
+ghost-force correction, the lattice-stability failure rule, open tubes' grips, regions
+that grow.
 
 Units: eV, Å, amu / ``unit`` (default Å/fs^2 per eV/(Å amu): time in fs).
 """
@@ -42,6 +43,7 @@ import numpy as np
 from upscale.constants import ACC_EV_A_AMU_IN_A_FS2, CARBON_MASS_AMU
 from upscale.models.base import Model, Needs
 from upscale.models.dcbr.cell import tersoff_row
+from upscale.models.dcbr.coupling import Coupling
 from upscale.models.dcbr.defects import find_defects
 from upscale.models.dcbr.failure import link_rule
 from upscale.models.dcbr.regions import atomistic_regions
@@ -117,9 +119,13 @@ class DCBRModel(Model):
         if tube.length < 2 * cut:
             raise ValueError(f"tube length {tube.length:.3f} Å; valid: at least two cutoffs of "
                              f"the potential ({2 * cut:.2f} Å)")
-        self.tube = CoarseTube(tube, len(tube.atoms), coarsening, horizon_factor, potential,
-                               hourglass)
+        n_sites = int(tube.lattice.expected.sum()) if self.regions.mask.any() else len(tube.atoms)
+        self.tube = CoarseTube(tube, n_sites, coarsening, horizon_factor, potential, hourglass)
         t = self.tube
+        self.coupling = None
+        if self.regions.mask.any():
+            self.coupling = Coupling(t, tube, self.structure.positions, self.regions.mask,
+                                     potential)
         self.Lz = t.L if t.periodic else None
         self.shift_gtol = float(shift_gtol)
         self.unit = float(unit)
@@ -131,12 +137,23 @@ class DCBRModel(Model):
     # ------------------------------------------------------------------ the body
     @property
     def x0(self) -> np.ndarray:
-        """Reference particle positions (N, 3), Å."""
-        return self.tube.x0
+        """Reference positions of the rows (n, 3), Å: the particles, or with atomistic
+        regions the non-slave particles then the free atoms (:mod:`.coupling`)."""
+        return self.tube.x0 if self.coupling is None else self.coupling.y_ref
+
+    @property
+    def n(self) -> int:
+        """Rows of the engine's state."""
+        return len(self.x0)
 
     def masses(self) -> np.ndarray:
-        """(N,) N_c m_C, amu / ``unit``."""
-        return self.tube.natoms_n * CARBON_MASS_AMU / self.unit
+        """(n,) amu / ``unit``: a particle m_C max(w_c, N_c / 2) (its weight, at least half
+        its nominal atoms), an atom m_C."""
+        t, c = self.tube, self.coupling
+        if c is None:
+            return t.natoms_n * CARBON_MASS_AMU / self.unit
+        w = np.maximum(t.natoms_n, 0.5 * c.nominal)[c.dof_idx]
+        return np.r_[w, np.ones(c.nf)] * CARBON_MASS_AMU / self.unit
 
     def system(self):
         """The particles as a :class:`~upscale.engine.system.ParticleSystem` (volume 1,
@@ -146,20 +163,11 @@ class DCBRModel(Model):
         return ParticleSystem(self.x0, 1.0, density=self.masses(), spacing=self.tube.bond,
                               units="atomic")
 
-    def _no_coupling(self):
-        if self.regions.mask.any():
-            kinds = sorted({d.kind for d in self.defects})
-            raise NotImplementedError(
-                f"the tube has {len(self.defects)} defect(s) ({', '.join(kinds)}) with "
-                f"{len(self.regions.regions)} atomistic region(s); the coupling of atoms and "
-                "particles is not built yet: valid now: a tube without defects")
-
     # ------------------------------------------------------------------ the contract
     def prepare(self, system, family=None, **kw) -> None:
-        if system.dim != 3 or system.n != self.tube.N:
-            raise ValueError(f"the body has {system.n} particles in {system.dim}D; valid: the "
-                             f"model's {self.tube.N} particles in 3D (DCBRModel.system())")
-        self._no_coupling()
+        if system.dim != 3 or system.n != self.n:
+            raise ValueError(f"the body has {system.n} rows in {system.dim}D; valid: the "
+                             f"model's {self.n} rows in 3D (DCBRModel.system())")
         self.system = system
 
     def init_state(self, state) -> None:
@@ -184,13 +192,37 @@ class DCBRModel(Model):
             self._cache = None
 
     def evaluate(self, y, delta, L=None):
-        """(E eV, dE/dy (N,3), dE/d delta (N,3), dE/dL eV/Å) at given shifts (no
+        """(E eV, dE/dy (n,3), dE/d delta (N,3), dE/dL eV/Å) at given shifts (no
         relaxation); L the period (default the model's)."""
-        self._no_coupling()
         L = self.Lz if L is None else L
-        E, gy, gd, gL, q, e = self.tube.evaluate(y, np.ascontiguousarray(delta), L)
+        d = np.ascontiguousarray(delta)
+        if self.coupling is None:
+            E, gy, gd, gL, q, e = self.tube.evaluate(y, d, L)
+        else:
+            E, gy, gd, gL, q = self.coupling.evaluate(y, d, L)
+            e = self.coupling.e_n
         self._q_n, self._e_n = q, e
         return E, gy, gd, gL
+
+    def _relax(self, y, d) -> None:
+        """Relax the shifts ``d`` (mutated) at rows ``y``: each particle's lattice alone
+        (Newton, :meth:`.tube.CoarseTube.relax_shifts`), then, with atoms, the whole coupled
+        energy (the pads follow their carriers' shifts) by the engine's L-BFGS-B."""
+        t = self.tube
+        yp = y if self.coupling is None else self.coupling.particle_positions(y)
+        t.relax_shifts(yp, d, self.Lz, self.shift_gtol)
+        if self.coupling is None:
+            return
+        from upscale.engine.minimisers import lbfgs_b  # noqa: PLC0415
+
+        def fun(v):
+            E, _, gd, _ = self.evaluate(y, v.reshape(-1, 3))
+            return E, gd.ravel()
+
+        b = t.shift_bound
+        r = lbfgs_b(fun, d.ravel().copy(), -b, b, gtol=self.shift_gtol, max_iter=500,
+                    memory=10, ftol=1e-15, maxfun=2000)
+        d[...] = r.x.reshape(-1, 3)
 
     def _evaluate(self, state):
         self._sync_links(state)
@@ -203,7 +235,7 @@ class DCBRModel(Model):
                 and np.array_equal(c[2], y) and np.array_equal(c[3], d)):
             return c[4]
         if not self._held:
-            self.tube.relax_shifts(y, d, self.Lz, self.shift_gtol)
+            self._relax(y, d)
         out = self.evaluate(y, d, self.Lz)
         self._cache = (self.Lz, self._held, y.copy(), d.copy(), out)
         return out
@@ -215,11 +247,12 @@ class DCBRModel(Model):
         return float(self._evaluate(state)[0])
 
     def energy_density(self, state) -> np.ndarray:
-        """(N,) energy per particle (eV): N_c (e_c - e0) plus its hourglass links."""
+        """(n,) energy per row (eV): a particle's w_c (e_c - e0) plus its hourglass links,
+        an atom's site energy minus e0 (a slave particle's share is not on a row)."""
         self._evaluate(state)
-        t = self.tube
-        e = np.where(t.alive, t.natoms_n * (self._e_n - t.e0), 0.0)
-        return e + t.hourglass.w_n
+        t, c = self.tube, self.coupling
+        e = np.where(t.alive, t.natoms_n * (self._e_n - t.e0), 0.0) + t.hourglass.w_n
+        return e if c is None else np.r_[e[c.dof_idx], c.e_atoms - t.e0]
 
     def cell_force(self, state) -> float:
         """dE/dL (eV/Å): the axial force a periodic tube carries."""

@@ -1,0 +1,288 @@
+"""Atoms where the lattice is not perfect, coarse particles elsewhere: the coupling, once.
+
+An energy-based concurrent coupling (the quasicontinuum method's, seed 004 sec. 5.3's
+arrangement refined to the lattice near a defect):
+
+    E = sum_{a free} (E_a - e0) + sum_c w_c (e(C_c, delta_c) - e0) + W_stab
+
+* **Region, whole cells.** Every lattice site (the registered lattice map's, occupied or
+  empty) belongs to its nearest particle on the unrolled wall (Voronoi in (R0 dtheta, dz)).
+  A particle owning a site of an atom of the atomistic regions (:mod:`.regions`: every atom
+  within r_atomistic of a defect, plus a user selection), an empty site, or an atom off
+  the lattice gives all its atoms to the region; the others keep all of theirs. The free
+  atoms are the region's atoms: unknowns with their own Tersoff site energies E_a
+  (:func:`potentials.tersoff_kernels.tersoff_range` on the free atoms' sites).
+* **Weights.** w_c = N_c - g_c (clipped to [0, N_c]; 0 when all its sites are explicit),
+  g_c the explicit or empty sites it owns, then all scaled by one factor so that
+  sum_c w_c = (atoms of the tube) - (free atoms).
+* **Slave particles** (g_c / sites_c >= 1/2) are no unknowns: their displacement is a
+  weighted quadratic fit (weights 1 / (1 + d^2), arc terms those of the cylinder so rigid
+  motions are exact) of the 10 nearest free atoms of sublattice A (more where 10 cannot
+  fix the six terms, else linear), y_s = X_s + sum_a Phi_sa (x_a - X_a).
+* **Pad atoms**: tube atoms within ``pad`` (3.5 Å > the 2.1 Å cutoff) of a free atom,
+  slaved to the nearest non-slave particle's uniform map (:mod:`.pads`).
+* The hourglass links of particle c are scaled by w_c / max_c w_c.
+
+This is the coupling of the validated defect tube (``DCBRDefectTube``, old module), written
+once and taken from the registered structure (any defects, any number of regions) instead
+of a band about one vacancy. Not here yet: the ghost-force dead load, a region across a
+periodic tube's boundary (refused), pads whose carrier G has dropped (frame frozen).
+
+Rows of the unknowns: the non-slave particles (``dof_idx``), then the free atoms
+(``free_idx``, structure order). Units: Å, eV.
+"""
+from __future__ import annotations
+
+import numpy as np
+from scipy.sparse import csr_matrix
+from scipy.spatial import cKDTree
+
+from potentials import tersoff_kernels as tk
+from potentials.neighbours import neighbour_list
+from potentials.tersoff import read_tersoff_file
+from upscale.models.dcbr.maps import frame_adjoint, map_frames
+from upscale.models.dcbr.pads import pad_backward, pad_positions
+
+__all__ = ["Coupling", "PAD"]
+
+#: width (Å) of the band of pad atoms about the free atoms (> the 2.1 Å cutoff)
+PAD = 3.5
+
+
+def _wrap(a):
+    return (a + np.pi) % (2 * np.pi) - np.pi
+
+
+def _cyl(tube, X):
+    """(theta (K,), z (K,)) of Cartesian points in the particles' frame."""
+    d = X - tube.centre
+    return np.arctan2(d @ tube.e2, d @ tube.e1), d @ tube.axis
+
+
+def _nearest(tube, th, z, cand):
+    """Index into ``cand`` of the nearest particle on the unrolled wall (K,)."""
+    R0 = tube.cell.R0
+    ds = R0 * _wrap(th[:, None] - tube.theta[cand][None, :])
+    zc = (tube.x0[cand] - tube.centre) @ tube.axis
+    dz = z[:, None] - zc[None, :]
+    if tube.periodic:
+        dz -= tube.L * np.round(dz / tube.L)
+    k = np.argmin(ds ** 2 + dz ** 2, axis=1)
+    return k, ds[np.arange(len(k)), k], dz[np.arange(len(k)), k]
+
+
+def _patch_sublattice(tube, th, z, X, lat_sub, on_site):
+    """Sublattice flags (K,) in the particle lattice's convention (A = the patch's A0)."""
+    c, R0 = tube.cell, tube.cell.R0
+    star = np.column_stack([c.s_p[c.bondsA], c.z_p[c.bondsA]])
+    pairs = cKDTree(X).query_pairs(1.2 * tube.bond, output_type="ndarray")
+    deg = np.bincount(pairs.ravel(), minlength=len(X))
+    for a in np.flatnonzero((deg == 3) & on_site):
+        nb = np.concatenate([pairs[pairs[:, 0] == a, 1], pairs[pairs[:, 1] == a, 0]])
+        if not on_site[nb].all():
+            continue
+        v = np.column_stack([R0 * _wrap(th[nb] - th[a]), z[nb] - z[a]])
+        plus = max(np.min(np.linalg.norm(star - w, axis=1)) for w in v)
+        minus = max(np.min(np.linalg.norm(star + w, axis=1)) for w in v)
+        if min(plus, minus) < 0.3:
+            return np.where(lat_sub == lat_sub[a], 0, 1) if plus < minus else \
+                np.where(lat_sub == lat_sub[a], 1, 0)
+    raise RuntimeError("cannot match the atoms' sublattices to the particle lattice")
+
+
+def _slave_fit(R0, th_c, z_c, thA, zA):
+    """Weights (k,) and the rows (k,) into the A atoms of one slave particle's fit."""
+    dsf, dzf = R0 * _wrap(thA - th_c), zA - z_c
+    dist = np.hypot(dsf, dzf)
+    order = np.argsort(dist)
+    if len(order) < 10:
+        raise ValueError(f"a slave particle has {len(order)} free atoms to follow (10 "
+                         "needed); valid: a larger r_atomistic")
+    for nn, ncol in ((10, 6), (14, 6), (20, 6), (10, 3)):
+        near = order[:nn]
+        a_, b_ = dsf[near], dzf[near]
+        sa = R0 * np.sin(a_ / R0)
+        A = np.column_stack([np.ones(len(near)), sa, b_, 2.0 * R0 * R0 * (1.0 - np.cos(a_ / R0)),
+                             sa * b_, b_ * b_])[:, :ncol]
+        Aw = A * (1.0 / (1.0 + dist[near] ** 2))[:, None]
+        M = A.T @ Aw
+        if np.linalg.cond(M) < 1e10:
+            return np.linalg.solve(M, Aw.T)[0], near
+    raise ValueError("a slave particle's nearest free atoms are degenerate for a fit; valid: "
+                     "a larger r_atomistic")
+
+
+class Coupling:
+    """The coupled tube: particles of a :class:`.tube.CoarseTube` and the free atoms of
+    the atomistic regions (module docstring).
+
+    Parameters
+    ----------
+    tube : CoarseTube
+        Built with ``n_atoms`` = the lattice's sites; its weights are set here (mutated).
+    reg : :class:`.structure.Tube`
+        The registered tube (its atoms, lattice map).
+    positions : (K, 3) float
+        The structure's positions, Å (reference).
+    region : (K,) bool
+        The structure's atoms to keep atomistic.
+    potential : str
+        Tersoff file (step cutoff).
+    pad : float
+        Width of the pad band, Å.
+    """
+
+    def __init__(self, tube, reg, positions, region, potential="BNC.tersoff", pad=PAD):
+        self.tube = tube
+        ids = np.asarray(reg.atoms)
+        X = np.asarray(positions, float)[ids]
+        th, z = _cyl(tube, X)
+        lat = reg.lattice
+        on_site = lat.site >= 0
+        sub = _patch_sublattice(tube, th, z, X, lat.sublattice, on_site)
+        # every expected site: occupied ones at their atom, empty ones at the lattice's site
+        empty = lat.empty_sites
+        uv = lat.site_uv(empty)
+        Rl = lat.circumference / (2 * np.pi)
+        th_e = _wrap(uv[:, 0] / Rl)
+        z_e = uv[:, 1] + np.dot(reg.centre - tube.centre, tube.axis)
+        allc = np.arange(tube.N)
+        own_a = _nearest(tube, th, z, allc)[0]
+        own_e = _nearest(tube, th_e, z_e, allc)[0]
+        reg_a = np.asarray(region, bool)[ids]
+        inside = np.zeros(tube.N, bool)
+        inside[own_a[reg_a | ~on_site]] = True
+        inside[own_e] = True
+        free = inside[own_a]
+        self._check_boundary(tube, z, free, pad)
+        tot = np.bincount(own_a[on_site], minlength=tube.N) + np.bincount(own_e, minlength=tube.N)
+        gone = (np.bincount(own_a[on_site & free], minlength=tube.N)
+                + np.bincount(own_e, minlength=tube.N)).astype(float)
+        nominal = float(tube.natoms_n[0])
+        w = np.where(gone >= tot, 0.0, np.clip(nominal - gone, 0.0, nominal))
+        w *= float(len(ids) - free.sum()) / w.sum()
+        tube.natoms_n = w
+        self.nominal = float(w.max())
+        slave = gone / np.maximum(tot, 1) >= 0.5
+        self.dof_idx, self.slave_idx = np.flatnonzero(~slave), np.flatnonzero(slave)
+        self.free_local = np.flatnonzero(free)
+        self.free_idx = ids[self.free_local]
+        self.nf = len(self.free_idx)
+        self.Xf = X[self.free_local]
+        self._slaves(th, z, sub, on_site)
+        self._pads(X, th, z, sub, free, pad, ids)
+        tube.hourglass.scale_n = w / self.nominal
+        tube.hourglass.rebuild()
+        par = read_tersoff_file(potential, ["C"]).with_step_cutoff(True)
+        self._tP, self._te2p, self._tcut = par.table, par.e2p, float(par.cutoff)
+        self.y_ref = np.vstack([tube.x0[self.dof_idx], self.Xf])
+
+    @staticmethod
+    def _check_boundary(tube, z, free, pad):
+        if tube.periodic and free.any():
+            zf = z[free] % tube.L
+            if zf.min() < pad or zf.max() > tube.L - pad:
+                raise NotImplementedError(
+                    f"an atomistic region reaches within the pad ({pad} Å) of the periodic "
+                    "tube's boundary; valid now: regions away from z = 0 (across it is not "
+                    "built yet)")
+
+    def _slaves(self, th, z, sub, on_site):
+        t = self.tube
+        fA = np.flatnonzero((sub[self.free_local] == 0) & on_site[self.free_local])
+        thA, zA = th[self.free_local][fA], z[self.free_local][fA]
+        zc = (t.x0 - t.centre) @ t.axis
+        rows, cols, vals, off = [], [], [], []
+        for k, c in enumerate(self.slave_idx):
+            phi, near = _slave_fit(t.cell.R0, t.theta[c], zc[c], thA, zA)
+            rows += [k] * len(near)
+            cols += list(fA[near])
+            vals += list(phi)
+            off.append(t.x0[c] - phi @ self.Xf[fA[near]])
+        self.Phi = csr_matrix((vals, (rows, cols)), shape=(len(self.slave_idx), self.nf))
+        self.PhiT = self.Phi.T.tocsr()
+        self.slave_off = np.array(off).reshape(-1, 3)
+
+    def _pads(self, X, th, z, sub, free, pad, ids):
+        t = self.tube
+        near = cKDTree(X[free]).query(X, distance_upper_bound=pad)[0] < pad
+        loc = np.flatnonzero(~free & near)
+        self.pad_idx = ids[loc]
+        k, ds, dz = _nearest(t, th[loc], z[loc], self.dof_idx)
+        c = self.dof_idx[k].astype(np.int64)
+        self.pad_c, self.pad_ds, self.pad_dz = c, ds, dz
+        self.pad_sig = sub[loc].astype(float)
+        self.pad_r0 = np.zeros((len(loc), 3))
+        F0 = t.gain.deformation(t.x0, t.L if t.periodic else None)
+        par, Q3 = self._frames(F0)
+        x = np.empty((len(loc), 3))
+        pad_positions(t.x0, np.zeros((t.N, 3)), par, Q3, c, ds, dz, self.pad_sig, self.pad_r0,
+                      t.cell.R0, x)
+        dX = X[loc] - x
+        if t.periodic:
+            dX -= np.outer(np.round((dX @ t.axis) / t.L), t.L * t.axis)
+        self.pad_r0 = np.ascontiguousarray(np.einsum("aij,ai->aj", Q3[c], dX))
+        self._Q3_ref, self._par_ref = Q3, par
+
+    def _frames(self, F):
+        t = self.tube
+        par, Q3 = np.empty((t.N, 3)), np.empty((t.N, 3, 3))
+        map_frames(np.ascontiguousarray(F), t.gain.S, t.gain.alive, par, Q3)
+        return par, Q3
+
+    # ------------------------------------------------------------------ evaluation
+    def particle_positions(self, y) -> np.ndarray:
+        """All N particle positions from the unknowns y (non-slave particles, free atoms)."""
+        t = self.tube
+        yp = np.empty((t.N, 3))
+        nd = len(self.dof_idx)
+        yp[self.dof_idx] = y[:nd]
+        if len(self.slave_idx):
+            yp[self.slave_idx] = self.Phi @ y[nd:] + self.slave_off
+        return yp
+
+    def atomistic(self, x):
+        """(sum of the free atoms' site energies eV, dE/dx (nf + npad, 3))."""
+        x = np.ascontiguousarray(x, dtype=float)
+        cell = np.zeros((3, 3))
+        first, j_b, sh = neighbour_list(x, cell, (False, False, False), self._tcut)
+        f, e_n, W = np.zeros_like(x), np.zeros(len(x)), np.zeros((3, 3))
+        E = tk.tersoff_range(0, self.nf, x, cell, first, j_b, sh, np.zeros(len(x), np.int64),
+                             self._te2p, self._tP, self._tcut ** 2, f, e_n, W)
+        self.e_atoms = e_n[:self.nf]
+        return float(E), -f
+
+    def evaluate(self, y, delta, L):
+        """(E eV, dE/dy (nd + nf, 3), dE/d delta (N, 3), dE/dL eV/Å, q_n (N, 6)) of the
+        coupled tube at unknowns ``y``, shifts ``delta`` and period ``L``."""
+        t = self.tube
+        y = np.asarray(y, float)
+        delta = np.ascontiguousarray(delta, dtype=float)
+        nd = len(self.dof_idx)
+        yp = self.particle_positions(y)
+        E, F, P, gd, e_n, q_n = t.lattice_part(yp, delta, L)
+        Es, Ps, gyp, dLs = t.hourglass.energy_and_gradient(yp, F, L)
+        P += Ps
+        par, Q3 = self._frames(F)
+        own = t.gain.alive.copy()
+        par[~own], Q3[~own] = self._par_ref[~own], self._Q3_ref[~own]
+        x = np.empty((self.nf + len(self.pad_c), 3))
+        x[:self.nf] = y[nd:]
+        pad_positions(yp, delta, par, Q3, self.pad_c, self.pad_ds, self.pad_dz, self.pad_sig,
+                      self.pad_r0, t.cell.R0, x[self.nf:])
+        Ea, gx = self.atomistic(x)
+        E += Es + Ea - self.nf * t.e0
+        gQ3, gpar = np.zeros((t.N, 3, 3)), np.zeros((t.N, 3))
+        pad_backward(np.ascontiguousarray(gx[self.nf:]), delta, par, Q3, own, self.pad_c,
+                     self.pad_ds, self.pad_dz, self.pad_sig, self.pad_r0, t.cell.R0, gyp, gd,
+                     gQ3, gpar)
+        frame_adjoint(F, t.gain.S, t.gain.alive, par, Q3, gQ3, gpar, P)
+        gyp = gyp - t.gain.forces(P)
+        dL = t.gain.cell_derivative(P) + dLs
+        gy = np.empty_like(y)
+        gy[:nd] = gyp[self.dof_idx]
+        gy[nd:] = gx[:self.nf]
+        if len(self.slave_idx):
+            gy[nd:] += self.PhiT @ gyp[self.slave_idx]
+        self.e_n = e_n
+        return E, gy, gd, dL, q_n
