@@ -130,9 +130,13 @@ class Coupling:
         Tersoff file (step cutoff).
     pad : float
         Width of the pad band, Å.
+    inside : (N,) bool, optional
+        The particles that give their atoms to the region, instead of those ``region``
+        gives (the pristine twin of :mod:`.ghost` takes its tube's).
     """
 
-    def __init__(self, tube, reg, positions, region, potential="BNC.tersoff", pad=PAD):
+    def __init__(self, tube, reg, positions, region, potential="BNC.tersoff", pad=PAD,
+                 inside=None):
         self.tube = tube
         ids = np.asarray(reg.atoms)
         X = np.asarray(positions, float)[ids]
@@ -149,11 +153,13 @@ class Coupling:
         allc = np.arange(tube.N)
         own_a = _nearest(tube, th, z, allc)[0]
         own_e = _nearest(tube, th_e, z_e, allc)[0]
-        reg_a = np.asarray(region, bool)[ids]
-        inside = np.zeros(tube.N, bool)
-        inside[own_a[reg_a | ~on_site]] = True
-        inside[own_e] = True
-        free = inside[own_a]
+        if inside is None:
+            reg_a = np.asarray(region, bool)[ids]
+            inside = np.zeros(tube.N, bool)
+            inside[own_a[reg_a | ~on_site]] = True
+            inside[own_e] = True
+        self.inside = np.asarray(inside, bool).copy()
+        free = self.inside[own_a]
         self._check_boundary(tube, z, free, pad)
         tot = np.bincount(own_a[on_site], minlength=tube.N) + np.bincount(own_e, minlength=tube.N)
         gone = (np.bincount(own_a[on_site & free], minlength=tube.N)
@@ -167,6 +173,8 @@ class Coupling:
         self.dof_idx, self.slave_idx = np.flatnonzero(~slave), np.flatnonzero(slave)
         self.free_local = np.flatnonzero(free)
         self.free_idx = ids[self.free_local]
+        self.free_site = lat.site[self.free_local]
+        self.free_sub = sub[self.free_local]
         self.nf = len(self.free_idx)
         self.Xf = X[self.free_local]
         self._slaves(th, z, sub, on_site)

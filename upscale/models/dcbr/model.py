@@ -30,9 +30,9 @@ and ``set_cell`` (a periodic tube's length as the load). The model never drives 
 :meth:`system` gives the body (masses N_c m_C in amu / ``unit``).
 
 With atomistic regions (a defect, or a user selection) the rows are the non-slave
-particles then the free atoms, coupled by :mod:`.coupling`. Not here yet (issue 51): the
-ghost-force correction, the lattice-stability failure rule, open tubes' grips, regions
-that grow.
+particles then the free atoms, coupled by :mod:`.coupling`, with the ghost-force dead load
+of :mod:`.ghost` on a periodic tube. Not here yet (issue 51): the lattice-stability
+failure rule, open tubes' grips, regions that grow.
 
 Units: eV, Å, amu / ``unit`` (default Å/fs^2 per eV/(Å amu): time in fs).
 """
@@ -46,6 +46,7 @@ from upscale.models.dcbr.cell import tersoff_row
 from upscale.models.dcbr.coupling import Coupling
 from upscale.models.dcbr.defects import find_defects
 from upscale.models.dcbr.failure import link_rule
+from upscale.models.dcbr.ghost import GhostLoad
 from upscale.models.dcbr.regions import atomistic_regions
 from upscale.models.dcbr.structure import register
 from upscale.models.dcbr.tube import CoarseTube
@@ -83,6 +84,10 @@ class DCBRModel(Model):
     select : callable, bool mask or atom indices, optional
         Atoms kept atomistic besides (:func:`.regions.selected_atoms`; selecting nothing
         is an error).
+    ghost : bool
+        With atomistic regions on a periodic tube: the ghost-force dead load of the pristine
+        twin (:mod:`.ghost`), prepared by :meth:`set_cell` for each period (and at the
+        tube's own period here).
     shift_gtol : float
         Tolerance of the shift relaxation, max |dE/d delta| per particle, eV/Å.
     failure : bool
@@ -97,7 +102,7 @@ class DCBRModel(Model):
     def __init__(self, atoms, coarsening: float = 2.0, *, chirality=None,
                  horizon_factor: float = 1.5, potential: str = "BNC.tersoff",
                  hourglass: float = 0.1, r_atomistic: float = 8.0, select=None,
-                 shift_gtol: float = 1e-10,
+                 ghost: bool = True, shift_gtol: float = 1e-10,
                  failure: bool = True, unit: float = ACC_EV_A_AMU_IN_A_FS2):
         _check("coarsening", coarsening, np.isfinite(coarsening) and coarsening >= 1.0,
                "a number >= 1 (1 = one particle per lattice constant)")
@@ -122,13 +127,20 @@ class DCBRModel(Model):
         n_sites = int(tube.lattice.expected.sum()) if self.regions.mask.any() else len(tube.atoms)
         self.tube = CoarseTube(tube, n_sites, coarsening, horizon_factor, potential, hourglass)
         t = self.tube
-        self.coupling = None
+        self.coupling = self.ghost = None
         if self.regions.mask.any():
             self.coupling = Coupling(t, tube, self.structure.positions, self.regions.mask,
                                      potential)
+            if ghost and t.periodic:
+                build = dict(coarsening=coarsening, horizon_factor=horizon_factor,
+                             potential=potential, hourglass=hourglass)
+                self.ghost = GhostLoad(self.coupling, tube, self.structure.positions, build,
+                                       potential)
         self.Lz = t.L if t.periodic else None
         self.shift_gtol = float(shift_gtol)
         self.unit = float(unit)
+        if self.ghost is not None:
+            self.ghost.prepare(self.Lz)
         self.needs = Needs(pairs=False, failure=bool(failure), energy=True)
         self.cell = None
         self._held = False
@@ -182,6 +194,8 @@ class DCBRModel(Model):
         _check("Lz", Lz, np.isfinite(Lz) and Lz > 0, "a positive length (Å)")
         self.Lz = float(Lz)
         self._cache = None
+        if self.ghost is not None:
+            self.ghost.prepare(self.Lz)
 
     def _sync_links(self, state) -> None:
         t = self.tube
@@ -201,6 +215,9 @@ class DCBRModel(Model):
         else:
             E, gy, gd, gL, q = self.coupling.evaluate(y, d, L)
             e = self.coupling.e_n
+            if self.ghost is not None and self.ghost.active(L):
+                E, gy, gd, dL = self.ghost.apply(np.asarray(y, float), d, E, gy, gd)
+                gL += dL
         self._q_n, self._e_n = q, e
         return E, gy, gd, gL
 
