@@ -71,6 +71,36 @@ def test_coarse_energy_and_forces_are_the_old_tubes(nm, length, K):
         assert gLn == pytest.approx(gLo, rel=1e-11)
 
 
+def test_link_rule_breaks_the_old_tubes_links_and_g_is_refitted_alike():
+    """A tube stretched 5 % with a 6 Å axial step across its middle: the link rule breaks
+    the same links (owner, partner, image) as the old DCBRTube.update_links; with them
+    out of G the same particles drop out and the energy and forces agree again."""
+    from upscale.models.dcbr.failure import link_rule
+
+    atoms = swcnt(10, 10, length=100.0)
+    old = DCBRTube(10, 10, 100.0, coarsening=2.0, stability=False)
+    new = CoarseTube(register(atoms).tubes[0], len(atoms), 2.0, 1.5, "BNC.tersoff", 0.1)
+    new.hourglass.k_stab = old.k_stab
+    y = old.x0.copy()
+    y[:, 2] = 1.05 * (y[:, 2] + np.where(old.x0[:, 2] > old.L / 2, 6.0, 0.0))
+    d, L = np.zeros((old.N, 3)), 1.05 * old.L + 6.0
+    old.energy_and_gradient(y, d, L)
+    assert old.update_links() > 100
+    over = link_rule(new, new.evaluate(y + new.centre, d, L)[4])
+    g = new.gain
+    broken_old = set(zip(old.gain.pair_i[~old.intact].tolist(),
+                         old.gain.pair_j[~old.intact].tolist(),
+                         old.gain.pair_image[~old.intact][:, 2].tolist()))
+    assert set(zip(g.owner_b[over].tolist(), g.j_b[over].tolist(),
+                   g.k_b[over].astype(int).tolist())) == broken_old
+    new.rebuild(g.intact_b & ~over, new.alive)
+    assert np.array_equal(new.alive, old.alive) and (~new.alive).sum() > 0
+    Eo, gyo, _, _ = old.energy_and_gradient(y, d, L)
+    En, gyn = new.evaluate(y + new.centre, d, L)[:2]
+    assert En == pytest.approx(Eo, rel=1e-11)
+    np.testing.assert_allclose(gyn, gyo, rtol=0, atol=1e-11 * np.abs(gyo).max())
+
+
 def test_model_on_the_engine_state_is_the_old_engine_model():
     """DCBRModel (shifts relaxed at every configuration) against DCBRTubeModel on the same
     engine state: energy, forces and the cell's axial force (the shifts relax to 1e-10

@@ -107,6 +107,12 @@ def _frames(x0, owner, beta, w, n, axis, centre):
     rad -= (rad @ axis)[:, None] * axis
     nrm[np.einsum("ni,ni->n", nrm, rad) < 0] *= -1.0
     t2 = axis - (nrm @ axis)[:, None] * nrm
+    flat = np.linalg.norm(t2, axis=1) < 1e-8  # the axis along the normal: any tangent
+    if flat.any():
+        alt = np.cross(nrm[flat], [1.0, 0.0, 0.0])
+        bad = np.linalg.norm(alt, axis=1) < 1e-8
+        alt[bad] = np.cross(nrm[flat][bad], [0.0, 1.0, 0.0])
+        t2[flat] = alt
     t2 /= np.linalg.norm(t2, axis=1)[:, None]
     return np.stack([np.cross(t2, nrm), t2], axis=2), nrm
 
