@@ -15,9 +15,12 @@ directed bond.
 """
 from __future__ import annotations
 
+import resource
+import sys
+
 import numpy as np
 
-__all__ = ["kept_buffers", "kept_nbytes", "bytes_per_bond"]
+__all__ = ["kept_buffers", "kept_nbytes", "bytes_per_bond", "peak_rss_gb", "run_memory"]
 
 
 def _buffer(a: np.ndarray) -> np.ndarray:
@@ -94,3 +97,18 @@ def bytes_per_bond(system, family, models=(), state=None) -> dict:
         st += sum(v.nbytes for v in state.extra.values() if isinstance(v, np.ndarray))
     return {"bond": bond / nb, "particle": part / nb, "state": st / nb,
             "total": (bond + part + st) / nb}
+
+
+def peak_rss_gb() -> float:
+    """The process's peak resident memory so far (GB, 1e9 bytes): ``ru_maxrss`` (kB on
+    Linux, bytes on macOS)."""
+    r = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    return float(r) / (1e9 if sys.platform == "darwin" else 1e6)
+
+
+def run_memory(system, family, models=(), state=None) -> dict:
+    """A scene's ``meta["memory"]``: its directed bonds, :func:`bytes_per_bond` (kept, not
+    streamed) and the process's peak resident memory (GB) when it is called."""
+    return {"bonds": int(family.nb),
+            "bytes_per_bond": bytes_per_bond(system, family, models, state),
+            "peak_rss_GB": peak_rss_gb()}

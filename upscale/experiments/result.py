@@ -17,7 +17,10 @@ A scene (a plain function of its parameters, :mod:`upscale.experiments`) returns
     the scene call), ``conventions`` (stress area, sign of compression, ...), ``versions``
     (packages, machine), ``commit``, ``seeds``, ``wall_s``, ``cpu_s``, ``command`` (the
     ``upscale`` command line that reruns it), ``schema`` (:data:`SCHEMA`), and
-    ``plot`` (what :meth:`Result.plot` draws: ``{"x": name, "y": [names]}`` per table).
+    ``plot`` (what :meth:`Result.plot` draws: ``{"x": name, "y": [names]}`` per table),
+    ``peak_rss_GB`` (the process's peak resident memory when the result was made), and
+    for a scene on a peridynamic family ``memory``
+    (:func:`upscale.engine.memory.run_memory`: bonds, bytes kept per bond).
 
 Everything written goes through :func:`upscale.io.atomic_write_bytes`: a reader never sees
 half a file.
@@ -37,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from upscale.io import NumpyJSON, atomic_write_bytes, atomic_write_text, text_table, versions
+from upscale.engine.memory import peak_rss_gb
 
 __all__ = ["Result", "Comparison", "SCHEMA", "make_meta", "command_line", "Timer"]
 
@@ -215,6 +219,7 @@ def make_meta(scene: str, params: dict, *, timer: Timer | None = None, seeds=Non
             "command": command_line(scene, params)}
     if timer is not None:
         meta.update(wall_s=timer.wall_s, cpu_s=timer.cpu_s)
+    meta["peak_rss_GB"] = peak_rss_gb()
     if plot:
         meta["plot"] = plot
     meta.update(extra)

@@ -30,6 +30,7 @@ from upscale.engine import newton
 from upscale.engine.families import build_family
 from upscale.engine.state import State
 from upscale.engine.system import cubic_lattice, square_lattice
+from upscale.engine.memory import run_memory
 from upscale.experiments.result import Result, Timer, make_meta
 
 __all__ = ["bar_tension", "cantilever", "cpd", "plot"]
@@ -113,7 +114,7 @@ def bar_tension(*, dim: int = 2, E: float = 1e9, nu: float = 0.4, length: float 
         "newton": res.as_dict(), "newton_report": res.report(), "prepare_s": t_prep,
         "solve_s": res.wall_time_s, "constants": list(model.C),
         "interactions_per_point": {k: float(np.mean(v)) for k, v in model.counts.items()},
-        "_state": (s, st),
+        "_state": (s, st), "_memory": run_memory(s, fam, [model], st),
     }
 
 
@@ -165,7 +166,7 @@ def cantilever(*, dim: int = 2, E: float = 1e9, nu: float = 0.4, length: float =
         "newton": res.as_dict(), "newton_report": res.report(), "prepare_s": t_prep,
         "solve_s": res.wall_time_s, "constants": list(model.C),
         "interactions_per_point": {k: float(np.mean(v_)) for k, v_ in model.counts.items()},
-        "_state": (s, st),
+        "_state": (s, st), "_memory": run_memory(s, fam, [model], st),
     }
 
 
@@ -270,5 +271,5 @@ def cpd(*, scene: Literal["bar", "cantilever"] = "bar", dim: Literal[2, 3] = 2, 
     meta = make_meta("cpd", params, timer=timer, conventions=conventions,
                      plot={"profile": {"x": "x_m", "y": y}}, newton=newton,
                      newton_report=r["newton_report"], constants=r["constants"],
-                     prepare_s=r["prepare_s"], solve_s=r["solve_s"])
+                     prepare_s=r["prepare_s"], solve_s=r["solve_s"], memory=r["_memory"])
     return Result(figures=figures, curves=curves, fields={"x0": x0, "u": u}, meta=meta)

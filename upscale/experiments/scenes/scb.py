@@ -37,6 +37,7 @@ from typing import Literal
 
 import numpy as np
 
+from upscale.engine.memory import run_memory
 from upscale.experiments.result import Result, Timer, make_meta
 
 __all__ = ["SCBScene", "run_scb", "scb", "calibrated_r_s", "PMMA", "crack_frame", "williams_fit"]
@@ -587,6 +588,7 @@ def scb(*, alpha: float = 30.0, dx: float = 1e-3, m: float = 3.0, r_s: float | N
                      plot={"curve": {"x": "displacement_m", "y": ["load_N"]}},
                      scene_description=desc, crack_path_m=res["crack_path_m"],
                      stop_reason=curve["stop_reason"],
-                     time_split_s=curve["time_split_s"], run_wall_s=res["wall_s"])
+                     time_split_s=curve["time_split_s"], run_wall_s=res["wall_s"],
+                     memory=run_memory(sc.system, sc.family, [sc.model], res["_state"]))
     return Result(figures=figures, curves=curves,
                   fields={"x0": sc.system.x0, "damage": res["_damage"]}, meta=meta)

@@ -406,8 +406,9 @@ def tipd(case: Literal["mms", "strip", "hole", "branching"] = "mms", *,
         "branching": "tip: the crack's largest x with damage >= tip_damage; speeds over a "
                      "sliding window (tipd_branching module docstring); NaN: not reached",
     }
+    memory = r.get("_memory") if case in ("hole", "branching") else None
     meta = make_meta("tipd", params, timer=timer, conventions=conventions, plot=plot,
-                     settings=settings)
+                     settings=settings, **({"memory": memory} if memory else {}))
     return Result(figures=figures, curves=curves, fields=fields, meta=meta)
 
 

@@ -51,6 +51,8 @@ from pathlib import Path
 
 import numpy as np
 
+from upscale.engine.memory import run_memory
+
 __all__ = ["branching", "simulate", "measure", "front_events", "sliding_slopes", "path_peak",
            "branch_angle", "plot_damage", "rayleigh_speed", "lattice_fracture_energy", "GLASS"]
 
@@ -263,7 +265,8 @@ def simulate(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4, cri
         return False
 
     out = sim.run(steps, progress=progress, callback=cb)
-    return {"model": model, "critical": critical if model == "tipd" else None, "stress_Pa": stress,
+    return {"_memory": run_memory(s, fam, [mdl], sim.state),
+            "model": model, "critical": critical if model == "tipd" else None, "stress_Pa": stress,
             "dx_m": dx, "m": m, "delta_m": delta, "horizon_m": fam.horizon, "partial_volume": partial_volume,
             "nx": nx, "ny": ny,
             "load_rows": rows, "particles": s.n, "dt_s": float(dt), "steps": out["steps"],
@@ -414,7 +417,7 @@ def measure(run: dict, *, tip_damage: float = 0.35, record_dt: float = 0.25e-6,
     edge_damage = int((dam & ~crack_cluster(dam)).sum())
     keep = ("model", "critical", "stress_Pa", "dx_m", "horizon_m", "partial_volume", "load_rows", "particles",
             "dt_s", "steps", "t_end_s", "s0", "broken_bonds")
-    return {**{k: run[k] for k in keep}, "tip_damage": float(tip_damage),
+    return {**{k: run[k] for k in keep}, "_memory": run.get("_memory"), "tip_damage": float(tip_damage),
             "record_dt_s": record_every * dt, "speed_window_s": float(w), "cR_m_per_s": cR,
             "v_max_m_per_s": vmax, "v_max_over_cR": vmax / cR,
             "v_max_records_m_per_s": vmax_rec, "v_max_records_over_cR": vmax_rec / cR,

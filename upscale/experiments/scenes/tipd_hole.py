@@ -28,6 +28,8 @@ import warnings
 
 import numpy as np
 
+from upscale.engine.memory import run_memory
+
 __all__ = ["hole_body", "hole", "material_voigt", "L_PLATE", "W_PLATE", "R_HOLE", "THICK", "U_GRIP"]
 
 L_PLATE, W_PLATE, R_HOLE, THICK = 0.15, 0.05, 0.01, 1e-3
@@ -113,7 +115,8 @@ def hole(model: str = "tipd", *, material: str = "iso", dx: float = 1e-3, m: flo
     ymid = 0.0 if int(round(W / dx)) % 2 else dx / 2      # the rows next to y = 0
     mid = (np.abs(np.abs(x[:, 1]) - ymid) < 1e-9 * dx) & ~grips
     edge = (np.abs(np.abs(x[:, 1]) - (W / 2 - dx / 2)) < 1e-9 * dx) & ~grips
-    return {"model": model, "material": material, "dx_m": dx, "horizon_m": fam.horizon,
+    return {"_memory": run_memory(s, fam, [mdl], st),
+            "model": model, "material": material, "dx_m": dx, "horizon_m": fam.horizon,
             "calibration": calibration if model == "tipd" else None,
             "stabilisation": stabilisation if model == "nosb" else None,
             "surface": mdl.surface if model == "tipd" else None, "grip_horizons": float(grip),

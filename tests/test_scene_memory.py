@@ -1,0 +1,26 @@
+"""Memory per bond in the scenes' ``Result.meta`` (issue on heavy scenes, item 2)."""
+import numpy as np
+
+from upscale import experiments
+from upscale.engine import bonds_crossing_segment
+from upscale.experiments.registry import QUICK
+from upscale.experiments.scenes.plate import CRACK, PlateScene
+
+
+def test_plate_reports_its_bonds_and_bytes_per_bond():
+    r = experiments.plate(**QUICK["plate"])
+    mem = r.meta["memory"]
+    assert mem["bonds"] == r.figures["bonds"]
+    b = mem["bytes_per_bond"]
+    # the PMB family and model keep 32-bit partners and per-particle factors only; the
+    # state is one byte of `intact` per bond (issue target: at most 16 plus the state)
+    assert b["bond"] + b["particle"] <= 16.0 and b["state"] == 1.0
+    assert 0.0 < mem["peak_rss_GB"] <= r.meta["peak_rss_GB"]
+
+
+def test_plate_precrack_by_blocks_equals_the_whole_family_test():
+    sc = PlateScene(40, model="pmb")
+    f = sc.family
+    whole = bonds_crossing_segment(sc.system.x0, (-CRACK / 2, 0.0), (CRACK / 2, 0.0))(
+        f.owner, f.neighbors, f.xi)
+    assert whole.any() and np.array_equal(whole, sc.precrack)
