@@ -453,3 +453,76 @@ def _shifted(atoms):
     atoms = atoms.copy()
     atoms.positions[:, 0] += 20.0
     return atoms
+
+
+def uniform_state(model, lam_z, seed=0):
+    """A model's rows on the uniform relaxed lattice of axial stretch lam_z (its period
+    set), shifts relaxed, random velocities; the shifts held (a minimiser's state)."""
+    from upscale.models.dcbr.ghost import uniform_lattice
+
+    t = model.tube
+    model.set_cell(lam_z * t.L)
+    lt, sh = uniform_lattice(t.cell, t.P_f, lam_z)
+    if model.ghost is not None:
+        y, _ = model.ghost.tube_uniform_state(lt, lam_z, sh)
+    else:
+        y = t.centre + (t.x0 - t.centre) * np.array([lt, lt, lam_z])
+    st = State(model.x0, y, 1e-3 * np.random.default_rng(seed).standard_normal(y.shape),
+               np.ones(0, bool))
+    model.init_state(st)
+    st.extra[FIELD][...] = sh
+    model.hold_internal(True)
+    return st
+
+
+@pytest.mark.parametrize("start", ["coarse", "band"])
+def test_switch_at_zero_kelvin_uniform_strain(start):
+    """Particles replaced by their atoms on a uniformly stretched (4 %) periodic tube, from
+    a coarse tube or growing a selected band: no energy jump (< 1e-10 eV per new atom), no
+    force on any row (< 1e-9 eV/Å: the new atoms sit on their carriers' maps, the ghost
+    load rebuilt), momentum equal after the correction (it differed before: particle
+    masses are not the atoms' they stand for)."""
+    from upscale.models.dcbr.switch import switch
+
+    atoms = swcnt(10, 10, length=100.0) if start == "coarse" else swcnt(12, 6, length=100.0)
+    zc = atoms.positions[:, 2].mean()
+    select = None if start == "coarse" else np.abs(atoms.positions[:, 2] - zc) < 6.0
+    model = DCBRModel(atoms, 2.0, select=select)
+    st = uniform_state(model, 1.04)
+    assert np.abs(model.force(st)).max() < 1e-9
+    t = model.tube
+    near = np.abs((t.x0 - t.centre) @ t.axis - zc) < 12.0
+    if model.coupling is not None:
+        near &= ~model.coupling.inside
+    P0 = model.masses() @ st.v
+    new, st2, log = switch(model, st, near)
+    assert log.atoms_added >= 9 * near.sum()
+    assert abs(log.energy_change_per_atom_eV) < 1e-10
+    assert log.max_new_atom_force_eV_A < 1e-9 and np.abs(new.force(st2)).max() < 1e-9
+    assert np.abs(log.momentum_change_before_correction).max() > 1e-3
+    np.testing.assert_allclose(new.masses() @ st2.v, P0, rtol=0, atol=1e-12 * np.abs(P0).max()
+                               + 1e-12)
+    assert new.coupling.inside[near].all()
+
+
+def test_flagged_particles_and_a_run_after_the_switch():
+    """No link nears failure at 10 % uniform strain; a 3 Å axial step across the middle
+    flags the particles at the step (links whose bond passes 0.8 x 2.1 Å). Switched, the
+    grown model relaxes on the engine's L-BFGS-B (no blow-up, converged)."""
+    from upscale.engine.minimisers import LBFGS
+    from upscale.engine.simulation import Simulation
+    from upscale.models.dcbr.switch import flagged_particles, switch
+
+    model = DCBRModel(swcnt(10, 10, length=80.0), 2.0)
+    st = uniform_state(model, 1.10)
+    assert not flagged_particles(model, st, 0.8).any()
+    t = model.tube
+    z = (t.x0 - t.centre) @ t.axis
+    st.y[:, 2] += np.where(z > t.L / 2, 3.0, 0.0)
+    flagged = flagged_particles(model, st, 0.8)
+    assert flagged.any() and np.all(np.abs(z[flagged] - t.L / 2) < 2 * max(t.spacing))
+    new, st2, log = switch(model, st, flagged)
+    assert log.atoms_added > 0 and np.isfinite(log.energy_after_eV)
+    sim = Simulation(new.system(), None, [new], state=st2)
+    r = sim.minimise(LBFGS(ftol=1e-3, max_iter=3000))
+    assert r.converged and np.isfinite(new.energy(sim.state))

@@ -20,13 +20,14 @@ arrangement refined to the lattice near a defect):
   motions are exact) of the 10 nearest free atoms of sublattice A (more where 10 cannot
   fix the six terms, else linear), y_s = X_s + sum_a Phi_sa (x_a - X_a).
 * **Pad atoms**: tube atoms within ``pad`` (3.5 Å > the 2.1 Å cutoff) of a free atom,
-  slaved to the nearest non-slave particle's uniform map (:mod:`.pads`).
+  slaved to the nearest non-slave particle's uniform map (:mod:`.pads`); a carrier that
+  has failed (or whose map degenerates) leaves its pads on its last good map.
 * The hourglass links of particle c are scaled by w_c / max_c w_c.
 
 This is the coupling of the validated defect tube (``DCBRDefectTube``, old module), written
 once and taken from the registered structure (any defects, any number of regions) instead
-of a band about one vacancy. Not here yet: the ghost-force dead load, a region across a
-periodic tube's boundary (refused), pads whose carrier G has dropped (frame frozen).
+of a band about one vacancy. The ghost-force dead load is :mod:`.ghost`. Not here yet: a
+region across a periodic tube's boundary (refused).
 
 Rows of the unknowns: the non-slave particles (``dof_idx``), then the free atoms
 (``free_idx``, structure order). Units: Å, eV.
@@ -40,10 +41,10 @@ from scipy.spatial import cKDTree
 from potentials import tersoff_kernels as tk
 from potentials.neighbours import neighbour_list
 from potentials.tersoff import read_tersoff_file
-from upscale.models.dcbr.maps import frame_adjoint, map_frames
+from upscale.models.dcbr.maps import frame_adjoint, frame_of, map_frames
 from upscale.models.dcbr.pads import pad_backward, pad_positions
 
-__all__ = ["Coupling", "PAD"]
+__all__ = ["Coupling", "PAD", "atom_geometry", "carriers", "carried_positions"]
 
 #: width (Å) of the band of pad atoms about the free atoms (> the 2.1 Å cutoff)
 PAD = 3.5
@@ -112,6 +113,60 @@ def _slave_fit(R0, th_c, z_c, thA, zA):
                      "a larger r_atomistic")
 
 
+def atom_geometry(tube, reg, positions):
+    """The tube's atoms: (structure indices (K,), positions (K, 3) Å, theta (K,) rad,
+    axial z (K,) Å in the particles' frame, sublattice in the particle lattice's
+    convention (K,), on a lattice site (K,) bool)."""
+    ids = np.asarray(reg.atoms)
+    X = np.asarray(positions, float)[ids]
+    th, z = _cyl(tube, X)
+    on_site = reg.lattice.site >= 0
+    sub = _patch_sublattice(tube, th, z, X, reg.lattice.sublattice, on_site)
+    return ids, X, th, z, sub, on_site
+
+
+def _ref_frames(tube):
+    """(par (N, 3), Q3 (N, 3, 3)) of every particle's map at the reference."""
+    F0 = tube.gain.deformation(tube.x0, tube.L if tube.periodic else None)
+    par, Q3 = np.empty((tube.N, 3)), np.empty((tube.N, 3, 3))
+    map_frames(F0, tube.gain.S, tube.gain.alive, par, Q3)
+    return par, Q3
+
+
+def carriers(tube, dof_idx, X, th, z, sub):
+    """Atoms that follow a particle's uniform map (:mod:`.pads`): carrier c (the nearest of
+    ``dof_idx``), reference offsets (ds, dz), sublattice flag, residual r0 (so that the
+    map puts each atom on its reference position ``X`` (k, 3) at the reference)."""
+    k, ds, dz = _nearest(tube, th, z, dof_idx)
+    c = np.asarray(dof_idx, np.int64)[k]
+    sig = np.asarray(sub, float)
+    par, Q3 = _ref_frames(tube)
+    x = np.empty((len(c), 3))
+    pad_positions(tube.x0, np.zeros((tube.N, 3)), par, Q3, c, ds, dz, sig,
+                  np.zeros((len(c), 3)), tube.cell.R0, x)
+    dX = X - x
+    if tube.periodic:
+        dX -= np.outer(np.round((dX @ tube.axis) / tube.L), tube.L * tube.axis)
+    return c, ds, dz, sig, np.ascontiguousarray(np.einsum("aij,ai->aj", Q3[c], dX))
+
+
+def carried_positions(tube, car, yp, delta, L, fs_last=None) -> np.ndarray:
+    """Positions (k, 3) of atoms following their carriers' maps (``car``: the tuple of
+    :func:`carriers`) at particle positions ``yp`` (N, 3), shifts, period ``L``; a carrier
+    that has failed uses ``fs_last`` (N, 3, 2), its last good map."""
+    F = tube.gain.deformation(yp, L)
+    par, Q3 = np.empty((tube.N, 3)), np.empty((tube.N, 3, 3))
+    map_frames(F, tube.gain.S, tube.gain.alive, par, Q3)
+    if fs_last is not None:
+        for k in np.flatnonzero(~(tube.alive & tube.gain.alive)):
+            frame_of(fs_last[k], par[k], Q3[k])
+    c, ds, dz, sig, r0 = car
+    x = np.empty((len(c), 3))
+    pad_positions(np.ascontiguousarray(yp), np.ascontiguousarray(delta), par, Q3, c, ds, dz,
+                  sig, r0, tube.cell.R0, x)
+    return x
+
+
 class Coupling:
     """The coupled tube: particles of a :class:`.tube.CoarseTube` and the free atoms of
     the atomistic regions (module docstring).
@@ -133,17 +188,15 @@ class Coupling:
     inside : (N,) bool, optional
         The particles that give their atoms to the region, instead of those ``region``
         gives (the pristine twin of :mod:`.ghost` takes its tube's).
+    more_inside : (N,) bool, optional
+        Particles given to the region besides (a region grown by :mod:`.switch`).
     """
 
     def __init__(self, tube, reg, positions, region, potential="BNC.tersoff", pad=PAD,
-                 inside=None):
+                 inside=None, more_inside=None):
         self.tube = tube
-        ids = np.asarray(reg.atoms)
-        X = np.asarray(positions, float)[ids]
-        th, z = _cyl(tube, X)
+        ids, X, th, z, sub, on_site = atom_geometry(tube, reg, positions)
         lat = reg.lattice
-        on_site = lat.site >= 0
-        sub = _patch_sublattice(tube, th, z, X, lat.sublattice, on_site)
         # every expected site: occupied ones at their atom, empty ones at the lattice's site
         empty = lat.empty_sites
         uv = lat.site_uv(empty)
@@ -159,6 +212,8 @@ class Coupling:
             inside[own_a[reg_a | ~on_site]] = True
             inside[own_e] = True
         self.inside = np.asarray(inside, bool).copy()
+        if more_inside is not None:
+            self.inside |= np.asarray(more_inside, bool)
         free = self.inside[own_a]
         self._check_boundary(tube, z, free, pad)
         tot = np.bincount(own_a[on_site], minlength=tube.N) + np.bincount(own_e, minlength=tube.N)
@@ -216,21 +271,22 @@ class Coupling:
         near = cKDTree(X[free]).query(X, distance_upper_bound=pad)[0] < pad
         loc = np.flatnonzero(~free & near)
         self.pad_idx = ids[loc]
-        k, ds, dz = _nearest(t, th[loc], z[loc], self.dof_idx)
-        c = self.dof_idx[k].astype(np.int64)
-        self.pad_c, self.pad_ds, self.pad_dz = c, ds, dz
-        self.pad_sig = sub[loc].astype(float)
-        self.pad_r0 = np.zeros((len(loc), 3))
+        self.pad_c, self.pad_ds, self.pad_dz, self.pad_sig, self.pad_r0 = carriers(
+            t, self.dof_idx, X[loc], th[loc], z[loc], sub[loc])
         F0 = t.gain.deformation(t.x0, t.L if t.periodic else None)
-        par, Q3 = self._frames(F0)
-        x = np.empty((len(loc), 3))
-        pad_positions(t.x0, np.zeros((t.N, 3)), par, Q3, c, ds, dz, self.pad_sig, self.pad_r0,
-                      t.cell.R0, x)
-        dX = X[loc] - x
-        if t.periodic:
-            dX -= np.outer(np.round((dX @ t.axis) / t.L), t.L * t.axis)
-        self.pad_r0 = np.ascontiguousarray(np.einsum("aij,ai->aj", Q3[c], dX))
-        self._Q3_ref, self._par_ref = Q3, par
+        self.fs_last = np.einsum("nia,nab->nib", F0, t.gain.S)
+
+    def _keep_maps(self, F) -> np.ndarray:
+        """(N,) bool: the particles whose map is their own (alive, C_00 > 1e-6, det C >
+        1e-9); their FS = F S becomes the last good map (``fs_last``, mutated), which the
+        pads of the others keep (no jump when a carrier fails)."""
+        t = self.tube
+        FS = np.einsum("nia,nab->nib", F, t.gain.S)
+        C = np.einsum("nia,nib->nab", FS, FS)
+        ok = t.alive & t.gain.alive & (C[:, 0, 0] > 1e-6) & \
+            (C[:, 0, 0] * C[:, 1, 1] - C[:, 0, 1] ** 2 > 1e-9)
+        self.fs_last[ok] = FS[ok]
+        return ok
 
     def _frames(self, F):
         t = self.tube
@@ -272,8 +328,9 @@ class Coupling:
         Es, Ps, gyp, dLs = t.hourglass.energy_and_gradient(yp, F, L)
         P += Ps
         par, Q3 = self._frames(F)
-        own = t.gain.alive.copy()
-        par[~own], Q3[~own] = self._par_ref[~own], self._Q3_ref[~own]
+        own = self._keep_maps(F)
+        for k in np.flatnonzero(~own):  # a failed carrier's pads keep its last good map
+            frame_of(self.fs_last[k], par[k], Q3[k])
         x = np.empty((self.nf + len(self.pad_c), 3))
         x[:self.nf] = y[nd:]
         pad_positions(yp, delta, par, Q3, self.pad_c, self.pad_ds, self.pad_dz, self.pad_sig,

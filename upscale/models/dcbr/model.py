@@ -84,6 +84,9 @@ class DCBRModel(Model):
     select : callable, bool mask or atom indices, optional
         Atoms kept atomistic besides (:func:`.regions.selected_atoms`; selecting nothing
         is an error).
+    atomistic_particles : (N,) bool, optional
+        Particles whose atoms are made atomistic besides the regions' (a grown region:
+        :func:`.switch.switch`).
     ghost : bool
         With atomistic regions on a periodic tube: the ghost-force dead load of the pristine
         twin (:mod:`.ghost`), prepared by :meth:`set_cell` for each period (and at the
@@ -103,13 +106,19 @@ class DCBRModel(Model):
                  horizon_factor: float = 1.5, potential: str = "BNC.tersoff",
                  hourglass: float = 0.1, r_atomistic: float = 8.0, select=None,
                  ghost: bool = True, shift_gtol: float = 1e-10,
-                 failure: bool = True, unit: float = ACC_EV_A_AMU_IN_A_FS2):
+                 failure: bool = True, unit: float = ACC_EV_A_AMU_IN_A_FS2,
+                 atomistic_particles=None):
         _check("coarsening", coarsening, np.isfinite(coarsening) and coarsening >= 1.0,
                "a number >= 1 (1 = one particle per lattice constant)")
         _check("horizon_factor", horizon_factor,
                np.isfinite(horizon_factor) and horizon_factor > 1.0, "a number > 1")
         _check("shift_gtol", shift_gtol, np.isfinite(shift_gtol) and shift_gtol > 0, "> 0")
         _check("unit", unit, np.isfinite(unit) and unit > 0, "a positive mass unit factor")
+        self.params = dict(coarsening=coarsening, chirality=chirality,
+                           horizon_factor=horizon_factor, potential=potential,
+                           hourglass=hourglass, r_atomistic=r_atomistic, select=select,
+                           ghost=ghost, shift_gtol=shift_gtol, failure=failure, unit=unit)
+        self.atoms = atoms
         self.structure = register(atoms, chirality)
         if len(self.structure.tubes) != 1:
             raise ValueError(f"the structure holds {len(self.structure.tubes)} tubes; valid: "
@@ -124,13 +133,17 @@ class DCBRModel(Model):
         if tube.length < 2 * cut:
             raise ValueError(f"tube length {tube.length:.3f} Å; valid: at least two cutoffs of "
                              f"the potential ({2 * cut:.2f} Å)")
-        n_sites = int(tube.lattice.expected.sum()) if self.regions.mask.any() else len(tube.atoms)
+        more = None if atomistic_particles is None else np.asarray(atomistic_particles, bool)
+        coupled = self.regions.mask.any() or (more is not None and more.any())
+        n_sites = int(tube.lattice.expected.sum()) if coupled else len(tube.atoms)
         self.tube = CoarseTube(tube, n_sites, coarsening, horizon_factor, potential, hourglass)
         t = self.tube
+        if more is not None and more.shape != (t.N,):
+            raise ValueError(f"atomistic_particles of shape {more.shape}; valid: ({t.N},) bool")
         self.coupling = self.ghost = None
-        if self.regions.mask.any():
+        if coupled:
             self.coupling = Coupling(t, tube, self.structure.positions, self.regions.mask,
-                                     potential)
+                                     potential, more_inside=more)
             if ghost and t.periodic:
                 build = dict(coarsening=coarsening, horizon_factor=horizon_factor,
                              potential=potential, hourglass=hourglass)
@@ -182,7 +195,20 @@ class DCBRModel(Model):
                              f"model's {self.n} rows in 3D (DCBRModel.system())")
         self.system = system
 
+    def grown(self, particles) -> "DCBRModel":
+        """A new model of the same atoms whose region also holds the atoms of ``particles``
+        (N,) bool (its period set to this one's)."""
+        inside = np.asarray(particles, bool).copy()
+        if self.coupling is not None:
+            inside |= self.coupling.inside
+        new = DCBRModel(self.atoms, atomistic_particles=inside, **self.params)
+        if self.Lz is not None:
+            new.set_cell(self.Lz)
+        return new
+
     def init_state(self, state) -> None:
+        if self.coupling is not None:
+            state.extra.setdefault("dcbr.fs_last", self.coupling.fs_last.copy())
         state.extra.setdefault(FIELD, np.zeros((self.tube.N, 3)))
         state.extra.setdefault("dcbr.intact", self.tube.gain.intact_b.copy())
         state.extra.setdefault("dcbr.alive", self.tube.alive.copy())
@@ -243,6 +269,8 @@ class DCBRModel(Model):
 
     def _evaluate(self, state):
         self._sync_links(state)
+        if self.coupling is not None and "dcbr.fs_last" in state.extra:
+            self.coupling.fs_last = state.extra["dcbr.fs_last"]  # (kept in the state)
         if self.cell is not None:
             self.set_cell(float(self.cell(state.t)))
         y = np.ascontiguousarray(state.y, dtype=float)
@@ -279,6 +307,11 @@ class DCBRModel(Model):
     def internal_fields(self) -> dict:
         b = self.tube.shift_bound
         return {FIELD: (-b, b)}
+
+    @property
+    def held(self) -> bool:
+        """True while a minimiser holds the shifts (:meth:`hold_internal`)."""
+        return self._held
 
     def hold_internal(self, flag: bool) -> None:
         """While held the shifts are a minimiser's unknowns; else relaxed at every call."""
