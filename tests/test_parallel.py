@@ -1,6 +1,9 @@
-"""One simulation over MPI ranks (upscale.engine.parallel): the decomposition and halo
-lists in one process, and the pre-cracked plates on 1, 2 and 4 ranks under ``mpiexec``
-(spawned; skipped when no ``mpiexec`` is found), one thread per rank."""
+"""One simulation over MPI ranks (upscale.engine.parallel): the decomposition, the rows a
+rank builds and the halo lists in one process (the default tier), and, in the MPI tier
+(``-m mpi``, ``make test-mpi``), the pre-cracked plates on 1, 2 and 4 ranks under
+``mpiexec`` (spawned by this process; skipped when no ``mpiexec`` is found or when this
+process was itself started by ``mpiexec``), one thread per rank. The tests that run inside
+an ``mpiexec -n 2`` world are in ``test_parallel_mpi.py``."""
 import json
 import os
 import random
@@ -17,22 +20,30 @@ import pytest
 from upscale.engine import build_family, square_lattice
 from upscale.engine.families import Family
 from upscale.engine.parallel import balance, build_local, halo_depth, rcb
-from upscale.engine.parallel.comm import LAUNCHER_VARS
+from upscale.engine.families import FamilyRecipe, bonds_crossing_segment, build_family_rows
+from upscale.engine.parallel.comm import LAUNCHER_VARS, launched_by_mpi
+from upscale.engine.parallel.halo import build_local_rows
 
 HERE = Path(__file__).parent
 RUNNER = HERE / "parallel_plate_run.py"
 MPIEXEC = shutil.which("mpiexec", path=str(Path(sys.executable).parent)) or shutil.which("mpiexec")
-needs_mpi = pytest.mark.skipif(MPIEXEC is None, reason="no mpiexec found")
+# spawned MPI runs: the MPI tier, from a process not started by mpiexec itself
+needs_mpi = pytest.mark.skipif(MPIEXEC is None or launched_by_mpi(),
+                               reason="no mpiexec found, or already under mpiexec")
 
 
 class FakeComm:
-    """Rank ``rank`` of ``size`` in one process (the send lists stay empty)."""
+    """Rank ``rank`` of ``size`` in one process (the send lists stay empty; ``allgather``
+    answers ``gathered``, what the ranks would have sent)."""
 
-    def __init__(self, rank, size):
-        self.rank, self.size = rank, size
+    def __init__(self, rank, size, gathered=None):
+        self.rank, self.size, self.gathered = rank, size, gathered
 
     def alltoall(self, objs):
         return [np.zeros(0, dtype=np.int64) for _ in objs]
+
+    def allgather(self, obj):
+        return self.gathered
 
 
 def _plate_family(n=24):
@@ -51,7 +62,7 @@ def test_rcb_splits_into_balanced_nonempty_parts():
 
 
 def test_rcb_refuses_more_ranks_than_particles():
-    with pytest.raises(ValueError, match="5 ranks for 4 particles"):
+    with pytest.raises(ValueError, match="5 MPI ranks for 4 particles"):
         rcb(np.zeros((4, 3)), np.ones(4), 5)
 
 
@@ -80,6 +91,68 @@ def test_local_rows_are_the_global_rows(depth):
     assert np.all(seen == 1)  # each bond decided on exactly one owner
 
 
+@pytest.mark.parametrize("pv", [None, "linear"])
+def test_family_rows_of_a_subset_are_the_whole_familys_rows(pv):
+    system, _ = _plate_family()
+    cut = bonds_crossing_segment(system.x0, (-5e-3, 0.0), (5e-3, 0.0))
+    fam = build_family(system, 3.015e-3, partial_volume=pv, exclude=cut)
+    rng = np.random.default_rng(1)
+    for rows in (np.arange(fam.n), np.sort(rng.choice(fam.n, 37, replace=False)),
+                 np.array([0]), np.array([], dtype=np.int64)):
+        counts, nbr = build_family_rows(system, 3.015e-3, rows, partial_volume=pv, exclude=cut)
+        assert np.array_equal(counts, fam.counts[rows])
+        want = [fam.neighbors[fam.offsets[r]:fam.offsets[r + 1]] for r in rows]
+        assert np.array_equal(nbr, np.concatenate(want) if want else np.zeros(0))
+    with pytest.raises(ValueError, match="sorted and unique"):
+        build_family_rows(system, 3.015e-3, np.array([3, 2]))
+
+
+@pytest.mark.parametrize("depth", [1, 2])
+def test_rows_a_rank_builds_alone_are_its_part_of_the_whole_family(depth):
+    system, _ = _plate_family()
+    cut = bonds_crossing_segment(system.x0, (-5e-3, 0.0), (5e-3, 0.0))
+    recipe = FamilyRecipe(system, 3.015e-3, exclude=cut)
+    fam = recipe.build()
+    size = 4
+    part = rcb(system.x0, fam.counts + 1.0, size)
+    gathered = [(np.flatnonzero(part == p), fam.counts[part == p]) for p in range(size)]
+    for r in range(size):
+        want = build_local(FakeComm(r, size), fam.offsets, fam.neighbors, part, depth)
+        got = build_local_rows(FakeComm(r, size, gathered), recipe, part, depth)
+        for k in ("gid", "owned", "offsets", "neighbors", "bond_gid"):
+            assert np.array_equal(getattr(got, k), getattr(want, k)), k
+        assert got.nb_global == fam.nb and got.n_global == fam.n
+
+
+def test_recipe_builds_the_family_and_its_broken_bonds():
+    from upscale import models
+    from upscale.engine import Simulation
+
+    system, _ = _plate_family()
+    cut = bonds_crossing_segment(system.x0, (-5e-3, 0.0), (5e-3, 0.0))
+    recipe = FamilyRecipe(system, 3.015e-3, broken=cut)
+    fam = build_family(system, 3.015e-3)
+    sim = Simulation(system, recipe, models.create("pmb", E=1e9))
+    assert np.array_equal(sim.family.neighbors, fam.neighbors)
+    want = ~cut(fam.owner, fam.neighbors, fam.xi)
+    assert not want.all() and np.array_equal(sim.state.intact, want)
+
+
+def test_started_by_a_launcher_without_mpi_one_line_on_rank0_only():
+    code = ("import sys; sys.modules['mpi4py'] = None\n"
+            "from upscale.engine.parallel import world\nworld()")
+    for rank in (0, 1):
+        env = {**_env(), "PMI_SIZE": "2", "PMI_RANK": str(rank)}
+        r = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                           text=True, timeout=120)
+        assert r.returncode != 0
+        lines = r.stderr.strip().splitlines()
+        if rank == 0:
+            assert len(lines) == 1 and "mpi4py is not importable" in lines[0], r.stderr
+        else:
+            assert lines == [], r.stderr
+
+
 def test_halo_depth_of_the_models():
     from upscale import models
 
@@ -94,8 +167,14 @@ def test_halo_depth_of_the_models():
     class Other:
         name = "nosb"
 
-    with pytest.raises(ValueError, match="'nosb' cannot run on several MPI ranks"):
+    with pytest.raises(ValueError, match="'nosb' cannot run on several MPI ranks yet: its "
+                       "prepare checks every particle's family"):
         halo_depth(Other())
+    for name, why in (("cpd", "non-collinear"), ("unified", "gain"),
+                      ("tridyn-eb", "rotations are fields"), ("dcbr", "does not know the halo")):
+        Other.name = name
+        with pytest.raises(ValueError, match=why):
+            halo_depth(Other())
 
 
 # ---------------------------------------------------------------- under mpiexec
@@ -127,6 +206,7 @@ def serial_plates(tmp_path_factory):
     return out
 
 
+@pytest.mark.mpi
 @needs_mpi
 @pytest.mark.parametrize("model,ranks", [("pmb", 2), ("pmb", 4), ("lps", 2), ("lps", 4),
                                          ("tipd", 2)])
@@ -145,6 +225,7 @@ def test_plate_on_ranks_is_bit_identical_to_serial(model, ranks, serial_plates, 
     assert got["ke"] == pytest.approx(ref["ke"], rel=1e-12)
 
 
+@pytest.mark.mpi
 @needs_mpi
 def test_restart_after_sigkill_on_two_ranks_is_bit_identical(tmp_path):
     full = tmp_path / "full.npz"
@@ -179,6 +260,7 @@ def _cli(ranks, *args, **kw):
     return _run(ranks, "-m", "upscale.cli", *args, **kw)
 
 
+@pytest.mark.mpi
 @needs_mpi
 def test_cli_plate_on_two_ranks(tmp_path):
     r = _cli(2, "plate", "--n", 20, "--t-end", "1e-6", "--quiet", "--out", tmp_path)
@@ -192,6 +274,7 @@ def test_cli_plate_on_two_ranks(tmp_path):
     assert r.returncode == 2 and r.stderr.count("runs on one MPI rank") == 1, r.stderr
 
 
+@pytest.mark.mpi
 @needs_mpi
 def test_blow_up_on_two_ranks_stops_every_rank_with_the_diagnosis(tmp_path):
     r = _cli(2, "plate", "--n", 20, "--dt", "1.7e-6", "--force-dt", "--t-end", "1e-3", "--quiet",
@@ -201,6 +284,7 @@ def test_blow_up_on_two_ranks_stops_every_rank_with_the_diagnosis(tmp_path):
     assert "blew up at step" in r.stderr and "on rank" in r.stderr
 
 
+@pytest.mark.mpi
 @needs_mpi
 def test_output_on_two_ranks_gathered_extxyz_and_pvtu(tmp_path):
     args = ("plate", "--n", 20, "--t-end", "2e-6", "--every", 2, "--quiet")
@@ -224,6 +308,7 @@ def test_output_on_two_ranks_gathered_extxyz_and_pvtu(tmp_path):
     assert np.array_equal(np.sort(got), np.sort(whole.point_data["damage"]))
 
 
+@pytest.mark.mpi
 @needs_mpi
 def test_checkpoints_of_two_ranks_merged_resume_on_four_and_on_one(tmp_path):
     ref = tmp_path / "ref.npz"
@@ -243,3 +328,18 @@ def test_checkpoints_of_two_ranks_merged_resume_on_four_and_on_one(tmp_path):
         assert r.returncode == 0, r.stderr
         a, b = np.load(ref), np.load(out)
         assert np.array_equal(a["u"], b["u"]) and np.array_equal(a["intact"], b["intact"])
+
+
+@pytest.mark.mpi
+@needs_mpi
+def test_refused_under_mpiexec_one_line_on_rank0_every_rank_exits():
+    code = "from upscale.engine import newton\nnewton.dirichlet(None)"
+    r = _run(2, "-c", code, timeout=120)
+    assert r.returncode != 0
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("error: an implicit solve"), r.stderr
+    lean = "from parallel_plate_run import lean_plate\nlean_plate(20, 'pmb', object())"
+    r = _run(2, "-c", lean, timeout=120, cwd=HERE)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode != 0 and len(lines) == 1 and "with object runs on one rank" in lines[0], \
+        r.stderr

@@ -67,7 +67,11 @@ def _update(F_nc, Fprev_nc, v_nc, lam_n, free_nc, y_nc, cdt, dt, drift):
 
 class FusedAdaptiveDynamicRelaxation(AdaptiveDynamicRelaxation):
     """:class:`~upscale.engine.integrators.AdaptiveDynamicRelaxation` with fused kernels
-    (same parameters, same iterates up to round-off; ``sim.relax(FusedAdaptiveDynamicRelaxation())``)."""
+    (same parameters, same iterates up to round-off; ``sim.relax(FusedAdaptiveDynamicRelaxation())``).
+
+    Runs on several MPI ranks (the ADR of ``sim.relax()`` there): the damping sums and
+    norms are sums over each rank's owned particles added over the ranks, so the iterates
+    equal the serial ones up to the order of those sums (round-off)."""
 
     name = "adr-fused"
 
@@ -94,15 +98,23 @@ class FusedAdaptiveDynamicRelaxation(AdaptiveDynamicRelaxation):
         v = np.where(free, 0.5 * dt * F / lam[:, None], 0.0)
         Fprev = np.where(free, F, 0.0)
         st.y += dt * v
-        fext = float(np.linalg.norm(sim.F_ext))
+        part = getattr(sim, "part", None)  # several MPI ranks: sums over the owned rows
+        own = None if part is None else np.flatnonzero(part.owned)
+        fext = float(np.linalg.norm(sim.F_ext)) if part is None else \
+            float(np.sqrt(part.sum(float(np.sum(sim.F_ext[own] ** 2)))))
         setup = time.process_time() - c0
         res = np.inf
         it = 0
         for it in range(1, self.max_steps + 1):
             sim.apply_displacement(st.t, None)
             sim.update_forces()
-            num, den, f2, r2 = _damping_sums(sim.F, Fprev, v, lam, free, st.y, st.x0,
-                                             sim.reactions, dt)
+            if part is None:
+                num, den, f2, r2 = _damping_sums(sim.F, Fprev, v, lam, free, st.y, st.x0,
+                                                 sim.reactions, dt)
+            else:  # the owned rows' sums, added over the ranks (rank order)
+                num, den, f2, r2 = part.sum(np.array(_damping_sums(
+                    sim.F[own], Fprev[own], v[own], lam[own], free[own], st.y[own],
+                    st.x0[own], sim.reactions[own], dt)))
             c = 2.0 * np.sqrt(num / den) if den > 0 and num > 0 else 0.0
             c = min(c, 1.9 / dt)
             scale = max(np.sqrt(r2), fext, 1e-300)

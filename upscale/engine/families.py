@@ -32,8 +32,9 @@ import numpy as np
 
 from upscale.engine.system import ParticleSystem
 
-__all__ = ["Family", "build_family", "damage", "bonds_crossing_segment", "index_type",
-           "reference_vectors", "reference_lengths"]
+__all__ = ["Family", "FamilyRecipe", "build_family", "build_family_rows", "candidate_counts",
+           "damage", "bonds_crossing_segment", "index_type", "reference_vectors",
+           "reference_lengths"]
 
 PARTIAL_VOLUME = (None, "lammps", "linear")
 # candidate bonds per block of rows in build_family: bounds its temporaries (about
@@ -233,6 +234,62 @@ class Family:
                 f"partial_volume={self.partial_volume!r})")
 
 
+@dataclasses.dataclass(eq=False)
+class FamilyRecipe:
+    """A family described, not built: :func:`build_family`'s arguments, and the bonds
+    that start broken (``broken(i, j, xi) -> (k,) bool`` on directed bonds, e.g. a
+    pre-crack by :func:`bonds_crossing_segment`; None: all intact).
+
+    Passed to :class:`~upscale.engine.simulation.Simulation` as its ``family``: on one
+    process the simulation builds the whole family (:meth:`build`) and the initial bond
+    state (:meth:`initial_intact`); on several MPI ranks each rank builds only the rows
+    of its part (:func:`build_family_rows`), so no rank ever holds the whole family.
+    """
+
+    system: ParticleSystem
+    horizon: float
+    partial_volume: str | None = None
+    spacing: float | None = None
+    exclude: object = None
+    broken: object = None
+
+    def build(self) -> Family:
+        """The whole family (:func:`build_family`)."""
+        return build_family(self.system, self.horizon, partial_volume=self.partial_volume,
+                            spacing=self.spacing, exclude=self.exclude)
+
+    def rows(self, rows) -> tuple[np.ndarray, np.ndarray]:
+        """``(counts, neighbors)`` of the particles ``rows`` (:func:`build_family_rows`)."""
+        return build_family_rows(self.system, self.horizon, rows,
+                                 partial_volume=self.partial_volume, spacing=self.spacing,
+                                 exclude=self.exclude)
+
+    def initial_intact(self, offsets, neighbors, gid=None) -> np.ndarray:
+        """Bond state at the start (nb,) bool of the CSR rows ``offsets``/``neighbors``
+        whose particle and partner indices are ``gid`` of the body's (default: the
+        body's own)."""
+        intact = np.ones(neighbors.shape[0], dtype=bool)
+        if self.broken is None or neighbors.shape[0] == 0:
+            return intact
+        x = self.system.x0
+        n = offsets.shape[0] - 1
+        rows = np.arange(n, dtype=np.int64) if gid is None else np.asarray(gid, dtype=np.int64)
+        for a, b in _row_blocks(offsets, _BLOCK_BONDS // 2):  # bounded temporaries
+            lo, hi = offsets[a], offsets[b]
+            i = np.repeat(rows[a:b], np.diff(offsets[a:b + 1]))
+            j = rows[neighbors[lo:hi]]
+            intact[lo:hi] = ~np.asarray(self.broken(i, j, x[j] - x[i]), dtype=bool)
+        return intact
+
+
+def _row_blocks(offsets, size: int) -> list[tuple[int, int]]:
+    """Ranges ``a:b`` of rows of about ``size`` bonds each, covering all rows."""
+    n = offsets.shape[0] - 1
+    cuts = np.searchsorted(offsets, np.arange(0, int(offsets[-1]), max(int(size), 1)))
+    b = np.unique(np.concatenate([[0], np.minimum(cuts, n), [n]]))
+    return [(int(lo), int(hi)) for lo, hi in zip(b[:-1], b[1:])]
+
+
 def index_type(n: int):
     """The partner-index type for ``n`` particles: int32, int64 from 2^31 particles on."""
     return np.int32 if n < 2 ** 31 else np.int64
@@ -341,19 +398,9 @@ def build_family(system: ParticleSystem, horizon: float, *, partial_volume: str 
     """
     from scipy.spatial import cKDTree
 
-    if partial_volume not in PARTIAL_VOLUME:
-        raise ValueError(f"unknown partial_volume {partial_volume!r}; valid: "
-                         f"{', '.join(repr(p) for p in PARTIAL_VOLUME)}")
-    delta = float(horizon)
-    h = float(spacing) if spacing is not None else system.spacing
-    if not (np.isfinite(delta) and delta > 0):
-        raise ValueError(f"horizon must be positive, got {horizon!r}")
-    if not delta > h:
-        raise ValueError(f"horizon {delta:.6g} is not larger than the particle spacing {h:.6g}")
+    delta, h, rmax, r_query = _radii(system, horizon, partial_volume, spacing)
     x = system.x0
     n = system.n
-    rmax = delta + 0.5 * h if partial_volume == "linear" else delta
-    r_query = rmax * (1.0 + 1e-9) + 1e-300
     tree = cKDTree(x)
     # capacity: every candidate within a slightly larger ball (self included), so the
     # output arrays are allocated once and rows are written block by block
@@ -370,23 +417,9 @@ def build_family(system: ParticleSystem, horizon: float, *, partial_volume: str 
         j = sdm["j"].astype(np.int64)
         del sdm
         off = i != j
-        i, j = i[off], j[off]
-        # reference vectors and lengths evaluated as LAMMPS does (dx*dx + dy*dy + dz*dz)
-        d = x[j] - x[i]
-        rsq = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
-        keep = np.sqrt(rsq) < rmax if partial_volume == "linear" else rsq <= delta * delta
-        if exclude is not None:
-            # symmetric whatever the callable did (a bond through a segment's end point can
-            # test differently from its two ends): both directions of each candidate
-            ex = np.asarray(exclude(i, j, d), dtype=bool)
-            if ex.shape != i.shape:
-                raise ValueError(f"exclude returned shape {ex.shape}, expected {i.shape}")
-            ex_back = np.asarray(exclude(j, i, -d), dtype=bool)
-            keep &= ~(ex | ex_back)
-        i, j = i[keep], j[keep]
-        order = np.lexsort((j, i))
-        k = order.shape[0]
-        neighbors[pos:pos + k] = j[order]
+        i, j = _kept_sorted(x, i[off], j[off], rmax, delta, partial_volume, exclude)
+        k = i.shape[0]
+        neighbors[pos:pos + k] = j
         counts[a:b] = np.bincount(i - a, minlength=b - a)
         pos += k
     if pos < cap:                         # shrink in place (realloc): no second copy
@@ -394,6 +427,97 @@ def build_family(system: ParticleSystem, horizon: float, *, partial_volume: str 
     offsets = np.zeros(n + 1, dtype=np.int64)
     np.cumsum(counts, out=offsets[1:])
     return Family(offsets, neighbors, x, delta, h, partial_volume)
+
+
+def _radii(system, horizon, partial_volume, spacing):
+    """``(delta, h, rmax, r_query)`` of a family build, checked (see :func:`build_family`)."""
+    if partial_volume not in PARTIAL_VOLUME:
+        raise ValueError(f"unknown partial_volume {partial_volume!r}; valid: "
+                         f"{', '.join(repr(p) for p in PARTIAL_VOLUME)}")
+    delta = float(horizon)
+    h = float(spacing) if spacing is not None else system.spacing
+    if not (np.isfinite(delta) and delta > 0):
+        raise ValueError(f"horizon must be positive, got {horizon!r}")
+    if not delta > h:
+        raise ValueError(f"horizon {delta:.6g} is not larger than the particle spacing {h:.6g}")
+    rmax = delta + 0.5 * h if partial_volume == "linear" else delta
+    return delta, h, rmax, rmax * (1.0 + 1e-9) + 1e-300
+
+
+def _kept_sorted(x, i, j, rmax, delta, partial_volume, exclude):
+    """The candidate bonds ``i -> j`` (no self pairs) that are bonds, sorted by (i, j)."""
+    # reference vectors and lengths evaluated as LAMMPS does (dx*dx + dy*dy + dz*dz)
+    d = x[j] - x[i]
+    rsq = d[:, 0] * d[:, 0] + d[:, 1] * d[:, 1] + d[:, 2] * d[:, 2]
+    keep = np.sqrt(rsq) < rmax if partial_volume == "linear" else rsq <= delta * delta
+    if exclude is not None:
+        # symmetric whatever the callable did (a bond through a segment's end point can
+        # test differently from its two ends): both directions of each candidate
+        ex = np.asarray(exclude(i, j, d), dtype=bool)
+        if ex.shape != i.shape:
+            raise ValueError(f"exclude returned shape {ex.shape}, expected {i.shape}")
+        ex_back = np.asarray(exclude(j, i, -d), dtype=bool)
+        keep &= ~(ex | ex_back)
+    i, j = i[keep], j[keep]
+    order = np.lexsort((j, i))
+    return i[order], j[order]
+
+
+def build_family_rows(system: ParticleSystem, horizon: float, rows, *,
+                      partial_volume: str | None = None, spacing: float | None = None,
+                      exclude=None) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of the particles ``rows`` of the family :func:`build_family` builds with
+    the same arguments, without the others: ``(counts, neighbors)``, bonds per row (k,)
+    int64 and the partners' global indices, row after row (the same partners in the same
+    order as those rows of the whole family: the same candidates and the same test).
+
+    Memory: the rows themselves plus one block's temporaries; the candidates are the
+    particles within the rows' bounding box grown by the horizon (a part of the body
+    builds its own rows without the family of the whole). ``rows`` (k,) sorted, unique.
+    """
+    from scipy.spatial import cKDTree
+
+    delta, h, rmax, r_query = _radii(system, horizon, partial_volume, spacing)
+    x = system.x0
+    rows = np.asarray(rows, dtype=np.int64)
+    if rows.size and np.any(np.diff(rows) <= 0):
+        raise ValueError("rows must be sorted and unique")
+    counts = np.zeros(rows.shape[0], dtype=np.int64)
+    if rows.size == 0:
+        return counts, np.empty(0, dtype=index_type(system.n))
+    pad = 1.01 * r_query
+    xr = x[rows]
+    box = np.all((x >= xr.min(axis=0) - pad) & (x <= xr.max(axis=0) + pad), axis=1)
+    cand = np.flatnonzero(box)
+    del box
+    tree = cKDTree(x[cand])
+    per_row = max(1.0, float(tree.query_ball_point(xr[: min(rows.shape[0], 1000)], r_query,
+                                                   return_length=True).mean()))
+    block = max(1, int(_BLOCK_BONDS // 4 // per_row))  # a quarter: a part's rows are few
+    parts = []
+    for a in range(0, rows.shape[0], block):
+        b = min(rows.shape[0], a + block)
+        sdm = cKDTree(xr[a:b]).sparse_distance_matrix(tree, r_query, output_type="ndarray")
+        i = rows[sdm["i"].astype(np.int64) + a]
+        j = cand[sdm["j"]]
+        del sdm
+        off = i != j
+        i, j = _kept_sorted(x, i[off], j[off], rmax, delta, partial_volume, exclude)
+        parts.append(j.astype(index_type(system.n)))
+        counts[a:b] = np.bincount(np.searchsorted(rows[a:b], i), minlength=b - a)
+    return counts, (np.concatenate(parts) if len(parts) > 1 else parts[0])
+
+
+def candidate_counts(system: ParticleSystem, horizon: float, *,
+                     partial_volume: str | None = None, spacing: float | None = None) -> np.ndarray:
+    """Particles within the horizon of each particle (N,) int64, itself excluded: the
+    family's row lengths before an ``exclude`` (an estimate of each row's work that needs
+    no family)."""
+    from scipy.spatial import cKDTree
+
+    _, _, rmax, _ = _radii(system, horizon, partial_volume, spacing)
+    x = system.x0
+    return cKDTree(x).query_ball_point(x, rmax, return_length=True).astype(np.int64) - 1
 
 
 def damage(family: Family, intact: np.ndarray, *, weights: str = "count",

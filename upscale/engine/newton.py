@@ -39,6 +39,7 @@ import scipy.sparse as sp
 
 from upscale.engine import solvers
 from upscale.engine.checkpoint import load_checkpoint, save_checkpoint
+from upscale.engine.parallel.comm import one_process
 from upscale.engine.state import State
 
 __all__ = ["NewtonStep", "NewtonResult", "solve", "convergence_order", "NewtonError", "dirichlet"]
@@ -146,8 +147,11 @@ def dirichlet(system, fixed=None, u_prescribed=None, f_ext=None):
     Returns ``(mask (N, 3) bool, ubar (N, 3), fbar (N, 3), free (n_free,) int)``: the
     prescribed components (``fixed`` (N,) or (N, 3) bool, plus every component beyond the
     body's dimension), the prescribed displacements and external forces (zero if None),
-    and the flat indices of the free components. Bad shapes or nothing free -> ValueError.
+    and the flat indices of the free components. Bad shapes or nothing free -> ValueError;
+    several MPI ranks -> :class:`~upscale.engine.parallel.comm.Refused` (implicit solves run
+    on one process).
     """
+    one_process("an implicit solve (newton.solve, static.solve_linear)")
     n = system.n
     mask = _as_mask(n, fixed, system.dim)
     ubar = np.zeros((n, 3)) if u_prescribed is None else np.asarray(u_prescribed, dtype=np.float64)

@@ -15,9 +15,9 @@ import numpy as np
 from upscale.engine.checkpoint import Checkpoint, load_checkpoint
 from upscale.engine.conditions import (BodyForce, Displacement, Force, Grip, Velocity,
                                        constrained_dofs)
-from upscale.engine.families import damage
+from upscale.engine.families import FamilyRecipe, damage
 from upscale.engine.integrators import BlowUp, VelocityVerlet
-from upscale.engine.parallel.comm import world
+from upscale.engine.parallel.comm import Refused, world
 from upscale.engine.state import State
 
 __all__ = ["Simulation"]
@@ -29,8 +29,11 @@ class Simulation:
     Parameters
     ----------
     system : ParticleSystem
-    family : Family or None
-        Pair family shared by the models (None if no model needs pairs).
+    family : Family, FamilyRecipe or None
+        Pair family shared by the models (None if no model needs pairs). A
+        :class:`~upscale.engine.families.FamilyRecipe` is built here (on several MPI
+        ranks: each rank builds the rows of its part only), with its initial bond state
+        when ``state`` is None.
     models : Model or sequence of Model
         Each is ``prepare``-d here. Their force contributions add up.
     conditions : sequence of Condition
@@ -63,6 +66,12 @@ class Simulation:
         self.damage_weights = damage_weights
         self.part = None  # the split over MPI ranks (upscale.engine.parallel), None on one
         comm = world()
+        if comm.size == 1 and isinstance(family, FamilyRecipe):  # built here, whole
+            recipe, family = family, family.build()
+            if state is None:
+                state = State.reference(system.x0, family.nb)
+                state.intact[...] = recipe.initial_intact(family.offsets, family.neighbors)
+            self.family = family
         if comm.size > 1:  # this rank's part of the body; the models never see the rest
             from upscale.engine.parallel.partition import localize
 
@@ -503,14 +512,23 @@ class Simulation:
         ``kw``: ``checkpoint``, ``resume``."""
         from upscale.engine.integrators import AdaptiveDynamicRelaxation
 
-        self._one_rank("adaptive dynamic relaxation")
+        if self.part is not None:  # the fused ADR adds its sums over the ranks
+            from upscale.engine.adr import FusedAdaptiveDynamicRelaxation
+
+            if adr is None:
+                adr = FusedAdaptiveDynamicRelaxation()
+            if not isinstance(adr, FusedAdaptiveDynamicRelaxation) or kw:
+                raise Refused(f"{type(adr).__name__}{' with ' + ', '.join(kw) if kw else ''} "
+                              f"runs on one rank in this version; this run has {self.part.size}"
+                              " MPI ranks (valid there: FusedAdaptiveDynamicRelaxation, "
+                              "without checkpoints)")
         adr = adr or AdaptiveDynamicRelaxation()
         return adr.run(self, progress=progress, **kw)
 
     def _one_rank(self, what: str) -> None:
         if self.part is not None:
-            raise ValueError(f"{what} run on one rank in this version; this run has "
-                             f"{self.part.size} MPI ranks (valid there: velocity Verlet)")
+            raise Refused(f"{what} run on one rank in this version; this run has "
+                          f"{self.part.size} MPI ranks (valid there: velocity Verlet)")
 
     def _rank_checkpoint(self, checkpoint) -> None:
         """Point ``checkpoint`` at this rank's file (``name.rank<r>of<n>.npz``), once."""
@@ -540,12 +558,12 @@ class Simulation:
             return None
         if not all(have):
             missing = [r for r, h in enumerate(have) if not h]
-            raise ValueError(f"checkpoint {path} lacks the files of ranks {missing}; valid: "
-                             "one file per rank, all written by the same run")
+            raise Refused(f"checkpoint {path} lacks the files of ranks {missing}; valid: "
+                          "one file per rank, all written by the same run")
         common = set(every[0]).intersection(*every[1:])
         if not common:
-            raise ValueError(f"the ranks' checkpoints of {path} hold no common step "
-                             f"({every}); valid: the files of one run")
+            raise Refused(f"the ranks' checkpoints of {path} hold no common step "
+                          f"({every}); valid: the files of one run")
         return steps[max(common)]
 
 

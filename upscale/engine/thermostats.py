@@ -7,6 +7,12 @@ number is ``N_f``. The kinetic temperature of the region is
 
     T_kin = 2 K / (N_f k_B),     K = sum_{i in region, free c} m_i v_ic^2 / 2.          (1)
 
+Several MPI ranks (:mod:`upscale.engine.parallel`): the sums of (1) and N_f are over each
+rank's owned particles, added over the ranks (Nose-Hoover's answer then equals the serial
+one up to that order of the sum); :class:`Langevin` draws every rank the whole body's
+numbers and keeps its own dofs', so its answer is the serial one bit for bit (at the
+cost of one normal number per thermostatted dof of the body per rank and step).
+
 Units: ``k_B`` in the scene's energy per kelvin: :data:`upscale.constants.K_B_SI` (J/K) for
 SI scenes, :data:`upscale.constants.K_B_EV` (eV/K) for atomistic ones (eV, Å, amu and the
 matching time unit, in which ``m v^2`` is an energy).
@@ -72,21 +78,30 @@ __all__ = ["Langevin", "NoseHooverChain", "NoseHoover", "ThermostatGroup", "Quen
 def _region_dofs(sim, region):
     """(N, 3) bool: the free dofs of ``region`` (a Region, an (N,) bool mask or None)."""
     n = sim.system.n
+    part = getattr(sim, "part", None)
     if region is None:
         mask = np.ones(n, bool)
     else:
         mask = np.asarray(getattr(region, "mask", region), dtype=bool)
+        if part is not None and mask.shape == (part.local.n_global,):
+            mask = mask[part.local.gid]  # a region of the whole body: this rank's rows
         if mask.shape != (n,):
             raise ValueError(f"thermostat region has shape {mask.shape}; valid: ({n},) or a Region "
                              "of this body")
-        if not mask.any():
+        if not _gsum(sim, float(mask.any())):
             raise ValueError("thermostat region selects no particle")
-    dof = np.repeat(mask[:, None], 3, axis=1) & ~sim.constrained
+    dof = np.repeat(mask[:, None], 3, axis=1) & ~sim.constrained  # (a halo row is held)
     if sim.system.dim < 3:
         dof[:, sim.system.dim:] = False
-    if not dof.any():
+    if not _gsum(sim, float(dof.any())):
         raise ValueError("thermostat region has no free degree of freedom")
     return dof
+
+
+def _gsum(sim, x):
+    """``x`` summed over the MPI ranks of ``sim`` (itself on one process; collective)."""
+    part = getattr(sim, "part", None)
+    return x if part is None else part.sum(x)
 
 
 def _rows(idx, span: slice, n: int):
@@ -103,7 +118,8 @@ def kinetic_temperature(sim, region=None, k_B: float | None = None) -> float:
 
     dof = _region_dofs(sim, region)
     K = 0.5 * float(np.sum(sim.system.mass[:, None] * sim.state.v ** 2 * dof))
-    return 2.0 * K / (dof.sum() * (K_B_SI if k_B is None else k_B))
+    K, nd = _gsum(sim, np.array([K, dof.sum()])) if getattr(sim, "part", None) else (K, dof.sum())
+    return 2.0 * K / (nd * (K_B_SI if k_B is None else k_B))
 
 
 def _check(temperature, name, value):
@@ -144,6 +160,13 @@ class Langevin:
         self.dof = _region_dofs(sim, self.region)
         self.idx = np.flatnonzero(self.dof.ravel())
         self.m = np.repeat(sim.system.mass, 3)[self.idx]
+        self._draw, self._pick = self.idx.size, None
+        part = getattr(sim, "part", None)
+        if part is not None:  # every rank draws the whole body's numbers, keeps its own
+            g = (3 * part.local.gid[self.idx // 3] + self.idx % 3).astype(np.int64)
+            every = np.concatenate(part.comm.allgather(g))
+            every.sort()
+            self._draw, self._pick = every.size, np.searchsorted(every, g)
 
     def begin(self, sim, dt) -> None:
         pass
@@ -152,7 +175,9 @@ class Langevin:
         """Mutates ``sim.state.v``: the Ornstein-Uhlenbeck step on the region's free dofs."""
         c = np.exp(-self.gamma * dt)
         v = sim.state.v.reshape(-1)
-        xi = self.rng.standard_normal(self.idx.size)
+        xi = self.rng.standard_normal(self._draw)
+        if self._pick is not None:
+            xi = xi[self._pick]
         v[self.idx] = c * v[self.idx] + np.sqrt((1.0 - c * c) * self.k_B * self.T / self.m) * xi
 
     def checkpoint_arrays(self) -> dict:
@@ -317,7 +342,7 @@ def _prepare_dofs(th, sim) -> None:
                  for f in th.field_names}
     nfield = sum(int((~sim.field_constrained[f][th.frows[f]]).sum())
                  for f in th.field_names)
-    th.nf = int(th._ndf) if th._ndf is not None else int(th.dof.sum()) + nfield
+    th.nf = int(th._ndf) if th._ndf is not None else int(_gsum(sim, float(th.dof.sum()))) + nfield
     th.idx = np.flatnonzero(th.dof.ravel())  # the thermostatted translation dofs
     th.m_idx = np.repeat(sim.system.mass, 3)[th.idx]
 
@@ -340,7 +365,7 @@ def _twice_kinetic(th, sim) -> float:
     for f in th.field_names:
         fv = sim.state.field_v[f][th.frows[f]]
         K2 += float(np.sum(th.finert[f] * fv * fv))
-    return K2
+    return float(_gsum(sim, K2))  # several MPI ranks: the owned rows' sums added
 
 
 class NoseHoover:

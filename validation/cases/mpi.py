@@ -210,6 +210,35 @@ def mpi_restart_exact(args):
     return out
 
 
+def lean_plate(n: int, model: str):
+    """The :class:`~upscale.experiments.scenes.plate.PlateScene` plate's simulation, its
+    family passed as a :class:`~upscale.engine.families.FamilyRecipe` (the pre-crack as
+    its bonds broken at the start): on several ranks no rank builds the whole family. The
+    same body, family, state, model and conditions as the scene's (the tests compare)."""
+    from upscale import models
+    from upscale.engine import Simulation, bonds_crossing_segment, square_lattice
+    from upscale.engine.conditions import Velocity, region
+    from upscale.engine.families import FamilyRecipe
+    from upscale.engine.integrators import VelocityVerlet
+    from upscale.experiments.scenes import plate as P
+
+    h = P.L_PLATE / n
+    system = square_lattice(n, n, h, thickness=h, density=P.RHO, plane="stress",
+                            centered=True)
+    cut = bonds_crossing_segment(system.x0, (-P.CRACK / 2, 0.0), (P.CRACK / 2, 0.0))
+    recipe = FamilyRecipe(system, 3.015 * h, broken=cut)
+    cls = models.get(model)
+    mdl = cls(E=P.E_PLATE, s0=P.S0) if model == "pmb" else cls(E=P.E_PLATE, nu=1.0 / 3.0, s0=P.S0)
+    L = P.L_PLATE
+    top = region(system, "top rows", box=((None, L / 2 - 3 * h, None), (None, None, None)))
+    bottom = region(system, "bottom rows", box=((None, None, None), (None, -L / 2 + 3 * h, None)))
+    conds = [Velocity(top, (0.0, P.V_EDGE, 0.0), components=(1,)),
+             Velocity(bottom, (0.0, -P.V_EDGE, 0.0), components=(1,))]
+    sim = Simulation(system, recipe, mdl, conds, integrator=VelocityVerlet())
+    sim.prepare()
+    return sim
+
+
 def plate_main(argv: list[str]) -> None:
     """``plate MODEL N STEPS OUT.npz [WORKDIR EVERY]`` (under ``mpiexec`` or alone): run
     the plate (resuming from WORKDIR's checkpoints if there), then rank 0 writes the whole
@@ -218,7 +247,8 @@ def plate_main(argv: list[str]) -> None:
     from upscale.experiments.scenes.plate import PlateScene
 
     model, n, steps, out = argv[0], int(argv[1]), int(argv[2]), Path(argv[3])
-    sim = PlateScene(n, model=model).sim
+    lean = model.startswith("lean:")
+    sim = lean_plate(n, model[5:]) if lean else PlateScene(n, model=model).sim
     ck = None
     if len(argv) > 4:
         ck = Checkpoint(Path(argv[4]) / "checkpoint.npz", every=int(argv[5]))

@@ -16,6 +16,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from upscale.engine.parallel.comm import Refused
+
 __all__ = ["rcb", "balance"]
 
 
@@ -37,7 +39,8 @@ def rcb(x0: np.ndarray, weights: np.ndarray, parts: int) -> np.ndarray:
     if int(parts) < 1:
         raise ValueError(f"parts={parts!r}; valid: >= 1")
     if int(parts) > n:
-        raise ValueError(f"{parts} ranks for {n} particles; valid: at most one rank per particle")
+        raise Refused(f"{parts} MPI ranks for {n} particles; valid: at most one rank per "
+                      "particle (fewer ranks)")
     part = np.zeros(n, dtype=np.int32)
     stack = [(np.arange(n, dtype=np.int64), 0, int(parts))]
     while stack:

@@ -29,7 +29,7 @@ import dataclasses
 import numba as nb
 import numpy as np
 
-__all__ = ["Local", "build_local", "bond_states_agree"]
+__all__ = ["Local", "build_local", "build_local_rows", "bond_states_agree"]
 
 
 @dataclasses.dataclass(eq=False)
@@ -155,13 +155,122 @@ def build_local(comm, offsets: np.ndarray, neighbors: np.ndarray, part: np.ndarr
     lid = np.full(n, -1, dtype=np.int64)
     lid[gid] = np.arange(gid.shape[0])
     off, nbr, bond_gid = _local_rows(offsets, neighbors, full, gid, lid)
+    send, recv = _exchange_lists(comm, gid, owned_g, part, lid)
+    return Local(comm.rank, comm.size, int(depth), n, int(neighbors.shape[0]), gid,
+                 owned_g[gid], off, nbr, bond_gid, send, recv)
+
+
+def _exchange_lists(comm, gid, owned_g, part, lid):
+    """``(send, recv)``: the halo rows this rank gets from each peer and those it gives
+    (collective: the ranks tell each other which rows they need)."""
     halo = gid[~owned_g[gid]]
     need = [halo[part[halo] == p] for p in range(comm.size)]
     asked = comm.alltoall(need)          # the gids each peer needs from me
     recv = [(p, lid[g]) for p, g in enumerate(need) if g.size]
     send = [(p, lid[g]) for p, g in enumerate(asked) if g.size]
-    return Local(comm.rank, comm.size, int(depth), n, int(neighbors.shape[0]), gid,
-                 owned_g[gid], off, nbr, bond_gid, send, recv)
+    return send, recv
+
+
+@nb.njit(cache=True)
+def _gather_rows(src_off, nbr, order):
+    """Rows ``order`` of the CSR ``(src_off, nbr)`` in that order: (offsets, partners)."""
+    m = order.shape[0]
+    off = np.zeros(m + 1, dtype=np.int64)
+    for a in range(m):
+        r = order[a]
+        off[a + 1] = off[a] + src_off[r + 1] - src_off[r]
+    out = np.empty(off[m], dtype=nbr.dtype)
+    for a in range(m):
+        r = order[a]
+        k = off[a]
+        for b in range(src_off[r], src_off[r + 1]):
+            out[k] = nbr[b]
+            k += 1
+    return off, out
+
+
+@nb.njit(cache=True)
+def _local_rows_of_complete(off_c, nbr_c, gid_l, full_n, lid_n, goff):
+    """Like :func:`_local_rows`, from the complete rows ``(off_c, nbr_c)`` (global
+    partners) of the local particles ``gid_l`` and the global row pointers ``goff``."""
+    m = gid_l.shape[0]
+    off = np.zeros(m + 1, dtype=np.int64)
+    for a in range(m):
+        i = gid_l[a]
+        c = 0
+        for b in range(off_c[a], off_c[a + 1]):
+            if full_n[i] or full_n[nbr_c[b]]:
+                c += 1
+        off[a + 1] = off[a] + c
+    nbr = np.empty(off[m], dtype=nbr_c.dtype)
+    bond = np.empty(off[m], dtype=np.int64)
+    for a in range(m):
+        i = gid_l[a]
+        k = off[a]
+        for b in range(off_c[a], off_c[a + 1]):
+            j = nbr_c[b]
+            if full_n[i] or full_n[j]:
+                nbr[k] = lid_n[j]
+                bond[k] = goff[i] + (b - off_c[a])
+                k += 1
+    return off, nbr, bond
+
+
+def build_local_rows(comm, recipe, part: np.ndarray, depth: int) -> Local:
+    """This rank's :class:`Local` built from a
+    :class:`~upscale.engine.families.FamilyRecipe` without the whole family (collective).
+
+    The rank builds the complete rows of its owned particles, then of each further
+    complete-row layer (the partners of the last), then of the outer halo layer (whose
+    complete rows give the global index of its bonds and are dropped after): the same
+    rows as the whole family's (:func:`~upscale.engine.families.build_family_rows`), so
+    the :class:`Local` equals :func:`build_local`'s on the whole family. Memory: the
+    local rows and a few bytes per particle of the body (row lengths, masks)."""
+    if depth < 1:
+        raise ValueError(f"halo depth={depth!r}; valid: >= 1")
+    n = recipe.system.n
+    owned_g = part == comm.rank
+    full = owned_g.copy()
+    ids = [np.flatnonzero(owned_g)]
+    cnts, nbrs = [], []
+    for layer in range(depth + 1):
+        c, j = recipe.rows(ids[-1])
+        cnts.append(c)
+        nbrs.append(j)
+        if layer == depth:
+            break
+        mark = np.zeros(n, dtype=bool)
+        for jj in (nbrs if layer == depth - 1 else nbrs[-1:]):
+            mark[jj] = True
+        new = np.flatnonzero(mark & ~full)
+        del mark
+        if layer < depth - 1:
+            full[new] = True
+        ids.append(new)
+    # the global row pointers from the owners' row lengths
+    mine = (ids[0], cnts[0])
+    counts = np.zeros(n, dtype=np.int64)
+    for g, c in comm.allgather(mine):
+        counts[g] = c
+    goff = np.zeros(n + 1, dtype=np.int64)
+    np.cumsum(counts, out=goff[1:])
+    del counts
+    all_ids = np.concatenate(ids)
+    src_off = np.zeros(all_ids.shape[0] + 1, dtype=np.int64)
+    np.cumsum(np.concatenate(cnts), out=src_off[1:])
+    nbr_all = np.concatenate(nbrs) if len(nbrs) > 1 else nbrs[0]
+    del nbrs
+    order = np.argsort(all_ids, kind="stable")
+    gid = all_ids[order]
+    off_c, nbr_c = _gather_rows(src_off, nbr_all, order)
+    del nbr_all
+    lid = np.full(n, -1, dtype=np.int64)
+    lid[gid] = np.arange(gid.shape[0])
+    off, nbr, bond_gid = _local_rows_of_complete(off_c, nbr_c, gid, full, lid, goff)
+    del off_c, nbr_c
+    send, recv = _exchange_lists(comm, gid, owned_g, part, lid)
+    return Local(comm.rank, comm.size, int(depth), n, int(goff[-1]), gid, owned_g[gid],
+                 off, nbr, bond_gid, send, recv)
 
 
 def bond_states_agree(comm, local: Local, intact: np.ndarray) -> bool:

@@ -24,12 +24,24 @@ from pathlib import Path
 
 import numpy as np
 
+from upscale.engine.parallel.comm import Refused
 from upscale.engine.parallel.decomposition import rcb
-from upscale.engine.parallel.halo import Local, build_local
+from upscale.engine.parallel.halo import Local, build_local, build_local_rows
 
 __all__ = ["Partition", "localize", "halo_depth", "rank_path"]
 
 _CONDITIONS = ("Displacement", "Fixed", "Velocity", "Force", "BodyForce")
+_PARTIAL = ("its prepare checks every particle's family (a halo's outer rows are partial: "
+            "{})")
+# why the models whose force is a sum over families do not run distributed yet
+_NOT_YET = {
+    "nosb": _PARTIAL.format("singular shape tensors"),
+    "cpd": _PARTIAL.format("too few non-collinear neighbour pairs"),
+    "unified": _PARTIAL.format("singular gain matrices G"),
+    "tridyn": "its rotations are fields per particle, and the halo exchange carries "
+              "positions only",
+}
+_THERMOSTATS = ("NoneType", "Langevin", "NoseHoover", "NoseHooverChain")
 
 
 def halo_depth(model) -> int:
@@ -42,15 +54,19 @@ def halo_depth(model) -> int:
         return 2 if getattr(model, "surface_correction", False) else 1
     if model.name == "lps":
         return 2
+    why = _NOT_YET.get(model.name) or _NOT_YET.get(model.name.split("-")[0])
+    if why:
+        raise Refused(f"model {model.name!r} cannot run on several MPI ranks yet: {why}; "
+                      "run it on one rank")
     if model.name == "tipd":  # a pair force from the two positions and the bond alone
         if getattr(model, "surface", "none") in (None, "none"):
             return 1
-        raise ValueError("Ti-PD with surface correction cannot run on several MPI ranks yet "
-                         "(its prepare checks every particle's family, and the halo's outer "
-                         "rows are partial); run it with surface='none' or on one rank")
-    raise ValueError(f"model {model.name!r} cannot run on several MPI ranks yet (the engine "
-                     "does not know the halo its forces need); valid there: 'pmb', 'lps', "
-                     "'tipd'; run it on one rank")
+        raise Refused("Ti-PD with surface correction cannot run on several MPI ranks yet "
+                      "(its prepare checks every particle's family, and the halo's outer "
+                      "rows are partial); run it with surface='none' or on one rank")
+    raise Refused(f"model {model.name!r} cannot run on several MPI ranks yet (the engine "
+                  "does not know the halo its forces need); valid there: 'pmb', 'lps', "
+                  "'tipd'; run it on one rank")
 
 
 class Partition:
@@ -106,12 +122,12 @@ class Partition:
 
         loc = self.local
         if st.y.shape[0] != loc.n_global or st.intact.shape[0] != loc.nb_global:
-            raise ValueError(f"checkpoint holds {st.y.shape[0]} particles and "
-                             f"{st.intact.shape[0]} bonds, the body {loc.n_global} and "
-                             f"{loc.nb_global}")
+            raise Refused(f"checkpoint holds {st.y.shape[0]} particles and "
+                          f"{st.intact.shape[0]} bonds, the body {loc.n_global} and "
+                          f"{loc.nb_global}")
         if st.extra or st.fields:
-            raise ValueError("a checkpoint with model extras or fields cannot be split over "
-                             "MPI ranks yet")
+            raise Refused("a checkpoint with model extras or fields cannot be split over "
+                          "MPI ranks yet")
         g = loc.gid
         out = State(x0, st.y[g].copy(), st.v[g].copy(), st.intact[loc.bond_gid].copy(),
                     st.t, st.step)
@@ -158,35 +174,49 @@ def refuse_other_ranks(path, size: int) -> None:
                      for f in found} - {size})
     if counts:
         k = counts[0]
-        raise ValueError(f"checkpoint {p} was written on {k} MPI ranks, this run has {size}: "
-                         f"resume on {k} ranks, or merge it first (python -m "
-                         f"upscale.engine.parallel.convert {p} --ranks {k}), which any rank "
-                         "count resumes")
+        raise Refused(f"checkpoint {p} was written on {k} MPI ranks, this run has {size}: "
+                      f"resume on {k} ranks, or merge it first (python -m "
+                      f"upscale.engine.parallel.convert {p} --ranks {k}), which any rank "
+                      "count resumes")
 
 
 def localize(comm, system, family, models, conditions, state, integrator):
     """This rank's ``(system, family, conditions, state, Partition)`` of the global body
     (collective). Refuses, with one line, what cannot run distributed yet."""
-    from upscale.engine.families import Family
+    from upscale.engine.families import Family, FamilyRecipe, candidate_counts
     from upscale.engine.system import ParticleSystem
 
     if family is None:
-        raise ValueError("several MPI ranks need a pair family to split the body by")
+        raise Refused("several MPI ranks need a pair family to split the body by")
     depth = max(halo_depth(m) for m in models)
-    if type(integrator).__name__ != "VelocityVerlet" or getattr(integrator, "thermostat", None):
-        raise ValueError(f"integrator {getattr(integrator, 'name', type(integrator).__name__)!r}"
-                         " runs on one rank in this version; valid on several ranks: "
-                         "VelocityVerlet without thermostat")
-    part = rcb(system.x0, family.counts + 1.0, comm.size)
-    loc = build_local(comm, family.offsets, family.neighbors, part, depth)
+    th = type(getattr(integrator, "thermostat", None)).__name__
+    if type(integrator).__name__ != "VelocityVerlet" or th not in _THERMOSTATS:
+        name = getattr(integrator, "name", type(integrator).__name__)
+        raise Refused(f"integrator {name!r}{'' if th == 'NoneType' else ' with ' + th} runs on "
+                      "one rank in this version; valid on several ranks: VelocityVerlet "
+                      f"without a thermostat or with {', '.join(_THERMOSTATS[1:])}")
+    recipe = family if isinstance(family, FamilyRecipe) else None
+    if recipe is not None:  # each rank builds its rows only (weights: candidates in range)
+        w = candidate_counts(system, recipe.horizon, partial_volume=recipe.partial_volume,
+                             spacing=recipe.spacing)
+        part = rcb(system.x0, w + 1.0, comm.size)
+        del w
+        loc = build_local_rows(comm, recipe, part, depth)
+        horizon, h = float(recipe.horizon), float(recipe.spacing or system.spacing)
+        pv, beta = recipe.partial_volume, None
+    else:
+        part = rcb(system.x0, family.counts + 1.0, comm.size)
+        loc = build_local(comm, family.offsets, family.neighbors, part, depth)
+        horizon, h, pv = family.horizon, family.spacing, family.partial_volume
+        beta = None if family.beta is None else family.beta[loc.bond_gid]
     g = loc.gid
     lsys = ParticleSystem(system.x0[g], system.volume[g], system.density[g], system.material[g],
                           dim=system.dim, thickness=system.thickness, plane=system.plane,
                           spacing=system.spacing, units=system.units)
-    beta = None if family.beta is None else family.beta[loc.bond_gid]
-    lfam = Family(loc.offsets, loc.neighbors, lsys.x0, family.horizon, family.spacing,
-                  family.partial_volume, beta)
+    lfam = Family(loc.offsets, loc.neighbors, lsys.x0, horizon, h, pv, beta)
     lstate = _local_state(state, lsys, loc)
+    if recipe is not None and state is None:
+        lstate.intact[...] = recipe.initial_intact(loc.offsets, loc.neighbors, gid=g)
     lconds = [c for c in (_local_condition(c, loc) for c in conditions) if c is not None]
     return lsys, lfam, lconds, lstate, Partition(comm, loc, part)
 
@@ -198,11 +228,11 @@ def _local_state(state, lsys, loc: Local):
         st = State.reference(lsys.x0, loc.bond_gid.shape[0])
     else:
         if state.extra or state.fields:
-            raise ValueError("a state with model extras or fields cannot be split over MPI "
-                             "ranks yet; start from positions, velocities and bond states")
+            raise Refused("a state with model extras or fields cannot be split over MPI "
+                          "ranks yet; start from positions, velocities and bond states")
         if state.y.shape != (loc.n_global, 3) or state.intact.shape != (loc.nb_global,):
-            raise ValueError(f"state has {state.y.shape[0]} particles and {state.intact.shape[0]}"
-                             f" bonds, the body {loc.n_global} and {loc.nb_global}")
+            raise Refused(f"state has {state.y.shape[0]} particles and {state.intact.shape[0]}"
+                          f" bonds, the body {loc.n_global} and {loc.nb_global}")
         g = loc.gid
         st = State(lsys.x0, state.y[g].copy(), state.v[g].copy(),
                    state.intact[loc.bond_gid].copy(), state.t, state.step)
@@ -217,8 +247,8 @@ def _local_condition(cond, loc: Local):
 
     kind = type(cond).__name__
     if kind not in _CONDITIONS:
-        raise ValueError(f"condition {kind} runs on one rank in this version; valid on several"
-                         f" ranks: {', '.join(_CONDITIONS)}")
+        raise Refused(f"condition {kind} runs on one rank in this version; valid on several"
+                      f" ranks: {', '.join(_CONDITIONS)}")
     reg = cond.region
     mask = reg.mask[loc.gid] & loc.owned
     if not mask.any():
