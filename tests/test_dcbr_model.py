@@ -549,3 +549,41 @@ def test_short_nve_run_conserves_energy():
         sim.run(20)
         assert abs(sim.energy() + sim.kinetic_energy() - E0) < 1e-3 * K0
     assert np.isfinite(sim.state.y).all()
+
+
+def test_region_across_the_periodic_boundary():
+    """A divacancy at the periodic boundary (its region on both ends of the cell, handled,
+    not refused): momentum and central differences of dE/dy (atoms, a pad carrier) and
+    dE/dL (atoms across the boundary, slaves that follow the images of their atoms); a
+    pristine band across the boundary, ghost-corrected, is force-free at 3 % strain."""
+    atoms = apply_defects(swcnt(10, 10, length=100.0), "v2@0.01@0,sw@0.5@90")
+    model = DCBRModel(atoms, 2.0, r_atomistic=6.0)
+    c, t = model.coupling, model.tube
+    z = ((c.Xf - t.centre) @ t.axis) % t.L
+    assert z.min() < 3.0 and z.max() > t.L - 3.0 and np.count_nonzero(c.kphi) > 0
+    rng = np.random.default_rng(0)
+    L = 1.01 * t.L
+    y = t.centre + (model.x0 - t.centre) * [1.0, 1.0, 1.01] + 0.01 * rng.standard_normal(
+        model.x0.shape)
+    d = 0.005 * rng.standard_normal((t.N, 3))
+    E, gy, gd, gL = model.evaluate(y, d, L)
+    np.testing.assert_allclose(gy.sum(axis=0), 0.0, atol=1e-11 * np.abs(gy).max() * len(gy))
+    h = 1e-5
+    assert (model.evaluate(y, d, L + h)[0] - model.evaluate(y, d, L - h)[0]) / (2 * h) == \
+        pytest.approx(gL, rel=1e-6)
+    nd = len(c.dof_idx)
+    edge = nd + int(np.argmin(z))
+    for i in (edge, nd + int(np.argmax(z)), int(np.flatnonzero(np.isin(c.dof_idx, c.pad_c))[0])):
+        for k in range(3):
+            y[i, k] += h
+            Ep = model.evaluate(y, d, L)[0]
+            y[i, k] -= 2 * h
+            Em = model.evaluate(y, d, L)[0]
+            y[i, k] += h
+            assert (Ep - Em) / (2 * h) == pytest.approx(gy[i, k], rel=1e-5, abs=2e-6)
+    atoms = swcnt(12, 6, length=100.0)
+    zz = atoms.positions[:, 2]
+    band = DCBRModel(atoms, 2.0, select=(zz < 5.0) | (zz > atoms.info["length"] - 5.0))
+    st = uniform_state(band, 1.03)
+    assert np.abs(band.coupling.evaluate(st.y, st.extra[FIELD], band.Lz)[1]).max() > 0.3
+    assert np.abs(band.force(st)).max() < 1e-9

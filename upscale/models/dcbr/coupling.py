@@ -26,8 +26,9 @@ arrangement refined to the lattice near a defect):
 
 This is the coupling of the validated defect tube (``DCBRDefectTube``, old module), written
 once and taken from the registered structure (any defects, any number of regions) instead
-of a band about one vacancy. The ghost-force dead load is :mod:`.ghost`. Not here yet: a
-region across a periodic tube's boundary (refused).
+of a band about one vacancy. The ghost-force dead load is :mod:`.ghost`. A region may
+cross a periodic tube's boundary: its atoms see each other through the period, a slave
+follows the images of its atoms nearest it.
 
 Rows of the unknowns: the non-slave particles (``dof_idx``), then the free atoms
 (``free_idx``, structure order). Units: Å, eV.
@@ -91,9 +92,12 @@ def _patch_sublattice(tube, th, z, X, lat_sub, on_site):
     raise RuntimeError("cannot match the atoms' sublattices to the particle lattice")
 
 
-def _slave_fit(R0, th_c, z_c, thA, zA):
-    """Weights (k,) and the rows (k,) into the A atoms of one slave particle's fit."""
-    dsf, dzf = R0 * _wrap(thA - th_c), zA - z_c
+def _slave_fit(R0, th_c, z_c, thA, zA, period):
+    """Weights (k,), rows (k,) into the A atoms and their periodic images (k,) (periods
+    between an atom and the image nearest the slave) of one slave particle's fit."""
+    dzf = zA - z_c
+    img = np.round(dzf / period) if period else np.zeros(len(zA))
+    dsf, dzf = R0 * _wrap(thA - th_c), dzf - img * (period or 0.0)
     dist = np.hypot(dsf, dzf)
     order = np.argsort(dist)
     if len(order) < 10:
@@ -108,7 +112,7 @@ def _slave_fit(R0, th_c, z_c, thA, zA):
         Aw = A * (1.0 / (1.0 + dist[near] ** 2))[:, None]
         M = A.T @ Aw
         if np.linalg.cond(M) < 1e10:
-            return np.linalg.solve(M, Aw.T)[0], near
+            return np.linalg.solve(M, Aw.T)[0], near, img[near]
     raise ValueError("a slave particle's nearest free atoms are degenerate for a fit; valid: "
                      "a larger r_atomistic")
 
@@ -195,6 +199,7 @@ class Coupling:
     def __init__(self, tube, reg, positions, region, potential="BNC.tersoff", pad=PAD,
                  inside=None, more_inside=None):
         self.tube = tube
+        self.period = tube.L if tube.periodic else None
         ids, X, th, z, sub, on_site = atom_geometry(tube, reg, positions)
         lat = reg.lattice
         # every expected site: occupied ones at their atom, empty ones at the lattice's site
@@ -215,7 +220,6 @@ class Coupling:
         if more_inside is not None:
             self.inside |= np.asarray(more_inside, bool)
         free = self.inside[own_a]
-        self._check_boundary(tube, z, free, pad)
         tot = np.bincount(own_a[on_site], minlength=tube.N) + np.bincount(own_e, minlength=tube.N)
         gone = (np.bincount(own_a[on_site & free], minlength=tube.N)
                 + np.bincount(own_e, minlength=tube.N)).astype(float)
@@ -240,35 +244,32 @@ class Coupling:
         self._tP, self._te2p, self._tcut = par.table, par.e2p, float(par.cutoff)
         self.y_ref = np.vstack([tube.x0[self.dof_idx], self.Xf])
 
-    @staticmethod
-    def _check_boundary(tube, z, free, pad):
-        if tube.periodic and free.any():
-            zf = z[free] % tube.L
-            if zf.min() < pad or zf.max() > tube.L - pad:
-                raise NotImplementedError(
-                    f"an atomistic region reaches within the pad ({pad} Å) of the periodic "
-                    "tube's boundary; valid now: regions away from z = 0 (across it is not "
-                    "built yet)")
-
     def _slaves(self, th, z, sub, on_site):
+        """Phi (slaves x free atoms), the offsets, and kphi_s = sum_a Phi_sa k_sa (the
+        fitted atoms' images: y_s = X_s + sum_a Phi_sa (x_a - X_a) - kphi_s (L - L0) e_z)."""
         t = self.tube
         fA = np.flatnonzero((sub[self.free_local] == 0) & on_site[self.free_local])
         thA, zA = th[self.free_local][fA], z[self.free_local][fA]
         zc = (t.x0 - t.centre) @ t.axis
-        rows, cols, vals, off = [], [], [], []
+        rows, cols, vals, off, kphi = [], [], [], [], []
         for k, c in enumerate(self.slave_idx):
-            phi, near = _slave_fit(t.cell.R0, t.theta[c], zc[c], thA, zA)
+            phi, near, img = _slave_fit(t.cell.R0, t.theta[c], zc[c], thA, zA, self.period)
             rows += [k] * len(near)
             cols += list(fA[near])
             vals += list(phi)
             off.append(t.x0[c] - phi @ self.Xf[fA[near]])
+            kphi.append(float(phi @ img))
         self.Phi = csr_matrix((vals, (rows, cols)), shape=(len(self.slave_idx), self.nf))
         self.PhiT = self.Phi.T.tocsr()
         self.slave_off = np.array(off).reshape(-1, 3)
+        self.kphi = np.array(kphi)
 
     def _pads(self, X, th, z, sub, free, pad, ids):
         t = self.tube
-        near = cKDTree(X[free]).query(X, distance_upper_bound=pad)[0] < pad
+        Xf = X[free]
+        if self.period:  # free atoms' images one period either side
+            Xf = np.vstack([Xf, Xf + self.period * t.axis, Xf - self.period * t.axis])
+        near = cKDTree(Xf).query(X, distance_upper_bound=pad)[0] < pad
         loc = np.flatnonzero(~free & near)
         self.pad_idx = ids[loc]
         self.pad_c, self.pad_ds, self.pad_dz, self.pad_sig, self.pad_r0 = carriers(
@@ -295,26 +296,36 @@ class Coupling:
         return par, Q3
 
     # ------------------------------------------------------------------ evaluation
-    def particle_positions(self, y) -> np.ndarray:
-        """All N particle positions from the unknowns y (non-slave particles, free atoms)."""
+    def particle_positions(self, y, L=None) -> np.ndarray:
+        """All N particle positions from the unknowns y (non-slave particles, free atoms)
+        at period ``L`` (a periodic tube's slaves may follow atoms across its boundary)."""
         t = self.tube
         yp = np.empty((t.N, 3))
         nd = len(self.dof_idx)
         yp[self.dof_idx] = y[:nd]
         if len(self.slave_idx):
             yp[self.slave_idx] = self.Phi @ y[nd:] + self.slave_off
+            if self.period and L is not None:
+                yp[self.slave_idx] -= np.outer(self.kphi * (L - self.period), t.axis)
         return yp
 
-    def atomistic(self, x):
-        """(sum of the free atoms' site energies eV, dE/dx (nf + npad, 3))."""
+    def atomistic(self, x, L=None):
+        """(sum of the free atoms' site energies eV, dE/dx (nf + npad, 3), dE/dL eV/Å at
+        fixed x): a periodic tube's atoms see each other across its boundary, and
+        dE/dL = -(W_zz - sum_i x_i,z f_i,z) / L (W the kernel's virial: the bonds' image
+        terms are what remains of it)."""
         x = np.ascontiguousarray(x, dtype=float)
-        cell = np.zeros((3, 3))
-        first, j_b, sh = neighbour_list(x, cell, (False, False, False), self._tcut)
+        if self.period and L is not None:
+            cell, pbc = np.diag([1.0, 1.0, float(L)]), (False, False, True)
+        else:
+            cell, pbc = np.zeros((3, 3)), (False, False, False)
+        first, j_b, sh = neighbour_list(x, cell, pbc, self._tcut)
         f, e_n, W = np.zeros_like(x), np.zeros(len(x)), np.zeros((3, 3))
         E = tk.tersoff_range(0, self.nf, x, cell, first, j_b, sh, np.zeros(len(x), np.int64),
                              self._te2p, self._tP, self._tcut ** 2, f, e_n, W)
         self.e_atoms = e_n[:self.nf]
-        return float(E), -f
+        dL = -(W[2, 2] - float(x[:, 2] @ f[:, 2])) / L if pbc[2] else 0.0
+        return float(E), -f, dL
 
     def evaluate(self, y, delta, L):
         """(E eV, dE/dy (nd + nf, 3), dE/d delta (N, 3), dE/dL eV/Å, q_n (N, 6)) of the
@@ -323,7 +334,7 @@ class Coupling:
         y = np.asarray(y, float)
         delta = np.ascontiguousarray(delta, dtype=float)
         nd = len(self.dof_idx)
-        yp = self.particle_positions(y)
+        yp = self.particle_positions(y, L)
         E, F, P, gd, e_n, q_n = t.lattice_part(yp, delta, L)
         Es, Ps, gyp, dLs = t.hourglass.energy_and_gradient(yp, F, L)
         P += Ps
@@ -335,7 +346,7 @@ class Coupling:
         x[:self.nf] = y[nd:]
         pad_positions(yp, delta, par, Q3, self.pad_c, self.pad_ds, self.pad_dz, self.pad_sig,
                       self.pad_r0, t.cell.R0, x[self.nf:])
-        Ea, gx = self.atomistic(x)
+        Ea, gx, dLa = self.atomistic(x, L)
         E += Es + Ea - self.nf * t.e0
         gQ3, gpar = np.zeros((t.N, 3, 3)), np.zeros((t.N, 3))
         pad_backward(np.ascontiguousarray(gx[self.nf:]), delta, par, Q3, own, self.pad_c,
@@ -343,7 +354,9 @@ class Coupling:
                      gQ3, gpar)
         frame_adjoint(F, t.gain.S, t.gain.alive, par, Q3, gQ3, gpar, P)
         gyp = gyp - t.gain.forces(P)
-        dL = t.gain.cell_derivative(P) + dLs
+        dL = t.gain.cell_derivative(P) + dLs + dLa
+        if self.period and len(self.slave_idx):
+            dL -= float(gyp[self.slave_idx] @ t.axis @ self.kphi)
         gy = np.empty_like(y)
         gy[:nd] = gyp[self.dof_idx]
         gy[nd:] = gx[:self.nf]

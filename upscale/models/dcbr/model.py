@@ -252,7 +252,7 @@ class DCBRModel(Model):
         (Newton, :meth:`.tube.CoarseTube.relax_shifts`), then, with atoms, the whole coupled
         energy (the pads follow their carriers' shifts) by the engine's L-BFGS-B."""
         t = self.tube
-        yp = y if self.coupling is None else self.coupling.particle_positions(y)
+        yp = y if self.coupling is None else self.coupling.particle_positions(y, self.Lz)
         t.relax_shifts(yp, d, self.Lz, self.shift_gtol)
         if self.coupling is None:
             return

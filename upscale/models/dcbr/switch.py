@@ -94,7 +94,7 @@ def _particles(model, y, v):
     vp[c.dof_idx] = v[:nd]
     if len(c.slave_idx):
         vp[c.slave_idx] = c.Phi @ v[nd:]
-    return c.particle_positions(y), vp
+    return c.particle_positions(y, model.Lz), vp
 
 
 def switch(model, state, particles):
