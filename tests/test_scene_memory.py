@@ -24,3 +24,21 @@ def test_plate_precrack_by_blocks_equals_the_whole_family_test():
     whole = bonds_crossing_segment(sc.system.x0, (-CRACK / 2, 0.0), (CRACK / 2, 0.0))(
         f.owner, f.neighbors, f.xi)
     assert whole.any() and np.array_equal(whole, sc.precrack)
+
+
+def test_a_plate_that_does_not_fit_is_refused_before_it_builds(monkeypatch):
+    import pytest
+
+    from upscale.engine import memory
+
+    monkeypatch.setattr(memory, "available_gb", lambda: 1.0)
+    with pytest.raises(MemoryError, match=r"n=20000 .* needs about 538 GB .* 1 GB available; "
+                                          r"the largest that fits: n=862"):
+        PlateScene(20000, model="pmb")
+
+
+def test_lattice_bonds_counts_the_points_within_the_horizon():
+    from upscale.engine.memory import lattice_bonds
+
+    assert lattice_bonds(3.015, 2) == 28 and lattice_bonds(1.0, 2) == 4
+    assert lattice_bonds(1.0, 3) == 6 and lattice_bonds(1.5, 3) == 18

@@ -15,12 +15,15 @@ directed bond.
 """
 from __future__ import annotations
 
+import math
 import resource
 import sys
+from pathlib import Path
 
 import numpy as np
 
-__all__ = ["kept_buffers", "kept_nbytes", "bytes_per_bond", "peak_rss_gb", "run_memory"]
+__all__ = ["kept_buffers", "kept_nbytes", "bytes_per_bond", "peak_rss_gb", "run_memory",
+           "lattice_bonds", "available_gb", "require_fit"]
 
 
 def _buffer(a: np.ndarray) -> np.ndarray:
@@ -112,3 +115,36 @@ def run_memory(system, family, models=(), state=None) -> dict:
     return {"bonds": int(family.nb),
             "bytes_per_bond": bytes_per_bond(system, family, models, state),
             "peak_rss_GB": peak_rss_gb()}
+
+
+def lattice_bonds(m: float, dim: int) -> int:
+    """Bonds of an interior particle of a square (``dim`` 2) or cubic (3) lattice of
+    horizon ``m`` spacings: the lattice points k != 0 with |k| <= m (pi m^2 and 4/3 pi m^3
+    for large m; 28 for m = 3.015 in 2D)."""
+    r = int(math.floor(m))
+    k = np.arange(-r, r + 1)
+    g = np.meshgrid(*([k] * int(dim)), indexing="ij")
+    return int((sum(a * a for a in g) <= m * m + 1e-9).sum()) - 1
+
+
+def available_gb() -> float | None:
+    """Memory the kernel reports as available to a new allocation (``MemAvailable`` of
+    ``/proc/meminfo``, GB); None where it is not known (no check is made then)."""
+    try:
+        for line in Path("/proc/meminfo").read_text().splitlines():
+            if line.startswith("MemAvailable:"):
+                return int(line.split()[1]) * 1e3 / 1e9
+    except OSError:
+        return None
+    return None
+
+
+def require_fit(estimate_gb: float, what: str, largest=None) -> None:
+    """Refuse a build whose estimated peak (GB) exceeds :func:`available_gb`, before it
+    starts: ``MemoryError`` in one line with the estimate and, given ``largest`` (a
+    function of the available GB returning text), the largest size that fits."""
+    avail = available_gb()
+    if avail is not None and estimate_gb > avail:
+        more = f"; the largest that fits: {largest(avail)}" if largest else ""
+        raise MemoryError(f"{what} needs about {estimate_gb:.3g} GB at its peak, "
+                          f"{avail:.3g} GB available{more}")

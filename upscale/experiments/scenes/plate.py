@@ -34,13 +34,14 @@ damage map as one pixel per particle.
 """
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 
-from upscale.engine.memory import run_memory
+from upscale.engine.memory import lattice_bonds, require_fit, run_memory
 from upscale.experiments.result import Result, Timer, make_meta
 
 __all__ = ["PlateScene", "plate", "damage_png"]
@@ -52,6 +53,9 @@ RHO = 8000.0
 S0 = 0.04472
 V_EDGE = 50.0
 T_END = 1.4e-5
+#: the build's peak per directed bond (GB): family build, pre-crack blocks, model and state
+#: (a PMB plate of 10 M bonds peaked 40 bytes per bond above the imports)
+_PEAK_GB_PER_BOND = 48e-9
 
 
 class PlateScene:
@@ -72,6 +76,9 @@ class PlateScene:
         if not (np.isfinite(t_end) and t_end > 0):
             raise ValueError(f"end time must be positive, got {t_end!r}")
         self.n, self.model_name, self.m, self.t_end = int(n), model, float(m), float(t_end)
+        per_side = _PEAK_GB_PER_BOND * lattice_bonds(self.m, 2)  # GB per particle
+        require_fit(self.n ** 2 * per_side, f"a plate of n={self.n} particles a side",
+                    lambda gb: f"n={int(math.sqrt(gb / per_side))}")
         h = L_PLATE / self.n
         self.h = h
         system = square_lattice(self.n, self.n, h, thickness=h, density=RHO, plane="stress",
