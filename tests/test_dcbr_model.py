@@ -587,3 +587,32 @@ def test_region_across_the_periodic_boundary():
     st = uniform_state(band, 1.03)
     assert np.abs(band.coupling.evaluate(st.y, st.extra[FIELD], band.Lz)[1]).max() > 0.3
     assert np.abs(band.force(st)).max() < 1e-9
+
+
+def test_finite_tube_with_a_defect():
+    """An open (12,6) tube with a monovacancy: the axis refined on the atoms (the particles
+    on the atoms' wall), a rigid turn and shift cost nothing (1e-12 relative), momentum,
+    and central differences of dE/dy."""
+    atoms = apply_defects(swcnt(12, 6, length=120.0), "v1@0.5@0")
+    atoms.pbc = False
+    model = DCBRModel(atoms, 2.0, r_atomistic=6.0)
+    t, c = model.tube, model.coupling
+    assert not t.periodic and model.ghost is None and model.Lz is None
+    assert np.abs(c.slave_off).max() < 1e-9
+    rng = np.random.default_rng(0)
+    y = model.x0 + 0.01 * rng.standard_normal(model.x0.shape)
+    d = 0.005 * rng.standard_normal((t.N, 3))
+    E, gy, gd, gL = model.evaluate(y, d)
+    np.testing.assert_allclose(gy.sum(axis=0), 0.0, atol=1e-11 * np.abs(gy).max() * len(gy))
+    a = 0.4
+    R = np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
+    assert model.evaluate(y @ R.T + [1.0, 2.0, 3.0], d)[0] == pytest.approx(E, rel=1e-12)
+    h = 1e-5
+    for i in (0, len(y) - 1, int(rng.integers(len(y)))):
+        for k in range(3):
+            y[i, k] += h
+            Ep = model.evaluate(y, d)[0]
+            y[i, k] -= 2 * h
+            Em = model.evaluate(y, d)[0]
+            y[i, k] += h
+            assert (Ep - Em) / (2 * h) == pytest.approx(gy[i, k], rel=1e-5, abs=2e-6)

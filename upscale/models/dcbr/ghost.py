@@ -88,7 +88,8 @@ class GhostLoad:
     def __init__(self, coupling, reg, positions, build, potential):
         t = coupling.tube
         twin_reg, X = _twin_registration(reg, positions)
-        self.twin_tube = CoarseTube(reg, len(X), **build)
+        self.twin_tube = CoarseTube(reg, len(X), **build,
+                                    positions=np.asarray(positions)[reg.atoms])
         self.twin_tube.hourglass.k_stab = t.hourglass.k_stab
         self.twin = Coupling(self.twin_tube, twin_reg, X, None, potential, inside=coupling.inside)
         tw = self.twin

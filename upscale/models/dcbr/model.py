@@ -136,7 +136,8 @@ class DCBRModel(Model):
         more = None if atomistic_particles is None else np.asarray(atomistic_particles, bool)
         coupled = self.regions.mask.any() or (more is not None and more.any())
         n_sites = int(tube.lattice.expected.sum()) if coupled else len(tube.atoms)
-        self.tube = CoarseTube(tube, n_sites, coarsening, horizon_factor, potential, hourglass)
+        self.tube = CoarseTube(tube, n_sites, coarsening, horizon_factor, potential, hourglass,
+                               self.structure.positions[tube.atoms])
         t = self.tube
         if more is not None and more.shape != (t.N,):
             raise ValueError(f"atomistic_particles of shape {more.shape}; valid: ({t.N},) bool")
@@ -209,6 +210,9 @@ class DCBRModel(Model):
     def init_state(self, state) -> None:
         if self.coupling is not None:
             state.extra.setdefault("dcbr.fs_last", self.coupling.fs_last.copy())
+            # the region (its particles) travels with a checkpoint: a resumed run rebuilds
+            # the model with DCBRModel(atoms, atomistic_particles=state.extra["dcbr.inside"])
+            state.extra.setdefault("dcbr.inside", self.coupling.inside.copy())
         state.extra.setdefault(FIELD, np.zeros((self.tube.N, 3)))
         state.extra.setdefault("dcbr.intact", self.tube.gain.intact_b.copy())
         state.extra.setdefault("dcbr.alive", self.tube.alive.copy())
@@ -307,6 +311,11 @@ class DCBRModel(Model):
     def internal_fields(self) -> dict:
         b = self.tube.shift_bound
         return {FIELD: (-b, b)}
+
+    @property
+    def lattice_states(self) -> np.ndarray:
+        """(N, 6) each particle's q = (lam_t, gam, lam_z, shift) of the last evaluation."""
+        return self._q_n
 
     @property
     def held(self) -> bool:

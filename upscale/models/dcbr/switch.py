@@ -67,7 +67,7 @@ def flagged_particles(model, state, fraction: float = 0.8) -> np.ndarray:
     than ``fraction`` x the cutoff in the mapped lattice of an end (not yet atomistic)."""
     model.energy(state)  # the lattice states of this configuration
     t = model.tube
-    over = link_rule(t, model._q_n, fraction) & t.gain.intact_b
+    over = link_rule(t, model.lattice_states, fraction) & t.gain.intact_b
     out = np.zeros(t.N, bool)
     out[t.gain.owner_b[over]] = True
     out[t.gain.j_b[over]] = True

@@ -46,16 +46,44 @@ BOND_DIGITS = 6
 
 
 def registered_bond(tube) -> float:
-    """a_cc (Å) of a registered tube: from the period of a periodic one (rounded to
-    :data:`BOND_DIGITS`), else its mean bond."""
+    """a_cc (Å) of a registered tube, rounded to :data:`BOND_DIGITS`: from the period of a
+    periodic one, else from its fitted radius, 2 pi R = sqrt(3) a_cc sqrt(n^2 + nm + m^2)
+    (so that the particles sit on the atoms' wall; the mean bond of a finite tube's atoms
+    is not that of its rolled lattice)."""
     n, m = tube.chirality
     q = n * n + n * m + m * m
-    if not tube.periodic:
-        return float(tube.bond)
+    if not tube.periodic:  # from the fitted radius: the particles' wall is the atoms'
+        return round(float(2 * math.pi * tube.radius / (math.sqrt(3.0 * q))), BOND_DIGITS)
     dR = math.gcd(2 * n + m, 2 * m + n)
     T = 3.0 * tube.bond * math.sqrt(q) / dR
     ncell = max(1, int(round(tube.length / T)))
     return round(float(tube.length * dR / (3.0 * math.sqrt(q) * ncell)), BOND_DIGITS)
+
+
+def refined_axis(X, axis, centre, radius):
+    """(axis, centre, radius) of the cylinder through the atoms ``X`` (K, 3) Å by least
+    squares on the distances to the axis (soft-L1, so an adatom does not pull it), started
+    from the registered ones: the finite tube's axis from the bond-plane normals is off
+    by ~1e-4 rad, which leaves the particles ~4e-3 Å off a 120 Å tube's wall."""
+    from scipy.optimize import least_squares  # noqa: PLC0415
+
+    e1 = np.cross(axis, [1.0, 0.0, 0.0] if abs(axis[0]) < 0.9 else [0.0, 1.0, 0.0])
+    e1 /= np.linalg.norm(e1)
+    e2 = np.cross(axis, e1)
+    Xc = X - centre
+
+    def res(p):
+        a = axis + p[0] * e1 + p[1] * e2
+        a /= np.linalg.norm(a)
+        d = Xc - (p[2] * e1 + p[3] * e2)
+        return np.linalg.norm(d - np.outer(d @ a, a), axis=1) - p[4]
+
+    r = least_squares(res, [0.0, 0.0, 0.0, 0.0, radius], loss="soft_l1", f_scale=0.05,
+                      xtol=1e-15, ftol=1e-15, gtol=1e-15)
+    a = axis + r.x[0] * e1 + r.x[1] * e2
+    a /= np.linalg.norm(a)
+    c = centre + r.x[2] * e1 + r.x[3] * e2
+    return a, c - np.dot(c - centre, a) * a, float(r.x[4])
 
 
 def _grid(n_theta, n_z, R0, L, z0):
@@ -76,25 +104,36 @@ class CoarseTube:
     n_atoms : int
         Atoms the particles stand for.
     coarsening, horizon_factor, potential, hourglass : see :class:`.model.DCBRModel`.
+    positions : (K, 3) float, optional
+        The tube's atoms, Å (a finite tube's axis is refined on them: :func:`refined_axis`).
     """
 
     def __init__(self, tube, n_atoms: int, coarsening: float, horizon_factor: float,
-                 potential: str, hourglass: float):
+                 potential: str, hourglass: float, positions=None):
         n, m = tube.chirality
         self.P_f = tersoff_row(potential)
         self.P_std = tersoff_row(potential, step_cutoff=False)
         self.cutoff = float(self.P_f[10])
-        self.bond = registered_bond(tube)
-        self.cell = TubeCell.build(n, m, self.bond)
         self.periodic = bool(tube.periodic)
         self.L = float(tube.length)
         self.axis, self.e1, self.e2 = tube.axis, tube.e1, tube.e2
         if self.periodic:
             self.centre = tube.centre - np.dot(tube.centre, tube.axis) * tube.axis
+            self.bond = registered_bond(tube)
             z0 = 0.0
         else:
-            self.centre = np.asarray(tube.centre, float)
-            z0 = float(tube.z.min())
+            if positions is None:
+                raise ValueError("a finite tube needs its atoms' positions (K, 3)")
+            X = np.asarray(positions, float)
+            self.axis, self.centre, radius = refined_axis(
+                X, tube.axis, np.asarray(tube.centre, float), tube.radius)
+            self.e1 = tube.e1 - np.dot(tube.e1, self.axis) * self.axis
+            self.e1 /= np.linalg.norm(self.e1)
+            self.e2 = np.cross(self.axis, self.e1)
+            z0 = float(((X - self.centre) @ self.axis).min())
+            q = n * n + n * m + m * m
+            self.bond = round(2 * math.pi * radius / math.sqrt(3.0 * q), BOND_DIGITS)
+        self.cell = TubeCell.build(n, m, self.bond)
         a = math.sqrt(3.0) * self.bond
         R0 = self.cell.R0
         self.n_theta = max(3, int(round(2 * math.pi * R0 / (coarsening * a))))
