@@ -42,3 +42,15 @@ def test_lattice_bonds_counts_the_points_within_the_horizon():
 
     assert lattice_bonds(3.015, 2) == 28 and lattice_bonds(1.0, 2) == 4
     assert lattice_bonds(1.0, 3) == 6 and lattice_bonds(1.5, 3) == 18
+
+
+def test_an_scb_that_does_not_fit_is_refused_before_it_builds(monkeypatch):
+    import pytest
+
+    from upscale.engine import memory
+    from upscale.experiments.scenes.scb import SCBScene
+
+    monkeypatch.setattr(memory, "available_gb", lambda: 4.0)
+    with pytest.raises(MemoryError, match=r"dx=0.0001 m \(392728 particles\) needs about 14.1 GB"
+                                          r".* the largest that fits: dx=0.000188 m"):
+        SCBScene(0.0, dx=1e-4)

@@ -31,13 +31,14 @@ with the broken-bond crack path, :func:`damage_png`).
 """
 from __future__ import annotations
 
+import math
 import time
 from pathlib import Path
 from typing import Literal
 
 import numpy as np
 
-from upscale.engine.memory import run_memory
+from upscale.engine.memory import require_fit, run_memory
 from upscale.experiments.result import Result, Timer, make_meta
 
 __all__ = ["SCBScene", "run_scb", "scb", "calibrated_r_s", "PMMA", "crack_frame", "williams_fit"]
@@ -111,6 +112,21 @@ def default_growth(criterion: str) -> str:
 #: fewest crack-length spacings a / dx for a converged fracture load (the paper's specimen at
 #: dx = 1 mm: 1 -> 0.5 mm moves P_c by 2.9 / 6.5 / 0.1 % at alpha = 0 / 30 / 50 deg)
 COARSE_A_OVER_DX = 15.0
+
+
+#: peak memory per particle of a solve (GB): CHOLMOD's factor below 100,000 particles,
+#: smoothed-aggregation multigrid above (``SCBScene.elastic``); the elastic runs at
+#: dx = 0.5, 0.25 and 0.125 mm peaked at 62, 59 and 33 kB per particle
+_PEAK_GB_CHOLMOD, _PEAK_GB_AMG, _AMG_FROM = 64e-6, 36e-6, 100_000
+
+
+def _peak_gb(n: int) -> float:
+    return n * (_PEAK_GB_CHOLMOD if n < _AMG_FROM else _PEAK_GB_AMG)
+
+
+def _largest_n(gb: float) -> float:
+    n = gb / _PEAK_GB_AMG
+    return n if n >= _AMG_FROM else min(gb / _PEAK_GB_CHOLMOD, _AMG_FROM)
 
 
 class SCBScene:
@@ -215,6 +231,8 @@ class SCBScene:
         X, Y = np.meshgrid(g, (np.arange(n) + 0.5) * dx, indexing="ij")
         inside = X ** 2 + Y ** 2 <= R * R
         x0 = np.column_stack([X[inside], Y[inside], np.zeros(inside.sum())])
+        require_fit(_peak_gb(len(x0)), f"an SCB at dx={dx:g} m ({len(x0)} particles)",
+                    lambda gb: f"dx={R * math.sqrt(math.pi / 2 / _largest_n(gb)):.3g} m")
         self.system = ParticleSystem(x0, dx * dx * t, rho, dim=2, thickness=t, plane="stress", spacing=dx)
         ex, ey = crack_frame(alpha_deg)
         self.tip = a * ex
