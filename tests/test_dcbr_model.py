@@ -418,6 +418,9 @@ def test_coupled_tube_quasi_static_steps_on_the_engine():
         out.append((model.energy(sim.state), model.cell_force(sim.state)))
     assert out[1][0] > out[0][0] and out[1][1] > out[0][1] > 0.0
     assert np.isfinite(sim.forces()).all()
+    mu = sim.damage()  # per row: particles (no link broken here), then atoms (bonds)
+    assert mu.shape == (model.n,) and mu[:len(model.coupling.dof_idx)].max() == 0.0
+    assert 0.0 <= mu.min() and mu.max() <= 1.0
 
 
 def test_bad_input_one_line_errors():

@@ -346,19 +346,32 @@ class DCBRModel(Model):
         return nb
 
     def particle_damage(self, state) -> np.ndarray:
-        """mu = 1 - (intact links) / (links at the start) per particle (seed 004 eq. 5.16)."""
+        """(n,) damage per row: a particle's mu = 1 - (intact links) / (links at the start)
+        (seed 004 eq. 5.16), a free atom's 1 - (bonds left) / (bonds at the start) (< 2.0 Å
+        at the start, broken beyond 2.1 Å: :func:`upscale.models.tersoff.atom_damage`)."""
+        from upscale.models.tersoff import atom_damage, initial_bonds  # noqa: PLC0415
+
         self._sync_links(state)
-        t = self.tube
+        t, c = self.tube, self.coupling
         R = np.bincount(t.gain.owner_b[t.gain.intact_b], minlength=t.N)
-        return 1.0 - R / np.maximum(t.n_links0, 1)
+        mu = 1.0 - R / np.maximum(t.n_links0, 1)
+        if c is None:
+            return mu
+        if getattr(self, "_bonds0", None) is None:
+            self._bonds0 = initial_bonds(c.Xf)
+        return np.r_[mu[c.dof_idx], atom_damage(state.y[len(c.dof_idx):], self._bonds0)]
 
     def stiffness_bound(self):
         return None
 
     def describe(self) -> dict:
-        t = self.tube
+        t, c = self.tube, self.coupling
         n, m = self.structure.tubes[0].chirality
         return {"model": self.name, "chirality": [int(n), int(m)], "coarsening": t.coarsening,
                 "particles": t.N, "atoms": t.n_atoms, "periodic": t.periodic,
-                "hourglass": t.hourglass.fraction, "defects": len(self.defects),
-                "cell_length_A": self.Lz}
+                "hourglass": t.hourglass.fraction,
+                "defects": [d.kind for d in self.defects],
+                "regions": len(self.regions.regions),
+                "free_atoms": 0 if c is None else c.nf,
+                "slave_particles": 0 if c is None else len(c.slave_idx),
+                "ghost_load": self.ghost is not None, "cell_length_A": self.Lz}
