@@ -343,3 +343,26 @@ def test_refused_under_mpiexec_one_line_on_rank0_every_rank_exits():
     lines = r.stderr.strip().splitlines()
     assert r.returncode != 0 and len(lines) == 1 and "with object runs on one rank" in lines[0], \
         r.stderr
+
+
+def test_scaling_model_halo_speedup_and_crossover():
+    from upscale.engine.parallel import scaling as S
+
+    const = S.fit(n_particles=40000, bonds=1_100_000, s_per_step_1rank=0.01,
+                  halo_rows_2ranks=600, packing_s_2ranks=1.2e-5, rows_moved_2ranks=1200,
+                  halo_bonds_2ranks=3600)
+    assert const["halo_width_rows"] == pytest.approx(3.0)           # 600 rows over 200
+    assert const["t_row_s"] == pytest.approx(2e-8)
+    assert S._halo(100.0, 2, 3.0) == (pytest.approx(16 ** 2 - 10 ** 2), 8)   # the shell
+    rows = S.strong(1e6, const, dim=2)
+    assert rows[0]["ranks"] == 1 and rows[0]["speedup"] == 1.0 and rows[-1]["ranks"] == 1000
+    assert all(b["total_s"] < a["total_s"] for a, b in zip(rows, rows[1:]))
+    assert all(0 < r["efficiency"] <= 1.0 for r in rows)
+    a = dict(S.ASSUMED)
+    n = S.crossover(const, dim=3, a=a)
+    t = S.step_time(n, 1000, const, dim=3, a=a)
+    assert t["exchange_s"] + t["allreduce_s"] == pytest.approx(t["compute_owned_s"], rel=1e-6)
+    slow = {**a, "latency_s": 10 * a["latency_s"]}                 # a slower network
+    assert S.crossover(const, dim=3, a=slow) > n
+    weak = S.weak(1e5, const, dim=3, a=a)
+    assert weak[0]["efficiency"] == 1.0 and weak[-1]["efficiency"] < weak[1]["efficiency"] <= 1.0

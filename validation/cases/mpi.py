@@ -20,7 +20,15 @@ bench-mpi
     thread, in one run; the halo (rows received over rows owned), bytes and time of the
     position exchange per step at 2 and 4 ranks: ``exchange_us_per_step`` of the exchange
     alone (ranks synchronised before it), ``exchange_and_wait_us_per_step`` as it occurs
-    in the run (including the wait for the slower rank).
+    in the run (including the wait for the slower rank); peak memory per rank. From them
+    the weak- and strong-scaling model of :mod:`upscale.engine.parallel.scaling` to 1,000
+    ranks at an assumed interconnect (``--latency-us`` 1.5, ``--bandwidth-GBps`` 12), and
+    the particles per rank below which the exchange dominates (tables in
+    ``scaling_model.json``). The speed target needs a quiet machine: the load average at
+    the start and end is reported.
+
+The runs on several ranks build the plate of :func:`lean_plate` (each rank builds only
+its rows of the family); the serial reference of ``mpi-same-answer`` is the scene's own.
 mpi-restart-exact
     The 2-rank PMB plate killed with SIGKILL (the whole ``mpiexec`` process group) at a
     random moment after its second checkpoint, resumed, against the uninterrupted 2-rank
@@ -31,6 +39,7 @@ from __future__ import annotations
 import json
 import os
 import random
+import resource
 import shutil
 import signal
 import subprocess
@@ -103,7 +112,7 @@ def mpi_same_answer(args):
             ref = None
             for k in ranks:
                 f = Path(d) / f"{model}{k}.npz"
-                fig = run_plate(k, model, n, args.steps, f)
+                fig = run_plate(k, model if k == 1 else f"lean:{model}", n, args.steps, f)
                 z = dict(np.load(f))
                 if ref is None:
                     ref = z
@@ -126,46 +135,112 @@ def _bench_args(p):
     p.add_argument("--n", type=int, default=None, help="particles a side (default 600; quick 200)")
     p.add_argument("--steps", type=int, default=None, help="steps (default 200; quick 100)")
     p.add_argument("--model", default="pmb")
+    p.add_argument("--latency-us", type=float, default=1.5, help="interconnect latency assumed "
+                   "by the scaling model (us)")
+    p.add_argument("--bandwidth-GBps", type=float, default=12.0, help="interconnect bandwidth "
+                   "assumed by the scaling model (GB/s)")
+
+
+def _traffic_sums(fig: dict) -> dict:
+    t = fig["traffic"]
+    return {"rows": sum(x["rows_received"] for x in t), "owned": sum(x["owned"] for x in t),
+            "bytes": sum(x["bytes_sent"] for x in t), "peers": max(x["peers"] for x in t),
+            "exchange_s": max(x["exchange_alone_s"] for x in t),
+            "wait_s": max(x["exchange_s"] for x in t),
+            "packing_s": max(x["packing_s"] for x in t),
+            "rows_moved": max(x["rows_received"] + x["rows_sent"] for x in t),
+            "halo_bonds": sum(x["local_bonds"] - x["owned_bonds"] for x in t)}
 
 
 @case("bench-mpi", "speed of 2 ranks against 1 and 2 threads on a plate of >= 10 M bonds; "
-      "halo volume, bytes and time of the exchange per step at 2 and 4 ranks",
+      "halo volume, bytes and time of the exchange per step at 2 and 4 ranks; a weak- and "
+      "strong-scaling model from them to 1,000 ranks",
       add_arguments=_bench_args, target="2 ranks at least 1.7x one rank")
 def bench_mpi(args):
+    from upscale.engine.parallel import scaling
+
     _refuse_under_mpi()
     n = args.n or (200 if args.quick else 600)
     steps = args.steps or (100 if args.quick else 200)
-    load = os.getloadavg()[0]
+    load0 = os.getloadavg()
     rows, runs = [], {}
     with tempfile.TemporaryDirectory() as d:
         for name, ranks, threads in (("1 rank x 1 thread", 1, 1), ("1 rank x 2 threads", 1, 2),
                                      ("2 ranks x 1 thread", 2, 1), ("4 ranks x 1 thread", 4, 1)):
-            fig = run_plate(ranks, args.model, n, steps, Path(d) / f"r{ranks}t{threads}.npz",
-                            threads)
+            fig = run_plate(ranks, f"lean:{args.model}", n, steps,
+                            Path(d) / f"r{ranks}t{threads}.npz", threads)
             runs[(ranks, threads)] = fig
+            tr = _traffic_sums(fig) if fig["traffic"] else {}
             rows.append({"run": name, "bonds": fig["bonds"],
                          "s_per_step": fig["run_wall_s"] / steps,
-                         "halo_rows": sum(t["rows_received"] for t in fig["traffic"]),
-                         "bytes_per_step": sum(t["bytes_sent"] for t in fig["traffic"]),
-                         "exchange_us": 1e6 * fig["traffic"][0]["exchange_alone_s"]
-                         if fig["traffic"] else 0.0,
-                         "exchange_wait_us": 1e6 * max(t["exchange_s"] for t in fig["traffic"])
-                         if fig["traffic"] else 0.0})
+                         "halo_rows": tr.get("rows", 0), "bytes_per_step": tr.get("bytes", 0),
+                         "exchange_us": 1e6 * tr.get("exchange_s", 0.0),
+                         "exchange_wait_us": 1e6 * tr.get("wait_s", 0.0),
+                         "max_rss_MB": max(fig["max_rss_MB"])})
+    load1 = os.getloadavg()
     print(table(rows, floatfmt=".4g"))
-    t = {k: v["run_wall_s"] for k, v in runs.items()}
-    two = runs[(2, 1)]["traffic"]
-    out = {"plate_n": n, "bonds": runs[(1, 1)]["bonds"], "steps": steps, "model": args.model,
-           "load_average_1min_at_start": load,
+    t = {k: v["run_wall_s"] / steps for k, v in runs.items()}
+    two, four = _traffic_sums(runs[(2, 1)]), _traffic_sums(runs[(4, 1)])
+    N, bonds = n * n, runs[(1, 1)]["bonds"]
+    assumed = {**scaling.ASSUMED, "latency_s": 1e-6 * args.latency_us,
+               "bandwidth_B_per_s": 1e9 * args.bandwidth_GBps}
+    const = scaling.fit(n_particles=N, bonds=bonds, s_per_step_1rank=t[(1, 1)],
+                        halo_rows_2ranks=two["rows"] / 2, packing_s_2ranks=two["packing_s"],
+                        rows_moved_2ranks=two["rows_moved"],
+                        halo_bonds_2ranks=two["halo_bonds"] / 2, dim=2)
+    kw = {"a": assumed}
+    body3 = {"particles": 1e7, "bonds_per_particle": 100.0}  # the issue's 3D body
+    strong2 = scaling.strong(N, const, dim=2, **kw)
+    strong3 = scaling.strong(body3["particles"], const, dim=3,
+                             bonds_per_particle=body3["bonds_per_particle"], **kw)
+    weak2 = scaling.weak(N / 2, const, dim=2, **kw)
+    weak3 = scaling.weak(1e5, const, dim=3, bonds_per_particle=body3["bonds_per_particle"], **kw)
+    pick = [r for r in strong3 if r["ranks"] in (1, 2, 16, 128, 1000)]
+    print("strong scaling, 3D body of 1e7 particles x 100 bonds (model):")
+    print(table([{k: r[k] for k in ("ranks", "particles_per_rank", "compute_s", "exchange_s",
+                                     "allreduce_s", "speedup", "efficiency")} for r in pick],
+                floatfmt=".3g"))
+    cross2 = scaling.crossover(const, dim=2, **kw)
+    cross3 = scaling.crossover(const, dim=3, bonds_per_particle=body3["bonds_per_particle"], **kw)
+    at = {r["ranks"]: r for r in strong2}
+    out = {"plate_n": n, "particles": N, "bonds": bonds, "steps": steps, "model": args.model,
+           "load_average_1_5_15min_at_start": list(load0),
+           "load_average_1_5_15min_at_end": list(load1),
+           "s_per_step": {f"{r}r{th}t": v for (r, th), v in t.items()},
            "speedup_2ranks_over_1": t[(1, 1)] / t[(2, 1)],
            "speedup_2threads_over_1": t[(1, 1)] / t[(1, 2)],
            "speedup_2ranks_over_2threads": t[(1, 2)] / t[(2, 1)],
-           "halo_fraction": sum(x["rows_received"] for x in two) / sum(x["owned"] for x in two),
-           "bytes_per_step_2ranks": sum(x["bytes_sent"] for x in two),
-           "exchange_us_per_step": 1e6 * two[0]["exchange_alone_s"],
-           "exchange_us_per_step_4ranks": 1e6 * runs[(4, 1)]["traffic"][0]["exchange_alone_s"],
-           "exchange_and_wait_us_per_step": 1e6 * max(x["exchange_s"] for x in two),
-           "halo_fraction_4ranks": sum(x["rows_received"] for x in runs[(4, 1)]["traffic"])
-           / sum(x["owned"] for x in runs[(4, 1)]["traffic"])}
+           "halo_fraction": two["rows"] / two["owned"],
+           "halo_fraction_4ranks": four["rows"] / four["owned"],
+           "bytes_per_step_2ranks": two["bytes"], "bytes_per_step_4ranks": four["bytes"],
+           "exchange_us_per_step": 1e6 * two["exchange_s"],
+           "exchange_us_per_step_4ranks": 1e6 * four["exchange_s"],
+           "exchange_and_wait_us_per_step": 1e6 * two["wait_s"],
+           "packing_us_per_step": 1e6 * two["packing_s"],
+           "max_rss_MB_per_rank": {f"{r}r{th}t": v["max_rss_MB"] for (r, th), v in runs.items()},
+           "model_assumptions": {**assumed, "halo": "cube-like subdomains (RCB) in a shell of "
+                                 "the measured halo width, 3^d - 1 peers; the copies of an "
+                                 "exchange at their measured cost per row (sent + received); "
+                                 "one Allreduce per step (recursive doubling); compute "
+                                 "proportional to the bonds held (owned and halo rows'), at "
+                                 "the 1-rank time per bond; no load imbalance, no OS noise"},
+           "model_constants": const,
+           "model_2ranks_s_per_step_vs_measured": [at[2]["total_s"], t[(2, 1)]],
+           "strong_2d_plate_speedup_at_1000": at[1000]["speedup"],
+           "strong_2d_plate_efficiency_at_1000": at[1000]["efficiency"],
+           "strong_3d_1e7x100_efficiency_at_1000": strong3[-1]["efficiency"],
+           "strong_3d_1e7x100_s_per_step_at_1000": strong3[-1]["total_s"],
+           "weak_2d_efficiency_at_1000": weak2[-1]["efficiency"],
+           "weak_3d_1e5_per_rank_efficiency_at_1000": weak3[-1]["efficiency"],
+           "exchange_dominates_below_particles_per_rank_2d": cross2,
+           "exchange_dominates_below_particles_per_rank_3d_100_bonds": cross3}
+    outdir = Path(getattr(args, "outdir", None) or "validation/out/bench-mpi")
+    outdir.mkdir(parents=True, exist_ok=True)
+    (outdir / "scaling_model.json").write_text(json.dumps(
+        {"strong_2d_plate": strong2, "strong_3d_1e7x100": strong3, "weak_2d": weak2,
+         "weak_3d_1e5_per_rank": weak3, **{k: out[k] for k in ("model_assumptions",
+                                                                 "model_constants")}},
+        indent=1, default=float))
     out["pass"] = bool(out["speedup_2ranks_over_1"] >= 1.7)
     return out
 
@@ -266,13 +341,19 @@ def plate_main(argv: list[str]) -> None:
         agree = bond_states_agree(part.comm, part.local, sim.state.intact)
         t = part.traffic()
         t["exchange_alone_s"] = part.time_exchange(sim.state.y)
+        t["packing_s"] = part.time_packing(sim.state.y)
+        t.update(local_bonds=int(part.local.offsets[-1]),
+                 owned_bonds=int(np.count_nonzero(part.owned_bonds)))
         traffic = part.comm.allgather(t)
+    rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+    rss = [rss] if part is None else part.comm.allgather(rss)
     desc = sim.describe()  # collective on several ranks
     if part is None or part.rank == 0:
         np.savez(out, u=u, intact=intact, broken=info["broken_bonds"], agree=agree)
         out.with_suffix(".json").write_text(json.dumps(
             {"run_wall_s": info["wall_s"], "bonds": desc["bonds"], "particles": desc["particles"],
-             "traffic": traffic, "broken_bonds": info["broken_bonds"]}, default=float))
+             "traffic": traffic, "broken_bonds": info["broken_bonds"], "max_rss_MB": rss},
+            default=float))
 
 
 if __name__ == "__main__":
