@@ -40,7 +40,7 @@ from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
 
 from potentials import tersoff_kernels as tk
-from potentials.neighbours import neighbour_list
+from potentials.neighbours import NeighbourList
 from potentials.tersoff import read_tersoff_file
 from upscale.models.dcbr.maps import frame_adjoint, frame_of, map_frames
 from upscale.models.dcbr.pads import pad_backward, pad_positions
@@ -49,6 +49,9 @@ __all__ = ["Coupling", "PAD", "atom_geometry", "carriers", "carried_positions"]
 
 #: width (Å) of the band of pad atoms about the free atoms (> the 2.1 Å cutoff)
 PAD = 3.5
+#: skin (Å) of the atoms' Verlet list (rebuilt when an atom has moved half of it): 2.4 Å
+#: stays short of the wall's second neighbours (2.5 Å)
+NL_SKIN = 0.3
 
 
 def _wrap(a):
@@ -242,6 +245,7 @@ class Coupling:
         tube.hourglass.rebuild()
         par = read_tersoff_file(potential, ["C"]).with_step_cutoff(True)
         self._tP, self._te2p, self._tcut = par.table, par.e2p, float(par.cutoff)
+        self._nl = NeighbourList(self._tcut, NL_SKIN)
         self.y_ref = np.vstack([tube.x0[self.dof_idx], self.Xf])
 
     def _slaves(self, th, z, sub, on_site):
@@ -319,7 +323,14 @@ class Coupling:
             cell, pbc = np.diag([1.0, 1.0, float(L)]), (False, False, True)
         else:
             cell, pbc = np.zeros((3, 3)), (False, False, False)
-        first, j_b, sh = neighbour_list(x, cell, pbc, self._tcut)
+        if self._nl.update(x, cell, pbc):  # each row's partners in index order: the sums
+            # do not depend on where the list was built (a resumed run is bit-identical)
+            nl = self._nl
+            i_b = np.repeat(np.arange(len(x)), np.diff(nl.first_n))
+            order = np.lexsort((nl.shift_bc[:, 2], nl.j_b, i_b))
+            self._pairs = (nl.first_n, np.ascontiguousarray(nl.j_b[order]),
+                           np.ascontiguousarray(nl.shift_bc[order]))
+        first, j_b, sh = self._pairs
         f, e_n, W = np.zeros_like(x), np.zeros(len(x)), np.zeros((3, 3))
         E = tk.tersoff_range(0, self.nf, x, cell, first, j_b, sh, np.zeros(len(x), np.int64),
                              self._te2p, self._tP, self._tcut ** 2, f, e_n, W)
