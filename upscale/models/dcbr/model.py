@@ -12,7 +12,7 @@ periodic tube. Built from an ``ase.Atoms`` (a tube of :func:`upscale.build.swcnt
 without the defects of :mod:`upscale.build`, or read from a file): the tube is registered
 (:func:`.structure.register`: axis, chirality, lattice map), its defects found
 (:func:`.defects.find_defects`) and the atomistic regions around them
-(:func:`.regions.atomistic_regions`) are reported in ``model.regions``; the particles
+(:func:`.regions.atomistic_regions`, ``model.regions``) are kept as atoms; the particles
 are placed by :class:`.tube.CoarseTube`.
 
 The sublattice shifts delta (N, 3) Å are massless: relaxed at every configuration
@@ -31,8 +31,11 @@ and ``set_cell`` (a periodic tube's length as the load). The model never drives 
 
 With atomistic regions (a defect, or a user selection) the rows are the non-slave
 particles then the free atoms, coupled by :mod:`.coupling`, with the ghost-force dead load
-of :mod:`.ghost` on a periodic tube. Not here yet (issue 51): the lattice-stability
-failure rule, open tubes' grips, regions that grow.
+of :mod:`.ghost` on a periodic tube; :meth:`grown` and :mod:`.switch` grow the region
+where links near failure (the scene continues on a new Simulation). With atoms, the
+unheld shifts are relaxed by L-BFGS-B over all of them at every force call (the pads
+couple them): right for quasi-static runs, slow for dynamics. Not here yet (issue 51):
+the lattice-stability failure rule, open tubes' grips, several tubes.
 
 Units: eV, Å, amu / ``unit`` (default Å/fs^2 per eV/(Å amu): time in fs).
 """
