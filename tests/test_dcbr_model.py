@@ -268,6 +268,32 @@ def test_coupled_vacancy_tube_is_the_old_defect_tube(nm, K):
     assert_same_evaluation(old, new, y, 0.01 * rng.standard_normal((old.N, 3)), 1.02 * old.L)
 
 
+def test_coupled_tube_is_the_old_engine_model():
+    """The old engine adapter (DCBRDefectTubeModel: rows = every particle then the free
+    atoms, shifts a field) on an engine state against the new coupling at the same rows and
+    shifts: energy and the forces on the non-slave particles and the atoms, to 1e-12."""
+    from upscale.models.dcbr_engine import FIELD as OLD_FIELD
+    from upscale.models.dcbr_engine import DCBRDefectTubeModel
+
+    old, new = seed_vacancy_tube((12, 6), 150.0, 2.0)
+    L = 1.02 * old.L
+    om = DCBRDefectTubeModel(old, Lz=L)
+    body = om.system()
+    om.prepare(body)
+    st = State.reference(body.x0, 0)
+    om.init_state(st)
+    rng = np.random.default_rng(1)
+    y = old.y_init * np.array([1.01, 1.01, 1.02]) + 0.02 * rng.standard_normal(old.y_init.shape)
+    st.y[...] = om.rows(y)
+    st.fields[OLD_FIELD][:old.N] = 0.01 * rng.standard_normal((old.N, 3))
+    E, gy = new.coupling.evaluate(y + new.tube.centre, st.fields[OLD_FIELD][:old.N], L)[:2]
+    assert E == pytest.approx(om.energy(st), rel=1e-12)
+    f = om.force(st)
+    nd = len(old.dof_idx)
+    np.testing.assert_allclose(-gy[:nd], f[old.dof_idx], rtol=0, atol=1e-12 * np.abs(f).max())
+    np.testing.assert_allclose(-gy[nd:], f[old.N:], rtol=0, atol=1e-12 * np.abs(f).max())
+
+
 @pytest.mark.parametrize("nm,K", [((10, 10), 2.0), ((17, 0), 3.0)])
 def test_coupled_vacancy_tube_ties_and_uniform_states(nm, K):
     """Where pad atoms or slave fits tie between two equidistant particles (1e-14 Å apart
