@@ -134,6 +134,7 @@ def switch(model, state, particles):
     st = State(new.x0, y, v, state.intact.copy(), state.t, state.step,
                {k: np.array(a, copy=True) for k, a in state.extra.items()})
     st.extra.pop("dcbr.fs_last", None)
+    st.extra.pop("dcbr.inside", None)  # the grown region (init_state writes it)
     if model.coupling is not None and "dcbr.fs_last" in state.extra:
         st.extra["dcbr.fs_last"] = np.array(state.extra["dcbr.fs_last"], copy=True)
     new.init_state(st)
