@@ -94,34 +94,40 @@ def site_energy_grad(pos_pc, i, cand, P_f, grad_pc, near, v, w):
         dVdz = 0.5 * fcs[a] * fA * dbdz
         if dVdz == 0.0:
             continue
+        rij0, rij1, rij2 = v[a, 0], v[a, 1], v[a, 2]
         for b in range(nc):
-            if b != a:
-                _zeta_grad(i, j, near[b], v, a, b, r, rr[b], fcs[b], dfcs[b], dVdz, P_f,
-                           grad_pc)
+            if b == a:
+                continue
+            k = near[b]
+            rik0, rik1, rik2 = v[b, 0], v[b, 1], v[b, 2]
+            rk = rr[b]
+            fck = fcs[b]
+            cs = (rij0 * rik0 + rij1 * rik1 + rij2 * rik2) / (r * rk)
+            g = tk.ters_gijk(cs, gam, csq, dsq, csq_dsq, h)
+            dg = tk.ters_gijk_d(cs, gam, csq, dsq, h)
+            ex, dex = tk.ters_exp(r, rk, m_, lam3, l3c)
+            inv = 1.0 / (r * rk)
+            aj = fck * g * dex / r              # d ex / d r_ij along r_ij
+            ak = (dfcs[b] * g * ex - fck * g * dex) / rk
+            bcos = fck * dg * ex
+            cj = cs / (r * r)
+            ck = cs / (rk * rk)
+            gj0 = dVdz * (bcos * (rik0 * inv - cj * rij0) + aj * rij0)
+            gj1 = dVdz * (bcos * (rik1 * inv - cj * rij1) + aj * rij1)
+            gj2 = dVdz * (bcos * (rik2 * inv - cj * rij2) + aj * rij2)
+            gk0 = dVdz * (bcos * (rij0 * inv - ck * rik0) + ak * rik0)
+            gk1 = dVdz * (bcos * (rij1 * inv - ck * rik1) + ak * rik1)
+            gk2 = dVdz * (bcos * (rij2 * inv - ck * rik2) + ak * rik2)
+            grad_pc[j, 0] += gj0
+            grad_pc[j, 1] += gj1
+            grad_pc[j, 2] += gj2
+            grad_pc[k, 0] += gk0
+            grad_pc[k, 1] += gk1
+            grad_pc[k, 2] += gk2
+            grad_pc[i, 0] -= gj0 + gk0
+            grad_pc[i, 1] -= gj1 + gk1
+            grad_pc[i, 2] -= gj2 + gk2
     return E
-
-
-@njit(cache=True, inline="always")
-def _zeta_grad(i, j, k, v, a, b, r, rk, fck, dfck, dVdz, P_f, grad_pc):
-    """Adds dVdz d zeta_ij / d pos of the triplet (i, j, k) to ``grad_pc`` (mutated)."""
-    gam, h = P_f[tk.IDX_GAMMA], P_f[tk.IDX_H]
-    csq, dsq, csq_dsq = P_f[tk.IDX_CSQ], P_f[tk.IDX_DSQ], P_f[tk.IDX_CSQ_DSQ]
-    cs = (v[a, 0] * v[b, 0] + v[a, 1] * v[b, 1] + v[a, 2] * v[b, 2]) / (r * rk)
-    g = tk.ters_gijk(cs, gam, csq, dsq, csq_dsq, h)
-    dg = tk.ters_gijk_d(cs, gam, csq, dsq, h)
-    ex, dex = tk.ters_exp(r, rk, P_f[tk.IDX_M], P_f[tk.IDX_LAM3], P_f[tk.IDX_LAM3CUBE])
-    inv = 1.0 / (r * rk)
-    aj = fck * g * dex / r              # d ex / d r_ij along r_ij
-    ak = (dfck * g * ex - fck * g * dex) / rk
-    bcos = fck * dg * ex
-    for d in range(3):
-        dcj = v[b, d] * inv - cs * v[a, d] / (r * r)
-        dck = v[a, d] * inv - cs * v[b, d] / (rk * rk)
-        gj = dVdz * (bcos * dcj + aj * v[a, d])
-        gk = dVdz * (bcos * dck + ak * v[b, d])
-        grad_pc[j, d] += gj
-        grad_pc[k, d] += gk
-        grad_pc[i, d] -= gj + gk
 
 
 @njit(cache=True)
