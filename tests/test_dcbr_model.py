@@ -651,3 +651,36 @@ def test_finite_tube_with_a_defect():
             Em = model.evaluate(y, d)[0]
             y[i, k] += h
             assert (Ep - Em) / (2 * h) == pytest.approx(gy[i, k], rel=1e-5, abs=2e-6)
+
+
+def test_link_rule_on_the_coupled_tube():
+    """A tube with a monovacancy and a 9 Å axial step beyond its region (no ghost load):
+    the link rule breaks links (particles drop out, damage on particle rows), the region's
+    pads keep their carriers' last maps, and afterwards the forces still sum to zero and
+    match central differences."""
+    atoms = apply_defects(swcnt(10, 10, length=150.0), "v1@0.3@0")
+    model = DCBRModel(atoms, 2.0, r_atomistic=6.0, ghost=False)
+    t, c = model.tube, model.coupling
+    st = State(model.x0, model.x0.copy(), np.zeros_like(model.x0), np.ones(0, bool))
+    model.init_state(st)
+    z = (st.y - t.centre) @ t.axis
+    st.y[:, 2] += np.where(z > model.defects[0].z + 12.0, 9.0, 0.0)
+    model.set_cell(t.L + 9.0)
+    model.hold_internal(True)
+    assert model.break_bonds(st) > 0 and (~t.alive).any()
+    nd = len(c.dof_idx)
+    mu = model.particle_damage(st)
+    assert mu[:nd].max() > 0.5 and not st.extra["dcbr.intact"].all()
+    y, d = st.y.copy(), st.extra[FIELD].copy()
+    E, gy, gd, gL = model.evaluate(y, d)
+    assert np.isfinite(E)
+    np.testing.assert_allclose(gy.sum(axis=0), 0.0, atol=1e-11 * np.abs(gy).max() * len(gy))
+    h = 1e-5
+    for i in (int(np.flatnonzero(mu[:nd] > 0)[-1]), nd + 5):
+        for k in range(3):
+            y[i, k] += h
+            Ep = model.evaluate(y, d)[0]
+            y[i, k] -= 2 * h
+            Em = model.evaluate(y, d)[0]
+            y[i, k] += h
+            assert (Ep - Em) / (2 * h) == pytest.approx(gy[i, k], rel=1e-5, abs=2e-6)
