@@ -684,3 +684,32 @@ def test_link_rule_on_the_coupled_tube():
             Em = model.evaluate(y, d)[0]
             y[i, k] += h
             assert (Ep - Em) / (2 * h) == pytest.approx(gy[i, k], rel=1e-5, abs=2e-6)
+
+
+@pytest.mark.parametrize("defects", ["", "v2@0.5@0"])
+def test_atom_positions_reconstruct_the_tube(defects):
+    """Every atom from the model's state: at the reference the input atoms (1e-12 Å); on
+    the uniform relaxed lattice at 4 % stretch the closed-form uniform map of the input
+    atoms, (lam_t R0 + s d_rho, theta + s d_s / (lam_t R0), lam_z z + s d_z) for sublattice
+    s (1e-12 Å, modulo the period)."""
+    from upscale.models.dcbr.coupling import atom_geometry
+
+    atoms = swcnt(12, 6, length=120.0)
+    if defects:
+        atoms = apply_defects(atoms, defects)
+    model = DCBRModel(atoms, 2.0, r_atomistic=6.0)
+    st = State(model.x0, model.x0.copy(), np.zeros_like(model.x0), np.ones(0, bool))
+    model.init_state(st)
+    np.testing.assert_allclose(model.atom_positions(st), atoms.positions, rtol=0, atol=1e-12)
+    st = uniform_state(model, 1.04)
+    t = model.tube
+    from upscale.models.dcbr.ghost import uniform_lattice
+
+    lt, sh = uniform_lattice(t.cell, t.P_f, 1.04)
+    ids, X, th, z, sub, _ = atom_geometry(t, model.structure.tubes[0], atoms.positions)
+    rho, thn = lt * t.cell.R0 + sub * sh[0], th + sub * sh[1] / (lt * t.cell.R0)
+    expect = t.centre + (rho * np.cos(thn))[:, None] * t.e1 + (rho * np.sin(thn))[:, None] \
+        * t.e2 + (1.04 * z + sub * sh[2])[:, None] * t.axis
+    dd = model.atom_positions(st)[ids] - expect
+    dd[:, 2] -= model.Lz * np.round(dd[:, 2] / model.Lz)
+    assert np.abs(dd).max() < 1e-12

@@ -162,6 +162,7 @@ class DCBRModel(Model):
         self.cell = None
         self._held = False
         self._cache = None
+        self._carried = None
 
     # ------------------------------------------------------------------ the body
     @property
@@ -198,6 +199,36 @@ class DCBRModel(Model):
             raise ValueError(f"the body has {system.n} rows in {system.dim}D; valid: the "
                              f"model's {self.n} rows in 3D (DCBRModel.system())")
         self.system = system
+
+    def atom_positions(self, state) -> np.ndarray:
+        """(K, 3) Å: every atom of the structure at ``state``, the free ones as they are,
+        the others on their carriers' uniform maps with the shifts (:mod:`.pads`; the
+        nearest non-slave particle carries each). For pictures and for comparing with an
+        atomistic run; at the reference state they are the input atoms."""
+        from upscale.models.dcbr.coupling import (atom_geometry, carried_positions,  # noqa: PLC0415
+                                                  carriers)
+
+        t, c = self.tube, self.coupling
+        reg = self.structure.tubes[0]
+        if self._carried is None:
+            ids, X, th, z, sub, _ = atom_geometry(t, reg, self.structure.positions)
+            dof = np.arange(t.N) if c is None else c.dof_idx
+            coarse = np.ones(len(ids), bool) if c is None else ~np.isin(ids, c.free_idx)
+            self._carried = (ids, coarse, carriers(t, dof, X[coarse], th[coarse], z[coarse],
+                                                    sub[coarse]))
+        ids, coarse, car = self._carried
+        y = np.asarray(state.y, float)
+        yp = y if c is None else c.particle_positions(y, self.Lz)
+        out = np.array(self.structure.positions, dtype=float, copy=True)
+        xa = carried_positions(t, car, yp, state.extra[FIELD], self.Lz,
+                               state.extra.get("dcbr.fs_last"))
+        if t.periodic:  # the image nearest the input atom (a carrier may sit across z = 0)
+            k = np.round(((xa - out[ids[coarse]]) @ t.axis) / self.Lz)
+            xa -= np.outer(k * self.Lz, t.axis)
+        out[ids[coarse]] = xa
+        if c is not None:
+            out[c.free_idx] = y[len(c.dof_idx):]
+        return out
 
     def grown(self, particles) -> "DCBRModel":
         """A new model of the same atoms whose region also holds the atoms of ``particles``
