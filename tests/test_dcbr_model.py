@@ -259,8 +259,8 @@ def assert_same_evaluation(old, new, y, d, L, rel=1e-11):
 def test_coupled_vacancy_tube_is_the_old_defect_tube(nm, K):
     """The seed's 4-atom vacancy with its atomistic band: the same free atoms, slave
     particles, pads and weights as the old DCBRDefectTube, and the same energy and
-    gradients (the coupling's, without the ghost-force load) at a strained noisy configuration with random
-    shifts, to 1e-11 relative (sums in another order)."""
+    gradients (the coupling's, without the ghost-force load) at a strained noisy
+    configuration with random shifts, to 1e-11 relative (sums in another order)."""
     old, new = seed_vacancy_tube(nm, 150.0, K)
     assert_same_coupled_structure(old, new)
     rng = np.random.default_rng(1)

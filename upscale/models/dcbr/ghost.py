@@ -178,7 +178,8 @@ class GhostLoad:
         """(E - W, dE'/dy, dE'/d delta, the load's dE'/dL) at rows ``y``, shifts ``delta``."""
         a, t = self.load, self.twin_tube
         alive = self.coupling.tube.alive
-        on = np.r_[alive[self.coupling.dof_idx].astype(float), np.ones(len(y) - len(self.coupling.dof_idx))]
+        nd = len(self.coupling.dof_idx)
+        on = np.r_[alive[self.coupling.dof_idx].astype(float), np.ones(len(y) - nd)]
         gr, gtr, gz = a["gr"] * on, a["gtr"] * on, a["gz"] * on
         gdl = a["gd"] * alive[:, None]
         x = self._plane(y)

@@ -221,7 +221,8 @@ def coarse_energy(F_nck, S_nab, delta_nc, natoms_n, alive_n, s_p, z_p, sub_p, R0
     g, q = np.empty(NPARAM), np.empty(NPARAM)
     C, SDS = np.empty((2, 2)), np.empty((2, 2))
     nk = max(candA.shape[0], candB.shape[0])
-    near, v, w, trig = np.empty(nk, np.int64), np.empty((nk, 3)), np.empty((3, nk)), np.empty((2, P))
+    near, v, w = np.empty(nk, np.int64), np.empty((nk, 3)), np.empty((3, nk))
+    trig = np.empty((2, P))
     Etot = 0.0
     for c in range(N):
         for i in range(3):
@@ -266,7 +267,8 @@ def coarse_energy(F_nck, S_nab, delta_nc, natoms_n, alive_n, s_p, z_p, sub_p, R0
                 SDS[a, b] = acc
         for i in range(3):
             for a in range(2):
-                P_out[c, i, a] = 2.0 * Nc * (F_nck[c, i, 0] * SDS[0, a] + F_nck[c, i, 1] * SDS[1, a])
+                P_out[c, i, a] = 2.0 * Nc * (F_nck[c, i, 0] * SDS[0, a]
+                                             + F_nck[c, i, 1] * SDS[1, a])
     return Etot
 
 

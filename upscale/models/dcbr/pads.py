@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 from numba import njit
 
 __all__ = ["pad_positions", "pad_backward"]
@@ -78,6 +77,7 @@ def pad_backward(g_a, delta_n, par_n, Q3_n, own_n, c_a, ds_a, dz_a, sig_a, r0_a,
             gQ3_n[c, i, 2] += gi * h[2]
         dphi_lt = -(gm * dz + sig * delta_n[c, 1]) / (lt * rp)
         dphi_gm = dz / rp
-        gpar_n[c, 0] += gh0 * (R0 * sp + rho * cp * dphi_lt) + gh2 * (R0 * cp - rho * sp * dphi_lt - R0)
+        gpar_n[c, 0] += (gh0 * (R0 * sp + rho * cp * dphi_lt)
+                         + gh2 * (R0 * cp - rho * sp * dphi_lt - R0))
         gpar_n[c, 1] += (gh0 * rho * cp - gh2 * rho * sp) * dphi_gm
         gpar_n[c, 2] += gh1 * dz
