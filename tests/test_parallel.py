@@ -164,16 +164,25 @@ def test_halo_depth_of_the_models():
     with pytest.raises(ValueError, match="Ti-PD with surface correction"):
         halo_depth(models.create("tipd", E=1e9, nu=0.3, surface="correspondence"))
 
-    class Other:
-        name = "nosb"
+    assert halo_depth(models.create("nosb", E=1e9, nu=0.25, stabilisation="silling")) == 2
+    with pytest.raises(ValueError, match="bond-associated correspondence"):
+        halo_depth(models.create("nosb", E=1e9, nu=0.25, bond_associated=True))
+    cpd = dict(horizon=3e-3, dim=2, E=1e9, nu=0.34, plane="stress")
+    assert halo_depth(models.create("cpd", **cpd, calibration="continuum")) == 2
+    with pytest.raises(ValueError, match="calibration='discrete'.*interior particle"):
+        halo_depth(models.create("cpd", **cpd))
+    with pytest.raises(ValueError, match="CPD with surface correction"):
+        halo_depth(models.create("cpd", **cpd, calibration="continuum", surface_correction=True))
+    assert halo_depth(models.create("unified")) == 2
+    with pytest.raises(ValueError, match="unified model with bond failure.*bond states"):
+        halo_depth(models.create("unified", r_s=1e-3, G_c=100.0))
 
-    with pytest.raises(ValueError, match="'nosb' cannot run on several MPI ranks yet: its "
-                       "prepare checks every particle's family"):
-        halo_depth(Other())
-    for name, why in (("cpd", "non-collinear"), ("unified", "gain"),
-                      ("tridyn-eb", "rotations are fields"), ("dcbr", "does not know the halo")):
+    class Other:
+        name = "tridyn-eb"
+
+    for name, why in (("tridyn-eb", "rotations are fields"), ("dcbr", "does not know the halo")):
         Other.name = name
-        with pytest.raises(ValueError, match=why):
+        with pytest.raises(ValueError, match=f"'{name}' cannot run on several MPI ranks yet.*{why}"):
             halo_depth(Other())
 
 

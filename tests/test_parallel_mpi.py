@@ -67,6 +67,52 @@ def test_thermostatted_plate_on_ranks(kind):
         assert np.array_equal(intact, ref_intact)
 
 
+def _square(model, n=30, steps=200):
+    """A square of ``model`` pulled at 5 m/s at its top and bottom rows, run ``steps``
+    steps: the whole body's displacements, bond states and broken bonds."""
+    from upscale.engine import Simulation, square_lattice
+    from upscale.engine.conditions import Velocity, region
+    from upscale.engine.families import FamilyRecipe
+
+    h = 1e-3
+    s = square_lattice(n, n, h, thickness=h, density=8000.0, plane="stress", centered=True)
+    L = n * h
+    top = region(s, "top", box=((None, L / 2 - 3 * h, None), (None, None, None)))
+    bottom = region(s, "bottom", box=((None, None, None), (None, -L / 2 + 3 * h, None)))
+    conds = [Velocity(top, (0.0, 5.0, 0.0), components=(1,)),
+             Velocity(bottom, (0.0, -5.0, 0.0), components=(1,))]
+    return _run(Simulation(s, FamilyRecipe(s, 3.015 * h), model(h), conds), steps)
+
+
+MODELS = {
+    "nosb-silling": lambda h: _create("nosb", E=192e9, nu=1 / 3, stabilisation="silling"),
+    "nosb-wan-svk-bond": lambda h: _create("nosb", E=192e9, nu=1 / 3, stabilisation="wan",
+                                           law="svk", kernel="bond"),
+    "cpd-c2-failure": lambda h: _create("cpd", horizon=3.015 * h, dim=2, E=192e9, nu=0.34,
+                                        plane="stress", calibration="continuum", s1c=2e-3),
+    "unified": lambda h: _create("unified"),
+}
+
+
+def _create(name, **kw):
+    from upscale import models
+
+    return models.create(name, **kw)
+
+
+@pytest.mark.parametrize("name", sorted(MODELS))
+def test_models_of_families_on_ranks_are_bit_identical(name):
+    with serial():
+        ref_u, ref_intact, ref_broken = _square(MODELS[name])
+    u, intact, broken = _square(MODELS[name])
+    assert float(np.abs(ref_u).max()) > 0
+    if name.startswith("cpd"):
+        assert ref_broken > 0            # the failure criterion acted
+        assert MODELS[name](1e-3).needs.triplets   # C2 > 0: the partners' sets count
+    assert np.array_equal(u, ref_u) and np.array_equal(intact, ref_intact)
+    assert broken == ref_broken
+
+
 def _static_plate(n=24):
     from upscale import models
     from upscale.engine import Simulation, square_lattice
@@ -123,8 +169,8 @@ def test_single_process_paths_refuse_on_every_rank():
     assert "FusedAdaptiveDynamicRelaxation" in errors[2]
     from upscale.engine import Simulation
 
-    with pytest.raises(Refused, match="'nosb' cannot run on several MPI ranks yet"):
-        Simulation(whole.system, whole.family, models.create("nosb", E=1e9, nu=0.25))
+    with pytest.raises(Refused, match="unified model with bond failure"):
+        Simulation(whole.system, whole.family, models.create("unified", r_s=1e-3, G_c=100.0))
 
 
 def test_more_ranks_than_particles_refused():

@@ -73,6 +73,11 @@ class Family:
     beta : float64 (nb,) or None
         Partial-volume factors given explicitly (kept, 8 bytes per bond); None (the
         default): computed from the length by the ``partial_volume`` rule.
+    partial_rows : bool (N,) or None
+        Rows that may miss bonds (a part of a larger body: the outer halo of an MPI
+        rank), whose per-particle quantities no force that is used depends on: a model's
+        checks of every family (e.g. a shape tensor that must be invertible) skip them.
+        None: every row is complete.
     """
 
     offsets: np.ndarray
@@ -82,6 +87,7 @@ class Family:
     spacing: float
     partial_volume: str | None = None
     beta: np.ndarray | None = None
+    partial_rows: np.ndarray | None = None
 
     def __post_init__(self):
         self.offsets = np.ascontiguousarray(self.offsets, dtype=np.int64)

@@ -591,13 +591,25 @@ def gradient_operators(family, wv_b, Kinv_n, d):
 def shape_tensors(family, wv_b, d, horizon):
     """Shape tensors ``K_i = sum_j w xi (x) xi`` (N, d, d) and their inverses padded to
     (N, 3, 3). Raises ``ValueError`` naming the first particle whose family does not span
-    d dimensions."""
+    d dimensions, except on the rows the family marks partial (``family.partial_rows``:
+    rows missing bonds, whose per-particle quantities nobody uses): their inverse is 0."""
     xi = family.xi[:, :d]
     K = np.zeros((family.n, d, d))
     np.add.at(K, family.owner, wv_b[:, None, None] * np.einsum("ka,kb->kab", xi, xi))
     det = np.linalg.det(K)
     scale = np.einsum("kab,kab->k", K, K) ** (d / 2.0)
     bad = ~(np.abs(det) > 1e-10 * np.maximum(scale, 1e-300))
+    partial = getattr(family, "partial_rows", None)
+    if partial is not None and (bad & partial).any():
+        skip = bad & partial
+        Kc = K.copy()
+        Kc[skip] = np.eye(d)
+        Kinv = np.zeros((family.n, 3, 3))
+        Kinv[:, :d, :d] = np.linalg.inv(Kc)
+        Kinv[skip] = 0.0
+        bad &= ~partial
+        if not bad.any():
+            return K, np.ascontiguousarray(Kinv)
     if bad.any():
         p = int(np.flatnonzero(bad)[0])
         raise ValueError(f"shape tensor of particle {p} is singular (its {int(family.counts[p])} "

@@ -945,16 +945,18 @@ class CPD(Model):
             own[:] = False
             own[np.asarray(centres, dtype=np.int64)] = True
         self.centres = None if centres is None else np.flatnonzero(own)
-        if (N1[own] == 0).any():
-            i = int(np.flatnonzero(own & (N1 == 0))[0])
+        partial = getattr(family, "partial_rows", None)  # rows missing bonds: not checked
+        chk = own if partial is None else own & ~partial
+        if (N1[chk] == 0).any():
+            i = int(np.flatnonzero(chk & (N1 == 0))[0])
             raise ValueError(f"horizon {_fmt(self.horizon)} too small: particle {i} has no "
                              f"neighbour (spacing {_fmt(system.spacing)}; need horizon >= spacing)")
         if self.needs.triplets:
             tri = triplets if triplets is not None else multibody.build_triplets(
                 x0, family, centres=self.centres, tol=self.tol, max_sets=self.max_sets)
             n2 = tri.counts
-            if (n2[own] == 0).any():
-                i = int(np.flatnonzero(own & (n2 == 0))[0])
+            if (n2[chk] == 0).any():
+                i = int(np.flatnonzero(chk & (n2 == 0))[0])
                 raise ValueError(
                     f"horizon {_fmt(self.horizon)} too small for two-neighbour interactions: "
                     f"particle {i} has no non-collinear pair of neighbours ({int(N1[i])} "
@@ -965,8 +967,8 @@ class CPD(Model):
             quad = quadruplets if quadruplets is not None else multibody.build_quadruplets(
                 x0, family, centres=self.centres, tol=self.tol, max_sets=self.max_sets)
             n3 = quad.counts
-            if (n3[own] == 0).any():
-                i = int(np.flatnonzero(own & (n3 == 0))[0])
+            if (n3[chk] == 0).any():
+                i = int(np.flatnonzero(chk & (n3 == 0))[0])
                 raise ValueError(
                     f"horizon {_fmt(self.horizon)} too small for three-neighbour interactions: "
                     f"particle {i} has no non-coplanar triple of neighbours ({int(N1[i])} "

@@ -51,6 +51,7 @@ class Local:
     bond_gid: np.ndarray
     send: list
     recv: list
+    complete: np.ndarray | None = None  # (n_local,) bool: the rows that are whole
 
     @property
     def n(self) -> int:
@@ -157,7 +158,7 @@ def build_local(comm, offsets: np.ndarray, neighbors: np.ndarray, part: np.ndarr
     off, nbr, bond_gid = _local_rows(offsets, neighbors, full, gid, lid)
     send, recv = _exchange_lists(comm, gid, owned_g, part, lid)
     return Local(comm.rank, comm.size, int(depth), n, int(neighbors.shape[0]), gid,
-                 owned_g[gid], off, nbr, bond_gid, send, recv)
+                 owned_g[gid], off, nbr, bond_gid, send, recv, full[gid])
 
 
 def _exchange_lists(comm, gid, owned_g, part, lid):
@@ -270,7 +271,7 @@ def build_local_rows(comm, recipe, part: np.ndarray, depth: int) -> Local:
     del off_c, nbr_c
     send, recv = _exchange_lists(comm, gid, owned_g, part, lid)
     return Local(comm.rank, comm.size, int(depth), n, int(goff[-1]), gid, owned_g[gid],
-                 off, nbr, bond_gid, send, recv)
+                 off, nbr, bond_gid, send, recv, full[gid])
 
 
 def bond_states_agree(comm, local: Local, intact: np.ndarray) -> bool:

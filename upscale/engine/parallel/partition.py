@@ -10,10 +10,13 @@ them are not used.
 
 Halo layers per model (:func:`halo_depth`): a model may declare ``halo_depth``; else PMB
 without surface correction and Ti-PD without its surface correction need one (a bond's
-force depends on the two positions and the bond only) and PMB with surface correction and
-LPS two (a bond's force also depends on a per-particle quantity of the partner summed over
-the partner's row: the surface factor, the dilatation). Other models are refused until
-their depth is known.
+force depends on the two positions and the bond only) and PMB with surface correction,
+LPS, correspondence (NOSB), CPD and the unified model two (a bond's force also depends on
+per-particle quantities of the partner summed over the partner's row: the surface factor,
+the dilatation, the deformation gradient and stress, the partner's sets, the gain and
+stress). The outer halo layer's rows are partial: the local family marks them
+(``Family.partial_rows``) so that a model's checks of every family skip them. Other
+models, and the variants named in :func:`halo_depth`, are refused with the reason.
 """
 from __future__ import annotations
 
@@ -31,13 +34,8 @@ from upscale.engine.parallel.halo import Local, build_local, build_local_rows
 __all__ = ["Partition", "localize", "halo_depth", "rank_path"]
 
 _CONDITIONS = ("Displacement", "Fixed", "Velocity", "Force", "BodyForce")
-_PARTIAL = ("its prepare checks every particle's family (a halo's outer rows are partial: "
-            "{})")
 # why the models whose force is a sum over families do not run distributed yet
 _NOT_YET = {
-    "nosb": _PARTIAL.format("singular shape tensors"),
-    "cpd": _PARTIAL.format("too few non-collinear neighbour pairs"),
-    "unified": _PARTIAL.format("singular gain matrices G"),
     "tridyn": "its rotations are fields per particle, and the halo exchange carries "
               "positions only",
 }
@@ -53,6 +51,30 @@ def halo_depth(model) -> int:
     if model.name == "pmb":
         return 2 if getattr(model, "surface_correction", False) else 1
     if model.name == "lps":
+        return 2
+    if model.name == "nosb":  # per-particle F, P, K^-1 of the partners: two layers
+        if getattr(model, "bond_associated", False):
+            raise Refused("bond-associated correspondence cannot run on several MPI ranks "
+                          "yet (its forces come from a stiffness assembled on the whole "
+                          "family); run it on one rank")
+        return 2
+    if model.name == "cpd":  # sets centred at the partners hold i: two layers
+        if getattr(model, "surface_correction", False):
+            raise Refused("CPD with surface correction cannot run on several MPI ranks yet "
+                          "(its correction is computed from every particle's family); run it "
+                          "on one rank")
+        if getattr(model, "E", None) is not None and model.calibration == "discrete":
+            raise Refused("CPD with calibration='discrete' cannot run on several MPI ranks "
+                          "yet (it fits its constants on one interior particle of the whole "
+                          "body, which a rank does not hold); use calibration='continuum' or "
+                          "give C1, C2, C3, or run it on one rank")
+        return 2
+    if model.name == "unified":  # the partners' stress and gain: two layers
+        if model.needs.failure:
+            raise Refused("the unified model with bond failure cannot run on several MPI "
+                          "ranks yet (a bond's failure depends on the stress at both ends, so "
+                          "the halo's copies of a bond need the owner's decision: an exchange "
+                          "of bond states, not done yet); run it on one rank")
         return 2
     why = _NOT_YET.get(model.name) or _NOT_YET.get(model.name.split("-")[0])
     if why:
@@ -228,7 +250,8 @@ def localize(comm, system, family, models, conditions, state, integrator):
     lsys = ParticleSystem(system.x0[g], system.volume[g], system.density[g], system.material[g],
                           dim=system.dim, thickness=system.thickness, plane=system.plane,
                           spacing=system.spacing, units=system.units)
-    lfam = Family(loc.offsets, loc.neighbors, lsys.x0, horizon, h, pv, beta)
+    lfam = Family(loc.offsets, loc.neighbors, lsys.x0, horizon, h, pv, beta,
+                  partial_rows=~loc.complete)
     lstate = _local_state(state, lsys, loc)
     if recipe is not None and state is None:
         lstate.intact[...] = recipe.initial_intact(loc.offsets, loc.neighbors, gid=g)
