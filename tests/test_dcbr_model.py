@@ -713,3 +713,48 @@ def test_atom_positions_reconstruct_the_tube(defects):
     dd = model.atom_positions(st)[ids] - expect
     dd[:, 2] -= model.Lz * np.round(dd[:, 2] / model.Lz)
     assert np.abs(dd).max() < 1e-12
+
+
+@pytest.mark.parametrize("nm", [(10, 10), (17, 0)])
+def test_lattice_stability_rule_is_the_old_one(nm):
+    """The mapped periodic piece's smallest eigenvalue against the old LatticeStability on
+    the relaxed uniform lattice at 5 to 30 % stretch (1e-9 relative: the same central
+    differences on another sum order), the same stable/unstable decisions, both present."""
+    from upscale.models.dcbr import LatticeStability as OldStability
+    from upscale.models.dcbr.ghost import uniform_lattice
+    from upscale.models.dcbr.stability import LatticeStability
+
+    P = tersoff_row()
+    old, new, cell = OldStability(*nm), LatticeStability(*nm, P), TubeCell.build(*nm)
+    decisions = set()
+    for lam_z in (1.05, 1.2, 1.3):
+        lt, sh = uniform_lattice(cell, P, lam_z)
+        q = np.array([lt, 0.0, lam_z, *sh])
+        assert new.min_eigenvalue(q) == pytest.approx(old.min_eigenvalue(q), rel=1e-9)
+        assert new.stable(q) == old.stable(q)
+        decisions.add(new.stable(q))
+    assert decisions == {True, False}
+
+
+@pytest.mark.parametrize("lam_z", [1.2, 1.3])
+def test_failure_rules_on_the_engine_state_are_the_old_models(lam_z):
+    """DCBRModel.break_bonds against DCBRTubeModel.break_bonds on the relaxed uniform
+    lattice: nothing fails at 20 %, every particle at 30 % (the lattice is unstable), the
+    same links and particles."""
+    from upscale.models.dcbr.ghost import uniform_lattice
+
+    new = DCBRModel(swcnt(10, 10, length=100.0), 2.0)
+    tube = DCBRTube(10, 10, 100.0, coarsening=2.0)
+    old = DCBRTubeModel(tube)
+    t = new.tube
+    lt, sh = uniform_lattice(t.cell, t.P_f, lam_z)
+    so, sn = State.reference(tube.x0, 0), State.reference(new.x0, 0)
+    so.y[...] = tube.x0 * [lt, lt, lam_z]
+    sn.y[...] = so.y + t.centre
+    old.init_state(so)
+    new.init_state(sn)
+    old.set_cell(lam_z * tube.L)
+    new.set_cell(lam_z * tube.L)
+    assert new.break_bonds(sn) == old.break_bonds(so) == (0 if lam_z < 1.25 else t.N)
+    assert np.array_equal(t.alive, tube.alive)
+    assert np.array_equal(t.gain.intact_b, tube.intact)

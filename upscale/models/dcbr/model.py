@@ -20,7 +20,8 @@ The sublattice shifts delta (N, 3) Å are massless: relaxed at every configurati
 started from ``state.extra["dcbr.delta"]``; while a minimiser holds them
 (:meth:`hold_internal`) they are its unknowns (``internal_fields``). The links' state
 (``dcbr.intact``, ``dcbr.alive``) lives in ``state.extra`` too, so a checkpoint carries
-it. Failure: the coarse link rule (:mod:`.failure`) in :meth:`break_bonds`.
+it. Failure: the coarse link rule (:mod:`.failure`) and the lattice-stability rule
+(:mod:`.stability`) in :meth:`break_bonds`.
 
 Engine contract (``upscale.models.base.Model``): ``force_kind = "particle"`` (eV/Å per
 particle), ``needs = Needs(pairs=False, failure=..., energy=True)``; optional hooks
@@ -35,7 +36,7 @@ of :mod:`.ghost` on a periodic tube; :meth:`grown` and :mod:`.switch` grow the r
 where links near failure (the scene continues on a new Simulation). With atoms, the
 unheld shifts are relaxed by L-BFGS-B over all of them at every force call (the pads
 couple them): right for quasi-static runs, slow for dynamics. Not here yet (issue 51):
-the lattice-stability failure rule, open tubes' grips, several tubes.
+open tubes' grips, several tubes, shifts with inertia for dynamics.
 
 Units: eV, Å, amu / ``unit`` (default Å/fs^2 per eV/(Å amu): time in fs).
 """
@@ -51,6 +52,7 @@ from upscale.models.dcbr.defects import find_defects
 from upscale.models.dcbr.failure import link_rule
 from upscale.models.dcbr.ghost import GhostLoad
 from upscale.models.dcbr.regions import atomistic_regions
+from upscale.models.dcbr.stability import LatticeStability, check_stability
 from upscale.models.dcbr.structure import register
 from upscale.models.dcbr.tube import CoarseTube
 
@@ -97,7 +99,10 @@ class DCBRModel(Model):
     shift_gtol : float
         Tolerance of the shift relaxation, max |dE/d delta| per particle, eV/Å.
     failure : bool
-        Apply the link rule in the engine's force evaluations.
+        Apply the failure rules in the engine's force evaluations.
+    stability : bool
+        With the link rule, the lattice-stability rule (:mod:`.stability`) when no link
+        broke.
     unit : float
         Masses are amu / ``unit``.
     """
@@ -109,8 +114,8 @@ class DCBRModel(Model):
                  horizon_factor: float = 1.5, potential: str = "BNC.tersoff",
                  hourglass: float = 0.1, r_atomistic: float = 8.0, select=None,
                  ghost: bool = True, shift_gtol: float = 1e-10,
-                 failure: bool = True, unit: float = ACC_EV_A_AMU_IN_A_FS2,
-                 atomistic_particles=None):
+                 failure: bool = True, stability: bool = True,
+                 unit: float = ACC_EV_A_AMU_IN_A_FS2, atomistic_particles=None):
         _check("coarsening", coarsening, np.isfinite(coarsening) and coarsening >= 1.0,
                "a number >= 1 (1 = one particle per lattice constant)")
         _check("horizon_factor", horizon_factor,
@@ -120,7 +125,8 @@ class DCBRModel(Model):
         self.params = dict(coarsening=coarsening, chirality=chirality,
                            horizon_factor=horizon_factor, potential=potential,
                            hourglass=hourglass, r_atomistic=r_atomistic, select=select,
-                           ghost=ghost, shift_gtol=shift_gtol, failure=failure, unit=unit)
+                           ghost=ghost, shift_gtol=shift_gtol, failure=failure,
+                           stability=stability, unit=unit)
         self.atoms = atoms
         self.structure = register(atoms, chirality)
         if len(self.structure.tubes) != 1:
@@ -154,6 +160,10 @@ class DCBRModel(Model):
                 self.ghost = GhostLoad(self.coupling, tube, self.structure.positions, build,
                                        potential)
         self.Lz = t.L if t.periodic else None
+        self.stability = None
+        if stability:
+            n, m = tube.chirality
+            self.stability = LatticeStability(n, m, t.P_f, t.bond)
         self.shift_gtol = float(shift_gtol)
         self.unit = float(unit)
         if self.ghost is not None:
@@ -364,15 +374,26 @@ class DCBRModel(Model):
         return {FIELD: self._evaluate(state)[2]}
 
     def break_bonds(self, state) -> int:
-        """The coarse link rule at the current state (:func:`.failure.link_rule`); the
-        links' state in ``state.extra`` is updated. Returns the number of links broken."""
+        """The failure rules at the current state: the coarse link rule
+        (:func:`.failure.link_rule`), and if no link broke the lattice-stability rule
+        (:func:`.stability.check_stability`: on a coarse tube every particle in the failing
+        one's state fails with it; with atoms only particles carrying at least half their
+        nominal atoms are tested). The links' state in ``state.extra`` is updated. Returns
+        the number of links broken (or of particles failed)."""
         self._evaluate(state)
         t = self.tube
-        over = link_rule(t, self._q_n)
-        newly = over & t.gain.intact_b
-        nb = int(newly.sum())
+        over = link_rule(t, self._q_n) & t.gain.intact_b
+        nb, alive = int(over.sum()), t.alive
+        if nb == 0 and self.stability is not None:
+            cand = np.ones(t.N, bool) if self.coupling is None else \
+                t.natoms_n >= 0.5 * self.coupling.nominal
+            failed = check_stability(t, self.stability, self._e_n, self._q_n, cand,
+                                     all_equal=self.coupling is None)
+            nb = int(failed.sum())
+            over = failed[t.gain.owner_b] | failed[t.gain.j_b]
+            alive = t.alive & ~failed
         if nb:
-            t.rebuild(t.gain.intact_b & ~over, t.alive)
+            t.rebuild(t.gain.intact_b & ~over, alive)
             self._cache = None
             if "dcbr.intact" in state.extra:
                 state.extra["dcbr.intact"] = t.gain.intact_b.copy()
