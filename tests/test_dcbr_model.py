@@ -758,3 +758,43 @@ def test_failure_rules_on_the_engine_state_are_the_old_models(lam_z):
     assert new.break_bonds(sn) == old.break_bonds(so) == (0 if lam_z < 1.25 else t.N)
     assert np.array_equal(t.alive, tube.alive)
     assert np.array_equal(t.gain.intact_b, tube.intact)
+
+
+def _tension_curve(model, body, centre, L0):
+    """The axial force (eV/Å) at 1 % strain steps of a quasi-static pull (each step: scale,
+    L-BFGS-B to 1e-5 eV/Å, break and re-minimise until nothing breaks) until it falls
+    below half its peak."""
+    from upscale.engine.minimisers import LBFGS
+    from upscale.engine.simulation import Simulation
+
+    sim = Simulation(body, None, [model])
+    out = []
+    for k in range(1, 40):
+        model.set_cell(L0 * (1 + 0.01 * k))
+        sim.state.y[:, 2] = centre[2] + (sim.state.y[:, 2] - centre[2]) * (1 + 0.01 * k) / (
+            1 + 0.01 * (k - 1))
+        for _ in range(50):
+            sim.minimise(LBFGS(ftol=1e-5, max_iter=5000), raise_on_fail=False)
+            if model.break_bonds(sim.state) == 0:
+                break
+        out.append(model.cell_force(sim.state))
+        if max(out) > 0 and out[-1] < 0.5 * max(out):
+            return np.array(out)
+    return np.array(out)
+
+
+@pytest.mark.slow
+def test_quasi_static_tension_to_failure_is_the_old_engine_models():
+    """A periodic (10,10) tube, K = 3, pulled quasi-statically to failure on the engine
+    with DCBRTubeModel and with DCBRModel (same minimiser, same steps): the same force at
+    every step to 1e-11 relative, the same failure step (25 %, the lattice-stability rule)."""
+    from upscale.engine import ParticleSystem
+
+    tube = DCBRTube(10, 10, 60.0, coarsening=3.0)
+    body = ParticleSystem(tube.x0, 1.0, density=12.011, spacing=1.42, units="atomic")
+    f_old = _tension_curve(DCBRTubeModel(tube), body, np.zeros(3), tube.L)
+    new = DCBRModel(swcnt(10, 10, length=60.0), 3.0)
+    new.tube.hourglass.k_stab = tube.k_stab
+    f_new = _tension_curve(new, new.system(), new.tube.centre, new.tube.L)
+    assert len(f_new) == len(f_old) and f_old.argmax() == f_new.argmax() == 24
+    np.testing.assert_allclose(f_new, f_old, rtol=0, atol=1e-11 * f_old.max())
