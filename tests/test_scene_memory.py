@@ -54,3 +54,14 @@ def test_an_scb_that_does_not_fit_is_refused_before_it_builds(monkeypatch):
     with pytest.raises(MemoryError, match=r"dx=0.0001 m \(392728 particles\) needs about 14.1 GB"
                                           r".* the largest that fits: dx=0.000188 m"):
         SCBScene(0.0, dx=1e-4)
+
+
+def test_a_branching_plate_that_does_not_fit_is_refused_before_it_builds(monkeypatch):
+    import pytest
+
+    from upscale.engine import memory
+    from upscale.experiments.scenes.tipd_branching import simulate
+
+    monkeypatch.setattr(memory, "available_gb", lambda: 2.0)
+    with pytest.raises(MemoryError, match=r"3200 x 1280 particles\) needs about 4.59 GB"):
+        simulate("tipd", dx=3.125e-5)

@@ -45,17 +45,20 @@ particles (>= ``tip_damage``) whose mirror image about y = 0 is not damaged.
 """
 from __future__ import annotations
 
+import math
 import time
 import warnings
 from pathlib import Path
 
 import numpy as np
 
-from upscale.engine.memory import run_memory
+from upscale.engine.memory import lattice_bonds, require_fit, run_memory
 
 __all__ = ["branching", "simulate", "measure", "front_events", "sliding_slopes", "path_peak",
            "branch_angle", "plot_damage", "rayleigh_speed", "lattice_fracture_energy", "GLASS"]
 
+#: peak of a run per directed bond (GB): family, the model's per-bond arrays and state
+_PEAK_GB_PER_BOND = 40e-9
 GLASS = {"rho": 2440.0, "E": 72e9, "nu": 0.22, "G0": 135.0}
 LX, LY = 0.1, 0.04
 
@@ -217,6 +220,9 @@ def simulate(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4, cri
     if t_end is None:
         t_end = 46e-6 if stress < 18e6 else 32e-6
     nx, ny = int(round(LX / dx)), int(round(LY / dx))
+    per = _PEAK_GB_PER_BOND * lattice_bonds(m, 2)  # GB per particle
+    require_fit(nx * ny * per, f"the branching plate at dx={dx:g} m ({nx} x {ny} particles)",
+                lambda gb: f"dx={math.sqrt(LX * LY * per / gb):.3g} m")
     s = square_lattice(nx, ny, dx, thickness=dx, density=GLASS["rho"], plane="stress", centered=True)
     delta = m * dx * (1 + 1e-9)
     x0 = s.x0
