@@ -798,3 +798,32 @@ def test_quasi_static_tension_to_failure_is_the_old_engine_models():
     f_new = _tension_curve(new, new.system(), new.tube.centre, new.tube.L)
     assert len(f_new) == len(f_old) and f_old.argmax() == f_new.argmax() == 24
     np.testing.assert_allclose(f_new, f_old, rtol=0, atol=1e-11 * f_old.max())
+
+
+@pytest.mark.parametrize("select", [False, True])
+def test_nve_with_inertial_shifts(select):
+    """shifts="inertial": the particle rows' shifts a field with inertia (slaves' relaxed).
+    200 velocity-Verlet steps of 0.5 fs of a periodic tube at 2 % strain, coarse or with an
+    atomistic band (ghost load on): the total energy, the shifts' kinetic energy included,
+    stays within 1e-3 of the kinetic energy; the shifts move."""
+    from upscale.engine.integrators import VelocityVerlet
+    from upscale.engine.simulation import Simulation
+
+    atoms = swcnt(10, 10, length=100.0)
+    zc = atoms.positions[:, 2].mean()
+    band = np.abs(atoms.positions[:, 2] - zc) < 8.0 if select else None
+    model = DCBRModel(atoms, 2.0, select=band, shifts="inertial", failure=False)
+    assert model.internal_fields == {} and FIELD in model.fields()
+    model.set_cell(1.02 * model.tube.L)
+    sim = Simulation(model.system(), None, [model], integrator=VelocityVerlet(dt=0.5, force=True))
+    c = model.tube.centre
+    sim.state.y[...] = c + (model.x0 - c) * np.array([1.0, 1.0, 1.02])
+    v = 0.002 * np.random.default_rng(0).standard_normal(sim.state.y.shape)
+    sim.state.v[...] = v - v.mean(axis=0)
+    sim.update_forces()
+    K0 = sim.kinetic_energy()
+    E0 = sim.energy() + K0
+    for _ in range(10):
+        sim.run(20)
+        assert abs(sim.energy() + sim.kinetic_energy() - E0) < 1e-3 * K0
+    assert np.abs(sim.state.fields[FIELD]).max() > 1e-3

@@ -35,8 +35,9 @@ particles then the free atoms, coupled by :mod:`.coupling`, with the ghost-force
 of :mod:`.ghost` on a periodic tube; :meth:`grown` and :mod:`.switch` grow the region
 where links near failure (the scene continues on a new Simulation). With atoms, the
 unheld shifts are relaxed by L-BFGS-B over all of them at every force call (the pads
-couple them): right for quasi-static runs, slow for dynamics. Not here yet (issue 51):
-open tubes' grips, several tubes, shifts with inertia for dynamics.
+couple them): right for quasi-static runs; for dynamics ``shifts="inertial"`` makes them a
+field with inertia (:meth:`fields`). Not here yet (issue 51): open tubes' grips, several
+tubes.
 
 Units: eV, Å, amu / ``unit`` (default Å/fs^2 per eV/(Å amu): time in fs).
 """
@@ -89,6 +90,10 @@ class DCBRModel(Model):
     select : callable, bool mask or atom indices, optional
         Atoms kept atomistic besides (:func:`.regions.selected_atoms`; selecting nothing
         is an error).
+    shifts : {"relaxed", "inertial"}
+        The sublattice shifts massless and relaxed at every configuration (quasi-static
+        runs), or a field ``state.fields["dcbr.delta"]`` of the particle rows with the
+        reduced mass of two sublattices (dynamics, as the validated dynamic tube).
     atomistic_particles : (N,) bool, optional
         Particles whose atoms are made atomistic besides the regions' (a grown region:
         :func:`.switch.switch`).
@@ -115,7 +120,8 @@ class DCBRModel(Model):
                  hourglass: float = 0.1, r_atomistic: float = 8.0, select=None,
                  ghost: bool = True, shift_gtol: float = 1e-10,
                  failure: bool = True, stability: bool = True,
-                 unit: float = ACC_EV_A_AMU_IN_A_FS2, atomistic_particles=None):
+                 unit: float = ACC_EV_A_AMU_IN_A_FS2, atomistic_particles=None,
+                 shifts: str = "relaxed"):
         _check("coarsening", coarsening, np.isfinite(coarsening) and coarsening >= 1.0,
                "a number >= 1 (1 = one particle per lattice constant)")
         _check("horizon_factor", horizon_factor,
@@ -126,7 +132,10 @@ class DCBRModel(Model):
                            horizon_factor=horizon_factor, potential=potential,
                            hourglass=hourglass, r_atomistic=r_atomistic, select=select,
                            ghost=ghost, shift_gtol=shift_gtol, failure=failure,
-                           stability=stability, unit=unit)
+                           stability=stability, unit=unit, shifts=shifts)
+        _check("shifts", shifts, shifts in ("relaxed", "inertial"), "'relaxed' (massless, "
+               "relaxed at every configuration) or 'inertial' (a field with inertia)")
+        self.shifts = shifts
         self.atoms = atoms
         self.structure = register(atoms, chirality)
         if len(self.structure.tubes) != 1:
@@ -323,15 +332,53 @@ class DCBRModel(Model):
             self.set_cell(float(self.cell(state.t)))
         y = np.ascontiguousarray(state.y, dtype=float)
         d = state.extra[FIELD]
+        fd = state.fields.get(FIELD) if self.shifts == "inertial" else None
         c = self._cache
         if (c is not None and c[0] == self.Lz and c[1] == self._held
-                and np.array_equal(c[2], y) and np.array_equal(c[3], d)):
+                and np.array_equal(c[2], y) and np.array_equal(c[3], d)
+                and (fd is None or np.array_equal(c[5], fd))):
             return c[4]
-        if not self._held:
+        if fd is not None:
+            self._inertial_shifts(y, d, fd)
+        elif not self._held:
             self._relax(y, d)
         out = self.evaluate(y, d, self.Lz)
-        self._cache = (self.Lz, self._held, y.copy(), d.copy(), out)
+        self._cache = (self.Lz, self._held, y.copy(), d.copy(), out,
+                       None if fd is None else fd.copy())
         return out
+
+    def _dof(self) -> np.ndarray:
+        """The particles that are rows (all, or the coupling's non-slave ones)."""
+        return np.arange(self.tube.N) if self.coupling is None else self.coupling.dof_idx
+
+    def _inertial_shifts(self, y, d, fd) -> None:
+        """``d`` (N, 3, mutated) from the shift field of the rows (``shifts="inertial"``);
+        the slave particles' shifts, on no row and in no pad's map, relaxed each alone."""
+        dof = self._dof()
+        d[dof] = fd[:len(dof)]
+        if self.coupling is not None and len(self.coupling.slave_idx):
+            mask = np.zeros(self.tube.N, bool)
+            mask[self.coupling.slave_idx] = True
+            yp = self.coupling.particle_positions(y, self.Lz)
+            self.tube.relax_shifts(yp, d, self.Lz, self.shift_gtol, mask)
+
+    def fields(self) -> dict:
+        """``{"dcbr.delta": FieldSpec(3, inertia)}`` with ``shifts="inertial"`` (the
+        particle rows' shifts, the reduced mass of two sublattices: a quarter of the row's
+        mass; atom rows carry no shift), else none."""
+        if self.shifts != "inertial":
+            return {}
+        from upscale.engine.fields import FieldSpec  # noqa: PLC0415
+
+        nd = len(self._dof())
+        inertia = np.r_[0.25 * self.masses()[:nd], np.ones(self.n - nd)]
+        return {FIELD: FieldSpec(3, inertia, unit="Å", rows=slice(0, nd))}
+
+    def add_field_force(self, state, out) -> None:
+        """Adds -dE/d delta of the particle rows to ``out["dcbr.delta"]``."""
+        if self.shifts == "inertial":
+            dof = self._dof()
+            out[FIELD][:len(dof)] -= self._evaluate(state)[2][dof]
 
     def add_force(self, state, out) -> None:
         out -= self._evaluate(state)[1]
@@ -353,8 +400,9 @@ class DCBRModel(Model):
 
     @property
     def internal_fields(self) -> dict:
+        """The shifts as a minimiser's massless field (``shifts="relaxed"``)."""
         b = self.tube.shift_bound
-        return {FIELD: (-b, b)}
+        return {FIELD: (-b, b)} if self.shifts == "relaxed" else {}
 
     @property
     def lattice_states(self) -> np.ndarray:

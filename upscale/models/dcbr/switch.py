@@ -16,7 +16,8 @@ the coupling, pads, slave fits and the ghost-force load rebuilt) and maps the st
   new rows' momentum differs; a uniform velocity correction on the new atoms makes it equal
   exactly (to round-off), and the change before correction is logged;
 * the links (``dcbr.intact``, ``dcbr.alive``) and shifts carry over (the same particles
-  and family), the last good maps too.
+  and family), the last good maps too; with ``shifts="inertial"`` the rows' shift field
+  keeps the value and rate of the particles that stay rows.
 
 Each switch returns a :class:`SwitchLog`: the particles switched, the atoms added, the
 energy change per added atom, the momentum change (before and after the correction) and
@@ -133,6 +134,15 @@ def switch(model, state, particles):
         v[len(dof_n) + fresh] -= dP_raw / m_n[len(dof_n) + fresh].sum()
     st = State(new.x0, y, v, state.intact.copy(), state.t, state.step,
                {k: np.array(a, copy=True) for k, a in state.extra.items()})
+    if model.shifts == "inertial":  # the rows' shift field: the particles that stay keep
+        # value and rate, a slave that becomes a row its relaxed shift at rest
+        fd, fv = np.zeros((new.n, 3)), np.zeros((new.n, 3))
+        fd[:len(dof_n)] = delta[dof_n]
+        row = {int(p): k for k, p in enumerate(dof_o)}
+        for k, p in enumerate(dof_n):
+            if int(p) in row:
+                fv[k] = state.field_v[FIELD][row[int(p)]]
+        st.fields[FIELD], st.field_v[FIELD] = fd, fv
     st.extra.pop("dcbr.fs_last", None)
     st.extra.pop("dcbr.inside", None)  # the grown region (init_state writes it)
     if model.coupling is not None and "dcbr.fs_last" in state.extra:

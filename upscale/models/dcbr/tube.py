@@ -202,13 +202,15 @@ class CoarseTube:
         dL = self.gain.cell_derivative(P) + dLs
         return E + Es, gy, gd, dL, q_n, e_n
 
-    def relax_shifts(self, y, delta, L, gtol: float) -> int:
+    def relax_shifts(self, y, delta, L, gtol: float, mask=None) -> int:
         """Mutates ``delta`` (N,3) to each particle's relaxed shift at positions ``y``
-        (:func:`.kernels.relax_shifts`, per atom gtol / N_c); returns the number of
-        particles that did not converge. Shifts stay within +-``shift_bound``."""
+        (:func:`.kernels.relax_shifts`, per atom gtol / N_c; only the ``mask`` (N,) ones
+        if given); returns the number of particles that did not converge. Shifts stay
+        within +-``shift_bound``."""
         q_n = self.lattice_part(y, delta, L)[5]
         q_n[:, 3:] = delta
-        bad = K.relax_shifts(q_n, self.alive, *self.cell.args(), self.P_f,
+        on = self.alive if mask is None else self.alive & np.asarray(mask, bool)
+        bad = K.relax_shifts(q_n, on, *self.cell.args(), self.P_f,
                              gtol / float(self.natoms_n.max()), 50, delta)
         np.clip(delta, -self.shift_bound, self.shift_bound, out=delta)
         return int(bad)
