@@ -30,6 +30,12 @@ of a band about one vacancy. The ghost-force dead load is :mod:`.ghost`. A regio
 cross a periodic tube's boundary: its atoms see each other through the period, a slave
 follows the images of its atoms nearest it.
 
+Ties: on a symmetric lattice a site, a pad atom or a slave's 10th atom can be equally far
+(to 1e-14 Å) from two particles or atoms; the nearest is taken by round-off, as the
+validated tube does (so the two agree where their coordinates agree bit for bit; a moved
+input can flip a tie, which changes the model only off uniform states). A deterministic
+rule (lowest index within 1e-9 Å) would be better once the old tube is gone.
+
 Rows of the unknowns: the non-slave particles (``dof_idx``), then the free atoms
 (``free_idx``, structure order). Units: Å, eV.
 """
