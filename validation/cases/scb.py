@@ -484,6 +484,9 @@ def run_rate(args):
 
 
 # ---------------------------------------------------------------------------- crack path at 30 deg
+PATH_30 = ROOT / "data" / "experiments" / "scb_path_alpha30_ayatollahi2006.json"
+
+
 def path_offset(pts, dx, y_lo=None, y_hi=None):
     """Horizontal distance (m) between a model crack path and the experimental alpha = 30 deg
     path (``PATH_30``) at the experiment's points: at each point's height y, the model's x
