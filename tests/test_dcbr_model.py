@@ -425,6 +425,7 @@ def test_coupled_gradients_against_finite_differences():
     assert fd == pytest.approx(gL, rel=1e-5)
 
 
+@pytest.mark.slow
 def test_coupled_tube_quasi_static_steps_on_the_engine():
     """The four-defect tube relaxed by the engine's L-BFGS-B (shifts as its internal
     field) at 2 and 4 % strain (past the 1.42 Å reference's own compression, about 1.4 %
