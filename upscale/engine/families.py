@@ -515,15 +515,24 @@ def build_family_rows(system: ParticleSystem, horizon: float, rows, *,
 
 
 def candidate_counts(system: ParticleSystem, horizon: float, *,
-                     partial_volume: str | None = None, spacing: float | None = None) -> np.ndarray:
-    """Particles within the horizon of each particle (N,) int64, itself excluded: the
-    family's row lengths before an ``exclude`` (an estimate of each row's work that needs
-    no family)."""
+                     partial_volume: str | None = None, spacing: float | None = None,
+                     rows=None) -> np.ndarray:
+    """Particles within the horizon of each particle of ``rows`` (default all) (k,)
+    int64, itself excluded: the family's row lengths before an ``exclude`` (an estimate of
+    each row's work that needs no family). The tree holds the particles within the rows'
+    bounding box grown by the horizon only."""
     from scipy.spatial import cKDTree
 
-    _, _, rmax, _ = _radii(system, horizon, partial_volume, spacing)
+    _, _, rmax, r_query = _radii(system, horizon, partial_volume, spacing)
     x = system.x0
-    return cKDTree(x).query_ball_point(x, rmax, return_length=True).astype(np.int64) - 1
+    xr = x if rows is None else x[np.asarray(rows, dtype=np.int64)]
+    if xr.shape[0] == 0:
+        return np.zeros(0, dtype=np.int64)
+    pad = 1.01 * r_query
+    cand = np.all((x >= xr.min(axis=0) - pad) & (x <= xr.max(axis=0) + pad), axis=1)
+    tree = cKDTree(x[cand] if rows is not None else x)
+    del cand
+    return tree.query_ball_point(xr, rmax, return_length=True).astype(np.int64) - 1
 
 
 def damage(family: Family, intact: np.ndarray, *, weights: str = "count",

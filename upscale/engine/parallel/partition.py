@@ -234,8 +234,12 @@ def localize(comm, system, family, models, conditions, state, integrator):
                       f"without a thermostat or with {', '.join(_THERMOSTATS[1:])}")
     recipe = family if isinstance(family, FamilyRecipe) else None
     if recipe is not None:  # each rank builds its rows only (weights: candidates in range)
-        w = candidate_counts(system, recipe.horizon, partial_volume=recipe.partial_volume,
-                             spacing=recipe.spacing)
+        cuts = np.linspace(0, system.n, comm.size + 1).astype(np.int64)  # a slice each
+        mine = candidate_counts(system, recipe.horizon, partial_volume=recipe.partial_volume,
+                                spacing=recipe.spacing,
+                                rows=np.arange(cuts[comm.rank], cuts[comm.rank + 1]))
+        w = np.concatenate(comm.allgather(mine))
+        del mine
         part = rcb(system.x0, w + 1.0, comm.size)
         del w
         loc = build_local_rows(comm, recipe, part, depth)
