@@ -180,9 +180,11 @@ def test_halo_depth_of_the_models():
     class Other:
         name = "tridyn-eb"
 
-    for name, why in (("tridyn-eb", "rotations are fields"), ("dcbr", "does not know the halo")):
+    for name, why in (("tridyn-eb", "rotations are fields"), ("dcbr", "coarse tube runs on one"),
+                      ("dcbr-defect-tube", "coarse tube"), ("peri-x", "does not know the halo")):
         Other.name = name
-        with pytest.raises(ValueError, match=f"'{name}' cannot run on several MPI ranks yet.*{why}"):
+        with pytest.raises(ValueError, match=f"'{name}' cannot run on several MPI ranks "
+                                             f"yet.*{why}"):
             halo_depth(Other())
 
 

@@ -67,7 +67,8 @@ def _update(F_nc, Fprev_nc, v_nc, lam_n, free_nc, y_nc, cdt, dt, drift):
 
 class FusedAdaptiveDynamicRelaxation(AdaptiveDynamicRelaxation):
     """:class:`~upscale.engine.integrators.AdaptiveDynamicRelaxation` with fused kernels
-    (same parameters, same iterates up to round-off; ``sim.relax(FusedAdaptiveDynamicRelaxation())``).
+    (same parameters, same iterates up to round-off;
+    ``sim.relax(FusedAdaptiveDynamicRelaxation())``).
 
     Runs on several MPI ranks (the ADR of ``sim.relax()`` there): the damping sums and
     norms are sums over each rank's owned particles added over the ranks, so the iterates

@@ -35,7 +35,11 @@ __all__ = ["Partition", "localize", "halo_depth", "rank_path"]
 
 _CONDITIONS = ("Displacement", "Fixed", "Velocity", "Force", "BodyForce")
 # why the models whose force is a sum over families do not run distributed yet
+_TUBE = ("the coarse tube runs on one process in this version (its links, atomistic "
+         "regions and minimisers are not split over ranks)")
 _NOT_YET = {
+    "dcbr": _TUBE, "tube": _TUBE, "tersoff": "an atomistic model: run LAMMPS on ranks instead",
+    "lj": "a model between bodies: not split over ranks yet",
     "tridyn": "its rotations are fields per particle, and the halo exchange carries "
               "positions only",
 }
@@ -223,9 +227,9 @@ def localize(comm, system, family, models, conditions, state, integrator):
     from upscale.engine.families import Family, FamilyRecipe, candidate_counts
     from upscale.engine.system import ParticleSystem
 
+    depth = max(halo_depth(m) for m in models)  # first: it names a model that cannot
     if family is None:
         raise Refused("several MPI ranks need a pair family to split the body by")
-    depth = max(halo_depth(m) for m in models)
     th = type(getattr(integrator, "thermostat", None)).__name__
     if type(integrator).__name__ != "VelocityVerlet" or th not in _THERMOSTATS:
         name = getattr(integrator, "name", type(integrator).__name__)
