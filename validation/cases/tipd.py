@@ -79,7 +79,7 @@ def tipd_kernel(args):
     e5 = float(np.abs(D3 - R5).max() / np.abs(R5).max())
     rows.append({"check": "compact induced tensor vs Remark 5, 3D isotropic nu=0.3", "value": e5, "target": "<= 1e-14"})
 
-    n2, n3 = (12, 7) if args.quick else (20, 9)
+    n2, n3 = (14, 7) if args.quick else (20, 9)  # 14: particles beyond 2 delta of the edges
     s2 = square_lattice(n2, n2, 1e-3)
     f2 = build_family(s2, 3.015e-3)
     s3 = cubic_lattice(n3, n3, n3, 1e-3)
