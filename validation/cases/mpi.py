@@ -273,8 +273,10 @@ def mpi_restart_exact(args):
         killed = p.poll() is None
         os.killpg(p.pid, signal.SIGKILL)
         p.wait()
-        with np.load(next(work.glob("checkpoint.rank0of2.npz"))) as z:
-            at = int(z["step"])
+        at = -1  # the newest step of rank 0's files (killed between the rename of the
+        for f in work.glob("checkpoint.rank0of2*.npz"):  # last one and the new write,
+            with np.load(f) as z:                        # only .prev is there)
+                at = max(at, int(z["step"]))
         run_plate(2, "pmb", n, args.steps, d / "resumed.npz", workdir=work, every=every)
         a, b = np.load(d / "full.npz"), np.load(d / "resumed.npz")
         same = bool(np.array_equal(a["u"], b["u"]) and np.array_equal(a["intact"], b["intact"]))
