@@ -60,6 +60,8 @@ from upscale.experiments.pull import PullSpecimen, pull
 __all__ = ["coarse_dynamic_tension", "open_tube", "setup_open_tube", "CoarsePull"]
 
 FIELD = "dcbr.delta"
+#: the extras the model's ghost-force load follows (:meth:`DCBRModel._sync_ghost`)
+GHOST, GHOST_HOLD = "dcbr.ghost", "dcbr.ghost_hold"
 
 
 def open_tube(atoms):
@@ -150,11 +152,14 @@ def setup_open_tube(atoms, coarsening: float = 2.0, *, grip: float = 50.0,
     s_at = lam_z * ((a.positions - m.tube.centre) @ m.tube.axis)
     zb, zt = float(s_at.min()) + grip, float(s_at.max()) - grip
     bottom, top = _grip_masks(m, y0, zb, zt)
-    if not (bottom[:_nd(m)].any() and top[:_nd(m)].any()):
-        raise ValueError(f"grip={grip} Å holds no row of particles; valid: a longer grip")
+    if not (bottom.any() and top.any()):
+        raise ValueError(f"grip={grip} Å holds no particle or atom; valid: a longer grip")
     body = ParticleSystem(y0, 1.0, density=m.masses(), spacing=m.tube.bond, units="atomic")
     sim = Simulation(body, None, [m], [Fixed(Region("grips", bottom | top), components=(0, 1))])
     sim.state.extra[FIELD][...] = shift
+    ghost = m._ghost_build is not None
+    if ghost:  # the ghost-force dead load at the set-up stretch (the old prepare_step(L0))
+        sim.state.extra[GHOST] = np.array([lam_z, lam_z])
     s0 = _axial(m, y0)
     r = sim.minimise(LBFGS(ftol=gtol, max_iter=5000))
     y = sim.state.y.copy()
@@ -173,7 +178,7 @@ def setup_open_tube(atoms, coarsening: float = 2.0, *, grip: float = 50.0,
     return {"atoms": a, "select": select, "y": y, "delta": d, "zb": zb, "zt": zt,
             "gauge": float(zt - zb), "bottom": bottom, "top": top, "R": R,
             "area": 2 * math.pi * R * WALL_THICKNESS_A, "model_kw": kw,
-            "coarsening": float(coarsening),
+            "coarsening": float(coarsening), "lam_z0": lam_z, "ghost": ghost,
             "setup": {"converged": bool(getattr(r, "converged", True)),
                       "iterations": int(getattr(r, "iterations", -1))}}
 
@@ -196,7 +201,7 @@ class CoarsePull(PullSpecimen):
         self.T, self.tdamp, self.seed = float(temperature), float(tdamp), int(seed)
         self.grow = grow
         self.rec = {"strains": [], "stresses": [], "times": [], "blk": [], "broken": [],
-                    "switches": [], "free_atoms": []}
+                    "switches": [], "free_atoms": [], "first_damage": None}
         self.max_steps = int(np.ceil(max_strain * st["gauge"] / (2 * self.vz * self.dt))) \
             + 2 * self.sample_every
         self._pending = None
@@ -249,9 +254,20 @@ class CoarsePull(PullSpecimen):
             fv[:nd] = rng.standard_normal((nd, 3)) * sdd[:, None]
             fv[:nd][grips[:nd]] = 0.0
         state.v[...] = v
+        self._store_ghost(state, 0, grips)
         state.fields = {FIELD: fd}
         state.field_v = {FIELD: fv}
         return state
+
+    def _store_ghost(self, state, step, grips) -> None:
+        """The ghost-force load the model is to apply (its extras): at the grips' strain of
+        ``step``, the grips' rows ``grips`` (n,) at the set-up stretch (module docstring)."""
+        st = self.st
+        if not st["ghost"]:
+            return
+        lam0 = st["lam_z0"]
+        state.extra[GHOST] = np.array([lam0 * (1.0 + self._strain(step)), lam0])
+        state.extra[GHOST_HOLD] = np.asarray(grips, bool).copy()
 
     def build(self, m, state, xi=0.0):
         """A simulation of model ``m`` from ``state`` (its reference rows the set-up's)."""
@@ -271,8 +287,9 @@ class CoarsePull(PullSpecimen):
         held = np.zeros(m.n, bool)
         held[:nd] = grips[:nd]
         conds = [Grip(Region("grip bottom", bottom), velocity=-self.vz * ax, record_every=0),
-                 Grip(Region("grip top", top), velocity=self.vz * ax, record_every=0),
-                 FixedField(Region("grip shifts", held), FIELD, (0, 1, 2), hold=True)]
+                 Grip(Region("grip top", top), velocity=self.vz * ax, record_every=0)]
+        if held.any():  # (grips of atoms only hold no shift)
+            conds.append(FixedField(Region("grip shifts", held), FIELD, (0, 1, 2), hold=True))
         ndf = 2 * int((~grips).sum()) + 3 * int((~held[:nd]).sum())
         th = None
         if self.T > 0:
@@ -306,19 +323,55 @@ class CoarsePull(PullSpecimen):
         rec["times"].append(step * self.dt * 1e-3)
         nb = self.model.break_bonds(s_)
         rec["broken"].append(int(nb))
-        if nb:
-            sim.update_forces()
+        self._store_ghost(s_, step, self.bottom | self.top)  # (refreshed every sample)
+        sim.update_forces()
         rec["free_atoms"].append(0 if self.model.coupling is None else
                                  int(self.model.coupling.nf))
+        if rec["first_damage"] is None:
+            rec["first_damage"] = self._damage_at(s_, rec["strains"][-1])
         self._pending = None
         if self.grow is not None:
             flag = flagged_particles(self.model, s_, self.grow)
-            if flag.any():
+            c = self.model.coupling
+            inside = np.zeros_like(flag) if c is None else c.inside
+            if flag.any() and not (inside | flag).all():  # (never the whole tube)
                 self._pending = flag
         return {"load": rec["strains"][-1], "response": stress}
 
     def load(self, sim) -> float:
         return self._strain(int(sim.state.step))
+
+    def _damage_at(self, state, strain):
+        """Where damage is (None if nowhere): the strain, the damaged rows' count and axial
+        positions (Å, in the set-up frame), the nearest defect of the model (kind, its
+        axial position and the distance along the wall to the damaged rows' centroid)."""
+        m = self.model
+        mu = m.particle_damage(state)
+        hit = mu > 0
+        if not hit.any():
+            return None
+        x = state.y[hit]
+        z = _axial(m, x)
+        out = {"strain": float(strain), "rows": int(hit.sum()),
+               "z_A": [float(z.min()), float(np.median(z)), float(z.max())]}
+        t = m.tube
+        cand = [d for d in m.defects if d.kind != "edge"]
+        if cand:
+            xc = x.mean(axis=0)
+            rel = xc - t.centre
+            zc = rel @ t.axis
+            th = np.arctan2(rel @ t.e2, rel @ t.e1)
+            R = self.st["R"]
+            best = None
+            for d in cand:
+                rd = d.position - t.centre
+                dz = zc - self.st["lam_z0"] * (rd @ t.axis)
+                dth = np.angle(np.exp(1j * (th - np.arctan2(rd @ t.e2, rd @ t.e1))))
+                dist = float(np.hypot(dz, R * dth))
+                if best is None or dist < best[1]:
+                    best = (d.kind, dist, float(d.z))
+            out.update(nearest_defect=best[0], distance_A=best[1], defect_z_A=best[2])
+        return out
 
     def wants_switch(self) -> bool:
         return self._pending is not None
@@ -330,8 +383,12 @@ class CoarsePull(PullSpecimen):
 
         sim = self.simulation
         th = sim.integrator.thermostat
+        for k in (GHOST, GHOST_HOLD):  # (the old rows' mask does not fit the new rows)
+            sim.state.extra.pop(k, None)
         new, st2, log = switch(self.model, sim.state, self._pending)
         st2.x0 = self._reference_rows(new)
+        b, t = _grip_masks(new, st2.x0, self.st["zb"], self.st["zt"])
+        self._store_ghost(st2, int(st2.step), b | t)
         self.rec["switches"].append({"step": int(st2.step), **log.as_dict()})
         self._pending = None
         self.build(new, st2, 0.0 if th is None else th.xi)
@@ -410,7 +467,8 @@ def coarse_dynamic_tension(atoms, coarsening: float = 2.0, *, grip: float = 50.0
         ``curve`` (strain, stress_GPa, time_ps, links_broken, free_atoms), the curve metrics
         of :func:`upscale.analysis.stress.curve_metrics` (``strength_GPa``,
         ``youngs_modulus_TPa``, ``strain_at_peak``, ``failed``, ...), ``steps``,
-        ``switches`` (one log per region growth), ``gauge_length_A``, ``radius_relaxed_A``,
+        ``switches`` (one log per region growth), ``first_damage`` (the first sample with
+        damage: strain, rows, their axial positions, the nearest defect and its distance), ``gauge_length_A``, ``radius_relaxed_A``,
         ``area_A2``, ``grip_planes_A``, ``model`` (``DCBRModel.describe()`` at the end),
         ``positions`` (every atom at the end, (K, 3) Å), ``damage`` (per row),
         ``blowup_after_failure``, ``setup_s``, ``dynamics_s``.
@@ -450,11 +508,14 @@ def coarse_dynamic_tension(atoms, coarsening: float = 2.0, *, grip: float = 50.0
            "curve": {"strain": rec["strains"], "stress_GPa": rec["stresses"],
                      "time_ps": rec["times"], "links_broken": rec["broken"],
                      "free_atoms": rec["free_atoms"]},
+           "first_damage": rec["first_damage"],
            "switches": rec["switches"], "blowup_after_failure": out["blowup_after_failure"],
            "setup_s": t_setup, "dynamics_s": out["dynamics_s"], "describe": m.describe()}
-    if len(rec["strains"]) >= 3:
+    try:  # (a short run may hold too few samples for the metrics)
         res.update(curve_metrics(rec["strains"], rec["stresses"],
                                  fit_max_strain=fit_max_strain, plateau_fraction=0.0))
+    except ValueError as e:
+        res["metrics"] = f"none: {e}"
     res["positions"] = m.atom_positions(sim.state)
     res["damage"] = m.particle_damage(sim.state)
     return res

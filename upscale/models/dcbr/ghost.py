@@ -18,7 +18,10 @@ that has no twin (an adatom, a Stone-Wales atom off its site) takes no load.
 dE'/dL adds the load's work along the uniform path (central difference of x_u).
 
 This is the correction of the validated defect tube (``DCBRDefectTube.prepare_step``, old
-module, periodic tubes, no grips), on any registered tube. Units: eV, Å.
+module), on any registered tube: a periodic one at its period L (:meth:`GhostLoad.prepare`),
+an open one between grips at an axial stretch lam_z with the grips' rows held at the set-up
+stretch's load (:meth:`GhostLoad.prepare_stretch`; the old banded dynamic scene's
+``prepare_step(L0 (1 + strain))`` with ``_hold_grip_ghost``). Units: eV, Å.
 """
 from __future__ import annotations
 
@@ -131,26 +134,29 @@ class GhostLoad:
         out[r < 0] = np.nan
         return out, d
 
-    def _state(self, L):
+    def _state(self, L=None, lam_z=None):
         t = self.twin_tube
-        lam_z = L / t.L
+        lam_z = L / t.L if lam_z is None else lam_z
         lt, sh = uniform_lattice(t.cell, t.P_f, lam_z)
         return self.uniform_state(lt, lam_z, sh)
 
-    def prepare(self, L) -> dict:
-        """Set the dead load for period ``L`` (Å) (mutates); returns the largest ghost
-        forces on particles, atoms and shifts, eV/Å."""
+    def _load(self, L=None, lam_z=None) -> dict:
+        """The dead load (dict of per-row arrays) at period ``L`` or, on a finite tube,
+        axial stretch ``lam_z`` (its work along the uniform path, ``dL``, on a periodic tube
+        only)."""
         c = self.coupling
         nd = len(c.dof_idx)
-        y, d = self._state(L)
+        y, d = self._state(L, lam_z)
         _, gy, gd, _, _ = self.twin.evaluate(y, d, L)
         keep = np.maximum(self.tube_rows(), 0)
         on = np.r_[np.ones(nd), (self.rows >= 0).astype(float)][:, None]
         yu, g = y[keep], gy[keep] * on
-        h = 1e-6 * L
-        yp, dp = self._state(L + h)
-        ym, dm = self._state(L - h)
-        dL = float(np.sum(g * (yp[keep] - ym[keep])) + np.sum(gd * (dp - dm))) / (2 * h)
+        dL = 0.0
+        if L is not None:
+            h = 1e-6 * L
+            yp, dp = self._state(L + h)
+            ym, dm = self._state(L - h)
+            dL = float(np.sum(g * (yp[keep] - ym[keep])) + np.sum(gd * (dp - dm))) / (2 * h)
         t = self.twin_tube
         xu = self._plane(yu)
         thu = np.arctan2(xu[:, 1], xu[:, 0])
@@ -158,12 +164,50 @@ class GhostLoad:
         gplane = np.column_stack([g @ t.e1, g @ t.e2])
         rhou = np.hypot(xu[:, 0], xu[:, 1])
         gt = -gplane[:, 0] * sn + gplane[:, 1] * cs
-        self.load = {"L": float(L), "y": yu, "d": d, "gd": gd, "dL": dL, "thu": thu,
-                     "rhou": rhou, "gr": gplane[:, 0] * cs + gplane[:, 1] * sn,
-                     "gtr": gt * rhou, "gz": g @ t.axis}
+        return {"L": None if L is None else float(L), "lam_z": lam_z, "y": yu, "d": d,
+                "gd": gd, "dL": dL, "thu": thu, "rhou": rhou,
+                "gr": gplane[:, 0] * cs + gplane[:, 1] * sn, "gtr": gt * rhou,
+                "gz": g @ t.axis, "g": g}
+
+    def _report(self):
+        nd = len(self.coupling.dof_idx)
+        g, gd = self.load["g"], self.load["gd"]
         return {"max_particle_force_eV_A": float(np.abs(g[:nd]).max()),
                 "max_atom_force_eV_A": float(np.abs(g[nd:]).max(initial=0.0)),
                 "max_shift_force_eV_A": float(np.abs(gd).max())}
+
+    def prepare(self, L) -> dict:
+        """Set the dead load for period ``L`` (Å) (mutates); returns the largest ghost
+        forces on particles, atoms and shifts, eV/Å."""
+        self.load = self._load(L)
+        return self._report()
+
+    def prepare_stretch(self, lam_z: float, hold=None, lam_hold: float | None = None) -> dict:
+        """The dead load of a finite (open) tube at axial stretch ``lam_z`` of its twin's
+        reference lattice (mutates), the tube's rows ``hold`` (n,) bool keeping the load of
+        stretch ``lam_hold`` (a grip's rows, which do not stretch with the gauge; their
+        particles' shift loads too): the old ``prepare_step`` at the grips' strain with
+        ``_hold_grip_ghost``. The twin is opened as the tube (its ends' surface loads fall
+        on the grips' held rows). Returns the largest ghost forces, eV/Å."""
+        if self.twin_tube.periodic:
+            raise ValueError("prepare_stretch on a periodic tube; valid: prepare(L)")
+        load = self._load(None, float(lam_z))
+        if hold is not None and np.any(hold):
+            hold = np.asarray(hold, bool)
+            lh = float(lam_z if lam_hold is None else lam_hold)
+            ref = getattr(self, "_held_load", None)
+            if ref is None or ref["lam_z"] != lh:  # (the set-up stretch's, kept)
+                ref = self._held_load = self._load(None, lh)
+            for k in ("y", "thu", "rhou", "gr", "gtr", "gz", "g"):
+                load[k] = np.where(hold.reshape((-1,) + (1,) * (load[k].ndim - 1)),
+                                   ref[k], load[k])
+            nd = len(self.coupling.dof_idx)
+            hp = np.zeros(self.twin_tube.N, bool)
+            hp[self.coupling.dof_idx] = hold[:nd]
+            for k in ("d", "gd"):
+                load[k] = np.where(hp[:, None], ref[k], load[k])
+        self.load = load
+        return self._report()
 
     def _plane(self, y):
         """Rows' (e1, e2) components about their centroid (n, 2)."""
@@ -172,7 +216,12 @@ class GhostLoad:
         return p - p.mean(axis=0)
 
     def active(self, L) -> bool:
-        return self.load is not None and abs(self.load["L"] - L) < 1e-12 * L
+        """True when the load is set for period ``L`` (a finite tube: ``L`` None)."""
+        if self.load is None:
+            return False
+        if L is None or self.load["L"] is None:
+            return L is None and self.load["L"] is None
+        return abs(self.load["L"] - L) < 1e-12 * L
 
     def apply(self, y, delta, E, gy, gd):
         """(E - W, dE'/dy, dE'/d delta, the load's dE'/dL) at rows ``y``, shifts ``delta``."""

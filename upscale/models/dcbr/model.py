@@ -32,12 +32,14 @@ and ``set_cell`` (a periodic tube's length as the load). The model never drives 
 
 With atomistic regions (a defect, or a user selection) the rows are the non-slave
 particles then the free atoms, coupled by :mod:`.coupling`, with the ghost-force dead load
-of :mod:`.ghost` on a periodic tube; :meth:`grown` and :mod:`.switch` grow the region
+of :mod:`.ghost` (a periodic tube at its period; an open one at the axial stretch and with
+the held rows that ``state.extra["dcbr.ghost"]``, ``"dcbr.ghost_hold"`` ask for, the grips'
+strain of a pull: :meth:`_sync_ghost`); :meth:`grown` and :mod:`.switch` grow the region
 where links near failure (the scene continues on a new Simulation). With atoms, the
 unheld shifts are relaxed by L-BFGS-B over all of them at every force call (the pads
 couple them): right for quasi-static runs; for dynamics ``shifts="inertial"`` makes them a
-field with inertia (:meth:`fields`). Not here yet (issue 51): open tubes' grips, several
-tubes.
+field with inertia (:meth:`fields`). Not here yet (issue 51): the clamped coarse grips of
+an open tube (the old ``clamp_grips``), several tubes.
 
 Units: eV, Å, amu / ``unit`` (default Å/fs^2 per eV/(Å amu): time in fs).
 """
@@ -182,6 +184,10 @@ class DCBRModel(Model):
         self._held = False
         self._cache = None
         self._carried = None
+        self._ghost_key = None
+        self._ghost_build = dict(coarsening=coarsening, horizon_factor=horizon_factor,
+                                 potential=potential, hourglass=hourglass) \
+            if (ghost and coupled and not t.periodic) else None
 
     # ------------------------------------------------------------------ the body
     @property
@@ -280,6 +286,31 @@ class DCBRModel(Model):
         if self.ghost is not None:
             self.ghost.prepare(self.Lz)
 
+    def _sync_ghost(self, state) -> None:
+        """A finite tube's ghost-force dead load as the state asks for it (the scene's
+        store: ``state.extra["dcbr.ghost"]`` = (lam_z, lam_hold), ``"dcbr.ghost_hold"``
+        (n,) the rows held at lam_hold; none: no load), so that a checkpoint carries it and
+        a resumed run prepares the same load (:meth:`.ghost.GhostLoad.prepare_stretch`)."""
+        if self._ghost_build is None:
+            return
+        g = state.extra.get("dcbr.ghost")
+        h = state.extra.get("dcbr.ghost_hold")
+        key = None if g is None else (float(g[0]), float(g[1]),
+                                      None if h is None else np.asarray(h, bool).tobytes())
+        if key == self._ghost_key:
+            return
+        self._cache = None
+        self._ghost_key = key
+        if key is None:
+            if self.ghost is not None:
+                self.ghost.load = None
+            return
+        if self.ghost is None:
+            self.ghost = GhostLoad(self.coupling, self.structure.tubes[0],
+                                   self.structure.positions, self._ghost_build,
+                                   self.params["potential"])
+        self.ghost.prepare_stretch(key[0], None if h is None else np.asarray(h, bool), key[1])
+
     def _sync_links(self, state) -> None:
         t = self.tube
         li, la = state.extra.get("dcbr.intact"), state.extra.get("dcbr.alive")
@@ -326,6 +357,7 @@ class DCBRModel(Model):
 
     def _evaluate(self, state):
         self._sync_links(state)
+        self._sync_ghost(state)
         if self.coupling is not None and "dcbr.fs_last" in state.extra:
             self.coupling.fs_last = state.extra["dcbr.fs_last"]  # (kept in the state)
         if self.cell is not None:
