@@ -105,11 +105,9 @@ def _el_args(p):
 def run_elastic(args):
     """The FE reference carries the particle model's boundary conditions (the load and
     support patches are 3 x 3 particle blocks, so the FE holds the box of their centres,
-    ``_fe_block``); the errors against the FE with boundary segments of width 3 dx (the
-    earlier reference) are reported beside them (``*_segment``). The particle factors come
-    from the Williams fit over the annulus 0.2 a < r < 0.6 a (``method="williams"``, 10
-    orders; keys ``Y_I_err_pct_max``, ``Y_II_err_pct_max``) and from the crack-face jump
-    (keys ``*_jump``); the Williams fit applied to the FE field sampled at the particle
+    ``_fe_block``). The particle factors come from the Williams fit over the annulus
+    0.2 a < r < 0.6 a (``method="williams"``, 10 orders; keys ``Y_I_err_pct_max``,
+    ``Y_II_err_pct_max``); the Williams fit applied to the FE field sampled at the particle
     positions gives the estimator's own error (keys ``*_estimator``)."""
     from upscale.experiments.scenes.scb import SCBScene
 
@@ -119,40 +117,32 @@ def run_elastic(args):
     kw = {} if stab is None else {"stabilisation": stab}
     order = getattr(args, "gain_order", 1)
     rows = []
-    eI, eII, eIs, eIIs, eC, eIj, eIIj, eIe, eIIe = [], [], [], [], [], [], [], [], []
+    eI, eII, eC, eIe, eIIe = [], [], [], [], []
     from validation.fem_scb import solve_scb
 
     for al in ALPHAS:
         sc = SCBScene(al, dx=dx, gain_order=order, **kw)
         fe = solve_scb(al, w=3 * dx, h_tip=8e-5 if quick else 2e-5, patch="block", block=(1.5 * dx, 2.5 * dx),
                        probe=sc.system.x0[:, :2])
-        fs = _fe(al, 3 * dx, quick=quick)
         st, P = sc.elastic()
         k = sc.stress_intensity(st, P, method="williams", n_terms=10)
-        kj = sc.stress_intensity(st, P)
         sf = sc.state()
         sf.y[:, :2] = sc.system.x0[:, :2] + fe["probe_u_m_per_N"]
         ke = sc.stress_intensity(sf, 1.0, method="williams", n_terms=10)
         C = 1e-5 / P
         row = {"alpha": al, "Y_I": k["Y_I"], "Y_I FE": fe["Y_I"], "Y_II": k["Y_II"], "Y_II FE": fe["Y_II"],
                "C um/N": C * 1e6, "C FE": fe["compliance_m_per_N"] * 1e6,
-               "Y_I jump": kj["Y_I"], "Y_II jump": kj["Y_II"], "Y_I est(FE)": ke["Y_I"], "Y_II est(FE)": ke["Y_II"],
-               "T* W": k["T_star"], "T* FE": fe["T_star"],
-               "Y_I FE seg": fs["Y_I"], "Y_II FE seg": fs["Y_II"], "C FE seg": fs["compliance_m_per_N"] * 1e6}
+               "Y_I est(FE)": ke["Y_I"], "Y_II est(FE)": ke["Y_II"],
+               "T* W": k["T_star"], "T* FE": fe["T_star"]}
         if abs(fe["Y_I"]) > 0.1:
             eI.append(100 * (k["Y_I"] / fe["Y_I"] - 1))
-            eIs.append(100 * (k["Y_I"] / fs["Y_I"] - 1))
-            eIj.append(100 * (kj["Y_I"] / fe["Y_I"] - 1))
             eIe.append(100 * (ke["Y_I"] / fe["Y_I"] - 1))
         if abs(fe["Y_II"]) > 0.1:
             eII.append(100 * (k["Y_II"] / fe["Y_II"] - 1))
-            eIIs.append(100 * (k["Y_II"] / fs["Y_II"] - 1))
-            eIIj.append(100 * (kj["Y_II"] / fe["Y_II"] - 1))
             eIIe.append(100 * (ke["Y_II"] / fe["Y_II"] - 1))
         eC.append(100 * (C / fe["compliance_m_per_N"] - 1))
         if al == 0.0:
             c_err = eC[-1]
-            c_err_seg = 100 * (C / fs["compliance_m_per_N"] - 1)
         rows.append(row)
         print(f"alpha {al:4.1f}: Y_I {k['Y_I']:.4f} (FE {fe['Y_I']:.4f})  Y_II {k['Y_II']:.4f} "
               f"(FE {fe['Y_II']:.4f})  C {C * 1e6:.4f} (FE {fe['compliance_m_per_N'] * 1e6:.4f}) um/N", flush=True)
@@ -167,12 +157,7 @@ def run_elastic(args):
            "Y_I_err_pct_max": float(max(np.abs(eI))), "Y_II_err_pct_max": float(max(np.abs(eII))),
            "Y_I_err_pct": [float(e) for e in eI], "Y_II_err_pct": [float(e) for e in eII],
            "compliance_err_pct": float(c_err), "compliance_err_pct_max": float(max(np.abs(eC))),
-           "Y_I_err_pct_max_segment": float(max(np.abs(eIs))), "Y_II_err_pct_max_segment": float(max(np.abs(eIIs))),
-           "compliance_err_pct_segment": float(c_err_seg),
-           "Y_I_err_pct_max_jump": float(max(np.abs(eIj))), "Y_II_err_pct_max_jump": float(max(np.abs(eIIj))),
            "Y_I_err_pct_max_estimator": float(max(np.abs(eIe))), "Y_II_err_pct_max_estimator": float(max(np.abs(eIIe))),
-           "Y_I_err_pct_jump": [float(e) for e in eIj], "Y_II_err_pct_jump": [float(e) for e in eIIj],
-           "Y_I_err_pct_segment": [float(e) for e in eIs], "Y_II_err_pct_segment": [float(e) for e in eIIs],
            "compliance_err_pct_all": [float(e) for e in eC],
            "pinned_Y_I_particle": kp["Y_I"], "pinned_Y_I_fe": fe_p["Y_I"],
            "pinned_compliance_um_per_N": 1e-5 / P * 1e6, "pinned_compliance_fe_um_per_N": fe_p["compliance_m_per_N"] * 1e6,
