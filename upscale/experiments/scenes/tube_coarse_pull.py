@@ -39,11 +39,19 @@ new model, step for step (seed 004 sec. 5.3.1; the old module docstring gives th
 The time loop is :func:`upscale.experiments.pull.pull`: checkpoints with exact resume (the
 model's links, shifts and region in ``state.extra``, the records in the pull's own extra).
 
+Ghost forces: the coupling's interfaces (bands, defects' regions, the atomistic ends the
+model keeps at an open tube's edges) carry the ghost-force dead load of the pristine twin
+(:meth:`upscale.models.dcbr.ghost.GhostLoad.prepare_stretch`) at the grips' strain, lam_z =
+lam_z0 (1 + strain), refreshed every sample (a dead load in between), the grips' rows
+keeping the set-up stretch's load: the old scene's ``ghost="grips"`` with
+``_hold_grip_ghost``. The scene writes it to the state's extras (``dcbr.ghost``,
+``dcbr.ghost_hold``), which the model follows, so a checkpoint carries it. (The old scene's
+default, ``ghost="local"``, took each side's stretch from its interface particles; the two
+agree up to failure, when the gauge is uniform.)
+
 Not the old scene's (stated, issue 51): the clamped coarse grips of the old vacancy scene
-(``DCBRDefectTube.clamp_grips``) and the ghost-force dead load of an open tube (the old
-``prepare_step``/``prepare_sides``) are not ported: the grips here are always atomistic
-bands, and the band and defect interfaces carry their (uncorrected) ghost forces, which
-the set-up minimisation relaxes at zero strain.
+(``DCBRDefectTube.clamp_grips``, ``_balanced_grip_weights``): the grips here are always
+atomistic bands (a defect tube keeps its defects' regions besides).
 
 Units: eV, Å, fs, amu (masses amu / ``ACC_EV_A_AMU_IN_A_FS2``); stress GPa.
 """

@@ -100,9 +100,10 @@ class DCBRModel(Model):
         Particles whose atoms are made atomistic besides the regions' (a grown region:
         :func:`.switch.switch`).
     ghost : bool
-        With atomistic regions on a periodic tube: the ghost-force dead load of the pristine
-        twin (:mod:`.ghost`), prepared by :meth:`set_cell` for each period (and at the
-        tube's own period here).
+        With atomistic regions: the ghost-force dead load of the pristine twin
+        (:mod:`.ghost`); on a periodic tube prepared by :meth:`set_cell` for each period
+        (and at the tube's own period here), on a finite one at the stretch the state's
+        extras ask for (:meth:`_sync_ghost`; none asked, none applied).
     shift_gtol : float
         Tolerance of the shift relaxation, max |dE/d delta| per particle, eV/Å.
     failure : bool
