@@ -107,30 +107,35 @@ def _small(tmp=None, **kw):
     return atoms, base | kw
 
 
-def test_checkpoint_resume_is_bit_identical():
-    """A (6,6) 80 Å tube with a monovacancy at 10 K: 300 steps straight, and 200 steps
-    with a checkpoint every 100 then resumed to 300: the same samples, positions and
-    damage bit for bit (the links, shifts, ghost load and thermostat in the checkpoint; the
-    resumed call given another seed, which only a fresh start would use); the strain of
-    the last sample is the grips' 2 v t / gauge at its block's middle."""
-    atoms, kw = _small()
+def test_checkpoint_resume_is_bit_identical_across_region_growth():
+    """A (6,6) 80 Å tube with a monovacancy at 10 K whose region grows where a coarse link
+    passes 0.9 of the link rule (``grow``; switches at steps 500, 525, 550): 560 steps
+    straight, and 520 steps with a checkpoint every 20 (the last one after the first
+    switch, on the grown model) then resumed to 560: the same samples, switches, positions
+    and damage bit for bit (the links, shifts, region, ghost load and thermostat in the
+    checkpoint; the resumed call given another seed, which only a fresh start would use);
+    the strain of the last sample is the grips' 2 v t / gauge at its block's middle."""
+    atoms, kw = _small(grow=0.9)
     st = setup_open_tube(atoms, 2.0, grip=15.0, r_atomistic=5.0)
-    a = coarse_dynamic_tension(atoms, 2.0, setup=st, max_steps=300, **kw)
+    a = coarse_dynamic_tension(atoms, 2.0, setup=st, max_steps=560, **kw)
     import tempfile
 
     with tempfile.TemporaryDirectory() as d:
         ck = Path(d) / "ck.npz"
-        coarse_dynamic_tension(atoms, 2.0, setup=st, max_steps=200, checkpoint=ck,
-                               checkpoint_every=100, **kw)
-        assert ck.is_file()
-        # (another seed: a run that started afresh instead of resuming would differ)
-        b = coarse_dynamic_tension(atoms, 2.0, setup=st, max_steps=300, checkpoint=ck,
-                                   checkpoint_every=100, resume=True, **(kw | {"seed": 99}))
-    assert a["steps"] == b["steps"] == 300
+        part = coarse_dynamic_tension(atoms, 2.0, setup=st, max_steps=520, checkpoint=ck,
+                                      checkpoint_every=20, **kw)
+        assert ck.is_file() and [s["step"] for s in part["switches"]] == [500]
+        b = coarse_dynamic_tension(atoms, 2.0, setup=st, max_steps=560, checkpoint=ck,
+                                   checkpoint_every=20, resume=True, **(kw | {"seed": 99}))
+    assert a["steps"] == b["steps"] == 560
+    assert [s["step"] for s in a["switches"]] == [500, 525, 550]
+    assert a["switches"] == b["switches"]
     assert a["curve"] == b["curve"]
     np.testing.assert_array_equal(a["positions"], b["positions"])
     np.testing.assert_array_equal(a["damage"], b["damage"])
-    assert a["curve"]["strain"][-1] == pytest.approx(2 * 0.01 * 287.5 / st["gauge"], rel=1e-12)
+    assert a["curve"]["strain"][-1] == pytest.approx(2 * 0.01 * 537.5 / st["gauge"], rel=1e-12)
+    for s in a["switches"]:  # momentum conserved by the switch (switch.py's correction)
+        assert np.abs(s["momentum_change"]).max() < 1e-9
 
 
 @pytest.mark.slow
