@@ -139,7 +139,7 @@ def test_torsion_of_a_gripped_tube_gives_a_torque_with_the_twist():
     (dict(load="torsion", grip=0.0), "periodic"),
     (dict(step=-0.01), "step=-0.01"),
     (dict(defects="xx@0.5@0"), "xx"),
-    (dict(model="dcbr", defects="sw@0.5@0"), "model='dcbr'"),
+    (dict(model="dcbr", defects="sw@0.5@0"), "nothing is left to coarse-grain"),
 ])
 def test_bad_input_is_one_line(kw, word):
     with pytest.raises(ValueError) as exc:

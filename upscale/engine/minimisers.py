@@ -221,31 +221,59 @@ class _Dynamic:
             it = int(eng["iteration"])
             self._set_vars({k[4:]: val for k, val in eng.items() if k.startswith("var_")})
             checkpoint.last_step = it
-        F = _free_forces(sim)
+        fields = _Fields(sim, m)
+        try:
+            it, fm, nf, msg, hist = self._iterate(sim, fields, m, free, v, it, max_step, checkpoint)
+        finally:
+            fields.release()
+        res = MinimiseResult(self.name, fm <= self.ftol, it, fm, _energy_or_none(sim), nf,
+                             time.perf_counter() - t0, msg, hist)
+        return _finish(res, self.ftol, self.max_iter, raise_on_fail)
+
+
+    def _iterate(self, sim, fields, m, free, v, it, max_step, checkpoint):
+        """The damped-dynamics loop over the rows and the models' internal fields
+        (:class:`_Fields`): (iterations, fmax, force calls, message, history)."""
+        st = sim.state
+        F, Ff = _free_forces(sim), fields.forces()
         nf = 1
-        fm = _fmax(F)
+        fm = max(_fmax(F), fields.fmax(Ff))
         hist = [(it, fm)]
-        y_good = st.y.copy()
+        y_good, f_good = st.y.copy(), fields.values()
+        vf = np.zeros_like(Ff)
         msg = ""
         while fm > self.ftol and it < self.max_iter:
-            self._update_velocity(v, F, m)
+            if vf.size:  # one velocity vector over rows and fields: FIRE's power and mixing
+                vv = np.concatenate([v.ravel(), vf])
+                self._update_velocity(vv, np.concatenate([F.ravel(), Ff]),
+                                      np.concatenate([np.broadcast_to(m, v.shape).ravel(),
+                                                      fields.mass]))
+                v[...] = vv[:v.size].reshape(v.shape)
+                vf[...] = vv[v.size:]
+            else:
+                self._update_velocity(v, F, m)
             v *= free
-            dy = self.dt * v
-            big = float(np.sqrt(np.max(np.einsum("nc,nc->n", dy, dy))))
+            dy, dfl = self.dt * v, self.dt * vf
+            big = float(np.sqrt(np.max(np.einsum("nc,nc->n", dy, dy)))) if dy.size else 0.0
+            big = max(big, fields.largest_step(dfl))
             if big > max_step:
                 dy *= max_step / big
+                dfl *= max_step / big
             st.y += dy
-            F = _free_forces(sim)
+            fields.move(dfl, vf)
+            F, Ff = _free_forces(sim), fields.forces()
             nf += 1
             it += 1
-            fm = _fmax(F)
+            fm = max(_fmax(F), fields.fmax(Ff))
             if not np.isfinite(fm):
                 st.y[...] = y_good
+                fields.put(f_good)
                 F = _free_forces(sim)
-                fm = _fmax(F)
+                fm = max(_fmax(F), fields.fmax(fields.forces()))
                 msg = f"non-finite force at iteration {it}; state put back to iteration {it - 1}"
                 break
             y_good[...] = st.y
+            f_good[...] = fields.values()
             if it % 50 == 0:
                 hist.append((it, fm))
             if checkpoint is not None and it % checkpoint.every == 0:
@@ -255,9 +283,68 @@ class _Dynamic:
                 s_.v = v.copy()
                 checkpoint.write(s_, {"minimiser": self.name}, engine=eng)
         hist.append((it, fm))
-        res = MinimiseResult(self.name, fm <= self.ftol, it, fm, _energy_or_none(sim), nf,
-                             time.perf_counter() - t0, msg, hist)
-        return _finish(res, self.ftol, self.max_iter, raise_on_fail)
+        return it, fm, nf, msg, hist
+
+
+class _Fields:
+    """The models' massless internal fields (``internal_fields``: ``{name: (lo, hi)}``,
+    arrays ``state.extra[name]``) as further unknowns of a damped-dynamics minimiser, as
+    :class:`LBFGS` minimises them: held (``hold_internal(True)``) while it runs, forces
+    -``internal_gradient``, moved within their bounds (a field at a bound with its force
+    pointing out stops there), each field component with the rows' mean mass (the
+    minimiser's fictitious dynamics; a field's inertia only scales its steps)."""
+
+    def __init__(self, sim, m):
+        self.st = sim.state
+        self.items = [(md, name, lh) for md in sim.models
+                      for name, lh in (getattr(md, "internal_fields", None) or {}).items()]
+        sizes = [self.st.extra[name].size for _, name, _ in self.items]
+        self.lo = np.concatenate([np.full(k, float(lh[0])) for k, (_, _, lh) in
+                                  zip(sizes, self.items)]) if sizes else np.zeros(0)
+        self.hi = np.concatenate([np.full(k, float(lh[1])) for k, (_, _, lh) in
+                                  zip(sizes, self.items)]) if sizes else np.zeros(0)
+        self.mass = np.full(sum(sizes), float(np.mean(m)) if sizes else 0.0)
+        for md, _, _ in self.items:
+            md.hold_internal(True)
+
+    def release(self) -> None:
+        for md, _, _ in self.items:
+            md.hold_internal(False)
+
+    def values(self) -> np.ndarray:
+        return np.concatenate([self.st.extra[n].ravel() for _, n, _ in self.items]) \
+            if self.items else np.zeros(0)
+
+    def put(self, x) -> None:
+        o = 0
+        for _, name, _ in self.items:
+            a = self.st.extra[name]
+            a.reshape(-1)[...] = x[o:o + a.size]
+            o += a.size
+
+    def forces(self) -> np.ndarray:
+        if not self.items:
+            return np.zeros(0)
+        g = np.concatenate([md.internal_gradient(self.st)[name].reshape(-1)
+                            for md, name, _ in self.items])
+        x = self.values()
+        f = -g
+        f[((x <= self.lo) & (f < 0)) | ((x >= self.hi) & (f > 0))] = 0.0
+        return f
+
+    def fmax(self, f) -> float:
+        return float(np.abs(f).max()) if f.size else 0.0
+
+    def largest_step(self, d) -> float:
+        return float(np.abs(d).max()) if d.size else 0.0
+
+    def move(self, d, vf) -> None:
+        if not self.items:
+            return
+        x = self.values() + d
+        out = (x < self.lo) | (x > self.hi)
+        vf[out] = 0.0
+        self.put(np.clip(x, self.lo, self.hi))
 
 
 def _energy_or_none(sim):

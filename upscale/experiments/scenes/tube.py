@@ -216,18 +216,24 @@ def _run_atomistic(atoms, proto, potential, show, ck=None) -> dict:
     if isinstance(proto, Dynamic):
         return _pull_atomistic(atoms, proto, potential, show, ck)
     tube = AtomisticTube(atoms, proto, potential)
-    damage = [tube.damage()]
+    out, damage = _ramp_with_damage(tube, proto, show)
+    return {"curve": out["curve"], "x0": tube.x_rest, "damage_steps": damage,
+            "axis": tube.axis, "radius_A": tube.radius, "dof": 3 * len(atoms),
+            "atoms": len(atoms), "particles": len(atoms),
+            "minimisations": tube.minimisations, "unconverged": tube.unconverged}
+
+
+def _ramp_with_damage(tube, proto, show):
+    """:func:`ramp` of a specimen with ``damage()``: (its output, the damage after each
+    step)."""
+    damage = []
 
     def step(k, value, rec):
         damage.append(tube.damage())
         if show:
             show(value, rec["response"])
 
-    out = ramp(tube, proto, progress=step)
-    return {"curve": out["curve"], "x0": tube.x_rest, "damage_steps": damage[1:],
-            "axis": tube.axis, "radius_A": tube.radius, "dof": 3 * len(atoms),
-            "atoms": len(atoms), "particles": len(atoms),
-            "minimisations": tube.minimisations, "unconverged": tube.unconverged}
+    return ramp(tube, proto, progress=step), damage
 
 
 def _pull_atomistic(atoms, proto, potential, show, ck=None) -> dict:
@@ -348,10 +354,12 @@ def _run_dcbr(atoms, proto, coarsening, potential, show, ck=None) -> dict:
     if placed and ch is not None and L is not None and _is_seed_vacancy(atoms, ch, L):
         vac, placed = {"n": 4}, []  # (the seed's vacancy, placed through `defects`)
     if ch is None or L is None or placed or (vac and vac.get("n") != 4):
-        raise ValueError("model='dcbr' takes a pristine tube of upscale.build.swcnt or the "
-                         "seed's tube with one 4-atom vacancy (upscale.build.vacancy, or "
-                         "defects='v4@0.5@0') until the coarse model takes any structure; got "
-                         f"{'defects ' + ','.join(placed) if placed else 'an untagged structure'}")
+        if isinstance(proto, Dynamic):
+            raise ValueError("model='dcbr' pulls dynamically a pristine tube of "
+                             "upscale.build.swcnt or the seed's tube with one 4-atom vacancy; "
+                             "any other structure runs the quasi-static protocol (or use "
+                             "model='atomistic' or 'lammps')")
+        return _ramp_coarse(atoms, proto, coarsening, potential, show)
     n, m = ch
     if isinstance(proto, Dynamic):
         return _pull_dcbr(n, m, L, bool(vac), proto, coarsening, potential, show, ck)
@@ -375,6 +383,22 @@ def _run_dcbr(atoms, proto, coarsening, potential, show, ck=None) -> dict:
             "x0": x0, "damage_steps": [np.asarray(res["damage"], dtype=float)],
             "axis": x0[:, :2].mean(0), "radius_A": res["radius_relaxed_A"], "dof": res["dof"],
             "atoms": res["atoms"], "particles": res["particles"]}
+
+
+def _ramp_coarse(atoms, proto, coarsening, potential, show) -> dict:
+    """Any periodic tube coarse-grained from its atoms
+    (:class:`~upscale.experiments.scenes.tube_coarse.CoarseTube` on
+    :class:`~upscale.models.dcbr.model.DCBRModel`: atomistic regions at its defects) under
+    the quasi-static ramp."""
+    from upscale.experiments.scenes.tube_coarse import CoarseTube
+
+    tube = CoarseTube(atoms, proto, coarsening, potential)
+    out, damage = _ramp_with_damage(tube, proto, show)
+    d = tube.model.describe()
+    return {"curve": out["curve"], "x0": tube.x_rest, "damage_steps": damage,
+            "axis": tube.centre[:2], "radius_A": tube.radius, "dof": 6 * tube.model.n,
+            "atoms": len(atoms), "particles": d["particles"],
+            "minimisations": tube.minimisations, "unconverged": tube.unconverged}
 
 
 def _is_seed_vacancy(atoms, chirality, length) -> bool:

@@ -228,6 +228,10 @@ class Coupling:
         self.inside = np.asarray(inside, bool).copy()
         if more_inside is not None:
             self.inside |= np.asarray(more_inside, bool)
+        if self.inside.all():
+            raise ValueError(f"the atomistic regions cover all {tube.N} particles of the tube: "
+                             "nothing is left to coarse-grain; valid: a longer tube, a smaller "
+                             "r_atomistic, or model='atomistic'")
         free = self.inside[own_a]
         tot = np.bincount(own_a[on_site], minlength=tube.N) + np.bincount(own_e, minlength=tube.N)
         gone = (np.bincount(own_a[on_site & free], minlength=tube.N)
