@@ -266,9 +266,12 @@ def _run_lammps(atoms, proto, potential, run_missing: bool) -> dict:
         r = _cached_lammps(atoms, proto, potential, run_missing)
     c = r["curve"]
     x0 = atoms.get_positions()
-    dmg = r.get("atom_damage")  # per atom where the run kept it (a stored record does not)
+    onset = r.get("atom_damage_onset")  # where the run kept it (a stored record does not)
+    steps = [] if onset is None else \
+        [((np.asarray(onset) >= 0) & (np.asarray(onset) <= k)).astype(float)
+         for k in range(len(c["load"]))]
     return {"curve": {"load": np.asarray(c["load"]), "response": np.asarray(c["response"])},
-            "x0": x0, "damage_steps": [] if dmg is None else [np.asarray(dmg, dtype=float)],
+            "x0": x0, "damage_steps": steps,
             "axis": x0[:, :2].mean(0), "wall_s": float(r.get("wall_s", np.nan)),
             "radius_A": r.get("relaxation", {}).get("radius_relaxed_A", np.nan),
             "dof": 3 * len(atoms), "atoms": len(atoms), "particles": len(atoms),
@@ -298,7 +301,8 @@ def _cached_lammps(atoms, proto, potential, run_missing: bool) -> dict:
         "positions": np.round(atoms.get_positions(), 6).tolist(), "cell": atoms.cell.tolist(),
         "pbc": atoms.pbc.tolist(), "numbers": atoms.numbers.tolist(), "potential": potential,
         "protocol": [type(proto).__name__, dataclasses.asdict(proto)],
-        "code": code.hexdigest()}, sort_keys=True).encode()).hexdigest()[:20]
+        "code": code.hexdigest(), "damage": "onset per atom from the dump"},
+        sort_keys=True).encode()).hexdigest()[:20]
     path = cache_dir("references") / f"tube_{key}.json"
     if path.is_file():
         return json.loads(path.read_text())
@@ -311,9 +315,33 @@ def _cached_lammps(atoms, proto, potential, run_missing: bool) -> dict:
         print(f"LAMMPS reference not stored: running it now ({len(atoms)} atoms, up to "
               f"{steps} load steps: up to about {est / 60:.0f} min on one core; cached in "
               f"{path.parent})", flush=True)
-    r = lammps.run(atoms, proto, potential=f"tersoff:{potential}")
+    if isinstance(proto, QuasiStatic) and proto.load != "torsion":
+        dump = cache_dir("dumps") / f"tube_{key}.dump"
+        r = lammps.run(atoms, proto, potential=f"tersoff:{potential}", dump=dump)
+        r["atom_damage_onset"] = damage_onset(dump, len(r["curve"]["load"]))
+    else:
+        r = lammps.run(atoms, proto, potential=f"tersoff:{potential}")
     write_json(path, r)
     return r
+
+
+def damage_onset(dump, records: int) -> list[int]:
+    """Per atom, the index of the first of the last ``records`` frames of a periodic tube's
+    LAMMPS dump (one frame per load step, ``id type x y z``) in which one of its bonds is
+    broken: bonds closer than 2.0 Å in the first frame, broken beyond 2.1 Å (minimum image
+    along z); -1 where none broke."""
+    from ase.io import read
+
+    from upscale.experiments.scenes.tube_atomistic import bond_lengths, bond_pairs
+
+    frames = read(dump, index=":", format="lammps-dump-text")
+    bonds = bond_pairs(frames[0].positions, frames[0].cell[2, 2])
+    onset = np.full(len(frames[0]), -1, dtype=np.int64)
+    for k, f in enumerate(frames[len(frames) - records:]):
+        broken = bond_lengths(f.positions, bonds, f.cell[2, 2]) > 2.1
+        hit = np.unique(bonds[broken])
+        onset[hit[onset[hit] < 0]] = k
+    return onset.tolist()
 
 
 def _stored_reference(atoms, proto, potential) -> dict | None:
