@@ -277,7 +277,8 @@ def relax_cell_shift(q, s_p, z_p, sub_p, R0, iA, iB, candA, candB, P_f, gtol, ma
     """Newton's method on the shift q[3:6] of one mapped lattice at fixed (lam_t, gam,
     lam_z) = q[0:3] (q mutated), the 3x3 Hessian by forward differences of de/d shift
     (step 1e-6 Å), step length limited to 0.02 Å per component. Returns True when
-    max |de/d shift| <= ``gtol`` (eV/Å per atom)."""
+    max |de/d shift| <= ``gtol`` (eV/Å per atom); False also, the shift unchanged, where the
+    Hessian is exactly singular (a lattice pulled apart in some direction, after failure)."""
     g0, g1 = np.empty(NPARAM), np.empty(NPARAM)
     H = np.empty((3, 3))
     qk = np.empty(NPARAM)
@@ -294,6 +295,9 @@ def relax_cell_shift(q, s_p, z_p, sub_p, R0, iA, iB, candA, candB, P_f, gtol, ma
             for t in range(3):
                 H[t, k] = (g1[3 + t] - g0[3 + t]) / hstep
         Hs = 0.5 * (H + H.T)
+        det = np.linalg.det(Hs)
+        if not (np.isfinite(det) and det != 0.0):  # (a lattice stretched past its cutoffs
+            return False  # in some direction: no Newton step; the shift is left as it is)
         step = np.linalg.solve(Hs, -g0[3:6])
         big = max(abs(step[0]), abs(step[1]), abs(step[2]))
         if big > 0.02:
