@@ -349,37 +349,42 @@ class CoarsePull(PullSpecimen):
     def load(self, sim) -> float:
         return self._strain(int(sim.state.step))
 
-    def _damage_at(self, state, strain):
-        """Where damage is (None if nowhere): the strain, the damaged rows' count and axial
-        positions (Å, in the set-up frame), the nearest defect of the model (kind, its
-        axial position and the distance along the wall to the damaged rows' centroid)."""
+    def damage(self, state) -> np.ndarray:
+        """(n,) damage per row against the pull's start: a particle's link damage
+        (:meth:`DCBRModel.particle_damage`), a free atom's 1 - (bonds left) / (bonds < 2.0 Å
+        at the set-up state, broken beyond 2.1 Å) (an input defect's stretched bonds, which
+        the set-up relaxes, are not damage)."""
+        from upscale.models.tersoff import atom_damage, initial_bonds  # noqa: PLC0415
+
         m = self.model
-        mu = m.particle_damage(state)
-        hit = mu > 0
-        if not hit.any():
-            return None
-        x = state.y[hit]
-        z = _axial(m, x)
-        out = {"strain": float(strain), "rows": int(hit.sum()),
+        nd = _nd(m)
+        if getattr(self, "_bonds0", (None,))[0] is not m:
+            self._bonds0 = (m, initial_bonds(state.x0[nd:]))
+        return np.r_[m.particle_damage(state)[:nd], atom_damage(state.y[nd:], self._bonds0[1])]
+
+    def where(self, state, hit, strain=None):
+        """Where the rows ``hit`` (n,) bool are: their count and axial positions (Å, min,
+        median, max, set-up frame), and the defect (not an edge) nearest their median
+        along the axis (kind, axial position, axial distance; the crack of a tube that
+        broke is a ring, whose centroid is on the axis)."""
+        m = self.model
+        z = _axial(m, state.y[hit])
+        out = {"strain": None if strain is None else float(strain), "rows": int(hit.sum()),
                "z_A": [float(z.min()), float(np.median(z)), float(z.max())]}
-        t = m.tube
         cand = [d for d in m.defects if d.kind != "edge"]
         if cand:
-            xc = x.mean(axis=0)
-            rel = xc - t.centre
-            zc = rel @ t.axis
-            th = np.arctan2(rel @ t.e2, rel @ t.e1)
-            R = self.st["R"]
-            best = None
-            for d in cand:
-                rd = d.position - t.centre
-                dz = zc - self.st["lam_z0"] * (rd @ t.axis)
-                dth = np.angle(np.exp(1j * (th - np.arctan2(rd @ t.e2, rd @ t.e1))))
-                dist = float(np.hypot(dz, R * dth))
-                if best is None or dist < best[1]:
-                    best = (d.kind, dist, float(d.z))
-            out.update(nearest_defect=best[0], distance_A=best[1], defect_z_A=best[2])
+            lam0 = self.st["lam_z0"]
+            t = m.tube
+            zd = [lam0 * float((d.position - t.centre) @ t.axis) for d in cand]
+            k = int(np.argmin(np.abs(np.array(zd) - np.median(z))))
+            out.update(nearest_defect=cand[k].kind, defect_z_A=zd[k],
+                       distance_A=float(abs(zd[k] - np.median(z))))
         return out
+
+    def _damage_at(self, state, strain):
+        """The first damage (None if none yet): :meth:`where` of the damaged rows."""
+        hit = self.damage(state) > 0
+        return self.where(state, hit, strain) if hit.any() else None
 
     def wants_switch(self) -> bool:
         return self._pending is not None
@@ -476,9 +481,12 @@ def coarse_dynamic_tension(atoms, coarsening: float = 2.0, *, grip: float = 50.0
         of :func:`upscale.analysis.stress.curve_metrics` (``strength_GPa``,
         ``youngs_modulus_TPa``, ``strain_at_peak``, ``failed``, ...), ``steps``,
         ``switches`` (one log per region growth), ``first_damage`` (the first sample with
-        damage: strain, rows, their axial positions, the nearest defect and its distance), ``gauge_length_A``, ``radius_relaxed_A``,
+        damage: strain, rows, their axial positions, the nearest defect and its axial
+        distance), ``crack`` (the same of the rows with damage >= 0.5 at the end),
+        ``gauge_length_A``, ``radius_relaxed_A``,
         ``area_A2``, ``grip_planes_A``, ``model`` (``DCBRModel.describe()`` at the end),
-        ``positions`` (every atom at the end, (K, 3) Å), ``damage`` (per row),
+        ``positions`` (every atom at the end, (K, 3) Å), ``damage`` (per row, :meth:`CoarsePull.
+        damage`),
         ``blowup_after_failure``, ``setup_s``, ``dynamics_s``.
     """
     from upscale.analysis.stress import curve_metrics  # noqa: PLC0415
@@ -525,5 +533,7 @@ def coarse_dynamic_tension(atoms, coarsening: float = 2.0, *, grip: float = 50.0
     except ValueError as e:
         res["metrics"] = f"none: {e}"
     res["positions"] = m.atom_positions(sim.state)
-    res["damage"] = m.particle_damage(sim.state)
+    res["damage"] = spec.damage(sim.state)
+    cracked = res["damage"] >= 0.5
+    res["crack"] = spec.where(sim.state, cracked) if cracked.any() else None
     return res
