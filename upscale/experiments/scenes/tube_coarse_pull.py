@@ -165,7 +165,7 @@ def setup_open_tube(atoms, coarsening: float = 2.0, *, grip: float = 50.0,
     body = ParticleSystem(y0, 1.0, density=m.masses(), spacing=m.tube.bond, units="atomic")
     sim = Simulation(body, None, [m], [Fixed(Region("grips", bottom | top), components=(0, 1))])
     sim.state.extra[FIELD][...] = shift
-    ghost = m._ghost_build is not None
+    ghost = m.stretch_ghost
     if ghost:  # the ghost-force dead load at the set-up stretch (the old prepare_step(L0))
         sim.state.extra[GHOST] = np.array([lam_z, lam_z])
     s0 = _axial(m, y0)
@@ -433,7 +433,8 @@ class CoarsePull(PullSpecimen):
             key = "extra__dcbr.inside"
             inside = np.array(z[key]) if key in z.files else None
         first = self._first
-        if inside is None or np.array_equal(inside, first.coupling.inside):
+        if inside is None or first.coupling is None or \
+                np.array_equal(inside, first.coupling.inside):
             return
         m = self._model(inside)
         from upscale.engine.state import State  # noqa: PLC0415

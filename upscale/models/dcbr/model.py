@@ -287,6 +287,12 @@ class DCBRModel(Model):
         if self.ghost is not None:
             self.ghost.prepare(self.Lz)
 
+    @property
+    def stretch_ghost(self) -> bool:
+        """True when this (finite, coupled) tube applies the ghost-force load the state's
+        extras ask for (:meth:`_sync_ghost`)."""
+        return self._ghost_build is not None
+
     def _sync_ghost(self, state) -> None:
         """A finite tube's ghost-force dead load as the state asks for it (the scene's
         store: ``state.extra["dcbr.ghost"]`` = (lam_z, lam_hold), ``"dcbr.ghost_hold"``
