@@ -287,7 +287,7 @@ def test_no_dead_load_on_a_failed_particle():
 def test_static_grip_stiffness_is_linear_and_bounded():
     """The coarse tube held by the dynamic scene's grips: k = F / separation is the same at
     0.1 % and 0.25 % (linear range), and the modulus over LAMMPS's gauge lies below the
-    periodic one (the coarse grips' compliance; dcbr-grip-stiffness compares with LAMMPS)."""
+    periodic one (the coarse grips' compliance)."""
     from upscale.experiments.scenes.dcbr_dynamic import static_grip_stiffness
 
     r1 = static_grip_stiffness(DCBRDefectTube(6, 6, 60.0, vacancy=4, **KW), grip=10.0,

@@ -82,8 +82,7 @@ def test_dcbr_dynamic_extensometer_vs_grip_strain():
     """A short coarse pull: the strain on the marks follows the grip strain. On the 150 Å
     vacancy references LAMMPS's marks read 4-5 % more than its grips (the vacancy between
     the marks weighs more in their slope than in the grip strain; E_ext < E_grip); the
-    coarse tube, whose clamped grips are as stiff as LAMMPS's (``python -m validation
-    dcbr-grip-stiffness``, within 4.3 %), does the same: here 1.12 on a 40 Å gauge with a
+    coarse tube, whose clamped grips are as stiff as LAMMPS's (within 4.3 %), does the same: here 1.12 on a 40 Å gauge with a
     10 Å atomistic band (0.92 before the grips were clamped, when they were 7-23 % too
     compliant)."""
     from upscale.models.dcbr_defect import DCBRDefectTube

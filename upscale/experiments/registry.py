@@ -41,8 +41,8 @@ SCENES: dict[str, str] = {
     "bundle": "upscale.experiments.scenes.bundle_scene:bundle",
 }
 
-#: each scene's quick variant: keyword arguments that run it in seconds (tests, the
-#: ``scene-api`` validation case, a first try from the shell)
+#: each scene's quick variant: keyword arguments that run it in seconds (tests, the report's
+#: quick runs, a first try from the shell)
 QUICK: dict[str, dict] = {
     "tension": dict(chirality=(5, 5), length=25.0, model="atomistic", maximum=0.02),
     "plate": dict(model="lps", n=20, t_end=6e-6, quick=True),

@@ -288,8 +288,7 @@ def measure(run: dict, *, tip_damage: float = 0.35, record_dt: float = 0.25e-6,
     the set of particles with damage >= ``tip_damage`` (one of the run's thresholds), recorded
     every ``record_every = round(record_dt / dt)`` steps (a multiple of the run's sampling),
     the speed the least-squares slope over a sliding window of ``speed_window`` (s). These
-    three are choices of the measurement, not of the model; ``tipd-branching-sensitivity``
-    measures what they change."""
+    three are choices of the measurement, not of the model."""
     from scipy.ndimage import label
     from scipy.spatial import cKDTree
 
