@@ -203,6 +203,9 @@ def _run(ranks, *args, timeout=600, **kw):
 
 
 N_PLATE, STEPS = 30, 1000
+#: the killed run's steps: long enough that the kill, at most 0.5 s after the second
+#: checkpoint, lands before the end on a quiet machine too (1,000 steps take about 0.2 s)
+KILL_STEPS = 20 * STEPS
 
 
 @pytest.fixture(scope="module")
@@ -240,10 +243,10 @@ def test_plate_on_ranks_is_bit_identical_to_serial(model, ranks, serial_plates, 
 @needs_mpi
 def test_restart_after_sigkill_on_two_ranks_is_bit_identical(tmp_path):
     full = tmp_path / "full.npz"
-    assert _run(2, RUNNER, "pmb", N_PLATE, STEPS, full).returncode == 0
+    assert _run(2, RUNNER, "pmb", N_PLATE, KILL_STEPS, full).returncode == 0
     work = tmp_path / "work"
     work.mkdir()
-    cmd = [MPIEXEC, "-n", "2", sys.executable, str(RUNNER), "pmb", str(N_PLATE), str(STEPS),
+    cmd = [MPIEXEC, "-n", "2", sys.executable, str(RUNNER), "pmb", str(N_PLATE), str(KILL_STEPS),
            str(tmp_path / "killed.npz"), str(work), "40"]
     p = subprocess.Popen(cmd, env=_env(), start_new_session=True,
                          stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
@@ -255,14 +258,14 @@ def test_restart_after_sigkill_on_two_ranks_is_bit_identical(tmp_path):
     p.wait()
     assert not (tmp_path / "killed.npz").exists(), "the run finished before the kill"
     resumed = tmp_path / "resumed.npz"
-    r = _run(2, RUNNER, "pmb", N_PLATE, STEPS, resumed, work, 40)
+    r = _run(2, RUNNER, "pmb", N_PLATE, KILL_STEPS, resumed, work, 40)
     assert r.returncode == 0, r.stderr
     a, b = np.load(full), np.load(resumed)
     assert np.array_equal(a["u"], b["u"]) and np.array_equal(a["intact"], b["intact"])
     # another rank count refuses the files, naming the way out
-    r = _run(4, RUNNER, "pmb", N_PLATE, STEPS, tmp_path / "x.npz", work, 40)
+    r = _run(4, RUNNER, "pmb", N_PLATE, KILL_STEPS, tmp_path / "x.npz", work, 40)
     assert r.returncode != 0 and "was written on 2 MPI ranks" in r.stderr
-    r = _run(1, RUNNER, "pmb", N_PLATE, STEPS, tmp_path / "x.npz", work, 40)
+    r = _run(1, RUNNER, "pmb", N_PLATE, KILL_STEPS, tmp_path / "x.npz", work, 40)
     assert r.returncode != 0 and "upscale.engine.parallel.convert" in r.stderr
 
 
