@@ -4,8 +4,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from upscale.engine.minimisers import (ArrayMinimum, bfgs, first_lower, lbfgs_b,
-                                       quick_min_blocks, restarted, zero_cell_force)
+from upscale.engine.array_minimisers import (ArrayMinimum, bfgs, first_lower, lbfgs_b,
+                                             quick_min_blocks, restarted, zero_cell_force)
 
 
 def rosenbrock(x):

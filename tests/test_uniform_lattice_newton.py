@@ -1,9 +1,9 @@
 """The uniform lattice of the coarse tube (the ghost-force twin's state) found to round-off:
-:func:`upscale.engine.minimisers.newton` against BFGS, which stops short of gtol."""
+:func:`upscale.engine.array_minimisers.newton` against BFGS, which stops short of gtol."""
 import numpy as np
 import pytest
 
-from upscale.engine.minimisers import bfgs, newton
+from upscale.engine.array_minimisers import bfgs, newton
 from upscale.models.dcbr_defect import DCBRDefectTube
 
 

@@ -99,7 +99,7 @@ calculator (:mod:`upscale.calculators`). Defects are in :mod:`upscale.models.dcb
 (an atomistic region around the vacancy coupled to these particles) and dynamic tension of
 open tubes with grips in :mod:`upscale.experiments.scenes.dcbr_dynamic`. The tube supplies energy and
 gradient; its minimisations run on the engine's array-level minimisers
-(:func:`upscale.engine.minimisers.lbfgs_b`, :meth:`DCBRTube.minimise`), and
+(:func:`upscale.engine.array_minimisers.lbfgs_b`, :meth:`DCBRTube.minimise`), and
 :class:`DCBRTubeModel` is the same tube as an engine model (shifts relaxed at every
 configuration) for the engine's integrators and minimisers.
 
@@ -114,7 +114,7 @@ import numpy as np
 
 from potentials.tersoff import INDEX as TI
 from upscale.constants import EV_PER_A3_IN_GPA, WALL_THICKNESS_A
-from upscale.engine.minimisers import bfgs, lbfgs_b, one_blas_thread
+from upscale.engine.array_minimisers import bfgs, lbfgs_b, one_blas_thread
 
 from upscale.models import dcbr_coupling_kernels as CK
 from upscale.models import dcbr_kernels as K
@@ -387,7 +387,7 @@ class LatticeStability:
     def stable(self, q, tol=1e-3) -> bool:
         """True when H + U U^T + tol I is positive definite (Cholesky), i.e. no eigenvalue
         of the Hessian off the zero modes is below -tol (eV/Å^2; the finite-difference
-        noise is ~1e-8). BLAS on one thread (:func:`~upscale.engine.minimisers.one_blas_thread`):
+        noise is ~1e-8). BLAS on one thread (:func:`~upscale.engine.array_minimisers.one_blas_thread`):
         a few hundred unknowns, where OpenBLAS's threads on a busy machine made this
         Cholesky factorisation take 0.2 s instead of 0.5 ms."""
         key = tuple(np.round(np.asarray(q, float), 7))
@@ -794,7 +794,7 @@ class DCBRTube:
     def minimise(self, y, delta, Lz, relax_box=False, gtol=1e-6, maxiter=5000,
                  fixed=None) -> "TubeMinimum":
         """Minimise the energy over positions and shifts (and Lz if ``relax_box``) by the
-        engine's L-BFGS-B (:func:`upscale.engine.minimisers.lbfgs_b`, 30 correction pairs).
+        engine's L-BFGS-B (:func:`upscale.engine.array_minimisers.lbfgs_b`, 30 correction pairs).
 
         ``gtol``: max |gradient component| in eV/Å. ``fixed``: optional boolean mask shaped
         like ``y``; those position components stay. With ``relax_box`` the positions scale
@@ -1064,7 +1064,7 @@ class DCBRTubeModel:
         :attr:`NEWTON_MAX_STEP` Å or to its bound, a shift starting on its bound, a gradient
         that does not fall, a non-finite value) or no convergence in
         :attr:`NEWTON_ITERATIONS` steps falls back to L-BFGS-B
-        (:func:`~upscale.engine.minimisers.lbfgs_b`, memory 10, shifts bounded by +-b) from
+        (:func:`~upscale.engine.array_minimisers.lbfgs_b`, memory 10, shifts bounded by +-b) from
         the start."""
         t = self.tube
         if not t.relax_shift:

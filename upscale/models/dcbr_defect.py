@@ -87,8 +87,8 @@ import numpy as np
 from potentials.tersoff import INDEX as TI
 from upscale.constants import ACC_EV_A_AMU_IN_A_FS2, CARBON_MASS_AMU
 from upscale.models import dcbr_coupling_kernels as CK
-from upscale.engine.minimisers import (bfgs, first_lower, newton, quick_min_blocks, restarted,
-                                       zero_cell_force)
+from upscale.engine.array_minimisers import (bfgs, first_lower, newton, quick_min_blocks,
+                                             restarted, zero_cell_force)
 from upscale.models.dcbr import DCBRTube, TubeMinimum, uniform_map_frame
 
 CARBON_MASS = CARBON_MASS_AMU  # amu
@@ -723,7 +723,7 @@ class DCBRDefectTube(DCBRTube):
         """(lam_t, lam_z, shift) of the lattice relaxed at axial stretch ``lam_z`` (gam = 0,
         lam_t and the sublattice shift minimised), or at zero stress when ``lam_z`` is None.
 
-        Newton's method from the reference lattice (:func:`upscale.engine.minimisers.newton`:
+        Newton's method from the reference lattice (:func:`upscale.engine.array_minimisers.newton`:
         four iterations to a gradient of ~1e-14 eV, 0.5 ms), BFGS only if it fails. BFGS at
         gtol 1e-12 stopped on precision loss with gradients up to 2e-8 (the lattice
         parameters 3e-10 off) after 14-99 evaluations, 2-9 ms; the dynamic scenes call
@@ -857,7 +857,7 @@ class DCBRDefectTube(DCBRTube):
         cell length (:meth:`_relax_zero_stress`), and pairs held at the step cutoff go across
         it per ``step_crossing`` (module docstring: damped dynamics by default, or
         :meth:`_cross_steps`), then the energy is minimised again (the restarts of
-        :func:`upscale.engine.minimisers.restarted`). Returns a :class:`TubeMinimum`."""
+        :func:`upscale.engine.array_minimisers.restarted`). Returns a :class:`TubeMinimum`."""
         if relax_box:
             return self._relax_zero_stress(gtol, maxiter)
         if fixed is None and self.periodic:
@@ -1040,7 +1040,7 @@ class DCBRDefectTube(DCBRTube):
     def quickmin(self, y, delta, Lz, steps: int = 5000, dt: float = 1.0, dmax: float = 0.02,
                   ftol: float = 1e-3, fixed=None):
         """Damped dynamics as LAMMPS's ``min_style quickmin``
-        (:func:`upscale.engine.minimisers.quick_min_blocks` on the positions and the shifts):
+        (:func:`upscale.engine.array_minimisers.quick_min_blocks` on the positions and the shifts):
         the velocity projected on the force (zeroed when it points uphill), ``dt`` fs, no
         unknown moving more than ``dmax`` Å per step, until the force vector's 2-norm is
         below ``ftol`` eV/Å or after ``steps`` steps; the shifts stay within
@@ -1084,7 +1084,7 @@ class DCBRDefectTube(DCBRTube):
 
     def _relax_zero_stress(self, gtol, maxiter, tol=1e-4):
         """Zero axial stress: start from the pristine lattice's zero-stress length, then a
-        secant iteration on the cell length (:func:`upscale.engine.minimisers.zero_cell_force`;
+        secant iteration on the cell length (:func:`upscale.engine.array_minimisers.zero_cell_force`;
         positions minimised with each length's correction, the positions scaled along z with
         the length) until |dE/dLz| < ``tol`` eV/Å."""
         lt, lz, sh = self.uniform_lattice(None)

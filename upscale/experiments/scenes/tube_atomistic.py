@@ -7,7 +7,7 @@ from CG to damped dynamics (the step cutoff makes the energy jump when a bond cr
 which stops line searches).
 
 Periodic tube (tension, compression): the zero-stress relaxation finds the cell length L0
-at which dE/dL_z = 0 (secant, :func:`upscale.engine.minimisers.zero_cell_force`); at load
+at which dE/dL_z = 0 (secant, :func:`upscale.engine.array_minimisers.zero_cell_force`); at load
 eps the cell is L0 (1 + eps), atoms are mapped affinely along z and relaxed at fixed cell.
 Stress sigma = (dE/dL_z) / (2 pi R t), dE/dL_z = -W_zz / L_z (virial W), R the mean wall
 radius after the zero-stress relaxation, t = 3.4 Å.
@@ -27,7 +27,8 @@ import math
 import numpy as np
 
 from upscale.constants import CARBON_MASS_AMU, EV_PER_A3_IN_GPA, WALL_THICKNESS_A
-from upscale.engine.minimisers import FIRE, LBFGS, NotConverged, zero_cell_force
+from upscale.engine.minimisers import FIRE, LBFGS, NotConverged
+from upscale.engine.array_minimisers import zero_cell_force
 from upscale.engine.simulation import Simulation
 from upscale.engine.system import ParticleSystem
 from upscale.experiments.protocols import Specimen

@@ -7,7 +7,7 @@ non-slave particles then the free atoms. The protocol is the LAMMPS runners' and
 :class:`~upscale.experiments.scenes.tube_atomistic.AtomisticTube`'s:
 
 * zero-stress relaxation: the period L0 at which dE/dL_z = 0 (secant,
-  :func:`upscale.engine.minimisers.zero_cell_force`), the rows scaled along the axis about
+  :func:`upscale.engine.array_minimisers.zero_cell_force`), the rows scaled along the axis about
   the tube's centre at each trial period;
 * at strain eps the period is L0 (1 + eps), the rows mapped affinely along the axis, the
   energy minimised at fixed period, the failure rules applied (the coarse link rule, then
@@ -28,7 +28,8 @@ import math
 import numpy as np
 
 from upscale.constants import EV_PER_A3_IN_GPA, WALL_THICKNESS_A
-from upscale.engine.minimisers import FIRE, LBFGS, zero_cell_force
+from upscale.engine.minimisers import FIRE, LBFGS
+from upscale.engine.array_minimisers import zero_cell_force
 from upscale.engine.simulation import Simulation
 from upscale.experiments.protocols import Specimen
 

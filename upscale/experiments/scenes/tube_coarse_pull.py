@@ -106,7 +106,7 @@ def zero_stress_lattice(cell, P_f):
     """(lam_t, lam_z, shift (3,)) of the unstressed uniform lattice of a particle's cell
     (gam = 0; all five minimise the energy per atom; Newton's method, gtol 1e-12 eV per
     atom, BFGS if it fails): the old scene's ``uniform_lattice(None)``."""
-    from upscale.engine.minimisers import bfgs, newton  # noqa: PLC0415
+    from upscale.engine.array_minimisers import bfgs, newton  # noqa: PLC0415
 
     def fun(v):
         e, g = cell.energy(np.array([v[0], 0.0, v[1], v[2], v[3], v[4]]), P_f)

@@ -29,7 +29,7 @@ import types
 
 import numpy as np
 
-from upscale.engine.minimisers import bfgs, newton
+from upscale.engine.array_minimisers import bfgs, newton
 from upscale.models.dcbr.coupling import Coupling
 from upscale.models.dcbr.tube import CoarseTube
 
@@ -39,7 +39,7 @@ __all__ = ["GhostLoad", "uniform_lattice"]
 def uniform_lattice(cell, P_f, lam_z: float):
     """(lam_t, shift (3,)) of the particle lattice relaxed at axial stretch ``lam_z``
     (gam = 0; lam_t and the sublattice shift minimise the energy per atom), by Newton's
-    method (:func:`upscale.engine.minimisers.newton`, gtol 1e-12 eV per atom; BFGS if it
+    method (:func:`upscale.engine.array_minimisers.newton`, gtol 1e-12 eV per atom; BFGS if it
     fails), as the validated tube."""
     def fun(v):
         e, g = cell.energy(np.array([v[0], 0.0, lam_z, v[1], v[2], v[3]]), P_f)

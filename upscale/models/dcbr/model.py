@@ -351,7 +351,7 @@ class DCBRModel(Model):
         t.relax_shifts(yp, d, self.Lz, self.shift_gtol)
         if self.coupling is None:
             return
-        from upscale.engine.minimisers import lbfgs_b  # noqa: PLC0415
+        from upscale.engine.array_minimisers import lbfgs_b  # noqa: PLC0415
 
         def fun(v):
             E, _, gd, _ = self.evaluate(y, v.reshape(-1, 3))
