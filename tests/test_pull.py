@@ -71,7 +71,6 @@ def test_seeds_are_means_of_single_runs(tube):
 
 @pytest.mark.parametrize("kw, word", [
     (dict(seeds=0), "seeds=0"),
-    (dict(model="dcbr", protocol="dynamic", defects="sw@0.5@0"), "quasi-static protocol"),
     (dict(model="dcbr", load="compression"), "model='dcbr' runs"),
     (dict(model="atomistic", protocol="dynamic", load="torsion"), "load='torsion'"),
 ])

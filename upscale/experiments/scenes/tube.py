@@ -383,10 +383,7 @@ def _run_dcbr(atoms, proto, coarsening, potential, show, ck=None) -> dict:
         vac, placed = {"n": 4}, []  # (the seed's vacancy, placed through `defects`)
     if ch is None or L is None or placed or (vac and vac.get("n") != 4):
         if isinstance(proto, Dynamic):
-            raise ValueError("model='dcbr' pulls dynamically a pristine tube of "
-                             "upscale.build.swcnt or the seed's tube with one 4-atom vacancy; "
-                             "any other structure runs the quasi-static protocol (or use "
-                             "model='atomistic' or 'lammps')")
+            return _pull_coarse(atoms, proto, coarsening, potential, show, ck)
         return _ramp_coarse(atoms, proto, coarsening, potential, show)
     n, m = ch
     if isinstance(proto, Dynamic):
@@ -427,6 +424,28 @@ def _ramp_coarse(atoms, proto, coarsening, potential, show) -> dict:
             "axis": tube.centre[:2], "radius_A": tube.radius, "dof": 6 * tube.model.n,
             "atoms": len(atoms), "particles": d["particles"],
             "minimisations": tube.minimisations, "unconverged": tube.unconverged}
+
+
+def _pull_coarse(atoms, proto, coarsening, potential, show, ck=None) -> dict:
+    """Any tube's dynamic pull on :class:`~upscale.models.dcbr.model.DCBRModel`
+    (:func:`~upscale.experiments.scenes.tube_coarse_pull.coarse_dynamic_tension`: the tube
+    opened, atomistic bands across the grip planes and regions at its defects)."""
+    from upscale.experiments.scenes.tube_coarse_pull import coarse_dynamic_tension
+
+    r = coarse_dynamic_tension(
+        atoms, coarsening, grip=proto.grip, speed=proto.speed, dt=proto.dt,
+        sample=proto.sample_every, temperature=proto.temperature, tdamp=1e3 * proto.tau,
+        seed=proto.seed, max_strain=proto.maximum, potential=potential,
+        progress=(lambda rec: show(rec["load"], rec["response"])) if show else None,
+        **({"checkpoint": ck["path"], "checkpoint_every": ck["every"], "resume": ck["resume"]}
+           if ck else {}))
+    c, d = r["curve"], r["describe"]
+    return {"curve": {"load": np.asarray(c["strain"]), "response": np.asarray(c["stress_GPa"]),
+                      "time_ps": np.asarray(c["time_ps"])},
+            "x0": r["x0_rows"], "damage_steps": [np.asarray(r["damage"], float)],
+            "axis": np.asarray(r["x0_rows"])[:, :2].mean(0), "radius_A": r["radius_relaxed_A"],
+            "dof": 6 * len(r["x0_rows"]), "atoms": len(atoms), "particles": d["particles"],
+            "steps": r["steps"], "blowup_after_failure": r["blowup_after_failure"]}
 
 
 def _is_seed_vacancy(atoms, chirality, length) -> bool:

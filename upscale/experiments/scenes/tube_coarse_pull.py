@@ -486,8 +486,8 @@ def coarse_dynamic_tension(atoms, coarsening: float = 2.0, *, grip: float = 50.0
         distance), ``crack`` (the same of the rows with damage >= 0.5 at the end),
         ``gauge_length_A``, ``radius_relaxed_A``,
         ``area_A2``, ``grip_planes_A``, ``model`` (``DCBRModel.describe()`` at the end),
-        ``positions`` (every atom at the end, (K, 3) Å), ``damage`` (per row, :meth:`CoarsePull.
-        damage`),
+        ``positions`` (every atom at the end, (K, 3) Å), ``x0_rows`` (the rows' reference
+        positions, (n, 3) Å), ``damage`` (per row, :meth:`CoarsePull.damage`),
         ``blowup_after_failure``, ``setup_s``, ``dynamics_s``.
     """
     from upscale.analysis.stress import curve_metrics  # noqa: PLC0415
@@ -534,6 +534,7 @@ def coarse_dynamic_tension(atoms, coarsening: float = 2.0, *, grip: float = 50.0
     except ValueError as e:
         res["metrics"] = f"none: {e}"
     res["positions"] = m.atom_positions(sim.state)
+    res["x0_rows"] = np.array(sim.state.x0, copy=True)
     res["damage"] = spec.damage(sim.state)
     cracked = res["damage"] >= 0.5
     res["crack"] = spec.where(sim.state, cracked) if cracked.any() else None
