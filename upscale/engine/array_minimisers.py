@@ -271,14 +271,16 @@ def first_lower(starts, minimise, energy, below: float, *, accept_any: bool = Fa
 
 
 def zero_cell_force(relax, L: float, *, tol: float, max_iter: int = 12,
-                    first_step: float = 1e-4):
+                    first_step: float = 1e-4, max_step: float = 0.1):
     """Cell length at zero cell force by a secant iteration.
 
     ``relax(L) -> (result, dE/dL)`` minimises the other unknowns at cell length ``L``. The
     first step is ``L (1 -+ first_step)`` down the force, then
     ``L_new = L2 - g2 (L2 - L1) / (g2 - g1)`` until ``|dE/dL| < tol`` or ``max_iter``
-    relaxations. Returns ``(last result, L, relaxations)``: ``L`` is the length of the last
-    result if it converged, else the next secant estimate.
+    relaxations. A step is at most ``max_step`` L2 long, so that a noisy cell force (the
+    relaxations at two lengths ending in different states) cannot throw the length far, or
+    below zero. Returns ``(last result, L, relaxations)``: ``L``
+    is the length of the last result if it converged, else the next secant estimate.
     """
     hist = []
     out = None
@@ -292,5 +294,6 @@ def zero_cell_force(relax, L: float, *, tol: float, max_iter: int = 12,
         else:
             (L1, g1), (L2, g2) = hist[-2], hist[-1]
             Lnew = L2 - g2 * (L2 - L1) / (g2 - g1)
+            Lnew = min(max(Lnew, L2 * (1.0 - max_step)), L2 * (1.0 + max_step))
         L = Lnew
     return out, L, len(hist)
