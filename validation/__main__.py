@@ -9,7 +9,7 @@ import time
 import traceback
 from pathlib import Path
 
-from validation.registry import discover
+from validation.registry import discover, is_rows, table
 
 PROG = "python -m validation"
 
@@ -53,6 +53,11 @@ def run_case(c, args, argv) -> int:
     result.setdefault("case", c.name)
     result.setdefault("quick", bool(args.quick))
     result["case_wall_s"] = round(time.perf_counter() - t0, 3)
+    for key, rows in result.items():  # every table the case returns, its scalar columns
+        if is_rows(rows):
+            cols = [k for k in dict.fromkeys(k for r in rows for k in r)
+                    if not isinstance(rows[0].get(k), (list, dict))]
+            print(f"{key}:\n{table(rows, cols, floatfmt='.4g')}")
     write_json(args.outdir / f"{c.name}.json", {"result": result, "versions": versions()})
     if args.record:
         from validation.baseline import record

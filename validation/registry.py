@@ -11,14 +11,16 @@ on the last line of output; ``--record`` also writes them as the case's baseline
 from __future__ import annotations
 
 import argparse
+import contextlib
 import dataclasses
 import importlib
 import pkgutil
+from pathlib import Path
 from typing import Callable
 
 from upscale.io import text_table
 
-__all__ = ["case", "CASES", "Case", "table", "discover"]
+__all__ = ["case", "CASES", "Case", "table", "show", "figure", "is_rows", "discover"]
 
 
 @dataclasses.dataclass
@@ -72,3 +74,40 @@ def discover() -> dict[str, Case]:
 
 
 table = text_table  # one formatter for the cases and the commands (upscale.io)
+
+
+def is_rows(v) -> bool:
+    """Whether a figure is a table: a non-empty list of dicts (the driver prints those)."""
+    return isinstance(v, list) and bool(v) and all(isinstance(r, dict) for r in v)
+
+
+def show(rows: list[dict], title: str | None = None, cols=None, fmt: str = ".4g") -> None:
+    """Print ``title`` and ``rows`` as a text table (for tables a case does not return)."""
+    if title:
+        print(title)
+    print(table(rows, cols, fmt), flush=True)
+
+
+@contextlib.contextmanager
+def figure(path, nrows: int = 1, ncols: int = 1, figsize=(6, 4), dpi: int = 130, **kw):
+    """``(fig, axes)`` of a matplotlib (Agg) figure, laid out and saved to ``path`` on exit."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(nrows, ncols, figsize=figsize, **kw)
+    try:
+        yield fig, axes
+        fig.tight_layout()
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        fig.savefig(path, dpi=dpi)
+    finally:
+        plt.close(fig)
+
+
+def threads(n: int | None = 1) -> int:
+    """Set the engine's numba threads (None: all); returns the number now in use."""
+    from upscale.engine.kernels import set_threads
+
+    return set_threads(n)

@@ -7,6 +7,8 @@ import base64
 import html
 import time
 
+from validation.registry import is_rows
+
 CSS = """
 body{font-family:system-ui,sans-serif;margin:2em auto;max-width:72em;color:#222;line-height:1.35}
 h1{font-size:1.5em}h2{font-size:1.15em;margin:0}
@@ -69,11 +71,7 @@ def figure_rows(e: dict) -> list[tuple[str, str, str]]:
     keys = list(dict.fromkeys([*now, *base]))
     skip = {"case", "pass"}
     return [(k, fmt(now[k]) if k in now else "", fmt(base[k]) if k in base else "")
-            for k in keys if k not in skip and not _is_rows(now.get(k, base.get(k)))]
-
-
-def _is_rows(v) -> bool:
-    return isinstance(v, list) and bool(v) and all(isinstance(r, dict) for r in v)
+            for k in keys if k not in skip and not is_rows(now.get(k, base.get(k)))]
 
 
 def rows_html(name: str, rows: list[dict]) -> str:
@@ -123,7 +121,7 @@ def case_html(e: dict) -> str:
                      + "</table>")
     for label, src in (("this run", e["run"]), ("baseline", e["baseline"])):
         for k, v in ((src or {}).get("figures") or {}).items():
-            if _is_rows(v):
+            if is_rows(v):
                 parts.append(rows_html(f"{k}, {label}", v))
     if e["plots"]:
         newest = max(p.stat().st_mtime for p in e["plots"])
