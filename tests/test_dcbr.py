@@ -186,31 +186,6 @@ def test_lattice_stability_of_strained_armchair_tube():
     assert not t.stability.stable(states[0.26])
 
 
-def test_ase_calculator_forces_are_the_energy_gradient():
-    from upscale.calculators import DCBRCalculator, dcbr_atoms
-
-    m = DCBRTube(10, 10, 20.0, coarsening=2, stability=False)
-    a = dcbr_atoms(m)
-    a.calc = DCBRCalculator(m)
-    # ideal tube: only the sublattice shift relaxes, the same as the two-atom cell alone
-    e_rel, _ = m.lattice.relaxed(1.0, 0.0, 1.0, m.p)
-    assert abs(a.get_potential_energy() - m.n_atoms * (e_rel - m.e0)) < 1e-8
-    rng = np.random.default_rng(0)
-    a.positions += 0.02 * rng.standard_normal(a.positions.shape)
-    F = a.get_forces()
-    h = 1e-5
-    for j, k in [(0, 0), (5, 2)]:
-        p = a.get_positions()
-        p[j, k] += h
-        a.set_positions(p)
-        Ep = a.get_potential_energy()
-        p[j, k] -= 2 * h
-        a.set_positions(p)
-        Em = a.get_potential_energy()
-        assert abs(F[j, k] + (Ep - Em) / (2 * h)) < 1e-4
-    assert abs(a.get_potential_energies().sum() - a.get_potential_energy()) < 1e-9
-
-
 # ---------------------------------------------------------------- zero-energy-mode control
 def _cyl_map(t, lt, gm, lz):
     """Uniform cylindrical map s' = lt s + gm z, z' = lz z, radius' = lt R0 of the grid."""

@@ -1,14 +1,22 @@
-"""ASE calculators of the coarse models.
+"""An ASE calculator of the coarse tube model.
 
-:class:`DCBRCalculator` wraps :class:`upscale.models.dcbr.DCBRTube`: the ``Atoms`` are the
-coarse particles (one per lattice patch, mass = its share of atoms x 12.011 amu), periodic
-along z with the cell length as the tube length. At every new configuration the sublattice
-shifts (internal, massless degrees of freedom) are relaxed at fixed particle positions,
-so the energy is the DCBR energy and the forces are its exact negative gradient (envelope
-theorem). Units: eV, Å. The cell is rank-deficient in x, y (a tube in vacuum), so no
-stress is offered; the axial force is ``calc.axial_force`` (eV/Å, dE/dLz).
+:class:`DCBRCalculator` wraps :class:`upscale.models.dcbr.model.DCBRModel` (with
+``shifts="relaxed"``): the ``Atoms`` are the model's rows, its non-slave coarse particles
+(mass: max(w_c, N_c / 2) carbon masses) then the free atoms of its atomistic regions (one
+carbon mass each), as :func:`dcbr_atoms` builds them. At every new configuration the
+sublattice shifts delta (massless internal degrees of freedom) are relaxed at fixed rows,
+warm started from the last ones, so the energy is the relaxed coarse energy
 
-    model = DCBRTube(10, 10, 100.0, coarsening=2)
+    E*(y) = min_delta E(y, delta)
+
+and the forces its exact negative gradient, -dE*/dy = -dE/dy at the relaxed shifts (the
+envelope theorem: dE/d delta = 0 there). A tube periodic along z takes its period from the
+cell's third vector (``cell[2, 2]``, Å); ``calc.axial_force`` is dE*/dL (eV/Å) at fixed
+rows (with a ghost-force load, at the load prepared for this period: the load's own
+dependence on L is not differentiated, :mod:`upscale.models.dcbr.ghost`). No stress is
+offered (a tube in vacuum has no volume). Units: eV, Å.
+
+    model = DCBRModel(vacancy(swcnt(10, 10, 60.0)), 2.0)
     atoms = dcbr_atoms(model)
     atoms.calc = DCBRCalculator(model)
     atoms.get_potential_energy(), atoms.get_forces()
@@ -18,67 +26,71 @@ from __future__ import annotations
 import numpy as np
 from ase import Atoms
 from ase.calculators.calculator import Calculator, all_changes
-from scipy.optimize import minimize
-
-from upscale.constants import CARBON_MASS_AMU
 
 __all__ = ["DCBRCalculator", "dcbr_atoms"]
 
-CARBON_MASS = CARBON_MASS_AMU  # amu
 
-
-def dcbr_atoms(model, vacuum: float = 10.0) -> Atoms:
-    """The coarse particles of ``model`` as ASE Atoms (axis at the box centre, pbc along z)."""
-    side = 2 * (model.lattice.R0 + vacuum)
-    atoms = Atoms("C" * model.N, positions=model.x0 + [side / 2, side / 2, 0.0],
-                  cell=[side, side, model.L], pbc=(False, False, True))
-    atoms.set_masses(model.natoms_n * CARBON_MASS)
-    atoms.info["axis_xy"] = (side / 2, side / 2)
-    atoms.info["atoms_per_particle"] = float(model.natoms_n[0])
-    return atoms
+def dcbr_atoms(model) -> Atoms:
+    """The rows of ``model`` (a :class:`~upscale.models.dcbr.model.DCBRModel`) at its
+    reference as ASE Atoms: positions ``model.x0`` (Å), masses in amu, the cell and
+    periodicity of the atoms the model was built from (a periodic tube's period
+    ``model.Lz`` on the cell's third vector); ``info["rows"]``: the particle rows then
+    the free atoms' count."""
+    a = Atoms("C" * model.n, positions=model.x0, cell=model.atoms.cell.copy(),
+              pbc=model.atoms.pbc.copy())
+    if model.Lz is not None:
+        cell = np.array(a.cell)
+        cell[2] = [0.0, 0.0, model.Lz]
+        a.set_cell(cell, scale_atoms=False)
+    a.set_masses(model.masses() * model.unit)
+    nf = 0 if model.coupling is None else model.coupling.nf
+    a.info["rows"] = {"particles": model.n - nf, "atoms": nf}
+    return a
 
 
 class DCBRCalculator(Calculator):
-    """ASE calculator of the DCBR tube (see module docstring).
+    """ASE calculator of a coarse tube (module docstring).
 
     Parameters
     ----------
-    model : upscale.models.dcbr.DCBRTube
-    gtol : float
-        Convergence of the shift relaxation, max |dE/d shift| in eV/Å.
+    model : upscale.models.dcbr.model.DCBRModel
+        Built with ``shifts="relaxed"`` (the default); it is called with the Atoms'
+        positions as its rows (the calculator keeps its own state: shifts, links).
     """
 
-    implemented_properties = ["energy", "free_energy", "forces", "energies"]
+    implemented_properties = ["energy", "free_energy", "forces"]
     default_parameters: dict = {}
 
-    def __init__(self, model, gtol: float = 1e-8, **kwargs):
+    def __init__(self, model, **kwargs):
+        if getattr(model, "shifts", None) != "relaxed":
+            raise ValueError(f"DCBRCalculator of a model with shifts="
+                             f"{getattr(model, 'shifts', None)!r}; valid: a DCBRModel with "
+                             "shifts='relaxed' (massless shifts relaxed at every call)")
         super().__init__(**kwargs)
+        from upscale.engine.state import State  # noqa: PLC0415
+
         self.model = model
-        self.gtol = gtol
-        self.delta = np.zeros((model.N, 3))
+        self.state = State.reference(np.array(model.x0, dtype=float), 0)
+        model.init_state(self.state)
         self.axial_force = None
 
     def calculate(self, atoms=None, properties=("energy",), system_changes=all_changes):
         super().calculate(atoms, properties, system_changes)
         m = self.model
-        if len(self.atoms) != m.N:
-            raise ValueError(f"the atoms have {len(self.atoms)} particles, the DCBR model {m.N}")
-        cx, cy = self.atoms.info.get("axis_xy", (0.0, 0.0))
-        y = self.atoms.get_positions() - [cx, cy, 0.0]
-        Lz = float(self.atoms.cell[2, 2])
-        N = m.N
-
-        def fun(dv):
-            E, gy, gd, gL = m.energy_and_gradient(y, dv.reshape(N, 3), Lz)
-            return E, gd.ravel()
-
-        if m.relax_shift:
-            res = minimize(fun, self.delta.ravel(), jac=True, method="L-BFGS-B",
-                           options={"gtol": self.gtol, "ftol": 1e-16, "maxiter": 2000})
-            self.delta = res.x.reshape(N, 3)
-        E, gy, gd, gL = m.energy_and_gradient(y, self.delta, Lz)
-        self.axial_force = float(gL)
+        if len(self.atoms) != m.n:
+            raise ValueError(f"the Atoms have {len(self.atoms)} rows; valid: the model's "
+                             f"{m.n} (its non-slave particles, then its free atoms: "
+                             "dcbr_atoms(model))")
+        if m.Lz is not None:
+            L = float(self.atoms.cell[2, 2])
+            if L != m.Lz:
+                m.set_cell(L)
+        st = self.state
+        st.y = np.array(self.atoms.get_positions(), dtype=float)
+        E = m.energy(st)  # (the shifts relaxed in st.extra, warm started)
+        f = np.zeros_like(st.y)
+        m.add_force(st, f)
+        self.axial_force = m.cell_force(st) if m.Lz is not None else None
         self.results["energy"] = float(E)
         self.results["free_energy"] = float(E)
-        self.results["forces"] = -gy.copy()
-        self.results["energies"] = m.natoms_n * (m._e_n - m.e0)
+        self.results["forces"] = f
