@@ -158,6 +158,8 @@ import scipy.sparse as sp
 from upscale.models import register
 from upscale.models.base import Model, Needs
 from upscale.models.gain import gain_coefficients, gain_coefficients_quadratic, kappa
+from upscale.models.unified_kernels import (deformation_kernel, failure_index_kernel, normal_index_kernel,
+                                            residual_2d, residual_kernel, stress_kernel, tangent_kernel, two_hop_pattern)
 
 __all__ = ["UnifiedModel", "elastic_tensor", "orthotropic_tensor", "critical_energy_release_rate",
            "disc_average_factor", "lattice_tip_factor", "front_pairs", "crack_front", "tip_disc_stress", "williams_angular"]
@@ -507,307 +509,6 @@ def _tensor4(Cv, dim):
     return C4
 
 
-# ---------------------------------------------------------------------------- kernels
-@numba.njit(parallel=True, cache=True)
-def deformation_kernel(y_nc, offsets, neighbors, coef_bk, dim, F_nij):
-    """F_c = sum_b (y_j - y_c) (x) a_b (eq. 6.19 with G = F - I); mutates ``F_nij``."""
-    n = offsets.shape[0] - 1
-    for c in numba.prange(n):
-        for i in range(dim):
-            for a in range(dim):
-                F_nij[c, i, a] = 0.0
-        for b in range(offsets[c], offsets[c + 1]):
-            j = neighbors[b]
-            for i in range(dim):
-                d = y_nc[j, i] - y_nc[c, i]
-                for a in range(dim):
-                    F_nij[c, i, a] += d * coef_bk[b, a]
-    return F_nij
-
-
-@numba.njit(parallel=True, cache=True)
-def stress_kernel(F_nij, C4, alive_n, printed, dim, E_nij, S_nij, P_nij, W_n):
-    """Green strain (6.24), PK2 stress S = C:E (6.23), energy density W = S:E/2 (6.26) and
-    the force stress P (F S, or S F^T for the printed 6.22); dead particles get zeros."""
-    n = F_nij.shape[0]
-    for c in numba.prange(n):
-        for i in range(dim):
-            for a in range(dim):
-                E_nij[c, i, a] = 0.0
-                S_nij[c, i, a] = 0.0
-                P_nij[c, i, a] = 0.0
-        W_n[c] = 0.0
-        if not alive_n[c]:
-            continue
-        for a in range(dim):
-            for b in range(dim):
-                s = 0.0
-                for k in range(dim):
-                    s += F_nij[c, k, a] * F_nij[c, k, b]
-                E_nij[c, a, b] = 0.5 * (s - (1.0 if a == b else 0.0))
-        w = 0.0
-        for a in range(dim):
-            for b in range(dim):
-                s = 0.0
-                for k in range(dim):
-                    for m in range(dim):
-                        s += C4[a, b, k, m] * E_nij[c, k, m]
-                S_nij[c, a, b] = s
-                w += s * E_nij[c, a, b]
-        W_n[c] = 0.5 * w
-        for i in range(dim):
-            for a in range(dim):
-                s = 0.0
-                for k in range(dim):
-                    if printed:
-                        s += S_nij[c, i, k] * F_nij[c, a, k]
-                    else:
-                        s += F_nij[c, i, k] * S_nij[c, k, a]
-                P_nij[c, i, a] = s
-    return W_n
-
-
-@numba.njit(parallel=True, cache=True)
-def force_kernel(P_nij, volume_n, offsets, neighbors, reverse_b, coef_bk, dim, out_nc):
-    """Adds f_i = sum_{b in row i} [V_i P_i a_b - V_j P_j a_b'] to ``out_nc`` (N, 3), N.
-    Each particle sums only its own row (b' = reverse bond, in row j): no races."""
-    n = offsets.shape[0] - 1
-    for i in numba.prange(n):
-        for b in range(offsets[i], offsets[i + 1]):
-            j = neighbors[b]
-            r = reverse_b[b]
-            for k in range(dim):
-                s = 0.0
-                for a in range(dim):
-                    s += volume_n[i] * P_nij[i, k, a] * coef_bk[b, a] - volume_n[j] * P_nij[j, k, a] * coef_bk[r, a]
-                out_nc[i, k] += s
-    return out_nc
-
-
-@numba.njit(parallel=True, cache=True)
-def failure_index_kernel(y_nc, x_nc, offsets, neighbors, W_n, intact_b, no_fail_n, factor, out_b):
-    """Failure index G_b / G_c = factor (e_c + e_n) per directed bond, 0 for broken bonds,
-    bonds in compression and bonds touching ``no_fail``; ``factor = 2 r_s / (3 pi G_c)``."""
-    n = offsets.shape[0] - 1
-    for c in numba.prange(n):
-        for b in range(offsets[c], offsets[c + 1]):
-            j = neighbors[b]
-            out_b[b] = 0.0
-            if not intact_b[b] or no_fail_n[c] or no_fail_n[j]:
-                continue
-            l2 = 0.0
-            l02 = 0.0
-            for k in range(3):
-                d = y_nc[j, k] - y_nc[c, k]
-                d0 = x_nc[j, k] - x_nc[c, k]
-                l2 += d * d
-                l02 += d0 * d0
-            if l2 <= l02:
-                continue
-            out_b[b] = factor * (W_n[c] + W_n[j])
-    return out_b
-
-
-@numba.njit(parallel=True, cache=True)
-def normal_index_kernel(xi_bc, offsets, neighbors, Sbar_nij, intact_b, no_fail_n, dim, inv_sc, out_b):
-    """Failure index (s_b / sigma_c)^2 per directed bond, s_b = n_b . (S_bar_c + S_bar_j)/2 .
-    n_b the averaged stress resolved on the unit reference bond vector n_b; 0 for broken
-    bonds, bonds in compression (s_b <= 0) and bonds touching ``no_fail``;
-    ``inv_sc = 1 / sigma_c`` (1/Pa)."""
-    n = offsets.shape[0] - 1
-    for c in numba.prange(n):
-        for b in range(offsets[c], offsets[c + 1]):
-            j = neighbors[b]
-            out_b[b] = 0.0
-            if not intact_b[b] or no_fail_n[c] or no_fail_n[j]:
-                continue
-            l2 = 0.0
-            for k in range(dim):
-                l2 += xi_bc[b, k] * xi_bc[b, k]
-            sn = 0.0
-            for k in range(dim):
-                for m in range(dim):
-                    sn += xi_bc[b, k] * 0.5 * (Sbar_nij[c, k, m] + Sbar_nij[j, k, m]) * xi_bc[b, m]
-            sn /= l2
-            if sn <= 0.0:
-                continue
-            sn *= inv_sc
-            out_b[b] = sn * sn
-    return out_b
-
-
-@numba.njit(parallel=True, cache=True)
-def penalty_kernel(y_nc, xi_bc, offsets, neighbors, reverse_b, coef_bk, F_nij, kv_n, w_b, ok_b, dim,
-                   g_bc, Q_nij, out_nc):
-    """Adds the force of the bond penalty U_s = sum_c kv_c sum_b w_b |z_b|^2 / 2,
-    z_b = (y_j - y_c) - F_c xi_b (kv_c = c_s E V_c / sum_b w_b |xi_b|^2), to ``out_nc``:
-
-        f_i = sum_{b in row i} [g_b - g_b' + Q_j a_b'],  g_b = kv_c w_b z_b,
-        Q_c = sum_b g_b (x) xi_b,
-
-    (b' the reverse bond, j its owner); two passes over particles, no races.
-    Returns the penalty energy (J). Mutates the work arrays ``g_bc``, ``Q_nij``."""
-    n = offsets.shape[0] - 1
-    en = np.zeros(n)
-    for c in numba.prange(n):
-        for i in range(dim):
-            for a in range(dim):
-                Q_nij[c, i, a] = 0.0
-        for b in range(offsets[c], offsets[c + 1]):
-            for i in range(dim):
-                g_bc[b, i] = 0.0
-            if not ok_b[b]:
-                continue
-            j = neighbors[b]
-            for i in range(dim):
-                z = y_nc[j, i] - y_nc[c, i]
-                for a in range(dim):
-                    z -= F_nij[c, i, a] * xi_bc[b, a]
-                g = kv_n[c] * w_b[b] * z
-                g_bc[b, i] = g
-                en[c] += 0.5 * g * z
-                for a in range(dim):
-                    Q_nij[c, i, a] += g * xi_bc[b, a]
-    for i in numba.prange(n):
-        for b in range(offsets[i], offsets[i + 1]):
-            j = neighbors[b]
-            r = reverse_b[b]
-            for k in range(dim):
-                s = g_bc[b, k] - g_bc[r, k]
-                for a in range(dim):
-                    s += Q_nij[j, k, a] * coef_bk[r, a]
-                out_nc[i, k] += s
-    return en.sum()
-
-
-@numba.njit(cache=True)
-def two_hop_pattern(offsets, neighbors, n):
-    """Particles coupled by the tangent: for each p every q in {c} + H_c of some
-    c in {p} + H_p (families symmetric). Returns (ptr (n+1,), q sorted per row) int64."""
-    mark = np.full(n, -1, np.int64)
-    ptr = np.zeros(n + 1, np.int64)
-    for rnd in range(2):
-        q_p = np.empty(ptr[n] if rnd else 0, np.int64)
-        mark[:] = -1
-        for p in range(n):
-            k = 0
-            for t in range(offsets[p], offsets[p + 1] + 1):
-                c = p if t == offsets[p + 1] else neighbors[t]
-                for u in range(offsets[c], offsets[c + 1] + 1):
-                    q = c if u == offsets[c + 1] else neighbors[u]
-                    if mark[q] != p:
-                        mark[q] = p
-                        if rnd:
-                            q_p[ptr[p] + k] = q
-                        k += 1
-            if rnd:
-                q_p[ptr[p]:ptr[p] + k] = np.sort(q_p[ptr[p]:ptr[p] + k])
-            else:
-                ptr[p + 1] = ptr[p] + k
-    return ptr, q_p
-
-
-@numba.njit(cache=True)
-def tangent_kernel(F_nij, S_nij, C4, alive_n, volume_n, offsets, neighbors, coef_bk, xi_bc, w_b, ok_b, kv_n,
-                   ptr, q_p, dim, data):
-    """Adds K = -dF_int/dy to the CSR values ``data`` of the pattern of :func:`two_hop_pattern`
-    (row 3p + i, i < dim, holds columns 3q + k, q in ``q_p[ptr[p]:ptr[p+1]]``, k < dim).
-
-    Per particle c with members m_0 = c, m_1+t = the neighbour of its t-th bond:
-    the gain part V_c g_P . dP/dF . g_Q with dF_c/dy_P = g_P (g_1+t = a_b,
-    g_0 = -sum_b a_b) and dP_ia/dF_jb = delta_ij S_ab + F_ic C_cakb F_jk (energy form);
-    the penalty part delta_ik kv_c sum_b w_b e_bP e_bQ over the bonds b of c with
-    ``ok_b``, z_b = sum_P e_bP y_P (e_b,1+t(b) = 1, e_b0 = -1, and -(a_b' . xi_b) at
-    1 + t(b'), +(a_b' . xi_b) at 0). Serial: the members of different particles overlap."""
-    n = offsets.shape[0] - 1
-    A = np.zeros((dim, dim, dim, dim))
-    for c in range(n):
-        base = offsets[c]
-        M = offsets[c + 1] - base + 1
-        g = np.zeros((M, dim))
-        for t in range(M - 1):
-            for a in range(dim):
-                g[1 + t, a] = coef_bk[base + t, a]
-                g[0, a] -= coef_bk[base + t, a]
-        A[:] = 0.0
-        if alive_n[c]:
-            for i in range(dim):
-                for a in range(dim):
-                    for j in range(dim):
-                        for b in range(dim):
-                            s = S_nij[c, a, b] if i == j else 0.0
-                            for cc in range(dim):
-                                for k in range(dim):
-                                    s += F_nij[c, i, cc] * C4[cc, a, k, b] * F_nij[c, j, k]
-                            A[i, a, j, b] = volume_n[c] * s
-        T = np.zeros((M, dim, dim, dim))
-        for P in range(M):
-            for i in range(dim):
-                for a in range(dim):
-                    if g[P, a] == 0.0:
-                        continue
-                    for j in range(dim):
-                        for b in range(dim):
-                            T[P, i, j, b] += g[P, a] * A[i, a, j, b]
-        H = np.zeros((M, M))
-        if kv_n[c] > 0.0 and M > 1:
-            # rows b of X: z_b = sum_t X[b, t] (y_t - y_c), X = I - (a_t . xi_b); H over the
-            # neighbours is X^T diag(kv w ok) X, the centre's row and column minus its sums
-            m1 = M - 1
-            X = np.zeros((m1, m1))
-            Xw = np.zeros((m1, m1))
-            for t in range(m1):
-                b = base + t
-                if not ok_b[b]:
-                    continue
-                wt = kv_n[c] * w_b[b]
-                for t2 in range(m1):
-                    mv = 0.0
-                    for a in range(dim):
-                        mv += coef_bk[base + t2, a] * xi_bc[b, a]
-                    x = (1.0 if t2 == t else 0.0) - mv
-                    X[t, t2] = x
-                    Xw[t, t2] = wt * x
-            for P in range(m1):
-                for Q in range(P, m1):
-                    h = 0.0
-                    for t in range(m1):
-                        h += Xw[t, P] * X[t, Q]
-                    H[1 + P, 1 + Q] = h
-                    H[1 + Q, 1 + P] = h
-            tot = 0.0
-            for P in range(m1):
-                rs = 0.0
-                for Q in range(m1):
-                    rs += H[1 + P, 1 + Q]
-                H[1 + P, 0] = -rs
-                H[0, 1 + P] = -rs
-                tot += rs
-            H[0, 0] = tot
-        for P in range(M):
-            p = c if P == 0 else neighbors[base + P - 1]
-            lo0, hi0 = ptr[p], ptr[p + 1]
-            rlen = hi0 - lo0
-            for Q in range(M):
-                q = c if Q == 0 else neighbors[base + Q - 1]
-                lo, hi = lo0, hi0
-                while lo < hi:
-                    mid = (lo + hi) // 2
-                    if q_p[mid] < q:
-                        lo = mid + 1
-                    else:
-                        hi = mid
-                s = lo - lo0
-                for i in range(dim):
-                    row0 = dim * dim * lo0 + i * dim * rlen + dim * s
-                    for k in range(dim):
-                        v = H[P, Q] if i == k else 0.0
-                        for b in range(dim):
-                            v += T[P, i, k, b] * g[Q, b]
-                        data[row0 + k] += v
-    return data
-
-
 # ---------------------------------------------------------------------------- model
 class UnifiedModel(Model):
     """Gain-matrix nonlocal continuum with body-based forces (seed 004 ch. 6).
@@ -1048,20 +749,25 @@ class UnifiedModel(Model):
 
     # ------------------------------------------------------------------ forces and energy
     def add_force(self, state, out) -> None:
-        F, E, S, P, W = self.continuum_fields(state)
-        force_kernel(P, self.system.volume, self.family.offsets, self.family.neighbors,
-                     self._reverse, self.coef, self.dim, out)
-        if self.stabilisation > 0:
-            self._penalty_force(state, F, out)
+        self._residual(state, out)
 
-    def _penalty_force(self, state, F, out):
-        """Adds the penalty force to ``out``; returns the penalty energy (J)."""
-        fam = self.family
+    def _residual(self, state, out):
+        """Adds the force of the gain model and the penalty to ``out`` (N, 3) by the fused
+        :func:`~upscale.models.unified_kernels.residual_kernel`; returns the energy (J)."""
+        self._sync(state)
+        fam, n, d = self.family, self.system.n, self.dim
+        if getattr(self, "_work", None) is None or self._work[-1].shape[0] != fam.nb:
+            self._work = ((np.empty((n, 4)), np.empty((n, 2))) if d == 2 else
+                          (np.empty((n, d, d)), np.empty((n, d, d)), np.empty((n, d, d)), np.empty((n, d)))) \
+                + (np.empty((fam.nb, d)),)
         kv, ok = self._penalty_weights()
-        g = np.empty((fam.nb, self.dim))
-        Q = np.empty((self.system.n, self.dim, self.dim))
-        return penalty_kernel(np.ascontiguousarray(state.y), self._xi, fam.offsets, fam.neighbors,
-                              self._reverse, self.coef, F, kv, self._w, ok, self.dim, g, Q, out)
+        if self.stabilisation <= 0:
+            kv = np.zeros(n)
+        args = (np.ascontiguousarray(state.y), fam.offsets, fam.neighbors, self._reverse, self.coef, self._xi,
+                self._w, ok, kv, self._C4, self.alive, self.system.volume, self.force_form == "printed")
+        if d == 2:
+            return residual_2d(*args, *self._work, out)
+        return residual_kernel(*args, d, *self._work, out)
 
     def energy_density(self, state) -> np.ndarray:
         """Strain energy density W_c = S:E/2 (J/m^3) of the gain model (penalty excluded)."""
@@ -1069,11 +775,7 @@ class UnifiedModel(Model):
 
     def energy(self, state) -> float:
         """Stored energy (J): sum_c V_c W_c plus the stabilisation energy."""
-        F, E, S, P, W = self.continuum_fields(state)
-        e = float(np.dot(W, self.system.volume))
-        if self.stabilisation > 0:
-            e += self._penalty_force(state, F, np.zeros((self.system.n, 3)))
-        return e
+        return float(self._residual(state, np.zeros((self.system.n, 3))))
 
     # ------------------------------------------------------------------ tangent
     def _tangent_pattern(self):
