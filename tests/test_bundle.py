@@ -3,7 +3,8 @@ energy's gradient, the per-tube failure bookkeeping, and bad input."""
 import numpy as np
 import pytest
 
-from upscale.experiments.scenes.bundle import BundleScene, TubeSpec, zero_stress_ratios
+from upscale.experiments.scenes.bundle import (BundleScene, TubeSpec, particle_rows,
+                                               zero_stress_ratios)
 from upscale.experiments.scenes.bundle_pull import tube_failures
 from upscale.models.tube_vdw import LumpedMap, TubeVdW
 
@@ -117,9 +118,10 @@ def test_bad_input():
 
 @pytest.mark.slow
 def test_mixed_bundle_vdw_and_chain_rule():
-    """Coarse outer tubes: the inter-tube energy through their reconstructed atoms is
-    within 1 % of the all-atomistic bundle's, and the vdW's generalised forces are minus
-    the energy's gradient (the chain rule through the coarse tube's map)."""
+    """A coarse outer tube (the new model, built from the tube's atoms): the inter-tube
+    energy through its reconstructed atoms is within 1 % of the all-atomistic bundle's, and
+    the vdW's generalised forces on its rows and shifts are minus the energy's gradient
+    (the chain rule through the coarse tube's map, DCBRModel.atom_forces)."""
     mixed = BundleScene.create((10, 10), 60.0, [TubeSpec("tersoff"), TubeSpec("dcbr", 2.0)],
                                ratios=RATIOS, grip=15.0)
     atom = BundleScene.create((10, 10), 60.0, [TubeSpec("tersoff")] * 2, ratios=RATIOS,
@@ -132,7 +134,12 @@ def test_mixed_bundle_vdw_and_chain_rule():
     key = "tube2/dcbr.delta"
     h = 1e-5
     checked = 0
-    for i in np.argsort(-np.abs(F[rows, 0]))[:3] + rows.start:
+    # the largest x force on a particle row and on a free-atom row (the grip bands, the
+    # open ends' regions), and the largest overall
+    nd = particle_rows(mixed.coarse[1][0])
+    fx = np.abs(F[rows, 0])
+    assert 0 < nd < len(fx)
+    for i in np.r_[np.argmax(fx[:nd]), nd + np.argmax(fx[nd:]), np.argmax(fx)] + rows.start:
         st = sm
         st.y[i, 0] += h
         ep = mixed.vdw.energy(st)
@@ -155,9 +162,9 @@ def test_mixed_bundle_vdw_and_chain_rule():
 def test_defect_centre_among_atomistic_tubes():
     """A coarse central tube with an atomistic region (dcbr-defect) beside an atomistic
     tube: without the vacancy its vdW energy is within 1 % of the all-atomistic pair's;
-    with it the coarse tube keeps the vacancy (4 atoms fewer) and its energy differs by
-    what the relaxed vacancy next to the neighbour changes (1.9 % on this 60 Å pair: the
-    atomistic side's vacancy is not relaxed)."""
+    with it the coarse tube keeps the vacancy (4 atoms fewer, found by the model and kept
+    atomistic) and its energy differs by what the relaxed vacancy next to the neighbour
+    changes (1.8 % on this 60 Å pair: the atomistic side's vacancy is not relaxed)."""
     for vac, tol in ((None, 0.01), (0, 0.03)):
         mixed = BundleScene.create((10, 10), 60.0, [TubeSpec("dcbr-defect", 2.0),
                                                     TubeSpec("tersoff")], ratios=RATIOS,
@@ -168,5 +175,6 @@ def test_defect_centre_among_atomistic_tubes():
         ea = atom.vdw.energy(atom.state_at_rest())
         assert abs(em - ea) < tol * abs(ea)
         assert mixed.maps[0].natoms == atom.maps[0].natoms
+        assert ("v4" in mixed.coarse[0][0].describe()["defects"]) == (vac == 0)
         assert mixed.dof < atom.dof
 

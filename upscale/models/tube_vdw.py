@@ -9,10 +9,11 @@ acts between the *atoms* of different bodies. Each body gives its atoms through 
 map (``positions(state)`` (n_a, 3) Å, ``pull_back(state, f_atoms, out, field_out)``):
 
 * :class:`AtomisticMap`: the body's particles are its atoms (identity; an atomistic tube);
-* a coarse tube reconstructs the atoms of the lattice from its particles by its own
-  lattice map (the map of its pad atoms: x_a = y_c + Q3_c (h_a + r0_a), seed 004
-  sec. 5.2), and pulls the atoms' forces back to its particles, shifts and frames by the
-  chain rule through that map (:class:`CoarseTubeMap`);
+* a coarse tube (:class:`~upscale.models.dcbr.model.DCBRModel`) reconstructs its atoms
+  from its particles by its own lattice map (the map of its pad atoms: x_a = y_c +
+  Q3_c (h_a + r0_a), seed 004 sec. 5.2; its free atoms as they are), and pulls the atoms'
+  forces back to its rows and shifts by the chain rule through that map
+  (:class:`CoarseTubeMap`);
 * :class:`LumpedMap`: the integrated coarse-grained alternative in its simplest form, each
   particle a site of weight w_c (the atoms it carries) at its own position, the pair
   energy ``w_a w_b phi(r_ab)`` (kept to measure what the reconstruction buys).
@@ -96,15 +97,18 @@ class CoarseTubeMap:
     """The atoms of a coarse tube reconstructed from its particles (module docstring).
 
     ``body_model`` is the tube's model in the assembly (an
-    :class:`upscale.engine.bodies.BodyModel`) whose wrapped model gives ``atoms(state)``
-    -> (positions (n_a, 3), atom ids) and ``atom_forces(state, f)`` -> (forces on its rows
-    (n, 3), forces on its field ``field`` (n, 3)): the chain rule through its own lattice
-    map. ``natoms``: how many atoms it reconstructs."""
+    :class:`upscale.engine.bodies.BodyModel` wrapping a
+    :class:`~upscale.models.dcbr.model.DCBRModel`): its atoms are
+    :meth:`~upscale.models.dcbr.model.DCBRModel.atom_positions` (every atom of the tube, the
+    free ones as they are, the others on their carriers' lattice maps) and forces on them
+    map back by :meth:`~upscale.models.dcbr.model.DCBRModel.atom_forces` (the chain rule
+    through those maps) to the tube's rows and to its shift field ``field`` (the assembled
+    name, ``"<body>/dcbr.delta"``)."""
 
-    def __init__(self, body_model, natoms: int, field: str | None = None):
+    def __init__(self, body_model, field: str | None = None):
         self.bm = body_model
         self.rows = body_model.rows
-        self.natoms = int(natoms)
+        self.natoms = len(body_model.model.structure.positions)
         self.weights = np.ones(self.natoms)
         self.field = field
         self._key = None
@@ -112,11 +116,12 @@ class CoarseTubeMap:
 
     def _state_key(self, state):
         """What the atoms depend on: the tube's rows and shifts in ``state`` and its
-        history (last good maps, links)."""
-        t = self.bm.model.tube
+        history (links, last good maps)."""
         d = (getattr(state, "fields", None) or {}).get(self.field)
+        ex = self.bm.sub(state).extra
         return (state.y[self.rows], None if d is None else d[self.rows],
-                t.last_maps, getattr(t, "intact", None), getattr(t, "alive", None))
+                ex.get("dcbr.delta"), ex.get("dcbr.fs_last"), ex.get("dcbr.intact"),
+                ex.get("dcbr.alive"))
 
     def forget(self) -> None:
         """Drop the kept reconstruction (the next call reconstructs)."""
@@ -132,10 +137,7 @@ class CoarseTubeMap:
                                   (a is not None and b is not None and np.array_equal(a, b))
                                   for a, b in zip(k0, key)):
             return self._x
-        x = self.bm.model.atoms(self.bm.sub(state))[0]
-        if len(x) != self.natoms:
-            raise RuntimeError(f"the coarse tube gave {len(x)} atoms, the map expects "
-                               f"{self.natoms}")
+        x = self.bm.model.atom_positions(self.bm.sub(state))
         self._key = tuple(None if a is None else np.array(a, copy=True) for a in key)
         self._x = x
         return x

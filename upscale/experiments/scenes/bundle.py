@@ -10,10 +10,15 @@ The scene (:class:`BundleScene`) puts every tube of :func:`upscale.build.bundle`
 tube and up to six around it) on the engine as its own body (:mod:`upscale.engine.bodies`):
 
 * ``tersoff``: the atomistic tube, every atom a particle (:mod:`upscale.models.tersoff`);
-* ``dcbr``: the coarse open tube at coarsening K (its engine model, the lattice carried by
-  particles K lattice constants apart);
-* ``dcbr-defect``: the coarse tube with an atomistic region of radius ``r_atomistic`` around
-  the vacancy.
+* ``dcbr``: the coarse open tube at coarsening K, :class:`~upscale.models.dcbr.model.
+  DCBRModel` built from the tube's own atoms (the lattice carried by particles K lattice
+  constants apart), set up as the single tube's dynamic pull sets it up
+  (:func:`upscale.experiments.scenes.tube_coarse_pull.setup_open_tube`): atomistic bands
+  of half-width ``r_atomistic`` across both grip planes and atomistic regions of radius
+  ``r_atomistic`` at every defect the model finds (the open ends; the vacancy, if the tube
+  has it);
+* ``dcbr-defect``: the same model (the name of the old vacancy tube; the new model finds a
+  vacancy in the tube's atoms itself).
 
 The tubes interact through ``tube-vdw`` (:mod:`upscale.models.tube_vdw`): the LAMMPS
 references' 12-6 Lennard-Jones (``lj/cut``, eps = 2.84 meV, sigma = 3.4 Å, cut at
@@ -26,15 +31,18 @@ Dynamic tension (the LAMMPS references' protocol, ``upscale.experiments.lammps.t
 
 1. every tube starts from the zero-stress lattice of the atomistic tube (axial and radial
    ratios of a short periodic tube relaxed at zero axial stress: the same lattice for every
-   model), then the open bundle is minimised (L-BFGS on the atomistic tubes and the vdW,
-   the coarse tubes held: a static minimiser does not carry their slave ties and shifts),
+   model; a coarse tube the zero-stress lattice of its own particles, relaxed open with its
+   grips' lateral components held, as the single tube's pull), then the open bundle is
+   minimised (L-BFGS on the atomistic tubes and the vdW, the coarse tubes held: their
+   shifts are a field with inertia, which a static minimiser does not carry),
    optionally every tube, the coarse ones too, is quenched toward rest for up to
    ``settle_ps`` (default 0: none; :class:`~upscale.engine.thermostats.Quench` on the
    run's integrator), so that the coarse tubes, set up alone, start nearer equilibrium
    with the vdW of their neighbours, as the references' minimisation of the whole bundle
    leaves them;
 2. grips: on every tube the material within ``grip`` Å (default 50) of the bundle's end
-   atoms, moved rigidly apart at ``speed`` Å/ps each (default 1); the free part starts on
+   atoms (a coarse tube: its rows beyond its own set-up's planes, their particles' shifts
+   held), moved rigidly apart at ``speed`` Å/ps each (default 1); the free part starts on
    the linear axial velocity ramp between the grip speeds plus Gaussian thermal velocities
    at ``temperature`` (default 10 K; the x, y temperature set to it exactly, zero total
    momentum), under a Nose-Hoover chain (``chain`` long, default 3) on the free part's
@@ -67,17 +75,16 @@ import numpy as np
 
 from upscale.analysis.plots import save_figure
 from upscale.constants import ACC_EV_A_AMU_IN_A_FS2, CARBON_MASS_AMU
+from upscale.models.dcbr.model import FIELD
 
 __all__ = ["TubeSpec", "BundleScene", "TUBE_MODELS", "zero_stress_ratios", "add_run_options",
-           "parse_specs", "reference_name", "INTEGRATOR", "INNER", "COARSE_PAIRS", "SEED"]
+           "parse_specs", "reference_name", "particle_rows", "INTEGRATOR", "INNER",
+           "COARSE_PAIRS", "SEED"]
 
 TUBE_MODELS = ("tersoff", "dcbr", "dcbr-defect")
 LJ_EPSILON_EV, LJ_SIGMA_A = 2.84e-3, 3.4   # the references' pair (Girifalco et al. 2000)
 LJ_CUTOFF_A = 3.0 * LJ_SIGMA_A
 LATTICE_A = 1.42 * math.sqrt(3.0)           # graphene lattice constant of the builder
-#: half-width (Å) of the atomistic band of a pristine coarse tube (``dcbr``): the coarse
-#: tube model carries one; 1 Å rounds out to one row of whole particle cells
-PRISTINE_BAND_A = 1.0
 #: an atom's mass in the scene's units (eV, Å, fs: amu / (Å/fs^2 per eV/(Å amu)))
 ATOM_MASS = CARBON_MASS_AMU / ACC_EV_A_AMU_IN_A_FS2
 
@@ -99,8 +106,9 @@ SEED = 4928459
 
 @dataclasses.dataclass
 class TubeSpec:
-    """One tube of a bundle: its model, coarsening and (``dcbr-defect``) the radius of the
-    atomistic region; ``length`` (Å) only to check that all tubes agree."""
+    """One tube of a bundle: its model, coarsening and (coarse tubes) the radius of the
+    atomistic regions and half-width of the grip bands (Å); ``length`` (Å) only to check
+    that all tubes agree."""
 
     model: str = "tersoff"
     coarsening: float = 1.0
@@ -257,17 +265,15 @@ class BundleScene:
         if vacancy_tube is not None:
             atoms = vacancy(atoms, n=4)
         ratios = ratios or zero_stress_ratios(n, m)
-        atoms = _prescale(atoms, ratios)
+        built, atoms = atoms, _prescale(atoms, ratios)
         from upscale.engine.bodies import Body, assemble
         from upscale.engine.system import ParticleSystem
         from upscale.models.tersoff import TersoffModel
-        from upscale.models.tube_vdw import AtomisticMap, TubeVdW
-
-        from upscale.models.tube_vdw import CoarseTubeMap
+        from upscale.models.tube_vdw import AtomisticMap, CoarseTubeMap, TubeVdW
 
         mol = atoms.arrays["mol-id"]
         bodies, coarse, prepared = [], {}, {}
-        zc_all = float(atoms.get_positions()[mol == 1, 2].mean())
+        z_mid = float(atoms.get_positions()[mol == 1, 2].mean())
         for k, s in enumerate(specs):
             name = f"tube{k + 1}"
             if s.model == "tersoff":
@@ -276,29 +282,26 @@ class BundleScene:
                                                   units="atomic"),
                                    None, [TersoffModel()], name=name))
             else:
-                c = np.asarray(atoms.info["tube_centres"][k], dtype=float)
-                em, st = _coarse_model((n, m), length, s,
-                                       vacancy_tube == k, grip, c, zc_all, prepared)
+                sel = built.arrays["mol-id"] == k + 1
+                em, st = _coarse_tube(built[sel], s, grip, z_mid, prepared)
                 coarse[k] = (em, st)
-                bodies.append(em.body(name))
+                bodies.append(Body(ParticleSystem(st["y"], 1.0, density=em.masses(),
+                                                  spacing=em.tube.bond, units="atomic"),
+                                   None, [em], name=name))
         assembly = assemble(bodies)
-        maps, conds = [], []
+        maps = []
         for k, b in enumerate(bodies):
             rows = assembly.rows(b.name)
             if k not in coarse:
                 maps.append(AtomisticMap(rows))
                 continue
-            em, st = coarse[k]
             bm = next(mm for mm in assembly.models if getattr(mm, "body", None) is b)
-            natoms = int(len(em.tube.X_atoms) - em.tube.removed.sum())
-            maps.append(CoarseTubeMap(bm, natoms, field=f"{b.name}/{_FIELD}"))
-            conds += em.conditions(assembly.system.n, rows.start, field=f"{b.name}/{_FIELD}",
-                                   prefix=f"{b.name} ")
+            maps.append(CoarseTubeMap(bm, field=f"{b.name}/{FIELD}"))
         sites = None
         if coarse_pairs == "sites" and coarse:
             from upscale.models.tube_vdw import LumpedMap
 
-            sites = [LumpedMap(assembly.rows(b.name), _atoms_per_particle(b))
+            sites = [LumpedMap(assembly.rows(b.name), _atoms_per_row(coarse[k][0]))
                      if k in coarse else None for k, b in enumerate(bodies)]
         vdw = TubeVdW(maps, epsilon, sigma, rc=rc, every=vdw_every, sites=sites)
         assembly.models.append(vdw)
@@ -309,7 +312,7 @@ class BundleScene:
                 "vdw_every": int(vdw_every), "coarse_pairs": coarse_pairs,
                 "n_atoms": len(atoms), "atoms_per_tube": np.bincount(mol)[1:].tolist()}
         scene = cls(atoms, specs, bodies, assembly, vdw, maps, info)
-        scene.conditions, scene.coarse = conds, coarse
+        scene.coarse = coarse
         return scene
 
     # ------------------------------------------------------------------ states
@@ -317,8 +320,36 @@ class BundleScene:
         """The assembled state at the scene's start (atomistic tubes on the zero-stress
         lattice, coarse tubes as their set-up left them) with every model prepared."""
         sim = self.assembly.simulation(conditions=self.extra_conditions())
+        self.start(sim.state)
         sim.apply_displacement(0.0, None)
         return sim.state
+
+    def start(self, state) -> None:
+        """Write the coarse tubes' set-up into an assembled ``state`` (mutated): each one's
+        shifts (the field of its particle rows and ``extra["<body>/dcbr.delta"]``) and its
+        ghost-force load at the set-up stretch, its grips' rows holding it
+        (:meth:`ghost_load`)."""
+        for k, (em, st) in self.coarse.items():
+            name = self.bodies[k].name
+            r0, nd = self.assembly.rows(name).start, particle_rows(em)
+            dof = np.arange(em.tube.N) if em.coupling is None else em.coupling.dof_idx
+            state.fields[f"{name}/{FIELD}"][r0:r0 + nd] = st["delta"][dof]
+            state.extra[f"{name}/{FIELD}"][...] = st["delta"]
+        self.ghost_load(state, 0.0)
+
+    def ghost_load(self, state, extension: float) -> None:
+        """Ask every coarse tube for its ghost-force dead load (``state.extra``
+        ``"<body>/dcbr.ghost"``, ``"<body>/dcbr.ghost_hold"``, which the model follows:
+        :meth:`~upscale.models.dcbr.model.DCBRModel.stretch_ghost`) at the axial stretch
+        lam_z0 (1 + e), e = ``extension`` / its gauge (the grips' separation change, Å),
+        its grips' rows at the set-up stretch lam_z0 (the single tube's pull)."""
+        for k, (em, st) in self.coarse.items():
+            if not st["ghost"]:
+                continue
+            name, lam0 = self.bodies[k].name, st["lam_z0"]
+            state.extra[f"{name}/dcbr.ghost"] = np.array(
+                [lam0 * (1.0 + extension / st["gauge"]), lam0])
+            state.extra[f"{name}/dcbr.ghost_hold"] = st["bottom"] | st["top"]
 
     def atoms_at_rest(self):
         """The bundle's ase.Atoms at the scene's starting lattice, open boundaries (for
@@ -337,26 +368,26 @@ class BundleScene:
             if self.specs[k].model == "tersoff":
                 maps.append(mp)
             else:
-                maps.append(LumpedMap(self.assembly.rows(b.name), _atoms_per_particle(b)))
+                maps.append(LumpedMap(self.assembly.rows(b.name),
+                                      _atoms_per_row(self.coarse[k][0])))
         v = TubeVdW(maps, self.vdw.eps, self.vdw.sigma, rc=self.vdw.rc)
         v.prepare(self.assembly.system)
         return v
 
     def extra_conditions(self) -> list:
-        """The conditions the bodies' models need themselves (e.g. a coarse tube's ties)."""
-        return list(getattr(self, "conditions", []))
+        """The conditions the bodies' models need themselves (none: a coarse tube's slave
+        particles are no rows of the new model)."""
+        return []
 
     @property
     def dof(self) -> int:
-        """Degrees of freedom: 3 per atom of an atomistic tube; a coarse tube's unknowns
-        (non-slave particles and free atoms, 3 each) and its particles' shifts (3 each)."""
+        """Degrees of freedom: 3 per atom of an atomistic tube; a coarse tube's rows
+        (non-slave particles and free atoms, 3 each) and its particle rows' shifts (3 each)."""
         total = 0
         for k, b in enumerate(self.bodies):
+            total += 3 * b.system.n
             if k in self.coarse:
-                em = self.coarse[k][0]
-                total += 3 * (em.nd + em.nf) + 3 * em.N
-            else:
-                total += 3 * b.system.n
+                total += 3 * particle_rows(self.coarse[k][0])
         return total
 
     def coarse_models(self):
@@ -405,46 +436,64 @@ def _prescale(atoms, ratios):
     return out
 
 
-def _atoms_per_particle(body):
-    em = body.models[0]
-    return np.r_[np.asarray(em.tube.natoms_n, dtype=float), np.ones(em.nf)]
+def particle_rows(model) -> int:
+    """The particle rows of a coarse tube's state (all its particles, or its coupling's
+    non-slave ones; the free atoms' rows follow)."""
+    c = model.coupling
+    return model.tube.N if c is None else len(c.dof_idx)
 
 
-_FIELD = "dcbr.delta"  # the coarse tube model's shift field (upscale.models.dcbr_engine)
+def _atoms_per_row(model):
+    """Atoms each row of a coarse tube stands for: a particle row its weight w_c, an atom
+    row 1 (a slave particle's weight, on no row, is left out)."""
+    c = model.coupling
+    if c is None:
+        return np.asarray(model.tube.natoms_n, dtype=float)
+    return np.r_[np.asarray(model.tube.natoms_n, dtype=float)[c.dof_idx], np.ones(c.nf)]
 
 
-def _coarse_model(chirality, length, spec, has_vacancy, grip, centre, z_mid, prepared):
-    """A coarse tube (``DCBRDefectTube``: ``dcbr`` a pristine tube whose atomistic region is
-    one row of particle cells in the middle, ``dcbr-defect`` the 4-atom vacancy with a
-    region of ``spec.r_atomistic``), opened and relaxed with clamped grips in its own frame
-    (:func:`upscale.experiments.scenes.dcbr_dynamic.open_tube_with_grips`), then placed with its axis
-    on ``centre`` and its middle at ``z_mid``, as an engine model. Identical tubes are set
-    up once (``prepared``) and copied."""
-    import copy
+def _coarse_tube(tube_atoms, spec, grip, z_mid, prepared):
+    """A coarse tube of the bundle: :class:`~upscale.models.dcbr.model.DCBRModel` of
+    ``tube_atoms`` (one tube of :func:`upscale.build.bundle` as built, opened), set up by
+    :func:`~upscale.experiments.scenes.tube_coarse_pull.setup_open_tube` (bands across the
+    grip planes, regions at its defects, relaxed open), its atoms' axial middle moved to
+    ``z_mid`` (the atomistic centre tube's). Returns (the model with inertial shifts, the
+    set-up dict: ``y`` (n, 3), ``delta`` (N, 3), ``bottom``/``top`` (n,) grip rows,
+    ``gauge``, ``lam_z0``, ``ghost``, ...).
 
-    from upscale.models.dcbr_defect import DCBRDefectTube
-    from upscale.experiments.scenes.dcbr_dynamic import open_tube_with_grips
-    from upscale.models.dcbr_engine import DCBRDefectTubeModel
+    Tubes alike up to a translation are set up once (``prepared``): the set-up is moved
+    to each, whose model is built from its own atoms (the ghost load and the lattice map
+    act about its own axis) and must have the same rows (a tie broken otherwise by
+    round-off would change them; then it is set up itself)."""
+    from upscale.engine.state import State
+    from upscale.experiments.scenes.tube_coarse_pull import open_tube, setup_open_tube
+    from upscale.models.dcbr.model import DCBRModel
 
-    n, m = chirality
-    defect = spec.model == "dcbr-defect"
-    vac = 4 if (defect and has_vacancy) else 0
-    r_at = spec.r_atomistic if defect else PRISTINE_BAND_A
-    key = (n, m, round(length, 6), spec.coarsening, vac, r_at, grip)
+    a = open_tube(tube_atoms)
+    K, r_at = spec.coarsening, spec.r_atomistic
+    kw = dict(shifts="inertial", failure=False, stability=False, r_atomistic=r_at)
+    key = (len(a), K, r_at, grip)  # (the atoms themselves are compared below)
     if key not in prepared:
-        tube = DCBRDefectTube(n, m, length, coarsening=spec.coarsening, vacancy=vac,
-                              r_atomistic=r_at)
-        st = open_tube_with_grips(tube, grip=grip, clamp=True)
-        prepared[key] = (tube, st)
-    tube, st = copy.deepcopy(prepared[key])
-    y = st["y"].copy()
-    shift = np.array([centre[0], centre[1], 0.0])
-    nd = len(tube.dof_idx)
-    xa = np.vstack([y[nd:], tube.mapped_atoms(y, st["delta"], st["L0"], tube.atom_map())])
-    shift[2] = z_mid - float(xa[:, 2].mean())  # its atoms' middle on the central tube's
-    em = DCBRDefectTubeModel(tube, y=y + shift, delta=st["delta"], Lz=st["L0"])
-    st = dict(st, shift=shift)
-    return em, st
+        st = setup_open_tube(a, K, grip=grip, r_atomistic=r_at)
+        em = DCBRModel(st["atoms"], K, select=st["select"], **kw)
+        s0 = State.reference(st["y"].copy(), 0)
+        em.init_state(s0)
+        s0.extra[FIELD][...] = st["delta"]
+        dz = z_mid - float(em.atom_positions(s0)[:, 2].mean())
+        prepared[key] = (st, em.x0.copy(), a.positions.copy(), dz)
+    st, x0, X0, dz = prepared[key]
+    mean0 = X0.mean(axis=0)
+    # this tube's atoms moved along the axis so that its middle lands where the prepared
+    # tube's lands (z_mid); its set-up moved from the prepared tube's place to its own
+    mk = a.positions.mean(axis=0)
+    a.positions[:, 2] += dz + mean0[2] - mk[2]
+    move = np.array([mk[0] - mean0[0], mk[1] - mean0[1], dz])
+    if np.allclose(a.positions, X0 + move, rtol=0.0, atol=1e-9):
+        em = DCBRModel(a, K, select=st["select"], **kw)
+        if em.x0.shape == x0.shape and np.allclose(em.x0, x0 + move, rtol=0.0, atol=1e-9):
+            return em, dict(st, atoms=a, y=st["y"] + move)
+    st = setup_open_tube(a, K, grip=grip, r_atomistic=r_at)
+    return DCBRModel(st["atoms"], K, select=st["select"], **kw), st
 
 
 # ---------------------------------------------------------------------- dynamic tension
@@ -514,8 +563,8 @@ def add_run_options(p) -> None:
     p.add_argument("--max-strain", type=float, default=0.40,
                    help="stop the pull at this strain (default 0.40, the references')")
     p.add_argument("--integrator", choices=("verlet", "respa"), default=INTEGRATOR,
-                   help="multiple time stepping (respa: the coarse tubes' lattice and the "
-                   "vdW at an outer step of --inner fs) or velocity Verlet at 1 fs "
+                   help="multiple time stepping (respa: the vdW at an outer step of "
+                   "--inner fs) or velocity Verlet at 1 fs "
                    f"(default {INTEGRATOR})")
     p.add_argument("--inner", type=int, default=INNER,
                    help=f"1 fs inner steps per outer step with respa: 1, 2, 5, 10 (default "

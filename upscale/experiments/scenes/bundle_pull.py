@@ -7,7 +7,9 @@ velocities under a Nose-Hoover chain on its x, y velocities and the coarse tubes
 r-RESPA or velocity Verlet. :class:`_BundlePull` reads each tube's grips every 10 fs (the
 references' ``fix ave/time`` readings), and every ``sample_every`` fs gives the sample: the
 mean of its readings as each tube's stress, the bundle stress their mean, the coarse tubes'
-links broken and their ghost-force corrections renewed at the grips' strain. The loop, the
+links broken (:meth:`~upscale.models.dcbr.model.DCBRModel.break_bonds`, the link rule) and
+their ghost-force dead loads renewed at the grips' strain
+(:meth:`~upscale.experiments.scenes.bundle.BundleScene.ghost_load`). The loop, the
 stop rule (the first sample 5 % below the running maximum, then below 20 % of it), the
 checkpoints and the blow-up handling are the pull's.
 """
@@ -21,8 +23,8 @@ import numpy as np
 from upscale.constants import K_B_EV, WALL_THICKNESS_A
 from upscale.experiments.protocols import Dynamic
 from upscale.experiments.pull import PullSpecimen, pull
-from upscale.experiments.scenes.bundle import INNER, INTEGRATOR, SEED
-from upscale.models.dcbr_engine import FIELD as _FIELD
+from upscale.experiments.scenes.bundle import INNER, INTEGRATOR, SEED, particle_rows
+from upscale.models.dcbr.model import FIELD as _FIELD
 
 __all__ = ["dynamic_tension", "check_run_options", "tube_failures", "tube_damage"]
 
@@ -43,11 +45,10 @@ def dynamic_tension(scene, *, grip: float | None = None, speed: float = 1.0,
 
     ``integrator="respa"`` (default, :data:`~upscale.experiments.scenes.bundle.INTEGRATOR`,
     ``inner`` :data:`~upscale.experiments.scenes.bundle.INNER`): multiple time stepping
-    (:class:`upscale.engine.respa.RESPA`), outer step ``inner * dt_fs``: slow are the coarse
-    tubes' lattice energies (their shift modes and the atomistic regions are fast,
-    :meth:`~upscale.models.dcbr_engine.DCBRDefectTubeModel.prepare_split`, renewed every
-    sample) and the inter-tube van der Waals; fast the atomistic tubes (Tersoff) at
-    ``dt_fs``. ``inner`` must divide 10 (the grips are read every 10 fs steps) and the
+    (:class:`upscale.engine.respa.RESPA`), outer step ``inner * dt_fs``: slow is the
+    inter-tube van der Waals; fast the tubes (Tersoff, and the coarse tubes whole: their
+    atomistic bands and regions need the 1 fs step) at ``dt_fs``. ``inner`` must divide
+    10 (the grips are read every 10 fs steps) and the
     scene's vdW must not be held between steps (``vdw_every=1``). ``"verlet"``: velocity
     Verlet at ``dt_fs``. ``thermostat``: ``"bundle"`` (default; one Nose-Hoover chain on
     every tube's free part, the references' ``fix nvt`` on all free atoms) or
@@ -66,18 +67,18 @@ def dynamic_tension(scene, *, grip: float | None = None, speed: float = 1.0,
     grip = scene.info["grip_A"] if grip is None else float(grip)
     start = _minimised_start(scene, dt_fs, settle_ps, ftol, per)
     y, hold = start["y"], start["hold"]
-    grips, free, slave, zb, sep0 = _grips(scene, y, hold, grip, speed)
+    grips, free, zb, sep0 = _grips(scene, y, hold, grip, speed)
     per_sample = 2.0 * speed * sample_every * dt_fs * 1e-3 / sep0
     if max_strain < 1.5 * per_sample:
         # (the curve's metrics need three samples: sample k sits at strain (k - 1/2) p)
         raise ValueError(f"max_strain={max_strain:g} gives fewer than 3 samples of the curve "
                          f"(one every {per_sample:.3g} strain); valid: max_strain >= "
                          f"{1.5 * per_sample:.3g}, or a smaller sample_every")
-    thermo, tau_tube = _thermostat(scene, free, slave, temperature, tdamp_ps, thermostat,
+    thermo, tau_tube = _thermostat(scene, free, temperature, tdamp_ps, thermostat,
                                    chain, per_tube_damping_ps)
-    sim = _simulation(scene, start["sim"], y, grips, free, slave, zb, sep0, speed, dt_fs,
+    sim = _simulation(scene, start["sim"], y, grips, free, zb, sep0, speed, dt_fs,
                       temperature, seed, thermo, integrator, per)
-    spec = _BundlePull(scene, sim, grips, free & ~slave, per, sample_every, speed, dt_fs,
+    spec = _BundlePull(scene, sim, grips, free, per, sample_every, speed, dt_fs,
                        sep0, _central_radius(scene, y), record_readings, snapshot_every)
     spec.max_steps = int(math.ceil(max_steps / per))
     protocol = Dynamic(load="tension", speed=speed, grip=grip, dt=dt_fs,
@@ -147,9 +148,9 @@ def _detail(grip, speed, dt_fs, temperature, integ_name, per, chain, tdamp_ps, t
 # ---------------------------------------------------------------------- set-up
 def _minimised_start(scene, dt_fs, settle_ps, ftol, per) -> dict:
     """Step 1: the open bundle minimised (L-BFGS on the atomistic tubes and the vdW, the
-    coarse tubes held: their slave ties are kinematic conditions a minimiser does not carry
-    along; they were relaxed with their clamped grips at set-up), then, with ``settle_ps``,
-    every tube quenched together (:func:`_settle`)."""
+    coarse tubes held at their set-up: their shifts are a field with inertia, which a
+    static minimiser does not carry), then, with ``settle_ps``, every tube quenched
+    together (:func:`_settle`)."""
     from upscale.engine.conditions import Fixed, Region
     from upscale.engine.minimisers import LBFGS
 
@@ -163,6 +164,7 @@ def _minimised_start(scene, dt_fs, settle_ps, ftol, per) -> dict:
     if hold.any():
         conds0.append(Fixed(Region("coarse tubes", hold)))
     sim0 = asm.simulation(conditions=conds0)
+    scene.start(sim0.state)
     t = time.perf_counter()
     res_min = sim0.minimise(LBFGS(ftol=ftol, max_iter=500), raise_on_fail=False) \
         if not hold.all() else None
@@ -175,10 +177,10 @@ def _minimised_start(scene, dt_fs, settle_ps, ftol, per) -> dict:
 
 def _grips(scene, y, hold, grip, speed):
     """Step 2's grips: the atomistic tubes' atoms beyond a plane ``grip`` inside the bundle's
-    end atoms (LAMMPS's), the coarse tubes' rows their own set-up clamped; each pair moves
-    at -+``speed`` Å/ps from where the minimisation left it. Returns (grips per tube,
-    free rows, slave rows, bottom plane z, gauge length)."""
-    from upscale.engine.conditions import Grip, Region
+    end atoms (LAMMPS's), the coarse tubes' rows beyond their own set-up's planes (their
+    particle rows' shifts held: :func:`_held_shifts`); each pair moves at -+``speed`` Å/ps
+    from where the minimisation left it. Returns (grips per tube, free rows, bottom plane
+    z, gauge length)."""
 
     asm = scene.assembly
     n = asm.system.n
@@ -191,32 +193,59 @@ def _grips(scene, y, hold, grip, speed):
                          "L - 10 Å")
     v = speed * 1e-3                        # Å/fs (the scene's time unit is the fs)
     coarse_of = {k: (bm, st) for k, bm, st in scene.coarse_models()}
-    grips, bot, top, slave = [], np.zeros(n, bool), np.zeros(n, bool), np.zeros(n, bool)
+    grips, bot, top = [], np.zeros(n, bool), np.zeros(n, bool)
     for k, b in enumerate(scene.bodies):
         rows = asm.rows(b.name)
         gb, gt = np.zeros(n, bool), np.zeros(n, bool)
         if k in coarse_of:
-            bm, st = coarse_of[k]
-            gb[rows.start + bm.model.y_rows[st["bottom"]]] = True
-            gt[rows.start + bm.model.y_rows[st["top"]]] = True
-            slave[rows.start + bm.model.tube.slave_idx] = True
+            st = coarse_of[k][1]
+            gb[rows] = st["bottom"]
+            gt[rows] = st["top"]
         else:
             mine = np.zeros(n, bool)
             mine[rows] = True
             gb, gt = mine & (y[:, 2] < zb), mine & (y[:, 2] > zt)
         bot |= gb
         top |= gt
-        grips.append((Grip(Region(f"bot{k + 1}", gb), velocity=(0.0, 0.0, -v), record_every=0),
-                      Grip(Region(f"top{k + 1}", gt), velocity=(0.0, 0.0, v), record_every=0)))
-    x0 = asm.system.x0
-    for pair in grips:  # the prescribed path starts where the minimisation left them
-        for g, vz in zip(pair, (-v, v)):
-            u0 = y[g.region.index] - x0[g.region.index]
-            g.value = (lambda t, _u=u0, _v=vz: _u + np.array([0.0, 0.0, _v]) * t)
-    return grips, ~(bot | top), slave, zb, sep0
+        grips.append((_moving_grip(f"bot{k + 1}", gb, y, asm.system.x0, -v),
+                      _moving_grip(f"top{k + 1}", gt, y, asm.system.x0, v)))
+    return grips, ~(bot | top), zb, sep0
 
 
-def _thermostat(scene, free, slave, temperature, tdamp_ps, thermostat, chain, per_tube_ps):
+def _moving_grip(name, mask, y, x0, vz):
+    """A :class:`~upscale.engine.conditions.Grip` of the rows ``mask`` moving at ``vz``
+    (Å/fs) along z from where they are in ``y``: the prescribed displacement from the
+    reference rows ``x0`` is u(t) = (y - x0) + vz t e_z, per row (a grip given a velocity
+    moves its rows rigidly from ``x0``, which would put the minimised rows back there)."""
+    from upscale.engine.conditions import Grip, Region
+
+    idx = np.flatnonzero(mask)
+    u0, vel = y[idx] - x0[idx], np.array([0.0, 0.0, vz])
+    return Grip(Region(name, mask), displacement=lambda t: u0 + vel * t, record_every=0)
+
+
+def _held_shifts(scene):
+    """{tube index: (n,) bool}: a coarse tube's particle rows in its grips, whose shifts
+    the grips hold at their set-up value (the single tube's pull)."""
+    out = {}
+    for k, bm, st in scene.coarse_models():
+        held = np.zeros(bm.model.n, bool)
+        nd = particle_rows(bm.model)
+        held[:nd] = (st["bottom"] | st["top"])[:nd]
+        out[k] = held
+    return out
+
+
+def _free_shifts(scene) -> dict:
+    """{tube index: rows (assembled) of a coarse tube's free shifts}: its particle rows
+    outside its grips."""
+    asm = scene.assembly
+    return {k: asm.rows(scene.bodies[k].name).start
+            + np.flatnonzero(~held[:particle_rows(bm.model)])
+            for (k, held), (_, bm, _) in zip(_held_shifts(scene).items(), scene.coarse_models())}
+
+
+def _thermostat(scene, free, temperature, tdamp_ps, thermostat, chain, per_tube_ps):
     """Step 2's Nose-Hoover chain on the free part's x, y velocities and the coarse tubes'
     free shifts (one for the bundle, or one per tube); (thermostat or None, per-tube
     damping in ps)."""
@@ -226,12 +255,11 @@ def _thermostat(scene, free, slave, temperature, tdamp_ps, thermostat, chain, pe
 
     asm = scene.assembly
     n = asm.system.n
-    moving = free & ~slave
     tubes = [asm.rows(b.name) for b in scene.bodies]
     coarse_of = {k: bm for k, bm, _ in scene.coarse_models()}
+    nshift = {k: len(r) for k, r in _free_shifts(scene).items()}
     if thermostat == "bundle":
-        ndf = 2 * int(moving.sum()) + sum(3 * (bm.model.N - len(bm.model.tube.slave_idx))
-                                          for bm in coarse_of.values())
+        ndf = 2 * int(free.sum()) + sum(3 * v for v in nshift.values())
         frows = np.zeros(n, bool)
         for k in coarse_of:
             frows[tubes[k]] = True
@@ -245,10 +273,9 @@ def _thermostat(scene, free, slave, temperature, tdamp_ps, thermostat, chain, pe
     for k, rows in enumerate(tubes):
         mk = np.zeros(n, bool)
         mk[rows] = True
-        nk, fk = 2 * int((moving & mk).sum()), ()
+        nk, fk = 2 * int((free & mk).sum()), ()
         if k in coarse_of:
-            em = coarse_of[k].model
-            nk += 3 * (em.N - len(em.tube.slave_idx))
+            nk += 3 * nshift[k]
             fk = (f"{scene.bodies[k].name}/{_FIELD}",)
         members.append(NoseHooverChain(temperature, 1e3 * tau, region=free & mk, chain=chain,
                                        components=(0, 1), fields=fk,
@@ -256,12 +283,14 @@ def _thermostat(scene, free, slave, temperature, tdamp_ps, thermostat, chain, pe
     return ThermostatGroup(members), tau
 
 
-def _simulation(scene, sim0, y, grips, free, slave, zb, sep0, speed, dt_fs, temperature,
+def _simulation(scene, sim0, y, grips, free, zb, sep0, speed, dt_fs, temperature,
                 seed, thermo, integrator, per):
     """The pull's simulation at the minimised start, with step 2's velocities: the axial
     ramp between the grip speeds plus Gaussian thermal velocities (x, y temperature
-    exactly T, zero momentum), the coarse tubes' shifts thermal too (their reduced masses),
-    the slaves following their atoms."""
+    exactly T, zero momentum), the coarse tubes' free shifts thermal too (their reduced
+    masses), their grips' shifts held, their ghost-force loads at the start."""
+    from upscale.engine.conditions import Region
+    from upscale.engine.fields import FixedField
     from upscale.engine.integrators import VelocityVerlet
 
     asm = scene.assembly
@@ -271,28 +300,38 @@ def _simulation(scene, sim0, y, grips, free, slave, zb, sep0, speed, dt_fs, temp
     v = speed * 1e-3
     rng = np.random.default_rng(seed)
     vel = np.zeros((n, 3))
-    moving = free & ~slave
     field_v = {}
+    free_shift = _free_shifts(scene)
     if temperature > 0:
-        vel[moving] = rng.normal(size=(int(moving.sum()), 3)) * np.sqrt(
-            K_B_EV * temperature / mass[moving])[:, None]
-        p = (mass[moving, None] * vel[moving]).sum(axis=0) / mass[moving].sum()
-        vel[moving] -= p
-        Txy = (mass[moving, None] * vel[moving, :2] ** 2).sum() / (2 * moving.sum() * K_B_EV)
-        vel[moving] *= math.sqrt(temperature / Txy)
+        vel[free] = rng.normal(size=(int(free.sum()), 3)) * np.sqrt(
+            K_B_EV * temperature / mass[free])[:, None]
+        p = (mass[free, None] * vel[free]).sum(axis=0) / mass[free].sum()
+        vel[free] -= p
+        Txy = (mass[free, None] * vel[free, :2] ** 2).sum() / (2 * free.sum() * K_B_EV)
+        vel[free] *= math.sqrt(temperature / Txy)
         for k, bm, _ in coarse:
             em = bm.model
-            md = em.fields()[_FIELD].inertia[:em.N]
+            nd = particle_rows(em)
+            md = em.fields()[_FIELD].inertia[:nd]
             vd = np.zeros((n, 3))
             r0 = tubes[k].start
-            vd[r0:r0 + em.N] = rng.normal(size=(em.N, 3)) * np.sqrt(
+            vd[r0:r0 + nd] = rng.normal(size=(nd, 3)) * np.sqrt(
                 K_B_EV * temperature / md)[:, None]
-            vd[r0 + em.tube.slave_idx] = 0.0
+            keep = np.zeros(n, bool)
+            keep[free_shift[k]] = True
+            vd[~keep] = 0.0
             field_v[f"{scene.bodies[k].name}/{_FIELD}"] = vd
     vel[free, 2] += np.clip(-v + 2 * v * (y[free, 2] - zb) / sep0, -v, v)
     for gb, gt in grips:
         vel[gb.region.index, 2], vel[gt.region.index, 2] = -v, v
     conds = [g for pair in grips for g in pair] + list(scene.extra_conditions())
+    for k, held in _held_shifts(scene).items():
+        if held.any():
+            mask = np.zeros(n, bool)
+            mask[tubes[k]] = held
+            name = scene.bodies[k].name
+            conds.append(FixedField(Region(f"{name} grip shifts", mask), f"{name}/{_FIELD}",
+                                    (0, 1, 2), hold=True))
     if integrator == "respa":
         from upscale.engine.respa import RESPA
 
@@ -305,11 +344,7 @@ def _simulation(scene, sim0, y, grips, free, slave, zb, sep0, speed, dt_fs, temp
     _copy_fields(sim0.state, sim.state)
     for key, vd in field_v.items():
         sim.state.field_v[key][...] = vd
-    for k, bm, _ in coarse:  # slaves' velocities from their atoms
-        em, r0 = bm.model, tubes[k].start
-        if len(em.tube.slave_idx):
-            atoms_v = sim.state.v[r0 + em.N:r0 + em.N + em.nf]
-            sim.state.v[r0 + em.tube.slave_idx] = em.tube.Phi @ atoms_v
+    scene.ghost_load(sim.state, 0.0)
     return sim
 
 
@@ -369,6 +404,7 @@ def _settle(asm, scene, sim0, dt_fs, settle_ps, ftol, inner):
     sim = asm.simulation(conditions=list(scene.extra_conditions()), integrator=integ)
     sim.state.y[...] = sim0.state.y
     _copy_fields(sim0.state, sim.state)
+    scene.ghost_load(sim.state, 0.0)
     _at_rest(sim.state)
     fm = [np.inf]
     every = max(1, 20 // inner)
@@ -479,12 +515,9 @@ class _BundlePull(PullSpecimen):
         self.t_mass = [mass[i, None] for i in self.t_rows]
         self.t_shift = {}
         for k, bm, _ in self.coarse:
-            em = bm.model
-            keep = np.ones(em.N, bool)
-            keep[em.tube.slave_idx] = False
-            idx = np.flatnonzero(keep)
-            self.t_shift[k] = (f"{scene.bodies[k].name}/{_FIELD}", tubes[k].start + idx,
-                               em.fields()[_FIELD].inertia[idx, None])
+            idx = _free_shifts(scene)[k]
+            self.t_shift[k] = (f"{scene.bodies[k].name}/{_FIELD}", idx,
+                               bm.model.fields()[_FIELD].inertia[idx - tubes[k].start, None])
         self.acc, self.tacc = np.zeros(len(tubes)), np.zeros((len(tubes), 2))
         self.curve = {"strain": [], "stress_GPa": [], "stress_per_tube_GPa": [],
                       "time_ps": [], "temperature_per_tube_K": [], "radius_per_tube_A": [],
@@ -534,18 +567,12 @@ class _BundlePull(PullSpecimen):
         return {"load": eps, "response": s}
 
     def renew_coarse(self, sim, strain_now: float) -> None:
-        """The coarse tubes' links broken and their ghost-force corrections renewed at the
-        grips' strain (the open tube's energy is called with L0), then the forces."""
-        for k, bm, st in self.coarse:
-            sub = bm.sub(sim.state)
-            self.broken_links[k] = self.broken_links.get(k, 0) + bm.model.break_links(sub)
-            tube = bm.model.tube
-            tube.prepare_step(st["L0"] * (1.0 + strain_now))
-            g = tube.ghost_correction
-            if g is not None:
-                g["Lz"] = float(st["L0"])
-                tube.ghost_correction = g
-            bm.model.store_ghost(sub)
+        """The coarse tubes' links broken (the link rule) and their ghost-force loads
+        renewed at the grips' strain, then the forces."""
+        for k, bm, _ in self.coarse:
+            n = bm.model.break_bonds(bm.sub(sim.state))
+            self.broken_links[k] = self.broken_links.get(k, 0) + n
+        self.scene.ghost_load(sim.state, strain_now * self.sep0)
         self.update_forces(sim)
 
     def tube_temperatures(self, sim) -> list:

@@ -92,7 +92,7 @@ def bundle(*, chirality: tuple[int, int] = (10, 10), length: float = 150.0,
     max_strain : float
         stop the pull at this strain (the references' 0.40).
     integrator : {"verlet", "respa"}
-        r-RESPA (coarse tubes and vdW at an outer step of inner fs) or velocity Verlet at 1 fs.
+        r-RESPA (the vdW at an outer step of inner fs) or velocity Verlet at 1 fs.
     inner : int
         1 fs inner steps per outer step with respa: 1, 2, 5 or 10.
     thermostat : {"bundle", "per-tube"}

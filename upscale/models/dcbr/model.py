@@ -184,7 +184,7 @@ class DCBRModel(Model):
         self.cell = None
         self._held = False
         self._cache = None
-        self._carried = None
+        self._carried_map = None
         self._ghost_key = None
         self._ghost_build = dict(coarsening=coarsening, horizon_factor=horizon_factor,
                                  potential=potential, hourglass=hourglass) \
@@ -226,27 +226,51 @@ class DCBRModel(Model):
                              f"model's {self.n} rows in 3D (DCBRModel.system())")
         self.system = system
 
+    def _carried(self):
+        """(structure ids (K,), coarse (K,) bool: carried by a particle's map, the
+        carriers' tuple of :func:`.coupling.carriers` for the coarse ones), built once."""
+        if self._carried_map is None:
+            from upscale.models.dcbr.coupling import atom_geometry, carriers  # noqa: PLC0415
+
+            t, c = self.tube, self.coupling
+            ids, X, th, z, sub, _ = atom_geometry(t, self.structure.tubes[0],
+                                                  self.structure.positions)
+            dof = np.arange(t.N) if c is None else c.dof_idx
+            coarse = np.ones(len(ids), bool) if c is None else ~np.isin(ids, c.free_idx)
+            self._carried_map = (ids, coarse, carriers(t, dof, X[coarse], th[coarse],
+                                                       z[coarse], sub[coarse]))
+        return self._carried_map
+
+    def _state_shifts(self, state) -> np.ndarray:
+        """(N, 3) the shifts of ``state``: ``extra["dcbr.delta"]``, the particle rows' from
+        the field with ``shifts="inertial"`` (the two agree after every evaluation)."""
+        d = state.extra[FIELD]
+        fd = state.fields.get(FIELD) if self.shifts == "inertial" else None
+        if fd is None:
+            return d
+        dof = self._dof()
+        d = np.array(d, dtype=float, copy=True)
+        d[dof] = fd[:len(dof)]
+        return d
+
     def atom_positions(self, state) -> np.ndarray:
         """(K, 3) Å: every atom of the structure at ``state``, the free ones as they are,
         the others on their carriers' uniform maps with the shifts (:mod:`.pads`; the
-        nearest non-slave particle carries each). For pictures and for comparing with an
-        atomistic run; at the reference state they are the input atoms."""
-        from upscale.models.dcbr.coupling import (atom_geometry, carried_positions,  # noqa: PLC0415
-                                                  carriers)
+        nearest non-slave particle carries each):
+
+            x_a = y_c + Q3_c (h_a(delta_c) + r0_a)     (eq. of :mod:`.pads`).
+
+        For pictures, for comparing with an atomistic run and for interactions with other
+        bodies (:meth:`atom_forces` pulls forces on these atoms back); at the reference
+        state they are the input atoms."""
+        from upscale.models.dcbr.coupling import carried_positions  # noqa: PLC0415
 
         t, c = self.tube, self.coupling
-        reg = self.structure.tubes[0]
-        if self._carried is None:
-            ids, X, th, z, sub, _ = atom_geometry(t, reg, self.structure.positions)
-            dof = np.arange(t.N) if c is None else c.dof_idx
-            coarse = np.ones(len(ids), bool) if c is None else ~np.isin(ids, c.free_idx)
-            self._carried = (ids, coarse, carriers(t, dof, X[coarse], th[coarse], z[coarse],
-                                                    sub[coarse]))
-        ids, coarse, car = self._carried
+        ids, coarse, car = self._carried()
         y = np.asarray(state.y, float)
         yp = y if c is None else c.particle_positions(y, self.Lz)
         out = np.array(self.structure.positions, dtype=float, copy=True)
-        xa = carried_positions(t, car, yp, state.extra[FIELD], self.Lz,
+        xa = carried_positions(t, car, yp, self._state_shifts(state), self.Lz,
                                state.extra.get("dcbr.fs_last"))
         if t.periodic:  # the image nearest the input atom (a carrier may sit across z = 0)
             k = np.round(((xa - out[ids[coarse]]) @ t.axis) / self.Lz)
@@ -255,6 +279,57 @@ class DCBRModel(Model):
         if c is not None:
             out[c.free_idx] = y[len(c.dof_idx):]
         return out
+
+    def atom_forces(self, state, f) -> tuple:
+        """Forces ``f`` (K, 3) eV/Å on the atoms of :meth:`atom_positions` pulled back
+        exactly to the rows and the shifts (the chain rule through the map):
+
+            F_i = sum_a (dx_a/dy_i)^T f_a,    G_c = sum_a (dx_a/d delta_c)^T f_a,
+
+        through the carriers' maps x_a(y_c, Q3_c, lam_c, delta_c) (:func:`.pads.
+        pad_backward`), the frames' dependence on F_c (:func:`.maps.frame_adjoint`), F_c's
+        on the particles through G, and a slave particle's position on its free atoms
+        (y_s = X_s + Phi (x - X)). A carrier whose frame is its last good map (failed)
+        passes no frame term. Returns (F (n, 3) on the rows, G (n, 3) on the shift field's
+        rows: the particle rows', zero on atom rows), eV/Å. With ``shifts="relaxed"`` the
+        shifts relaxed for the tube's own energy do not make G vanish: a caller coupling
+        other energies to the atoms must then relax the shifts for the sum."""
+        from upscale.models.dcbr.maps import frame_adjoint, frame_of, map_frames  # noqa: PLC0415
+        from upscale.models.dcbr.pads import pad_backward  # noqa: PLC0415
+
+        t, c = self.tube, self.coupling
+        ids, coarse, (ca, ds, dz, sig, r0) = self._carried()
+        f = np.asarray(f, dtype=float)
+        if f.shape != (len(self.structure.positions), 3):
+            raise ValueError(f"atom forces of shape {f.shape}; valid: "
+                             f"({len(self.structure.positions)}, 3), one row per atom")
+        y = np.asarray(state.y, float)
+        yp = np.ascontiguousarray(y if c is None else c.particle_positions(y, self.Lz))
+        F = t.gain.deformation(yp, self.Lz)
+        par, Q3 = np.empty((t.N, 3)), np.empty((t.N, 3, 3))
+        map_frames(F, t.gain.S, t.gain.alive, par, Q3)
+        own = np.ones(t.N, bool)
+        fs = state.extra.get("dcbr.fs_last")
+        if fs is not None:  # as carried_positions: a failed carrier on its last good map
+            own = t.alive & t.gain.alive
+            for k in np.flatnonzero(~own):
+                frame_of(fs[k], par[k], Q3[k])
+        gyp, gd = np.zeros((t.N, 3)), np.zeros((t.N, 3))
+        gQ3, gpar, P = np.zeros((t.N, 3, 3)), np.zeros((t.N, 3)), np.zeros_like(F)
+        pad_backward(np.ascontiguousarray(-f[ids[coarse]]),
+                     np.ascontiguousarray(self._state_shifts(state)), par, Q3, own, ca, ds,
+                     dz, sig, r0, t.cell.R0, gyp, gd, gQ3, gpar)
+        frame_adjoint(F, t.gain.S, t.gain.alive, par, Q3, gQ3, gpar, P)
+        gyp -= t.gain.forces(P)
+        dof = self._dof()
+        Fr, Gr = np.zeros((self.n, 3)), np.zeros((self.n, 3))
+        Fr[:len(dof)] = -gyp[dof]
+        Gr[:len(dof)] = -gd[dof]
+        if c is not None:
+            Fr[len(dof):] = f[c.free_idx]
+            if len(c.slave_idx):
+                Fr[len(dof):] -= c.PhiT @ gyp[c.slave_idx]
+        return Fr, Gr
 
     def grown(self, particles) -> "DCBRModel":
         """A new model of the same atoms whose region also holds the atoms of ``particles``
