@@ -349,6 +349,8 @@ def _stored_reference(atoms, proto, potential) -> dict | None:
 
     info = atoms.info
     vac = info.get("vacancy")
+    if info.get("defects") and potential == "BNC.tersoff":
+        return _stored_defect_reference(atoms, proto)
     if (potential != "BNC.tersoff" or info.get("chirality") is None or info.get("defects")
             or not isinstance(proto, QuasiStatic) or proto.load != "tension"
             or not proto.periodic or (vac and vac.get("n") != 4)):
@@ -363,6 +365,34 @@ def _stored_reference(atoms, proto, potential) -> dict | None:
         return None
     r["curve"] = {"load": r["curve"]["strain"], "response": r["curve"]["stress_GPa"]}
     return r
+
+
+def _stored_defect_reference(atoms, proto) -> dict | None:
+    """The record of a ``data/reference/qs_defects_*.json`` collection (tubes with defects
+    built by :func:`tube_structure` from a chirality, a length and a defects string, run by
+    the LAMMPS backend) whose protocol is ``proto`` and whose structure, rebuilt from its
+    recipe, has ``atoms``' positions (to 1e-6 Å); None where none matches."""
+    import dataclasses
+    import json
+
+    from upscale.experiments.scenes.tube_tension import REFERENCE_DIR
+
+    chir = atoms.info.get("chirality")
+    if chir is None or not isinstance(proto, QuasiStatic):
+        return None
+    want = dataclasses.asdict(proto)
+    for path in sorted(Path(REFERENCE_DIR).glob("qs_defects_*.json")):
+        for t in json.loads(path.read_text())["tubes"]:
+            got = t["lammps"]["protocol"]
+            if (tuple(t["chirality"]) != tuple(chir) or len(atoms) !=
+                    t["lammps"]["structure"]["n_atoms"]
+                    or any(got.get(k) != want[k] for k in ("load", "step", "maximum",
+                                                          "periodic", "perturb"))):
+                continue
+            built = tube_structure(None, t["chirality"], t["length_A"], t["defects"])
+            if np.allclose(built.get_positions(), atoms.get_positions(), atol=1e-6):
+                return {**t["lammps"], "_source": f"{path.name}: {t['command']}"}
+    return None
 
 
 def _run_dcbr(atoms, proto, coarsening, potential, show, ck=None) -> dict:

@@ -2,8 +2,8 @@
 
 Every atom is a particle of :class:`upscale.models.tersoff.TersoffModel` (the project's
 Tersoff, exact against LAMMPS ``pair_style tersoff``); relaxations are the engine's
-L-BFGS-B with FIRE as the fallback where L-BFGS-B stalls, as the LAMMPS runner falls back
-from CG to damped dynamics (the step cutoff makes the energy jump when a bond crosses it,
+L-BFGS-B with QuickMin as the fallback where L-BFGS-B stalls, as the LAMMPS runner falls
+back from CG to damped dynamics (the step cutoff makes the energy jump when a bond crosses it,
 which stops line searches).
 
 Periodic tube (tension, compression): the zero-stress relaxation finds the cell length L0
@@ -27,7 +27,7 @@ import math
 import numpy as np
 
 from upscale.constants import CARBON_MASS_AMU, EV_PER_A3_IN_GPA, WALL_THICKNESS_A
-from upscale.engine.minimisers import FIRE, LBFGS, NotConverged
+from upscale.engine.fallback import LBFGSDamped
 from upscale.engine.array_minimisers import zero_cell_force
 from upscale.engine.simulation import Simulation
 from upscale.engine.system import ParticleSystem
@@ -39,9 +39,11 @@ __all__ = ["AtomisticTube", "AtomisticPull", "bond_pairs", "bond_damage"]
 
 #: bonds at the start are pairs closer than this, Å; broken beyond BREAK_A (the references')
 BOND_A, BREAK_A = 2.0, 2.1
-#: FIRE's first step: 1 fs in the engine's time unit sqrt(amu A^2 / eV) = 10.18 fs, and at
-#: most 0.02 A per iteration, the LAMMPS runner's damped-dynamics fallback
-_FIRE_DT = 1.0 / 10.1805
+#: the damped-dynamics step of the minimisations: 1 fs in the engine's time unit
+#: sqrt(amu A^2 / eV) = 10.18 fs, the LAMMPS runner's
+_DAMPED_DT = 1.0 / 10.1805
+#: largest force a minimisation may leave, eV/Å (the LAMMPS runner's fmax tolerance)
+_ACCEPT = 1e-4
 
 
 class AtomisticTube(Specimen):
@@ -132,21 +134,13 @@ class AtomisticTube(Specimen):
 
     # ------------------------------------------------------------------ relaxations
     def _minimise(self) -> None:
-        """L-BFGS-B; where it stalls (its line search ends at the energy's rounding, or at
-        the step cutoff), FIRE from there, up to three cycles."""
-        for _ in range(3):
-            lb = LBFGS(ftol=self.ftol, max_iter=20_000, memory=30)
-            r = self.sim.minimise(lb, raise_on_fail=False)
-            self.minimisations += 1
-            if r.converged:
-                return
-            fire = FIRE(ftol=self.ftol, max_iter=5_000, dt=_FIRE_DT, max_step=0.02)
-            try:
-                self.sim.minimise(fire, raise_on_fail=True)
-                return
-            except NotConverged:
-                pass
-        self.unconverged += 1
+        """L-BFGS-B; where it stalls (a bond held at the step cutoff), QuickMin from there
+        and L-BFGS-B again, at most three cycles: the LAMMPS runner's minimisation
+        (:class:`~upscale.engine.fallback.LBFGSDamped`)."""
+        m = LBFGSDamped(self.ftol, accept=max(_ACCEPT, self.ftol), dt=_DAMPED_DT)
+        r = self.sim.minimise(m)
+        self.minimisations += m.runs
+        self.unconverged += not r.converged
 
     def _relax_zero_stress(self) -> None:
         if not self.periodic:

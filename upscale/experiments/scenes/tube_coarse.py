@@ -18,8 +18,9 @@ non-slave particles then the free atoms. The protocol is the LAMMPS runners' and
 
 Each minimisation is the engine's L-BFGS-B over the rows and the sublattice shifts (the
 model's internal field), ``ftol`` the protocol's; where it stalls (a pair of the atomistic
-region at the step cutoff, whose energy jumps), FIRE from there, up to three cycles, as
-the LAMMPS runner falls back from CG to damped dynamics.
+region at the step cutoff, whose energy jumps), QuickMin from there, up to three cycles, as
+the LAMMPS runner falls back from CG to damped dynamics
+(:class:`~upscale.engine.fallback.LBFGSDamped`).
 """
 from __future__ import annotations
 
@@ -28,16 +29,16 @@ import math
 import numpy as np
 
 from upscale.constants import EV_PER_A3_IN_GPA, WALL_THICKNESS_A
-from upscale.engine.minimisers import FIRE, LBFGS
+from upscale.engine.fallback import LBFGSDamped
 from upscale.engine.array_minimisers import zero_cell_force
 from upscale.engine.simulation import Simulation
 from upscale.experiments.protocols import Specimen
 
 __all__ = ["CoarseTube"]
 
-#: FIRE's first step (the engine's time unit here is fs: DCBRModel's masses are amu / unit)
-#: and its iterations per cycle
-_FIRE_DT, _FIRE_STEPS = 1.0, 2000
+#: the damped-dynamics step, fs (the engine's time unit here: DCBRModel's masses are
+#: amu / unit)
+_DAMPED_DT = 1.0
 #: largest force left by a minimisation that is accepted (eV/Å): a pair at the step cutoff
 #: of the atomistic region has no equilibrium (its force jumps), as in the old tube
 _HELD = 1e-4
@@ -92,21 +93,14 @@ class CoarseTube(Specimen):
 
     def _minimise(self) -> None:
         """L-BFGS-B (stopping also where an iteration no longer lowers the energy, relative
-        1e-15: a pair held at the step cutoff); while a force above ``_HELD`` is left, FIRE
-        and L-BFGS-B again, at most three cycles (the old tube's restarts)."""
-        for cycle in range(4):
-            lb = LBFGS(ftol=self.ftol, max_iter=20_000, memory=30, maxls=20,
-                       energy_rtol=1e-15)
-            r = self.sim.minimise(lb, raise_on_fail=False)
-            self.minimisations += 1
-            if r.converged or r.fmax <= _HELD:
-                return
-            if cycle == 3:
-                break
-            fire = FIRE(ftol=self.ftol, max_iter=_FIRE_STEPS, dt=_FIRE_DT, max_step=0.02)
-            if self.sim.minimise(fire, raise_on_fail=False).converged:
-                return
-        self.unconverged += 1
+        1e-15: a pair held at the step cutoff); while a force above ``_HELD`` is left,
+        QuickMin and L-BFGS-B again, at most three cycles
+        (:class:`~upscale.engine.fallback.LBFGSDamped`, the LAMMPS runner's)."""
+        m = LBFGSDamped(self.ftol, accept=max(_HELD, self.ftol), dt=_DAMPED_DT, maxls=20,
+                        energy_rtol=1e-15)
+        r = self.sim.minimise(m)
+        self.minimisations += m.runs
+        self.unconverged += not r.converged
 
     def _relax_zero_stress(self) -> None:
         y0, L_start = self.sim.state.y.copy(), float(self.model.Lz)
