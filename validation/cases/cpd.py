@@ -13,7 +13,7 @@ import time
 
 import numpy as np
 
-from validation.registry import case, table
+from validation.registry import case, figure
 
 E_PA = 1e9
 
@@ -86,7 +86,6 @@ def run_tangent(args):
                 "C3": m.quadruplets.size if m.quadruplets is not None else 0}[name]
         rows.append({"dim": dim, "type": name, "particles": s.n, "sets": sets,
                      "rel_err": err, "asymmetry": asym, "tangent_s": t_tan})
-    print(table(rows))
     worst = max(r["rel_err"] for r in rows)
     # patch test: homogeneous deformation y = (I + H) x -> zero residual at interior points
     patch = []
@@ -108,9 +107,6 @@ def run_tangent(args):
                       "max |F| interior / max |F| (N/N)": float(np.abs(F[inner]).max() / np.abs(F).max()),
                       "sets": {"C2": (m.triplets.size if m.triplets is not None else 0),
                                "C3": (m.quadruplets.size if m.quadruplets is not None else 0)}})
-    print("\nPatch test (homogeneous deformation, |H| ~ 1e-2; interior = farther than twice "
-          "the longest bond from the boundary):")
-    print(table(patch))
     patch_worst = max(p["max |F| interior / max |F| (N/N)"] for p in patch)
     return {"tangent_rel_err": worst, "tangent_asymmetry_max": max(r["asymmetry"] for r in rows),
             "patch_interior_residual_rel": patch_worst, "rows": rows, "patch": patch,
@@ -172,10 +168,6 @@ def run_calibration(args):
               "3D C1, C2 only": cpd.poisson_range(3, mode="C1C2"),
               "2D plane stress": cpd.poisson_range(2, "stress"),
               "2D plane strain": cpd.poisson_range(2, "strain")}
-    print("Reachable Poisson ratio with non-negative constants:")
-    for k, (lo, hi, inc) in ranges.items():
-        print(f"  {k:24s} [{lo:.6g}, {hi:.6g}{']' if inc else ')'}")
-
     # ---- bad input: one-line errors that give the valid range
     from upscale.engine.families import build_family
     from upscale.engine.system import ParticleSystem, square_lattice
@@ -196,10 +188,6 @@ def run_calibration(args):
             bad.append({"input": label, "error": "(accepted!)"})
         except ValueError as exc:
             bad.append({"input": label, "error": str(exc)})
-    print("\nBad input:")
-    for b in bad:
-        print(f"  {b['input']:40s} ValueError: {b['error']}")
-
     # ---- energy density at an interior point
     cases3 = [(3, 0.3, "C1C2", "stress"), (3, 0.4, "C1C2", "stress"),
               (3, 0.3, "C1C3", "stress"), (3, 0.4, "C1C3", "stress")]
@@ -221,10 +209,6 @@ def run_calibration(args):
             calibration="continuum")[0]
         row["C1 J/m^7"], row["C2 J/m^11"], row["C3 J/m^15"] = model.C
         rows.append(row)
-    print("\nEnergy density of homogeneous small strains at the central particle "
-          "(max |error| over 11 strains), E = 1 GPa:")
-    print(table(rows, floatfmt=".4g"))
-
     # ---- Poisson contraction of a bar (Newton solve)
     bars = [(3, 0.3), (3, 0.4), (2, 0.4), (2, 0.6)]
     bonds_only = [(3, 0.25), (2, 1 / 3)]
@@ -243,9 +227,6 @@ def run_calibration(args):
                      "err_pct": r["poisson_err_pct"], "axial err_pct": r["displacement_err_pct"],
                      "particles": r["particles"], "delta/dx": kw["ratio"],
                      "solve_s": r["solve_s"], "pair only": (nu in (0.25, 1 / 3))})
-    print("\nPoisson contraction of a bar in tension (gauge section, lateral slope; pair only = "
-          "C2 = C3 = 0, the bond-based limit):")
-    print(table(prow, floatfmt=".4g"))
     e_max = max(r["err_pct (used)"] for r in rows)
     p_max = max(abs(r["err_pct"]) for r in prow if not r["pair only"])
     return {"energy_err_pct_max": e_max, "poisson_err_pct_max": p_max,
@@ -269,27 +250,15 @@ def _one_layer(cpd, build_family, ParticleSystem, square_lattice):
 # =========================================================================== cpd-newton
 def _plot_convergence(rows, outdir):
     """Error versus spacing, one line per (scene, dim, delta/dx)."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    from pathlib import Path
-
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4))
-    for ax, scene in zip(axes, ("bar", "cantilever")):
-        keys = sorted({(r["dim"], r["delta/dx"]) for r in rows if r["scene"] == scene})
-        for dim, ratio in keys:
-            pts = sorted((r["dx_mm"], abs(r["err_pct"])) for r in rows
-                         if r["scene"] == scene and r["dim"] == dim and r["delta/dx"] == ratio)
-            ax.loglog([p[0] for p in pts], [p[1] for p in pts], "o-", label=f"{dim}D delta/dx={ratio:g}")
-        ax.set_xlabel("spacing dx (mm)")
-        ax.set_ylabel("|error| (%)")
-        ax.set_title(f"{scene}: vs " + ("F L/(E A)" if scene == "bar" else "Timoshenko"))
-        ax.legend(fontsize=8)
-    fig.tight_layout()
-    Path(outdir).mkdir(parents=True, exist_ok=True)
-    fig.savefig(Path(outdir) / "error_vs_spacing.png", dpi=120)
-    plt.close(fig)
+    with figure(outdir / "error_vs_spacing.png", 1, 2, figsize=(10, 4), dpi=120) as (fig, axes):
+        for ax, scene in zip(axes, ("bar", "cantilever")):
+            for dim, ratio in sorted({(r["dim"], r["delta/dx"]) for r in rows if r["scene"] == scene}):
+                pts = sorted((r["dx_mm"], abs(r["err_pct"])) for r in rows
+                             if r["scene"] == scene and r["dim"] == dim and r["delta/dx"] == ratio)
+                ax.loglog([p[0] for p in pts], [p[1] for p in pts], "o-", label=f"{dim}D delta/dx={ratio:g}")
+            ax.set(xlabel="spacing dx (mm)", ylabel="|error| (%)",
+                   title=f"{scene}: vs " + ("F L/(E A)" if scene == "bar" else "Timoshenko"))
+            ax.legend(fontsize=8)
 
 
 def _strip(r):
@@ -319,22 +288,17 @@ def run_newton(args):
     for dim, grid in ((2, grid2), (3, grid3)):
         nu = 0.4 if dim == 2 else 0.3
         for dx, ratio in grid:
-            sc = dict(surface_correction=bool(getattr(args, "surface_correction", False)))
+            sc = dict(surface_correction=args.surface_correction)
             if dim == 2:
                 rb = cpd_bar.bar_tension(dim=2, nu=nu, length=32e-3, width=8e-3, dx=dx, ratio=ratio, **sc)
                 rc = cpd_bar.cantilever(dim=2, nu=nu, length=32e-3, depth=8e-3, dx=dx, ratio=ratio, **sc)
             else:
                 rb = cpd_bar.bar_tension(dim=3, nu=nu, length=24e-3, width=6e-3, dx=dx, ratio=ratio, **sc)
                 rc = cpd_bar.cantilever(dim=3, nu=nu, length=24e-3, depth=6e-3, dx=dx, ratio=ratio, **sc)
-            for r in (rb, rc):
-                runs.append(_strip(r))
-                print(f"{r['scene']} {dim}D dx={dx * 1e3:g} mm delta/dx={ratio:g}: "
-                      f"{r['particles']} particles\n{r['newton_report']}")
+            runs += [_strip(rb), _strip(rc)]
             if dim == 2 and dx == grid[-1][0] and ratio == grid[-1][1]:
-                from pathlib import Path
-
-                cpd_bar.plot(rb, Path(args.outdir) / "bar2d.png")
-                cpd_bar.plot(rc, Path(args.outdir) / "cantilever2d.png")
+                cpd_bar.plot(rb, args.outdir / "bar2d.png")
+                cpd_bar.plot(rc, args.outdir / "cantilever2d.png")
     # geometrically non-linear cantilever (Euler-Bernoulli deflection 20 % of L, 5 load
     # steps): the regime where the quadratic convergence of the consistent tangent shows
     big = cpd_bar.cantilever(dim=2, nu=0.4, length=32e-3, depth=8e-3, dx=1e-3, ratio=3.0,
@@ -342,9 +306,6 @@ def run_newton(args):
     big_s = _strip(big)
     big_s["scene"] = "cantilever-large"
     runs.append(big_s)
-    print(f"large-deflection cantilever 2D (P from v_EB = 0.2 L, 5 load steps): tip deflection "
-          f"{big['tip_deflection_m'] * 1e3:.4g} mm (linear theory {big['timoshenko_m'] * 1e3:.4g} mm)"
-          f"\n{big['newton_report']}")
     rows = []
     orders = []
     for r in runs:
@@ -361,14 +322,11 @@ def run_newton(args):
                      "order": o[0] if o and o[0] is not None else float("nan"),
                      "solve_s": r["solve_s"]})
     rows = [r for r in rows if r["scene"] != "cantilever-large"]
-    print("\nRun time versus error (bar: gauge elongation vs F L/(E A); cantilever: tip "
-          "deflection vs Timoshenko, and vs Euler-Bernoulli):")
-    print(table(rows, floatfmt=".4g"))
     _plot_convergence(rows, args.outdir)
     bar_err = [abs(r["err_pct"]) for r in rows if r["scene"] == "bar"]
     cant_err = [abs(r["err_pct"]) for r in rows if r["scene"] == "cantilever"]
     converged = all(r["newton"]["converged"] for r in runs)
-    return {"surface_correction": bool(getattr(args, "surface_correction", False)),
+    return {"surface_correction": args.surface_correction,
             "bar_err_pct_min": min(bar_err), "bar_err_pct_max": max(bar_err),
             "cantilever_err_pct_min": min(cant_err), "cantilever_err_pct_max": max(cant_err),
             "newton_order_min": min(orders) if orders else None,
@@ -452,8 +410,6 @@ def run_bench(args):
                              "residual_ns/set": 1e9 * t_res / max(total, 1),
                              "tangent_ns/set": 1e9 * t_tan / max(total, 1),
                              "build_s": t_prep})
-    print(table(rows, floatfmt=".4g"))
-
     # ---- skipped work: C2 = C3 = 0 builds no triplets and costs what pairs alone cost
     s = _lattice(3, 9, dx)
     fam = build_family(s, 2.01 * dx)
@@ -485,9 +441,6 @@ def run_bench(args):
             "ratio_with_C2_over_pair_only": t_full / t_only1,
             "prepare_s_nu025": prep_pair, "prepare_s_with_C2": prep_full,
             "triplets_with_C2": full.triplets.size}
-    print("\nSkipped work (3D, 729 particles, delta = 2.01 dx):")
-    for k, v in skip.items():
-        print(f"  {k:32s} {v}")
     counts = {f"{r['dim']}d_{r['delta/dx']:g}_{r['type']}_sets_per_point": r["sets/point (interior)"]
               for r in rows}
     ok = (not skip["triplets_built_when_C2_zero"]) and (not skip["quadruplets_built_when_C3_zero"]) \
