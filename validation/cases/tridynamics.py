@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from validation.registry import case, table
+from validation.registry import case, show
 
 
 # =========================================================================== 3.42-3.51
@@ -105,8 +105,7 @@ def run_dispersion(args):
     ratios = (1, 2) if quick else (1, 2, 3, 4)
     # (i) the text's own coefficients
     coeff_err, crow = _coeff_check(ratios, 8 if quick else 24)
-    print("force routine vs printed coefficients 3.42-3.51 (text variant)")
-    print(table(crow))
+    show(crow, "force routine vs printed coefficients 3.42-3.51 (text variant)")
     # (ii) consistent Timoshenko vs C.16-C.17, dx/h = 0.01
     kh = np.array([0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0])
     trow, tim_err, bond_err = [], {}, {}
@@ -120,45 +119,30 @@ def run_dispersion(args):
         trow.append({"shear integration": si, "delta/dx": m, "flexural max": float(ef.max()),
                      "thickness-shear max": float(es.max()),
                      "axial at kh=0.01": float(ea[0])})
-    print("\nconsistent Timoshenko beam vs C.16-C.17 (k h in [0.01, 1], dx/h = 0.01)")
-    print(table(trow))
+    show(trow, "consistent Timoshenko beam vs C.16-C.17 (k h in [0.01, 1], dx/h = 0.01)")
     # flexural branch below kh = 0.01: limited by rounding in the force sums
     r_small = beam_dispersion(theory="timoshenko", variant="consistent", ratio=1,
                               kh=np.array([1e-3]))
     small = float(abs(r_small["flexural"][0] / r_small["flexural_ref"][0] - 1))
     # text variant, delta/dx = 1, without (x1) and with (x2) the appendix factor
-    tf = {}
-    trow2 = []
+    tf, trow2 = {}, []
     for ef in (1.0, 2.0):
         for sp in (True, False):
-            r = beam_dispersion(theory="timoshenko", variant="text", ratio=1,
-                                kh=np.array([1e-3, 1e-4]), edge_factor=ef, self_pairs=sp)
-            D, M = r["D"][1], r["mass"]
-            cut = float((D[2, 2] / M[2]).real / (STEEL_KS_G() / (r_I_over_A())))
-            flex = float(r["flexural"][0] / r["flexural_ref"][0])
-            ax = float(r["axial"][0] / r["axial_ref"][0])
-            trow2.append({"edge_factor": ef, "self_pairs (C.1)": sp, "shear cutoff ratio": cut,
-                          "flexural ratio kh=1e-3": flex, "axial ratio": ax})
+            row = _long_wave(beam_dispersion(theory="timoshenko", variant="text", ratio=1,
+                                             kh=np.array([1e-3, 1e-4]), edge_factor=ef, self_pairs=sp))
+            trow2.append({"edge_factor": ef, "self_pairs (C.1)": sp, **row})
             if sp:
-                tf[ef] = (cut, flex)
-    print("\ntext-faithful beam, delta/dx = 1: model / Timoshenko (cutoff: k -> 0 limit of "
-          "the phi-phi entry, k_s G A/(rho I))")
-    print(table(trow2))
+                tf[ef] = (row["shear cutoff ratio"], row["flexural ratio kh=1e-3"])
+    show(trow2, "text-faithful beam, delta/dx = 1: model / Timoshenko (cutoff: k -> 0 limit of "
+         "the phi-phi entry, k_s G A/(rho I))")
     trow3, tf_by = [], {}
     for ef in (1.0, 2.0):
         for m in ratios:
-            r = beam_dispersion(theory="timoshenko", variant="text", ratio=m,
-                                kh=np.array([1e-3, 1e-4]), edge_factor=ef)
-            D, M = r["D"][1], r["mass"]
-            cut = float((D[2, 2] / M[2]).real / (STEEL_KS_G() / (r_I_over_A())))
-            row = {"edge_factor": ef, "delta/dx": m, "shear cutoff ratio": cut,
-                   "flexural ratio kh=1e-3": float(r["flexural"][0] / r["flexural_ref"][0]),
-                   "axial ratio": float(r["axial"][0] / r["axial_ref"][0])}
-            trow3.append(row)
-            tf_by[f"x{ef:g}_ratio{m}"] = {k: v for k, v in row.items()
-                                          if k not in ("edge_factor", "delta/dx")}
-    print("\ntext-faithful beam (j = k included, calibration 3.38) against delta/dx")
-    print(table(trow3))
+            row = _long_wave(beam_dispersion(theory="timoshenko", variant="text", ratio=m,
+                                             kh=np.array([1e-3, 1e-4]), edge_factor=ef))
+            trow3.append({"edge_factor": ef, "delta/dx": m, **row})
+            tf_by[f"x{ef:g}_ratio{m}"] = row
+    show(trow3, "text-faithful beam (j = k included, calibration 3.38) against delta/dx")
     # (iii) PD bar
     brow, lat = [], 0.0
     kd = np.array([0.1, 0.2, 0.5, 1.0, 2.0, 3.0])
@@ -173,10 +157,7 @@ def run_dispersion(args):
     p = np.polyfit(np.log([c[0] for c in conv]), np.log([c[1] for c in conv]), 1)[0]
     r = pd_bar_dispersion(ratio=4, kdelta=np.array([0.1, 0.25, 0.5]))
     e355 = float(np.max(np.abs(r["eq_3_55"] / r["continuum"] - 1)))
-    print("\nPD bar (PMB 1D, c = 2E/(A delta^2)) from the force routine")
-    print(table(brow))
-    print(f"convergence to the continuum relation: order {-p:.3f} in dx/delta; "
-          f"3.55 vs Cin form for k delta <= 0.5: {e355:.3e}")
+    show(brow, "PD bar (PMB 1D, c = 2E/(A delta^2)) from the force routine")
     # (iv) EB with the sections' rotary inertia (mass matrix) vs the Rayleigh beam
     from upscale.experiments.scenes.tridyn import rayleigh_dispersion
 
@@ -187,9 +168,8 @@ def run_dispersion(args):
         for kk, e, f in zip(kh, r["rel_err"], r["eb_over_rayleigh"]):
             rrow.append({"delta/dx": m, "k h": kk, "rel. err vs Rayleigh": e,
                          "EB (no rotary) / Rayleigh": f})
-    print("\nEB beam with rotary inertia (mass matrix), omega^2 = D(k)/M(k) vs Rayleigh "
+    show(rrow, "EB beam with rotary inertia (mass matrix), omega^2 = D(k)/M(k) vs Rayleigh "
           "EI k^4/(rho (A + I k^2)), dx/h = 0.01")
-    print(table(rrow))
     m1 = tim_err[1]
     out = {
         "rayleigh_rel_err_max": ray[1],
@@ -212,16 +192,16 @@ def run_dispersion(args):
     return out
 
 
-def STEEL_KS_G():
+def _long_wave(r):
+    """Long-wave ratios of a text-variant beam: the k -> 0 limit of the phi-phi entry over
+    k_s G A / (rho I), the flexural branch at k h = 1e-3 and the axial one, over Timoshenko's."""
     from upscale.experiments.scenes.tridyn import STEEL
 
-    return STEEL["ks"] * STEEL["E"] / (2 * (1 + STEEL["nu"])) / STEEL["rho"]
-
-
-def r_I_over_A():
-    from upscale.experiments.scenes.tridyn import STEEL
-
-    return STEEL["h"] ** 2 / 12.0
+    D, M = r["D"][1], r["mass"]
+    ref = STEEL["ks"] * STEEL["E"] / (2 * (1 + STEEL["nu"])) / STEEL["rho"] / (STEEL["h"] ** 2 / 12.0)
+    return {"shear cutoff ratio": float((D[2, 2] / M[2]).real / ref),
+            "flexural ratio kh=1e-3": float(r["flexural"][0] / r["flexural_ref"][0]),
+            "axial ratio": float(r["axial"][0] / r["axial_ref"][0])}
 
 
 # =========================================================================== statics
@@ -246,10 +226,7 @@ def run_beam(args):
             if n >= 100:
                 errs.append(abs(r["wmax_err_pct"]))
         orders[sup] = float(-np.polyfit(np.log(ns), np.log(e_n), 1)[0])
-    print("EB beams, q = 5 N/m, L = 1 m, 0.05 x 0.001 m, E = 200 GPa (delta/dx = 1)")
-    print(table(rows))
-    print("convergence order of |w_max error| in dx: " +
-          ", ".join(f"{k} {v:.2f}" for k, v in orders.items()))
+    show(rows, "EB beams, q = 5 N/m, L = 1 m, 0.05 x 0.001 m, E = 200 GPa (delta/dx = 1)")
     # text EB at delta/dx = 1: the free end's ghosts (w'' = w''' = 0)
     rows_t, tcant = [], {}
     for fe in ("second-order", "linear"):
@@ -266,10 +243,8 @@ def run_beam(args):
         r = beam_static(theory="eb", support=sup, n=100, ratio=1, variant="text")
         rows_t.append({"free_end": f"({sup})", "N": 100, "err %": r["wmax_err_pct"],
                        "residual": r["residual"]})
-    print("\ntext EB beam (2.15-2.19), delta/dx = 1: cantilever with the second-order and the "
+    show(rows_t, "text EB beam (2.15-2.19), delta/dx = 1: cantilever with the second-order and the "
           "linear free-end ghosts, ss and cc")
-    print(table(rows_t))
-    print("order: " + ", ".join(f"{k} {v['order']:.2f}" for k, v in tcant.items()))
     # literal vs consistent calibration against delta/L
     rows2 = []
     for var, xi in (("text", "spacing"), ("text", "horizon"), ("consistent", None)):
@@ -281,9 +256,8 @@ def run_beam(args):
                           "w_max / EB": r["wmax_m"] / r["wmax_ref_m"],
                           "(m+1)/2 x w_max/EB": (m + 1) / 2 * r["wmax_m"] / r["wmax_ref_m"]
                           if xi == "spacing" else ""})
-    print("\nsimply supported EB beam, N = 100: literal calibration 2.19 (xi = dx) vs the "
+    show(rows2, "simply supported EB beam, N = 100: literal calibration 2.19 (xi = dx) vs the "
           "long-wave one")
-    print(table(rows2))
     # Timoshenko h/L = 0.1
     rows3, terr = [], []
     for sup in ("ss", "cantilever", "cc"):
@@ -291,8 +265,7 @@ def run_beam(args):
         rows3.append({"support": sup, "h/L": 0.1, "w_max (m)": r["wmax_m"],
                       "EB + shear (m)": r["wmax_ref_m"], "err %": r["wmax_err_pct"]})
         terr.append(abs(r["wmax_err_pct"]))
-    print("\nconsistent Timoshenko beam, h/L = 0.1, N = 100, delta/dx = 1")
-    print(table(rows3))
+    show(rows3, "consistent Timoshenko beam, h/L = 0.1, N = 100, delta/dx = 1")
     # thin Timoshenko beams lock for delta > dx with the end-rotation shear measure; the
     # bond-integrated measure does not
     rows4, thin = [], {}
@@ -305,9 +278,8 @@ def run_beam(args):
                     rows4.append({"shear integration": si, "support": sup, "h/L": hh,
                                   "delta/dx": m, "err %": r["wmax_err_pct"]})
                     thin.setdefault(si, {}).setdefault(f"{sup} h/L={hh}", {})[str(m)] = r["wmax_err_pct"]
-    print("\nconsistent Timoshenko, N = 100, vs EB + shear: shear measure with the end rotations "
+    show(rows4, "consistent Timoshenko, N = 100, vs EB + shear: shear measure with the end rotations "
           "(3.6-3.9) and integrated along the bond")
-    print(table(rows4))
     # stability and NVE
     nve = []
     for th in ("eb", "timoshenko"):
@@ -321,15 +293,12 @@ def run_beam(args):
     from upscale.experiments.scenes.tridyn import rayleigh_mode
 
     modes = [rayleigh_mode(rotary=rot) for rot in (True, False)]
-    print("\nsimply supported EB beam (N = 100, h/L = 0.05) released in mode 4: angular "
-          "frequency from velocity Verlet with the rotary mass matrix and with lumped mass")
-    print(table([{k: v for k, v in r.items()} for r in modes]))
+    show(modes, "simply supported EB beam (N = 100, h/L = 0.05) released in mode 4: angular frequency "
+         "from velocity Verlet with the rotary mass matrix and with lumped mass")
     scan = step_scan(theory="eb") + step_scan(theory="timoshenko")
-    print("\nvelocity Verlet at 0.98 and 1.02 x the sharp critical step, random initial state")
-    print(table(scan))
-    print("\nexplicit dynamics (velocity Verlet, 0.8 x the Gershgorin estimate)")
-    print(table([{k: v for k, v in r.items() if not isinstance(v, (list, np.ndarray))}
-                 for r in nve + bond_nve]))
+    show(scan, "velocity Verlet at 0.98 and 1.02 x the sharp critical step, random initial state")
+    show([{k: v for k, v in r.items() if not isinstance(v, (list, np.ndarray))} for r in nve + bond_nve],
+         "explicit dynamics (velocity Verlet, 0.8 x the Gershgorin estimate)")
     out = {"eb_wmax_err_pct_max": float(max(errs)), "eb_order": float(min(orders.values())),
            "eb_order_by_support": orders,
            "timoshenko_wmax_err_pct": float(max(terr)),
@@ -449,7 +418,7 @@ def run_bench(args):
         st.field_v["rot"] = np.zeros((s.n, 2))
         race(m, s, fam, st, {"pmb": PMB(E=200e9),
                              "plate": TridynPlate(200e9, 0.3, thickness=1e-3)}, 2)
-    print(table(rows))
+    show(rows)
     beam = [v for k, v in ratio.items() if not k.startswith("plate")]
     plate = [v for k, v in ratio.items() if k.startswith("plate")]
     out = {"beam_step_over_pmb": float(max(beam)), "plate_step_over_pmb": float(max(plate)),
@@ -472,9 +441,8 @@ def run_plate(args):
     lit = literal_local_coefficients(E, nu)
     rows = [{"term": k, "literal (4.60, 4.63)": v[0], "Mindlin 4.62": v[1], "ratio": v[0] / v[1]}
             for k, v in lit.items()]
-    print("printed local limit with the printed constants vs Mindlin (E = 200 GPa, nu = 0.3, "
+    show(rows, "printed local limit with the printed constants vs Mindlin (E = 200 GPa, nu = 0.3, "
           "I/A = 1)")
-    print(table(rows))
     # the printed plate on the engine (variant "text"): its long-wave coefficients from its
     # force routine, for the two readings of the prescribed triangles
     tp, trows = {}, []
@@ -487,13 +455,8 @@ def run_plate(args):
         for t, v in r["terms"].items():
             trows.append({"triplets": reading, "term": t, "model / Mindlin": v[0] / v[2],
                           "printed 4.60 / Mindlin": v[1] / v[2]})
-    print("\nprinted plate (4.1-4.14, EOM 4.48-4.52, constants 4.63; terms with xi^e = 0 dropped), "
+    show(trows, "printed plate (4.1-4.14, EOM 4.48-4.52, constants 4.63; terms with xi^e = 0 dropped), "
           "delta/dx = 1, h = 10 dx, long-wave coefficients at k dx = 1e-3")
-    print(table(trows))
-    for reading, v in tp.items():
-        print(f"{reading}: spurious v-u coupling along x / mu = {v['spurious_v_u_along_x_over_mu']:.4g}, "
-              f"asymmetry {v['asymmetry']:.3g}, min/max omega^2 by k dx: "
-              + ", ".join(f"{k:.3g}: {w:.3g}" for k, w in v["min_over_max_omega2_by_kdx"].items()))
     drow, derr = [], {}
     for m in ((1,) if quick else (1, 2)):
         r = plate_dispersion(ratio=m)
@@ -502,13 +465,9 @@ def run_plate(args):
             drow.append({"delta/dx": m, "angle (deg)": ang,
                          **{f"{nm}": float(e[:, b].max()) for b, nm in
                             enumerate(("flexural", "SH", "P", "twist-shear", "thickness-shear"))}})
-    print("\ncorrected plate vs Mindlin, max relative error of omega^2 for k dx <= 0.05 "
+    show(drow, "corrected plate vs Mindlin, max relative error of omega^2 for k dx <= 0.05 "
           "(h = 10 dx)")
-    print(table(drow))
     en = plate_energy_random(samples=50 if quick else 200)
-    print(f"\nrandom fields (free plate, delta/dx = 2): energy min {en['min_energy_J']:.4g} J, "
-          f"max {en['max_energy_J']:.4g} J; stiffness: {en['negative_eigs']} negative, "
-          f"{en['zero_eigs']} zero eigenvalues (6 rigid modes)")
     prow, perr = [], None
     for n in ((20, 40) if quick else (20, 40, 60)):
         r = plate_bending(n=n)
@@ -517,11 +476,9 @@ def run_plate(args):
                      "Navier Kirchhoff (m)": r["navier_kirchhoff_m"], "err %": r["err_pct"],
                      "residual": r["residual"]})
         perr = r["err_pct"]
-    print("\nsimply supported square plate, uniform load (a = 1 m, h = 0.1 m), delta/dx = 1")
-    print(table(prow))
+    show(prow, "simply supported square plate, uniform load (a = 1 m, h = 0.1 m), delta/dx = 1")
     nve = plate_nve(steps=2000 if quick else 10_000)
-    print("\nexplicit dynamics, plate (20 x 20, velocity Verlet at 0.8 x the estimate)")
-    print(table([nve]))
+    show([nve], "explicit dynamics, plate (20 x 20, velocity Verlet at 0.8 x the estimate)")
     out = {"mindlin_rel_err_max": float(derr[1]),
            "mindlin_rel_err_by_ratio": {str(k): v for k, v in derr.items()},
            "navier_err_pct": float(perr),
