@@ -1,22 +1,16 @@
 """The potentials (``potentials``) against references nobody here wrote.
 
-Tersoff against LAMMPS: exactness (``tersoff-vs-lammps``, single points through
-:mod:`upscale.experiments.lammps.single_point`) and speed (``bench-tersoff``).
+``tersoff-vs-lammps`` / ``bench-tersoff``: Tersoff against LAMMPS, exactness (single points,
+:mod:`upscale.experiments.lammps.single_point`) and speed.
 
-Brenner 1990 (REBO-I): lattice constants of graphene and diamond for both parameter sets,
-and the effect of the conjugation term F_ij on a 4-atom vacancy.
-
-``brenner-constants``: the lattice constant is relaxed with scipy's ``minimize_scalar``
-and compared with (a) the closed form of a lattice of z equivalent bonds at angle theta,
-``r = r_e - ln B / (beta (sqrt(2S) - sqrt(2/S)))``, ``E/atom = -D_e B^(S/(S-1)) z/2`` with
-``B = [1 + (z-1) G(theta)]^(-delta)`` (a check of the implementation, pass criterion), and
-(b) the experimental bond lengths and cohesive energies of graphite and diamond that the
-1990 parameters were fitted to (printed, not a pass criterion: potential II is known to
-give a longer graphite bond).
-
-``brenner-vacancy``: a (10,10) tube (and a graphene sheet) with 4 atoms removed (one atom
-and its three neighbours), relaxed (L-BFGS, fixed cell) with and without F_ij: formation energies and the
-change F_ij makes.
+``brenner-constants``: Brenner 1990 (REBO-I) sets I and II, the graphene and diamond lattice
+constants relaxed (``minimize_scalar``) against (a) the closed form of a lattice of z
+equivalent bonds at angle theta, ``r = r_e - ln B / (beta (sqrt(2S) - sqrt(2/S)))``,
+``E/atom = -D_e B^(S/(S-1)) z/2``, ``B = [1 + (z-1) G(theta)]^(-delta)`` (the pass), and
+(b) the experimental bond lengths and cohesive energies the parameters were fitted to
+(reported: set II gives a longer graphite bond). ``brenner-vacancy``: a (10,10) tube and a
+graphene sheet with one atom and its three neighbours removed, relaxed (L-BFGS, fixed cell)
+with and without F_ij: formation energies and the change F_ij makes.
 """
 from __future__ import annotations
 
@@ -31,7 +25,7 @@ from upscale.experiments.lammps import evaluate as lammps_evaluate
 from upscale.experiments.lammps import evaluate_calculator as ours_evaluate
 from upscale.experiments.lammps import tersoff_pair_lines as lammps_tersoff_lines
 from upscale.experiments.lammps.single_point import to_lammps_frame
-from validation.registry import case, table
+from validation.registry import case, show
 
 
 # -- structures -----------------------------------------------------------------------------
@@ -81,9 +75,6 @@ def _exactness_rows(quick: bool):
                 rows.append({"file": fname, "cutoff": cutoff, "structure": name,
                              "atoms": len(atoms), "E_eV_per_atom": ours["energy"] / len(atoms),
                              **err, "pass": ok})
-                print(f"{fname} {cutoff:6s} {name:28s} energy {err['energy_rel_err']:.2e} "
-                      f"force {err['force_max_abs_err_eV_per_A']:.2e} "
-                      f"virial {err['virial_rel_err']:.2e} {'ok' if ok else 'FAIL'}", flush=True)
     return rows
 
 
@@ -94,13 +85,9 @@ def _exactness_rows(quick: bool):
 def run_tersoff_vs_lammps(args) -> dict:
     from potentials.lammps_runtime import lammps_version
 
-    print(f"LAMMPS {lammps_version()}; tolerances: energy 1e-10 relative, forces 1e-8 eV/A, "
-          "virial 1e-8 relative")
+    print(f"LAMMPS {lammps_version()}")
     rows = _exactness_rows(args.quick)
-    print()
-    print(table(rows, ["file", "cutoff", "structure", "atoms", "E_eV_per_atom",
-                       "energy_rel_err", "force_max_abs_err_eV_per_A", "virial_rel_err",
-                       "energies_max_abs_err_eV", "pass"], floatfmt=".3g"))
+    show(rows, fmt=".3g")
     from upscale.io import write_json
 
     write_json(args.outdir / "rows.json", rows)
@@ -115,10 +102,10 @@ def run_tersoff_vs_lammps(args) -> dict:
 
 
 # -- case: bench-tersoff --------------------------------------------------------------------
-#: ``bench-tersoff`` passes when every structure's one-core time per atom-step through the
-#: calculator is at most this fraction of LAMMPS ``pair_style tersoff``'s (the speed target
-#: the project holds Tersoff to)
+#: ``bench-tersoff``'s target: one-core time per atom-step through the calculator at most
+#: this fraction of LAMMPS ``pair_style tersoff``'s, every structure
 TIME_RATIO_TARGET = 0.6
+
 
 def bench_structure(kind: str, n_target: int):
     """Diamond (cubic cells) or AB graphite with about ``n_target`` atoms, rattled 0.02 A."""
@@ -254,6 +241,9 @@ def _bench_args(p):
       "one core (and two), ~8,000 and ~100,000 atoms", _bench_args,
       target="one-core time per atom-step at most 0.6 of LAMMPS pair_style tersoff's, every structure")
 def run_bench_tersoff(args) -> dict:
+    """Microseconds per atom-step: ``ours_*`` through the ASE calculator (a tiny move per step,
+    list check, overlap check, result copies), ``ours_kernel_*`` the bare kernel;
+    ``lammps_omp2`` is ``pair_style tersoff/omp`` with 2 OpenMP threads."""
     import numba
 
     from potentials.lammps_runtime import lammps_version
@@ -283,12 +273,7 @@ def run_bench_tersoff(args) -> dict:
             numba.set_num_threads(ncores)
             row["nominal"] = n_target
             rows.append(row)
-            print(table([row], floatfmt=".3g"), flush=True)
-    print()
-    print("times in microseconds per atom-step; ours_* through the ASE calculator (a tiny move "
-          "per step, list check, overlap check, result copies), ours_kernel_* the bare kernel; "
-          "lammps_omp2 is pair_style tersoff/omp with 2 OpenMP threads")
-    print(table(rows, floatfmt=".3g"))
+            show([row], fmt=".3g")
     from upscale.io import write_json
 
     write_json(args.outdir / "rows.json", rows)
@@ -375,20 +360,13 @@ def run_constants(args) -> dict:
             out[f"Ecoh_{kind}_set{pset}_eV"] = ecoh
             out[f"bond_minus_exp_{kind}_set{pset}_A"] = bond - rx
             out[f"Ecoh_minus_exp_{kind}_set{pset}_eV"] = ecoh - ex
-    print("Brenner, Phys. Rev. B 42, 9458 (1990): relaxed lattices (minimize_scalar on the "
-          "lattice constant)")
-    print(table(rows))
-    print("closed form: r = r_e - ln B/(beta(sqrt(2S) - sqrt(2/S))), E = D_e B^(S/(S-1)) z/2")
-    print("exp: " + "; ".join(f"{k}: {v['source']}" for k, v in ref.items() if k != "note"))
-    print("paper: the 1990 paper's printed property table was not verified here")
+    show(rows, "Brenner, Phys. Rev. B 42, 9458 (1990): relaxed lattices; exp: "
+         + "; ".join(f"{k}: {v['source']}" for k, v in ref.items() if k != "note"), fmt=".6g")
     tp = brenner_data().get("third_party_checks", {}).get("set_II_diamond")
     if tp:
         b, e = out["bond_diamond_setII_A"], out["Ecoh_diamond_setII_eV"]
         out["thirdparty_setII_diamond_bond_diff_A"] = b - tp["bond_A"]
         out["thirdparty_setII_diamond_Ecoh_diff_eV"] = e - tp["cohesive_eV"]
-        print(f"cross-check (not the paper): set II diamond bond {b:.5f} Å vs {tp['bond_A']:.5f} "
-              f"(a0 {tp['lattice_constant_A']} Å), Ecoh {e:.5f} eV vs {tp['cohesive_eV']} eV "
-              f"({tp['cohesive_expression']}); source: {tp['source']}")
     out.update({"max_bond_err_A": bond_err, "max_energy_err_eV": energy_err,
                 "paper_table_verified": False,
                 "pass": bool(bond_err < 1e-6 and energy_err < 1e-8)})
@@ -468,11 +446,7 @@ def run_vacancy(args) -> dict:
                 out[f"E_form_unrelaxed_{tag}_eV"] = ef_unrel
             out[f"F_effect_{name}_set{pset}_eV"] = (out[f"E_form_{name}_set{pset}_F_eV"]
                                                     - out[f"E_form_{name}_set{pset}_noF_eV"])
-    print("4-atom vacancy (an atom and its three neighbours removed), positions relaxed "
-          f"with L-BFGS to fmax {fmax} eV/A at fixed cell; E_form = E_defect - (N-4)/N E_perfect")
-    print(table(rows))
-    print("F_effect = E_form(with F_ij) - E_form(without): " + ", ".join(
-        f"{k[len('F_effect_'):-3]} {v:+.4f} eV" for k, v in out.items()
-        if k.startswith("F_effect_")))
+    show(rows, f"4-atom vacancy, relaxed (L-BFGS, fmax {fmax} eV/A, fixed cell); E_form = E_defect - "
+         "(N-4)/N E_perfect", fmt=".6g")
     out["pass"] = bool(ok)
     return out
