@@ -1,42 +1,17 @@
 """Peridynamics on the engine against references nobody here wrote.
 
-``pmb-vs-lammps`` / ``lps-vs-lammps``
-    The engine in LAMMPS's conventions against LAMMPS ``pair_style peri/pmb`` /
-    ``peri/lps`` (``atom_style peri``, ``lattice sc``, ``fix nve``): forces on a randomly
-    perturbed cubic lattice, then 200 Verlet steps of a pre-cracked block with bond
-    breaking (critical stretch, alpha = 0). See :mod:`upscale.engine.lammps_peri` for every
-    convention and how it is matched.
-``bench-pmb``
-    PMB and LPS bond-force throughput (directed bonds per second) of the engine against
-    LAMMPS peri/pmb and peri/lps (their Pair time, which includes their short-range
-    contact loop) on the same ~30,000-particle block (horizon 3 spacings), interleaved
-    rounds in one run, one core; the bytes per bond the engine's kernels stream, the
-    machine's memory bandwidth (triad) measured in the same run, and the 2-thread
-    speed-up.
-``pd-elasticity``
-    Bulk energy density of homogeneous deformations against linear elasticity (PMB, LPS;
-    3D, 2D plane stress/strain; several horizons and partial-volume rules), and the
-    Poisson contraction of an LPS bar (nu = 0.3) from a static solve (ADR).
-``pd-stability``
-    Stable-step estimate against the sharp linearised limit, NVE energy drift over
-    10,000 steps at 0.8 of the estimate, refusal of a step above it, blow-up detection of
-    a forced run with its last good checkpoint, checkpoint/restart equality.
-
-bench-memory: bytes kept per directed bond by the pair models on a 2D plate.
-
-For PMB, LPS, Ti-PD, NOSB (correspondence) and CPD, each at its default settings on one
-square plate (horizon 3.015 spacings, 28 bonds per bulk particle), the case builds the
-family, prepares the model, evaluates one force (so buffers made on first use are
-there) and counts the bytes of every numpy buffer the family and the model keep
-(:func:`upscale.engine.memory.bytes_per_bond`; the system's positions and volumes are
-not charged), plus the run's per-bond state: the engine's bond state ``intact`` (bool, 1
-byte per directed bond) and what a model keeps in ``state.extra`` (CPD: one bool per
-triplet and quadruplet). Target (issue 53): the per-bond buffers at most 16 bytes per
-bond plus that state (``bytes_per_bond_*``). The per-particle buffers (row pointers,
-LPS's weighted volumes, the correspondence tensors of NOSB and of Ti-PD's surface
-correction) are reported beside it, spread over the bonds (``all_kept_bytes_per_bond_*``):
-at this horizon (28 bonds per particle) they are a large share for NOSB and Ti-PD, at
-m = 6 or 12 about a quarter or a sixteenth of it.
+``pmb-vs-lammps`` / ``lps-vs-lammps``: the engine in LAMMPS's conventions
+(:mod:`upscale.engine.lammps_peri`) against ``pair_style peri/pmb`` / ``peri/lps``: forces on
+a perturbed cubic lattice, then 200 Verlet steps of a pre-cracked block with bond breaking.
+``bench-pmb``: bond-force throughput against LAMMPS's Pair time on the same ~30,000-particle
+block, interleaved rounds, one core; bytes per bond streamed, the memory bandwidth (triad) and
+the 2-thread speed-up. ``pd-elasticity``: bulk energy density of homogeneous deformations
+against linear elasticity, and the Poisson contraction of an LPS bar (ADR). ``pd-stability``:
+stable step against the sharp linearised limit, NVE drift at 0.8 of it, refusal of a larger
+step, blow-up detection with its last good checkpoint. ``bench-memory``: bytes kept per
+directed bond (:func:`upscale.engine.memory.bytes_per_bond`, after one force evaluation; the
+system's arrays not charged) by PMB, LPS, Ti-PD, NOSB and CPD at their defaults; target (issue
+53): at most 16 plus the run's per-bond state, the per-particle buffers beside it.
 """
 from __future__ import annotations
 
@@ -48,51 +23,17 @@ from pathlib import Path
 
 import numpy as np
 
-from validation.registry import case, table
-
-
-def _threads(n):
-    from upscale.engine.kernels import set_threads
-
-    return set_threads(n)
-
-
-def _load() -> float:
-    try:
-        return float(os.getloadavg()[0])
-    except OSError:
-        return float("nan")
+from validation.registry import case, show
+from validation.registry import threads as _threads
 
 
 # ---------------------------------------------------------------------------- LAMMPS
-
-
 def _lammps_case(style: str, args) -> dict:
     from upscale.experiments.scenes.peri_lammps import compare
 
     _threads(1)
     counts = (10, 10, 4) if args.quick else (16, 16, 6)
     r = compare(style, counts=counts, steps=200)
-    rows = [
-        {"quantity": "force, max |f_engine - f_lammps| / max |f_lammps|", "value": r["force_rel_err"],
-         "target": "<= 1e-10"},
-        {"quantity": "displacement after 200 steps, max abs err / max |u|", "value": r["disp_rel_err_200_steps"],
-         "target": "<= 1e-8"},
-        {"quantity": "broken bonds (engine)", "value": r["broken_bonds_engine"], "target": "> 0"},
-        {"quantity": "volume-weighted damage, max |diff|", "value": r["damage_max_abs_diff"],
-         "target": "< 1e-12 (sets identical)"},
-        {"quantity": "closest approach of a deciding bond to s00, |s - s00|", "value": r["critical_stretch_margin_min"],
-         "target": "> 1e3 x the next row (well-posed)"},
-        {"quantity": "bond stretch after 200 steps, max |s_engine - s_lammps|", "value": r["stretch_max_abs_diff_final"],
-         "target": "reported"},
-        {"quantity": "contacts active (max over steps)", "value": r["contacts_active_max"], "target": "reported"},
-        {"quantity": "effect of LAMMPS edge factor on forces", "value": r["force_rel_diff_without_lammps_edge_factor"],
-         "target": "reported"},
-    ]
-    print(f"{style}: {r['particles']} particles, {r['bonds']} bonds (force test); pre-cracked block "
-          f"{r['block_particles']} particles, {r['block_bonds']} bonds, "
-          f"{r['precrack_bonds_removed']} removed by the pre-crack")
-    print(table(rows, ["quantity", "value", "target"]))
     ok = (r["force_rel_err"] <= 1e-10 and r["disp_rel_err_200_steps"] <= 1e-8
           and r["broken_bonds_identical"]
           and r["critical_stretch_margin_min"] > 1e3 * r["stretch_max_abs_diff_final"])
@@ -230,7 +171,7 @@ def bench_pmb(args):
     contact = LammpsContact.for_pmb(P["c"], P["horizon"], P["lc"])
     contact.prepare(sysm, fam)
     state = State.reference(sysm.x0, fam.nb)
-    load0 = _load()
+    load0 = os.getloadavg()[0]
     avail = _threads(None)
     two = min(2, max(avail, 1)) >= 2
     best: dict = {}
@@ -268,20 +209,14 @@ def bench_pmb(args):
     step1 = (time.perf_counter() - t0) / steps
     bw = memory_bandwidth()
     _threads(avail)
-    load1 = _load()
+    load1 = os.getloadavg()[0]
     nb_ = fam.nb
-    rows = []
     out: dict = {"particles": int(sysm.n), "bonds": int(nb_), "bonds_lammps": bonds["pmb"],
                  "bonds_match": bool(bonds["pmb"] == nb_ == bonds["lps"]),
                  "classes": int(models["pmb"].bonds.classes()[1].size), "rounds": rounds}
     for s, m in models.items():
         t1, t1c, pair = best[f"{s}_engine_1t"], best[f"{s}_engine_1t_cpu"], best[f"{s}_lammps_pair"]
         t2 = best.get(f"{s}_engine_2t", float("nan"))
-        rows += [
-            {"code": f"LAMMPS peri/{s} (Pair)", "threads": 1, "s_per_eval": pair, "Mbonds_per_s": nb_ / pair / 1e6},
-            {"code": f"engine {s.upper()} force+failure", "threads": 1, "s_per_eval": t1, "Mbonds_per_s": nb_ / t1 / 1e6},
-            {"code": f"engine {s.upper()} force+failure", "threads": 2, "s_per_eval": t2, "Mbonds_per_s": nb_ / t2 / 1e6},
-        ]
         sb = m.stream_bytes()
         pre = "" if s == "pmb" else "lps_"
         out.update({
@@ -295,19 +230,6 @@ def bench_pmb(args):
             f"{pre}achieved_GBps_1thread": sb / t1 / 1e9, f"{pre}achieved_GBps_1thread_cpu": sb / t1c / 1e9,
         })
     tc = best["contact_engine_1t"]
-    rows.append({"code": "engine LammpsContact (half list)", "threads": 1, "s_per_eval": tc,
-                 "Mbonds_per_s": nb_ / tc / 1e6})
-    rows.append({"code": "engine (whole VV step, PMB)", "threads": 1, "s_per_eval": step1, "Mbonds_per_s": nb_ / step1 / 1e6})
-    print(f"block {n + 1}^3 = {sysm.n} particles, horizon {P['horizon'] / P['lc']:.4f} spacings, "
-          f"{nb_} directed bonds (LAMMPS: {bonds['pmb']}), {out['classes']} bond classes; best of "
-          f"{rounds} interleaved rounds; load average {load0:.2f} -> {load1:.2f} on {os.cpu_count()} cores")
-    print(table(rows, ["code", "threads", "s_per_eval", "Mbonds_per_s"], floatfmt=".4g"))
-    print(f"memory bandwidth (triad, GB/s): numba 1 thread {bw['numba_1thread']:.1f} (by CPU time "
-          f"{bw['numba_1thread_cpu']:.1f}), all threads {bw['numba_all_threads']:.1f}, numpy {bw['numpy']:.1f}")
-    for s, pre in (("PMB", ""), ("LPS", "lps_")):
-        print(f"{s} kernel streams {out[pre + 'bytes_per_bond']:.2f} bytes per directed bond: "
-              f"{out[pre + 'achieved_GBps_1thread']:.2f} GB/s on one thread (by CPU time "
-              f"{out[pre + 'achieved_GBps_1thread_cpu']:.2f})")
     ratio = out["throughput_ratio_vs_lammps_1core"]
     out.update({
         "memory_bandwidth_GBps": bw["numba_1thread_cpu"], "memory_bandwidth_GBps_1thread_wall": bw["numba_1thread"],
@@ -447,18 +369,12 @@ def pd_elasticity(args):
                         row["isotropic, continuum calib."] = bulk_energy_error(
                             model, dim, m=m, partial_volume=pv, plane=plane, deformation="isotropic stretch")
                     rows.append(row)
-    print("relative error of the bulk energy density (engine / continuum - 1):")
-    print(table(rows, ["model", "dim", "plane", "delta/h", "partial_volume", "calibration",
-                       *DEFORMATIONS, "isotropic, continuum calib."], floatfmt=".4f"))
     bars = [poisson_bar(2, cells=(61, 21, 1)), poisson_bar(2, cells=(61, 21, 1), plane="strain"),
             poisson_bar(2, cells=(61, 21, 1), partial_volume=None)]
     if not args.quick:
         bars.append(poisson_bar(2, cells=(81, 29, 1), m=4.015))
         bars.append(poisson_bar(3, cells=(41, 15, 15)))
         bars.append(poisson_bar(3, cells=(41, 15, 15), partial_volume=None))
-    print("LPS bar, nu = 0.3 (plane strain: in-plane ratio nu/(1-nu)):")
-    print(table(bars, ["dim", "cells", "particles", "horizon_over_h", "partial_volume", "plane", "adr_iterations",
-                       "nu_expected", "nu_measured", "nu_rel_err"], floatfmt=".4f"))
     iso = [abs(r["isotropic stretch"]) for r in rows]
     best = [r for r in rows if r["partial_volume"] == "linear" and r["delta/h"] == max(horizons)]
     stretch_err = max(max(abs(r["isotropic stretch"]), abs(r["uniaxial stretch"])) for r in best)
@@ -567,9 +483,6 @@ def pd_stability(args):
     runs = [nve_drift("pmb", 2), nve_drift("lps", 2)]
     if not args.quick:
         runs += [nve_drift("pmb", 3), nve_drift("lps", 3)]
-    print("NVE, 10,000 velocity-Verlet steps at 0.8 x the stable estimate:")
-    print(table(runs, ["model", "dim", "particles", "dt_s", "stable_estimate_s", "sharp_critical_dt_s",
-                       "drift", "drift_windows", "fluctuation", "wall_s"], floatfmt=".4g"))
     # refusal
     sysm = square_lattice(10, 10, 1e-3, density=2000.0)
     fam = build_family(sysm, 3.015e-3)
@@ -579,10 +492,7 @@ def pd_stability(args):
         refusal = None
     except ValueError as exc:
         refusal = str(exc)
-    print(f"dt = 1 s: {refusal}")
     blow = forced_blowup(args.outdir)
-    print(f"forced run at {blow['factor_over_estimate']} x estimate: {blow['diagnosis']}")
-    print(f"checkpoint on disk: step {blow.get('checkpoint_step')}, finite {blow.get('checkpoint_finite')}")
     drift = max(r["drift"] for r in runs)
     ok = (drift < 1e-4 and refusal is not None and "stable estimate" in refusal and blow["detected"]
           and blow.get("checkpoint_finite", False))
@@ -643,12 +553,10 @@ def _args(p):
 @case("bench-memory", "bytes kept per bond by PMB, LPS, Ti-PD, NOSB and CPD on a 2D plate "
       "(target: at most 16 plus the model's per-bond state)", add_arguments=_args)
 def bench_memory(args):
-    from upscale.engine.kernels import set_threads
-
-    set_threads(1)
+    _threads(1)
     cells = args.cells or (60 if args.quick else 120)
     rows = measure(cells)
-    print(table(rows, floatfmt=".2f"))
+    show(rows, fmt=".2f")
     out = {"plate_particles": cells * cells, "bonds": rows[0]["bonds"]}
     ok = True
     for r in rows:
