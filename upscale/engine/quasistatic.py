@@ -134,16 +134,18 @@ class Equilibrium:
 
     def _assemble(self, state):
         """The tangent on the free dofs; the free rows and columns of a pattern seen before
-        are taken by a stored index map (the model's tangent keeps its pattern)."""
+        are taken by a stored index map (the model's tangent keeps its pattern; the map is
+        rebuilt only when the pattern's content differs)."""
         t = time.perf_counter()
         K = self.model.tangent(state).tocsr()
-        key = (K.shape, K.nnz, id(K.indices), id(K.indptr))
-        if self._sub is None or self._sub[0] != key or self._sub[1] is not K.indices:
+        sub = self._sub
+        if sub is None or not (sub[0].shape == K.indptr.shape and sub[1].shape == K.indices.shape
+                               and np.array_equal(sub[0], K.indptr) and np.array_equal(sub[1], K.indices)):
             probe = sp.csr_matrix((np.arange(K.nnz, dtype=float), K.indices, K.indptr), shape=K.shape)
             Kp = probe[self.free][:, self.free].tocsr()
             Kp.sort_indices()
-            self._sub = (key, K.indices, Kp.data.astype(np.int64), Kp.indices, Kp.indptr)
-        _, _, take, ind, ptr = self._sub
+            self._sub = sub = (K.indptr.copy(), K.indices.copy(), Kp.data.astype(np.int64), Kp.indices, Kp.indptr)
+        _, _, take, ind, ptr = sub
         self._K = sp.csr_matrix((K.data[take], ind, ptr), shape=(self.free.size, self.free.size))
         self._K_intact = state.intact.copy()
         self.stats["assemblies"] += 1

@@ -122,24 +122,33 @@ class Factor:
         return self
 
     def _cholmod(self, A):
+        """Numeric factorisation of A's lower triangle; the symbolic analysis and the map
+        from A's values to the triangle's are kept while A's pattern is the same."""
         import cvxopt
         import cvxopt.cholmod as cm
 
-        L = sp.tril(A, format="csc")
-        L.sort_indices()
-        key = (L.shape, L.nnz, hash(L.indptr.tobytes()), hash(L.indices.tobytes()))
-        if key != self._pattern:
+        A = sp.csr_matrix(A)
+        if not A.has_canonical_format:
+            A = A.copy()
+            A.sum_duplicates()
+        pat = self._pattern
+        if pat is None or not (pat[0].shape == A.indptr.shape and pat[1].shape == A.indices.shape
+                               and np.array_equal(pat[0], A.indptr) and np.array_equal(pat[1], A.indices)):
+            probe = sp.csr_matrix((np.arange(1, A.nnz + 1, dtype=float), A.indices, A.indptr), shape=A.shape)
+            L = sp.tril(probe, format="csc")
+            L.sort_indices()
+            take = L.data.astype(np.int64) - 1        # 1-based in the probe: a value 0 would be dropped
             n = L.shape[0]
             cols = np.repeat(np.arange(n), np.diff(L.indptr))
-            self._S = cvxopt.spmatrix(cvxopt.matrix(L.data.astype(float)), cvxopt.matrix(L.indices.astype(int)),
+            self._S = cvxopt.spmatrix(cvxopt.matrix(A.data[take].astype(float)), cvxopt.matrix(L.indices.astype(int)),
                                       cvxopt.matrix(cols.astype(int)), (n, n))
             if len(self._S.V) != L.nnz:   # the triplets were summed or zeros dropped: values would misalign
                 raise RuntimeError("cvxopt changed the pattern of the lower triangle; cannot reuse it")
             self._sym = cm.symbolic(self._S, uplo="L")
-            self._pattern = key
+            self._pattern = (A.indptr.copy(), A.indices.copy(), take)
             self.stats["symbolic"] += 1
         else:
-            self._S.V = cvxopt.matrix(L.data.astype(float))
+            self._S.V = cvxopt.matrix(A.data[pat[2]].astype(float))
         cm.numeric(self._S, self._sym)
         self._F = self._sym
 
