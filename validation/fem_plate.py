@@ -15,9 +15,7 @@ free-surface condition (:meth:`FEPlate.Kt_trace`; the L2-projected nodal stress 
 
 Meshes: size h within 1 mm of the hole (the orthotropic peak falls half-way to the far
 stress within about 0.65 mm of the hole, so the layer holding it is uniformly fine),
-growing linearly to 2 mm at 6 mm from it; the levels halve h. On the earlier family (h
-within 2 mm, growing to min(8 h, 5 mm) at 30 mm) the projected stress at the boundary node
-converged at first order for the orthotropic plate.
+growing linearly to 2 mm at 6 mm from it; the levels halve h.
 
 Run ``python -m validation.fem_plate`` to regenerate ``data/reference/tipd_hole_fem.json``
 (provenance inside: library versions, meshes, command).
@@ -32,7 +30,7 @@ from pathlib import Path
 import numpy as np
 
 __all__ = ["plate_mesh", "FEPlate", "solve_plate", "ISO", "ORTHO", "kirsch_kt", "lekhnitskii_kt",
-           "REFERENCE", "generate"]
+           "REFERENCE", "generate", "threshold_field"]
 
 L_PLATE, W_PLATE, R_HOLE, THICK = 0.15, 0.05, 0.01, 1e-3
 U_GRIP = 4e-4            # 1e-4 mm/s x 4000 s (seed 003 sec. 5.2)
@@ -67,6 +65,23 @@ def lekhnitskii_kt(E1=144.8e9, E2=11.7e9, G12=9.66e9, nu12=0.21) -> float:
     return float(1 + np.sqrt(2 * (np.sqrt(E1 / E2) - nu12) + E1 / G12))
 
 
+def threshold_field(kind, items, size_min, size_max, dist_min, dist_max, sampling=None) -> int:
+    """A gmsh size field: ``size_min`` within ``dist_min`` of the points or curves ``items``
+    (``kind``: "PointsList" or "CurvesList"), growing linearly to ``size_max`` at ``dist_max``."""
+    import gmsh
+
+    f = gmsh.model.mesh.field
+    d = f.add("Distance")
+    f.setNumbers(d, kind, items)
+    if sampling:
+        f.setNumber(d, "Sampling", sampling)
+    th = f.add("Threshold")
+    for key, v in (("InField", d), ("SizeMin", size_min), ("SizeMax", size_max), ("DistMin", dist_min),
+                   ("DistMax", dist_max)):
+        f.setNumber(th, key, v)
+    return th
+
+
 def plate_mesh(h_hole: float, h_far: float, *, L=L_PLATE, W=W_PLATE, R=R_HOLE,
                dist_min: float | None = None, dist_max: float | None = None):
     """gmsh triangulation of the plate with a hole: size h_hole within ``dist_min`` (default
@@ -89,17 +104,9 @@ def plate_mesh(h_hole: float, h_far: float, *, L=L_PLATE, W=W_PLATE, R=R_HOLE,
         occ.synchronize()
         hole = [cv[1] for cv in gmsh.model.getEntities(1)
                 if max(abs(v) for v in gmsh.model.getBoundingBox(1, cv[1])) <= 1.0001 * R]
-        f = gmsh.model.mesh.field
-        dist = f.add("Distance")
-        f.setNumbers(dist, "CurvesList", hole)
-        f.setNumber(dist, "Sampling", 400)
-        th = f.add("Threshold")
-        f.setNumber(th, "InField", dist)
-        f.setNumber(th, "SizeMin", h_hole)
-        f.setNumber(th, "SizeMax", h_far)
-        f.setNumber(th, "DistMin", 0.2 * R if dist_min is None else dist_min)
-        f.setNumber(th, "DistMax", 3 * R if dist_max is None else dist_max)
-        f.setAsBackgroundMesh(th)
+        th = threshold_field("CurvesList", hole, h_hole, h_far, 0.2 * R if dist_min is None else dist_min,
+                             3 * R if dist_max is None else dist_max, sampling=400)
+        gmsh.model.mesh.field.setAsBackgroundMesh(th)
         gmsh.option.setNumber("Mesh.MeshSizeExtendFromBoundary", 0)
         gmsh.option.setNumber("Mesh.MeshSizeFromPoints", 0)
         gmsh.option.setNumber("Mesh.MeshSizeFromCurvature", 0)
@@ -180,9 +187,6 @@ class FEPlate:
 
     def probe(self, points) -> np.ndarray:
         """Displacement (k, 2) (m) at points (k, 2)."""
-        return self._probe(points)
-
-    def _probe(self, points):
         pts = np.asarray(points, dtype=np.float64).T
         out = np.zeros((pts.shape[1], 2))
         for c in range(2):
@@ -316,8 +320,8 @@ def generate(path: Path = REFERENCE, h_levels=(2.5e-4, 1.25e-4, 6.25e-5, 3.125e-
             pts = sample_points(dx)
             entry = {}
             for key, P in pts.items():
-                uf = fine._probe(P)
-                uc = sols[-2]._probe(P)
+                uf = fine.probe(P)
+                uc = sols[-2].probe(P)
                 entry[key] = {"xy_m": P.round(12).tolist(), "u_m": uf.tolist()}
                 comp = 0 if key == "mid" else 1
                 conv[f"{key}_dx{dx:g}"] = float(np.linalg.norm(uf[:, comp] - uc[:, comp]) /

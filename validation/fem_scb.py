@@ -33,6 +33,8 @@ from pathlib import Path
 
 import numpy as np
 
+from validation.fem_plate import threshold_field
+
 __all__ = ["scb_mesh", "solve_scb", "ALPHAS_DEG", "PMMA", "GEOMETRY"]
 
 ALPHAS_DEG = (0.0, 10.0, 20.0, 30.0, 40.0, 43.0, 47.0, 50.0)
@@ -61,38 +63,16 @@ def scb_mesh(alpha_deg, *, R=0.05, a_over_R=0.3, S_over_R=0.43, w=1.5e-3, h_far=
     P = [g.addPoint(x, y, 0, s) for (x, y), s in zip(pts_xy, sizes)]
     c0 = g.addPoint(0, 0, 0, h_far)
     L = [g.addLine(P[0], P[1]), g.addLine(P[1], P[2]), g.addLine(P[2], P[3]),
-         g.addCircleArc(P[3], c0, P[4]), g.addLine(P[4], P[5]) if False else g.addCircleArc(P[4], c0, P[5]),
+         g.addCircleArc(P[3], c0, P[4]), g.addCircleArc(P[4], c0, P[5]),
          g.addCircleArc(P[5], c0, P[6]), g.addLine(P[6], P[7]), g.addLine(P[7], P[8]),
          g.addLine(P[8], P[9]), g.addLine(P[9], P[10]), g.addLine(P[10], P[0])]
     loop = g.addCurveLoop(L)
     g.addPlaneSurface([loop])
     g.synchronize()
     f = gmsh.model.mesh.field
-    d = f.add("Distance")
-    f.setNumbers(d, "PointsList", [P[10]])
-    th = f.add("Threshold")
-    f.setNumber(th, "InField", d)
-    f.setNumber(th, "SizeMin", h_tip)
-    f.setNumber(th, "SizeMax", h_far)
-    f.setNumber(th, "DistMin", 10 * h_tip)
-    f.setNumber(th, "DistMax", 0.5 * a)
-    d2 = f.add("Distance")
-    f.setNumbers(d2, "CurvesList", [L[9], L[10]])
-    f.setNumber(d2, "Sampling", 400)
-    th2 = f.add("Threshold")
-    f.setNumber(th2, "InField", d2)
-    f.setNumber(th2, "SizeMin", 0.02 * a)
-    f.setNumber(th2, "SizeMax", h_far)
-    f.setNumber(th2, "DistMin", 0.02 * a)
-    f.setNumber(th2, "DistMax", 0.3 * a)
-    d3 = f.add("Distance")
-    f.setNumbers(d3, "PointsList", [P[1], P[2], P[4], P[5], P[7], P[8]])
-    th3 = f.add("Threshold")
-    f.setNumber(th3, "InField", d3)
-    f.setNumber(th3, "SizeMin", hp)
-    f.setNumber(th3, "SizeMax", h_far)
-    f.setNumber(th3, "DistMin", w)
-    f.setNumber(th3, "DistMax", 10 * w)
+    th = threshold_field("PointsList", [P[10]], h_tip, h_far, 10 * h_tip, 0.5 * a)
+    th2 = threshold_field("CurvesList", [L[9], L[10]], 0.02 * a, h_far, 0.02 * a, 0.3 * a, sampling=400)
+    th3 = threshold_field("PointsList", [P[1], P[2], P[4], P[5], P[7], P[8]], hp, h_far, w, 10 * w)
     mn = f.add("Min")
     f.setNumbers(mn, "FieldsList", [th, th2, th3])
     f.setAsBackgroundMesh(mn)
@@ -101,7 +81,7 @@ def scb_mesh(alpha_deg, *, R=0.05, a_over_R=0.3, S_over_R=0.43, w=1.5e-3, h_far=
     gmsh.option.setNumber("Mesh.Algorithm", 6)
     gmsh.model.mesh.generate(2)
     tags, xyz, _ = gmsh.model.mesh.getNodes()
-    etypes, etags, enodes = gmsh.model.mesh.getElements(2)
+    _, _, enodes = gmsh.model.mesh.getElements(2)
     gmsh.model.remove()
     idx = np.zeros(int(tags.max()) + 1, dtype=np.int64)
     idx[tags.astype(np.int64)] = np.arange(len(tags))
@@ -134,7 +114,6 @@ def solve_scb(alpha_deg, *, E=3.75e9, nu=0.35, R=0.05, a_over_R=0.3, S_over_R=0.
     displacement over P), ``n_nodes``, ``n_dofs``, ``wall_s``.
     """
     from skfem import Basis, ElementTriP2, ElementVector, MeshTri, asm, condense, solve
-    from skfem.helpers import ddot, sym_grad
     from skfem.models.elasticity import linear_elasticity, plane_stress
 
     if supports not in ("rollers", "pinned"):
@@ -290,10 +269,7 @@ def main(argv=None):
                          "BLOCK_DX (data/reference/scb_fem_block.json)")
     args = ap.parse_args(argv)
     if args.block:
-        doc = block_references(args.out or "data/reference/scb_fem_block.json")
-        for r in doc["rows"]:
-            print(f"dx {r['dx_m'] * 1e3:g} mm  {r['alpha_deg']:5.1f}  Y_I {r['Y_I']:.4f}  "
-                  f"Y_II {r['Y_II']:.4f}  C {r['compliance_m_per_N'] * 1e6:.4f} um/N")
+        block_references(args.out or "data/reference/scb_fem_block.json")
         return
     args.out = args.out or "data/reference/scb_fem.json"
     rows = {}
@@ -309,12 +285,6 @@ def main(argv=None):
            "rollers": rows["rollers"], "pinned": rows["pinned"], "tip_convergence": conv}
     Path(args.out).parent.mkdir(parents=True, exist_ok=True)
     Path(args.out).write_text(json.dumps(doc, indent=1))
-    for sup in ("rollers", "pinned"):
-        for r in rows[sup]:
-            print(sup, f"{r['alpha_deg']:5.1f}  Y_I {r['Y_I']:.4f}  Y_II {r['Y_II']:.4f}  "
-                       f"T* {r['T_star']:.4f}  C {r['compliance_m_per_N'] * 1e6:.4f} um/N")
-    for r in conv:
-        print("conv", r["alpha_deg"], r["h_tip_m"], r["n_dofs"], f"{r['Y_I']:.4f} {r['Y_II']:.4f} {r['T_star']:.4f}")
 
 
 if __name__ == "__main__":
