@@ -50,13 +50,14 @@ def test_step_lands_on_first_failure():
 
 
 def test_solver_options_give_the_same_fracture_curve():
-    # forward differences, adaptive inner tolerance and amortised refactorisation (the
-    # defaults) against central differences, fixed cg_tol and one factorisation: the same
-    # equilibria to the outer tolerance, so the same bonds break and the same curve
+    # forward differences, adaptive inner tolerance, amortised refactorisation and the local
+    # correction of the preconditioner (the defaults) against central differences, fixed
+    # cg_tol, one factorisation and no local correction: the same equilibria to the outer
+    # tolerance, so the same bonds break and the same curve
     import upscale.engine.quasistatic as qs
 
     curves = []
-    for kw in ({}, dict(difference="central", forcing="fixed", refactor="never")):
+    for kw in ({}, dict(difference="central", forcing="fixed", refactor="never", local_hops=None)):
         s, fam, m, fixed, u = _strip(K_Ic=2.13e6, r_s=1e-3)
         st = State.reference(s.x0, fam.nb)
         orig = qs.Equilibrium.__init__
@@ -72,6 +73,7 @@ def test_solver_options_give_the_same_fracture_curve():
             qs.Equilibrium.__init__ = orig
     (a, ia), (b, ib) = curves
     assert (a.broken > 0).sum() >= 3                      # the run does break bonds
+    assert a.time_split_s["solver"]["local_blocks"] > 0 and b.time_split_s["solver"]["local_blocks"] == 0
     assert a.load.size == b.load.size and np.array_equal(ia, ib)
     assert np.allclose(a.load, b.load, rtol=1e-7, atol=1e-9 * np.abs(b.load).max())
 
@@ -80,6 +82,7 @@ def test_equilibrium_bad_options():
     s, fam, m, fixed, u = _strip()
     import pytest
 
-    for kw in (dict(difference="backward"), dict(forcing="ew3"), dict(refactor="always"), dict(eta_max=1.5)):
+    for kw in (dict(difference="backward"), dict(forcing="ew3"), dict(refactor="always"), dict(eta_max=1.5),
+               dict(local_hops=-1)):
         with pytest.raises(ValueError, match=list(kw)[0]):
             Equilibrium(m, fixed, **kw)

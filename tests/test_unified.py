@@ -503,3 +503,20 @@ def test_tip_disc_stress_matches_a_quadrature_of_the_williams_field():
         assert abs(a - b) < 1e-6 * max(abs(v) for v in ref)
     with pytest.raises(ValueError, match="r_s"):
         tip_disc_stress(1.0, 0.0, 0.0, 0.0)
+
+
+def test_tangent_of_a_subset_gives_exact_rows():
+    """tangent(particles=P): the rows of a particle whose whole family is in P are those of
+    the full tangent (the quasi-static solver's local block), after bonds broke too."""
+    s, fam, model, st = _plate(nx=10, ny=9, stabilisation=1.0)
+    _random_state(s, st)
+    st.intact[fam.owner == 40] = False
+    st.intact &= st.intact[fam.reverse]
+    K = model.tangent(st).tocsr()
+    p = 41
+    members = np.unique(np.concatenate([[p], fam.neighbors[fam.owner == p]]))
+    Kp = model.tangent(st, particles=members).tocsr()
+    rows = [3 * p, 3 * p + 1]
+    assert abs(K[rows] - Kp[rows]).max() <= 1e-12 * abs(K).max()
+    far = 3 * int(np.argmax(np.linalg.norm(s.x0 - s.x0[p], axis=1)))
+    assert abs(Kp[far]).max() == 0.0                       # nothing from outside the subset

@@ -23,6 +23,7 @@ lambda exceeds ``u_max``, or after ``max_equilibria`` solves.
 from __future__ import annotations
 
 import dataclasses
+import inspect
 import time
 
 import numpy as np
@@ -70,6 +71,18 @@ class Equilibrium:
     ``refactor="never"`` keeps only the in-solve rule (more than ``refactor_after`` CG
     iterations in one Newton step).
 
+    Local correction (``local_hops``, default 1; None: off). Breaking bonds changes the
+    tangent only near them, but in many directions at once (each failing particle changes
+    the gain of its whole family): the old factor's error is spatially local, not of low
+    rank, so deflating a few directions does not help, while CG's iterations grow with
+    every round. Each equilibrium therefore assembles the current tangent's rows on the
+    region T of the particles whose gain changed since the factorisation, their families
+    and ``local_hops`` more family hops (``model.tangent(state, particles=...)``, exact on
+    those rows), factorises J_TT, and preconditions CG by the symmetric multiplicative
+    Schwarz step z1 = L r, z2 = z1 + G (r - J z1), z = z2 + L (r - J z2) (G the factor's
+    solve, L the local one: one factor solve, two local ones and one product per
+    iteration). A region larger than ``local_max_dofs`` dofs renews the factor instead.
+
     Inner tolerance (``forcing="adaptive"``, default): the Newton step k solves
     K du = R_k only to the relative residual eta_k (inexact Newton, Eisenstat and Walker
     1996, choice 2), eta_0 = ``eta_max``, eta_k = 0.9 (|R_k| / |R_k-1|)^2 clipped to
@@ -92,7 +105,7 @@ class Equilibrium:
     def __init__(self, model, fixed, *, tol=1e-9, max_iter=30, cg_tol=1e-6,
                  refactor_after=40, preconditioner="cholmod", matvec="matrix-free",
                  difference="forward", refactor="amortised", forcing="adaptive", eta_max=1e-3,
-                 cg_maxiter=2000):
+                 cg_maxiter=2000, local_hops=1, local_max_dofs=6000):
         check_method(preconditioner, self.PRECONDITIONERS, "preconditioner")
         if difference not in ("forward", "central"):
             raise ValueError(f"difference={difference!r}; valid: 'forward', 'central'")
@@ -100,6 +113,8 @@ class Equilibrium:
             raise ValueError(f"refactor={refactor!r}; valid: 'amortised', 'never'")
         if forcing not in ("adaptive", "fixed"):
             raise ValueError(f"forcing={forcing!r}; valid: 'adaptive', 'fixed'")
+        if local_hops is not None and not (isinstance(local_hops, (int, np.integer)) and local_hops >= 0):
+            raise ValueError(f"local_hops={local_hops!r}; valid: None (no local correction) or an int >= 0")
         if not 0 < eta_max < 1:
             raise ValueError(f"eta_max={eta_max!r}; valid: 0 < eta_max < 1")
         if matvec not in ("matrix-free", "assembled"):
@@ -124,12 +139,19 @@ class Equilibrium:
             if preconditioner == "amg":
                 near = rigid_body_modes(model.system.x0, self.free, model.system.dim)
             self._pc = Factor(preconditioner, near_null=near)
+        self.local_hops, self.local_max_dofs = local_hops, int(local_max_dofs)
+        if local_hops is not None and (preconditioner not in ("cholmod", "splu")
+                                       or "particles" not in inspect.signature(model.tangent).parameters):
+            self.local_hops = None          # needs a factor and a tangent of a subset of particles
+        self._local = None
+        self._pos = np.full(3 * n, -1, np.int64)
+        self._pos[self.free] = np.arange(self.free.size)
         self._ready = False
         self._K = None
         self._K_intact = None
         self._sub = None
         self.stats = {"matvecs": 0, "assemblies": 0, "factorisations": 0, "cg_iterations": 0, "outer_iterations": 0,
-                      "direct_fallbacks": 0, "assembly_s": 0.0, "factor_s": 0.0, "cg_s": 0.0, "residual_s": 0.0}
+                      "direct_fallbacks": 0, "local_blocks": 0, "local_s": 0.0, "assembly_s": 0.0, "factor_s": 0.0, "cg_s": 0.0, "residual_s": 0.0}
         self.n = n
 
     def _assemble(self, state):
@@ -201,7 +223,58 @@ class Equilibrium:
         self._factor_cost = t_asm + dt
         self._budget = None
         self._excess, self._fresh = 0, None
+        self._local = None
+        self._F_intact = state.intact.copy()
         self._ready = True
+
+    def _local_block(self, state):
+        """The local correction (class docstring): T = the particles whose gain changed
+        since the factor's tangent (owners of the bonds broken since), their families and
+        ``local_hops`` more family hops; the current tangent's rows on T, exact because the
+        contributions of every particle within one hop of T are assembled, give J[T, :]
+        and J_TT, and a sparse Cholesky factor of J_TT the local solve."""
+        self._local = None
+        changed = self._F_intact != state.intact
+        if self.local_hops is None or not changed.any():
+            return
+        t = time.perf_counter()
+        fam, dim = self.model.family, self.model.system.dim
+        mark = np.zeros(self.n, bool)
+        mark[fam.owner[changed]] = True
+        for _ in range(1 + self.local_hops):
+            mark[fam.neighbors[mark[fam.owner]]] = True
+        members = mark.copy()
+        members[fam.neighbors[mark[fam.owner]]] = True
+        K = self.model.tangent(state, particles=np.flatnonzero(members)).tocsr()
+        rows = (3 * np.flatnonzero(mark)[:, None] + np.arange(dim)).ravel()
+        rows = rows[self._pos[rows] >= 0]
+        Tf = self._pos[rows]
+        JT = K[rows][:, self.free].tocsr()            # J[T, :] on the free dofs
+        JTT = JT[:, Tf].tocsr()
+        d = JTT.diagonal()
+        mean = float(np.mean(np.abs(d)))
+        JTT.setdiag(d + 1e-8 * mean + np.where(d == 0, mean, 0.0))   # voids: zero rows
+        loc = Factor("cholmod")
+        try:
+            loc.factor(JTT)
+        except ArithmeticError:
+            loc = Factor("splu").factor(JTT)
+        self._local = (Tf, JT.T.tocsr(), loc)
+        self.stats["local_blocks"] += 1
+        self.stats["local_s"] += time.perf_counter() - t
+
+    def _precondition(self, A, r):
+        """The factor's solve, or with a local block the symmetric multiplicative Schwarz
+        step: z1 = L r, z2 = z1 + G (r - J z1), z = z2 + L (r - J z2) (L the local, G the
+        factor's solve)."""
+        if self._local is None:
+            return self._pc.solve(r)
+        Tf, JcolT, loc = self._local
+        z1 = loc.solve(r[Tf])
+        z = self._pc.solve(r - JcolT @ z1)
+        z[Tf] += z1
+        z[Tf] += loc.solve((r - A @ z)[Tf])
+        return z
 
     def solve(self, state, u_prescribed):
         """Mutates ``state.y``: sets the constrained dofs to x0 + ``u_prescribed`` (N, 3)
@@ -216,6 +289,10 @@ class Equilibrium:
             self._factor(state)
         elif self.matvec == "assembled" and not np.array_equal(self._K_intact, state.intact):
             self._assemble(state)
+        if self._pc is not None and self._pc.method in ("cholmod", "splu"):
+            self._local_block(state)
+            if self._local is not None and self._local[0].size > self.local_max_dofs:
+                self._factor(state)
         if self.matvec == "assembled":
             A = self._K
         else:
@@ -223,8 +300,10 @@ class Equilibrium:
         if self._pc is None:
             dinv = 1.0 / self._K.diagonal()
             M = spla.LinearOperator(A.shape, matvec=lambda v: dinv * v)
-        else:
+        elif self.local_hops is None:
             M = self._pc.operator(free.size)
+        else:
+            M = spla.LinearOperator(A.shape, matvec=lambda v: self._precondition(A, v), dtype=np.float64)
 
         def direct(b):
             st["direct_fallbacks"] += 1

@@ -318,9 +318,10 @@ def two_hop_pattern(offsets, neighbors, n):
 
 @numba.njit(cache=True)
 def tangent_kernel(F_nij, S_nij, C4, alive_n, volume_n, offsets, neighbors, coef_bk, xi_bc, w_b, ok_b, kv_n,
-                   ptr, q_p, dim, data):
-    """Adds K = -dF_int/dy to the CSR values ``data`` of the pattern of :func:`two_hop_pattern`
-    (row 3p + i, i < dim, holds columns 3q + k, q in ``q_p[ptr[p]:ptr[p+1]]``, k < dim).
+                   ptr, q_p, dim, parts, data):
+    """Adds the contributions of the particles ``parts`` to K = -dF_int/dy to the CSR values
+    ``data`` of the pattern of :func:`two_hop_pattern` (row 3p + i, i < dim, holds columns
+    3q + k, q in ``q_p[ptr[p]:ptr[p+1]]``, k < dim).
 
     Per particle c with members m_0 = c, m_1+t = the neighbour of its t-th bond:
     the gain part V_c g_P . dP/dF . g_Q with dF_c/dy_P = g_P (g_1+t = a_b,
@@ -330,7 +331,7 @@ def tangent_kernel(F_nij, S_nij, C4, alive_n, volume_n, offsets, neighbors, coef
     1 + t(b'), +(a_b' . xi_b) at 0). Serial: the members of different particles overlap."""
     n = offsets.shape[0] - 1
     A = np.zeros((dim, dim, dim, dim))
-    for c in range(n):
+    for c in parts:
         base = offsets[c]
         M = offsets[c + 1] - base + 1
         g = np.zeros((M, dim))
