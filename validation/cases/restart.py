@@ -16,7 +16,7 @@ from pathlib import Path
 
 from upscale.experiments.kill_resume import (cpd_kill_resume, dcbr_kill_resume,
                                              dcbr_vacancy_kill_resume, plate_kill_resume)
-from validation.registry import case, table
+from validation.registry import case
 
 
 def _args(p):
@@ -56,29 +56,6 @@ def _restart_exact(args):
           "the engine", flush=True)
     vac = dcbr_vacancy_kill_resume(work / "dcbr-vacancy", tube=tube, every=50 if q else 200,
                                    threads=args.threads, seed=args.seed)
-    rows = [{"run": f"plate PMB {n}x{n}", "killed at": f"step {plate['killed_at_step']}",
-             "resumed from": f"step {plate['resumed_from_step']}",
-             "uninterrupted": f"{plate['broken_bonds_uninterrupted']} broken bonds",
-             "resumed": f"{plate['broken_bonds_resumed']} broken bonds",
-             "max |dy|": plate["max_abs_dy_m"], "bit identical": plate["bit_identical"]},
-            {"run": "CPD bar Newton", "killed at": f"iteration {cpd['killed_at_iteration']}",
-             "resumed from": "last converged load step" if cpd["checkpoint_before_kill"]
-             else "the start (no checkpoint yet)",
-             "uninterrupted": f"{cpd['newton_iterations']} iterations",
-             "resumed": f"{cpd['newton_iterations_after_resume']} iterations after resume",
-             "max |dy|": cpd["max_abs_dy_m"], "bit identical": cpd["bit_identical"]},
-            {"run": "DCBR periodic tube, engine (NHC)", "killed at": f"step {dcbr['killed_at_step']}",
-             "resumed from": f"step {dcbr['resumed_from_step']}",
-             "uninterrupted": f"{dcbr['broken_links_uninterrupted']} broken links",
-             "resumed": f"{dcbr['broken_links_resumed']} broken links",
-             "max |dy|": dcbr["max_abs_dy_A"], "bit identical": dcbr["bit_identical"]},
-            {"run": f"DCBR dynamic vacancy tension ({tube}), engine",
-             "killed at": f"step {vac['killed_at_step']}",
-             "resumed from": f"step {vac['resumed_from_step']}",
-             "uninterrupted": f"{vac['strength_GPa_uninterrupted']:.6f} GPa",
-             "resumed": f"{vac['strength_GPa_resumed']:.6f} GPa",
-             "max |dy|": vac["max_abs_dy_A"], "bit identical": vac["bit_identical"]}]
-    print(table(rows, floatfmt=".3g"))
     return {"plate_bit_identical": plate["bit_identical"], "cpd_bit_identical": cpd["bit_identical"],
             "dcbr_bit_identical": vac["bit_identical"], "dcbr_vacancy": vac,
             "dcbr_periodic_engine_bit_identical": dcbr["bit_identical"], "dcbr_periodic": dcbr,
