@@ -2,37 +2,24 @@
 two ranks against one and two threads, and an exact restart of a killed 2-rank run.
 
 Each case starts its own ranks (``mpiexec -n K python -m validation.cases.mpi plate ...``,
-one thread per rank, the ``mpiexec`` of the Python environment: the ``mpich`` wheel's
-Hydra), so it is run without ``mpiexec``: ``python -m validation mpi-same-answer``. The
-plate is :class:`upscale.experiments.scenes.plate.PlateScene` (E = 192 GPa, horizon 3.015
-spacings, the 10 mm pre-crack, 50 m/s at the top and bottom rows).
+one thread per rank, the ``mpiexec`` of the mpich wheel), so it is run without ``mpiexec``.
+The plate is :class:`upscale.experiments.scenes.plate.PlateScene`'s; on several ranks it is
+built by :func:`lean_plate` (each rank builds only its rows of the family).
 
 mpi-same-answer
-    PMB, LPS and Ti-PD (without surface correction: the plate has failure), ``--steps``
-    (1,000) steps on 1, 2 and 4 ranks: the largest displacement
-    difference against the serial run over the serial run's largest displacement
-    (``max_rel_diff``, target 1e-12, and ``bit_identical``: one thread per rank keeps each
-    particle's sum order), the same broken bonds (``broken_bonds_identical``) and the
-    bond states agreeing between the ranks that hold a bond.
+    PMB, LPS and Ti-PD (without surface correction) for ``--steps`` steps on 1, 2 and 4
+    ranks: the largest displacement difference over the serial run's largest displacement
+    (``max_rel_diff``; ``bit_identical``: one thread per rank keeps each particle's sum
+    order), the same broken bonds, and the bond states agreeing between the ranks.
 bench-mpi
-    One plate of at least 10 M bonds (``--n`` 600: 10.0 M directed bonds), ``--steps``
-    steps: wall time per step on 1 rank x 1 thread, 1 rank x 2 threads, 2 ranks x 1
-    thread, in one run; the halo (rows received over rows owned), bytes and time of the
-    position exchange per step at 2 and 4 ranks: ``exchange_us_per_step`` of the exchange
-    alone (ranks synchronised before it), ``exchange_and_wait_us_per_step`` as it occurs
-    in the run (including the wait for the slower rank); peak memory per rank. From them
-    the weak- and strong-scaling model of :mod:`upscale.engine.parallel.scaling` to 1,000
-    ranks at an assumed interconnect (``--latency-us`` 1.5, ``--bandwidth-GBps`` 12), and
-    the particles per rank below which the exchange dominates (tables in
-    ``scaling_model.json``). The speed target needs a quiet machine: the load average at
-    the start and end is reported.
-
-The runs on several ranks build the plate of :func:`lean_plate` (each rank builds only
-its rows of the family); the serial reference of ``mpi-same-answer`` is the scene's own.
+    One plate of at least 10 M bonds: wall time per step on 1 rank x 1 thread, 1 x 2, 2 x 1,
+    in one run; halo (rows received over rows owned), bytes and time of the exchange per step
+    at 2 and 4 ranks (alone, and with the wait for the slower rank); peak memory per rank;
+    from them the scaling model of :mod:`upscale.engine.parallel.scaling` to 1,000 ranks
+    (tables in ``scaling_model.json``). The load average at start and end is reported.
 mpi-restart-exact
     The 2-rank PMB plate killed with SIGKILL (the whole ``mpiexec`` process group) at a
-    random moment after its second checkpoint, resumed, against the uninterrupted 2-rank
-    run (``mpi_bit_identical``).
+    random moment after its second checkpoint, resumed, against the uninterrupted run.
 """
 from __future__ import annotations
 
@@ -50,7 +37,7 @@ from pathlib import Path
 
 import numpy as np
 
-from validation.registry import case, table
+from validation.registry import case, show
 
 
 def _mpiexec() -> str:
@@ -138,7 +125,7 @@ def mpi_same_answer(args):
                 rows.append({"model": model, "ranks": k, "broken": int(z["broken"]),
                              "max_rel_diff": rel, "same_broken": ident,
                              "wall_s": fig["run_wall_s"]})
-    print(table(rows, floatfmt=".3g"))
+    show(rows, fmt=".3g")
     out.update(max_rel_diff=worst, broken_bonds_identical=same, bit_identical=bits,
                bond_states_agree=agree, **{"pass": bool(worst <= 1e-12 and same and agree)})
     return out
@@ -191,7 +178,7 @@ def bench_mpi(args):
                          "exchange_wait_us": 1e6 * tr.get("wait_s", 0.0),
                          "max_rss_MB": max(fig["max_rss_MB"])})
     load1 = os.getloadavg()
-    print(table(rows, floatfmt=".4g"))
+    show(rows)
     t = {k: v["run_wall_s"] / steps for k, v in runs.items()}
     two, four = _traffic_sums(runs[(2, 1)]), _traffic_sums(runs[(4, 1)])
     N, bonds = n * n, runs[(1, 1)]["bonds"]
@@ -208,11 +195,6 @@ def bench_mpi(args):
                              bonds_per_particle=body3["bonds_per_particle"], **kw)
     weak2 = scaling.weak(N / 2, const, dim=2, **kw)
     weak3 = scaling.weak(1e5, const, dim=3, bonds_per_particle=body3["bonds_per_particle"], **kw)
-    pick = [r for r in strong3 if r["ranks"] in (1, 2, 16, 128, 1000)]
-    print("strong scaling, 3D body of 1e7 particles x 100 bonds (model):")
-    print(table([{k: r[k] for k in ("ranks", "particles_per_rank", "compute_s", "exchange_s",
-                                     "allreduce_s", "speedup", "efficiency")} for r in pick],
-                floatfmt=".3g"))
     cross2 = scaling.crossover(const, dim=2, **kw)
     cross3 = scaling.crossover(const, dim=3, bonds_per_particle=body3["bonds_per_particle"], **kw)
     at = {r["ranks"]: r for r in strong2}
@@ -247,9 +229,7 @@ def bench_mpi(args):
            "weak_3d_1e5_per_rank_efficiency_at_1000": weak3[-1]["efficiency"],
            "exchange_dominates_below_particles_per_rank_2d": cross2,
            "exchange_dominates_below_particles_per_rank_3d_100_bonds": cross3}
-    outdir = Path(getattr(args, "outdir", None) or "validation/out/bench-mpi")
-    outdir.mkdir(parents=True, exist_ok=True)
-    (outdir / "scaling_model.json").write_text(json.dumps(
+    (args.outdir / "scaling_model.json").write_text(json.dumps(
         {"strong_2d_plate": strong2, "strong_3d_1e7x100": strong3, "weak_2d": weak2,
          "weak_3d_1e5_per_rank": weak3, **{k: out[k] for k in ("model_assumptions",
                                                                  "model_constants")}},
@@ -295,7 +275,6 @@ def mpi_restart_exact(args):
         same = bool(np.array_equal(a["u"], b["u"]) and np.array_equal(a["intact"], b["intact"]))
     out = {"ranks": 2, "plate_n": n, "steps": args.steps, "killed_before_the_end": killed,
            "last_checkpoint_step_of_rank0": at, "mpi_bit_identical": same}
-    print(table([out]))
     out["pass"] = bool(same and killed)
     return out
 
