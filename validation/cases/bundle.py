@@ -21,7 +21,7 @@ import numpy as np
 from upscale.experiments.scenes.tube_tension import REFERENCE_DIR as REF_DIR
 from upscale.experiments.scenes.tube_tension import ROOT as REPO
 from upscale.experiments.scenes.tube_tension import parse_chirality
-from validation.registry import case, table
+from validation.registry import case
 
 
 def _rel(a, b):
@@ -45,13 +45,13 @@ def _args_vdw(p):
       target="all-atomistic vdW energy and forces within 1e-10 of LAMMPS; the mixed bundle's "
              "inter-tube energy within 1 % of the all-atomistic one, on the default setting")
 def run_bundle_vdw(args):
-    from potentials.lammps_runtime import lammps_potential_path  # noqa: PLC0415
-    from potentials.tersoff import write_step_cutoff_file  # noqa: PLC0415
-    from upscale.experiments.scenes.bundle import (COARSE_PAIRS, BundleScene,  # noqa: PLC0415
-                                                   TubeSpec)
-    from upscale.experiments.lammps import bundle_pair_lines as lammps_pair_lines  # noqa: PLC0415
-    from upscale.experiments.lammps import evaluate as lammps_evaluate  # noqa: PLC0415
-    from upscale.experiments.lammps.potential import LJ_CUTOFF, LJ_EPSILON_EV, LJ_SIGMA  # noqa: PLC0415
+    from potentials.lammps_runtime import lammps_potential_path
+    from potentials.tersoff import write_step_cutoff_file
+    from upscale.experiments.lammps import bundle_pair_lines as lammps_pair_lines
+    from upscale.experiments.lammps import evaluate as lammps_evaluate
+    from upscale.experiments.lammps.potential import LJ_CUTOFF, LJ_EPSILON_EV, LJ_SIGMA
+    from upscale.experiments.scenes.bundle import COARSE_PAIRS, BundleScene, TubeSpec
+    from upscale.models.tube_vdw import TubeVdW
 
     n, m = args.chirality
     t0 = time.perf_counter()
@@ -75,20 +75,12 @@ def run_bundle_vdw(args):
     ref_lj = lammps_evaluate(atoms, lammps_pair_lines(7, step, lj_only=True), types=types)
     ref_all = lammps_evaluate(atoms, lammps_pair_lines(7, step), types=types)
     t_lmp = time.perf_counter() - t1
-    rows = [{"quantity": "vdW energy (eV)", "engine": e_vdw, "LAMMPS": ref_lj["energy"],
-             "rel_err": _rel(e_vdw, ref_lj["energy"])},
-            {"quantity": "vdW forces (max |df| / max |f|)", "engine": np.abs(f_vdw).max(),
-             "LAMMPS": np.abs(ref_lj["forces"]).max(), "rel_err": _frel(f_vdw, ref_lj["forces"])},
-            {"quantity": "total energy (eV)", "engine": e_tot, "LAMMPS": ref_all["energy"],
-             "rel_err": _rel(e_tot, ref_all["energy"])},
-            {"quantity": "total forces", "engine": np.abs(f_tot).max(),
-             "LAMMPS": np.abs(ref_all["forces"]).max(), "rel_err": _frel(f_tot, ref_all["forces"])}]
     out = {"chirality": [n, m], "length_A": args.length, "spacing": args.spacing,
            "n_atoms": len(atoms),
-           "energy_rel_err_all_atomistic": rows[0]["rel_err"],
-           "force_rel_err_all_atomistic": rows[1]["rel_err"],
-           "total_energy_rel_err_all_atomistic": rows[2]["rel_err"],
-           "total_force_rel_err_all_atomistic": rows[3]["rel_err"],
+           "energy_rel_err_all_atomistic": _rel(e_vdw, ref_lj["energy"]),
+           "force_rel_err_all_atomistic": _frel(f_vdw, ref_lj["forces"]),
+           "total_energy_rel_err_all_atomistic": _rel(e_tot, ref_all["energy"]),
+           "total_force_rel_err_all_atomistic": _frel(f_tot, ref_all["forces"]),
            "vdw_energy_eV": e_vdw, "wall_s_engine": t_ours, "wall_s_lammps": t_lmp}
     # the mixed bundle: the outer tubes coarse, atoms reconstructed from their particles
     # on the validated setting the bundle's tension runs use (COARSE_PAIRS)
@@ -102,8 +94,6 @@ def run_bundle_vdw(args):
     lumped = mixed.lumped_vdw()
     e_lumped = lumped.energy(sm)
     # the tension runs' cheaper variant: coarse-coarse pairs through lumped sites only
-    from upscale.models.tube_vdw import TubeVdW  # noqa: PLC0415
-
     sv = mixed.vdw
     sites = [lumped.maps[k] if mixed.specs[k].model != "tersoff" else None
              for k in range(len(mixed.specs))]
@@ -124,19 +114,6 @@ def run_bundle_vdw(args):
     out["pair_energy_max_rel_err_mixed"] = float(np.max(np.abs(
         between_mixed[pairs] - between_atom[pairs]) / np.abs(between_atom[pairs])))
     out["dof_mixed"], out["dof_all_atomistic"] = mixed.dof, atomistic.dof
-    # the reference of the mixed rows is the all-atomistic engine bundle (column LAMMPS)
-    rows += [{"quantity": f"mixed K={args.coarsening:g}: vdW energy (eV), reconstructed atoms",
-              "engine": e_mixed, "LAMMPS": e_vdw, "rel_err": out["energy_rel_err_mixed"]},
-             {"quantity": f"mixed K={args.coarsening:g}: vdW energy (eV), lumped particles",
-              "engine": e_lumped, "LAMMPS": e_vdw, "rel_err": out["energy_rel_err_lumped"]},
-             {"quantity": f"mixed K={args.coarsening:g}: atoms to the centre, sites between "
-                          "coarse tubes", "engine": e_half, "LAMMPS": e_vdw,
-              "rel_err": out["energy_rel_err_coarse_pairs_sites"]}]
-    print(table(rows))
-    print("rows 'mixed': column LAMMPS holds the all-atomistic bundle's vdW energy (engine = "
-          "LAMMPS to the digits above); mixed = outer tubes coarse, at their own relaxed "
-          f"open state; largest error of one tube pair's energy: "
-          f"{100 * out['pair_energy_max_rel_err_mixed']:.2f} %")
     # issue 21: all-atomistic vdW = LAMMPS to 1e-10, mixed within 1 % on the default setting
     out["pass"] = bool(out["energy_rel_err_all_atomistic"] < 1e-10
                        and out["force_rel_err_all_atomistic"] < 1e-10
@@ -162,7 +139,7 @@ def _args_tension(p):
     p.add_argument("--seed-start", type=int, default=4928459,
                    help="first thermal seed; the runs use seed-start, seed-start + 1, ... "
                    "(default 4928459, the references' default seed number)")
-    from upscale.experiments.scenes.bundle import add_run_options  # noqa: PLC0415
+    from upscale.experiments.scenes.bundle import add_run_options
 
     add_run_options(p)
 
@@ -171,10 +148,10 @@ def lammps_bundle_references(n, m, length, spacing, gap):
     """The LAMMPS bundle references of this geometry: every stored seed (the default seed's
     file and ``_s<seed>`` variants), else one in the user cache folder
     (``cache_dir("references")``); none: a one-line error naming the command that makes it."""
-    import json  # noqa: PLC0415
+    import json
 
-    from upscale.experiments.lammps.cache import cache_dir  # noqa: PLC0415
-    from upscale.experiments.scenes.bundle import reference_name  # noqa: PLC0415
+    from upscale.experiments.lammps.cache import cache_dir
+    from upscale.experiments.scenes.bundle import reference_name
 
     base = reference_name((n, m), spacing, True, 7)
     if gap is not None and abs(gap - 3.4) > 1e-9:
@@ -208,12 +185,11 @@ def _pct(a, b):
 @case("bundle-tension", "the bundle (atomistic centre, coarse outer tubes) in dynamic "
       "tension against the full-atomistic LAMMPS bundle", add_arguments=_args_tension)
 def run_bundle_tension(args):
-    import os  # noqa: PLC0415
+    import os
 
-    from upscale.experiments.scenes.bundle import (BundleScene,  # noqa: PLC0415
-                                                   parse_specs, plot_curves, plot_damage_maps)
-    from upscale.experiments.scenes.bundle_pull import (dynamic_tension,  # noqa: PLC0415
-                                                        tube_failures)
+    from upscale.experiments.scenes.bundle import BundleScene, parse_specs, plot_curves, plot_damage_maps
+    from upscale.experiments.scenes.bundle_pull import dynamic_tension, tube_failures
+    from upscale.io import write_json
 
     n, m = args.chirality
     spacing = "seed" if args.hexagon else "vdw"
@@ -296,9 +272,7 @@ def run_bundle_tension(args):
                 "load_before": list(load0), "load_after": list(os.getloadavg())})
     out["speedup"] = (out["lammps_wall_s"] / wall) if out["lammps_wall_s"] else None
     out["speedup_cpu"] = (out["lammps_cpu_s"] / out["cpu_s"]) if out["lammps_cpu_s"] else None
-    # the result itself, for the results file and plots
-    from upscale.io import write_json  # noqa: PLC0415
-
+    # the runs themselves (without their arrays), and plots
     tagj = f"{n}-{m}_K{args.coarsening:g}_{spacing}"
     if args.seeds > 1 or args.seed_start != 4928459:
         tagj += f"_s{args.seed_start}x{args.seeds}"
@@ -314,17 +288,6 @@ def run_bundle_tension(args):
                       "(solid) vs LAMMPS (dashed)")
     plot_damage_maps(runs[0], Path(args.outdir) / f"bundle_damage_{tag}.png",
                      title=f"({n},{m}) bundle K={args.coarsening:g}: damage, last state")
-    rows = [{"quantity": q, "engine": out[f"{k}_engine"], "LAMMPS": out[f"{k}_lammps"],
-             "error (%)": out[f"{k}_err_pct"]}
-            for q, k in (("strength (GPa)", "strength"), ("Young's modulus (TPa)", "modulus"),
-                         ("strain at peak", "strain_at_peak"))]
-    rows += [{"quantity": "degrees of freedom", "engine": out["dof"], "LAMMPS": dof_atoms,
-              "error (%)": out["dof_reduction_pct"]},
-             {"quantity": "wall time (s)", "engine": wall, "LAMMPS": out["lammps_wall_s"],
-              "error (%)": None}]
-    print(table(rows))
-    print(f"failure order (tubes, 1 = centre): engine {out['failure_order']}, LAMMPS "
-          f"{out['lammps_failure_order']}")
     ok = [out[k] is not None for k in ("strength_err_pct", "modulus_err_pct",
                                        "strain_at_peak_err_pct")]
     out["pass"] = bool(all(ok) and abs(out["strength_err_pct"]) <= 5.0
