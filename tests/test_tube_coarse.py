@@ -62,3 +62,27 @@ def test_any_defects_run_the_coarse_dynamic_pull():
                             protocol="dynamic", grip=20.0, maximum=0.01, progress=False)
     s = r.curves["curve/stress_GPa"]
     assert r.figures["particles"] < r.figures["atoms"] and len(s) >= 2 and s[-1] > s[0] > 0
+
+
+def test_coarse_compression_of_a_pristine_tube_is_the_atomistic_one():
+    """A uniform state is exact under the discrete Cauchy-Born rule: the pristine periodic
+    tube's compression curve on the coarse model equals the all-atom one."""
+    from upscale import experiments
+
+    kw = dict(chirality=(10, 10), length=30.0, load="compression", maximum=0.01,
+              progress=False)
+    c = experiments.tension(model="dcbr", **kw)
+    a = experiments.tension(model="atomistic", **kw)
+    assert c.figures["particles"] < a.figures["particles"]
+    np.testing.assert_allclose(c.curves["curve/stress_GPa"], a.curves["curve/stress_GPa"],
+                               rtol=1e-6, atol=1e-6)
+    assert c.figures["strength_GPa"] < 0
+
+
+def test_coarse_torsion_is_refused_in_one_line():
+    from upscale import experiments
+
+    with pytest.raises(ValueError, match="load='torsion'") as exc:
+        experiments.tension(chirality=(10, 10), length=30.0, model="dcbr", load="torsion",
+                            grip=5.0, progress=False)
+    assert "\n" not in str(exc.value)

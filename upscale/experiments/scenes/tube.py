@@ -396,22 +396,26 @@ def _stored_defect_reference(atoms, proto) -> dict | None:
 
 
 def _run_dcbr(atoms, proto, coarsening, potential, show, ck=None) -> dict:
-    """Today's coarse tube: the pristine periodic tube on the engine, or the seed's tube with
-    the 4-atom vacancy (told apart by ``atoms.info`` of :mod:`upscale.build`); quasi-static
-    tension only, both on the engine (:func:`quasi_static_tension_engine`)."""
+    """The coarse tube: the seed's pristine and 4-atom vacancy tubes in tension on their
+    validated scenes (told apart by ``atoms.info`` of :mod:`upscale.build`;
+    :func:`quasi_static_tension_engine`, the dynamic pull of :func:`_pull_dcbr`), any other
+    structure, and compression, on :class:`~upscale.models.dcbr.model.DCBRModel`
+    (:func:`_ramp_coarse`, :func:`_pull_coarse`)."""
     from upscale.experiments.scenes.tube_tension import quasi_static_tension_engine
 
-    if proto.load != "tension" or (isinstance(proto, QuasiStatic) and not proto.periodic):
-        raise ValueError("model='dcbr' runs quasi-static periodic tension and dynamic tension "
-                         "only until the coarse model takes any structure; use "
-                         "model='atomistic' or 'lammps'")
+    if proto.load == "torsion" or (isinstance(proto, QuasiStatic) and not proto.periodic):
+        raise ValueError(f"model='dcbr' with load={proto.load!r}, periodic="
+                         f"{getattr(proto, 'periodic', False)}; valid: periodic quasi-static "
+                         "tension or compression, or dynamic tension (torsion and gripped "
+                         "ramps: model='atomistic' or 'lammps')")
     info = atoms.info
     ch, L = info.get("chirality"), info.get("length")
     vac = info.get("vacancy")
     placed = [d["kind"] for d in info.get("defects", [])]
     if placed and ch is not None and L is not None and _is_seed_vacancy(atoms, ch, L):
         vac, placed = {"n": 4}, []  # (the seed's vacancy, placed through `defects`)
-    if ch is None or L is None or placed or (vac and vac.get("n") != 4):
+    if ch is None or L is None or placed or (vac and vac.get("n") != 4) or \
+            proto.load == "compression":
         if isinstance(proto, Dynamic):
             return _pull_coarse(atoms, proto, coarsening, potential, show, ck)
         return _ramp_coarse(atoms, proto, coarsening, potential, show)
