@@ -1,27 +1,21 @@
 """SCB cases (seed 004 ch. 6): the FE reference, the elastic particle model against it, Table
 6.2 and the spacing convergence of the critical load.
 
-``scb-fem``          geometry factors Y_I, Y_II, T* of the eight angles (scikit-fem, tip-refined
-                     P2 mesh), compliance at alpha = 0, against the factors implied by Table
-                     6.2's own K and P columns (the FE study of Ayatollahi et al.)
-``scb-elastic``      unified model (elastic) against the FE reference with the same boundary
-                     conditions (the 3 x 3 particle patches held as blocks): Y_I, Y_II from
-                     a Williams-expansion fit of the near field (and from the crack-face
-                     jump), load-patch compliance; rollers and the literal pinned supports
-``scb-table``        r_s calibrated at alpha = 0 only (a scan over ``--r-s-candidates`` for the
-                     averaged-stress criteria, default ``--criterion principal``; the stored
-                     calibration for the particle-energy criterion), P_c at the eight angles, K from P_c
-                     through the FE factors, errors against the experiment, the paper's errors
-                     recomputed from its own values; initiation angles against MTS and GMTS
-``scb-convergence``  P_c at dx = 1, 0.5, 0.25 mm with r_s fixed in metres and with r_s = 2 dx
-``scb-rate``         explicit dynamics at three loading times against the quasi-static P_c; the
-                     load patch's velocity rises smoothly over ``--rise`` (0.3) of the loading
-                     time (a velocity jump leaves an undamped vibration of the specimen that
-                     shifts the first failure by about 1 / (omega_1 t_c) of the load);
-                     ``monotone``: |error| does not grow with the loading time
+``scb-fem``: geometry factors Y_I, Y_II, T* of the eight angles (scikit-fem, tip-refined P2
+mesh, :mod:`validation.fem_scb`) against those implied by Table 6.2's own K and P columns.
+``scb-elastic``: the unified model (elastic) against the FE with the same boundary conditions
+(the 3 x 3 particle patches held as blocks): Y_I, Y_II from a Williams-expansion fit of the
+near field, load-patch compliance; rollers and the literal pinned supports.
+``scb-table``: r_s calibrated at alpha = 0 only (a scan over ``--r-s-candidates`` for the
+averaged-stress criteria; the stored calibration for the energy criterion), P_c at the eight
+angles, K through the FE factors, errors against the experiment and the paper's own;
+initiation angles against MTS and GMTS. ``scb-convergence``: P_c at dx = 1, 0.5, 0.25 mm with
+r_s fixed in metres and with r_s = 2 dx. ``scb-rate``: explicit dynamics at three loading
+times against the quasi-static P_c; the load patch's velocity rises smoothly over ``--rise``
+of the loading time (a velocity jump leaves an undamped vibration that shifts the first
+failure by about 1 / (omega_1 t_c) of the load).
 
-P_c is the peak before the load first falls below ``--stop-fraction`` (0.5) of it: the load
-of the crack's first instability.
+P_c is the peak before the load first falls below ``--stop-fraction`` of it.
 """
 from __future__ import annotations
 
@@ -31,7 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
-from validation.registry import case, table
+from validation.registry import case, figure, show
 
 ROOT = Path(__file__).resolve().parents[2]
 TABLE = ROOT / "data" / "experiments" / "scb_table_6_2.json"
@@ -58,7 +52,7 @@ def _fe_block(alpha, dx, supports="rollers", quick=False):
 
 
 def _outdir(args):
-    out = Path(getattr(args, "outdir", "validation/out")) / "scb"
+    out = Path(args.outdir) / "scb"
     out.mkdir(parents=True, exist_ok=True)
     return out
 
@@ -70,8 +64,8 @@ def _fem_args(p):
 
 @case("scb-fem", "SCB FE reference: Y_I, Y_II, T* for the eight angles (scikit-fem + gmsh)", _fem_args)
 def run_fem(args):
-    quick = getattr(args, "quick", False)
-    w = getattr(args, "w", 1.5e-3)
+    quick = args.quick
+    w = args.w
     ex = _exp()
     f = R * 2 * T_THICK / np.sqrt(np.pi * A_CRACK)
     rows, res = [], []
@@ -83,8 +77,7 @@ def run_fem(args):
         rows.append({"alpha": al, "Y_I": r["Y_I"], "Y_II": r["Y_II"], "T*": r["T_star"],
                      "Y_I(tab 6.2)": Yi_t, "Y_II(tab 6.2)": Yii_t, "dofs": r["n_dofs"]})
     pin = _fe(0.0, w, "pinned", quick=quick)
-    print(table(rows, floatfmt=".4f"))
-    print(f"alpha = 0, pinned supports (literal 6.40): Y_I = {pin['Y_I']:.4f} (rollers {res[0]['Y_I']:.4f})")
+    show(rows, fmt=".4f")
     dYI = [abs(r["Y_I"] - q["Y_I(tab 6.2)"]) for r, q in zip(res, rows)]
     return {"alpha_deg": list(ALPHAS), "Y_I": [r["Y_I"] for r in res], "Y_II": [r["Y_II"] for r in res],
             "T_star": [r["T_star"] for r in res],
@@ -111,11 +104,11 @@ def run_elastic(args):
     positions gives the estimator's own error (keys ``*_estimator``)."""
     from upscale.experiments.scenes.scb import SCBScene
 
-    quick = getattr(args, "quick", False)
-    dx = getattr(args, "dx", None) or (2e-3 if quick else 1e-3)
-    stab = getattr(args, "stabilisation", None)
+    quick = args.quick
+    dx = args.dx or (2e-3 if quick else 1e-3)
+    stab = args.stabilisation
     kw = {} if stab is None else {"stabilisation": stab}
-    order = getattr(args, "gain_order", 1)
+    order = args.gain_order
     rows = []
     eI, eII, eC, eIe, eIIe = [], [], [], [], []
     from validation.fem_scb import solve_scb
@@ -144,15 +137,10 @@ def run_elastic(args):
         if al == 0.0:
             c_err = eC[-1]
         rows.append(row)
-        print(f"alpha {al:4.1f}: Y_I {k['Y_I']:.4f} (FE {fe['Y_I']:.4f})  Y_II {k['Y_II']:.4f} "
-              f"(FE {fe['Y_II']:.4f})  C {C * 1e6:.4f} (FE {fe['compliance_m_per_N'] * 1e6:.4f}) um/N", flush=True)
-    print(table(rows, floatfmt=".4f"))
     fe_p = _fe_block(0.0, dx, "pinned", quick=quick)
     sc = SCBScene(0.0, dx=dx, supports="pinned", gain_order=order, **kw)
     st, P = sc.elastic()
     kp = sc.stress_intensity(st, P, method="williams", n_terms=10)
-    print(f"pinned supports (u_x = u_y = 0, literal 6.40), alpha = 0: Y_I particle {kp['Y_I']:.4f}, "
-          f"FE {fe_p['Y_I']:.4f}; compliance {1e-5 / P * 1e6:.4f} (FE {fe_p['compliance_m_per_N'] * 1e6:.4f}) um/N")
     out = {"dx_m": dx, "stabilisation": sc.model.stabilisation, "gain_order": order,
            "Y_I_err_pct_max": float(max(np.abs(eI))), "Y_II_err_pct_max": float(max(np.abs(eII))),
            "Y_I_err_pct": [float(e) for e in eI], "Y_II_err_pct": [float(e) for e in eII],
@@ -208,19 +196,19 @@ def calibrate_r_s_scan(dx, P_target, candidates, stab=1.0, criterion="principal"
     from upscale.experiments.scenes.scb import run_scb
 
     hist = []
-    for r in candidates:
+
+    def trial(r):
         res = run_scb(0.0, dx=dx, r_s=r, stabilisation=stab, stop_fraction=0.6, criterion=criterion,
                       growth=growth, tip_factor=tip_factor)
         hist.append((r, res["P_c_N"], res["wall_s"]))
         log(f"  calibration: r_s = {r * 1e3:.4f} mm -> P_c = {res['P_c_N'] / 1e3:.4f} kN ({res['wall_s']:.0f} s)")
+
+    for r in candidates:
+        trial(r)
     hist.sort()
     for (r1, P1, _), (r2, P2, _) in zip(hist, hist[1:]):
         if (P1 - P_target) * (P2 - P_target) < 0:
-            r = r1 + (P_target - P1) * (r2 - r1) / (P2 - P1)
-            res = run_scb(0.0, dx=dx, r_s=r, stabilisation=stab, stop_fraction=0.6, criterion=criterion,
-                      growth=growth, tip_factor=tip_factor)
-            hist.append((r, res["P_c_N"], res["wall_s"]))
-            log(f"  calibration: r_s = {r * 1e3:.4f} mm -> P_c = {res['P_c_N'] / 1e3:.4f} kN ({res['wall_s']:.0f} s)")
+            trial(r1 + (P_target - P1) * (r2 - r1) / (P2 - P1))
             break
     # A disc of radius r_s holds the same particles over a range of r_s, so the interpolated
     # r_s can tie with a candidate to round-off: a tie (1e-9 relative) goes to the candidate.
@@ -229,53 +217,44 @@ def calibrate_r_s_scan(dx, P_target, candidates, stab=1.0, criterion="principal"
 
 
 def _plot_curves(path, curves):
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(6, 4))
-    for al, c in curves:
-        ax.plot(np.array(c["displacement_m"]) * 1e3, np.array(c["load_N"]) / 1e3, ".-", ms=2,
-                label=f"{al:g} deg")
-    ax.set_xlabel("load-point displacement (mm)")
-    ax.set_ylabel("P (kN)")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
-    fig.savefig(path, dpi=150)
-    plt.close(fig)
+    with figure(path, dpi=150) as (fig, ax):
+        for al, c in curves:
+            ax.plot(np.array(c["displacement_m"]) * 1e3, np.array(c["load_N"]) / 1e3, ".-", ms=2,
+                    label=f"{al:g} deg")
+        ax.set(xlabel="load-point displacement (mm)", ylabel="P (kN)")
+        ax.legend(fontsize=7)
 
 
 @case("scb-table", "SCB Table 6.2: P_c at the eight angles with r_s calibrated at alpha = 0 only", _table_args)
 def run_table(args):
     from upscale.experiments.scenes.scb import calibrated_r_s, damage_png, default_growth, run_scb
 
-    quick = getattr(args, "quick", False)
-    dx = getattr(args, "dx", None) or 2e-3
-    stab = getattr(args, "stabilisation", 1.0)
-    al_s = getattr(args, "alphas", None)
+    quick = args.quick
+    dx = args.dx or 2e-3
+    stab = args.stabilisation
+    al_s = args.alphas
     alphas = [float(a) for a in al_s.split(",")] if al_s else ([0.0, 30.0, 50.0] if quick else list(ALPHAS))
     ex = _exp()
     exP = dict(zip(ex["alpha_deg"], ex["exp_P_c_kN"]))
     thP = dict(zip(ex["alpha_deg"], ex["theo_P_c_kN"]))
     t0 = time.perf_counter()
-    r_s = getattr(args, "r_s", None)
-    crit = getattr(args, "criterion", "principal")
-    growth = getattr(args, "growth", None) or default_growth(crit)
-    tipf = getattr(args, "tip_factor", "solved")
+    r_s = args.r_s
+    crit = args.criterion
+    growth = args.growth or default_growth(crit)
+    tipf = args.tip_factor
     cal = None
     if r_s is None and crit == "energy":   # its stored calibration (r_s / dx at alpha = 0)
         r_s = calibrated_r_s("energy", dx)
     elif r_s is None:
-        cands = [float(v) for v in getattr(args, "r_s_candidates", "1e-3,2e-3,3e-3").split(",")]
+        cands = [float(v) for v in args.r_s_candidates.split(",")]
         r_s, cal = calibrate_r_s_scan(dx, exP[0.0] * 1e3, cands, stab=stab, criterion=crit, growth=growth,
                                       tip_factor=tipf)
     print(f"r_s = {r_s * 1e3:.4f} mm (calibrated at alpha = 0 only)" if cal else f"r_s = {r_s * 1e3:.4f} mm (given)")
     out = _outdir(args)
-    rows, res_all, curves = [], [], []
+    rows, curves = [], []
     for al in alphas:
-        res = run_scb(al, dx=dx, r_s=r_s, stabilisation=stab, stop_fraction=getattr(args, "stop_fraction", 0.5),
-                      keep=True, max_equilibria=getattr(args, "max_equilibria", 3000), criterion=crit,
+        res = run_scb(al, dx=dx, r_s=r_s, stabilisation=stab, stop_fraction=args.stop_fraction,
+                      keep=True, max_equilibria=args.max_equilibria, criterion=crit,
                       growth=growth, tip_factor=tipf)
         fe = _fe(al, 3 * dx, quick=True)
         f = np.sqrt(np.pi * A_CRACK) / (2 * R * T_THICK)
@@ -293,9 +272,7 @@ def run_table(args):
                "solver s": res["curve"]["time_split_s"]["newton"],
                "failure s": res["curve"]["time_split_s"]["failure"]}
         rows.append(row)
-        res_all.append(res)
-        print(f"alpha {al:4.1f}: P_c {res['P_c_kN']:.4f} kN (exp {exP[al]}, err {err:+.2f} %), "
-              f"initiation {res['initiation_angle_deg']} deg, {res['wall_s']:.0f} s", flush=True)
+        print(f"alpha {al:4.1f}: P_c {res['P_c_kN']:.4f} kN, {res['wall_s']:.0f} s", flush=True)
         sc, mu = res.pop("_scene"), res.pop("_damage")
         res.pop("_state")
         pts = np.asarray(res["crack_path_m"]) if res["crack_path_m"] else None
@@ -308,7 +285,7 @@ def run_table(args):
             path_png(out / "scb_path_30_vs_experiment.png", sc, mu, pts,
                      f"alpha = 30 deg, dx = {dx * 1e3:g} mm: mean |offset| {row['path offset mm mean']:.2f} mm")
         curves.append((al, res["curve"]))
-    print(table(rows, floatfmt=".3f"))
+    show(rows, fmt=".3f")
     _plot_curves(out / "scb_curves.png", curves)
     e = np.array([abs(r["err %"]) for r in rows])
     pe = np.array([abs(100 * (thP[a] / exP[a] - 1)) for a in ALPHAS])
@@ -354,7 +331,7 @@ def run_convergence(args):
     beside it."""
     from upscale.experiments.scenes.scb import calibrated_r_s, run_scb
 
-    quick = getattr(args, "quick", False)
+    quick = args.quick
     dxs = [float(v) for v in (args.dxs or ("2e-3,1.5e-3" if quick else
                                            "1e-3,5e-4,2.5e-4")).split(",")]
     alphas = [float(v) for v in (args.alphas or ("0" if quick else "0,30,50")).split(",")]
@@ -385,9 +362,6 @@ def run_convergence(args):
                 ch.append({"alpha": al, "mode": f"delta/dx {m:g} vs 3", "dx mm": f"{mid * 1e3:g}",
                            "finest": False,
                            "change_pct": 100 * (one(al, mid, m, "fixed r_s", r_s) / P3 - 1)})
-    print(table(rows, floatfmt=".4f"))
-    print(table(ch, floatfmt=".2f"))
-
     def worst(sel):
         v = [abs(c["change_pct"]) for c in ch if sel(c)]
         return float(max(v)) if v else None
@@ -421,16 +395,17 @@ def _rate_args(p):
 
 @case("scb-rate", "SCB: explicit dynamics at three loading times against the quasi-static P_c", _rate_args)
 def run_rate(args):
+    from upscale.engine import damage
     from upscale.experiments.scenes.scb import SCBScene, default_growth, run_scb
 
-    quick = getattr(args, "quick", False)
-    crit = getattr(args, "criterion", "principal")
-    growth = getattr(args, "growth", None) or default_growth(crit)
-    dx, r_s = getattr(args, "dx", None) or (2e-3 if quick else 1e-3), getattr(args, "r_s", None)
+    quick = args.quick
+    crit = args.criterion
+    growth = args.growth or default_growth(crit)
+    dx, r_s = args.dx or (2e-3 if quick else 1e-3), args.r_s
     if r_s is None:
         r_s = 0.075 if crit == "energy" else 1e-3
-    times = [float(v) for v in (getattr(args, "times", None) or ("1e-3,2e-3,4e-3" if quick else "2e-3,5e-3,1.5e-2")).split(",")]
-    rise = float(getattr(args, "rise", RATE_RISE))
+    times = [float(v) for v in (args.times or ("1e-3,2e-3,4e-3" if quick else "2e-3,5e-3,1.5e-2")).split(",")]
+    rise = float(args.rise)
     if not 0.0 <= rise <= 1.0:
         raise ValueError(f"--rise={rise!r}; valid: 0 <= rise <= 1 (a fraction of the loading time)")
     qs = run_scb(0.0, dx=dx, r_s=r_s, stop_fraction=0.5, keep=True, criterion=crit, growth=growth)
@@ -443,8 +418,6 @@ def run_rate(args):
     for T in times:
         sc = SCBScene(0.0, dx=dx, r_s=r_s, criterion=crit, growth=growth)
         t, d, P, st, info = sc.explicit(T, u_end, every=1, rise=rise * T)
-        from upscale.engine import damage
-
         mu = damage(sc.family, st.intact)
         k = int(np.argmax(P))
         overlap = float(np.sum((mu > 0.35) & (mu_qs > 0.35)) / max(1, np.sum(mu_qs > 0.35)))
@@ -454,7 +427,6 @@ def run_rate(args):
                      "err %": 100 * (P[k] / P_qs - 1), "d at P_c mm": d[k] * 1e3,
                      "damaged overlap with QS": overlap, "steps": info["steps"], "wall s": info["wall_s"]})
         print(rows[-1], flush=True)
-    print(table(rows, floatfmt=".4f"))
     errs = [r["err %"] for r in rows]
     mono = all(abs(b) <= abs(a) + 1e-9 for a, b in zip(errs, errs[1:]))
     return {"dx_m": dx, "r_s_m": r_s, "criterion": crit, "growth": growth,
@@ -497,34 +469,23 @@ def path_png(path, scene, mu, pts, title):
     """Damage map near the crack (``scene``, ``mu``; None: none) with the model's path
     particles and the experimental alpha = 30 deg path of ``PATH_30`` (Ayatollahi et al.
     2006) overlaid."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
     exp = json.loads(PATH_30.read_text())
-    fig, ax = plt.subplots(figsize=(4.2, 5.6))
-    if scene is not None:
-        x = scene.system.x0
-        win = (np.abs(x[:, 0]) < 0.02) & (x[:, 1] > 0.005)
-        ax.scatter(x[win, 0] * 1e3, x[win, 1] * 1e3, c=mu[win], s=(scene.dx * 5e3) ** 2, cmap="Greys", vmin=0,
-                   vmax=1, marker="s", linewidths=0)
-    tip = 15.0 * np.array([np.sin(np.radians(30.0)), np.cos(np.radians(30.0))])
-    ax.plot([0, tip[0]], [0, tip[1]], "b-", lw=1.5, label="pre-crack")
-    if pts is not None and len(pts):
-        ax.plot(np.asarray(pts)[:, 0] * 1e3, np.asarray(pts)[:, 1] * 1e3, "r.", ms=1.5, label="model path (damage >= 0.35)")
-    ax.plot(np.asarray(exp["x_m"]) * 1e3, np.asarray(exp["y_m"]) * 1e3, "g-o", ms=3, lw=1.2,
-            label="experiment (Ayatollahi et al. 2006)")
-    ax.set_xlim(-20, 20)
-    ax.set_ylim(5, 50)
-    ax.set_aspect("equal")
-    ax.set_xlabel("x (mm)")
-    ax.set_ylabel("y (mm)")
-    ax.set_title(title, fontsize=9)
-    ax.legend(fontsize=7, loc="lower left")
-    fig.tight_layout()
-    fig.savefig(path, dpi=150)
-    plt.close(fig)
+    with figure(path, figsize=(4.2, 5.6), dpi=150) as (fig, ax):
+        if scene is not None:
+            x = scene.system.x0
+            win = (np.abs(x[:, 0]) < 0.02) & (x[:, 1] > 0.005)
+            ax.scatter(x[win, 0] * 1e3, x[win, 1] * 1e3, c=mu[win], s=(scene.dx * 5e3) ** 2, cmap="Greys",
+                       vmin=0, vmax=1, marker="s", linewidths=0)
+        tip = 15.0 * np.array([np.sin(np.radians(30.0)), np.cos(np.radians(30.0))])
+        ax.plot([0, tip[0]], [0, tip[1]], "b-", lw=1.5, label="pre-crack")
+        if pts is not None and len(pts):
+            ax.plot(np.asarray(pts)[:, 0] * 1e3, np.asarray(pts)[:, 1] * 1e3, "r.", ms=1.5,
+                    label="model path (damage >= 0.35)")
+        ax.plot(np.asarray(exp["x_m"]) * 1e3, np.asarray(exp["y_m"]) * 1e3, "g-o", ms=3, lw=1.2,
+                label="experiment (Ayatollahi et al. 2006)")
+        ax.set(xlim=(-20, 20), ylim=(5, 50), aspect="equal", xlabel="x (mm)", ylabel="y (mm)")
+        ax.set_title(title, fontsize=9)
+        ax.legend(fontsize=7, loc="lower left")
     return Path(path)
 
 
@@ -551,7 +512,7 @@ def run_geometry_convergence(args):
     from upscale.experiments.scenes.scb import SCBScene
     from validation.fem_scb import solve_scb
 
-    quick = getattr(args, "quick", False)
+    quick = args.quick
     dxs = [float(v) for v in args.dxs.split(",")] if args.dxs else \
         ([2e-3, 1e-3] if quick else [1e-3, 5e-4, 2.5e-4, 1.25e-4])
     alphas = [float(v) for v in args.alphas.split(",")] if args.alphas else ([0.0] if quick else [0.0, 30.0, 50.0])
@@ -572,8 +533,7 @@ def run_geometry_convergence(args):
                          "Y_II err %": 100 * (k["Y_II"] / fe["Y_II"] - 1) if abs(fe["Y_II"]) > 0.1 else None,
                          "wall s": time.perf_counter() - t0,
                          "peak GB so far": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6})
-            print(table(rows[-1:], floatfmt=".4g"), flush=True)
-    print(table(rows, floatfmt=".4g"))
+            show(rows[-1:])
 
     def worst(dx, key):
         v = [abs(r[key]) for r in rows if np.isclose(r["dx mm"], dx * 1e3) and r[key] is not None]
