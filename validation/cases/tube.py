@@ -1,60 +1,32 @@
 """The nanotube: the coarse (DCBR) tube and the engine's atomistic tube against LAMMPS and
 against main's recorded figures.
 
-Gain matrix and DCBR tube cases: gain-affine, dcbr-energy, dcbr-tension, dcbr-table,
-dcbr-seeds, dcbr-stability, dcbr-defect-nve.
+The scenes are :mod:`upscale.experiments.scenes.tube_tension`'s; these cases compare them.
+References: closed-form affine fields (``gain-affine``) and LAMMPS through the runners of
+:mod:`upscale.experiments.lammps.tension` (same potential file, tube and protocol), taken from
+``data/reference/*.json`` when a record matches, else computed and cached in
+``cache_dir("references")`` (never the source tree), keyed by the runners' source checksum.
 
-The scenes are :mod:`upscale.experiments.scenes.tube_tension`'s; these cases compare them. References:
-closed-form affine fields (gain-affine) and LAMMPS through the runners of
-:mod:`upscale.experiments.lammps.tension` (same potential file, same tube, same protocol). A LAMMPS
-result is taken from ``data/reference/*.json`` when a record matches (chirality, atoms,
-protocol, strain step, cutoff, vacancy), else computed on the fly and cached in the user
-cache folder (``cache_dir("references")``, :mod:`upscale.experiments.lammps.cache`, never the
-source tree), keyed by the runners' source checksum.
+``protocol-atomistic``: the engine's atomistic Tersoff tube against LAMMPS, both through
+:func:`upscale.experiments.tension` with the same protocol object; the potential is exact
+against LAMMPS (``tersoff-vs-lammps``), so any difference is the protocol's. Quasi-static
+tension of a periodic (10,10), 100 Å; compression of a periodic (10,10), 120 Å, with a
+divacancy in the middle (it picks the buckling mode), past buckling, strain step 0.001;
+torsion of a free (10,10), 100 Å, 10 Å rigid grips, past buckling, 1 degree per step.
+Target (issue "One way to run a scene"): curves within 1 % (max |d sigma| / |sigma_peak| up
+to the first drop of either), buckling strain and twist angle within 2 %. Beside it (not in
+``pass``): the dynamic pull of a free (10,10) of 100 Å, 10 Å grips at 1 Å/ps each, 10 K, the
+seed means over :data:`DYNAMIC_SEEDS` each side. ``--quick``: a (5,5), never a pass.
 
-``protocol-atomistic``: the shared protocols validated where only the protocol can differ.
-
-The engine's atomistic Tersoff tube (``model="atomistic"``) against LAMMPS
-(``model="lammps"``), both through :func:`upscale.experiments.tension` with the same
-parameters, so the same protocol object: the potential is the same (exact against LAMMPS,
-``tersoff-vs-lammps``), so any difference is the protocol's (relaxation, loading, stop
-rule, measurement).
-
-- quasi-static tension of a periodic (10,10), 100 Å;
-- quasi-static compression of a periodic (10,10), 120 Å, with a divacancy in the middle
-  (the imperfection that picks the buckling mode), past buckling (first drop of 5 % in
-  magnitude), strain step 0.001;
-- torsion of a free-ended (10,10), 100 Å, 10 Å gripped rigidly at each end, past buckling,
-  1 degree per step.
-
-Target (issue "One way to run a scene"): curves within 1 % (max |d sigma| / |sigma_peak|
-over the common load points up to the first drop of either), buckling strain and twist
-angle within 2 %; "peak at" is the strain (the twist in degrees) of the peak. ``--quick``:
-a (5,5) tube of 40 / 40 / 40 Å, same rules, never a pass.
-
-Beside the target (not in ``pass``): the dynamic pull (:func:`upscale.experiments.pull.
-pull` on the engine, LAMMPS's ``fix nvt`` run on the other side) of a free (10,10) of
-100 Å, 10 Å grips at 1 Å/ps each, 10 K, on :data:`DYNAMIC_SEEDS` thermal seeds each side
-(the two sides' random velocities differ): the seed means' strength, strain at peak and
-modulus, ``dynamic_*_err_pct``. ``--quick``: a (5,5) of 60 Å.
-
-``tube-regression``: the tube scene's quasi-static figures against main's recorded ones.
-
-The coarse tube's quasi-static table (pristine (10,10), (17,0), (12,6), 100 Å; with
-``--vacancy`` the seed's 4-atom-vacancy tubes; coarsening 1-4; ``--quick``: (10,10) K = 2)
-through ``experiments.tension(model="dcbr")`` against main's figures recorded in
-``validation/baselines/main-99b82f2.json`` (main's ``dcbr-table`` rows, recorded before the
-old tube paths were replaced by the scene): strength within 1e-4 relative, the modulus's
-error against the stored LAMMPS reference within 1e-2 percentage points (main kept that
-error, not the modulus: 1e-4 relative of the modulus moves it by at most 1e-2), the same
-strain at peak. (That every scene gives the same figures through Python and the command
-line is a test, ``tests/test_scene_api.py``.)
+``tube-regression``: ``experiments.tension(model="dcbr")`` on main's quasi-static table
+(``validation/baselines/main-99b82f2.json``, recorded before the old tube paths were
+replaced by the scene): strength within 1e-4 relative, the modulus's error against LAMMPS
+within 1e-2 points (main kept that error, not the modulus), the same strain at peak.
 """
 from __future__ import annotations
 
 import json
 import math
-import os
 import time
 from pathlib import Path
 
@@ -66,15 +38,10 @@ from upscale.experiments.lammps.cache import cache_dir
 from upscale.experiments.scenes.tube_tension import (GRIPS, REFERENCE_DIR, dynamic_scene,
                                                      lammps_reference, parse_chirality)
 from upscale.experiments.scenes.tube_tension import run_tension_comparison as _run_tension
-from validation.registry import case, table
+from validation.registry import case, figure, show
 
-
-ROOT = Path(__file__).resolve().parents[2]
 CACHE = cache_dir("references")
-RUNNER = ROOT / "upscale" / "experiments" / "lammps"  # the runners' package
-
-# ---------------------------------------------------------------------------- helpers
-_chirality = parse_chirality
+RUNNER = Path(__file__).resolve().parents[2] / "upscale" / "experiments" / "lammps"  # the runners
 
 
 def _run_lammps(protocol, atoms, potential, cutoff, strain_step, progress):
@@ -147,7 +114,7 @@ def _gain_affine(args):
             worst_all = max(worst_all, err.max())
             rows.append({"field": name, "eq6.6_stabilised": stab, "particles": len(x),
                          "max|G-H| interior": float(err[inner].max()), "max|G-H| all": float(err.max())})
-    print(table(rows))
+    show(rows, fmt=".6g")
     # cylinder: uniform radial + axial stretch (exact) and twist (O(h^2))
     R, nt, nz, dz = 6.0, 24, 40, 1.3
     th = 2 * np.pi * np.arange(nt) / nt
@@ -175,9 +142,6 @@ def _gain_affine(args):
     Q = rot([0, 0, 1], 0.9)
     E2 = tube.energy_and_gradient(y @ Q.T + [1.0, -2.0, 0.7], d, tube.L)[0]
     rigid = abs(E2 - E1)
-    print(table([{"check": "cylinder radial+axial stretch, max|C - C_exact|", "value": stretch_err},
-                 {"check": "cylinder twist, max rel. error of C_tz (h/R = 0.53)", "value": twist_err},
-                 {"check": "DCBR tube: |E(rigid motion) - E| (eV)", "value": rigid}]))
     return {"gain_err_interior_max": float(worst_inner), "gain_err_all_max": float(worst_all),
             "cylinder_stretch_err_max": stretch_err, "cylinder_twist_rel_err_max": twist_err,
             "rigid_motion_energy_eV": float(rigid),
@@ -200,10 +164,10 @@ def _dcbr_energy(args):
     from upscale.experiments.scenes.tube_tension import quasi_static_tension_engine
     from upscale.models.dcbr import DCBRTube
 
-    chis = [_chirality(c) for c in (args.chirality or (["10,10"] if args.quick else
-                                                         ["10,10", "17,0", "12,6"]))]
     from upscale.build import chirality
 
+    chis = [parse_chirality(c) for c in (args.chirality or (["10,10"] if args.quick else
+                                                              ["10,10", "17,0", "12,6"]))]
     step = 0.02 if args.quick else 0.01
     rows, worst, worst_ns = [], 0.0, 0.0
     for n, m in chis:
@@ -233,7 +197,7 @@ def _dcbr_energy(args):
                          "dE_lammps_meV/atom": 1e3 * d_ref, "dE_dcbr_meV/atom": 1e3 * d_cg,
                          "err_%": err, "dE_no_shift_meV/atom": 1e3 * d_ns, "err_no_shift_%": err_ns})
         print(f"({n},{m}): LAMMPS reference from {ref['_source']}, peak at strain {eps_peak}")
-    print(table(rows, floatfmt=".5g"))
+    show(rows, fmt=".5g")
     return {"energy_err_pct_max": worst, "energy_err_pct_max_without_shift_relaxation": worst_ns,
             "tubes": [f"{n},{m}" for n, m in chis], "coarsening": args.coarsening,
             "strain_step": step, "pass": bool(worst < 1.0)}
@@ -248,33 +212,32 @@ def _tension_args(p):
     p.add_argument("--chirality", default="10,10", help="N,M (default 10,10)")
     p.add_argument("--length", type=float, default=None, help="Å (default 100; --quick 25)")
     p.add_argument("--coarsening", type=float, default=2.0)
-    p.add_argument("--vacancy", action="store_true",
-                   help="the 4-atom vacancy (atomistic region around it, DCBRDefectTube)")
+    _variant_args(p)
     p.add_argument("--r-atomistic", type=float, default=8.0,
-                   help="with --vacancy: half-width (band) or radius (disc) of the atomistic "
-                   "region, Å (default 8)")
-    p.add_argument("--region", choices=("band", "disc"), default="band",
-                   help="with --vacancy: atomistic band all around the tube or a disc")
-    p.add_argument("--step-crossing", choices=("damped", "energy", "force", "always"),
-                   default="damped",
-                   help="with --vacancy: how a pair held at the step cutoff goes across: "
-                   "damped dynamics then L-BFGS (default, LAMMPS's quasi-static protocol), or "
-                   "single pairs when that lowers the energy, when the force pushes, always")
-    p.add_argument("--dynamic", action="store_true",
-                   help="dynamic tension of the open tube with grips (--grips)")
-    p.add_argument("--grips", choices=GRIPS, default=None,
-                   help="dynamic: 'bands' (atomistic bands of --r-atomistic across the grip "
-                   "planes; the default without --vacancy) or 'clamped' (coarse rows clamped "
-                   "rigid; the default with --vacancy)")
+                   help="with --vacancy: half-width (band) or radius (disc) of the atomistic region, Å")
+    p.add_argument("--region", choices=("band", "disc"), default="band", help="with --vacancy")
+    p.add_argument("--step-crossing", choices=("damped", "energy", "force", "always"), default="damped",
+                   help="with --vacancy: how a pair held at the step cutoff goes across "
+                   "(run_tension_comparison)")
     p.add_argument("--strain-step", type=float, default=0.005)
-    p.add_argument("--temperature", type=float, default=10.0,
-                   help="dynamic: thermostat K (default 10, as LAMMPS; 0 = NVE from rest)")
     p.add_argument("--hourglass", type=float, default=0.1,
                    help="zero-energy-mode control, fraction of the lattice stiffness (0 = off)")
 
 
+def _variant_args(p):
+    """--vacancy, --dynamic, --grips, --temperature: the tube and protocol of a comparison."""
+    p.add_argument("--vacancy", action="store_true", help="the 4-atom vacancy tubes (DCBRDefectTube)")
+    p.add_argument("--dynamic", action="store_true",
+                   help="dynamic tension of the open tube with grips (150 Å, the dynamic references)")
+    p.add_argument("--grips", choices=GRIPS, default=None,
+                   help="dynamic: 'bands' (atomistic bands across the grip planes; the default "
+                   "without --vacancy) or 'clamped' (coarse rows clamped rigid; with --vacancy)")
+    p.add_argument("--temperature", type=float, default=10.0,
+                   help="dynamic: thermostat K (default 10, as LAMMPS; 0 = NVE from rest)")
+
+
 def _dcbr_tension(args):
-    n, m = _chirality(args.chirality)
+    n, m = parse_chirality(args.chirality)
     # the dynamic scene needs the stored 150 Å references (50 Å grips); --quick keeps them
     length = args.length or (150.0 if args.dynamic else (25.0 if args.quick else 100.0))
     out = run_tension_comparison(n, m, length, args.coarsening, args.strain_step,
@@ -283,14 +246,6 @@ def _dcbr_tension(args):
                                  region=args.region, step_crossing=args.step_crossing,
                                  temperature=args.temperature, grips=args.grips)
     out.pop("_curve")
-    cols = ["chirality", "coarsening", "atoms", "particles", "modulus_TPa", "modulus_lammps_TPa",
-            "strength_GPa", "strength_lammps_GPa", "strain_at_peak", "strain_at_peak_lammps",
-            "wall_s", "lammps_wall_s", "speedup"]
-    if args.vacancy or args.dynamic:
-        cols += ["dof", "crack_angle_deg", "crack_angle_lammps_deg"]
-    if args.dynamic and not args.vacancy:
-        cols += ["first_damage_strain", "first_damage_to_grip_plane_A"]
-    print(table([out], cols, floatfmt=".5g"))
     out["pass"] = bool(out["modulus_err_pct"] < 3 and out["strength_err_pct"] < 5
                        and out["strain_at_peak_err_pct"] < 10)
     return out
@@ -307,19 +262,23 @@ def _table_args(p):
     p.add_argument("--length", type=float, default=None, help="Å (default 100; --quick 25)")
     p.add_argument("--coarsening", type=float, action="append", default=None,
                    help="repeatable (default 1 2 3 4)")
-    p.add_argument("--vacancy", action="store_true",
-                   help="the 4-atom vacancy tubes (DCBRDefectTube, band of 8 Å)")
-    p.add_argument("--dynamic", action="store_true",
-                   help="dynamic tension (150 Å tubes, the dynamic references)")
-    p.add_argument("--grips", choices=GRIPS, default=None,
-                   help="dynamic: 'bands' (atomistic bands across the grip planes; the "
-                   "default without --vacancy) or 'clamped' (the default with --vacancy)")
-    p.add_argument("--temperature", type=float, default=10.0,
-                   help="dynamic: thermostat K (default 10, as LAMMPS; 0 = NVE from rest)")
+    _variant_args(p)
+
+
+#: dcbr-table's columns and the keys of run_tension_comparison they show (the extensometer's
+#: figures where the run has them: dynamic)
+TABLE_COLUMNS = {"atoms": "atoms", "dof": "dof", "wall_s": "wall_s", "lammps_wall_s": "lammps_wall_s",
+                 "speedup": "speedup", "strength_err_%": "strength_err_pct", "modulus_err_%": "modulus_err_pct",
+                 "strain_at_peak_err_%": "strain_at_peak_err_pct", "strength_GPa": "strength_GPa",
+                 "strength_lammps_GPa": "strength_lammps_GPa", "strain_at_peak": "strain_at_peak",
+                 "strain_at_peak_lammps": "strain_at_peak_lammps", "modulus_ext_err_%": "modulus_ext_err_pct",
+                 "strain_at_peak_ext_err_%": "strain_at_peak_ext_err_pct"}
+CRACK_COLUMNS = {"crack_deg": "crack_angle_deg", "crack_lammps_deg": "crack_angle_lammps_deg",
+                 "ejected": "ejected_atoms"}
 
 
 def _dcbr_table(args):
-    chis = [_chirality(c) for c in (args.chirality or (["10,10"] if args.quick else
+    chis = [parse_chirality(c) for c in (args.chirality or (["10,10"] if args.quick else
                                                          ["10,10", "17,0", "12,6"]))]
     length = args.length or (150.0 if args.dynamic else (25.0 if args.quick else 100.0))
     ks = args.coarsening or [1.0, 2.0, 3.0, 4.0]
@@ -330,40 +289,17 @@ def _dcbr_table(args):
                                        plot=(k == ks[-1]), vacancy=args.vacancy,
                                        dynamic=args.dynamic, temperature=args.temperature,
                                        grips=args.grips)
-            rows.append({"tube": f"({n},{m}){' vac4' if args.vacancy else ''}", "K": k,
-                         "atoms": o["atoms"], "dof": o["dof"],
-                         "wall_s": o["wall_s"], "lammps_wall_s": o["lammps_wall_s"],
-                         "speedup": o["speedup"], "strength_err_%": o["strength_err_pct"],
-                         "modulus_err_%": o["modulus_err_pct"],
-                         "strain_at_peak_err_%": o["strain_at_peak_err_pct"],
-                         "strength_GPa": o["strength_GPa"],
-                         "strength_lammps_GPa": o["strength_lammps_GPa"],
-                         "strain_at_peak": o["strain_at_peak"],
-                         "strain_at_peak_lammps": o["strain_at_peak_lammps"]})
-            if "modulus_ext_err_pct" in o:  # dynamic: the extensometer's figures too
-                rows[-1].update({"modulus_ext_err_%": o["modulus_ext_err_pct"],
-                                 "strain_at_peak_ext_err_%": o["strain_at_peak_ext_err_pct"]})
+            row = {"tube": f"({n},{m}){' vac4' if args.vacancy else ''}", "K": k,
+                   **{col: o[key] for col, key in TABLE_COLUMNS.items() if key in o}}
             if args.dynamic and not args.vacancy:  # where the pristine tube failed
-                rows[-1].update({"first_damage_strain": o.get("first_damage_strain"),
-                                 "first_damage_to_grip_plane_A":
-                                     o.get("first_damage_to_grip_plane_A"),
-                                 "first_damage_halves": o.get("first_damage_halves"),
-                                 "crack_deg": o.get("crack_angle_deg"),
-                                 "crack_lammps_deg": o.get("crack_angle_lammps_deg"),
-                                 "ejected": o.get("ejected_atoms")})
+                row.update({c: o.get(c) for c in ("first_damage_strain", "first_damage_to_grip_plane_A",
+                                                  "first_damage_halves")})
+            if args.vacancy or args.dynamic:
+                row.update({col: o.get(key) for col, key in CRACK_COLUMNS.items()})
             if args.vacancy:
-                rows[-1].update({"crack_deg": o.get("crack_angle_deg"),
-                                 "crack_lammps_deg": o.get("crack_angle_lammps_deg"),
-                                 "ejected": o.get("ejected_atoms"),
-                                 "first_damage_to_vacancy_A": o.get("crack_start_to_vacancy_A")})
+                row["first_damage_to_vacancy_A"] = o.get("crack_start_to_vacancy_A")
+            rows.append(row)
             print(f"({n},{m}) K={k:g}: done in {o['wall_s']:.1f} s", flush=True)
-    print(table(rows, floatfmt=".4g"))
-    from upscale.io import write_json
-
-    kind = "_vac4" if args.vacancy else ("_pristine" if args.dynamic else "")
-    write_json(Path(args.outdir) / f"dcbr_table{kind}"
-               f"{'_dynamic' if args.dynamic else ''}"
-               f"{'_T%g' % args.temperature if args.dynamic else ''}.json", rows)
     out = {"rows": rows, "strength_err_pct_max": max(r["strength_err_%"] for r in rows),
            "modulus_err_pct_max": max(r["modulus_err_%"] for r in rows),
            "strain_at_peak_err_pct_max": max(r["strain_at_peak_err_%"] for r in rows)}
@@ -421,7 +357,7 @@ def _dcbr_seeds(args):
                                           else "seed_spread.json")).read_text())
     spread = spread.get("result", spread)["tubes"]
     rows, tubes, ok = [], {}, True
-    for n, m in (_chirality(c) for c in (args.chirality or ["10,10", "17,0", "12,6"])):
+    for n, m in (parse_chirality(c) for c in (args.chirality or ["10,10", "17,0", "12,6"])):
         ref = lammps_reference_or_run(n, m, 150.0, protocol="dynamic",
                                       vacancy=not args.pristine, progress=False)
         runs = []
@@ -444,7 +380,6 @@ def _dcbr_seeds(args):
             ok &= row[f"{k}_err_%"] < SEED_BUDGET[k]
         rows.append(row)
         tubes[f"{n},{m}"] = runs
-    print(table(rows, floatfmt=".4g"))
     return {"rows": rows, "runs": tubes, "pristine": bool(args.pristine),
             "strength_err_pct_max": max(r["strength_GPa_err_%"] for r in rows),
             "modulus_err_pct_max": max(r["youngs_modulus_TPa_err_%"] for r in rows),
@@ -466,45 +401,30 @@ def _stability_args(p):
     p.add_argument("--temperature", type=float, default=10.0, help="initial K (default 10)")
     p.add_argument("--hourglass", type=float, default=0.1,
                    help="zero-energy-mode control, fraction of the lattice stiffness (0 = off)")
-    p.add_argument("--mts-outer-dt", type=float, default=5.0,
-                   help="multiple time stepping: outer step, fs (default 5)")
-    p.add_argument("--mts-inner", type=int, default=5,
-                   help="multiple time stepping: inner steps per outer step (default 5)")
-    p.add_argument("--mts-steps", type=int, default=None,
-                   help="multiple time stepping NVE: outer steps (default 10000; --quick 1000)")
+    p.add_argument("--mts-outer-dt", type=float, default=5.0, help="multiple time stepping: outer step, fs")
+    p.add_argument("--mts-inner", type=int, default=5, help="inner steps per outer step")
+    p.add_argument("--mts-steps", type=int, default=None, help="outer steps (default 10000; --quick 1000)")
     p.add_argument("--mts-sample-every", type=int, default=1,
-                   help="outer steps between the energy samples of the drift fit, both "
-                        "integrators at the same times (default 1: every outer step; 50 "
-                        "gives 200 samples per run)")
-    p.add_argument("--mts-length", type=float, default=50.0,
-                   help="length of the periodic vacancy tube of the MTS run, Å (default 50)")
+                   help="outer steps between the energy samples of the drift fit (both integrators)")
+    p.add_argument("--mts-length", type=float, default=50.0, help="the periodic vacancy tube's length, Å")
     p.add_argument("--mts-region", choices=("band", "disc", "ellipse"), default="ellipse",
-                   help="its atomistic region (default ellipse: 8 Å axial, --mts-r-arc around)")
-    p.add_argument("--mts-r-arc", type=float, default=12.0,
-                   help="the ellipse's circumferential semi-axis, Å (default 12)")
-    p.add_argument("--mts-seed", type=int, default=7,
-                   help="seed of the first run's initial velocities (default 7)")
+                   help="its atomistic region (ellipse: 8 Å axial, --mts-r-arc around)")
+    p.add_argument("--mts-r-arc", type=float, default=12.0, help="the ellipse's circumferential semi-axis, Å")
+    p.add_argument("--mts-seed", type=int, default=7, help="seed of the first run's initial velocities")
     p.add_argument("--mts-seeds", type=int, default=None,
-                   help="velocity draws (seeds --mts-seed, +1, ...), each run by both "
-                        "integrators (default 6; --quick 1)")
+                   help="velocity draws (seeds --mts-seed, +1, ...), each run by both integrators "
+                        "(default 6; --quick 1)")
     p.add_argument("--mts-split", choices=tuple(SPLITS), default=MTS_SPLIT,
-                   help=f"the force split (DCBRDefectTubeModel split, default {MTS_SPLIT}): "
-                        "coarse every coarse force slow; ghost the ghost-force dead load "
-                        "fast; interface the lattice energy of the particles with a slave in "
-                        "their G stencil fast; atoms-free both, so that the slow group does "
-                        "not act on the atoms")
+                   help="the force split (DCBRDefectTubeModel split)")
     p.add_argument("--no-mts", action="store_true", help="skip the multiple-time-step run")
 
 
 def drift_estimates(t, e):
     """Two estimates of the drift of an energy record ``e`` (E(t) - E(0)) at times ``t``:
-    ``(fit, tenths)``. ``fit``: the least-squares line's rise over the record (slope times
-    duration); ``tenths``: the mean of the last tenth minus that of the first. Both average
-    out the O(dt^2) fluctuation; on uncorrelated noise of variance s^2 over n samples the
-    line's rise has variance 12 s^2 / n against the tenths' 20 s^2 / n. Neither tells a
-    secular drift from a slow exchange between modes whose shadow energies differ within
-    one run; the mean over independent velocity draws does (an exchange takes either sign,
-    a drift its own)."""
+    ``(fit, tenths)``: the least-squares line's rise over the record, and the mean of the last
+    tenth minus that of the first. On uncorrelated noise of variance s^2 over n samples the
+    rise has variance 12 s^2 / n, the tenths' 20 s^2 / n. Neither tells a drift from a slow
+    exchange between modes; the mean over independent velocity draws does."""
     t, e = np.asarray(t, float), np.asarray(e, float)
     if len(t) < 20 or len(t) != len(e):
         raise ValueError(f"drift_estimates: need >= 20 samples of t and e of one length, "
@@ -516,22 +436,13 @@ def drift_estimates(t, e):
 
 def _mts_nve(args, n, m):
     """NVE energy drift of the r-RESPA integrator (upscale.engine.respa) on the periodic
-    coupled vacancy tube (the dcbr-defect-nve scene, 10 K start, the atomistic region of
-    ``--mts-region``), against velocity Verlet at the inner step over the same simulated
-    time, on the same ``--mts-seeds`` velocity draws, in the same run. Drift of one run:
-    :func:`drift_estimates` (the fitted line's rise and the tenths difference), relative to
-    the initial kinetic energy (the case's convention) and to the atoms' cohesive energy.
-    ``*_drift_rel`` is the mean of the fitted rise over the draws, ``*_drift_rel_sem`` its
+    coupled vacancy tube (10 K start), against velocity Verlet at the inner step over the same
+    simulated time, on the same ``--mts-seeds`` velocity draws, in the same run. A run's drift:
+    :func:`drift_estimates`, relative to the initial kinetic energy and to the atoms' cohesive
+    energy. ``*_drift_rel``: the mean of the fitted rise over the draws, ``*_drift_rel_sem`` its
     standard error; ``mts_pass``: |mean| < 1e-4 KE0, ``mts_pass_resolved``: |mean| + 2 sem <
-    1e-4 (the systematic drift resolved below the target; velocity Verlet's own seed spread
-    sets the floor of what a few draws resolve).
-
-    The energy is sampled every ``--mts-sample-every`` outer steps (default 1), Verlet at
-    the same times. The MTS energy fluctuates by about 1e-2 KE0 within a run, bounded, at
-    the atoms' periods; the fitted rise's noise from it falls as the samples grow (12 s^2 / n
-    for uncorrelated samples), so every outer step is sampled: with 200 samples per run
-    (every 50) the fit's spread over draws was 3.2e-4 KE0 and moved by up to 1e-4 when the
-    samples were shifted by one outer step."""
+    1e-4. The MTS energy fluctuates within a run (bounded, at the atoms' periods), so the fit
+    samples every outer step by default."""
     from upscale.engine.integrators import VelocityVerlet
     from upscale.engine.respa import RESPA
     from upscale.engine.simulation import Simulation
@@ -620,34 +531,22 @@ def _mts_nve(args, n, m):
     out["mts_pass"] = bool(abs(out["mts_drift_rel"]) < 1e-4)
     out["mts_pass_resolved"] = bool(nseeds > 1 and abs(out["mts_drift_rel"])
                                     + 2 * out["mts_drift_rel_sem"] < 1e-4)
-    print(table(rows, floatfmt=".4g"))
-    _plot_energy_records(records, getattr(args, "outdir", None))
+    show(rows)
+    _plot_energy_records(records, args.outdir)
     return out
 
 
 def _plot_energy_records(records, outdir):
     """(E - E0) / KE0 against time for every run (``records[(integrator, seed)] = (t_ps,
     e)``), MTS and Verlet side by side."""
-    if not outdir:
-        return
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(10, 3.6), sharey=True)
-    for (name, seed), (t, e) in records.items():
-        ax = axes[0 if name == "mts" else 1]
-        ax.plot(t, e, lw=0.8, label=f"seed {seed}")
-    for ax, title in zip(axes, ("r-RESPA (outer / inner step)", "velocity Verlet (inner step)")):
-        ax.set_xlabel("t (ps)")
-        ax.set_title(title)
-        ax.axhline(0, color="k", lw=0.5)
-    axes[0].set_ylabel("(E - E0) / KE0")
-    axes[1].legend(fontsize=7)
-    fig.tight_layout()
-    Path(outdir).mkdir(parents=True, exist_ok=True)
-    fig.savefig(Path(outdir) / "mts_energy.png", dpi=120)
-    plt.close(fig)
+    with figure(Path(outdir) / "mts_energy.png", 1, 2, figsize=(10, 3.6), dpi=120, sharey=True) as (fig, axes):
+        for (name, seed), (t, e) in records.items():
+            axes[0 if name == "mts" else 1].plot(t, e, lw=0.8, label=f"seed {seed}")
+        for ax, title in zip(axes, ("r-RESPA (outer / inner step)", "velocity Verlet (inner step)")):
+            ax.set(xlabel="t (ps)", title=title)
+            ax.axhline(0, color="k", lw=0.5)
+        axes[0].set_ylabel("(E - E0) / KE0")
+        axes[1].legend(fontsize=7)
 
 
 def _dcbr_stability(args):
@@ -658,7 +557,7 @@ def _dcbr_stability(args):
     from upscale.engine.system import ParticleSystem
     from upscale.models.dcbr import DCBRTube, DCBRTubeModel
 
-    n, m = _chirality(args.chirality)
+    n, m = parse_chirality(args.chirality)
     steps = args.steps or (500 if args.quick else 10000)
     t = DCBRTube(n, m, args.length, coarsening=args.coarsening, hourglass=args.hourglass)
     r0 = t.minimise(t.x0, t.delta, t.L, relax_box=True, gtol=1e-9)
@@ -677,10 +576,6 @@ def _dcbr_stability(args):
     H, U = t.stability.hessian(q)
     wa = np.linalg.eigvalsh(H / CARBON_MASS_AMU)
     dt_c_atom = 2.0 / math.sqrt(wa.max()) * ASE_TIME_FS
-    print(table([{"model": f"DCBR ({n},{m}) K={args.coarsening:g}", "particles/atoms": N,
-                  "omega_max_1/fs": math.sqrt(w2.max()) / ASE_TIME_FS, "dt_crit_fs": dt_c_coarse},
-                 {"model": "atomistic lattice", "particles/atoms": t.stability.natoms,
-                  "omega_max_1/fs": math.sqrt(wa.max()) / ASE_TIME_FS, "dt_crit_fs": dt_c_atom}]))
     # NVE on the engine: velocity Verlet on the particles, shifts relaxed at every step
     # (upscale.models.dcbr.DCBRTubeModel), links held (no failure in a 10 K run)
     rng = np.random.default_rng(1)
@@ -712,7 +607,6 @@ def _dcbr_stability(args):
     Et = sim.energy() + sim.kinetic_energy()
     rel = (Et - Etot0) / ke0
     maxdev = max(abs(e) for _, e in drift) / ke0
-    print(table([{"steps": s, "E - E0 (eV)": e, "(E - E0)/KE0": e / ke0} for s, e in drift], floatfmt=".3e"))
     res = {"dt_crit_coarse_fs": dt_c_coarse, "dt_crit_atomistic_fs": dt_c_atom,
             "dt_crit_ratio": dt_c_coarse / dt_c_atom, "nve_steps": steps, "nve_dt_fs": args.dt_fs,
             "nve_drift_rel_to_KE0": float(rel), "nve_max_deviation_rel_to_KE0": float(maxdev),
@@ -744,22 +638,20 @@ def _dcbr_defect_nve(args):
     (:func:`upscale.experiments.scenes.tube_tension.defect_nve`)."""
     from upscale.experiments.scenes.tube_tension import defect_nve
 
-    n, m = _chirality(args.chirality)
+    n, m = parse_chirality(args.chirality)
     steps = args.steps or (1000 if args.quick else 10000)
     if not (steps >= 10 and args.dt_fs > 0 and args.temperature > 0):
         raise SystemExit(f"--steps {steps}, --dt-fs {args.dt_fs}, --temperature "
                          f"{args.temperature}; valid: steps >= 10, dt > 0, temperature > 0")
-    out = defect_nve(n, m, args.length, args.coarsening, steps=steps, dt_fs=args.dt_fs,
-                     temperature=args.temperature, progress=not args.quick)
-    print(table([out], floatfmt=".4g"))
-    return out
+    return defect_nve(n, m, args.length, args.coarsening, steps=steps, dt_fs=args.dt_fs,
+                      temperature=args.temperature, progress=not args.quick)
 
 
 case("dcbr-defect-nve", "NVE energy drift of the coupled vacancy tube (periodic, 10 K start)",
      add_arguments=_defect_nve_args)(_dcbr_defect_nve)
 
 
-#: (name, scene keywords, response curve) of the three checks; lengths in Å
+#: the scene keywords of the three checks; lengths in Å
 CHECKS = {
     "tension": dict(load="tension", length=100.0),
     "compression": dict(load="compression", length=120.0, defects="v2@0.5@0", step=0.001,
@@ -786,12 +678,10 @@ def dynamic_pull(chir, length) -> dict:
     kw = dict(protocol="dynamic", grip=10.0, maximum=0.3, temperature=10.0, progress=False)
     runs = {m: [experiments.tension(atoms, model=m, seed=s, **kw).figures
                 for s in DYNAMIC_SEEDS] for m in ("atomistic", "lammps")}
-    out, rows = {}, []
+    out = {}
     for f, key in FIGURES.items():
         a, b = (float(np.mean([r[f] for r in runs[m]])) for m in ("atomistic", "lammps"))
         out[f"dynamic_{key}_err_pct"] = 100 * (a / b - 1)
-        rows.append({"dynamic, seed mean": f, "ours": a, "LAMMPS": b, "err %": 100 * (a / b - 1)})
-    print(table(rows, floatfmt=".4g"))
     return out
 
 
@@ -835,7 +725,7 @@ def protocol_atomistic(args) -> dict:
                      "ours s": ours.meta["wall_s"], "LAMMPS s": ref.figures["wall_s"]})
         out[f"{name}_curve_err_pct"] = err_curve
         out[f"{name}_peak_err_pct"] = err_peak
-    print(table(rows, floatfmt=".4g"))
+    show(rows)
     out.update(dynamic_pull(chir, 60.0 if args.quick else 100.0))
     res = {"tension_curve_err_pct": out.get("tension_curve_err_pct"),
            "compression_buckling_strain_err_pct": out.get("compression_peak_err_pct"),
@@ -863,12 +753,10 @@ def change_vs_main(vacancy: bool, quick: bool) -> list[dict]:
         n, m = (int(v) for v in r["tube"].split()[0].strip("()").split(","))
         if quick and ((n, m) != (10, 10) or r["K"] != 2):
             continue
-        defects = "v4@0.5@0" if vacancy else ""
         res = experiments.tension(chirality=(n, m), length=100.0, model="dcbr",
                                   coarsening=r["K"], progress=False,
                                   **({"structure": _seed_vacancy_tube(n, m)} if vacancy
-                                     else {"defects": defects}))
-
+                                     else {"defects": ""}))
         kw = {"structure": _seed_vacancy_tube(n, m)} if vacancy else \
             {"chirality": (n, m), "length": 100.0}
         ref = experiments.tension(model="lammps", progress=False, **kw)
@@ -895,7 +783,6 @@ def _seed_vacancy_tube(n, m):
              "same strain at peak, every row")
 def tube_regression(args) -> dict:
     changes = change_vs_main(args.vacancy, args.quick)
-    print(table(changes, floatfmt=".8g"))
     worst = max(abs(r["change_pct"]) for r in changes)
     worst_mod = max(abs(r["modulus_err_pct"] - r["main_modulus_err_pct"]) for r in changes)
     same_peak = all(r["strain_at_peak"] == r["main_strain_at_peak"] for r in changes)
