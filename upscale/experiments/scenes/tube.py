@@ -349,11 +349,13 @@ def _stored_reference(atoms, proto, potential) -> dict | None:
 
     info = atoms.info
     vac = info.get("vacancy")
-    if info.get("defects") and potential == "BNC.tersoff":
-        return _stored_defect_reference(atoms, proto)
-    if (potential != "BNC.tersoff" or info.get("chirality") is None or info.get("defects")
-            or not isinstance(proto, QuasiStatic) or proto.load != "tension"
-            or not proto.periodic or (vac and vac.get("n") != 4)):
+    if potential != "BNC.tersoff":
+        return None
+    r = _stored_collection_reference(atoms, proto)
+    if r is not None or info.get("defects"):
+        return r
+    if (info.get("chirality") is None or not isinstance(proto, QuasiStatic)
+            or proto.load != "tension" or not proto.periodic or (vac and vac.get("n") != 4)):
         return None
     n, m = info["chirality"]
     try:
@@ -367,11 +369,12 @@ def _stored_reference(atoms, proto, potential) -> dict | None:
     return r
 
 
-def _stored_defect_reference(atoms, proto) -> dict | None:
-    """The record of a ``data/reference/qs_defects_*.json`` collection (tubes with defects
-    built by :func:`tube_structure` from a chirality, a length and a defects string, run by
-    the LAMMPS backend) whose protocol is ``proto`` and whose structure, rebuilt from its
-    recipe, has ``atoms``' positions (to 1e-6 Å); None where none matches."""
+def _stored_collection_reference(atoms, proto) -> dict | None:
+    """The record of a ``data/reference/qs_*.json`` collection (``{"provenance", "tubes":
+    [...]}``: tubes built by :func:`tube_structure` from a chirality, a length and a
+    defects string, run by the LAMMPS backend) whose protocol is ``proto`` and whose
+    structure, rebuilt from its recipe, has ``atoms``' positions (to 1e-6 Å); None where
+    none matches."""
     import dataclasses
     import json
 
@@ -381,13 +384,14 @@ def _stored_defect_reference(atoms, proto) -> dict | None:
     if chir is None or not isinstance(proto, QuasiStatic):
         return None
     want = dataclasses.asdict(proto)
-    for path in sorted(Path(REFERENCE_DIR).glob("qs_defects_*.json")):
-        for t in json.loads(path.read_text())["tubes"]:
+    for path in sorted(Path(REFERENCE_DIR).glob("qs_*.json")):
+        tubes = json.loads(path.read_text()).get("tubes")
+        for t in tubes if isinstance(tubes, list) else ():
             got = t["lammps"]["protocol"]
             if (tuple(t["chirality"]) != tuple(chir) or len(atoms) !=
                     t["lammps"]["structure"]["n_atoms"]
                     or any(got.get(k) != want[k] for k in ("load", "step", "maximum",
-                                                          "periodic", "perturb"))):
+                                                          "periodic", "grip", "perturb"))):
                 continue
             built = tube_structure(None, t["chirality"], t["length_A"], t["defects"])
             if np.allclose(built.get_positions(), atoms.get_positions(), atol=1e-6):
