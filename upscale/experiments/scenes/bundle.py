@@ -337,19 +337,20 @@ class BundleScene:
             state.extra[f"{name}/{FIELD}"][...] = st["delta"]
         self.ghost_load(state, 0.0)
 
-    def ghost_load(self, state, extension: float) -> None:
+    def ghost_load(self, state, strain: float, held: dict | None = None) -> None:
         """Ask every coarse tube for its ghost-force dead load (``state.extra``
         ``"<body>/dcbr.ghost"``, ``"<body>/dcbr.ghost_hold"``, which the model follows:
         :meth:`~upscale.models.dcbr.model.DCBRModel.stretch_ghost`) at the axial stretch
-        lam_z0 (1 + e), e = ``extension`` / its gauge (the grips' separation change, Å),
-        its grips' rows at the set-up stretch lam_z0 (the single tube's pull)."""
+        lam_z0 (1 + ``strain``) of its gauge, the rows ``held[k]`` (n,) bool of tube k (its
+        grips; default: the rows beyond its set-up's planes) at the set-up stretch lam_z0
+        (the single tube's pull)."""
         for k, (em, st) in self.coarse.items():
             if not st["ghost"]:
                 continue
             name, lam0 = self.bodies[k].name, st["lam_z0"]
-            state.extra[f"{name}/dcbr.ghost"] = np.array(
-                [lam0 * (1.0 + extension / st["gauge"]), lam0])
-            state.extra[f"{name}/dcbr.ghost_hold"] = st["bottom"] | st["top"]
+            hold = st["bottom"] | st["top"] if held is None else held[k]
+            state.extra[f"{name}/dcbr.ghost"] = np.array([lam0 * (1.0 + strain), lam0])
+            state.extra[f"{name}/dcbr.ghost_hold"] = np.asarray(hold, bool).copy()
 
     def atoms_at_rest(self):
         """The bundle's ase.Atoms at the scene's starting lattice, open boundaries (for

@@ -74,7 +74,7 @@ def dynamic_tension(scene, *, grip: float | None = None, speed: float = 1.0,
         raise ValueError(f"max_strain={max_strain:g} gives fewer than 3 samples of the curve "
                          f"(one every {per_sample:.3g} strain); valid: max_strain >= "
                          f"{1.5 * per_sample:.3g}, or a smaller sample_every")
-    thermo, tau_tube = _thermostat(scene, free, temperature, tdamp_ps, thermostat,
+    thermo, tau_tube = _thermostat(scene, grips, free, temperature, tdamp_ps, thermostat,
                                    chain, per_tube_damping_ps)
     sim = _simulation(scene, start["sim"], y, grips, free, zb, sep0, speed, dt_fs,
                       temperature, seed, thermo, integrator, per)
@@ -176,11 +176,12 @@ def _minimised_start(scene, dt_fs, settle_ps, ftol, per) -> dict:
 
 
 def _grips(scene, y, hold, grip, speed):
-    """Step 2's grips: the atomistic tubes' atoms beyond a plane ``grip`` inside the bundle's
-    end atoms (LAMMPS's), the coarse tubes' rows beyond their own set-up's planes (their
-    particle rows' shifts held: :func:`_held_shifts`); each pair moves at -+``speed`` Å/ps
-    from where the minimisation left it. Returns (grips per tube, free rows, bottom plane
-    z, gauge length)."""
+    """Step 2's grips: on every tube the rows beyond two planes ``grip`` inside the bundle's
+    end atoms (LAMMPS's grips: the same planes for every tube; the atomistic tubes' end
+    atoms set them; a coarse tube's particle rows' shifts held with them,
+    :func:`_held_shifts`; its atomistic bands straddle the planes); each pair moves at
+    -+``speed`` Å/ps from where the minimisation left it. Returns (grips per tube, free
+    rows, bottom plane z, gauge length)."""
 
     asm = scene.assembly
     n = asm.system.n
@@ -192,19 +193,11 @@ def _grips(scene, y, hold, grip, speed):
         raise ValueError(f"grip={grip} Å leaves a gauge of {sep0:.2f} Å; valid: 2 grip <= "
                          "L - 10 Å")
     v = speed * 1e-3                        # Å/fs (the scene's time unit is the fs)
-    coarse_of = {k: (bm, st) for k, bm, st in scene.coarse_models()}
     grips, bot, top = [], np.zeros(n, bool), np.zeros(n, bool)
     for k, b in enumerate(scene.bodies):
-        rows = asm.rows(b.name)
-        gb, gt = np.zeros(n, bool), np.zeros(n, bool)
-        if k in coarse_of:
-            st = coarse_of[k][1]
-            gb[rows] = st["bottom"]
-            gt[rows] = st["top"]
-        else:
-            mine = np.zeros(n, bool)
-            mine[rows] = True
-            gb, gt = mine & (y[:, 2] < zb), mine & (y[:, 2] > zt)
+        mine = np.zeros(n, bool)
+        mine[asm.rows(b.name)] = True
+        gb, gt = mine & (y[:, 2] < zb), mine & (y[:, 2] > zt)
         bot |= gb
         top |= gt
         grips.append((_moving_grip(f"bot{k + 1}", gb, y, asm.system.x0, -v),
@@ -224,28 +217,34 @@ def _moving_grip(name, mask, y, x0, vz):
     return Grip(Region(name, mask), displacement=lambda t: u0 + vel * t, record_every=0)
 
 
-def _held_shifts(scene):
+def _gripped(scene, grips) -> dict:
+    """{tube index: (n,) bool}: a coarse tube's rows in its grips."""
+    return {k: (grips[k][0].region.mask | grips[k][1].region.mask)[bm.rows]
+            for k, bm, _ in scene.coarse_models()}
+
+
+def _held_shifts(scene, grips) -> dict:
     """{tube index: (n,) bool}: a coarse tube's particle rows in its grips, whose shifts
     the grips hold at their set-up value (the single tube's pull)."""
     out = {}
-    for k, bm, st in scene.coarse_models():
-        held = np.zeros(bm.model.n, bool)
-        nd = particle_rows(bm.model)
-        held[:nd] = (st["bottom"] | st["top"])[:nd]
+    for k, g in _gripped(scene, grips).items():
+        held = np.zeros(len(g), bool)
+        nd = particle_rows(scene.coarse[k][0])
+        held[:nd] = g[:nd]
         out[k] = held
     return out
 
 
-def _free_shifts(scene) -> dict:
+def _free_shifts(scene, grips) -> dict:
     """{tube index: rows (assembled) of a coarse tube's free shifts}: its particle rows
     outside its grips."""
     asm = scene.assembly
     return {k: asm.rows(scene.bodies[k].name).start
-            + np.flatnonzero(~held[:particle_rows(bm.model)])
-            for (k, held), (_, bm, _) in zip(_held_shifts(scene).items(), scene.coarse_models())}
+            + np.flatnonzero(~held[:particle_rows(scene.coarse[k][0])])
+            for k, held in _held_shifts(scene, grips).items()}
 
 
-def _thermostat(scene, free, temperature, tdamp_ps, thermostat, chain, per_tube_ps):
+def _thermostat(scene, grips, free, temperature, tdamp_ps, thermostat, chain, per_tube_ps):
     """Step 2's Nose-Hoover chain on the free part's x, y velocities and the coarse tubes'
     free shifts (one for the bundle, or one per tube); (thermostat or None, per-tube
     damping in ps)."""
@@ -257,7 +256,7 @@ def _thermostat(scene, free, temperature, tdamp_ps, thermostat, chain, per_tube_
     n = asm.system.n
     tubes = [asm.rows(b.name) for b in scene.bodies]
     coarse_of = {k: bm for k, bm, _ in scene.coarse_models()}
-    nshift = {k: len(r) for k, r in _free_shifts(scene).items()}
+    nshift = {k: len(r) for k, r in _free_shifts(scene, grips).items()}
     if thermostat == "bundle":
         ndf = 2 * int(free.sum()) + sum(3 * v for v in nshift.values())
         frows = np.zeros(n, bool)
@@ -301,7 +300,7 @@ def _simulation(scene, sim0, y, grips, free, zb, sep0, speed, dt_fs, temperature
     rng = np.random.default_rng(seed)
     vel = np.zeros((n, 3))
     field_v = {}
-    free_shift = _free_shifts(scene)
+    free_shift = _free_shifts(scene, grips)
     if temperature > 0:
         vel[free] = rng.normal(size=(int(free.sum()), 3)) * np.sqrt(
             K_B_EV * temperature / mass[free])[:, None]
@@ -325,7 +324,7 @@ def _simulation(scene, sim0, y, grips, free, zb, sep0, speed, dt_fs, temperature
     for gb, gt in grips:
         vel[gb.region.index, 2], vel[gt.region.index, 2] = -v, v
     conds = [g for pair in grips for g in pair] + list(scene.extra_conditions())
-    for k, held in _held_shifts(scene).items():
+    for k, held in _held_shifts(scene, grips).items():
         if held.any():
             mask = np.zeros(n, bool)
             mask[tubes[k]] = held
@@ -344,7 +343,7 @@ def _simulation(scene, sim0, y, grips, free, zb, sep0, speed, dt_fs, temperature
     _copy_fields(sim0.state, sim.state)
     for key, vd in field_v.items():
         sim.state.field_v[key][...] = vd
-    scene.ghost_load(sim.state, 0.0)
+    scene.ghost_load(sim.state, 0.0, _gripped(scene, grips))
     return sim
 
 
@@ -507,6 +506,7 @@ class _BundlePull(PullSpecimen):
         self.update_forces = getattr(sim.integrator, "update_forces", None) \
             or (lambda s: s.update_forces())
         self.coarse = scene.coarse_models()
+        self.gripped = _gripped(scene, grips)
         self.broken_links: dict = {}
         self.snapshots: list = []
         tubes = [asm.rows(b.name) for b in scene.bodies]
@@ -515,7 +515,7 @@ class _BundlePull(PullSpecimen):
         self.t_mass = [mass[i, None] for i in self.t_rows]
         self.t_shift = {}
         for k, bm, _ in self.coarse:
-            idx = _free_shifts(scene)[k]
+            idx = _free_shifts(scene, grips)[k]
             self.t_shift[k] = (f"{scene.bodies[k].name}/{_FIELD}", idx,
                                bm.model.fields()[_FIELD].inertia[idx - tubes[k].start, None])
         self.acc, self.tacc = np.zeros(len(tubes)), np.zeros((len(tubes), 2))
@@ -572,7 +572,7 @@ class _BundlePull(PullSpecimen):
         for k, bm, _ in self.coarse:
             n = bm.model.break_bonds(bm.sub(sim.state))
             self.broken_links[k] = self.broken_links.get(k, 0) + n
-        self.scene.ghost_load(sim.state, strain_now * self.sep0)
+        self.scene.ghost_load(sim.state, strain_now, self.gripped)
         self.update_forces(sim)
 
     def tube_temperatures(self, sim) -> list:
