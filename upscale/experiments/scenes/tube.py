@@ -352,8 +352,13 @@ def _stored_reference(atoms, proto, potential) -> dict | None:
     if potential != "BNC.tersoff":
         return None
     r = _stored_collection_reference(atoms, proto)
-    if r is not None or info.get("defects"):
+    if r is not None:
         return r
+    if info.get("defects"):  # the seed's vacancy placed through `defects`, or none stored
+        ch, L = info.get("chirality"), info.get("length")
+        if ch is None or L is None or not _is_seed_vacancy(atoms, ch, L):
+            return None
+        vac = {"n": 4}
     if (info.get("chirality") is None or not isinstance(proto, QuasiStatic)
             or proto.load != "tension" or not proto.periodic or (vac and vac.get("n") != 4)):
         return None
