@@ -101,14 +101,22 @@ def _patch_sublattice(tube, th, z, X, lat_sub, on_site):
     raise RuntimeError("cannot match the atoms' sublattices to the particle lattice")
 
 
-def _slave_fit(R0, th_c, z_c, thA, zA, period):
+def _offsets(R0, th_c, z_c, th, z, period):
+    """Arc and axial offsets (k,) of points from a particle at (th_c, z_c) to their images
+    nearest it, and those images' periods (k,)."""
+    dz = z - z_c
+    img = np.round(dz / period) if period else np.zeros(len(z))
+    return R0 * _wrap(th - th_c), dz - img * (period or 0.0), img
+
+
+def _slave_fit(R0, th_c, z_c, thA, zA, period, rank=None):
     """Weights (k,), rows (k,) into the A atoms and their periodic images (k,) (periods
-    between an atom and the image nearest the slave) of one slave particle's fit."""
-    dzf = zA - z_c
-    img = np.round(dzf / period) if period else np.zeros(len(zA))
-    dsf, dzf = R0 * _wrap(thA - th_c), dzf - img * (period or 0.0)
+    between an atom and the image nearest the slave) of one slave particle's fit; the
+    nearest atoms by ``rank`` (k,) if given (the distances that chose them), else by
+    their distance."""
+    dsf, dzf, img = _offsets(R0, th_c, z_c, thA, zA, period)
     dist = np.hypot(dsf, dzf)
-    order = np.argsort(dist)
+    order = np.argsort(dist if rank is None else rank)
     if len(order) < 10:
         raise ValueError(f"a slave particle has {len(order)} free atoms to follow (10 "
                          "needed); valid: a larger r_atomistic")
@@ -146,12 +154,18 @@ def _ref_frames(tube):
     return par, Q3
 
 
-def carriers(tube, dof_idx, X, th, z, sub):
+def carriers(tube, dof_idx, X, th, z, sub, choose=None):
     """Atoms that follow a particle's uniform map (:mod:`.pads`): carrier c (the nearest of
-    ``dof_idx``), reference offsets (ds, dz), sublattice flag, residual r0 (so that the
-    map puts each atom on its reference position ``X`` (k, 3) at the reference)."""
+    ``dof_idx``, or the nearest to the points ``choose`` = (theta, z) if given), reference
+    offsets (ds, dz), sublattice flag, residual r0 (so that the map puts each atom on its
+    reference position ``X`` (k, 3) at the reference)."""
     k, ds, dz = _nearest(tube, th, z, dof_idx)
     c = np.asarray(dof_idx, np.int64)[k]
+    if choose is not None:
+        c = np.asarray(dof_idx, np.int64)[_nearest(tube, *choose, dof_idx)[0]]
+        zc = (tube.x0[c] - tube.centre) @ tube.axis
+        ds, dz, _ = _offsets(tube.cell.R0, tube.theta[c], zc, th, z,
+                             tube.L if tube.periodic else None)
     sig = np.asarray(sub, float)
     par, Q3 = _ref_frames(tube)
     x = np.empty((len(c), 3))
@@ -203,13 +217,23 @@ class Coupling:
         gives (the pristine twin of :mod:`.ghost` takes its tube's).
     more_inside : (N,) bool, optional
         Particles given to the region besides (a region grown by :mod:`.switch`).
+    reference : (K, 3) float, optional
+        The atoms' reference positions, Å, where they differ from ``positions``, which then
+        only choose (each site's particle, the free atoms, the pads and their carriers, a
+        slave's nearest atoms): the pristine twin of :mod:`.ghost`, its sites at their
+        lattice positions, chosen as its tube's atoms choose (the same weights, pads and
+        fits, and the same tie breaks on a symmetric lattice).
     """
 
     def __init__(self, tube, reg, positions, region, potential="BNC.tersoff", pad=PAD,
-                 inside=None, more_inside=None):
+                 inside=None, more_inside=None, reference=None):
         self.tube = tube
         self.period = tube.L if tube.periodic else None
         ids, X, th, z, sub, on_site = atom_geometry(tube, reg, positions)
+        ref = None
+        if reference is not None:  # reference geometry; X, th, z only choose
+            Xr = np.asarray(reference, float)[ids]
+            ref = (Xr, *_cyl(tube, Xr))
         lat = reg.lattice
         # every expected site: occupied ones at their atom, empty ones at the lattice's site
         empty = lat.empty_sites
@@ -248,9 +272,9 @@ class Coupling:
         self.free_site = lat.site[self.free_local]
         self.free_sub = sub[self.free_local]
         self.nf = len(self.free_idx)
-        self.Xf = X[self.free_local]
-        self._slaves(th, z, sub, on_site)
-        self._pads(X, th, z, sub, free, pad, ids)
+        self.Xf = (X if ref is None else ref[0])[self.free_local]
+        self._slaves(th, z, sub, on_site, ref)
+        self._pads(X, th, z, sub, free, pad, ids, ref)
         tube.hourglass.scale_n = w / self.nominal
         tube.hourglass.rebuild()
         par = read_tersoff_file(potential, ["C"]).with_step_cutoff(True)
@@ -258,16 +282,23 @@ class Coupling:
         self._nl = NeighbourList(self._tcut, NL_SKIN)
         self.y_ref = np.vstack([tube.x0[self.dof_idx], self.Xf])
 
-    def _slaves(self, th, z, sub, on_site):
+    def _slaves(self, th, z, sub, on_site, ref=None):
         """Phi (slaves x free atoms), the offsets, and kphi_s = sum_a Phi_sa k_sa (the
-        fitted atoms' images: y_s = X_s + sum_a Phi_sa (x_a - X_a) - kphi_s (L - L0) e_z)."""
+        fitted atoms' images: y_s = X_s + sum_a Phi_sa (x_a - X_a) - kphi_s (L - L0) e_z);
+        with ``ref`` (X, theta, z) the fit on the reference geometry, its atoms chosen by
+        ``th``, ``z``."""
         t = self.tube
         fA = np.flatnonzero((sub[self.free_local] == 0) & on_site[self.free_local])
         thA, zA = th[self.free_local][fA], z[self.free_local][fA]
+        if ref is not None:
+            thA, zA, chA = ref[1][self.free_local][fA], ref[2][self.free_local][fA], (thA, zA)
         zc = (t.x0 - t.centre) @ t.axis
         rows, cols, vals, off, kphi = [], [], [], [], []
         for k, c in enumerate(self.slave_idx):
-            phi, near, img = _slave_fit(t.cell.R0, t.theta[c], zc[c], thA, zA, self.period)
+            rank = None if ref is None else \
+                np.hypot(*_offsets(t.cell.R0, t.theta[c], zc[c], *chA, self.period)[:2])
+            phi, near, img = _slave_fit(t.cell.R0, t.theta[c], zc[c], thA, zA, self.period,
+                                        rank)
             rows += [k] * len(near)
             cols += list(fA[near])
             vals += list(phi)
@@ -278,7 +309,9 @@ class Coupling:
         self.slave_off = np.array(off).reshape(-1, 3)
         self.kphi = np.array(kphi)
 
-    def _pads(self, X, th, z, sub, free, pad, ids):
+    def _pads(self, X, th, z, sub, free, pad, ids, ref=None):
+        """The pad atoms (chosen by ``X``) and their carriers (on the reference geometry
+        ``ref`` = (X, theta, z) if given, chosen by ``th``, ``z``)."""
         t = self.tube
         Xf = X[free]
         if self.period:  # free atoms' images one period either side
@@ -286,8 +319,10 @@ class Coupling:
         near = cKDTree(Xf).query(X, distance_upper_bound=pad)[0] < pad
         loc = np.flatnonzero(~free & near)
         self.pad_idx = ids[loc]
+        geo = (X, th, z) if ref is None else ref
         self.pad_c, self.pad_ds, self.pad_dz, self.pad_sig, self.pad_r0 = carriers(
-            t, self.dof_idx, X[loc], th[loc], z[loc], sub[loc])
+            t, self.dof_idx, geo[0][loc], geo[1][loc], geo[2][loc], sub[loc],
+            None if ref is None else (th[loc], z[loc]))
         F0 = t.gain.deformation(t.x0, t.L if t.periodic else None)
         self.fs_last = np.einsum("nia,nab->nib", F0, t.gain.S)
 

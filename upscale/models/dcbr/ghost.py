@@ -7,15 +7,31 @@ Solids 47, 611 (1999)) taken from the tube's pristine twin: the same particles, 
 region of whole cells, every lattice site occupied (an empty site by its lattice position,
 an atom off the lattice by none), evaluated at the uniform relaxed state of the load step:
 
-    E' = E - W,   W = sum_rows [g_r (rho - rho_u) + g_t rho_u (theta - theta_u) + g_z (z - z_u)]
+    E' = E - W,   W = sum_rows g . (R(phi)^T (y - ybar) - (y_u - ybar_u))
                       + sum_c g_delta,c . (delta_c - delta_u)
 
 with g = dE_twin/dy at the uniform state u (lam_t and the shift relaxed at the step's axial
-stretch lam_z = L / L0, gam = 0: :func:`uniform_lattice`), taken in each row's cylindrical
-components about the rows' centroid (a Cartesian dead load is not invariant under a rigid
-turn about the axis). A pristine twin then stays exactly uniform; a free atom of the tube
-that has no twin (an adatom, a Stone-Wales atom off its site) takes no load.
-dE'/dL adds the load's work along the uniform path (central difference of x_u).
+stretch lam_z = L / L0, gam = 0: :func:`uniform_lattice`), ybar the rows' centroid (over the
+rows with a twin) and R(phi) the turn about the axis that best carries the uniform rows onto
+the current ones (2D Procrustes: tan phi = sum x_u x x / sum x_u . x, in-plane about the
+centroids; phi = 0 on a finite tube, whose grips hold its turn and whose grips' rows may keep
+another stretch's load, a torque that a turning load would spread over every row). A rigid
+motion (a turn about the axis, a shift) costs nothing, as a Cartesian dead load does not;
+the load stays linear in the rows under any other deformation, so a tube that bends as a
+column (a defective tube under compression does, as the all-atom one) keeps a bounded load.
+(The validated tube took the load's radial and tangential components about the rows'
+centroid: equal to first order about u, but singular where a bent tube carries a row to
+that centroid.) A pristine twin then stays exactly uniform; a free atom of the tube that
+has no twin (an adatom, a Stone-Wales atom off its site) takes no load; the load of a twin's
+site the tube has no atom on (a vacancy's) goes to the nearest row the tube has, so that
+the load stays balanced (no net force; a net torque only of that distance). dE'/dL adds the load's work along the uniform path (central difference of x_u).
+
+The twin's sites are at their lattice positions (:meth:`.lattice.LatticeMap.site_uv` on the
+registered cylinder), not at the input's atoms: a relaxed input (a defective tube's
+displacement fields over the whole wall) would leave the twin non-uniform and its load
+several times the interface's. Its choices (each site's particle, the pads' carriers, the
+slaves' nearest atoms) are made at the input's atoms, as its tube's (``reference`` of
+:class:`.coupling.Coupling`), so the two have the same weights, pads and fits.
 
 This is the correction of the validated defect tube (``DCBRDefectTube.prepare_step``, old
 module), on any registered tube: a periodic one at its period L (:meth:`GhostLoad.prepare`),
@@ -53,24 +69,28 @@ def uniform_lattice(cell, P_f, lam_z: float):
 
 
 def _twin_registration(reg, positions):
-    """(registration view, positions (S, 3)) of the pristine twin: every expected site."""
+    """(registration view, the sites' positions that choose (S, 3), their reference
+    positions (S, 3)) of the pristine twin: every expected site, chosen at its atom (an
+    empty one at its lattice position), its reference its lattice position on the
+    registered cylinder (a periodic tube's: the image nearest its atom), Å."""
     lat = reg.lattice
     ids = np.flatnonzero(lat.expected)
-    X = np.empty((len(ids), 3))
-    pos = {int(s): k for k, s in enumerate(lat.site) if s >= 0}
     uv = lat.site_uv(ids)
-    Rl = lat.circumference / (2 * np.pi)
-    for k, s in enumerate(ids):
-        if int(s) in pos:
-            X[k] = positions[reg.atoms[pos[int(s)]]]
-        else:
-            ph = uv[k, 0] / Rl
-            X[k] = reg.centre + reg.radius * (np.cos(ph) * reg.e1 + np.sin(ph) * reg.e2) \
-                + uv[k, 1] * reg.axis
+    ph = uv[:, 0] / (lat.circumference / (2 * np.pi))
+    Xs = reg.centre + reg.radius * (np.cos(ph)[:, None] * reg.e1 + np.sin(ph)[:, None] * reg.e2) \
+        + uv[:, 1:2] * reg.axis
+    X = Xs.copy()
+    on = lat.site >= 0
+    where = np.full(lat.n_sites, -1, np.int64)
+    where[ids] = np.arange(len(ids))
+    X[where[lat.site[on]]] = np.asarray(positions, float)[np.asarray(reg.atoms)[on]]
+    if reg.periodic:  # each site at the image of its atom
+        Xs += np.outer(np.round(((X - Xs) @ reg.axis) / reg.length) * reg.length, reg.axis)
     view = types.SimpleNamespace(
         site=ids, sublattice=ids % 2, empty_sites=np.zeros(0, np.int64), site_uv=lat.site_uv,
         circumference=lat.circumference)
-    return types.SimpleNamespace(atoms=np.arange(len(ids)), lattice=view, centre=reg.centre), X
+    return (types.SimpleNamespace(atoms=np.arange(len(ids)), lattice=view, centre=reg.centre),
+            X, Xs)
 
 
 class GhostLoad:
@@ -90,11 +110,12 @@ class GhostLoad:
 
     def __init__(self, coupling, reg, positions, build, potential):
         t = coupling.tube
-        twin_reg, X = _twin_registration(reg, positions)
+        twin_reg, X, Xs = _twin_registration(reg, positions)
         self.twin_tube = CoarseTube(reg, len(X), **build,
                                     positions=np.asarray(positions)[reg.atoms])
         self.twin_tube.hourglass.k_stab = t.hourglass.k_stab
-        self.twin = Coupling(self.twin_tube, twin_reg, X, None, potential, inside=coupling.inside)
+        self.twin = Coupling(self.twin_tube, twin_reg, X, None, potential, inside=coupling.inside,
+                             reference=Xs)
         tw = self.twin
         if not (np.array_equal(tw.dof_idx, coupling.dof_idx)
                 and np.allclose(tw.tube.natoms_n, t.natoms_n)):
@@ -148,6 +169,7 @@ class GhostLoad:
         nd = len(c.dof_idx)
         y, d = self._state(L, lam_z)
         _, gy, gd, _, _ = self.twin.evaluate(y, d, L)
+        gy = self._lumped(y, gy, L)
         keep = np.maximum(self.tube_rows(), 0)
         on = np.r_[np.ones(nd), (self.rows >= 0).astype(float)][:, None]
         yu, g = y[keep], gy[keep] * on
@@ -157,17 +179,23 @@ class GhostLoad:
             yp, dp = self._state(L + h)
             ym, dm = self._state(L - h)
             dL = float(np.sum(g * (yp[keep] - ym[keep])) + np.sum(gd * (dp - dm))) / (2 * h)
-        t = self.twin_tube
-        xu = self._plane(yu)
-        thu = np.arctan2(xu[:, 1], xu[:, 0])
-        cs, sn = np.cos(thu), np.sin(thu)
-        gplane = np.column_stack([g @ t.e1, g @ t.e2])
-        rhou = np.hypot(xu[:, 0], xu[:, 1])
-        gt = -gplane[:, 0] * sn + gplane[:, 1] * cs
         return {"L": None if L is None else float(L), "lam_z": lam_z, "y": yu, "d": d,
-                "gd": gd, "dL": dL, "thu": thu, "rhou": rhou,
-                "gr": gplane[:, 0] * cs + gplane[:, 1] * sn, "gtr": gt * rhou,
-                "gz": g @ t.axis, "g": g}
+                "gd": gd, "dL": dL, "g": g}
+
+    def _lumped(self, y, gy, L):
+        """The twin's load (rows, 3) with that of each site the tube has no atom on (a
+        vacancy's) added to the nearest row the tube has (the image nearest it)."""
+        r = self.tube_rows()
+        kept = r[r >= 0]
+        lack = np.setdiff1d(np.arange(len(gy)), kept)
+        out = gy.copy()
+        ax = self.twin_tube.axis
+        for k in lack:
+            dv = y[kept] - y[k]
+            if L is not None:
+                dv -= np.outer(np.round((dv @ ax) / L) * L, ax)
+            out[kept[np.argmin(np.einsum("ij,ij->i", dv, dv))]] += gy[k]
+        return out
 
     def _report(self):
         nd = len(self.coupling.dof_idx)
@@ -198,7 +226,7 @@ class GhostLoad:
             ref = getattr(self, "_held_load", None)
             if ref is None or ref["lam_z"] != lh:  # (the set-up stretch's, kept)
                 ref = self._held_load = self._load(None, lh)
-            for k in ("y", "thu", "rhou", "gr", "gtr", "gz", "g"):
+            for k in ("y", "g"):
                 load[k] = np.where(hold.reshape((-1,) + (1,) * (load[k].ndim - 1)),
                                    ref[k], load[k])
             nd = len(self.coupling.dof_idx)
@@ -209,11 +237,12 @@ class GhostLoad:
         self.load = load
         return self._report()
 
-    def _plane(self, y):
-        """Rows' (e1, e2) components about their centroid (n, 2)."""
+    def _plane(self, y, twin):
+        """Rows' (e1, e2) components (n, 2) about the centroid of the rows with a twin
+        (``twin`` (n,) bool)."""
         t = self.twin_tube
         p = np.column_stack([y @ t.e1, y @ t.e2])
-        return p - p.mean(axis=0)
+        return p - p[twin].mean(axis=0)
 
     def active(self, L) -> bool:
         """True when the load is set for period ``L`` (a finite tube: ``L`` None)."""
@@ -224,22 +253,31 @@ class GhostLoad:
         return abs(self.load["L"] - L) < 1e-12 * L
 
     def apply(self, y, delta, E, gy, gd):
-        """(E - W, dE'/dy, dE'/d delta, the load's dE'/dL) at rows ``y``, shifts ``delta``."""
+        """(E - W, dE'/dy, dE'/d delta, the load's dE'/dL) at rows ``y``, shifts ``delta``
+        (module docstring: the load turned with the rows by the Procrustes angle phi,
+        dW/dy = R g - (its mean over the twin rows) + dW/dphi dphi/dy)."""
         a, t = self.load, self.twin_tube
         alive = self.coupling.tube.alive
         nd = len(self.coupling.dof_idx)
+        twin = self.tube_rows() >= 0
         on = np.r_[alive[self.coupling.dof_idx].astype(float), np.ones(len(y) - nd)]
-        gr, gtr, gz = a["gr"] * on, a["gtr"] * on, a["gz"] * on
+        g = a["g"] * on[:, None]
+        gp, gz = np.column_stack([g @ t.e1, g @ t.e2]), g @ t.axis
         gdl = a["gd"] * alive[:, None]
-        x = self._plane(y)
-        rho = np.hypot(x[:, 0], x[:, 1])
-        th = np.arctan2(x[:, 1], x[:, 0])
-        turn = float(np.angle(np.mean(np.exp(1j * (th - a["thu"])))))
-        dth = turn + (th - a["thu"] - turn + np.pi) % (2 * np.pi) - np.pi
-        W = float(np.sum(gr * (rho - a["rhou"]) + gtr * dth + gz * (y @ t.axis - a["y"] @ t.axis))
+        x, xu = self._plane(y, twin) * twin[:, None], self._plane(a["y"], twin) * twin[:, None]
+        S = float(np.sum(xu[:, 0] * x[:, 1] - xu[:, 1] * x[:, 0]))
+        C = float(np.sum(xu * x))
+        turns = self.twin_tube.periodic  # (a finite tube's grips hold its turn)
+        phi = np.arctan2(S, C) if turns else 0.0
+        c, s = np.cos(phi), np.sin(phi)
+        Rt = np.array([[c, s], [-s, c]])                        # R(phi)^T
+        W = float(np.sum(gp * (x @ Rt.T - xu)) + np.sum(gz * ((y - a["y"]) @ t.axis))
                   + np.sum(gdl * (delta - a["d"])))
-        cplane = (gr[:, None] * x + (gtr / rho)[:, None] * np.column_stack([-x[:, 1], x[:, 0]])) \
-            / rho[:, None]
-        cplane -= cplane.mean(axis=0)
+        Rg = gp @ Rt                                            # rows R g
+        cplane = Rg - twin[:, None] * (Rg.sum(axis=0) / twin.sum())
+        if turns:
+            dWdphi = float(np.sum(gp * (np.column_stack([x[:, 1], -x[:, 0]]) @ Rt.T)))
+            dphi = (C * np.column_stack([-xu[:, 1], xu[:, 0]]) - S * xu) / (S * S + C * C)
+            cplane += dWdphi * dphi
         dW = cplane[:, :1] * t.e1 + cplane[:, 1:] * t.e2 + gz[:, None] * t.axis
         return E - W, gy - dW, gd - gdl, a["dL"]
