@@ -125,6 +125,8 @@ class GhostLoad:
                               for s in coupling.free_site], np.int64)
         self.coupling = coupling
         self.load = None
+        self._twin = self.tube_rows() >= 0  # (the rows the load's centroid and turn are of)
+        self._E12 = np.column_stack([self.twin_tube.e1, self.twin_tube.e2])
 
     def uniform_state(self, lam_t, lam_z, shift):
         """The twin's unknowns (nd + nf_twin, 3) on the uniform map and its shifts (N, 3)."""
@@ -207,7 +209,7 @@ class GhostLoad:
     def prepare(self, L) -> dict:
         """Set the dead load for period ``L`` (Å) (mutates); returns the largest ghost
         forces on particles, atoms and shifts, eV/Å."""
-        self.load = self._load(L)
+        self.load = self._derived(self._load(L))
         return self._report()
 
     def prepare_stretch(self, lam_z: float, hold=None, lam_hold: float | None = None) -> dict:
@@ -234,15 +236,22 @@ class GhostLoad:
             hp[self.coupling.dof_idx] = hold[:nd]
             for k in ("d", "gd"):
                 load[k] = np.where(hp[:, None], ref[k], load[k])
-        self.load = load
+        self.load = self._derived(load)
         return self._report()
 
-    def _plane(self, y, twin):
-        """Rows' (e1, e2) components (n, 2) about the centroid of the rows with a twin
-        (``twin`` (n,) bool)."""
-        t = self.twin_tube
-        p = np.column_stack([y @ t.e1, y @ t.e2])
-        return p - p[twin].mean(axis=0)
+    def _plane(self, y):
+        """Rows' (e1, e2) components (n, 2) about the centroid of the rows with a twin, zero
+        on the others."""
+        p = y @ self._E12
+        return (p - p[self._twin].mean(axis=0)) * self._twin[:, None]
+
+    def _derived(self, load) -> dict:
+        """``load`` with its in-plane rows x_u (:meth:`_plane`), axial z_u and the load's
+        in-plane and axial components (mutated, returned)."""
+        load["xu"] = self._plane(load["y"])
+        load["zu"] = load["y"] @ self.twin_tube.axis
+        load["gp"], load["gz"] = load["g"] @ self._E12, load["g"] @ self.twin_tube.axis
+        return load
 
     def active(self, L) -> bool:
         """True when the load is set for period ``L`` (a finite tube: ``L`` None)."""
@@ -258,26 +267,25 @@ class GhostLoad:
         dW/dy = R g - (its mean over the twin rows) + dW/dphi dphi/dy)."""
         a, t = self.load, self.twin_tube
         alive = self.coupling.tube.alive
-        nd = len(self.coupling.dof_idx)
-        twin = self.tube_rows() >= 0
-        on = np.r_[alive[self.coupling.dof_idx].astype(float), np.ones(len(y) - nd)]
-        g = a["g"] * on[:, None]
-        gp, gz = np.column_stack([g @ t.e1, g @ t.e2]), g @ t.axis
-        gdl = a["gd"] * alive[:, None]
-        x, xu = self._plane(y, twin) * twin[:, None], self._plane(a["y"], twin) * twin[:, None]
+        gp, gz, gdl = a["gp"], a["gz"], a["gd"]
+        if not alive.all():  # a dead particle's row and shifts take no load
+            nd = len(self.coupling.dof_idx)
+            on = np.r_[alive[self.coupling.dof_idx].astype(float), np.ones(len(y) - nd)]
+            gp, gz, gdl = gp * on[:, None], gz * on, gdl * alive[:, None]
+        x, xu = self._plane(y), a["xu"]
         S = float(np.sum(xu[:, 0] * x[:, 1] - xu[:, 1] * x[:, 0]))
         C = float(np.sum(xu * x))
-        turns = self.twin_tube.periodic  # (a finite tube's grips hold its turn)
+        turns = t.periodic  # (a finite tube's grips hold its turn)
         phi = np.arctan2(S, C) if turns else 0.0
         c, s = np.cos(phi), np.sin(phi)
         Rt = np.array([[c, s], [-s, c]])                        # R(phi)^T
-        W = float(np.sum(gp * (x @ Rt.T - xu)) + np.sum(gz * ((y - a["y"]) @ t.axis))
+        W = float(np.sum(gp * (x @ Rt.T - xu)) + gz @ (y @ t.axis - a["zu"])
                   + np.sum(gdl * (delta - a["d"])))
         Rg = gp @ Rt                                            # rows R g
-        cplane = Rg - twin[:, None] * (Rg.sum(axis=0) / twin.sum())
+        cplane = Rg - self._twin[:, None] * (Rg.sum(axis=0) / self._twin.sum())
         if turns:
             dWdphi = float(np.sum(gp * (np.column_stack([x[:, 1], -x[:, 0]]) @ Rt.T)))
             dphi = (C * np.column_stack([-xu[:, 1], xu[:, 0]]) - S * xu) / (S * S + C * C)
             cplane += dWdphi * dphi
-        dW = cplane[:, :1] * t.e1 + cplane[:, 1:] * t.e2 + gz[:, None] * t.axis
+        dW = cplane @ self._E12.T + np.outer(gz, t.axis)
         return E - W, gy - dW, gd - gdl, a["dL"]
