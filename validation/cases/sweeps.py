@@ -1,22 +1,15 @@
-"""Sweeps on Dask (``upscale.experiments.sweep``) checked on a real ensemble: sweep-check.
+"""Sweeps on Dask (``upscale.experiments.sweep``) checked on real ensembles.
 
-The ensemble is the (10,10) 4-atom-vacancy tube's coarse thermal seeds at coarsening 2
-(``dcbr-seeds``' scene, seeds 1000, 1001, ...); with ``--lammps-seeds`` also LAMMPS
-reference seeds of the same tube as tasks of a sweep (one MPI rank each), against
-``data/reference/seed_spread.json``. The case runs the ensemble
-
-1. on two LocalCluster workers, uninterrupted, plus one run that raises (a negative
-   temperature): the failure listed with its error while the others complete;
-2. the same seeds called one after another in this process, without Dask (a fresh run of
-   the current code, not a stored one, which goes stale when the physics changes): every
-   seed's five figures equal, exactly, and the speed-up of the two-worker sweep over this
-   serial run (cluster start included), with the machine's load average beside it, since
-   two workers on two cores measure nothing while other jobs use the cores;
-3. through the command line ``upscale sweep``, killed with SIGKILL (its whole process
-   group: driver, nanny and worker processes) once half the runs are written, then
-   restarted: how many finished runs the restart redid, how many runs are missing from
-   the final table, and whether the table equals the uninterrupted sweep's (wall times
-   aside).
+``sweep-check``: the (10,10) 4-atom-vacancy tube's coarse thermal seeds at coarsening 2
+(``dcbr-seeds``' scene, seeds 1000, 1001, ...) (1) on two LocalCluster workers, plus one run
+that raises (a negative temperature), listed with its error while the others complete; (2)
+called one after another in this process (a fresh run of the current code, not a stored
+one): every seed's five figures equal, and the two-worker speed-up over it, judged only when
+the machine was quiet at the start; (3) through ``upscale sweep``, killed with SIGKILL (its
+whole process group) once half the runs are written, then restarted: runs redone, runs lost,
+and the final table against the uninterrupted one (wall times aside); (4) with
+``--lammps-seeds``, LAMMPS reference seeds as sweep tasks against
+``data/reference/seed_spread.json``.
 """
 from __future__ import annotations
 
@@ -30,7 +23,7 @@ import sys
 import time
 from pathlib import Path
 
-from validation.registry import case, table
+from validation.registry import case
 
 ROOT = Path(__file__).resolve().parents[2]
 KEYS = ("strength_GPa", "strain_at_peak", "youngs_modulus_TPa", "strain_at_peak_ext",
@@ -84,9 +77,7 @@ def _ensemble_spec(seeds, out: Path) -> dict:
 
 def _toml(spec: dict) -> str:
     """The ensemble spec as TOML (the command line reads files; its values are simple)."""
-    def val(v):
-        return json.dumps(v)
-
+    val = json.dumps
     lines = [f"scene = {val(spec['scene'])}", f"output = {val(spec['output'])}",
              f"seeds = {val(spec['seeds'])}"]
     for sec in ("params", "plot"):
@@ -212,7 +203,6 @@ def _sweep_check(args):
                  "fresh_strength_GPa": fresh[r["seed"]]["strength_GPa"],
                  "all_5_equal": r["status"] == "ok"
                  and all(r[k] == fresh[r["seed"]][k] for k in KEYS)} for r in ens]
-    print(table(per_seed, floatfmt=".10g"))
     reproduces = len(per_seed) == nseeds and all(p["all_5_equal"] for p in per_seed)
     bad = [r for r in rows_a if r["status"] == "error"]
     rec = json.loads((base / "two_workers" / "runs" / bad[0]["run_id"] / "result.json")
@@ -221,7 +211,6 @@ def _sweep_check(args):
                        and "temperature=-1.0" in bad[0]["error"]
                        and "Traceback" in rec.get("traceback", "")
                        and all(r["status"] == "ok" for r in ens))
-    print(f"failing run listed: {failed_recorded} ({bad[0]['error'] if bad else 'none'})")
     # Quiet means nothing else ran when the check started: the later load averages include
     # this check's own workers, so they are reported, not judged.
     quiet = load0[0] < 0.5
@@ -230,19 +219,11 @@ def _sweep_check(args):
              "load_avg_1min_at_start": [load0[0], load1[0], os.getloadavg()[0]],
              "speedup_pass": None}
     speed["speedup_pass"] = speed["speedup_2workers"] >= 1.7 if quiet else None
-    print(f"serial {serial_s:.1f} s, sweep on 2 workers {rep_a['wall_s']:.1f} s: speed-up "
-          f"{speed['speedup_2workers']:.2f}x; load averages {load0[0]:.2f} / {load1[0]:.2f}"
-          + ("" if quiet else " (not a quiet machine: not judged)"), flush=True)
 
     # 3. SIGKILL midway, restart
     spec_c = _ensemble_spec(seeds, base / "killed")
     kr = _kill_and_resume(spec_c, 2, max(1, (nseeds + 1) // 2))
     same_table = _no_wall(_csv(kr["table"])) == _no_wall(_csv(rep_a["table"]))
-    print(f"killed after {kr['finished_before_kill']} of {nseeds + 1} runs "
-          f"({kr['killed_after_s']:.1f} s); processes left: {kr['processes_left_after_kill']};"
-          f" restart ran {kr['restart_executed']}, skipped {kr['restart_skipped']}; redone "
-          f"{len(kr['redone'])}, lost {len(kr['lost'])}; table equals the uninterrupted "
-          f"sweep's: {same_table}", flush=True)
 
     # 4. LAMMPS reference seeds as tasks
     lam = {}
@@ -260,7 +241,6 @@ def _sweep_check(args):
               for r in rows_d]
         lam = {"lammps_seeds": lseeds, "lammps_reproduces_stored": all(eq),
                "lammps_wall_s": rep_d["wall_s"]}
-        print(f"LAMMPS seeds {lseeds} as sweep tasks: reproduce the stored runs: {eq}")
 
     out = {"reproduces_fresh_run": reproduces, "seeds": nseeds,
            "compared": "every seed's 5 figures against the scene called directly",
@@ -311,7 +291,6 @@ def _sweep_tube(args):
         points.setdefault((str(r["chirality"]), r["defects"]), []).append(r["strength_GPa"])
     summary = [{"chirality": c, "defects": d or "-", "seeds": len(v),
                 "strength_GPa_mean": sum(v) / len(v)} for (c, d), v in sorted(points.items())]
-    print(table(summary, floatfmt=".5g"))
     one = rows[0]
     threads = numba.get_num_threads()
     numba.set_num_threads(1)
