@@ -1,23 +1,15 @@
 """bench-scb: the SCB fracture table's run time against main's, and the memory of the
 elastic solve at dx = 0.25 mm (the issue on heavy scenes).
 
-For every angle the scene is built (particles, family, crack cut, gain matrices, the tip
-factor's own elastic solve), then driven by the library's quasi-static fracture until the
-load has fallen below ``--stop-fraction`` (0.1) of its peak: the crack has cut the ligament
-up to the load patch's no-fail zone ("full crack"). Reported per angle: wall and CPU time,
-equilibria, P_c, and where the time went (tangent assembly, factorisations, CG, residuals,
-failure checks: the scene's ``time_split_s``).
-
-Against main: main's recorded run of the same table (``validation/baselines/main-99b82f2.json``,
-key ``bench-scb``: dx = 0.5 mm, r_s = 1 mm, stop fraction 0.1, one core) gives
-``speedup_vs_main`` (its table wall time over this run's, for the angles run) and
-``P_c_change_pct_max`` (largest |P_c / P_c,main - 1|, %). ``pass``: every angle to full
-crack and, where the run is comparable with main's, at least 10x main's wall time with every
-P_c within 0.5 % (the issue's target, one run).
-
-``--elastic-025``: the elastic solve of the scene at dx = 0.25 mm (alpha = 0) alone in a
-fresh process, its peak resident memory (``elastic_025mm_peak_GB``, target at most 4 GB)
-and wall time.
+For every angle the scene is built, then driven by the library's quasi-static fracture until
+the load has fallen below ``--stop-fraction`` (0.1) of its peak ("full crack"); reported per
+angle: wall and CPU time, equilibria, P_c, and where the time went (the scene's
+``time_split_s``). Against main's recorded run of the same table (``main-99b82f2.json``, key
+``bench-scb``: dx = 0.5 mm, r_s = 1 mm, stop fraction 0.1, one core): ``speedup_vs_main`` and
+``P_c_change_pct_max``. ``pass``: every angle to full crack and, where the run is comparable
+with main's, at least 10x main's wall time with every P_c within 0.5 % (one run).
+``--elastic-025``: the elastic solve at dx = 0.25 mm (alpha = 0) alone in a fresh process,
+its peak resident memory (``elastic_025mm_peak_GB``, target at most 4 GB) and wall time.
 """
 from __future__ import annotations
 
@@ -30,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from validation.registry import case, table
+from validation.registry import case
 
 #: the eight crack angles of the SCB table (seed 004 Table 6.2), degrees, in main's order
 ALPHAS = (0.0, 30.0, 50.0, 10.0, 20.0, 40.0, 43.0, 47.0)
@@ -112,7 +104,7 @@ def bench_scb(args):
     from upscale.engine.kernels import set_threads
 
     set_threads(1)
-    quick = bool(getattr(args, "quick", False))
+    quick = args.quick
     dx = args.dx or (1e-3 if quick else 5e-4)
     alphas = [float(a) for a in args.alphas.split(",")] if args.alphas else \
         ([0.0, 30.0] if quick else list(ALPHAS))
@@ -124,9 +116,6 @@ def bench_scb(args):
         r["main wall s"] = base["wall_s"][i] if base else None
         r["speed-up"] = base["wall_s"][i] / r["wall s"] if base else None
         r["P_c change %"] = 100 * (r["P_c kN"] / base["P_c_kN"][i] - 1) if base else None
-    print(table(rows, ["alpha", "particles", "wall s", "cpu s", "equilibria", "stop", "P_c kN",
-                       "main wall s", "speed-up", "P_c change %", "assembly %", "factorisation %",
-                       "cg %", "residual %", "failure %", "other %"], ".4g"))
     total, total_cpu = sum(r["wall s"] for r in rows), sum(r["cpu s"] for r in rows)
     res = {"dx_m": dx, "r_s_m": args.r_s, "stop_fraction": args.stop_fraction, "alpha_deg": alphas,
            "table_wall_s": total, "table_cpu_s": total_cpu,
@@ -142,10 +131,8 @@ def bench_scb(args):
     if base:
         res["pass"] = bool(res["full_crack"] and res["speedup_vs_main"] >= TARGET_SPEEDUP
                            and res["P_c_change_pct_max"] <= TARGET_P_C_PCT)
-    if getattr(args, "elastic_025", False):
+    if args.elastic_025:
         el = _elastic_025()
-        print(f"elastic solve at dx = 0.25 mm: {el['particles']} particles, peak "
-              f"{el['peak_GB']:.2f} GB, {el['wall_s']:.0f} s, Y_I {el['Y_I']:.4f}")
         res.update(elastic_025mm_peak_GB=el["peak_GB"], elastic_025mm_wall_s=el["wall_s"],
                    elastic_025mm_Y_I=el["Y_I"])
         res["pass"] = bool(res["pass"] and el["peak_GB"] <= TARGET_ELASTIC_GB)
