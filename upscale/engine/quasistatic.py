@@ -6,7 +6,8 @@ For a model with a failure criterion (``model.needs.failure``) and the hooks
 
 1. equilibrium at the prescribed displacement lambda u_dir of the driven degrees of
    freedom by modified Newton on the model's residual and sparse tangent
-   (:class:`Equilibrium`: CG preconditioned by a reused sparse Cholesky factor);
+   (:class:`Equilibrium`: CG preconditioned by a reused sparse Cholesky factor, corrected
+   by a local factor of the current tangent where bonds broke since);
 2. break every bond whose index is >= 1 and solve again at the same lambda, until none
    breaks (each such equilibrium is a point of the load-displacement curve);
 3. the next load: lambda + d_lambda, but no further than the load at which the largest
