@@ -1,31 +1,21 @@
 """bench-dcbr-seed: wall time of the coarse model against LAMMPS on the seed 004 large tubes.
 
-Both run in the same session on the same machine, one after the other (LAMMPS on one rank;
-the coarse model's kernels are serial numba, one core): the dynamic vacancy tension of the
-~150 Å (50,50) and (30,60) tubes (50 Å grips, 1 Å/ps, 10 K). LAMMPS runs with its fair
-set-up (below); the stored references used ftol 1e-6, which costs most of their wall time.
-The coarse run (``COARSE``, ``MTS``): clamped grips, an atomistic disc of 8 Å about the
-vacancy that grows to the band when the crack starts, r-RESPA (5 fs outer step, 5 inner
-steps of 1 fs). Reported, per tube: the parts of each run (relaxation, dynamics, steps), the
-time per MD step, and the ratios (whole run; dynamics per step; dynamics per simulated
-picosecond, ``speedup_per_ps_first_round``: LAMMPS at its 1 fs step against the coarse model
-at its outer step; each region's part of the run, ``*_before_growth`` and
-``*_after_growth``), plus the strength, modulus and strain at peak of the coarse run against
-the stored reference.
+Both run in one session, one after the other, one core each: the dynamic vacancy tension of
+the ~150 Å (50,50) and (30,60) tubes (50 Å grips, 1 Å/ps, 10 K). The coarse run (``COARSE``,
+``MTS``): clamped grips, an atomistic disc of 8 Å about the vacancy that grows to the band
+when the crack starts, r-RESPA (5 fs outer step, 5 inner steps of 1 fs). Reported per tube:
+the parts of each run, the time per MD step and per simulated picosecond (LAMMPS at its 1 fs
+step against the coarse model at its outer step; each region's part, ``*_before_growth`` and
+``*_after_growth``), and the coarse run's figures against the stored reference (the accuracy
+target of issue 22 holds on seed means, ``dcbr-seeds``).
 
 ``pass`` is issue 22's target as stated, on the first (one) run of each side:
 ``speedup_per_ps_first_round`` at least 10 and ``speedup_whole_fair`` at least 20 on every
-tube. Beside it, with ``--rounds R`` (default 3) LAMMPS's pull runs R times from the same
-minimised state (``pull_rounds``) and the whole coarse run is made again between its rounds;
-``speedup_per_ps_best_of_rounds`` is LAMMPS's best s/ps over the coarse model's best.
-
-The fair whole run (:func:`fair_whole_run`, key ``speedup_whole_fair``): LAMMPS once more
-with its fastest set-up minimiser (``FAIR_SETUP``: CG, quadratic line search, chosen over
-the other min_styles by timing each, see the git history of ``bench-lammps-setup``) at the
-coarse set-up's own criterion (largest force component <= its ``gtol``, ``min_modify norm
-inf``), against the coarse run; its parts (set-up, dynamics) are reported separately. The
-accuracy target of issue 22 holds on seed means (``dcbr-seeds``); this one run's errors
-against the stored reference are printed beside.
+tube. Beside it, with ``--rounds R`` LAMMPS's pull runs R times from the same minimised state
+and the whole coarse run is made again between its rounds (``*_best_of_rounds``). The fair
+whole run (:func:`fair_whole_run`): LAMMPS with its fastest set-up minimiser (``FAIR_SETUP``,
+chosen over the other min_styles by timing each) at the coarse set-up's own criterion
+(largest force component <= its ``gtol``).
 """
 from __future__ import annotations
 
@@ -33,7 +23,7 @@ import time
 
 from upscale.experiments.scenes.tube_tension import (dynamic_scene, lammps_reference,
                                                      parse_chirality)
-from validation.registry import case, table
+from validation.registry import case
 
 DYN_LENGTH = 150.0  # Å, the dynamic references' tube
 #: the coarse run's setting: clamped grips, a disc of 8 Å about the vacancy grown to the band
@@ -58,9 +48,9 @@ def fair_setup() -> dict:
     """The keywords of LAMMPS's fair set-up (``upscale.experiments.lammps.tension.dynamic_tension``):
     ``FAIR_SETUP`` to the coarse set-up's ``gtol`` (its largest force component,
     ``min_modify norm inf``)."""
-    import inspect  # noqa: PLC0415
+    import inspect
 
-    from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension as coarse_dynamic  # noqa: PLC0415
+    from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension as coarse_dynamic
 
     return dict(FAIR_SETUP, ftol=inspect.signature(coarse_dynamic).parameters["gtol"].default)
 
@@ -87,9 +77,6 @@ def fair_whole_run(rl, rc, coarse_wall_s: float, coarse_build_s: float,
            "speedup_whole_fair_cpu": rl["cpu_s"] / coarse_cpu_s}
     for k in ("strength_GPa", "youngs_modulus_TPa", "strain_at_peak"):
         out[f"fair_vs_reference_{k}_pct"] = 100 * (rl[k] / ref[k] - 1)
-    print(f"  fair: LAMMPS {wall:.1f} s (set-up {setup_l:.1f}, dynamics {tl['dynamics']:.1f}) "
-          f"vs coarse {coarse_wall_s:.1f} s: {out['speedup_whole_fair']:.2f}x (CPU "
-          f"{out['speedup_whole_fair_cpu']:.2f}x)", flush=True)
     return out
 
 
@@ -211,12 +198,6 @@ def _bench(args):
                                                         / ref["strain_at_peak"] - 1)})
         row.update(fair_whole_run(rl, rc, wall_c, build, cpu_c, ref))
         rows.append(row)
-        print(table([row], floatfmt=".4g"), flush=True)
-    print(table(rows, ["tube", "K", "atoms", "dof", "coarse_wall_s", "lammps_wall_s",
-                       "speedup_whole_run", "coarse_ms_per_step", "lammps_ms_per_step",
-                       "speedup_per_step", "speedup_per_ps_first_round", "speedup_whole_fair", "speedup_vs_stored_reference",
-                       "strength_err_pct", "modulus_err_pct", "strain_at_peak_err_pct"],
-                floatfmt=".4g"))
     per_ps = min(r["speedup_per_ps_first_round"] for r in rows)
     whole = [r.get("speedup_whole_fair") for r in rows]
     return {"rows": rows,
