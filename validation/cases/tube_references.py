@@ -20,7 +20,6 @@ from upscale.experiments.scenes.tube_tension import parse_chirality
 from validation.registry import case
 
 REPO = Path(__file__).resolve().parents[2]
-PLOT_DIR = REF_DIR / "plots"
 
 QS_LENGTH = 100.0
 LOCALISED_FRACTION = 0.2  # damaged atoms of tube 1 below this fraction: a crack, not diffuse
@@ -326,7 +325,7 @@ def _reference_tension(args):
     res = run_spec(spec, args.potential, args.cutoff, args.dump_dir, dump_name=dump_name, **kw)
     keep = args.save_reference and not args.quick  # a --quick run never lands in data/
     outdir = REF_DIR if keep else args.outdir
-    plot = (PLOT_DIR if keep else args.outdir) / f"damage_{spec['name']}.png"
+    plot = Path(args.outdir) / f"damage_{spec['name']}.png"  # a picture is output, not data
     res = analyse(res, plot_path=plot)
     write_json(Path(outdir) / f"{spec['name']}.json", res)
     out = _key_figures(res)
