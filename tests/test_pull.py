@@ -71,7 +71,7 @@ def test_seeds_are_means_of_single_runs(tube):
 
 @pytest.mark.parametrize("kw, word", [
     (dict(seeds=0), "seeds=0"),
-    (dict(model="dcbr", load="compression"), "model='dcbr' runs"),
+    (dict(model="dcbr", protocol="dynamic", load="compression"), "load='compression'"),
     (dict(model="atomistic", protocol="dynamic", load="torsion"), "load='torsion'"),
 ])
 def test_bad_input(kw, word):

@@ -412,11 +412,13 @@ def _run_dcbr(atoms, proto, coarsening, potential, show, ck=None) -> dict:
     (:func:`_ramp_coarse`, :func:`_pull_coarse`)."""
     from upscale.experiments.scenes.tube_tension import quasi_static_tension_engine
 
-    if proto.load == "torsion" or (isinstance(proto, QuasiStatic) and not proto.periodic):
-        raise ValueError(f"model='dcbr' with load={proto.load!r}, periodic="
-                         f"{getattr(proto, 'periodic', False)}; valid: periodic quasi-static "
-                         "tension or compression, or dynamic tension (torsion and gripped "
-                         "ramps: model='atomistic' or 'lammps')")
+    qs = isinstance(proto, QuasiStatic)
+    if proto.load == "torsion" or (qs and not proto.periodic) or \
+            (not qs and proto.load != "tension"):
+        raise ValueError(f"model='dcbr' with load={proto.load!r}, protocol={proto.name!r}, "
+                         f"periodic={getattr(proto, 'periodic', False)}; valid: periodic "
+                         "quasi-static tension or compression, or dynamic tension (the rest: "
+                         "model='atomistic' or 'lammps')")
     info = atoms.info
     ch, L = info.get("chirality"), info.get("length")
     vac = info.get("vacancy")
