@@ -103,20 +103,15 @@ class CoarseTube(Specimen):
         self.unconverged += not r.converged
 
     def _relax_zero_stress(self) -> None:
-        """The secant's trials each start from the last relaxed rows scaled to the trial
-        period: a defect core reconstructed once (a Stone-Wales bond's new partners taken
-        across the step cutoff by QuickMin) stays so, and the later trials are L-BFGS-B
-        alone."""
-        last = [self.sim.state.y.copy(), float(self.model.Lz)]
+        y0, L_start = self.sim.state.y.copy(), float(self.model.Lz)
 
         def relax(L):
             self.model.set_cell(L)
-            self._scale(*last, L)
+            self._scale(y0, L_start, L)
             self._minimise()
-            last[:] = [self.sim.state.y.copy(), float(L)]
             return None, self.model.cell_force(self.sim.state)
 
-        _, L, _ = zero_cell_force(relax, last[1], tol=1e-4 * self.model.n / 100)
+        _, L, _ = zero_cell_force(relax, L_start, tol=1e-4 * self.model.n / 100)
         relax(L)
 
     # ------------------------------------------------------------------ the Specimen
