@@ -18,6 +18,28 @@ __all__ = ["deformation_kernel", "stress_kernel", "residual_kernel", "residual_2
            "normal_index_kernel", "two_hop_pattern", "tangent_kernel"]
 
 
+@numba.njit(cache=True, inline="always")
+def _green_pk2(F, C4, dim, E, S):
+    """One particle's Green strain E = (F^T F - I) / 2 (6.24) and PK2 stress S = C : E
+    (6.23) into ``E``, ``S`` (dim, dim); returns S : E (twice the energy density, 6.26)."""
+    for a in range(dim):
+        for b in range(dim):
+            s = 0.0
+            for k in range(dim):
+                s += F[k, a] * F[k, b]
+            E[a, b] = 0.5 * (s - (1.0 if a == b else 0.0))
+    w = 0.0
+    for a in range(dim):
+        for b in range(dim):
+            s = 0.0
+            for k in range(dim):
+                for m in range(dim):
+                    s += C4[a, b, k, m] * E[k, m]
+            S[a, b] = s
+            w += s * E[a, b]
+    return w
+
+
 @numba.njit(parallel=True, cache=True)
 def deformation_kernel(y_nc, offsets, neighbors, coef_bk, dim, F_nij):
     """F_c = sum_b (y_j - y_c) (x) a_b (eq. 6.19 with G = F - I); mutates ``F_nij``."""
@@ -49,22 +71,7 @@ def stress_kernel(F_nij, C4, alive_n, printed, dim, E_nij, S_nij, P_nij, W_n):
         W_n[c] = 0.0
         if not alive_n[c]:
             continue
-        for a in range(dim):
-            for b in range(dim):
-                s = 0.0
-                for k in range(dim):
-                    s += F_nij[c, k, a] * F_nij[c, k, b]
-                E_nij[c, a, b] = 0.5 * (s - (1.0 if a == b else 0.0))
-        w = 0.0
-        for a in range(dim):
-            for b in range(dim):
-                s = 0.0
-                for k in range(dim):
-                    for m in range(dim):
-                        s += C4[a, b, k, m] * E_nij[c, k, m]
-                S_nij[c, a, b] = s
-                w += s * E_nij[c, a, b]
-        W_n[c] = 0.5 * w
+        W_n[c] = 0.5 * _green_pk2(F_nij[c], C4, dim, E_nij[c], S_nij[c])
         for i in range(dim):
             for a in range(dim):
                 s = 0.0
@@ -112,21 +119,7 @@ def residual_kernel(y_nc, offsets, neighbors, reverse_b, coef_bk, xi_bc, w_b, ok
             for a in range(dim):
                 B_nij[c, i, a] = 0.0
         if alive_n[c]:
-            for a in range(dim):
-                for b2 in range(dim):
-                    s = 0.0
-                    for k in range(dim):
-                        s += F_nij[c, k, a] * F_nij[c, k, b2]
-                    E_nij[c, a, b2] = 0.5 * (s - (1.0 if a == b2 else 0.0))
-            w = 0.0
-            for a in range(dim):
-                for b2 in range(dim):
-                    s = 0.0
-                    for k in range(dim):
-                        for m in range(dim):
-                            s += C4[a, b2, k, m] * E_nij[c, k, m]
-                    B_nij[c, a, b2] = s          # S for now
-                    w += s * E_nij[c, a, b2]
+            w = _green_pk2(F_nij[c], C4, dim, E_nij[c], B_nij[c])  # B: S for now
             en[c] = 0.5 * w * volume_n[c]
             for a in range(dim):                 # E_nij[c] <- S, B_nij[c] <- V P
                 for b2 in range(dim):
