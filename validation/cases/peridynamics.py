@@ -4,7 +4,7 @@
 (:mod:`upscale.engine.lammps_peri`) against ``pair_style peri/pmb`` / ``peri/lps``: forces on
 a perturbed cubic lattice, then 200 Verlet steps of a pre-cracked block with bond breaking.
 ``bench-pmb``: bond-force throughput against LAMMPS's Pair time on the same ~30,000-particle
-block, interleaved rounds, one core; bytes per bond streamed, the memory bandwidth (triad) and
+block, interleaved rounds, one core; bytes per bond streamed, the memory bandwidth (triad),
 the 2-thread speed-up. ``pd-elasticity``: bulk energy density of homogeneous deformations
 against linear elasticity, and the Poisson contraction of an LPS bar (ADR). ``pd-stability``:
 stable step against the sharp linearised limit, NVE drift at 0.8 of it, refusal of a larger
@@ -57,9 +57,9 @@ def lps_vs_lammps(args):
 
 class _LammpsPairTimer:
     """LAMMPS peri/<style> on the benchmark block, bonds built once; :meth:`time` runs
-    ``steps`` steps and returns (Pair seconds per step from LAMMPS's timer breakdown, loop
-    seconds per step, CPU seconds per step of the process over the run). The block is at
-    rest in its reference state: no bond breaks, no neighbour rebuild."""
+    ``steps`` steps and returns (Pair seconds per step from LAMMPS's timer breakdown, CPU
+    seconds per step of the process over the run). The block is at rest in its reference
+    state: no bond breaks, no neighbour rebuild."""
 
     def __init__(self, style: str, n_cells: int, log: str):
         from upscale.engine.lammps_peri import LAMMPS_EXAMPLE as P, LammpsPeri
@@ -72,14 +72,12 @@ class _LammpsPairTimer:
         self.lp.lmp.command("run 1")
         self.bonds = int(re.findall(r"total # of bonds = (\d+)", Path(log).read_text())[0])
 
-    def time(self, steps: int) -> tuple[float, float, float]:
+    def time(self, steps: int) -> tuple[float, float]:
         c0 = time.process_time()
         self.lp.lmp.command(f"run {int(steps)}")
         cpu = (time.process_time() - c0) / steps
-        txt = Path(self.log).read_text()
-        loop = float(re.findall(r"Loop time of ([0-9.eE+-]+) on \d+ procs for (\d+) steps", txt)[-1][0])
-        pair = float(re.findall(r"^Pair\s*\|\s*([0-9.eE+-]+)", txt, re.M)[-1])
-        return pair / steps, loop / steps, cpu
+        pair = float(re.findall(r"^Pair\s*\|\s*([0-9.eE+-]+)", Path(self.log).read_text(), re.M)[-1])
+        return pair / steps, cpu
 
     def close(self):
         self.lp.close()
@@ -101,13 +99,10 @@ def _engine_force_time(model, state, reps: int) -> tuple[float, float]:
 def memory_bandwidth(n: int = 50_000_000, reps: int = 5) -> dict:
     """STREAM-like triad ``a = b + s c`` on three float64 arrays of ``n`` elements (400 MB
     each by default, far beyond the caches), counted as STREAM counts it (24 bytes per
-    element: two reads, one write). Best of ``reps`` for numba on one thread (by wall
-    time, and by the process's CPU time, which on a loaded machine is the bandwidth one
-    core gets while it runs), numba on all threads (wall), and numpy (``np.multiply`` then
-    ``np.add`` into ``a``: two passes, 40 bytes per element; wall)."""
+    element: two reads, one write). Best of ``reps`` by numba on one thread, by wall time
+    and by the process's CPU time (on a loaded machine the bandwidth one core gets while it
+    runs)."""
     import numba as nb
-
-    from upscale.engine.kernels import set_threads
 
     @nb.njit(parallel=True)
     def triad(a, b, c, s):
@@ -122,21 +117,11 @@ def memory_bandwidth(n: int = 50_000_000, reps: int = 5) -> dict:
     a = np.zeros(n)
     b = np.ones(n)
     c = np.full(n, 2.0)
-    threads = set_threads(None)
-    out = {}
-    try:
-        for label, t in (("numba_1thread", 1), ("numba_all_threads", nb.config.NUMBA_NUM_THREADS)):
-            set_threads(t)
-            triad(a, b, c, 3.0)
-            ts = [timed(lambda: triad(a, b, c, 3.0)) for _ in range(reps)]
-            out[label] = 24.0 * n / min(w for w, _ in ts) / 1e9
-            if t == 1:
-                out["numba_1thread_cpu"] = 24.0 * n / min(cp for _, cp in ts) / 1e9
-        ts = [timed(lambda: (np.multiply(c, 3.0, out=a), np.add(a, b, out=a))) for _ in range(reps)]
-        out["numpy"] = 40.0 * n / min(w for w, _ in ts) / 1e9
-    finally:
-        set_threads(threads)
-    return out
+    _threads(1)  # and left there
+    triad(a, b, c, 3.0)
+    ts = [timed(lambda: triad(a, b, c, 3.0)) for _ in range(reps)]
+    return {"numba_1thread": 24.0 * n / min(w for w, _ in ts) / 1e9,
+            "numba_1thread_cpu": 24.0 * n / min(cp for _, cp in ts) / 1e9}
 
 
 def _bench_args(p):
@@ -149,11 +134,10 @@ def _bench_args(p):
       "core; bytes per bond, memory bandwidth, 2-thread speed-up", add_arguments=_bench_args,
       target="bond-force throughput at least 4x LAMMPS's on one core")
 def bench_pmb(args):
-    from upscale.engine import ParticleSystem, Simulation, build_family
-    from upscale.engine.integrators import VelocityVerlet
+    from upscale.engine import ParticleSystem, build_family
     from upscale.engine.lammps_peri import LAMMPS_EXAMPLE as P, LammpsPeri
     from upscale.engine.state import State
-    from upscale.models.bond_based import PMB, LammpsContact
+    from upscale.models.bond_based import PMB
     from upscale.models.state_based import LPS
 
     n = args.cells or (20 if args.quick else 30)
@@ -168,8 +152,6 @@ def bench_pmb(args):
     models = {"pmb": PMB(c=P["c"], s0=P["s00"]), "lps": LPS(K=P["K"], G=P["G"], s0=P["s00"])}
     for m in models.values():
         m.prepare(sysm, fam)
-    contact = LammpsContact.for_pmb(P["c"], P["horizon"], P["lc"])
-    contact.prepare(sysm, fam)
     state = State.reference(sysm.x0, fam.nb)
     load0 = os.getloadavg()[0]
     avail = _threads(None)
@@ -188,25 +170,16 @@ def bench_pmb(args):
                     w, c = _engine_force_time(m, state, reps)
                     keep(f"{s}_engine_1t", w)
                     keep(f"{s}_engine_1t_cpu", c)
-                    pair, loop, cpu = lmp[s].time(steps)
+                    pair, cpu = lmp[s].time(steps)
                     keep(f"{s}_lammps_pair", pair)
-                    keep(f"{s}_lammps_loop", loop)
                     keep(f"{s}_lammps_cpu", cpu)
                     if two:
                         _threads(2)
                         keep(f"{s}_engine_2t", _engine_force_time(m, state, reps)[0])
-                _threads(1)
-                keep("contact_engine_1t", _engine_force_time(contact, state, reps)[0])
             bonds = {s: lmp[s].bonds for s in models}
         finally:
             for t in lmp.values():
                 t.close()
-    _threads(1)
-    sim = Simulation(sysm, fam, PMB(c=P["c"], s0=P["s00"]), integrator=VelocityVerlet(dt=P["dt"], force=True))
-    sim.run(2)
-    t0 = time.perf_counter()
-    sim.run(steps)
-    step1 = (time.perf_counter() - t0) / steps
     bw = memory_bandwidth()
     _threads(avail)
     load1 = os.getloadavg()[0]
@@ -220,7 +193,7 @@ def bench_pmb(args):
         sb = m.stream_bytes()
         pre = "" if s == "pmb" else "lps_"
         out.update({
-            f"{pre}lammps_pair_s_per_step": pair, f"{pre}lammps_loop_s_per_step": best[f"{s}_lammps_loop"],
+            f"{pre}lammps_pair_s_per_step": pair,
             f"{pre}engine_force_s_1thread": t1, f"{pre}engine_force_s_2threads": t2,
             f"{pre}engine_bonds_per_s_1thread": nb_ / t1, f"{pre}lammps_bonds_per_s_1core": bonds[s] / pair,
             f"{pre}throughput_ratio_vs_lammps_1core": (nb_ / t1) / (bonds[s] / pair),
@@ -229,16 +202,9 @@ def bench_pmb(args):
             f"{pre}bytes_per_bond": sb / nb_, f"{pre}bytes_per_eval": sb,
             f"{pre}achieved_GBps_1thread": sb / t1 / 1e9, f"{pre}achieved_GBps_1thread_cpu": sb / t1c / 1e9,
         })
-    tc = best["contact_engine_1t"]
     ratio = out["throughput_ratio_vs_lammps_1core"]
     out.update({
         "memory_bandwidth_GBps": bw["numba_1thread_cpu"], "memory_bandwidth_GBps_1thread_wall": bw["numba_1thread"],
-        "memory_bandwidth_GBps_all_threads": bw["numba_all_threads"],
-        "memory_bandwidth_GBps_numpy": bw["numpy"],
-        "engine_vv_step_s_1thread": step1,
-        "throughput_ratio_whole_step_1core": (nb_ / step1) / (bonds["pmb"] / out["lammps_loop_s_per_step"]),
-        "throughput_ratio_with_contact_1core": (nb_ / (out["engine_force_s_1thread"] + tc))
-        / (bonds["pmb"] / out["lammps_pair_s_per_step"]),
         "load_average_start": load0, "load_average_end": load1, "cpu_count": os.cpu_count(),
         "pass": bool(ratio >= 4.0),
     })
@@ -365,9 +331,6 @@ def pd_elasticity(args):
                     for d in DEFORMATIONS:
                         row[d] = bulk_energy_error(model, dim, m=m, partial_volume=pv, plane=plane,
                                                    calibration=calib, deformation=d)
-                    if model == "pmb":
-                        row["isotropic, continuum calib."] = bulk_energy_error(
-                            model, dim, m=m, partial_volume=pv, plane=plane, deformation="isotropic stretch")
                     rows.append(row)
     bars = [poisson_bar(2, cells=(61, 21, 1)), poisson_bar(2, cells=(61, 21, 1), plane="strain"),
             poisson_bar(2, cells=(61, 21, 1), partial_volume=None)]

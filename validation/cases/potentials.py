@@ -133,44 +133,27 @@ def bench_structure(kind: str, n_target: int):
 
 
 class _OursTimer:
-    """Our Tersoff on ``atoms``: the neighbour list is built once; :meth:`time` returns
-    seconds per atom-step of the bare kernel and of the ASE calculator path."""
+    """Our Tersoff on ``atoms`` through the ASE calculator, one thread: the neighbour list is
+    built once; :meth:`time` returns seconds per atom-step."""
 
-    def __init__(self, atoms, nthreads: int):
+    def __init__(self, atoms):
         import numba
 
         from potentials.tersoff import Tersoff
 
-        self.nthreads = nthreads
-        numba.set_num_threads(nthreads)
-        self.calc = Tersoff.from_lammps("BNC.tersoff", elements=["C"], nthreads=nthreads)
+        numba.set_num_threads(1)
+        self.calc = Tersoff.from_lammps("BNC.tersoff", elements=["C"], nthreads=1)
         self.atoms = atoms.copy()
         self.atoms.calc = self.calc
         self.atoms.get_forces()  # compile, build the neighbour list
-        nl = self.calc.neighbour_list
-        c = self.calc
-        self.args = (np.ascontiguousarray(self.atoms.positions), self.atoms.cell.array.copy(),
-                     nl.first_n, nl.j_b, nl.shift_bc, c.types(self.atoms), c.e2p, c.table, float(c.cutoff),
-                     nthreads)
 
-    def time(self, nsteps: int) -> tuple[float, float]:
-        import numba
-
-        from potentials import tersoff_kernels as tk
-
-        numba.set_num_threads(self.nthreads)
-        n = len(self.atoms)
-        t0 = time.perf_counter()
-        for _ in range(nsteps):
-            tk.tersoff(*self.args)
-        t_kernel = (time.perf_counter() - t0) / nsteps / n
+    def time(self, nsteps: int) -> float:
         t0 = time.perf_counter()
         for s in range(nsteps):  # a tiny move per step, as in MD: ASE recomputes, no rebuild
             self.atoms.positions[0, 0] += 1e-9 if s % 2 == 0 else -1e-9
             self.atoms.get_forces()
-        t_calc = (time.perf_counter() - t0) / nsteps / n
         assert self.calc.neighbour_list.nbuilds == 1
-        return t_kernel, t_calc
+        return (time.perf_counter() - t0) / nsteps / len(self.atoms)
 
     @property
     def energy(self) -> float:
@@ -178,26 +161,24 @@ class _OursTimer:
 
 
 class _LammpsTimer:
-    """LAMMPS ``pair_style tersoff`` (or ``tersoff/omp``) on the same atoms, one MPI rank.
-    After a ``run 0`` the atoms do not move (no integrator), so the list is never rebuilt
-    and ``run N pre no post no`` times N force evaluations."""
+    """LAMMPS ``pair_style tersoff`` on the same atoms, one MPI rank. After a ``run 0`` the
+    atoms do not move (no integrator), so the list is never rebuilt and ``run N pre no post
+    no`` times N force evaluations."""
 
-    def __init__(self, atoms, omp_threads: int = 0):
+    def __init__(self, atoms):
         from potentials.lammps_runtime import lammps_potential_path, new_lammps
 
         self.n = n = len(atoms)
         q, box, x = to_lammps_frame(atoms)
         self.lmp = lmp = new_lammps()
-        pre = [f"package omp {omp_threads}"] if omp_threads else []
-        for c in pre + ["units metal", "atom_style atomic", "atom_modify map array sort 0 0.0",
+        for c in ["units metal", "atom_style atomic", "atom_modify map array sort 0 0.0",
                         "boundary p p p",
                         f"region box prism 0 {box['xhi']!r} 0 {box['yhi']!r} 0 "
                         f"{box['zhi']!r} {box['xy']!r} {box['xz']!r} {box['yz']!r} units box",
                         "create_box 1 box"]:
             lmp.command(c)
         lmp.create_atoms(n, list(range(1, n + 1)), [1] * n, x.ravel().tolist())
-        style = "tersoff/omp" if omp_threads else "tersoff"
-        for c in ["mass 1 12.011", f"pair_style {style}",
+        for c in ["mass 1 12.011", "pair_style tersoff",
                   f"pair_coeff * * {lammps_potential_path('BNC.tersoff')} C",
                   "neighbor 0.3 bin", "neigh_modify delay 0 every 1 check yes",
                   "thermo_style custom step pe", "thermo 0", "run 0"]:
@@ -213,21 +194,20 @@ class _LammpsTimer:
         self.lmp.close()
 
 
-def _race(atoms, nsteps: int, repeats: int, nthreads: int) -> dict:
-    """Alternate ours and LAMMPS ``repeats`` times (so both see the same machine load) and
-    keep each side's best."""
-    ours = _OursTimer(atoms, nthreads)
-    lmp = _LammpsTimer(atoms, omp_threads=0 if nthreads == 1 else nthreads)
+def _race(atoms, nsteps: int, repeats: int) -> dict:
+    """Alternate ours and LAMMPS ``repeats`` times on one core (so both see the same machine
+    load) and keep each side's best."""
+    ours = _OursTimer(atoms)
+    lmp = _LammpsTimer(atoms)
     try:
-        tk = tc = tl = np.inf
+        tc = tl = np.inf
         for _ in range(repeats):
-            k, c = ours.time(nsteps)
-            tk, tc = min(tk, k), min(tc, c)
+            tc = min(tc, ours.time(nsteps))
             tl = min(tl, lmp.time(nsteps))
         e_diff = abs(ours.energy - lmp.energy) / abs(lmp.energy)
     finally:
         lmp.close()
-    return {"kernel": tk, "calculator": tc, "lammps": tl, "energy_rel_diff": e_diff}
+    return {"calculator": tc, "lammps": tl, "energy_rel_diff": e_diff}
 
 
 def _bench_args(p):
@@ -238,12 +218,11 @@ def _bench_args(p):
 
 @case("bench-tersoff",
       "time per atom-step of Tersoff energy+forces, project vs LAMMPS pair_style tersoff, "
-      "one core (and two), ~8,000 and ~100,000 atoms", _bench_args,
+      "one core, ~8,000 and ~100,000 atoms", _bench_args,
       target="one-core time per atom-step at most 0.6 of LAMMPS pair_style tersoff's, every structure")
 def run_bench_tersoff(args) -> dict:
-    """Microseconds per atom-step: ``ours_*`` through the ASE calculator (a tiny move per step,
-    list check, overlap check, result copies), ``ours_kernel_*`` the bare kernel;
-    ``lammps_omp2`` is ``pair_style tersoff/omp`` with 2 OpenMP threads."""
+    """Microseconds per atom-step through the ASE calculator (a tiny move per step, list
+    check, overlap check, result copies)."""
     import numba
 
     from potentials.lammps_runtime import lammps_version
@@ -259,17 +238,11 @@ def run_bench_tersoff(args) -> dict:
             atoms = bench_structure(kind, n_target)
             n = len(atoms)
             nsteps = args.steps or max(5, int((2e5 if args.quick else 1e6) / n))
-            r1 = _race(atoms, nsteps, args.repeats, 1)
-            row = {"structure": kind, "atoms": n, "steps": nsteps,
-                   "ours_1t_us": 1e6 * r1["calculator"], "ours_kernel_1t_us": 1e6 * r1["kernel"],
+            r1 = _race(atoms, nsteps, args.repeats)
+            row = {"structure": kind, "atoms": n, "steps": nsteps, "ours_1t_us": 1e6 * r1["calculator"],
                    "lammps_1t_us": 1e6 * r1["lammps"]}
             row["ratio_1t"] = row["ours_1t_us"] / row["lammps_1t_us"]
             row["energy_rel_diff"] = r1["energy_rel_diff"]
-            if ncores >= 2:
-                r2 = _race(atoms, nsteps, args.repeats, 2)
-                row["ours_2t_us"] = 1e6 * r2["calculator"]
-                row["lammps_omp2_us"] = 1e6 * r2["lammps"]
-                row["ratio_2t"] = row["ours_2t_us"] / row["lammps_omp2_us"]
             numba.set_num_threads(ncores)
             row["nominal"] = n_target
             rows.append(row)
@@ -283,8 +256,6 @@ def run_bench_tersoff(args) -> dict:
             continue
         tag = r["nominal"]
         out[f"time_ratio_vs_lammps_{tag}"] = round(r["ratio_1t"], 4)
-        if "ratio_2t" in r:
-            out[f"time_ratio_2threads_vs_lammps_omp2_{tag}"] = round(r["ratio_2t"], 4)
         out[f"us_per_atom_step_{tag}"] = round(r["ours_1t_us"], 4)
         out[f"lammps_us_per_atom_step_{tag}"] = round(r["lammps_1t_us"], 4)
     out["max_time_ratio_vs_lammps"] = round(max(r["ratio_1t"] for r in rows), 4)
@@ -358,15 +329,12 @@ def run_constants(args) -> dict:
                          "Ecoh_exp_eV": ex, "paper": "unverified"})
             out[f"bond_{kind}_set{pset}_A"] = bond
             out[f"Ecoh_{kind}_set{pset}_eV"] = ecoh
-            out[f"bond_minus_exp_{kind}_set{pset}_A"] = bond - rx
-            out[f"Ecoh_minus_exp_{kind}_set{pset}_eV"] = ecoh - ex
     show(rows, "Brenner, Phys. Rev. B 42, 9458 (1990): relaxed lattices; exp: "
          + "; ".join(f"{k}: {v['source']}" for k, v in ref.items() if k != "note"), fmt=".6g")
     tp = brenner_data().get("third_party_checks", {}).get("set_II_diamond")
     if tp:
-        b, e = out["bond_diamond_setII_A"], out["Ecoh_diamond_setII_eV"]
-        out["thirdparty_setII_diamond_bond_diff_A"] = b - tp["bond_A"]
-        out["thirdparty_setII_diamond_Ecoh_diff_eV"] = e - tp["cohesive_eV"]
+        out["thirdparty_setII_diamond_bond_diff_A"] = out["bond_diamond_setII_A"] - tp["bond_A"]
+        out["thirdparty_setII_diamond_Ecoh_diff_eV"] = out["Ecoh_diamond_setII_eV"] - tp["cohesive_eV"]
     out.update({"max_bond_err_A": bond_err, "max_energy_err_eV": energy_err,
                 "paper_table_verified": False,
                 "pass": bool(bond_err < 1e-6 and energy_err < 1e-8)})
@@ -430,20 +398,13 @@ def run_vacancy(args) -> dict:
             n0, n1 = len(perfect), len(defect)
             for conj in (True, False):
                 calc = Brenner(parameters=pset, conjugation=conj)
-                a = defect.copy()
-                a.calc = calc
-                e_unrelaxed = a.get_potential_energy()
                 _, e_def, c1 = _relax(defect, calc, fmax, steps)
                 ok &= c0 and c1
                 ef = e_def - n1 / n0 * e_perf
-                ef_unrel = e_unrelaxed - n1 / n0 * e_perf
                 rows.append({"set": pset, "system": name, "atoms": n1, "F_ij": conj,
-                             "E_defect_eV": round(e_def, 5),
-                             "E_form_relaxed_eV": round(ef, 4),
-                             "E_form_unrelaxed_eV": round(ef_unrel, 4), "converged": c0 and c1})
-                tag = f"{name}_set{pset}_{'F' if conj else 'noF'}"
-                out[f"E_form_{tag}_eV"] = ef
-                out[f"E_form_unrelaxed_{tag}_eV"] = ef_unrel
+                             "E_defect_eV": round(e_def, 5), "E_form_relaxed_eV": round(ef, 4),
+                             "converged": c0 and c1})
+                out[f"E_form_{name}_set{pset}_{'F' if conj else 'noF'}_eV"] = ef
             out[f"F_effect_{name}_set{pset}_eV"] = (out[f"E_form_{name}_set{pset}_F_eV"]
                                                     - out[f"E_form_{name}_set{pset}_noF_eV"])
     show(rows, f"4-atom vacancy, relaxed (L-BFGS, fmax {fmax} eV/A, fixed cell); E_form = E_defect - "

@@ -108,41 +108,26 @@ def run_dispersion(args):
     show(crow, "force routine vs printed coefficients 3.42-3.51 (text variant)")
     # (ii) consistent Timoshenko vs C.16-C.17, dx/h = 0.01
     kh = np.array([0.01, 0.02, 0.05, 0.1, 0.2, 0.5, 1.0])
-    trow, tim_err, bond_err = [], {}, {}
-    for si, m in [("ends", m) for m in ratios] + [("bond", m) for m in ratios]:
+    trow, tim_err = [], {}
+    for m in ratios:
         r = beam_dispersion(theory="timoshenko", variant="consistent", ratio=m, kh=kh,
-                            shear_integration=si)
+                            shear_integration="ends")
         ef = np.abs(r["flexural"] / r["flexural_ref"] - 1)
         es = np.abs(r["shear"] / r["shear_ref"] - 1)
         ea = np.abs(r["axial"] / r["axial_ref"] - 1)
-        (tim_err if si == "ends" else bond_err)[m] = (float(max(ef.max(), es.max())), float(ea[0]))
-        trow.append({"shear integration": si, "delta/dx": m, "flexural max": float(ef.max()),
-                     "thickness-shear max": float(es.max()),
+        tim_err[m] = (float(max(ef.max(), es.max())), float(ea[0]))
+        trow.append({"delta/dx": m, "flexural max": float(ef.max()), "thickness-shear max": float(es.max()),
                      "axial at kh=0.01": float(ea[0])})
     show(trow, "consistent Timoshenko beam vs C.16-C.17 (k h in [0.01, 1], dx/h = 0.01)")
-    # flexural branch below kh = 0.01: limited by rounding in the force sums
-    r_small = beam_dispersion(theory="timoshenko", variant="consistent", ratio=1,
-                              kh=np.array([1e-3]))
-    small = float(abs(r_small["flexural"][0] / r_small["flexural_ref"][0] - 1))
     # text variant, delta/dx = 1, without (x1) and with (x2) the appendix factor
     tf, trow2 = {}, []
     for ef in (1.0, 2.0):
-        for sp in (True, False):
-            row = _long_wave(beam_dispersion(theory="timoshenko", variant="text", ratio=1,
-                                             kh=np.array([1e-3, 1e-4]), edge_factor=ef, self_pairs=sp))
-            trow2.append({"edge_factor": ef, "self_pairs (C.1)": sp, **row})
-            if sp:
-                tf[ef] = (row["shear cutoff ratio"], row["flexural ratio kh=1e-3"])
+        row = _long_wave(beam_dispersion(theory="timoshenko", variant="text", ratio=1,
+                                         kh=np.array([1e-3, 1e-4]), edge_factor=ef))
+        trow2.append({"edge_factor": ef, **row})
+        tf[ef] = (row["shear cutoff ratio"], row["flexural ratio kh=1e-3"])
     show(trow2, "text-faithful beam, delta/dx = 1: model / Timoshenko (cutoff: k -> 0 limit of "
          "the phi-phi entry, k_s G A/(rho I))")
-    trow3, tf_by = [], {}
-    for ef in (1.0, 2.0):
-        for m in ratios:
-            row = _long_wave(beam_dispersion(theory="timoshenko", variant="text", ratio=m,
-                                             kh=np.array([1e-3, 1e-4]), edge_factor=ef))
-            trow3.append({"edge_factor": ef, "delta/dx": m, **row})
-            tf_by[f"x{ef:g}_ratio{m}"] = row
-    show(trow3, "text-faithful beam (j = k included, calibration 3.38) against delta/dx")
     # (iii) PD bar
     brow, lat = [], 0.0
     kd = np.array([0.1, 0.2, 0.5, 1.0, 2.0, 3.0])
@@ -177,15 +162,12 @@ def run_dispersion(args):
         "coeff_rel_err_max": coeff_err,
         "timoshenko_rel_err_max": m1[0],
         "timoshenko_rel_err_by_ratio": {str(m): v[0] for m, v in tim_err.items()},
-        "timoshenko_bond_rel_err_by_ratio": {str(m): v[0] for m, v in bond_err.items()},
-        "flexural_rel_err_kh_1e-3": small,
         "axial_long_wave_rel_err": m1[1],
         "pd_bar_lattice_rel_err": lat,
         "pd_bar_continuum_order": float(-p),
         "eq_3_55_rel_err_kdelta_le_0_5": e355,
         "tf_shear_cutoff_ratio_x1": tf[1.0][0], "tf_flexural_long_wave_ratio_x1": tf[1.0][1],
         "tf_shear_cutoff_ratio_x2": tf[2.0][0], "tf_flexural_long_wave_ratio_x2": tf[2.0][1],
-        "tf_long_wave_ratios_by_ratio": tf_by,
     }
     out["pass"] = bool(coeff_err < 1e-10 and m1[0] < 1e-4 and m1[1] < 1e-6 and lat < 1e-12
                        and e355 < 1e-4 and ray[1] < 1e-4)
@@ -227,27 +209,9 @@ def run_beam(args):
                 errs.append(abs(r["wmax_err_pct"]))
         orders[sup] = float(-np.polyfit(np.log(ns), np.log(e_n), 1)[0])
     show(rows, "EB beams, q = 5 N/m, L = 1 m, 0.05 x 0.001 m, E = 200 GPa (delta/dx = 1)")
-    # text EB at delta/dx = 1: the free end's ghosts (w'' = w''' = 0)
-    rows_t, tcant = [], {}
-    for fe in ("second-order", "linear"):
-        e_n = []
-        for n in ns[:3]:
-            r = beam_static(theory="eb", support="cantilever", n=n, ratio=1, variant="text",
-                            free_end=fe)
-            e_n.append(r["wmax_err_pct"])
-            rows_t.append({"free_end": fe, "N": n, "err %": r["wmax_err_pct"],
-                           "residual": r["residual"]})
-        tcant[fe] = {"err_pct_by_n": dict(zip(map(str, ns[:3]), e_n)),
-                     "order": float(-np.polyfit(np.log(ns[:3]), np.log(np.abs(e_n)), 1)[0])}
-    for sup in ("ss", "cc"):
-        r = beam_static(theory="eb", support=sup, n=100, ratio=1, variant="text")
-        rows_t.append({"free_end": f"({sup})", "N": 100, "err %": r["wmax_err_pct"],
-                       "residual": r["residual"]})
-    show(rows_t, "text EB beam (2.15-2.19), delta/dx = 1: cantilever with the second-order and the "
-          "linear free-end ghosts, ss and cc")
     # literal vs consistent calibration against delta/L
     rows2 = []
-    for var, xi in (("text", "spacing"), ("text", "horizon"), ("consistent", None)):
+    for var, xi in (("text", "spacing"), ("consistent", None)):
         for m in ((1, 2, 3) if quick else (1, 2, 3, 4, 6)):
             kw = {"xi": xi} if xi else {}
             r = beam_static(theory="eb", support="ss", n=100, ratio=m, variant=var, **kw)
@@ -266,20 +230,6 @@ def run_beam(args):
                       "EB + shear (m)": r["wmax_ref_m"], "err %": r["wmax_err_pct"]})
         terr.append(abs(r["wmax_err_pct"]))
     show(rows3, "consistent Timoshenko beam, h/L = 0.1, N = 100, delta/dx = 1")
-    # thin Timoshenko beams lock for delta > dx with the end-rotation shear measure; the
-    # bond-integrated measure does not
-    rows4, thin = [], {}
-    for si in ("ends", "bond"):
-        for sup in ("ss", "cc", "cantilever"):
-            for hh in (0.001, 0.1):
-                for m in (1, 2, 3):
-                    r = beam_static(theory="timoshenko", support=sup, n=100, ratio=m, height=hh,
-                                    shear_integration=si)
-                    rows4.append({"shear integration": si, "support": sup, "h/L": hh,
-                                  "delta/dx": m, "err %": r["wmax_err_pct"]})
-                    thin.setdefault(si, {}).setdefault(f"{sup} h/L={hh}", {})[str(m)] = r["wmax_err_pct"]
-    show(rows4, "consistent Timoshenko, N = 100, vs EB + shear: shear measure with the end rotations "
-          "(3.6-3.9) and integrated along the bond")
     # stability and NVE
     nve = []
     for th in ("eb", "timoshenko"):
@@ -288,8 +238,6 @@ def run_beam(args):
     from upscale.experiments.scenes.tridyn import step_scan
 
     nve.append(beam_nve(theory="eb", rotary=True, steps=2000 if quick else 10000))
-    bond_nve = [beam_nve(theory="timoshenko", shear_integration="bond", safety=sf,
-                         steps=2000 if quick else 10000) for sf in (0.8, 0.5)]
     from upscale.experiments.scenes.tridyn import rayleigh_mode
 
     modes = [rayleigh_mode(rotary=rot) for rot in (True, False)]
@@ -297,28 +245,16 @@ def run_beam(args):
          "from velocity Verlet with the rotary mass matrix and with lumped mass")
     scan = step_scan(theory="eb") + step_scan(theory="timoshenko")
     show(scan, "velocity Verlet at 0.98 and 1.02 x the sharp critical step, random initial state")
-    show([{k: v for k, v in r.items() if not isinstance(v, (list, np.ndarray))} for r in nve + bond_nve],
+    show([{k: v for k, v in r.items() if not isinstance(v, (list, np.ndarray))} for r in nve],
          "explicit dynamics (velocity Verlet, 0.8 x the Gershgorin estimate)")
     out = {"eb_wmax_err_pct_max": float(max(errs)), "eb_order": float(min(orders.values())),
            "eb_order_by_support": orders,
            "timoshenko_wmax_err_pct": float(max(terr)),
-           "text_cantilever_err_pct": tcant["second-order"]["err_pct_by_n"]["100"],
-           "text_cantilever_linear_ghost_err_pct": tcant["linear"]["err_pct_by_n"]["100"],
-           "text_cantilever": tcant,
-           "timoshenko_thin_err_pct": thin,
-           "thin_ss_locking_err_pct_ends": thin["ends"]["ss h/L=0.001"],
-           "thin_ss_err_pct_bond": thin["bond"]["ss h/L=0.001"],
            "text_stiffening_ratio_by_delta_over_dx": {
                str(r["delta/dx"]): 1 / r["w_max / EB"] for r in rows2
                if r["variant"] == "text xi=spacing"},
-           "text_xi_horizon_stiffness_ratio_by_delta_over_dx": {
-               str(r["delta/dx"]): 1 / r["w_max / EB"] for r in rows2
-               if r["variant"] == "text xi=horizon"},
            "nve_rel_drift_max": float(max(r["rel_drift"] for r in nve)),
            "nve_rel_drift_eb_rotary": float(nve[-1]["rel_drift"]),
-           "nve_rel_drift_timoshenko_bond": {"0.8": bond_nve[0]["rel_drift"],
-                                             "0.5": bond_nve[1]["rel_drift"]},
-           "dt_estimate_over_critical_timoshenko_bond": bond_nve[0]["estimate_over_critical"],
            "rayleigh_mode_measured_over_discrete": modes[0]["measured_over_discrete"],
            "rayleigh_mode_discrete_over_closed_form": modes[0]["omega_discrete"] / modes[0]["omega_rayleigh"],
            "rayleigh_mode_shift_vs_lumped": modes[0]["omega_measured"] / modes[1]["omega_measured"],
@@ -432,8 +368,7 @@ def run_bench(args):
 @case("tridyn-plate", "tridynamic FSDT plate: printed local limit vs Mindlin 4.62, dispersion "
       "of the corrected plate along x, y, 45 deg, positivity, Navier-Mindlin square plate, NVE")
 def run_plate(args):
-    from upscale.experiments.scenes.tridyn import (plate_bending, plate_dispersion, plate_energy_random,
-                                            plate_long_wave, plate_nve)
+    from upscale.experiments.scenes.tridyn import plate_bending, plate_dispersion, plate_energy_random, plate_nve
     from upscale.models.tridynamics import literal_local_coefficients
 
     quick = getattr(args, "quick", False)
@@ -443,20 +378,6 @@ def run_plate(args):
             for k, v in lit.items()]
     show(rows, "printed local limit with the printed constants vs Mindlin (E = 200 GPa, nu = 0.3, "
           "I/A = 1)")
-    # the printed plate on the engine (variant "text"): its long-wave coefficients from its
-    # force routine, for the two readings of the prescribed triangles
-    tp, trows = {}, []
-    for reading in ("lines", "cross"):
-        r = plate_long_wave(variant="text", text_triplets=reading)
-        tp[reading] = {"over_mindlin": {t: v[0] / v[2] for t, v in r["terms"].items()},
-                       "spurious_v_u_along_x_over_mu": r["spurious_v_u_along_x"] / (E / (2 * (1 + nu))),
-                       "min_over_max_omega2_by_kdx": r["min_over_max_omega2_by_kdx"],
-                       "asymmetry": r["asymmetry"]}
-        for t, v in r["terms"].items():
-            trows.append({"triplets": reading, "term": t, "model / Mindlin": v[0] / v[2],
-                          "printed 4.60 / Mindlin": v[1] / v[2]})
-    show(trows, "printed plate (4.1-4.14, EOM 4.48-4.52, constants 4.63; terms with xi^e = 0 dropped), "
-          "delta/dx = 1, h = 10 dx, long-wave coefficients at k dx = 1e-3")
     drow, derr = [], {}
     for m in ((1,) if quick else (1, 2)):
         r = plate_dispersion(ratio=m)
@@ -484,10 +405,6 @@ def run_plate(args):
            "navier_err_pct": float(perr),
            "min_energy_random": en["min_energy_J"], "negative_eigenvalues": en["negative_eigs"],
            "literal_v_xx_over_mindlin": float(lit["v: v,xx"][0] / lit["v: v,xx"][1]),
-           "text_plate": tp,
-           "text_plate_u_xx_over_mindlin": {k: v["over_mindlin"]["u: u,xx"] for k, v in tp.items()},
-           "text_plate_min_omega2_ratio": {k: min(v["min_over_max_omega2_by_kdx"].values())
-                                           for k, v in tp.items()},
            "nve_rel_drift": nve["rel_drift"],
            "dt_estimate_over_critical": nve["estimate_over_critical"]}
     out["pass"] = bool(out["mindlin_rel_err_max"] < 1e-3 and abs(perr) < 1.0
