@@ -171,6 +171,29 @@ def test_two_mpi_ranks_give_the_same_curve(qs_result):
                        rtol=1e-8)
 
 
+def test_restart_resumes_after_the_last_saved_step(qs_result, tmp_path):
+    """A run stopped after its second step (max_strain 0.015) and given the same restart
+    folder with the full max_strain goes on from step 4; its curve, dump frames and
+    relaxation are the uninterrupted run's (to round-off: the neighbour lists are rebuilt
+    on resume). A folder of another structure is refused."""
+    from upscale.experiments.lammps.tension import quasi_static_tension
+
+    kw = dict(strain_step=0.01, ftol=1e-10, relax_ftol=1e-10, restart=tmp_path / "rs",
+              dump=tmp_path / "d.dump")
+    tube = swcnt(10, 10, 10.0)
+    part = quasi_static_tension(tube, "tersoff:BNC.tersoff", max_strain=0.025, **kw)
+    assert len(part["curve"]["strain"]) == 3
+    res = quasi_static_tension(tube, "tersoff:BNC.tersoff", max_strain=0.03, **kw)
+    ref = qs_result["curve"]
+    assert res["curve"]["strain"] == ref["strain"]
+    assert np.allclose(res["curve"]["stress_GPa"], ref["stress_GPa"], rtol=1e-9, atol=1e-9)
+    assert res["relaxation"]["L0_A"] == qs_result["relaxation"]["L0_A"]
+    assert (tmp_path / "d.dump").read_text().count("ITEM: TIMESTEP") == 4  # eps 0 .. 0.03
+    assert res["cost"]["segments"] == 2 and res["cost"]["cpu_s"] > 0
+    with pytest.raises(ValueError, match="holds another run"):
+        quasi_static_tension(swcnt(10, 10, 12.5), "tersoff:BNC.tersoff", max_strain=0.025, **kw)
+
+
 def test_bad_input_one_line_errors(monkeypatch):
     from upscale.experiments.lammps.potential import resolve_potential
     from upscale.experiments.lammps.tension import quasi_static_tension

@@ -42,16 +42,19 @@ def run_mpi(func: str, atoms, nprocs: int, **kwargs) -> dict:
         raise ValueError(f"func={func!r}; valid: {', '.join(_FUNCS)}")
     if isinstance(nprocs, bool) or not isinstance(nprocs, int) or nprocs < 1:
         raise ValueError(f"nprocs={nprocs!r}; valid: an integer >= 1")
-    kwargs.pop("progress", None)  # callbacks do not cross processes
+    show = kwargs.pop("progress", None) is not None  # a callback does not cross processes:
+    # rank 0 prints the load steps instead, to this process's standard output
     with tempfile.TemporaryDirectory(prefix="upscale-mpi-") as d:
         job, out = Path(d) / "job.pkl", Path(d) / "out.json"
-        job.write_bytes(pickle.dumps({"func": func, "atoms": atoms, "kwargs": kwargs}))
+        job.write_bytes(pickle.dumps({"func": func, "atoms": atoms, "kwargs": kwargs,
+                                      "show": show}))
         repo = Path(__file__).resolve().parents[3]
         cmd = [mpiexec_path(), "-n", str(nprocs), sys.executable, "-m",
                "upscale.experiments.lammps.mpi", str(job), str(out)]
-        proc = subprocess.run(cmd, cwd=repo, capture_output=True, text=True)
+        proc = subprocess.run(cmd, cwd=repo, stdout=None if show else subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True)
         if proc.returncode != 0 or not out.is_file():
-            tail = (proc.stderr or proc.stdout).strip().splitlines()[-1:] or ["no output"]
+            tail = (proc.stderr or proc.stdout or "").strip().splitlines()[-1:] or ["no output"]
             raise RuntimeError(f"MPI run on {nprocs} ranks failed (exit {proc.returncode}): "
                                f"{tail[0]}")
         res = json.loads(out.read_text())
@@ -63,8 +66,12 @@ def _main(argv) -> int:
     from upscale.experiments.lammps import tension
 
     job = pickle.loads(Path(argv[0]).read_bytes())
-    res = getattr(tension, job["func"])(job["atoms"], **job["kwargs"])
     rank = int(os.environ.get("PMI_RANK", os.environ.get("OMPI_COMM_WORLD_RANK", "0")))
+    kw = dict(job["kwargs"])
+    if job.get("show") and rank == 0:
+        kw["progress"] = lambda x, y: print(f"{job['func']}: load {x:.5g}, response {y:.5g}",
+                                            flush=True)
+    res = getattr(tension, job["func"])(job["atoms"], **kw)
     if rank == 0:
         res["nprocs"] = int(os.environ.get("PMI_SIZE", "1"))
         write_json(argv[1], res)

@@ -35,8 +35,9 @@ from upscale.analysis.stress import WALL_THICKNESS, curve_metrics, stress_from_p
 from upscale.experiments.lammps.potential import resolve_potential
 from upscale.experiments.protocols import StopRule
 from upscale.experiments.lammps.setup import (DAMPED_STYLE, DAMPED_STYLES, LINE_SEARCHES,
-                                              check_atoms, common_record, minimize_robust,
-                                              relax_zero_stress, thermo)
+                                              check_atoms, common_record, gather_positions,
+                                              minimize_robust, relax_zero_stress, thermo)
+from upscale.experiments.lammps.restart import RunState, mpi_rank
 # the LAMMPS instance factory, under a module-level name so a test can record the commands
 from upscale.experiments.lammps.setup import new_instance as _setup
 
@@ -98,7 +99,7 @@ def quasi_static_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
                          damped_dmax: float = 0.02, damped_timestep_ps: float = 0.001,
                          damped_steps: int = 5000, damped_cycles: int = 3,
                          line_search: str = "quadratic", load: str = "tension",
-                         failure_drop: float = 0.05) -> dict:
+                         failure_drop: float = 0.05, restart: str | Path | None = None) -> dict:
     """Quasi-static axial tension (or, with ``load="compression"``, compression) of a
     periodic tube or bundle (module docstring).
 
@@ -136,6 +137,12 @@ def quasi_static_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
         LAMMPS dump file (``id type x y z``), one frame per strain (the first is eps = 0).
     progress : callable, optional
         Called as ``progress(strain, stress_GPa)`` after each step.
+    restart : path, optional
+        A folder for restart files (:mod:`upscale.experiments.lammps.restart`): the state is
+        saved after the relaxation and after every load step, and a run given the folder of
+        a killed run of the same structure and protocol resumes after its last saved step
+        (the dump, if any, cut back to that step). The record then also holds ``cost``:
+        CPU time summed over ranks and segments, peak memory per rank.
 
     Returns
     -------
@@ -163,26 +170,50 @@ def quasi_static_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
                        damped_style=damped_style, damped_dmax=damped_dmax,
                        damped_timestep_ps=damped_timestep_ps, damped_steps=damped_steps,
                        damped_cycles=damped_cycles, line_search=line_search, load=load,
-                       failure_drop=failure_drop)
+                       failure_drop=failure_drop,
+                       restart=None if restart is None else str(restart),
+                       progress=progress)
     sign = 1.0 if load == "tension" else -1.0
     t0 = time.perf_counter()
     pot = resolve_potential(potential, cutoff)
-    relaxed, rinfo = relax_zero_stress(atoms, potential, cutoff, relax_ftol, _pot=pot)
+    rs = saved = None
+    if restart is not None:
+        rs = RunState(restart, _fingerprint(atoms, potential, cutoff, strain_step, load,
+                                            ftol, fmax_tol, relax_ftol))
+        saved = rs.load()
+    if saved is None:
+        relaxed, rinfo = relax_zero_stress(atoms, potential, cutoff, relax_ftol, _pot=pot)
+        if rs is not None:
+            rs.save(relaxed.get_positions(), relaxed.cell[2, 2], -1, {}, rinfo, 0)
+    else:  # resume after the last saved load step
+        rinfo = saved["relaxation"]
+        relaxed = atoms.copy()
+        lx, ly, _ = atoms.cell.lengths()
+        relaxed.set_cell(np.diag([lx, ly, saved["Lz"]]))
+        relaxed.set_positions(saved["positions"])
     L0, R = float(rinfo["L0_A"]), float(rinfo["radius_relaxed_A"])
     lmp, types = _setup(relaxed, pot, "s s p")
     ntubes = int(types.max())
-    strains, stresses, energies, lzs, fmaxes, fires = [], [], [], [], [], []
-    magnitudes = []  # sign * stress: the stop rule's response (the stress in tension)
+    c0 = saved["curve"] if saved else {}
+    strains, stresses, energies, lzs, fmaxes, fires = (
+        list(c0.get(name, [])) for name in ("strain", "stress_GPa", "energy_eV", "Lz_A",
+                                            "fmax_eV_per_A", "damped_md_cycles"))
+    magnitudes = [sign * s for s in stresses]  # the stop rule's response (tension: stress)
     if dump is not None:
         dump = Path(dump)
         dump.parent.mkdir(parents=True, exist_ok=True)
-        if dump.exists():
+        if saved is not None and dump.exists():
+            if mpi_rank() == 0:
+                with open(dump, "r+b") as fh:  # frames after the saved step are written again
+                    fh.truncate(int(saved["dump_bytes"] or 0))
+        elif dump.exists():
             dump.unlink()
     try:
         zlo = float(lmp.extract_box()[0][2])
-        k, failed_at, aborted = 0, None, None
+        k, failed_at, aborted = (saved["k"] + 1 if saved else 0), None, None
         rule = StopRule(drop=failure_drop, after=after_failure)  # the protocols' one rule
-        while True:
+        failed_at = rule.failed_at(magnitudes) if magnitudes else None
+        while not (magnitudes and rule.done(magnitudes)):  # a resumed finished run: done
             if k * strain_step > max_strain + 1e-12:
                 break
             eps = sign * (k * strain_step)
@@ -213,13 +244,26 @@ def quasi_static_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
                             "modify sort id append yes")
             if progress is not None:
                 progress(eps, s)
+            if rs is not None:
+                rs.save(gather_positions(lmp, len(atoms)), th["Lz"], k,
+                        {"strain": strains, "stress_GPa": stresses, "energy_eV": energies,
+                         "Lz_A": lzs, "fmax_eV_per_A": fmaxes, "damped_md_cycles": fires},
+                        rinfo, dump.stat().st_size if dump is not None and mpi_rank() == 0
+                        else None)
             failed_at = rule.failed_at(magnitudes)
             if rule.done(magnitudes):
                 break
             k += 1
+        cost = None
+        if rs is not None:  # every rank's record written before rank 0 reads them
+            rs.account()
+            gather_positions(lmp, len(atoms))  # collective: a barrier
+            cost = rs.cost()
     finally:
         lmp.close()
     res = common_record(atoms, pot, "quasi-static", rinfo, types)
+    if cost is not None:
+        res["cost"] = cost
     if load != "tension":
         res["kind"] = f"lammps-{load}"
     res["protocol_detail"] = {
@@ -254,6 +298,17 @@ def quasi_static_tension(atoms: Atoms, potential="tersoff:BNC.tersoff", *, cutof
     res["dump"] = str(dump) if dump is not None else None
     res["wall_s"] = time.perf_counter() - t0
     return res
+
+
+def _fingerprint(atoms, *settings) -> str:
+    """A digest of the structure and the settings a restart folder is tied to."""
+    import hashlib
+    import json
+
+    return hashlib.sha256(json.dumps({
+        "positions": np.round(atoms.get_positions(), 6).tolist(), "cell": atoms.cell.tolist(),
+        "numbers": atoms.numbers.tolist(), "settings": [str(v) for v in settings]},
+        sort_keys=True).encode()).hexdigest()
 
 
 def _signed_metrics(strains, stresses, sign, fit_max_strain, drop) -> dict:
