@@ -95,8 +95,8 @@ def scb_mesh(alpha_deg, *, R=0.05, a_over_R=0.3, S_over_R=0.43, w=1.5e-3, h_far=
 
 
 def solve_scb(alpha_deg, *, E=3.75e9, nu=0.35, R=0.05, a_over_R=0.3, S_over_R=0.43, t=0.005,
-              w=1.5e-3, supports="rollers", h_tip=2e-5, h_far=2.5e-3, mouth=2e-5, probe=None,
-              patch="segment", block=None):
+              w=1.5e-3, supports="rollers", h_tip=2e-5, h_far=2.5e-3, mouth=2e-5, patch="segment",
+              block=None):
     """Plane-stress P2 solve of the SCB under a unit load-segment displacement.
 
     ``patch="segment"`` (default): load and supports act on boundary segments of width
@@ -105,9 +105,6 @@ def solve_scb(alpha_deg, *, E=3.75e9, nu=0.35, R=0.05, a_over_R=0.3, S_over_R=0.
     moves rigidly, the support blocks |x -+ S| <= hb, y <= db hold u_y, or u when pinned),
     with ``block = (hb, db)`` in m (default (2 w / 3, w): the cells of 3 x 3 particles of
     spacing w / 3).
-
-    ``probe`` (k, 2) points (m): also return the FE displacement there per newton of load
-    (key ``probe_u_m_per_N``, (k, 2)), e.g. to apply a particle estimator to the FE field.
 
     Returns a dict: ``Y_I, Y_II, T_star`` (dimensionless), ``K_I_Pa_sqrt_m, K_II_Pa_sqrt_m,
     T_Pa`` per newton of load (load P = 1 N), ``compliance_m_per_N`` (load-segment
@@ -213,20 +210,7 @@ def solve_scb(alpha_deg, *, E=3.75e9, nu=0.35, R=0.05, a_over_R=0.3, S_over_R=0.
     Pu = P / t                                    # load per unit thickness for the 2D fields
     KI, KII, T = KI / Pu / t, KII / Pu / t, T / Pu / t   # per newton of total load
     Y = lambda k: k * 2 * R * t / np.sqrt(np.pi * a)
-    extra = {}
-    if probe is not None:
-        from skfem import ElementTriP2 as _P2
-
-        q = np.asarray(probe, float).copy()
-        rq = np.hypot(q[:, 0], q[:, 1])
-        out = rq > R * (1 - 1e-3)                 # the meshed arc is a polygon inside the circle
-        q[out] *= (R * (1 - 1e-3) / rq[out])[:, None]
-        slit = (np.abs(q @ ey) < mouth) & (q @ ex < a)
-        q[slit] += 2 * mouth * np.sign(q[slit] @ ey + 1e-30)[:, None] * ey   # points inside the slit: nearer face
-        pb = ib.with_element(_P2()).probes(q.T)
-        extra["probe_u_m_per_N"] = np.column_stack([pb @ u[0::2],
-                                                    pb @ u[1::2]]) / P
-    return {**extra,"alpha_deg": float(alpha_deg), "Y_I": float(Y(KI)), "Y_II": float(Y(KII)),
+    return {"alpha_deg": float(alpha_deg), "Y_I": float(Y(KI)), "Y_II": float(Y(KII)),
             "T_star": float(T * 2 * R * t), "K_I_Pa_sqrt_m_per_N": float(KI),
             "K_II_Pa_sqrt_m_per_N": float(KII), "T_Pa_per_N": float(T),
             "compliance_m_per_N": float(d / P), "supports": supports, "w_m": w,

@@ -4,22 +4,10 @@ two ranks against one and two threads, and an exact restart of a killed 2-rank r
 Each case starts its own ranks (``mpiexec -n K python -m validation.cases.mpi plate ...``,
 one thread per rank, the ``mpiexec`` of the mpich wheel), so it is run without ``mpiexec``.
 The plate is :class:`upscale.experiments.scenes.plate.PlateScene`'s; on several ranks it is
-built by :func:`lean_plate` (each rank builds only its rows of the family).
-
-mpi-same-answer
-    PMB, LPS and Ti-PD (without surface correction) for ``--steps`` steps on 1, 2 and 4
-    ranks: the largest displacement difference over the serial run's largest displacement
-    (``max_rel_diff``; ``bit_identical``: one thread per rank keeps each particle's sum
-    order), the same broken bonds, and the bond states agreeing between the ranks.
-bench-mpi
-    One plate of at least 10 M bonds: wall time per step on 1 rank x 1 thread, 1 x 2, 2 x 1,
-    in one run; halo (rows received over rows owned), bytes and time of the exchange per step
-    at 2 and 4 ranks (alone, and with the wait for the slower rank); peak memory per rank;
-    from them the scaling model of :mod:`upscale.engine.parallel.scaling` to 1,000 ranks
-    (tables in ``scaling_model.json``). The load average at start and end is reported.
-mpi-restart-exact
-    The 2-rank PMB plate killed with SIGKILL (the whole ``mpiexec`` process group) at a
-    random moment after its second checkpoint, resumed, against the uninterrupted run.
+built by :func:`lean_plate` (each rank builds only its rows of the family). One thread per
+rank keeps each particle's sum order, so the runs can be bit-identical (``bit_identical``);
+``bench-mpi``'s scaling model (:mod:`upscale.engine.parallel.scaling`) writes its tables to
+``scaling_model.json``.
 """
 from __future__ import annotations
 

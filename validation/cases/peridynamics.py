@@ -1,17 +1,8 @@
-"""Peridynamics on the engine against references nobody here wrote.
-
-``pmb-vs-lammps`` / ``lps-vs-lammps``: the engine in LAMMPS's conventions
-(:mod:`upscale.engine.lammps_peri`) against ``pair_style peri/pmb`` / ``peri/lps``: forces on
-a perturbed cubic lattice, then 200 Verlet steps of a pre-cracked block with bond breaking.
-``bench-pmb``: bond-force throughput against LAMMPS's Pair time on the same ~30,000-particle
-block, interleaved rounds, one core; bytes per bond streamed, the memory bandwidth (triad),
-the 2-thread speed-up. ``pd-elasticity``: bulk energy density of homogeneous deformations
-against linear elasticity, and the Poisson contraction of an LPS bar (ADR). ``pd-stability``:
-stable step against the sharp linearised limit, NVE drift at 0.8 of it, refusal of a larger
-step, blow-up detection with its last good checkpoint. ``bench-memory``: bytes kept per
-directed bond (:func:`upscale.engine.memory.bytes_per_bond`, after one force evaluation; the
-system's arrays not charged) by PMB, LPS, Ti-PD, NOSB and CPD at their defaults; target (issue
-53): at most 16 plus the run's per-bond state, the per-particle buffers beside it.
+"""Peridynamics on the engine against LAMMPS (``pair_style peri/pmb``, ``peri/lps``, the engine
+in LAMMPS's conventions, :mod:`upscale.engine.lammps_peri`), linear elasticity and its own
+stability limits. ``bench-memory`` counts the bytes kept per directed bond
+(:func:`upscale.engine.memory.bytes_per_bond`, after one force evaluation; the system's
+arrays not charged).
 """
 from __future__ import annotations
 

@@ -11,9 +11,9 @@ averaged-stress criteria; the stored calibration for the energy criterion), P_c 
 angles, K through the FE factors, errors against the experiment and the paper's own;
 initiation angles against MTS and GMTS. ``scb-convergence``: P_c at dx = 1, 0.5, 0.25 mm with
 r_s fixed in metres and with r_s = 2 dx. ``scb-rate``: explicit dynamics at three loading
-times against the quasi-static P_c; the load patch's velocity rises smoothly over ``--rise``
-of the loading time (a velocity jump leaves an undamped vibration that shifts the first
-failure by about 1 / (omega_1 t_c) of the load).
+times against the quasi-static P_c; the load patch's velocity rises smoothly over
+``RATE_RISE`` of the loading time (a velocity jump leaves an undamped vibration that shifts
+the first failure by about 1 / (omega_1 t_c) of the load).
 
 P_c is the peak before the load first falls below ``--stop-fraction`` of it.
 """
@@ -99,9 +99,7 @@ def run_elastic(args):
     """The FE reference carries the particle model's boundary conditions (the load and
     support patches are 3 x 3 particle blocks, so the FE holds the box of their centres,
     ``_fe_block``). The particle factors come from the Williams fit over the annulus
-    0.2 a < r < 0.6 a (``method="williams"``, 10 orders; keys ``Y_I_err_pct_max``,
-    ``Y_II_err_pct_max``); the Williams fit applied to the FE field sampled at the particle
-    positions gives the estimator's own error (keys ``*_estimator``)."""
+    0.2 a < r < 0.6 a (``method="williams"``, 10 orders)."""
     from upscale.experiments.scenes.scb import SCBScene
 
     quick = args.quick
@@ -110,29 +108,19 @@ def run_elastic(args):
     kw = {} if stab is None else {"stabilisation": stab}
     order = args.gain_order
     rows = []
-    eI, eII, eC, eIe, eIIe = [], [], [], [], []
-    from validation.fem_scb import solve_scb
-
+    eI, eII, eC = [], [], []
     for al in ALPHAS:
         sc = SCBScene(al, dx=dx, gain_order=order, **kw)
-        fe = solve_scb(al, w=3 * dx, h_tip=8e-5 if quick else 2e-5, patch="block", block=(1.5 * dx, 2.5 * dx),
-                       probe=sc.system.x0[:, :2])
+        fe = _fe_block(al, dx, quick=quick)
         st, P = sc.elastic()
         k = sc.stress_intensity(st, P, method="williams", n_terms=10)
-        sf = sc.state()
-        sf.y[:, :2] = sc.system.x0[:, :2] + fe["probe_u_m_per_N"]
-        ke = sc.stress_intensity(sf, 1.0, method="williams", n_terms=10)
         C = 1e-5 / P
         row = {"alpha": al, "Y_I": k["Y_I"], "Y_I FE": fe["Y_I"], "Y_II": k["Y_II"], "Y_II FE": fe["Y_II"],
-               "C um/N": C * 1e6, "C FE": fe["compliance_m_per_N"] * 1e6,
-               "Y_I est(FE)": ke["Y_I"], "Y_II est(FE)": ke["Y_II"],
-               "T* W": k["T_star"], "T* FE": fe["T_star"]}
+               "C um/N": C * 1e6, "C FE": fe["compliance_m_per_N"] * 1e6, "T* W": k["T_star"], "T* FE": fe["T_star"]}
         if abs(fe["Y_I"]) > 0.1:
             eI.append(100 * (k["Y_I"] / fe["Y_I"] - 1))
-            eIe.append(100 * (ke["Y_I"] / fe["Y_I"] - 1))
         if abs(fe["Y_II"]) > 0.1:
             eII.append(100 * (k["Y_II"] / fe["Y_II"] - 1))
-            eIIe.append(100 * (ke["Y_II"] / fe["Y_II"] - 1))
         eC.append(100 * (C / fe["compliance_m_per_N"] - 1))
         if al == 0.0:
             c_err = eC[-1]
@@ -145,7 +133,6 @@ def run_elastic(args):
            "Y_I_err_pct_max": float(max(np.abs(eI))), "Y_II_err_pct_max": float(max(np.abs(eII))),
            "Y_I_err_pct": [float(e) for e in eI], "Y_II_err_pct": [float(e) for e in eII],
            "compliance_err_pct": float(c_err), "compliance_err_pct_max": float(max(np.abs(eC))),
-           "Y_I_err_pct_max_estimator": float(max(np.abs(eIe))), "Y_II_err_pct_max_estimator": float(max(np.abs(eIIe))),
            "compliance_err_pct_all": [float(e) for e in eC],
            "pinned_Y_I_particle": kp["Y_I"], "pinned_Y_I_fe": fe_p["Y_I"],
            "pinned_compliance_um_per_N": 1e-5 / P * 1e6, "pinned_compliance_fe_um_per_N": fe_p["compliance_m_per_N"] * 1e6,
@@ -172,22 +159,15 @@ def _table_args(p):
     p.add_argument("--dx", type=float, default=None, help="spacing in m (default 2e-3)")
     p.add_argument("--alphas", default=None, help="comma list of angles (default the eight; quick 0,30,50)")
     p.add_argument("--r-s", type=float, default=None, help="use this r_s (m) instead of calibrating")
-    p.add_argument("--stabilisation", type=float, default=1.0)
     p.add_argument("--stop-fraction", type=float, default=0.5,
                    help="a run ends when the load falls below this fraction of its peak")
-    p.add_argument("--max-equilibria", type=int, default=3000, help="cap on the solves of one run")
     p.add_argument("--criterion", default="principal", choices=("principal", "normal", "energy"),
                    help="failure rule of the unified model (default %(default)s)")
     p.add_argument("--r-s-candidates", default="1e-3,2e-3,3e-3",
                    help="principal/normal criteria: r_s values (m) tried at alpha = 0 (default %(default)s)")
-    p.add_argument("--growth", default=None, choices=("front", "free"),
-                   help="which particles may fail: the crack front (default for the principal criterion) or any")
-    p.add_argument("--tip-factor", default="solved", choices=("solved", "lattice", "continuum"),
-                   help="beta of the critical stress (UnifiedModel tip_factor; default %(default)s)")
 
 
-def calibrate_r_s_scan(dx, P_target, candidates, stab=1.0, criterion="principal", log=print, growth=None,
-                       tip_factor="solved"):
+def calibrate_r_s_scan(dx, P_target, candidates, criterion="principal", log=print, growth=None):
     """P_c at alpha = 0 for each candidate r_s (m); the closest to ``P_target``, refined by
     one linear interpolation when two candidates bracket it. For the averaged-stress
     criteria P_c depends on r_s only through the body's non-singular terms and the
@@ -198,8 +178,7 @@ def calibrate_r_s_scan(dx, P_target, candidates, stab=1.0, criterion="principal"
     hist = []
 
     def trial(r):
-        res = run_scb(0.0, dx=dx, r_s=r, stabilisation=stab, stop_fraction=0.6, criterion=criterion,
-                      growth=growth, tip_factor=tip_factor)
+        res = run_scb(0.0, dx=dx, r_s=r, stop_fraction=0.6, criterion=criterion, growth=growth)
         hist.append((r, res["P_c_N"], res["wall_s"]))
         log(f"  calibration: r_s = {r * 1e3:.4f} mm -> P_c = {res['P_c_N'] / 1e3:.4f} kN ({res['wall_s']:.0f} s)")
 
@@ -231,7 +210,6 @@ def run_table(args):
 
     quick = args.quick
     dx = args.dx or 2e-3
-    stab = args.stabilisation
     al_s = args.alphas
     alphas = [float(a) for a in al_s.split(",")] if al_s else ([0.0, 30.0, 50.0] if quick else list(ALPHAS))
     ex = _exp()
@@ -240,22 +218,19 @@ def run_table(args):
     t0 = time.perf_counter()
     r_s = args.r_s
     crit = args.criterion
-    growth = args.growth or default_growth(crit)
-    tipf = args.tip_factor
+    growth = default_growth(crit)
     cal = None
     if r_s is None and crit == "energy":   # its stored calibration (r_s / dx at alpha = 0)
         r_s = calibrated_r_s("energy", dx)
     elif r_s is None:
         cands = [float(v) for v in args.r_s_candidates.split(",")]
-        r_s, cal = calibrate_r_s_scan(dx, exP[0.0] * 1e3, cands, stab=stab, criterion=crit, growth=growth,
-                                      tip_factor=tipf)
+        r_s, cal = calibrate_r_s_scan(dx, exP[0.0] * 1e3, cands, criterion=crit, growth=growth)
     print(f"r_s = {r_s * 1e3:.4f} mm (calibrated at alpha = 0 only)" if cal else f"r_s = {r_s * 1e3:.4f} mm (given)")
     out = _outdir(args)
     rows, curves = [], []
     for al in alphas:
-        res = run_scb(al, dx=dx, r_s=r_s, stabilisation=stab, stop_fraction=args.stop_fraction,
-                      keep=True, max_equilibria=args.max_equilibria, criterion=crit,
-                      growth=growth, tip_factor=tipf)
+        res = run_scb(al, dx=dx, r_s=r_s, stop_fraction=args.stop_fraction, keep=True, criterion=crit,
+                      growth=growth)
         fe = _fe(al, 3 * dx, quick=True)
         f = np.sqrt(np.pi * A_CRACK) / (2 * R * T_THICK)
         P = res["P_c_N"]
@@ -289,7 +264,8 @@ def run_table(args):
     _plot_curves(out / "scb_curves.png", curves)
     e = np.array([abs(r["err %"]) for r in rows])
     pe = np.array([abs(100 * (thP[a] / exP[a] - 1)) for a in ALPHAS])
-    res = {"dx_m": dx, "r_s_m": r_s, "criterion": crit, "growth": growth, "tip_factor": tipf, "calibration": cal, "alpha_deg": alphas,
+    res = {"dx_m": dx, "r_s_m": r_s, "criterion": crit, "growth": growth, "tip_factor": "solved", "calibration": cal,
+           "alpha_deg": alphas,
            "P_c_kN": [r["P_c kN"] for r in rows], "P_c_err_pct": [r["err %"] for r in rows],
            "P_c_err_pct_mean": float(e.mean()), "P_c_err_pct_max": float(e.max()),
            "paper_P_c_err_pct_mean": float(pe.mean()), "paper_P_c_err_pct_max": float(pe.max()),
@@ -386,11 +362,6 @@ def _rate_args(p):
                    help="failure rule (default %(default)s)")
     p.add_argument("--times", default=None, help="comma list of loading times in s to 1 mm "
                    "(default 2e-3,5e-3,1.5e-2; quick 1e-3,2e-3,4e-3)")
-    p.add_argument("--growth", default=None, choices=("front", "free"),
-                   help="which particles may fail: the crack front (default for the principal criterion) or any")
-    p.add_argument("--rise", type=float, default=RATE_RISE,
-                   help="velocity rise time of the load patch as a fraction of the loading time "
-                        "(SCBScene.explicit; 0: a velocity jump at t = 0; default %(default)s)")
 
 
 @case("scb-rate", "SCB: explicit dynamics at three loading times against the quasi-static P_c", _rate_args)
@@ -400,14 +371,12 @@ def run_rate(args):
 
     quick = args.quick
     crit = args.criterion
-    growth = args.growth or default_growth(crit)
+    growth = default_growth(crit)
     dx, r_s = args.dx or (2e-3 if quick else 1e-3), args.r_s
     if r_s is None:
         r_s = 0.075 if crit == "energy" else 1e-3
     times = [float(v) for v in (args.times or ("1e-3,2e-3,4e-3" if quick else "2e-3,5e-3,1.5e-2")).split(",")]
-    rise = float(args.rise)
-    if not 0.0 <= rise <= 1.0:
-        raise ValueError(f"--rise={rise!r}; valid: 0 <= rise <= 1 (a fraction of the loading time)")
+    rise = RATE_RISE
     qs = run_scb(0.0, dx=dx, r_s=r_s, stop_fraction=0.5, keep=True, criterion=crit, growth=growth)
     P_qs = qs["P_c_N"]
     mu_qs = qs.pop("_damage")

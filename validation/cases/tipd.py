@@ -669,8 +669,7 @@ def tipd_branching(args):
              "asym": r["asymmetry_fraction"], "off_crack": r["damaged_off_crack"], "steps": r["steps"],
              "cpu_s": r["cpu_s"]} for r in runs]
     print(f"Ha & Bobaru plate 100 x 40 mm, pre-crack to the centre, cR = {runs[0]['cR_m_per_s']:.1f} m/s")
-    _plot_tips(runs, args.outdir)
-    _plot_damage(runs, args.outdir)
+    _plot_tips(runs, args.outdir)  # each run's damage map: the scene's own (outdir)
     base = [r for r in runs if np.isclose(r["dx_m"], dx)]
     out = {k: {_branch_key(r): r[k] for r in base}
            for k in ("v_max_over_cR", "v_mean_over_cR", "branching_x_m", "branching_t_s", "branch_angle_deg",
@@ -731,24 +730,3 @@ def _plot_tips(runs, outdir):
             ax.set_xlabel("t (us)")
         for ax in axes[:, 0]:
             ax.set_ylabel("tip x (mm)")
-
-
-def _plot_damage(runs, outdir):
-    """Final damage maps: one row per model and stress, one column per spacing / horizon."""
-    labels = list(dict.fromkeys(_variant_label(r) for r in runs))
-    cols = list(dict.fromkeys((round(r["dx_m"], 12), r["m"]) for r in runs))
-    with figure(outdir / "tipd_branching_damage.png", len(labels), len(cols), dpi=150, squeeze=False,
-                figsize=(3.4 * len(cols), 1.55 * len(labels))) as (fig, axes):
-        for r in runs:
-            ax = axes[labels.index(_variant_label(r)), cols.index((round(r["dx_m"], 12), r["m"]))]
-            x, h = r["positions_m"], r["dx_m"]
-            ix = np.rint((x[:, 0] - x[:, 0].min()) / h).astype(int)
-            iy = np.rint((x[:, 1] - x[:, 1].min()) / h).astype(int)
-            g = np.zeros((iy.max() + 1, ix.max() + 1))
-            g[iy, ix] = r["damage"]
-            ext = np.array([x[:, 0].min() - h / 2, x[:, 0].max() + h / 2, x[:, 1].min() - h / 2,
-                            x[:, 1].max() + h / 2]) * 1e3
-            ax.imshow(g, origin="lower", extent=ext, cmap="inferno", vmin=0, vmax=1, interpolation="nearest")
-            ax.set(xticks=[], yticks=[])
-            ax.set_title(f"{_variant_label(r)}, dx {h * 1e3:g} mm, delta {r['horizon_m'] * 1e3:.3g} mm, "
-                         f"{r['t_end_s'] * 1e6:.0f} us", fontsize=6)

@@ -4,15 +4,8 @@
 (i) the text's own analytic dispersion coefficients 3.42-3.51, evaluated here directly
 from the printed formulas, (ii) the classical Timoshenko branches C.16-C.17 and the bar,
 (iii) the peridynamic bar's lattice sum and ``(4E/delta^2) Cin(k delta)``, 3.55, (iv) the
-EB beam with rotary inertia (mass matrix) against the Rayleigh beam.
-``tridyn-beam``: static beams against the EB/Timoshenko closed forms, convergence order,
-the literal calibration's stiffening, the text EB cantilever's free-end ghosts, the thin
-Timoshenko beam with both shear integrations, stable step, NVE drift, a Rayleigh mode.
-``tridyn-plate``: the printed local limit and the printed plate on the engine against
-Mindlin, the corrected plate's branches, positivity, Navier, NVE.
-``bench-tridyn``: time per particle-step of the beam and plate force evaluations (the
-models' defaults) against the PMB kernel, same particle count and horizon, one run, by the
-wall clock as issue 18 stated it (the process CPU time beside it).
+EB beam with rotary inertia (mass matrix) against the Rayleigh beam. ``bench-tridyn`` times
+by the wall clock as issue 18 stated it (the process CPU time beside it).
 """
 from __future__ import annotations
 
