@@ -191,3 +191,33 @@ def test_lattice_fracture_energy_rejects_bad_input(kw, match):
 
     with pytest.raises(ValueError, match=match):
         lattice_fracture_energy(**kw)
+
+
+def test_a_run_resumed_from_its_checkpoint_ends_as_the_uninterrupted_one(tmp_path, monkeypatch):
+    """The checkpoint carries the state, the onset steps and the sample times: a run killed
+    after an intermediate checkpoint (its file put back as the last one written) and resumed
+    gives the uninterrupted run's damage, onsets and times bit for bit."""
+    import shutil
+
+    from upscale.engine.checkpoint import Checkpoint, load_checkpoint
+
+    kw = dict(stress=24e6, dx=2e-3, t_end=6e-6, sample_dt=None)
+    ref = simulate("pmb", **kw)
+    ck, kept = tmp_path / "ck.npz", []
+    write = Checkpoint.write
+
+    def keep(self, state, *a, **k):  # every generation kept, as a kill would find it
+        p = write(self, state, *a, **k)
+        kept.append(shutil.copy(p, tmp_path / f"ck_{state.step}.npz"))
+        return p
+
+    monkeypatch.setattr(Checkpoint, "write", keep)
+    simulate("pmb", checkpoint=ck, checkpoint_every=7, **kw)
+    monkeypatch.undo()
+    mid = [f for f in kept if 0 < load_checkpoint(f)[0].step < ref["steps"]][-1]
+    shutil.copy(mid, ck)
+    res = simulate("pmb", checkpoint=ck, checkpoint_every=7, **kw)
+    assert res["steps"] == ref["steps"] and res["broken_bonds"] == ref["broken_bonds"] > 0
+    assert np.array_equal(res["damage"], ref["damage"])
+    assert np.array_equal(res["onset_step"][0.35], ref["onset_step"][0.35])
+    assert res["sample_times"] == ref["sample_times"]

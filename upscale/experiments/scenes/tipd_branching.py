@@ -186,7 +186,7 @@ def _check_measure(tip_damage, record_dt, speed_window):
 def simulate(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4, critical: str = "tipd",
              t_end: float | None = None, m: float = 3.0, load_width: float | None = None,
              sample_dt: float | None = None, thresholds=(0.35,), partial_volume: str | None = "linear",
-             progress: bool = False) -> dict:
+             progress: bool = False, checkpoint=None, checkpoint_every: int = 500) -> dict:
     """Run the branching scene with horizon ``delta = m dx``; the traction acts on the rows
     within ``load_width`` (m, a multiple of dx; default dx: the outer row) of the top and
     bottom edges, shared equally between them (a grid refinement at a fixed horizon keeps the
@@ -204,7 +204,11 @@ def simulate(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4, cri
     "linear" (default), "lammps" or None. The default is the rule under which the branching
     positions and speeds agree best between dx and dx/2 at the same horizon (m = 3 and 6):
     without it the lattice sum at m = 3 misses the bonds' volume at the horizon's edge, and
-    the coarse grid is effectively a different material near the tip."""
+    the coarse grid is effectively a different material near the tip.
+
+    ``checkpoint``: a file (.npz) written every ``checkpoint_every`` steps with the state, the
+    onset steps and the sample times (``state.extra``); a run given the file of a killed run
+    of the same scene resumes there and ends as the uninterrupted run would have."""
     from upscale import models
     from upscale.engine import Simulation, bonds_crossing_segment, build_family, square_lattice
     from upscale.engine.conditions import Force, region
@@ -257,26 +261,40 @@ def simulate(model: str = "tipd", *, stress: float = 12e6, dx: float = 5e-4, cri
     steps = int(np.ceil(t_end / dt))
     every = 1 if sample_dt is None else max(1, int(round(sample_dt / dt)))
     never = steps + 1
-    onset = {v: np.full(s.n, never, dtype=np.int64) for v in thresholds}
-    times = {}                            # step -> time of the sampled steps
+    keys = {v: f"branching.onset_{v:g}" for v in thresholds}  # carried by checkpoints
+    for key in keys.values():
+        sim.state.extra[key] = np.full(s.n, never, dtype=np.int64)
+    sim.state.extra["branching.t"] = np.full(steps + 1, np.nan)  # time of the sampled steps
 
     def cb(sm):
         st = sm.state
         if st.step % every:
             return False
         d = sm.damage()
-        for v, on in onset.items():
+        for v, key in keys.items():
+            on = st.extra[key]
             on[(d >= v) & (on == never)] = st.step
-        times[int(st.step)] = float(st.t)
+        st.extra["branching.t"][st.step] = st.t
         return False
 
-    out = sim.run(steps, progress=progress, callback=cb)
+    ck = None
+    if checkpoint is not None:
+        from upscale.engine.checkpoint import Checkpoint
+
+        ck = Checkpoint(checkpoint, checkpoint_every)
+        if sim.resume(ck.path) and sim.state.step > 0:
+            cb(sim)  # the engine writes step k's checkpoint before step k's callback
+
+    sim.run(steps - sim.state.step, progress=progress, callback=cb, checkpoint=ck)
+    onset = {v: sim.state.extra[key] for v, key in keys.items()}
+    tt = sim.state.extra["branching.t"]
+    times = {int(k): float(tt[k]) for k in np.flatnonzero(np.isfinite(tt))}
     return {"_memory": run_memory(s, fam, [mdl], sim.state),
             "model": model, "critical": critical if model == "tipd" else None, "stress_Pa": stress,
             "dx_m": dx, "m": m, "delta_m": delta, "horizon_m": fam.horizon, "partial_volume": partial_volume,
             "nx": nx, "ny": ny,
-            "load_rows": rows, "particles": s.n, "dt_s": float(dt), "steps": out["steps"],
-            "t_end_s": float(sim.state.t), "s0": float(mdl.s0), "broken_bonds": out["broken_bonds"],
+            "load_rows": rows, "particles": s.n, "dt_s": float(dt), "steps": int(sim.state.step),
+            "t_end_s": float(sim.state.t), "s0": float(mdl.s0), "broken_bonds": int(sim.broken_bonds()),
             "sample_every": every, "sample_times": times, "onset_step": onset,
             "positions_m": x0[:, :2].copy(), "damage": sim.damage(),
             "run_wall_s": time.perf_counter() - t0}
