@@ -49,19 +49,15 @@ def _fd_tangent(model, st, dim, h):
 
 
 # =========================================================================== cpd-tangent
-def _tangent_args(p):
-    p.add_argument("--seed", type=int, default=1)
-
-
 @case("cpd-tangent", "CPD consistent tangent vs central differences of the residual, per "
-      "interaction type, on randomly deformed 2D and 3D clouds", add_arguments=_tangent_args,
+      "interaction type, on randomly deformed 2D and 3D clouds",
       target="tangent within 1e-6 of central differences (patch test 1e-10)")
 def run_tangent(args):
     from upscale.engine.families import build_family
     from upscale.engine.state import State
     from upscale.models.cpd import CPD
 
-    rng = np.random.default_rng(args.seed)
+    rng = np.random.default_rng(1)
     dx = 1e-3
     rows = []
     setups = [(2, "C1", dict(C1=1e15)), (2, "C2", dict(C2=1e27)),
@@ -150,13 +146,8 @@ def _interior_energy_errors(dim, nu, ratio, *, mode="auto", plane="stress", n_st
     return float(np.max(np.abs(errs))), model
 
 
-def _cal_args(p):
-    p.add_argument("--ratio3d", type=float, default=3.0, help="delta/dx of the 3D checks")
-    p.add_argument("--ratio2d", type=float, default=4.0, help="delta/dx of the 2D checks")
-
-
 @case("cpd-calibration", "CPD C1, C2, C3 from E, nu: interior energy density vs linear "
-      "elasticity and Poisson contraction of a bar, 2D and 3D", add_arguments=_cal_args,
+      "elasticity and Poisson contraction of a bar, 2D and 3D",
       target="energy density within 2 %, Poisson contraction within 5 %, bad input refused in one line")
 def run_calibration(args):
     from upscale.experiments.scenes import cpd_bar
@@ -196,7 +187,7 @@ def run_calibration(args):
         cases3 = cases3[:2]
     rows = []
     for dim, nu, mode, plane in cases3 + cases2:
-        ratio = args.ratio3d if dim == 3 else args.ratio2d
+        ratio = 3.0 if dim == 3 else 4.0  # delta/dx
         err, model = _interior_energy_errors(dim, nu, ratio, mode=mode, plane=plane)
         row = {"dim": dim, "nu": nu, "mode": mode, "plane": plane if dim == 2 else "-",
                "delta/dx": ratio, "err_pct (used)": err}
@@ -258,14 +249,8 @@ def _strip(r):
     return {k: v for k, v in r.items() if not k.startswith("_") and k != "newton_report"}
 
 
-def _newton_args(p):
-    p.add_argument("--surface-correction", action="store_true",
-                   help="directional PD surface correction of the CPD weights (default off)")
-
-
 @case("cpd-newton", "CPD static Newton-Raphson: bar (u = FL/EA) and cantilever "
       "(Timoshenko) vs horizon and spacing, residual histories, quadratic convergence",
-      add_arguments=_newton_args,
       target="Newton converges, observed order above 1.8 at large residuals and 1.6 everywhere")
 def run_newton(args):
     from upscale.engine.newton import convergence_order
@@ -280,14 +265,10 @@ def run_newton(args):
         grid3 = [(1.5e-3, 2.0), (1e-3, 2.0), (1.5e-3, 3.0)]
     for dim, grid in ((2, grid2), (3, grid3)):
         nu = 0.4 if dim == 2 else 0.3
+        L, h = (32e-3, 8e-3) if dim == 2 else (24e-3, 6e-3)
         for dx, ratio in grid:
-            sc = dict(surface_correction=args.surface_correction)
-            if dim == 2:
-                rb = cpd_bar.bar_tension(dim=2, nu=nu, length=32e-3, width=8e-3, dx=dx, ratio=ratio, **sc)
-                rc = cpd_bar.cantilever(dim=2, nu=nu, length=32e-3, depth=8e-3, dx=dx, ratio=ratio, **sc)
-            else:
-                rb = cpd_bar.bar_tension(dim=3, nu=nu, length=24e-3, width=6e-3, dx=dx, ratio=ratio, **sc)
-                rc = cpd_bar.cantilever(dim=3, nu=nu, length=24e-3, depth=6e-3, dx=dx, ratio=ratio, **sc)
+            rb = cpd_bar.bar_tension(dim=dim, nu=nu, length=L, width=h, dx=dx, ratio=ratio, surface_correction=False)
+            rc = cpd_bar.cantilever(dim=dim, nu=nu, length=L, depth=h, dx=dx, ratio=ratio, surface_correction=False)
             runs += [_strip(rb), _strip(rc)]
             if dim == 2 and dx == grid[-1][0] and ratio == grid[-1][1]:
                 cpd_bar.plot(rb, args.outdir / "bar2d.png")
@@ -319,7 +300,7 @@ def run_newton(args):
     bar_err = [abs(r["err_pct"]) for r in rows if r["scene"] == "bar"]
     cant_err = [abs(r["err_pct"]) for r in rows if r["scene"] == "cantilever"]
     converged = all(r["newton"]["converged"] for r in runs)
-    return {"surface_correction": args.surface_correction,
+    return {"surface_correction": False,
             "bar_err_pct_min": min(bar_err), "bar_err_pct_max": max(bar_err),
             "cantilever_err_pct_min": min(cant_err), "cantilever_err_pct_max": max(cant_err),
             "newton_order_min": min(orders) if orders else None,
@@ -335,10 +316,6 @@ def run_newton(args):
 
 
 # =========================================================================== bench-cpd
-def _bench_args(p):
-    p.add_argument("--repeat", type=int, default=3)
-
-
 def _best(fn, repeat):
     t = []
     for _ in range(repeat):
@@ -350,7 +327,6 @@ def _best(fn, repeat):
 
 @case("bench-cpd", "CPD cost: interactions per point, time per residual and per tangent "
       "per interaction type for delta/dx = 2, 3, 4 in 2D and 3D; skipped work when C2 = C3 = 0",
-      add_arguments=_bench_args,
       target="no triplets without C2, no quadruplets without C3; nu = 1/4 costs under 1.3x the pair-only model")
 def run_bench(args):
     from upscale.engine.families import build_family
@@ -393,8 +369,8 @@ def run_bench(args):
                         "C3": model.counts["quadruplets"]}[name]
                 model.residual(st)
                 model.tangent(st, fmt="bsr")          # compile / warm up, pattern
-                t_res = _best(lambda: model.residual(st), args.repeat)
-                t_tan = _best(lambda: model.tangent(st, fmt="bsr"), args.repeat)
+                t_res = _best(lambda: model.residual(st), 3)
+                t_tan = _best(lambda: model.tangent(st, fmt="bsr"), 3)
                 total = int(sets.sum() if centres is None else sets[centres].sum())
                 rows.append({"dim": dim, "delta/dx": ratio, "type": name,
                              "sets/point (interior)": int(sets[c0]), "points timed": npts,

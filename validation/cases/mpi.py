@@ -122,11 +122,6 @@ def mpi_same_answer(args):
 def _bench_args(p):
     p.add_argument("--n", type=int, default=None, help="particles a side (default 600; quick 200)")
     p.add_argument("--steps", type=int, default=None, help="steps (default 200; quick 100)")
-    p.add_argument("--model", default="pmb")
-    p.add_argument("--latency-us", type=float, default=1.5, help="interconnect latency assumed "
-                   "by the scaling model (us)")
-    p.add_argument("--bandwidth-GBps", type=float, default=12.0, help="interconnect bandwidth "
-                   "assumed by the scaling model (GB/s)")
 
 
 def _traffic_sums(fig: dict) -> dict:
@@ -155,7 +150,7 @@ def bench_mpi(args):
     with tempfile.TemporaryDirectory() as d:
         for name, ranks, threads in (("1 rank x 1 thread", 1, 1), ("1 rank x 2 threads", 1, 2),
                                      ("2 ranks x 1 thread", 2, 1), ("4 ranks x 1 thread", 4, 1)):
-            fig = run_plate(ranks, f"lean:{args.model}", n, steps,
+            fig = run_plate(ranks, "lean:pmb", n, steps,
                             Path(d) / f"r{ranks}t{threads}.npz", threads)
             runs[(ranks, threads)] = fig
             tr = _traffic_sums(fig) if fig["traffic"] else {}
@@ -170,8 +165,7 @@ def bench_mpi(args):
     t = {k: v["run_wall_s"] / steps for k, v in runs.items()}
     two, four = _traffic_sums(runs[(2, 1)]), _traffic_sums(runs[(4, 1)])
     N, bonds = n * n, runs[(1, 1)]["bonds"]
-    assumed = {**scaling.ASSUMED, "latency_s": 1e-6 * args.latency_us,
-               "bandwidth_B_per_s": 1e9 * args.bandwidth_GBps}
+    assumed = scaling.ASSUMED
     const = scaling.fit(n_particles=N, bonds=bonds, s_per_step_1rank=t[(1, 1)],
                         halo_rows_2ranks=two["rows"] / 2, packing_s_2ranks=two["packing_s"],
                         rows_moved_2ranks=two["rows_moved"],
@@ -186,7 +180,7 @@ def bench_mpi(args):
     cross2 = scaling.crossover(const, dim=2, **kw)
     cross3 = scaling.crossover(const, dim=3, bonds_per_particle=body3["bonds_per_particle"], **kw)
     at = {r["ranks"]: r for r in strong2}
-    out = {"plate_n": n, "particles": N, "bonds": bonds, "steps": steps, "model": args.model,
+    out = {"plate_n": n, "particles": N, "bonds": bonds, "steps": steps, "model": "pmb",
            "load_average_1_5_15min_at_start": list(load0),
            "load_average_1_5_15min_at_end": list(load1),
            "s_per_step": {f"{r}r{th}t": v for (r, th), v in t.items()},

@@ -115,14 +115,8 @@ def memory_bandwidth(n: int = 50_000_000, reps: int = 5) -> dict:
             "numba_1thread_cpu": 24.0 * n / min(cp for _, cp in ts) / 1e9}
 
 
-def _bench_args(p):
-    p.add_argument("--cells", type=int, default=None, help="lattice cells per side (default 30, quick 20)")
-    p.add_argument("--repeats", type=int, default=None,
-                   help="interleaved rounds (engine, LAMMPS, ...); the best of each is kept (default 5, quick 2)")
-
-
 @case("bench-pmb", "PMB and LPS bond-force throughput vs LAMMPS peri/pmb, peri/lps on a ~30k-particle block, one "
-      "core; bytes per bond, memory bandwidth, 2-thread speed-up", add_arguments=_bench_args,
+      "core; bytes per bond, memory bandwidth, 2-thread speed-up",
       target="bond-force throughput at least 4x LAMMPS's on one core")
 def bench_pmb(args):
     from upscale.engine import ParticleSystem, build_family
@@ -131,10 +125,10 @@ def bench_pmb(args):
     from upscale.models.bond_based import PMB
     from upscale.models.state_based import LPS
 
-    n = args.cells or (20 if args.quick else 30)
+    n = 20 if args.quick else 30  # lattice cells a side
     steps = 10 if args.quick else 20
     reps = 10 if args.quick else 20
-    rounds = args.repeats or (2 if args.quick else 5)
+    rounds = 2 if args.quick else 5  # interleaved (engine, LAMMPS, ...); the best of each kept
     lp = LammpsPeri("pmb", (n,) * 3, P["lc"], P["horizon"], P["density"], {"c": P["c"], "s00": P["s00"]})
     x = lp.positions()
     lp.close()
@@ -499,16 +493,11 @@ def measure(cells: int) -> list[dict]:
     return rows
 
 
-def _args(p):
-    p.add_argument("--cells", type=int, default=None,
-                   help="particles per side of the plate (default 120: 403k bonds; quick 60)")
-
-
 @case("bench-memory", "bytes kept per bond by PMB, LPS, Ti-PD, NOSB and CPD on a 2D plate "
-      "(target: at most 16 plus the model's per-bond state)", add_arguments=_args)
+      "(target: at most 16 plus the model's per-bond state)")
 def bench_memory(args):
     _threads(1)
-    cells = args.cells or (60 if args.quick else 120)
+    cells = 60 if args.quick else 120  # particles a side (120: 403k bonds)
     rows = measure(cells)
     show(rows, fmt=".2f")
     out = {"plate_particles": cells * cells, "bonds": rows[0]["bonds"]}

@@ -210,15 +210,9 @@ def _race(atoms, nsteps: int, repeats: int) -> dict:
     return {"calculator": tc, "lammps": tl, "energy_rel_diff": e_diff}
 
 
-def _bench_args(p):
-    p.add_argument("--steps", type=int, default=None, help="force evaluations per timing")
-    p.add_argument("--repeats", type=int, default=5,
-                   help="timings per side (alternating), the best is kept")
-
-
 @case("bench-tersoff",
       "time per atom-step of Tersoff energy+forces, project vs LAMMPS pair_style tersoff, "
-      "one core, ~8,000 and ~100,000 atoms", _bench_args,
+      "one core, ~8,000 and ~100,000 atoms",
       target="one-core time per atom-step at most 0.6 of LAMMPS pair_style tersoff's, every structure")
 def run_bench_tersoff(args) -> dict:
     """Microseconds per atom-step through the ASE calculator (a tiny move per step, list
@@ -237,8 +231,8 @@ def run_bench_tersoff(args) -> dict:
         for n_target in sizes:
             atoms = bench_structure(kind, n_target)
             n = len(atoms)
-            nsteps = args.steps or max(5, int((2e5 if args.quick else 1e6) / n))
-            r1 = _race(atoms, nsteps, args.repeats)
+            nsteps = max(5, int((2e5 if args.quick else 1e6) / n))
+            r1 = _race(atoms, nsteps, 5)
             row = {"structure": kind, "atoms": n, "steps": nsteps, "ours_1t_us": 1e6 * r1["calculator"],
                    "lammps_1t_us": 1e6 * r1["lammps"]}
             row["ratio_1t"] = row["ours_1t_us"] / row["lammps_1t_us"]
