@@ -251,7 +251,6 @@ def run_table(args):
             path_png(out / "scb_path_30_vs_experiment.png", sc, mu, pts,
                      f"alpha = 30 deg, dx = {dx * 1e3:g} mm: mean |offset| {row['path offset mm mean']:.2f} mm")
         curves.append((al, res["curve"]))
-    show(rows, fmt=".3f")
     _plot_curves(out / "scb_curves.png", curves)
     e = np.array([abs(r["err %"]) for r in rows])
     pe = np.array([abs(100 * (thP[a] / exP[a] - 1)) for a in ALPHAS])
@@ -265,10 +264,9 @@ def run_table(args):
            "MTS_angle_deg": [r["MTS deg"] for r in rows], "GMTS_angle_deg": [r["GMTS deg"] for r in rows],
            "GMTS_r_c_m": R_C_GMTS, "wall_s": time.perf_counter() - t0,
            "path_alpha30_offset_mm_mean": next((r["path offset mm mean"] for r in rows if "path offset mm mean" in r), None),
-           "path_alpha30_offset_mm_max": next((r["path offset mm max"] for r in rows if "path offset mm max" in r), None)}
+           "path_alpha30_offset_mm_max": next((r["path offset mm max"] for r in rows if "path offset mm max" in r), None),
+           "rows": rows}
     res["pass"] = bool(len(alphas) == 8 and e.mean() < pe.mean() and e.max() <= pe.max())
-    tag = f"{crit}_" + ("front_" if growth == "front" else "") + f"dx{dx * 1e3:g}mm_" + "_".join(f"{a:g}" for a in alphas)
-    (out / f"scb_table_{tag}.json").write_text(json.dumps({"rows": rows, "summary": res}, indent=1, default=float))
     return res
 
 
