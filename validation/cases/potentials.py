@@ -87,11 +87,7 @@ def run_tersoff_vs_lammps(args) -> dict:
 
     print(f"LAMMPS {lammps_version()}")
     rows = _exactness_rows(args.quick)
-    show(rows, fmt=".3g")
-    from upscale.io import write_json
-
-    write_json(args.outdir / "rows.json", rows)
-    return {
+    return {"rows": rows,
         "energy_rel_err": max(r["energy_rel_err"] for r in rows),
         "force_max_abs_err_eV_per_A": max(r["force_max_abs_err_eV_per_A"] for r in rows),
         "virial_rel_err": max(r["virial_rel_err"] for r in rows),
@@ -240,11 +236,7 @@ def run_bench_tersoff(args) -> dict:
             numba.set_num_threads(ncores)
             row["nominal"] = n_target
             rows.append(row)
-            show([row], fmt=".3g")
-    from upscale.io import write_json
-
-    write_json(args.outdir / "rows.json", rows)
-    out = {}
+    out = {"rows": rows}
     for r in rows:
         if r["structure"] != "diamond":
             continue
