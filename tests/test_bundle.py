@@ -114,6 +114,36 @@ def test_bad_input():
     with pytest.raises(ValueError, match=r"grip=74 Å leaves a \d\.\d Å gauge .* valid: grip <="):
         BundleScene.create((10, 10), 150.0, [TubeSpec("tersoff"), TubeSpec("dcbr", 2.0)],
                            ratios=RATIOS, grip=74.0)
+    with pytest.raises(ValueError, match=r"grip_keep=5\.0 Å; valid: None \(whole tubes\) or "
+                                         r"at least the vdW cutoff, 10\.2 Å"):
+        BundleScene.create((10, 10), 150.0, [TubeSpec("tersoff"), TubeSpec("dcbr", 2.0)],
+                           ratios=RATIOS, grip_keep=5.0)
+
+
+@pytest.mark.parametrize("nm", [(10, 10), (7, 13)])
+def test_trimmed_coarse_tube_keeps_whole_cells_within_reach_of_the_planes(nm):
+    """A coarse tube drops only whole cells lying more than grip_keep beyond its grip
+    planes: every atom within grip_keep of either plane (the vdW reach of any free atom,
+    plus 2 Å) is kept with its cell, the planes stay where the whole tube's were, and the
+    kept atoms are the whole tube's atoms of those cells."""
+    from upscale.build import bundle
+    from upscale.experiments.scenes.bundle import GRIP_KEEP_A, _trimmed
+
+    whole = bundle(*nm, 150.0, ntubes=2)
+    tube = whole[whole.arrays["mol-id"] == 2]
+    T, L, grip = tube.info["unit_cell_length"], tube.info["length"], 50.0
+    cut = _trimmed(tube, grip, GRIP_KEEP_A)
+    z, zc = tube.positions[:, 2], cut.positions[:, 2]
+    ncut = round((grip - cut.info["grip_A"]) / T)
+    assert ncut == int((grip - GRIP_KEEP_A) // T) >= 1
+    assert len(tube) - len(cut) == 2 * ncut * len(tube) // round(L / T)
+    near = (z > grip - GRIP_KEEP_A) & (z < L - grip + GRIP_KEEP_A)
+    assert near.sum() <= len(cut)
+    kept = {tuple(np.round(p, 9)) for p in cut.positions}
+    assert all(tuple(np.round(p, 9)) in kept for p in tube.positions[near])
+    assert zc.min() + cut.info["grip_A"] == pytest.approx(grip, abs=1e-6)
+    assert _trimmed(tube, grip, None).info["grip_A"] == grip
+    assert len(_trimmed(tube, grip, None)) == len(tube)
 
 
 @pytest.mark.slow
@@ -123,7 +153,7 @@ def test_mixed_bundle_vdw_and_chain_rule():
     the vdW's generalised forces on its rows and shifts are minus the energy's gradient
     (the chain rule through the coarse tube's map, DCBRModel.atom_forces)."""
     mixed = BundleScene.create((10, 10), 60.0, [TubeSpec("tersoff"), TubeSpec("dcbr", 2.0)],
-                               ratios=RATIOS, grip=15.0)
+                               ratios=RATIOS, grip=15.0, grip_keep=None)
     atom = BundleScene.create((10, 10), 60.0, [TubeSpec("tersoff")] * 2, ratios=RATIOS,
                               grip=15.0)
     sm, sa = mixed.state_at_rest(), atom.state_at_rest()
@@ -168,7 +198,7 @@ def test_defect_centre_among_atomistic_tubes():
     for vac, tol in ((None, 0.01), (0, 0.03)):
         mixed = BundleScene.create((10, 10), 60.0, [TubeSpec("dcbr-defect", 2.0),
                                                     TubeSpec("tersoff")], ratios=RATIOS,
-                                   grip=15.0, vacancy_tube=vac)
+                                   grip=15.0, vacancy_tube=vac, grip_keep=None)
         atom = BundleScene.create((10, 10), 60.0, [TubeSpec("tersoff")] * 2, ratios=RATIOS,
                                   grip=15.0, vacancy_tube=vac)
         em = mixed.vdw.energy(mixed.state_at_rest())

@@ -152,3 +152,64 @@ def test_thermostat_group_holds_each_region_where_one_holds_only_the_mean():
         out[kind] = np.mean(t, axis=0)
     assert np.all(np.abs(out["group"] - 1.0) < 0.1)
     assert out["one"][0] > 3.0 * out["one"][1]  # (measured: 1.87 and 0.47)
+
+
+def test_represented_chain_weights_the_kinetic_energy_and_is_the_chain_at_unit_weights():
+    """The bundle's thermostat (bundle_thermostat): its temperature is eq. (2), the
+    weighted kinetic energy over the represented dofs; with unit weights and the explicit
+    N_f it is the engine's Nose-Hoover chain step for step."""
+    from upscale.engine.integrators import VelocityVerlet
+    from upscale.engine.simulation import Simulation
+    from upscale.engine.system import ParticleSystem
+    from upscale.engine.thermostats import NoseHooverChain
+    from upscale.experiments.scenes.bundle_thermostat import RepresentedChain
+
+    n = 60
+    rng = np.random.default_rng(5)
+    x0 = rng.uniform(0, 10, (n, 3))
+    k = rng.uniform(0.5, 2.0, n)
+    half = np.arange(n) < n // 2
+    v0 = rng.standard_normal((n, 3))
+    v0[half] *= 3.0
+    ends = []
+    for th in (NoseHooverChain(1.0, 2.0, components=(0, 1), k_B=1.0),
+               RepresentedChain(1.0, 2.0, components=(0, 1), k_B=1.0, row_weight=np.ones(n),
+                                ndf=2 * n)):
+        sim = Simulation(ParticleSystem(x0, 1.0, 1.0, spacing=1.0), None, _Springs(x0, k))
+        sim.state.v[...] = v0
+        sim.integrator = VelocityVerlet(dt=0.02, thermostat=th)
+        sim.run(200)
+        ends.append(sim.state.v.copy())
+    assert np.array_equal(ends[0], ends[1])
+    # half B stands for 3 times its dofs: T = (2 K_A + 3 (2 K_B)) / ((n_A + 3 n_B) k_B)
+    w = np.where(half, 1.0, 3.0)
+    th = RepresentedChain(1.0, 2.0, components=(0, 1), k_B=1.0, row_weight=w, ndf=n + 3 * n)
+    sim = Simulation(ParticleSystem(x0, 1.0, 1.0, spacing=1.0), None, _Springs(x0, k))
+    sim.state.v[...] = v0
+    sim.integrator = VelocityVerlet(dt=0.02, thermostat=th)
+    sim.prepare()
+    K2 = np.sum(v0[:, :2] ** 2, axis=1)
+    assert th.temperature(sim) == pytest.approx((K2[half].sum() + 3 * K2[~half].sum())
+                                                / (n + 3 * n), rel=1e-12)
+
+
+def test_bundle_thermostat_counts_the_atoms_between_the_planes():
+    """The mixed bundle's one thermostat counts N_f = 2 x the atoms of every tube between
+    the grip planes (LAMMPS's free atoms), the atomistic tube's rows with weight 1."""
+    from upscale.experiments.scenes.bundle_pull import _grips, _minimised_start, _free_shifts
+    from upscale.experiments.scenes.bundle_thermostat import represented_weights
+
+    scene = _mixed()
+    start = _minimised_start(scene, 1.0, 0.0, 1e-2, 5)
+    grips, free, zb, sep0 = _grips(scene, start["y"], start["hold"], 15.0, 1.0)
+    w, ndf, per = represented_weights(scene, start["sim"].state, free, _free_shifts(scene, grips),
+                                      (zb, zb + sep0))
+    rows0 = scene.assembly.rows("tube1")
+    assert np.all(w[rows0] == 1.0) and per[0][0] == per[0][1] == 2 * int(free[rows0].sum())
+    bm = scene.coarse_models()[0][1]
+    z = bm.model.atom_positions(bm.sub(start["sim"].state))[:, 2]
+    assert per[1][1] == 2 * int(((z > zb) & (z < zb + sep0)).sum())
+    assert per[1][1] > per[1][0]          # the coarse tube stands for more dofs than it has
+    assert ndf == per[0][1] + per[1][1]
+    r = dynamic_tension(scene, max_strain=0.006, progress=False, sample_every=50)
+    assert "represented atoms" in r["protocol_detail"]["thermostat"]

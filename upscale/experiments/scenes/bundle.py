@@ -20,6 +20,15 @@ tube and up to six around it) on the engine as its own body (:mod:`upscale.engin
 * ``dcbr-defect``: the same model (the name of the old vacancy tube; the new model finds a
   vacancy in the tube's atoms itself).
 
+A coarse tube is built of its whole cells that reach at least ``grip_keep`` Å (default
+:data:`GRIP_KEEP_A`, the vdW cutoff and 2 Å) beyond each grip plane, not of all of them:
+the material deeper in a grip moves rigidly with it and meets only the other tubes' rigid
+grips (pair forces constant in time, equal and opposite, so the bundle's stress is
+unchanged; a tube's own reading keeps a constant offset), while every free atom of every
+tube still sees all its neighbours within the cutoff. The coarse tube then has about half
+its particles and no separate atomistic region at its open ends (the end's region joins
+the grip's band).
+
 The tubes interact through ``tube-vdw`` (:mod:`upscale.models.tube_vdw`): the LAMMPS
 references' 12-6 Lennard-Jones (``lj/cut``, eps = 2.84 meV, sigma = 3.4 Å, cut at
 10.2 Å) between the atoms of different tubes, a coarse tube's atoms reconstructed from its
@@ -51,8 +60,12 @@ Dynamic tension (the LAMMPS references' protocol, ``upscale.experiments.lammps.t
    thermostat holds each tube at the temperature because its tubes are alike; the tubes
    of a mixed bundle are not (a coarse tube's x, y motion carries a breathing
    oscillation, its shifts take up heat), so one thermostat holds only their mean and
-   the atomistic tube runs colder than the others; multiple time stepping (r-RESPA,
-   ``integrator="respa"``, the default: 5 inner steps of 1 fs) or velocity Verlet at 1 fs;
+   the atomistic tube runs colder than the others; the one thermostat's temperature is
+   that of the atoms the rows stand for (each coarse tube's kinetic energy weighted by
+   its atoms' dofs over its explicit ones, :mod:`~upscale.experiments.scenes.
+   bundle_thermostat`), so a crack's heat drives it as it drives the references';
+   multiple time stepping (r-RESPA, ``integrator="respa"``, the default: 5 inner steps of
+   1 fs) or velocity Verlet at 1 fs;
 3. strain = grip separation change / initial gauge (the grip planes' distance); the stress
    of tube k is the mean of its two grips' reactions over its wall area 2 pi R t (t = 3.4 Å,
    R the mean radius of the central tube after the minimisation), the bundle stress the
@@ -79,7 +92,7 @@ from upscale.models.dcbr.model import FIELD
 
 __all__ = ["TubeSpec", "BundleScene", "TUBE_MODELS", "zero_stress_ratios", "add_run_options",
            "parse_specs", "reference_name", "particle_rows", "INTEGRATOR", "INNER",
-           "COARSE_PAIRS", "SEED"]
+           "COARSE_PAIRS", "SEED", "GRIP_KEEP_A"]
 
 TUBE_MODELS = ("tersoff", "dcbr", "dcbr-defect")
 LJ_EPSILON_EV, LJ_SIGMA_A = 2.84e-3, 3.4   # the references' pair (Girifalco et al. 2000)
@@ -102,6 +115,9 @@ INNER = 5
 COARSE_PAIRS = "atoms"
 #: the thermal seed (the LAMMPS references' default seed number)
 SEED = 4928459
+#: material kept beyond each grip plane of a coarse tube, Å (module docstring): the vdW
+#: cutoff (10.2 Å) and 2 Å
+GRIP_KEEP_A = LJ_CUTOFF_A + 2.0
 
 
 @dataclasses.dataclass
@@ -197,7 +213,8 @@ class BundleScene:
                ratios: dict | None = None, centres=None, allow_overlap: bool = False,
                epsilon: float = LJ_EPSILON_EV, sigma: float = LJ_SIGMA_A,
                rc: float = LJ_CUTOFF_A, vdw_every: int = 1,
-               coarse_pairs: str = COARSE_PAIRS) -> "BundleScene":
+               coarse_pairs: str = COARSE_PAIRS,
+               grip_keep: float | None = GRIP_KEEP_A) -> "BundleScene":
         """A bundle of ``len(specs)`` (n, m) tubes of ``length`` Å.
 
         ``specs``: one :class:`TubeSpec` (or model name) per tube, the central tube first
@@ -212,10 +229,16 @@ class BundleScene:
         (:class:`~upscale.models.tube_vdw.TubeVdW` ``every``); ``coarse_pairs``:
         ``"atoms"`` (default, :data:`COARSE_PAIRS`) or ``"sites"`` (two coarse tubes
         interact through their particles as lumped sites, the cheaper integrated form; an
-        atomistic tube always sees a coarse tube's reconstructed atoms).
+        atomistic tube always sees a coarse tube's reconstructed atoms); ``grip_keep``: a
+        coarse tube's whole cells kept beyond each grip plane, at least this many Å
+        (module docstring; None: the whole tube, as for comparing the vdW at rest with an
+        all-atomistic bundle).
         """
         if coarse_pairs not in ("atoms", "sites"):
             raise ValueError(f"coarse_pairs={coarse_pairs!r}; valid: 'atoms' or 'sites'")
+        if grip_keep is not None and not (np.isfinite(grip_keep) and grip_keep >= rc):
+            raise ValueError(f"grip_keep={grip_keep!r} Å; valid: None (whole tubes) or at "
+                             f"least the vdW cutoff, {rc:g} Å")
         from upscale.build import bundle, chirality as check_chirality, vacancy
 
         n, m = chirality
@@ -283,7 +306,8 @@ class BundleScene:
                                    None, [TersoffModel()], name=name))
             else:
                 sel = built.arrays["mol-id"] == k + 1
-                em, st = _coarse_tube(built[sel], s, grip, z_mid, prepared)
+                tube = _trimmed(built[sel], grip, grip_keep)
+                em, st = _coarse_tube(tube, s, tube.info["grip_A"], z_mid, prepared)
                 coarse[k] = (em, st)
                 bodies.append(Body(ParticleSystem(st["y"], 1.0, density=em.masses(),
                                                   spacing=em.tube.bond, units="atomic"),
@@ -310,6 +334,7 @@ class BundleScene:
                 "ratios": ratios, "grip_A": grip, "vacancy_tube": vacancy_tube,
                 "tubes": [dataclasses.asdict(s) for s in specs],
                 "vdw_every": int(vdw_every), "coarse_pairs": coarse_pairs,
+                "grip_keep_A": grip_keep,
                 "n_atoms": len(atoms), "atoms_per_tube": np.bincount(mol)[1:].tolist()}
         scene = cls(atoms, specs, bodies, assembly, vdw, maps, info)
         scene.coarse = coarse
@@ -453,9 +478,31 @@ def _atoms_per_row(model):
     return np.r_[np.asarray(model.tube.natoms_n, dtype=float)[c.dof_idx], np.ones(c.nf)]
 
 
+def _trimmed(tube_atoms, grip, keep):
+    """One tube of :func:`upscale.build.bundle` (whole cells from z = 0, ``info``
+    ``unit_cell_length`` and ``length``) without the whole cells lying more than ``keep`` Å
+    beyond its grip planes (``grip`` Å inside its ends); ``keep`` None: the tube itself.
+    ``info["grip_A"]``: the grip of the trimmed tube (its planes where the whole tube's
+    were)."""
+    out = tube_atoms.copy()
+    out.info["grip_A"] = float(grip)
+    if keep is None:
+        return out
+    T = float(tube_atoms.info["unit_cell_length"])
+    cut = int(math.floor((grip - keep) / T + 1e-9))
+    if cut <= 0:
+        return out
+    z = tube_atoms.positions[:, 2]
+    L = float(tube_atoms.info["length"])
+    out = tube_atoms[(z >= cut * T - 1e-6) & (z < L - cut * T - 1e-6)]
+    out.info["grip_A"] = float(grip - cut * T)
+    return out
+
+
 def _coarse_tube(tube_atoms, spec, grip, z_mid, prepared):
     """A coarse tube of the bundle: :class:`~upscale.models.dcbr.model.DCBRModel` of
-    ``tube_atoms`` (one tube of :func:`upscale.build.bundle` as built, opened), set up by
+    ``tube_atoms`` (one tube of :func:`upscale.build.bundle` as built, :func:`_trimmed`,
+    opened), set up by
     :func:`~upscale.experiments.scenes.tube_coarse_pull.setup_open_tube` (bands across the
     grip planes, regions at its defects, relaxed open), its atoms' axial middle moved to
     ``z_mid`` (the atomistic centre tube's). Returns (the model with inertial shifts, the

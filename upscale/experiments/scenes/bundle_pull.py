@@ -75,7 +75,8 @@ def dynamic_tension(scene, *, grip: float | None = None, speed: float = 1.0,
                          f"(one every {per_sample:.3g} strain); valid: max_strain >= "
                          f"{1.5 * per_sample:.3g}, or a smaller sample_every")
     thermo, tau_tube = _thermostat(scene, grips, free, temperature, tdamp_ps, thermostat,
-                                   chain, per_tube_damping_ps)
+                                   chain, per_tube_damping_ps, start["sim"].state,
+                                   (zb, zb + sep0))
     sim = _simulation(scene, start["sim"], y, grips, free, zb, sep0, speed, dt_fs,
                       temperature, seed, thermo, integrator, per)
     spec = _BundlePull(scene, sim, grips, free, per, sample_every, speed, dt_fs,
@@ -136,7 +137,8 @@ def _detail(grip, speed, dt_fs, temperature, integ_name, per, chain, tdamp_ps, t
             "outer_step_fs": dt_fs * per,
             "thermostat": f"Nose-Hoover chain of {chain} on the free part's vx, vy, damping "
                           f"{tdamp_ps} ps" + (f", one per tube (damping {tau_tube:.4g} ps)"
-                                              if thermostat == "per-tube" else ""),
+                                              if thermostat == "per-tube" else
+                                              ", on the represented atoms' temperature"),
             "seed": seed, "gauge_length_A": sep0, "sample_every_steps": sample_every,
             "minimisation": None if res_min is None else {
                 "converged": bool(res_min.converged), "fmax": float(res_min.fmax),
@@ -244,10 +246,13 @@ def _free_shifts(scene, grips) -> dict:
             for k, held in _held_shifts(scene, grips).items()}
 
 
-def _thermostat(scene, grips, free, temperature, tdamp_ps, thermostat, chain, per_tube_ps):
+def _thermostat(scene, grips, free, temperature, tdamp_ps, thermostat, chain, per_tube_ps,
+                state, planes):
     """Step 2's Nose-Hoover chain on the free part's x, y velocities and the coarse tubes'
-    free shifts (one for the bundle, or one per tube); (thermostat or None, per-tube
-    damping in ps)."""
+    free shifts: one for the bundle on the temperature of the atoms the rows stand for
+    (:mod:`upscale.experiments.scenes.bundle_thermostat`; the coarse tubes' atoms counted
+    at ``state`` between the grip ``planes``), or one per tube on its own rows;
+    (thermostat or None, per-tube damping in ps)."""
     if not temperature > 0:
         return None, tdamp_ps
     from upscale.engine.thermostats import NoseHooverChain, ThermostatGroup
@@ -258,15 +263,15 @@ def _thermostat(scene, grips, free, temperature, tdamp_ps, thermostat, chain, pe
     coarse_of = {k: bm for k, bm, _ in scene.coarse_models()}
     nshift = {k: len(r) for k, r in _free_shifts(scene, grips).items()}
     if thermostat == "bundle":
-        ndf = 2 * int(free.sum()) + sum(3 * v for v in nshift.values())
+        from upscale.experiments.scenes.bundle_thermostat import chain as represented
+
         frows = np.zeros(n, bool)
         for k in coarse_of:
             frows[tubes[k]] = True
         fields = tuple(f"{scene.bodies[k].name}/{_FIELD}" for k in coarse_of)
-        return NoseHooverChain(temperature, 1e3 * tdamp_ps, region=free, chain=chain,
-                               components=(0, 1), fields=fields,
-                               field_region=frows if fields else None, ndf=ndf,
-                               k_B=K_B_EV), tdamp_ps
+        return represented(scene, state, free, _free_shifts(scene, grips), planes,
+                           temperature, 1e3 * tdamp_ps, chain, fields,
+                           frows if fields else None), tdamp_ps
     tau = tdamp_ps * math.sqrt(len(tubes)) if per_tube_ps is None else float(per_tube_ps)
     members = []
     for k, rows in enumerate(tubes):
