@@ -5,9 +5,9 @@ The LAMMPS references thermostat every free atom of the seven tubes with one ``f
 on their x, y velocities (``compute temp/partial 1 1 0``): its temperature is the mean
 over 2 n_free dofs of seven alike tubes. A coarse tube carries the same atoms on fewer
 explicit dofs (its free particle rows and atoms, x and y, and its particles' free shifts),
-so the chain counting them as they are has about 0.6 of the reference's N_f, and the heat
+so the chain counting them as they are has about 0.63 of the reference's N_f, and the heat
 a crack releases in the atomistic tube raises the thermostat's temperature, hence the
-friction that follows, d p_1/dt = (T/T_0 - 1) / tau^2, 1.7 times as much as in LAMMPS
+friction that follows, d p_1/dt = (T/T_0 - 1) / tau^2, 1.6 times as much as in LAMMPS
 (a slower, more damped collapse of the crack). Here each tube k's kinetic energy counts
 with the weight
 
