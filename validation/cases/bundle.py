@@ -190,7 +190,8 @@ def _pct(a, b):
 def run_bundle_tension(args):
     import os
 
-    from upscale.experiments.scenes.bundle import BundleScene, parse_specs, plot_curves, plot_damage_maps
+    from upscale.experiments.scenes.bundle import BundleScene, parse_specs
+    from upscale.experiments.scenes.bundle_plots import plot_curves, plot_damage_maps
     from upscale.experiments.scenes.bundle_pull import dynamic_tension, tube_failures
     from upscale.io import write_json
 
