@@ -16,14 +16,15 @@ solve with ``resume=True``).
 The ``dcbr`` run is the periodic coarse tube on the engine
 (:class:`upscale.models.dcbr.DCBRTubeModel`): (10,10), 25 Å, coarsening 2, its cell
 stretched at a constant strain rate, velocity Verlet with a Nose-Hoover chain at 10 K,
-links breaking by the tube's failure rules. The ``dcbr-vacancy`` run is the dynamic pull
-of the open tube with the seed's 4-atom vacancy on DCBRModel
-(:func:`upscale.experiments.scenes.tube_coarse_pull.coarse_dynamic_tension`, atomistic bands
-across the grip planes, the vacancy's region found from the atoms), to failure, its region
-growing where a coarse link passes 0.9 of the link rule (each growth moves the run to a new
-simulation, which a checkpoint after it resumes): ``--tube scene``, the (10,10) 150 Å
-coarsening-2 tube of ``dcbr-seeds`` (10 K, seed 1000); ``--tube small``, a (6,6) 80 Å tube
-with 15 Å grips at 10 Å/ps (:data:`VACANCY_RUNS`).
+links breaking by the tube's failure rules. The ``dcbr-vacancy`` run is the dynamic
+tension of the open vacancy tube on the engine
+(:func:`upscale.experiments.scenes.dcbr_dynamic.dynamic_tension` with ``engine=True``): ``--tube
+scene``, the (10,10) 150 Å coarsening-2 tube of ``dcbr-seeds`` (clamped grips on LAMMPS's
+planes, 10 K, seed 1000) pulled to failure; ``--tube small``, a (6,6) 60 Å tube with 10 Å
+grips at 10 Å/ps, to failure (the atomistic region's bonds break, the ghost-force
+correction is refreshed every sample); ``--tube small-grow``, the same tube starting with a
+disc about the vacancy that grows to the band when the crack starts (``grow``: the run
+moves to a second simulation, which a checkpoint after the switch resumes).
 """
 from __future__ import annotations
 
@@ -148,40 +149,46 @@ def _dcbr(args) -> int:
     return 0
 
 
-#: the dcbr-vacancy runs' tubes and pulls (:func:`coarse_dynamic_tension` keywords): the
-#: seed's 4-atom vacancy; ``grow`` 0.9 of the link rule, so the region grows during the run
-VACANCY_RUNS = {
-    "small": dict(chirality=(6, 6), length=80.0, grip=15.0, r_atomistic=5.0, speed=10.0,
-                  sample=25, seed=3, grow=0.9),
-    "scene": dict(chirality=(10, 10), length=150.0, seed=1000, grow=0.9),
-}
-
-
 def _dcbr_vacancy(args) -> int:
     import json
 
-    from upscale.build import swcnt, vacancy
     from upscale.engine.kernels import set_threads
-    from upscale.experiments.scenes.tube_coarse_pull import coarse_dynamic_tension
     from upscale.io import NumpyJSON, atomic_write_bytes
+    from upscale.experiments.scenes.dcbr_dynamic import dynamic_tension
 
     set_threads(args.threads)
     if args.kill_at:
         _patch_vv_kill(args.kill_at)
-    kw = dict(VACANCY_RUNS[args.tube])
-    atoms = vacancy(swcnt(*kw.pop("chirality"), length=kw.pop("length")), n=4)
+    if args.tube in ("small", "small-grow"):
+        from upscale.models.dcbr_defect import DCBRDefectTube
+
+        if args.tube == "small":
+            model = DCBRDefectTube(6, 6, 60.0, coarsening=2.0, vacancy=4, r_atomistic=5.0)
+            dyn = {}
+        else:
+            model = DCBRDefectTube(6, 6, 60.0, coarsening=2.0, vacancy=4, r_atomistic=4.0,
+                                   region="disc")
+            dyn = {"grow": DCBRDefectTube(6, 6, 60.0, coarsening=2.0, vacancy=4,
+                                          r_atomistic=5.0)}
+        dyn |= dict(grip=10.0, speed=10.0, max_strain=0.3, sample=20, seed=7)
+    else:
+        from upscale.experiments.lammps.cache import cache_dir
+        from upscale.experiments.scenes.tube_tension import dynamic_scene, lammps_reference
+
+        ref = lammps_reference(10, 10, 150.0, protocol="dynamic", vacancy=True, progress=False,
+                               cache_dir=cache_dir("references"))
+        model, dyn = dynamic_scene(10, 10, 150.0, 2.0, ref)
+        dyn.pop("grips")
+        dyn["seed"] = 1000
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    r = coarse_dynamic_tension(atoms, 2.0, checkpoint=out / "checkpoint.npz",
-                               checkpoint_every=args.checkpoint_every, resume=args.resume, **kw)
-    keep = {k: r.get(k) for k in ("steps", "strength_GPa", "youngs_modulus_TPa",
-                                  "strain_at_peak", "first_damage", "crack", "curve",
-                                  "switches", "damage")}
-    keep["broken_links"] = int(np.sum(r["curve"]["links_broken"]))
-    keep["grown_at"] = r["switches"][0] if r["switches"] else None
+    r = dynamic_tension(model, checkpoint=out / "checkpoint.npz",
+                        checkpoint_every=args.checkpoint_every, resume=args.resume, **dyn)
+    keep = {k: r[k] for k in ("steps", "strength_GPa", "youngs_modulus_TPa", "strain_at_peak",
+                              "first_damage", "curve", "grown_at", "region_free_atoms")}
+    keep["broken_links"] = int((~dyn.get("grow", model).intact).sum())
     atomic_write_bytes(out / "result.json", json.dumps(keep, cls=NumpyJSON).encode())
-    print(keep["broken_links"], "broken links", r["steps"], "steps", len(r["switches"]),
-          "switches", flush=True)
+    print(keep["broken_links"], "broken links", r["steps"], "steps", flush=True)
     return 0
 
 
@@ -320,8 +327,6 @@ def dcbr_vacancy_kill_resume(workdir, *, tube: str = "small", every: int = 50,
     _check(_run(["dcbr-vacancy", str(w / "full"), *common], threads))
     ja = json.loads((w / "full" / "result.json").read_text())
     steps = int(ja["steps"])
-    if after_growth and ja.get("grown_at") is None:
-        raise RuntimeError(f"after_growth: the {tube!r} run's region did not grow")
     if kill_at is None:  # (after_growth: after the step at which the region grew)
         lo = int(ja["grown_at"]["step"]) + 1 if after_growth else every + 1
         kill_at = int(np.random.default_rng(seed).integers(lo, steps))
@@ -370,9 +375,10 @@ def main(argv=None) -> int:
     p.add_argument("--strain-rate", type=float, default=1e-3, help="dcbr: per fs")
     p.add_argument("--dx", type=float, default=2e-3, help="cpd: spacing (m)")
     p.add_argument("--strain", type=float, default=0.05, help="cpd: nominal strain of the load")
-    p.add_argument("--tube", choices=tuple(VACANCY_RUNS), default="small",
-                   help="dcbr-vacancy: a (6,6) 80 Å tube at 10 Å/ps or the (10,10) 150 Å "
-                        "K2 tube of dcbr-seeds (both: the region grows)")
+    p.add_argument("--tube", choices=("small", "small-grow", "scene"), default="small",
+                   help="dcbr-vacancy: a (6,6) 60 Å tube (small-grow: its disc region "
+                        "grows to the band when the crack starts) or the (10,10) 150 Å K2 "
+                        "seed scene")
     args = p.parse_args(argv)
     if args.steps is None:
         args.steps = 8 if args.scene == "cpd" else 300

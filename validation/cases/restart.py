@@ -4,11 +4,10 @@ runs end (:mod:`upscale.experiments.kill_resume`).
 The runs: the pre-cracked plate (``upscale plate``, PMB, velocity Verlet with bond
 failure), the CPD bar's Newton solve (load steps), the periodic DCBR tube's dynamic
 tension on the engine (Nose-Hoover chain, links breaking) and the DCBR *vacancy* tube's
-dynamic pull on DCBRModel (:func:`upscale.experiments.scenes.tube_coarse_pull.
-coarse_dynamic_tension`, the (10,10) 150 Å coarsening-2 tube of ``dcbr-seeds`` pulled to
-failure; ``--quick``: a (6,6) 80 Å tube at 10 Å/ps), its region growing where a coarse
-link passes 0.9 of the link rule, killed after the first growth, ``dcbr_bit_identical``. The
-reference of each is the same run uninterrupted, in its own process.
+dynamic tension on the engine (:func:`upscale.experiments.scenes.dcbr_dynamic.dynamic_tension`,
+the (10,10) 150 Å coarsening-2 tube of ``dcbr-seeds`` pulled to failure;
+``--quick``: a (6,6) 60 Å tube), ``dcbr_bit_identical``. The reference of each is the same
+run uninterrupted, in its own process.
 """
 from __future__ import annotations
 
@@ -53,10 +52,10 @@ def _restart_exact(args):
     dcbr = dcbr_kill_resume(work / "dcbr", steps=150, every=20, strain_rate=2e-3,
                             threads=args.threads, seed=args.seed)
     tube = "small" if q else "scene"
-    print(f"DCBR vacancy tube ({'(6,6) 80 Å' if q else '(10,10) 150 Å K2'}), dynamic tension on "
+    print(f"DCBR vacancy tube ({'(6,6) 60 Å' if q else '(10,10) 150 Å K2'}), dynamic tension on "
           "the engine", flush=True)
     vac = dcbr_vacancy_kill_resume(work / "dcbr-vacancy", tube=tube, every=50 if q else 200,
-                                   threads=args.threads, seed=args.seed, after_growth=True)
+                                   threads=args.threads, seed=args.seed)
     return {"plate_bit_identical": plate["bit_identical"], "cpd_bit_identical": cpd["bit_identical"],
             "dcbr_bit_identical": vac["bit_identical"], "dcbr_vacancy": vac,
             "dcbr_periodic_engine_bit_identical": dcbr["bit_identical"], "dcbr_periodic": dcbr,
