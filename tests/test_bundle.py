@@ -153,7 +153,7 @@ def test_mixed_bundle_vdw_and_chain_rule():
     the vdW's generalised forces on its rows and shifts are minus the energy's gradient
     (the chain rule through the coarse tube's map, DCBRModel.atom_forces)."""
     mixed = BundleScene.create((10, 10), 60.0, [TubeSpec("tersoff"), TubeSpec("dcbr", 2.0)],
-                               ratios=RATIOS, grip=15.0, grip_keep=None)
+                               ratios=RATIOS, grip=15.0)
     atom = BundleScene.create((10, 10), 60.0, [TubeSpec("tersoff")] * 2, ratios=RATIOS,
                               grip=15.0)
     sm, sa = mixed.state_at_rest(), atom.state_at_rest()
@@ -198,7 +198,7 @@ def test_defect_centre_among_atomistic_tubes():
     for vac, tol in ((None, 0.01), (0, 0.03)):
         mixed = BundleScene.create((10, 10), 60.0, [TubeSpec("dcbr-defect", 2.0),
                                                     TubeSpec("tersoff")], ratios=RATIOS,
-                                   grip=15.0, vacancy_tube=vac, grip_keep=None)
+                                   grip=15.0, vacancy_tube=vac)
         atom = BundleScene.create((10, 10), 60.0, [TubeSpec("tersoff")] * 2, ratios=RATIOS,
                                   grip=15.0, vacancy_tube=vac)
         em = mixed.vdw.energy(mixed.state_at_rest())

@@ -130,6 +130,7 @@ def test_one_default_per_setting():
             assert create[name].default == want, name
     assert scene["settle"].default == dyn["settle_ps"].default == case["settle"] == 0.0
     assert scene["seed"].default == dyn["seed"].default == 4928459
+    assert create["grip_keep"].default is None   # whole coarse tubes (trimming is opt-in)
 
 
 def test_documented_signature():

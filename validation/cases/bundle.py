@@ -84,12 +84,9 @@ def run_bundle_vdw(args):
            "vdw_energy_eV": e_vdw, "wall_s_engine": t_ours, "wall_s_lammps": t_lmp}
     # the mixed bundle: the outer tubes coarse, atoms reconstructed from their particles
     # on the validated setting the bundle's tension runs use (COARSE_PAIRS)
-    # (whole coarse tubes: the same atoms as the all-atomistic bundle's; the tension runs
-    # drop the rigid grips' far cells, which changes the vdW at rest but not its dynamics)
     mixed = BundleScene.create((n, m), args.length,
                                [TubeSpec("tersoff")] + [TubeSpec("dcbr", args.coarsening)] * 6,
-                               spacing=args.spacing, vacancy_tube=0, coarse_pairs=COARSE_PAIRS,
-                               grip_keep=None)
+                               spacing=args.spacing, vacancy_tube=0, coarse_pairs=COARSE_PAIRS)
     sm = mixed.state_at_rest()
     e_mixed = mixed.vdw.energy(sm)
     between_mixed = mixed.vdw.energy_between(sm)

@@ -20,14 +20,15 @@ tube and up to six around it) on the engine as its own body (:mod:`upscale.engin
 * ``dcbr-defect``: the same model (the name of the old vacancy tube; the new model finds a
   vacancy in the tube's atoms itself).
 
-A coarse tube is built of its whole cells that reach at least ``grip_keep`` Å (default
-:data:`GRIP_KEEP_A`, the vdW cutoff and 2 Å) beyond each grip plane, not of all of them:
-the material deeper in a grip moves rigidly with it and meets only the other tubes' rigid
-grips (pair forces constant in time, equal and opposite, so the bundle's stress is
-unchanged; a tube's own reading keeps a constant offset), while every free atom of every
-tube still sees all its neighbours within the cutoff. The coarse tube then has about half
-its particles and no separate atomistic region at its open ends (the end's region joins
-the grip's band).
+Optionally (``grip_keep``, e.g. :data:`GRIP_KEEP_A`, the vdW cutoff and 2 Å; default
+None: whole tubes, the validated setting) a coarse tube is built of only its whole cells
+that reach at least ``grip_keep`` Å beyond each grip plane: the material deeper in a grip
+moves rigidly with it and meets only the other tubes' rigid grips during the pull, and
+every free atom still sees all its neighbours within the cutoff; the coarse tube has
+about half its particles and no separate atomistic region at its open ends. Not the
+default: in the set-up minimisation the atomistic tube's grip ends, which then reach past
+the coarse tubes' ends, feel those ends' van der Waals pull, so the gauge starts 0.08 Å
+shorter on (10,10) and the early response is softer (bundle-tension).
 
 The tubes interact through ``tube-vdw`` (:mod:`upscale.models.tube_vdw`): the LAMMPS
 references' 12-6 Lennard-Jones (``lj/cut``, eps = 2.84 meV, sigma = 3.4 Å, cut at
@@ -114,8 +115,8 @@ INNER = 5
 COARSE_PAIRS = "atoms"
 #: the thermal seed (the LAMMPS references' default seed number)
 SEED = 4928459
-#: material kept beyond each grip plane of a coarse tube, Å (module docstring): the vdW
-#: cutoff (10.2 Å) and 2 Å
+#: material kept beyond each grip plane of a coarse tube with the optional trimming, Å
+#: (module docstring): the vdW cutoff (10.2 Å) and 2 Å
 GRIP_KEEP_A = LJ_CUTOFF_A + 2.0
 
 
@@ -213,7 +214,7 @@ class BundleScene:
                epsilon: float = LJ_EPSILON_EV, sigma: float = LJ_SIGMA_A,
                rc: float = LJ_CUTOFF_A, vdw_every: int = 1,
                coarse_pairs: str = COARSE_PAIRS,
-               grip_keep: float | None = GRIP_KEEP_A) -> "BundleScene":
+               grip_keep: float | None = None) -> "BundleScene":
         """A bundle of ``len(specs)`` (n, m) tubes of ``length`` Å.
 
         ``specs``: one :class:`TubeSpec` (or model name) per tube, the central tube first
@@ -230,8 +231,7 @@ class BundleScene:
         interact through their particles as lumped sites, the cheaper integrated form; an
         atomistic tube always sees a coarse tube's reconstructed atoms); ``grip_keep``: a
         coarse tube's whole cells kept beyond each grip plane, at least this many Å
-        (module docstring; None: the whole tube, as for comparing the vdW at rest with an
-        all-atomistic bundle).
+        (module docstring; None, the default: the whole tube).
         """
         if coarse_pairs not in ("atoms", "sites"):
             raise ValueError(f"coarse_pairs={coarse_pairs!r}; valid: 'atoms' or 'sites'")
