@@ -4,7 +4,8 @@ The rule that decides the strength of a perfect tube (seed 004 sec. 5.3; the pho
 instability by which a perfect lattice fails under load, cf. E & Ming 2007): the smallest
 periodic piece of the ideal (n, m) tube at least twice the potential's cutoff long (no atom
 meets its own image twice) is mapped by the cylindrical map of a particle's
-q = (lam_t, gam, lam_z, d_rho, d_s, d_z) (gam set to 0: a twist is not periodic); its
+q = (lam_t, gam, lam_z, d_rho, d_s, d_z) (gam set to 0: a twist is not periodic; the
+shift moves the piece's B atoms against its A atoms, labelled as the cell's); its
 Hessian at fixed cell (central differences of the analytic Tersoff gradient, step 1e-4 Å,
 only the site energies an atom's move changes) is projected off the four zero modes (three
 translations, the turn about the axis). The lattice is unstable when an eigenvalue is below
@@ -27,6 +28,7 @@ import numpy as np
 from numba import njit
 
 from potentials import tersoff_kernels as tk
+from upscale.models.dcbr.cell import TubeCell
 from upscale.models.dcbr.kernels import site_energy_grad
 
 __all__ = ["LatticeStability", "check_stability", "piece_hessian"]
@@ -103,6 +105,34 @@ def _sublattice(x, Lz, bond):
     return sub
 
 
+def _oriented(sub, x, Lz, bond, cell):
+    """``sub`` relabelled, if need be, so that sublattice 0 is the cell's A (the sublattice
+    the shift of q moves B against): the bonds of the piece's first atom of sublattice 0,
+    in the unrolled (R0 dtheta, dz) plane, are the cell's A0 bonds, not their negatives (a B
+    atom's). The 2-colouring starts from the piece's first atom, whose sublattice depends on
+    how ASE orders the (n, m) tube; a swapped labelling maps the piece with the shift
+    reversed, off its equilibrium, and its Hessian there can be negative on a stable
+    lattice."""
+    vA = np.column_stack([cell.s_p[cell.bondsA] - cell.s_p[cell.iA],
+                          cell.z_p[cell.bondsA] - cell.z_p[cell.iA]])
+    a = int(np.flatnonzero(sub == 0)[0])
+    th = np.arctan2(x[:, 1], x[:, 0])
+    d = x - x[a]
+    d[:, 2] -= Lz * np.round(d[:, 2] / Lz)
+    nb = (np.linalg.norm(d, axis=1) > 0.1) & (np.linalg.norm(d, axis=1) < 1.1 * bond)
+    R0 = float(np.hypot(x[:, 0], x[:, 1]).mean())
+    v = np.column_stack([R0 * ((th[nb] - th[a] + np.pi) % (2 * np.pi) - np.pi), d[nb, 2]])
+
+    def miss(V):
+        return float(np.max(np.min(np.linalg.norm(V[:, None] - v[None], axis=2), axis=1)))
+
+    same, swapped = miss(vA), miss(-vA)
+    if min(same, swapped) > 0.1 * bond:
+        raise RuntimeError(f"the stability piece's bonds match neither sublattice of the "
+                           f"({cell.n}, {cell.m}) cell (off by {min(same, swapped):.3f} Å)")
+    return sub if same <= swapped else 1.0 - sub
+
+
 class LatticeStability:
     """Stability of the ideal (n, m) tube lattice mapped uniformly by q (module docstring).
 
@@ -128,7 +158,8 @@ class LatticeStability:
         self.Lz = ncell * ch.cell_length
         self.R0 = float(np.hypot(x[:, 0], x[:, 1]).mean())
         self.theta, self.z = np.arctan2(x[:, 1], x[:, 0]), x[:, 2]
-        self.sub = _sublattice(x, self.Lz, bond)
+        self.sub = _oriented(_sublattice(x, self.Lz, bond), x, self.Lz, bond,
+                             TubeCell.build(n, m, bond))
         nat = len(x)
         self.owner = np.concatenate([np.arange(nat)] * 3).astype(np.int64)
         self.img = np.concatenate([np.zeros(nat), -np.ones(nat), np.ones(nat)])
