@@ -399,6 +399,20 @@ def take_rows(a_nc, rows_i):
 
 
 @njit(cache=True)
+def same_rows(c_ic, a_nc, rows_i):
+    """Whether c == a[rows] everywhere (:func:`take_rows` then :func:`same`, without the
+    copy)."""
+    if c_ic.shape[0] != rows_i.shape[0]:
+        return False
+    for i in range(rows_i.shape[0]):
+        r = rows_i[i]
+        if not (c_ic[i, 0] == a_nc[r, 0] and c_ic[i, 1] == a_nc[r, 1]
+                and c_ic[i, 2] == a_nc[r, 2]):
+            return False
+    return True
+
+
+@njit(cache=True)
 def sub_rows(out_nc, rows_i, g_ic):
     """out[rows] -= g (rows distinct)."""
     for i in range(rows_i.shape[0]):

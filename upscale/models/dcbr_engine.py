@@ -175,6 +175,7 @@ class DCBRDefectTubeModel:
         self._ghost_version = 0
         self._map = None
         self._synced = None
+        self._nl_seen = (None, None)  # the Verlet reference last copied into the state
         self._static = False  # the shifts a minimiser's internal field (static_shifts)
         self.system_ = None
 
@@ -353,19 +354,26 @@ class DCBRDefectTubeModel:
                 and c[2].shape == d.shape and CK.same(c[1], y) and CK.same(c[2], d))
 
     def _evaluate(self, state):
+        """(E, dE/dy, dE/d delta, dE/dLz) at ``state``, from the cache while the links and
+        the state's unknowns and shifts are those it was computed at (an energy, the forces
+        and the shift gradient of one minimiser evaluation are one computation)."""
         self._sync(state)
-        y, d = self.unknowns(state)
         c = self._cache
-        if self._is_current(c, y, d):
+        d = state.fields[FIELD][:self.N]
+        if (c is not None and c[0] == self._version and c[2].shape == d.shape
+                and CK.same_rows(c[1], state.y, self.y_rows) and CK.same(c[2], d)):
             return c[3]
+        y = CK.take_rows(state.y, self.y_rows)
         t = self.tube
         E, gy, gd, dL = t.energy_and_gradient(y, d, self.Lz)
         ex = state.extra
         if "dcbr.fs_last" in ex:
             ex["dcbr.fs_last"][...] = t.last_maps
-            ref = t.neighbour_reference
-            if ref is not None and not np.array_equal(ref, ex["dcbr.nl_x"]):
-                ex["dcbr.nl_x"][...] = ref
+            ref, held = t.neighbour_reference, ex["dcbr.nl_x"]
+            # a rebuilt Verlet list is a new array: copied into the state once
+            if ref is not None and (ref is not self._nl_seen[0] or held is not self._nl_seen[1]):
+                held[...] = ref
+                self._nl_seen = (ref, held)
         out = (float(E), gy, gd, float(dL))
         self._cache = (self._version, y, np.array(d, copy=True), out)
         return out
