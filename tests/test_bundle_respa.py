@@ -154,15 +154,14 @@ def test_thermostat_group_holds_each_region_where_one_holds_only_the_mean():
     assert out["one"][0] > 3.0 * out["one"][1]  # (measured: 1.87 and 0.47)
 
 
-def test_represented_chain_weights_the_kinetic_energy_and_is_the_chain_at_unit_weights():
-    """The bundle's thermostat (bundle_thermostat): its temperature is eq. (2), the
-    weighted kinetic energy over the represented dofs; with unit weights and the explicit
-    N_f it is the engine's Nose-Hoover chain step for step."""
+def test_weighted_chain_weights_the_kinetic_energy_and_is_the_chain_at_unit_weights():
+    """The bundle's thermostat (bundle_thermostat, the chain's ``weights``): its
+    temperature is eq. (2), the weighted kinetic energy over the represented dofs; with unit
+    weights and the explicit N_f it is the unweighted chain step for step."""
     from upscale.engine.integrators import VelocityVerlet
     from upscale.engine.simulation import Simulation
     from upscale.engine.system import ParticleSystem
     from upscale.engine.thermostats import NoseHooverChain
-    from upscale.experiments.scenes.bundle_thermostat import RepresentedChain
 
     n = 60
     rng = np.random.default_rng(5)
@@ -173,8 +172,8 @@ def test_represented_chain_weights_the_kinetic_energy_and_is_the_chain_at_unit_w
     v0[half] *= 3.0
     ends = []
     for th in (NoseHooverChain(1.0, 2.0, components=(0, 1), k_B=1.0),
-               RepresentedChain(1.0, 2.0, components=(0, 1), k_B=1.0, row_weight=np.ones(n),
-                                ndf=2 * n)):
+               NoseHooverChain(1.0, 2.0, components=(0, 1), k_B=1.0, weights=np.ones(n),
+                               ndf=2 * n)):
         sim = Simulation(ParticleSystem(x0, 1.0, 1.0, spacing=1.0), None, _Springs(x0, k))
         sim.state.v[...] = v0
         sim.integrator = VelocityVerlet(dt=0.02, thermostat=th)
@@ -183,7 +182,7 @@ def test_represented_chain_weights_the_kinetic_energy_and_is_the_chain_at_unit_w
     assert np.array_equal(ends[0], ends[1])
     # half B stands for 3 times its dofs: T = (2 K_A + 3 (2 K_B)) / ((n_A + 3 n_B) k_B)
     w = np.where(half, 1.0, 3.0)
-    th = RepresentedChain(1.0, 2.0, components=(0, 1), k_B=1.0, row_weight=w, ndf=n + 3 * n)
+    th = NoseHooverChain(1.0, 2.0, components=(0, 1), k_B=1.0, weights=w, ndf=n + 3 * n)
     sim = Simulation(ParticleSystem(x0, 1.0, 1.0, spacing=1.0), None, _Springs(x0, k))
     sim.state.v[...] = v0
     sim.integrator = VelocityVerlet(dt=0.02, thermostat=th)

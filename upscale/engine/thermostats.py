@@ -216,6 +216,11 @@ class NoseHooverChain:
         ``N_f`` (default: the free dofs it acts on).
     k_B : float, optional
         Boltzmann constant in the scene's units (default SI, J/K).
+    weights : (N,) array, optional
+        Per-row weight w_i of its kinetic energy in eq. (1): T = sum_i w_i m_i v_i^2 /
+        (N_f k_B). A row standing for several atoms (a coarse particle, a coarse tube's
+        rows) counts as they would, so with ``ndf`` the number of dofs represented the
+        chain reads the temperature of the represented atoms (default: 1 everywhere).
 
     One half step (h = dt/2, at the start and at the end of the step), LAMMPS's
     ``nhc_temp_integrate`` with one sub-step: ``G_1 = (2K - N_f k_B T) / Q_1``,
@@ -228,7 +233,7 @@ class NoseHooverChain:
 
     def __init__(self, temperature: float, tau: float, *, region=None, chain: int = 3,
                  components=(0, 1, 2), fields=(), field_region=None,
-                 ndf: int | None = None, k_B: float | None = None):
+                 ndf: int | None = None, k_B: float | None = None, weights=None):
         from upscale.constants import K_B_SI
 
         _check(temperature, "tau", tau)
@@ -242,27 +247,31 @@ class NoseHooverChain:
             raise ValueError(f"ndf={ndf!r}; valid: a positive number of degrees of freedom")
         self.field_region, self._ndf = field_region, ndf
         self.k_B = K_B_SI if k_B is None else float(k_B)
+        self.weights = None if weights is None else np.asarray(weights, dtype=float)
         self.eta = np.zeros(self.M)
         self.p = np.zeros(self.M)   # thermostat velocities d eta / dt
 
     def prepare(self, sim) -> None:
         _prepare_dofs(self, sim)
+        w = self.weights
+        if w is not None:  # eq. (1) weighted: the weights folded into the masses it sums
+            if w.shape != (sim.system.n,) or not np.all(np.isfinite(w) & (w > 0)):
+                raise ValueError(f"weights of shape {w.shape}; valid: ({sim.system.n},) "
+                                 "positive numbers")
+            self.m_idx = self.m_idx * np.repeat(w, 3)[self.idx]
+            self.finert = {f: a * w[self.frows[f]][:, None] for f, a in self.finert.items()}
         kT = self.k_B * self.T
         self.Q = np.full(self.M, kT * self.tau ** 2)
         self.Q[0] *= self.nf
 
-    def _K2(self, sim) -> float:
-        """2 x the kinetic energy of the thermostatted rates."""
-        return _twice_kinetic(self, sim)
-
     def temperature(self, sim) -> float:
         """Eq. (1) on the thermostat's dofs (K)."""
-        return self._K2(sim) / (self.nf * self.k_B)
+        return _twice_kinetic(self, sim) / (self.nf * self.k_B)
 
     def _half(self, sim, h) -> None:
         """Mutates the chain and the thermostatted rates: a chain step of h = dt/2."""
         kT = self.k_B * self.T
-        K2 = self._K2(sim)
+        K2 = _twice_kinetic(self, sim)
         M, p, Q = self.M, self.p, self.Q
         h2, h4 = 0.5 * h, 0.25 * h
 
@@ -303,9 +312,12 @@ class NoseHooverChain:
             self.p[...] = d["p"]
 
     def describe(self) -> dict:
-        return {"thermostat": self.name, "temperature_K": self.T, "tau": self.tau,
-                "chain": self.M, "components": self.components.tolist(),
-                "fields": list(self.field_names)}
+        out = {"thermostat": self.name, "temperature_K": self.T, "tau": self.tau,
+               "chain": self.M, "components": self.components.tolist(),
+               "fields": list(self.field_names)}
+        if self.weights is not None:
+            out["weights"] = sorted({float(x) for x in self.weights})
+        return out
 
 
 def _components(components) -> np.ndarray:

@@ -32,41 +32,7 @@ import numpy as np
 from upscale.constants import K_B_EV
 from upscale.engine.thermostats import NoseHooverChain
 
-__all__ = ["RepresentedChain", "represented_weights", "chain"]
-
-
-class RepresentedChain(NoseHooverChain):
-    """:class:`~upscale.engine.thermostats.NoseHooverChain` on eq. (2) (module docstring).
-
-    ``row_weight`` (n,): s_k of each row's tube (eq. 1); ``ndf``: N_f = sum_k n_k^rep. The
-    other parameters are the chain's."""
-
-    name = "nose-hoover-chain (represented atoms)"
-
-    def __init__(self, temperature: float, tau: float, *, row_weight, ndf: int, **kw):
-        super().__init__(temperature, tau, ndf=ndf, **kw)
-        self.row_weight = np.asarray(row_weight, dtype=float)
-
-    def prepare(self, sim) -> None:
-        super().prepare(sim)
-        w = self.row_weight
-        if w.shape != (sim.system.n,):
-            raise ValueError(f"row_weight of shape {w.shape}; valid: ({sim.system.n},)")
-        self.wm_idx = np.repeat(w, 3)[self.idx] * self.m_idx
-        self.wm_field = {f: w[self.frows[f]][:, None] * self.finert[f]
-                         for f in self.field_names}
-
-    def _K2(self, sim) -> float:
-        """2 sum_k s_k K_k over the thermostatted rates (eq. 2's numerator)."""
-        v = sim.state.v.reshape(-1)[self.idx]
-        K2 = float(np.dot(self.wm_idx * v, v))
-        for f, wm in self.wm_field.items():
-            fv = sim.state.field_v[f][self.frows[f]]
-            K2 += float(np.sum(wm * fv * fv))
-        return K2
-
-    def describe(self) -> dict:
-        return dict(super().describe(), weights=sorted({float(x) for x in self.row_weight}))
+__all__ = ["represented_weights", "chain"]
 
 
 def represented_weights(scene, state, free, free_shifts, planes):
@@ -94,9 +60,11 @@ def represented_weights(scene, state, free, free_shifts, planes):
 
 def chain(scene, state, free, free_shifts, planes, temperature, tau_fs, chain_length,
           fields, field_region):
-    """The bundle's :class:`RepresentedChain` on the free rows' x, y velocities and the
-    coarse tubes' free shifts (``fields`` on ``field_region``), damping ``tau_fs``."""
+    """The bundle's chain on eq. (2): a :class:`~upscale.engine.thermostats.NoseHooverChain`
+    with the row weights of eq. (1) and N_f = sum_k n_k^rep, on the free rows' x, y
+    velocities and the coarse tubes' free shifts (``fields`` on ``field_region``), damping
+    ``tau_fs``."""
     w, ndf, _ = represented_weights(scene, state, free, free_shifts, planes)
-    return RepresentedChain(temperature, tau_fs, region=free, chain=chain_length,
-                            components=(0, 1), fields=fields, field_region=field_region,
-                            row_weight=w, ndf=ndf, k_B=K_B_EV)
+    return NoseHooverChain(temperature, tau_fs, region=free, chain=chain_length,
+                           components=(0, 1), fields=fields, field_region=field_region,
+                           weights=w, ndf=ndf, k_B=K_B_EV)
