@@ -442,9 +442,7 @@ def reduction(sim):
 def external_vector(sim) -> np.ndarray:
     """External loads (``Force``/``BodyForce`` conditions) as a generalised vector."""
     lay = dof_layout(sim)
-    F = np.zeros((sim.system.n, 3))
-    for c in sim._loads:
-        c.add(F, sim.system, sim.state.t)
+    F = sim.external_forces()
     out = np.zeros((sim.system.n, len(lay)))
     for a, (kind, c) in enumerate(lay):
         if kind == "y":
